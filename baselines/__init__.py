@@ -1,0 +1,1 @@
+"""Odometers other than odolab's own, written only against :mod:`odolab.api`."""
