@@ -1,0 +1,116 @@
+"""The action prior: the mean true motion of each action over the train split.
+
+This is the paper's ``sys_error`` reference (always predict the training mean of each action) and
+the runner's fallback when an odometer fails. The shipped table ``odolab/data/action_prior.json``
+was made by::
+
+    python -m odolab.action_prior --episodes 400 --out odolab/data/action_prior.json
+
+Fitting needs only the motion (no images), so 400 episodes take a few seconds.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from importlib.resources import files
+from pathlib import Path
+
+import numpy as np
+
+from odolab.geometry import invert, transform_to_planar
+from odolab.odometer import MOTION_ACTIONS, Action
+
+_SHIPPED = "action_prior.json"
+
+
+@dataclass(frozen=True)
+class ActionPrior:
+    """Mean planar motion ``(dx m, dz m, dyaw rad)`` per motion action, and how it was obtained."""
+
+    means: dict[Action, tuple[float, float, float]]
+    samples: dict[Action, int]
+    source: str = ""
+
+    def motion(self, action: Action | None) -> np.ndarray:
+        """Mean (dx, dz, dyaw) of ``action``; zero motion for None or STOP."""
+        if action is None or action not in self.means:
+            return np.zeros(3)
+        return np.array(self.means[action])
+
+    def to_json(self) -> dict:
+        return {"source": self.source,
+                "means": {a.label: list(self.means[a]) for a in self.means},
+                "samples": {a.label: self.samples[a] for a in self.samples}}
+
+    @classmethod
+    def from_json(cls, data: dict, origin: str = "action prior") -> "ActionPrior":
+        """Parse :meth:`to_json` output; ``origin`` names the file in errors."""
+        try:
+            means = {Action[k.upper()]: tuple(float(x) for x in v) for k, v in data["means"].items()}
+            samples = {Action[k.upper()]: int(v) for k, v in data["samples"].items()}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{origin}: expected 'means' and 'samples' per action ({exc})") from None
+        if any(len(v) != 3 for v in means.values()):
+            raise ValueError(f"{origin}: each mean must be [dx, dz, dyaw]")
+        return cls(means, samples, str(data.get("source", "")))
+
+    @classmethod
+    def shipped(cls) -> "ActionPrior":
+        """The table fitted on the train split and shipped with odolab."""
+        text = files("odolab.data").joinpath(_SHIPPED).read_text()
+        return cls.from_json(json.loads(text), origin=_SHIPPED)
+
+
+def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
+                     noise=None) -> ActionPrior:
+    """Average the true per-step motion of each action over ``n_episodes`` train rollouts."""
+    from odolab.episodes import EpisodeSpec, NoiseConfig, rollout
+    from odolab.sim.camera import CameraSpec
+
+    noise = noise or NoiseConfig()
+    sums = {a: np.zeros(3) for a in MOTION_ACTIONS}
+    counts = {a: 0 for a in MOTION_ACTIONS}
+    for i in range(n_episodes):
+        r = rollout(EpisodeSpec(split="train", index=i, seed=seed, max_steps=max_steps, noise=noise))
+        poses = r.camera_poses(CameraSpec().mount_height)
+        rel = invert(poses[:-1]) @ poses[1:]
+        for a, T in zip(r.actions, rel):
+            sums[a] += transform_to_planar(T)
+            counts[a] += 1
+    means = {a: tuple(float(x) for x in sums[a] / max(counts[a], 1)) for a in MOTION_ACTIONS}
+    src = f"fit_action_prior(n_episodes={n_episodes}, max_steps={max_steps}, seed={seed}, noise={noise})"
+    return ActionPrior(means, counts, src)
+
+
+def _main(argv=None) -> int:
+    from odolab.cli import UsageError
+
+    ap = argparse.ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
+    ap.add_argument("--episodes", type=int, default=400)
+    ap.add_argument("--max-steps", type=int, default=500)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=None, help="write JSON here (atomic); default: print")
+    args = ap.parse_args(argv)
+    if args.episodes < 1 or args.max_steps < 1:
+        raise UsageError("--episodes and --max-steps must be positive")
+    prior = fit_action_prior(args.episodes, args.max_steps, args.seed)
+    text = json.dumps(prior.to_json(), indent=2) + "\n"
+    if args.out is None:
+        print(text, end="")
+        return 0
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=args.out.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    from odolab.cli import run_cli
+
+    raise SystemExit(run_cli(_main))

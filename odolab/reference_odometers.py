@@ -1,0 +1,34 @@
+"""Two reference odometers that bracket every real one.
+
+* ``ground-truth``: the true motion from the frames' ``gt_pose`` (zero error; an oracle).
+* ``action-prior``: the mean motion of the action taken, fitted on the train split (the paper's
+  ``sys_error`` row); identity when no action is known (real data).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from odolab.action_prior import ActionPrior
+from odolab.geometry import invert
+from odolab.odometer import Action, Estimate, Frame, Odometer
+
+
+class GroundTruthOdometer(Odometer):
+    """True ``T_prev_cur`` from ``Frame.gt_pose``; needs ground truth."""
+
+    oracle = True
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        if prev.gt_pose is None or cur.gt_pose is None:
+            raise ValueError("ground-truth odometer: frames carry no gt_pose")
+        return Estimate(invert(prev.gt_pose) @ cur.gt_pose)
+
+
+class ActionPriorOdometer(Odometer):
+    """Predicts the train-split mean motion of the action (see :mod:`odolab.action_prior`)."""
+
+    def __init__(self, prior: ActionPrior | None = None) -> None:
+        self.prior = prior or ActionPrior.shipped()
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        return Estimate.from_planar(*self.prior.motion(action))

@@ -1,0 +1,150 @@
+"""Sensor and actuation noise of the Habitat PointNav Challenge 2020 (facts.md section 2).
+
+* RGB: ``out = clip(img / 255 + N(0, 1) * sigma * m, 0, 1) * 255`` per channel (sigma = 0.1).
+* Depth: the Redwood model (Choi et al., CVPR 2015) as Habitat applies it, multiplier ``m``:
+  pixel jitter N(0, (0.25 m)^2) px, read on the 2x-downsampled grid, d >= 10 m -> 0, then
+  disparity quantisation ``denom = round((35.130 / d + N(0, 1) * 0.027778 * m) * 8)``,
+  ``out = 35.130 * 8 / denom`` (0 if denom <= 0). The optional distortion table is not used.
+* Actuation: PyRobot's LoCoBot model, each component an independent normal truncated at
+  +-3 sigma, scaled by the multiplier (Proportional controller, multiplier 0.5 in the challenge).
+
+All per-pixel normal draws come from :class:`GaussianTable`, a 16-bit inverse-CDF table (exact up to
+1/65536 in probability; tails beyond 4.17 sigma are clipped, a 3e-5 share), which is 10x cheaper
+than drawing float normals and keeps a noisy frame within a small factor of bare ray casting.
+A multiplier of 0 turns a noise source off exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import ndtri
+
+from odolab.odometer import Action
+
+FORWARD_STEP = 0.25  # m
+TURN_ANGLE = np.radians(30.0)  # rad
+
+
+class GaussianTable:
+    """Standard-normal samples by 16-bit inverse-CDF lookup: ``draw(rng, shape)`` -> float32."""
+
+    def __init__(self) -> None:
+        self.table = ndtri((np.arange(65536) + 0.5) / 65536.0).astype(np.float32)
+
+    def draw(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        return self.table[rng.integers(0, 65536, size=shape, dtype=np.uint16)]
+
+
+@dataclass
+class RGBNoise:
+    """Additive Gaussian colour noise; ``sigma`` in [0, 1] intensity units, scaled by ``multiplier``."""
+
+    sigma: float = 0.1
+    multiplier: float = 1.0
+    gauss: GaussianTable = field(default_factory=GaussianTable, repr=False)
+
+    def apply(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Noisy copy of a (H, W, 3) uint8 image."""
+        if self.multiplier == 0:
+            return rgb.copy()
+        noise = self.gauss.draw(rng, rgb.shape) * np.float32(self.sigma * self.multiplier * 255.0)
+        return np.clip(rgb + noise, 0.0, 255.0).astype(np.uint8)
+
+
+@dataclass
+class RedwoodDepthNoise:
+    """Redwood depth noise (Habitat's implementation, without the distortion table)."""
+
+    multiplier: float = 1.0
+    max_depth: float = 10.0
+    gauss: GaussianTable = field(default_factory=GaussianTable, repr=False)
+
+    def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Noisy copy of a (H, W) float32 depth image in metres (0 = no reading)."""
+        if self.multiplier == 0:
+            return np.where(depth < self.max_depth, depth, 0.0).astype(np.float32)
+        H, W = depth.shape
+        m = np.float32(self.multiplier)
+        n = self.gauss.draw(rng, (3, H, W))
+        # 1. jitter pixel coordinates, clip to the image, round half up (Habitat: int(clip + 0.5))
+        ys = (np.clip(np.arange(H, dtype=np.float32)[:, None] + n[0] * (0.25 * m), 0, H - 1) + 0.5).astype(np.intp)
+        xs = (np.clip(np.arange(W, dtype=np.float32)[None, :] + n[1] * (0.25 * m), 0, W - 1) + 0.5).astype(np.intp)
+        # 2. read on the 2x-downsampled grid
+        d = depth[ys & ~1, xs & ~1]
+        valid = (d > 0) & (d < self.max_depth)
+        # 4. disparity quantisation (step 3, the distortion table, is skipped)
+        with np.errstate(divide="ignore"):
+            denom = np.round((35.130 / np.where(valid, d, 1.0) + n[2] * (0.027778 * m)) * 8.0)
+            out = np.where(valid & (denom > 0), 35.130 * 8.0 / denom, 0.0)
+        return out.astype(np.float32)
+
+
+# (mean, VARIANCE) per component, metres and radians (facts.md section 2; PyRobot LoCoBot).
+_ACTUATION = {
+    "ilqr": {"forward": ((0.014, 0.009, 0.008), (0.006, 0.005, 0.004)),
+             "turn": ((0.003, 0.003, 0.023), (0.002, 0.003, 0.012))},
+    "proportional": {"forward": ((0.017, 0.042, 0.031), (0.007, 0.023, 0.026)),
+                     "turn": ((0.001, 0.005, 0.043), (0.001, 0.004, 0.017))},
+    "movebase": {"forward": ((0.074, 0.036, 0.189), (0.019, 0.033, 0.038)),
+                 "turn": ((0.002, 0.003, 0.219), (0.0, 0.002, 0.019))},
+}
+CONTROLLERS = tuple(_ACTUATION)
+
+
+def truncated_normal(rng: np.random.Generator, mean: np.ndarray, std: np.ndarray, k: float = 3.0) -> np.ndarray:
+    """Independent normals N(mean, std^2) truncated to mean +- k std (rejection sampling)."""
+    mean, std = np.asarray(mean, float), np.asarray(std, float)
+    out = np.empty_like(mean)
+    todo = np.ones(mean.shape, dtype=bool)
+    while todo.any():
+        z = rng.standard_normal(mean.shape)
+        take = todo & (np.abs(z) <= k)
+        out[take] = (mean + std * z)[take]
+        todo &= ~take
+    return out
+
+
+@dataclass(frozen=True)
+class Motion:
+    """An executed motion in the agent's frame before the step: ``forward`` and ``right`` (m), then
+    a rotation ``yaw`` (rad, + = left)."""
+
+    forward: float
+    right: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class ActuationNoise:
+    """PyRobot LoCoBot actuation noise for a controller, scaled by ``multiplier`` (0 = exact)."""
+
+    controller: str = "proportional"
+    multiplier: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.controller not in _ACTUATION:
+            raise ValueError(f"unknown controller {self.controller!r}; expected one of {', '.join(CONTROLLERS)}")
+
+    def sample(self, action: Action, rng: np.random.Generator) -> Motion:
+        """The motion actually executed for ``action`` (a fresh noise draw).
+
+        Translation: (amount + n_along) forward and n_lateral to the right; rotation: the commanded
+        angle plus n_yaw times the command's sign (so turns overshoot on average; a forward step
+        counts as positive). Along-track forward noise is truncated below at -0.95 * 0.25 m and the
+        turn yaw noise below at -0.95 * 30 deg.
+        """
+        if action == Action.STOP:
+            return Motion(0.0, 0.0, 0.0)
+        amount = FORWARD_STEP if action == Action.MOVE_FORWARD else 0.0
+        angle = {Action.TURN_LEFT: TURN_ANGLE, Action.TURN_RIGHT: -TURN_ANGLE}.get(action, 0.0)
+        kind = "forward" if action == Action.MOVE_FORWARD else "turn"
+        mean, var = _ACTUATION[self.controller][kind]
+        along, lateral, yaw = self.multiplier * truncated_normal(rng, np.array(mean), np.sqrt(var))
+        if action == Action.MOVE_FORWARD:
+            along = max(along, -0.95 * FORWARD_STEP)
+        else:
+            yaw = max(yaw, -0.95 * TURN_ANGLE)
+        sign_t = np.sign(amount + 1e-8)
+        sign_r = np.sign(angle + 1e-8)
+        return Motion(float((amount + along) * sign_t), float(lateral), float(angle + yaw * sign_r))
