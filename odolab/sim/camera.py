@@ -44,9 +44,14 @@ class Renderer:
 
         self.camera = camera
         self._tiles = make_tiles() if tiles is None else tiles
-        self._tile_mask = self._tiles.shape[-1] - 1
-        if self._tiles.shape[-1] & self._tile_mask:
+        size = self._tiles.shape[-1]
+        if size & (size - 1):
             raise ValueError("texture tiles must have a power-of-two size")
+        self._tile_mask = size - 1
+        self._tile_shift = size.bit_length() - 1
+        self._tile_shift2 = 2 * self._tile_shift
+        # brightness factor 0.25 + 0.75 * pattern, flattened for a single gather per pixel
+        self._tiles_flat = (0.25 + 0.75 * self._tiles).astype(np.float32).reshape(-1)
         self._rc = o3d.t.geometry.RaycastingScene(nthreads=nthreads)
         self._rc.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
 
@@ -70,12 +75,24 @@ class Renderer:
         ).reshape(-1, 3).astype(np.float32)
         self._rays = np.empty((self._dirs_cam.shape[0], 6), dtype=np.float32)
 
-    def cast(self, T_world_cam: np.ndarray) -> dict:
-        """Bare ray casting at a pose: Open3D's result dict (the bench's reference cost)."""
+    @property
+    def raycasting_scene(self):
+        """The underlying ``open3d.t.geometry.RaycastingScene``."""
+        return self._rc
+
+    def rays(self, T_world_cam: np.ndarray) -> np.ndarray:
+        """(H * W, 6) float32 rays (origin, direction with camera-z = 1) in world coordinates.
+
+        The returned array is reused by the next call; copy it to keep it.
+        """
         R = T_world_cam[:3, :3].astype(np.float32)
         self._rays[:, :3] = T_world_cam[:3, 3]
         np.matmul(self._dirs_cam, R.T, out=self._rays[:, 3:])
-        return self._rc.cast_rays(self._rays)
+        return self._rays
+
+    def cast(self, T_world_cam: np.ndarray) -> dict:
+        """Ray casting at a pose: Open3D's result dict."""
+        return self._rc.cast_rays(self.rays(T_world_cam))
 
     def render(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Clean ``rgb`` (H, W, 3) uint8 and ``depth`` (H, W) float32 metres (0 = no reading).
@@ -83,23 +100,24 @@ class Renderer:
         ``T_world_cam``: 4x4 camera pose (OpenCV camera axes, world Z up).
         """
         cam = self.camera
-        hit = self.cast(T_world_cam)
+        rays = self.rays(T_world_cam)
+        hit = self._rc.cast_rays(rays)
         t = hit["t_hit"].numpy()
-        tri = hit["primitive_ids"].numpy()
         ok = np.isfinite(t)
-        tri = np.where(ok, tri, 0).astype(np.intp)
-        t = np.where(ok, t, 0.0).astype(np.float32)
-
-        pts = self._rays[:, :3] + t[:, None] * self._rays[:, 3:]
-        n = len(t)
-        flat = pts.reshape(-1)
-        base = np.arange(n) * 3
-        pu = flat[base + self._tri_u[tri]]
-        pv = flat[base + self._tri_v[tri]]
-        iu = np.floor(pu * (1.0 / TEXEL_SIZE)).astype(np.intp) & self._tile_mask
-        iv = np.floor(pv * (1.0 / TEXEL_SIZE)).astype(np.intp) & self._tile_mask
-        tex = self._tiles[self._tri_tile[tri], iv, iu]
-        rgb = self._tri_rgb[tri] * (0.25 + 0.75 * tex)[:, None]
+        t[~ok] = 0.0
+        tri = hit["primitive_ids"].numpy().astype(np.intp)
+        tri[~ok] = 0
+        # World coordinates of the hit along the triangle's two texture axes only.
+        flat = rays.reshape(-1)
+        base = np.arange(0, flat.size, 6)
+        u_ax, v_ax = self._tri_u[tri], self._tri_v[tri]
+        pu = flat[base + u_ax] + t * flat[base + 3 + u_ax]
+        pv = flat[base + v_ax] + t * flat[base + 3 + v_ax]
+        iu = (pu * (1.0 / TEXEL_SIZE)).astype(np.intp)  # trunc; the floor's edge is invisible
+        iv = (pv * (1.0 / TEXEL_SIZE)).astype(np.intp)
+        tex = self._tiles_flat[(self._tri_tile[tri] << self._tile_shift2) + ((iv & self._tile_mask) << self._tile_shift)
+                               + (iu & self._tile_mask)]
+        rgb = self._tri_rgb[tri] * tex[:, None]
         rgb[~ok] = 0.0
         depth = np.where(ok & (t >= cam.min_depth) & (t < cam.max_depth), t, 0.0).astype(np.float32)
         return rgb.astype(np.uint8).reshape(cam.height, cam.width, 3), depth.reshape(cam.height, cam.width)

@@ -1,0 +1,137 @@
+"""``python -m odolab.bench``: speed of the simulator, the odometers and the evaluator.
+
+Simulator figures are ratios to the physical limit measured in the same run: bare Open3D
+``cast_rays`` on precomputed rays of the same scene and poses (facts.md section 7). A noisy,
+textured frame should cost at most 2x that (aim 1.5x).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from odolab.cli import UsageError, run_cli
+
+
+def _per_call(fn, items, repeats: int = 3) -> float:
+    """Best-of-``repeats`` mean seconds per call of ``fn`` over ``items``."""
+    fn(items[0])
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for it in items:
+            fn(it)
+        best = min(best, (time.perf_counter() - t0) / len(items))
+    return best
+
+
+def bench_simulator(n_scenes: int = 3, n_poses: int = 40) -> list[dict]:
+    """Per test scene: bare cast_rays, clean render and noisy frame, ms per frame and ratio."""
+    from odolab.geometry import camera_pose_from_agent
+    from odolab.sim.camera import Renderer
+    from odolab.sim.noise import RedwoodDepthNoise, RGBNoise
+    from odolab.sim.scenes import generate_scene, scene_seed
+
+    rows = []
+    rng = np.random.default_rng(0)
+    for k in range(n_scenes):
+        scene = generate_scene(scene_seed("test", k))
+        r = Renderer(scene)
+        cells = np.argwhere(scene.navigable)
+        poses = []
+        for i in rng.integers(len(cells), size=n_poses):
+            x, y = scene.cell_to_world(*cells[i])
+            poses.append(camera_pose_from_agent(float(x), float(y), float(rng.uniform(-np.pi, np.pi)), 0.88))
+        import open3d as o3d
+
+        tensors = [o3d.core.Tensor(r.rays(p).copy()) for p in poses]
+        bare = _per_call(r.raycasting_scene.cast_rays, tensors)
+        rgb_noise, depth_noise = RGBNoise(), RedwoodDepthNoise()
+        noise_rng = np.random.default_rng(1)
+
+        def noisy(p):
+            c, d = r.render(p)
+            return rgb_noise.apply(c, noise_rng), depth_noise.apply(d, noise_rng)
+
+        clean = _per_call(r.render, poses)
+        full = _per_call(noisy, poses)
+        rows.append({"scene": scene.seed, "triangles": int(len(scene.triangles)),
+                     "cast_rays_ms": bare * 1e3, "clean_frame_ms": clean * 1e3, "noisy_frame_ms": full * 1e3,
+                     "noisy_fps": 1.0 / full, "ratio_to_cast_rays": full / bare})
+    return rows
+
+
+def bench_odometers(names: list[str], episodes: int = 2, max_steps: int = 40) -> list[dict]:
+    """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192)."""
+    from odolab import runner, summary
+    from odolab.episodes import EpisodeSpec, load_episodes
+    from odolab.odometer import load_odometer
+
+    eps = load_episodes([EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps) for i in range(episodes)],
+                        parallel=False, progress=False)
+    out = []
+    for name in names:
+        res = runner.run({name: load_odometer(name)}, eps, progress=False)
+        row = summary.summarize(res)[0]
+        out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
+    return out
+
+
+def _table(rows: list[dict]) -> str:
+    if not rows:
+        return ""
+    keys = list(rows[0])
+    fmt = lambda v: f"{v:.2f}" if isinstance(v, float) else str(v)  # noqa: E731
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(fmt(r[k]) for k in keys) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.odometer import available_odometers
+
+    ap = argparse.ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=["simulator", "odometers", "evaluate"], action="append",
+                    help="run only these parts (repeatable; default all)")
+    ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON here")
+    args = ap.parse_args(argv)
+    parts = args.only or ["simulator", "odometers", "evaluate"]
+    names = available_odometers() if args.odometers is None else args.odometers.split(",")
+    unknown = set(names) - set(available_odometers())
+    if unknown:
+        raise UsageError(f"unknown odometer {sorted(unknown)[0]!r}; available: {', '.join(available_odometers())}")
+
+    import os
+
+    report: dict = {"machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+                                "python": platform.python_version()}}
+    print(f"machine: {report['machine']}")
+    if "simulator" in parts:
+        report["simulator"] = bench_simulator()
+        print("\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays)\n")
+        print(_table(report["simulator"]))
+    if "odometers" in parts:
+        report["odometers"] = bench_odometers(names)
+        print("\n## Odometers (steps/s of step() on test-split episodes, 341x192)\n")
+        print(_table(report["odometers"]))
+    if "evaluate" in parts:
+        from odolab.benchmarks.evaluate_speed import run as bench_evaluate
+
+        report["evaluate"] = bench_evaluate()
+        print("\n## Trajectory evaluation on KITTI 00 (wall seconds per command)\n")
+        print(_table([report["evaluate"]]))
+    if args.json:
+        from odolab.io._text import write_text_atomic
+
+        write_text_atomic(args.json, json.dumps(report, indent=2, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_cli(main))

@@ -1,0 +1,1 @@
+"""Timing benchmarks of odolab commands against reference tools."""

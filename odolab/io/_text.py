@@ -1,0 +1,94 @@
+"""Helpers shared by the text-table trajectory formats: strict reading and atomic writing."""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+
+import numpy as np
+
+from odolab.io.errors import FileFormatError
+
+
+def read_lines(path: str | os.PathLike) -> list[str]:
+    """All lines of a UTF-8 text file; OS and decoding problems become :class:`FileFormatError`."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read().splitlines()
+    except FileNotFoundError:
+        raise FileFormatError(path, None, "no such file") from None
+    except IsADirectoryError:
+        raise FileFormatError(path, None, "is a directory, not a file") from None
+    except UnicodeDecodeError as exc:
+        raise FileFormatError(path, None, f"not a text file ({exc.reason})") from None
+    except OSError as exc:
+        raise FileFormatError(path, None, (exc.strerror or str(exc)).lower()) from None
+
+
+def read_numeric_rows(path: str | os.PathLike, n_cols: int, layout: str) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of exactly ``n_cols`` finite numbers, skipping blank lines and ``#`` comments.
+
+    Returns ``(values (N, n_cols) float64, line_numbers (N,) int, 1-based)``. ``layout`` names the
+    expected columns in error messages (e.g. ``"t tx ty tz qx qy qz qw"``).
+    """
+    rows: list[list[float]] = []
+    line_nos: list[int] = []
+    for no, line in enumerate(read_lines(path), start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        fields = text.split()
+        if len(fields) != n_cols:
+            raise FileFormatError(
+                path, no, f"expected {n_cols} columns, got {len(fields)} (layout: {layout})"
+            )
+        try:
+            values = [float(v) for v in fields]
+        except ValueError:
+            bad = next(i for i, v in enumerate(fields) if not _is_number(v))
+            raise FileFormatError(
+                path, no, f"column {bad + 1}: {fields[bad]!r} is not a number"
+            ) from None
+        for i, v in enumerate(values):
+            if not math.isfinite(v):
+                raise FileFormatError(path, no, f"column {i + 1}: value {fields[i]!r} is not finite")
+        rows.append(values)
+        line_nos.append(no)
+    if not rows:
+        raise FileFormatError(path, None, "no poses (the file is empty or only has comments)")
+    return np.array(rows, dtype=np.float64), np.array(line_nos, dtype=np.int64)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same directory and ``os.replace``.
+
+    Readers never see a half-written file; on failure the previous file (if any) is untouched.
+    """
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def format_rows(values: np.ndarray) -> str:
+    """Space-separated rows with the shortest exact (round-trip) decimal form of each number."""
+    return "".join(" ".join(repr(float(v)) for v in row) + "\n" for row in values)

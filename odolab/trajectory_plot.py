@@ -1,0 +1,89 @@
+"""Figures of trajectory evaluations (matplotlib, Agg backend; imported only when plotting)."""
+from __future__ import annotations
+
+import os
+import tempfile
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from odolab.evaluate import Evaluation
+
+__all__ = ["plot_evaluations", "top_down_axes"]
+
+_AXIS_NAMES = ("x", "y", "z")
+
+
+def top_down_axes(positions: np.ndarray) -> tuple[int, int]:
+    """The two coordinate axes of largest spread (the flattest one is dropped), in index order.
+
+    KITTI camera-0 frames (y down) give (x, z); TUM motion-capture frames (z up) usually (x, y).
+    """
+    spread = np.ptp(np.asarray(positions, dtype=np.float64), axis=0)
+    a, b = sorted(int(i) for i in np.argsort(spread, kind="stable")[1:])
+    return a, b
+
+
+def plot_evaluations(path: str | os.PathLike, rows: Sequence[tuple[str, "Evaluation"]]) -> None:
+    """Write one figure for ``(label, evaluation)`` rows sharing a ground truth.
+
+    Panels: aligned estimates over the ground truth, top-down (m); position error (m) over time
+    (s) or frame index; KITTI translational drift (%) per segment length, or, when no segment
+    fits (short trajectories), the RPE translation (m) over time. The image format follows the
+    file extension; the file is replaced atomically.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_traj, ax_ate, ax_rel) = plt.subplots(1, 3, figsize=(17, 5.2), constrained_layout=True)
+    gt_pos = rows[0][1].gt_poses[:, :3, 3]
+    a, b = top_down_axes(gt_pos)
+    ax_traj.plot(gt_pos[:, a], gt_pos[:, b], "k--", lw=1.2, label="ground truth")
+    has_segments = any(ev.kitti.n_segments for _, ev in rows)
+    xlabel = "time [s]" if rows[0][1].times is not None else "frame"
+    for name, ev in rows:
+        pos = ev.est_poses[:, :3, 3]
+        x = ev.times if ev.times is not None else np.arange(len(pos))
+        ax_traj.plot(pos[:, a], pos[:, b], lw=1.0, label=f"{name} (align {ev.ate.align})")
+        ax_ate.plot(x, ev.ate.errors, lw=0.8, label=f"{name}: RMSE {ev.ate.rmse:.4f} m")
+        if has_segments:
+            per = ev.kitti.per_length
+            ax_rel.plot([s.length for s in per], [s.t_rel for s in per], "o-",
+                        label=f"{name}: t_rel {ev.kitti.t_rel:.3f} %")
+        else:
+            ax_rel.plot(x[ev.rpe.pairs[:, 1]], ev.rpe.trans_errors, lw=0.8,
+                        label=f"{name}: RMSE {ev.rpe.trans.rmse:.4f} m")
+    ax_traj.set(title="Trajectories, top-down", xlabel=f"{_AXIS_NAMES[a]} [m]", ylabel=f"{_AXIS_NAMES[b]} [m]")
+    ax_traj.set_aspect("equal", adjustable="datalim")
+    ax_ate.set(title="Absolute position error (ATE)", xlabel=xlabel, ylabel="error [m]")
+    if has_segments:
+        ax_rel.set(title="KITTI translational drift per segment length",
+                   xlabel="segment length [m]", ylabel="t_rel [%]")
+    else:
+        ev0 = rows[0][1]
+        unit = "frames" if ev0.rpe.delta_unit == "f" else "m"
+        ax_rel.set(title=f"RPE translation (delta {ev0.rpe.delta:g} {unit})", xlabel=xlabel, ylabel="error [m]")
+    for ax in (ax_traj, ax_ate, ax_rel):
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    _save_atomic(fig, path)
+    plt.close(fig)
+
+
+def _save_atomic(fig, path: str | os.PathLike) -> None:
+    """``fig.savefig`` into a temporary file beside ``path``, then ``os.replace``."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    ext = os.path.splitext(path)[1] or ".png"
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=ext)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
