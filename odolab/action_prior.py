@@ -10,7 +10,6 @@ Fitting needs only the motion (no images), so 400 episodes take a few seconds.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import tempfile
@@ -86,9 +85,9 @@ def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
 
 
 def _main(argv=None) -> int:
-    from odolab.cli import UsageError
+    from odolab.cli import ArgumentParser, UsageError
 
-    ap = argparse.ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
+    ap = ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
     ap.add_argument("--episodes", type=int, default=400)
     ap.add_argument("--max-steps", type=int, default=500)
     ap.add_argument("--seed", type=int, default=0)
@@ -113,4 +112,4 @@ def _main(argv=None) -> int:
 if __name__ == "__main__":
     from odolab.cli import run_cli
 
-    raise SystemExit(run_cli(_main))
+    raise SystemExit(run_cli(_main, "odolab.action_prior"))

@@ -6,7 +6,6 @@ textured frame should cost at most 2x that (aim 1.5x).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import time
@@ -15,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from odolab.cli import UsageError, run_cli
+from odolab.cli import ArgumentParser, UsageError, run_cli
 
 
 def _per_call(fn, items, repeats: int = 3) -> float:
@@ -95,7 +94,7 @@ def _table(rows: list[dict]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.odometer import available_odometers
 
-    ap = argparse.ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["simulator", "odometers", "evaluate"], action="append",
                     help="run only these parts (repeatable; default all)")
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
@@ -134,4 +133,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main))
+    raise SystemExit(run_cli(main, "odolab.bench"))

@@ -1,6 +1,7 @@
 """Shared command-line plumbing: user mistakes become one line on stderr and exit code 2."""
 from __future__ import annotations
 
+import argparse
 import sys
 from typing import Callable, Sequence
 
@@ -9,15 +10,19 @@ class UsageError(Exception):
     """A mistake in the user's input (bad argument, unreadable file...). The message names it."""
 
 
-def run_cli(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[str] | None = None) -> int:
-    """Run ``main(argv)``; turn :class:`UsageError` (and file errors) into ``error: ...`` + exit 2."""
-    prog = getattr(main, "__module__", "odolab")
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse whose mistakes raise :class:`UsageError` (so :func:`run_cli` prints one line)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UsageError(message)
+
+
+def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,
+            argv: Sequence[str] | None = None) -> int:
+    """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2."""
     try:
         return int(main(argv) or 0)
-    except UsageError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
+    except (UsageError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -12,7 +12,7 @@ import tempfile
 from pathlib import Path
 from typing import Sequence
 
-from odolab.cli import UsageError, run_cli
+from odolab.cli import ArgumentParser, UsageError, run_cli
 from odolab.odometer import available_odometers, load_odometer
 from odolab.sim.scenes import SPLITS
 
@@ -32,7 +32,7 @@ def _positive(name: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
     ap.add_argument("--odometers", default=None,
                     help="comma-separated names (default: all available: %(choices)s)".replace(
                         "%(choices)s", ", ".join(available_odometers())))
@@ -128,4 +128,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main))
+    raise SystemExit(run_cli(main, "odolab.compare"))

@@ -26,7 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from odolab import metrics
-from odolab.cli import UsageError, run_cli
+from odolab.cli import ArgumentParser, UsageError, run_cli
 from odolab.io.errors import FileFormatError
 from odolab.trajectory import Trajectory
 
@@ -192,15 +192,8 @@ def evaluation_to_dict(ev: Evaluation) -> dict:
 # ----------------------------------------------------------------------------- command line
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse whose mistakes become one :class:`UsageError` line (exit 2 via ``run_cli``)."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise UsageError(message)
-
-
 def _parser() -> argparse.ArgumentParser:
-    ap = _Parser(
+    ap = ArgumentParser(
         prog="python -m odolab.evaluate",
         description="ATE, RPE and KITTI drift of estimated trajectories against ground truth.",
     )
@@ -308,7 +301,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # Run the importable copy so that error lines read "odolab.evaluate: error: ..." not "__main__".
-    from odolab.evaluate import main as _main
-
-    sys.exit(run_cli(_main))
+    sys.exit(run_cli(main, "odolab.evaluate"))

@@ -104,8 +104,16 @@ def integrate(relative: np.ndarray, start: np.ndarray | None = None) -> np.ndarr
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray | float:
-    """Geodesic angle (radians, in [0, pi]) of rotation matrices (..., 3, 3)."""
+    """Geodesic angle (radians, in [0, pi]) of rotation matrices (..., 3, 3).
+
+    ``atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2)``: the same angle as ``acos((tr - 1) / 2)``
+    (KITTI devkit) and as the norm of the SO(3) log (evo), without ``acos``'s loss of precision
+    for small angles.
+    """
     R = np.asarray(R, dtype=np.float64)
-    tr = np.trace(R, axis1=-2, axis2=-1)
-    a = np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+    cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    axis = np.stack(
+        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1
+    )
+    a = np.arctan2(np.linalg.norm(axis, axis=-1) / 2.0, cos)
     return float(a) if np.ndim(a) == 0 else a

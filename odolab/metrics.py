@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from odolab.geometry import invert, wrap_angle
+from odolab.geometry import invert, rotation_angle, wrap_angle
 
 __all__ = [
     "per_step_abs_error",
@@ -70,7 +70,6 @@ __all__ = [
     "KITTI_LENGTHS",
     "umeyama_alignment",
     "apply_alignment",
-    "rotation_angle_precise",
     "path_lengths",
     "ate",
     "rpe",
@@ -213,21 +212,6 @@ def _paired(gt_poses: np.ndarray, est_poses: np.ndarray) -> tuple[np.ndarray, np
     return gt, est
 
 
-def rotation_angle_precise(R: np.ndarray) -> np.ndarray:
-    """Geodesic angle (rad, [0, pi]) of rotations (..., 3, 3), accurate near 0 and near pi.
-
-    ``atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2)``: the same angle as ``acos((tr - 1) / 2)``
-    (KITTI devkit) and as the norm of the SO(3) log (evo), without ``acos``'s loss of precision
-    for small angles.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    axis = np.stack(
-        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1
-    )
-    return np.arctan2(np.linalg.norm(axis, axis=-1) / 2.0, cos)
-
-
 def path_lengths(positions: np.ndarray) -> np.ndarray:
     """Accumulated path length (N,) m along positions (N, 3); the first entry is 0."""
     p = np.asarray(positions, dtype=np.float64)
@@ -291,7 +275,7 @@ def _relative_errors(
     dg = invert(gt[i]) @ gt[j]
     dp = invert(est[i]) @ est[j]
     E = invert(dg) @ dp
-    return np.linalg.norm(E[:, :3, 3], axis=1), rotation_angle_precise(E[:, :3, :3])
+    return np.linalg.norm(E[:, :3, 3], axis=1), rotation_angle(E[:, :3, :3])
 
 
 # ----------------------------------------------------------------------------- metrics
@@ -406,7 +390,7 @@ def kitti_relative_errors(
     dp = invert(est[first]) @ est[last]
     E = invert(dp) @ dg
     t_err = np.linalg.norm(E[:, :3, 3], axis=1) / seg_len
-    r_err = rotation_angle_precise(E[:, :3, :3]) / seg_len
+    r_err = rotation_angle(E[:, :3, :3]) / seg_len
 
     def summary(mask: np.ndarray) -> tuple[float, float]:
         if not mask.any():

@@ -152,6 +152,6 @@ def test_bad_options_are_one_line(capsys, tmp_path, args, words):
     gt.write_text(TUM_OK)
     from odolab.cli import run_cli
 
-    assert run_cli(main, [str(gt), str(gt), *args]) == 2
+    assert run_cli(main, "odolab.evaluate", [str(gt), str(gt), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0]
