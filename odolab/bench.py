@@ -126,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\n## Trajectory evaluation on KITTI 00 (wall seconds per command)\n")
         print(_table([report["evaluate"]]))
     if args.json:
-        from odolab.io._text import write_text_atomic
+        from odolab.io.atomic import write_text_atomic
 
         write_text_atomic(args.json, json.dumps(report, indent=2, default=float))
     return 0

@@ -6,7 +6,6 @@
 """
 from __future__ import annotations
 
-import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.geometry import invert

@@ -14,13 +14,12 @@ from __future__ import annotations
 import csv
 import html
 import io
-import os
 from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
 
-from odolab.io._text import write_text_atomic
+from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.kitti import write_kitti_poses
 from odolab.io.tum import write_tum_trajectory
 from odolab.runner import SequenceResult
@@ -55,12 +54,6 @@ def format_table(rows: list[Row], real_data: bool = False) -> str:
     return "\n".join([head, "-" * len(head), *lines])
 
 
-def _save_figure(fig, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    os.replace(tmp, path)
-
-
 def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
     """Grouped bars: per-step error (x 1e-2) of each odometer, one bar per action, one panel per axis."""
     import matplotlib
@@ -85,7 +78,7 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
         ax.grid(True, axis="y", alpha=0.3)
     axes[0].legend(title="action", fontsize=8)
     fig.tight_layout()
-    _save_figure(fig, path)
+    save_figure_atomic(fig, path)
     plt.close(fig)
 
 
@@ -123,7 +116,7 @@ def plot_trajectories(results: list[SequenceResult], path: Path, max_sequences: 
     for ax in list(axes.flat)[len(seqs):]:
         ax.axis("off")
     fig.tight_layout()
-    _save_figure(fig, path)
+    save_figure_atomic(fig, path)
     plt.close(fig)
 
 

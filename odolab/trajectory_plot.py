@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+
+from odolab.io.atomic import save_figure_atomic
 
 if TYPE_CHECKING:
     from odolab.evaluate import Evaluation
@@ -69,21 +70,5 @@ def plot_evaluations(path: str | os.PathLike, rows: Sequence[tuple[str, "Evaluat
     for ax in (ax_traj, ax_ate, ax_rel):
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-    _save_atomic(fig, path)
+    save_figure_atomic(fig, path)
     plt.close(fig)
-
-
-def _save_atomic(fig, path: str | os.PathLike) -> None:
-    """``fig.savefig`` into a temporary file beside ``path``, then ``os.replace``."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    ext = os.path.splitext(path)[1] or ".png"
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=ext)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

@@ -11,7 +11,8 @@ import os
 
 import numpy as np
 
-from odolab.io._text import format_rows, read_numeric_rows, write_text_atomic
+from odolab.io.atomic import write_text_atomic
+from odolab.io.textfiles import format_rows, read_numeric_rows
 from odolab.io.errors import FileFormatError
 from odolab.trajectory import Trajectory
 

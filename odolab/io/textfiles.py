@@ -1,9 +1,8 @@
-"""Helpers shared by the text-table trajectory formats: strict reading and atomic writing."""
+"""Helpers shared by the text-table trajectory formats: strict reading and number formatting."""
 from __future__ import annotations
 
 import math
 import os
-import tempfile
 
 import numpy as np
 
@@ -65,28 +64,6 @@ def _is_number(text: str) -> bool:
     except ValueError:
         return False
     return True
-
-
-def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same directory and ``os.replace``.
-
-    Readers never see a half-written file; on failure the previous file (if any) is untouched.
-    """
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 def format_rows(values: np.ndarray) -> str:
