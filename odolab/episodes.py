@@ -50,7 +50,7 @@ class EpisodeSpec:
     max_steps: int = 100
     min_goal_distance: float = 2.0  # m, geodesic
     max_goal_distance: float = 12.0  # m, geodesic
-    wall_penalty: float = 0.7  # path cost near walls; 0.7 gives ~9% colliding steps (paper: 11%)
+    wall_penalty: float = 0.0  # > 0 keeps paths off walls (see planner.geodesic_distance)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     camera: CameraSpec = field(default_factory=CameraSpec)
 
@@ -117,14 +117,12 @@ def rollout(spec: EpisodeSpec) -> Rollout:
     state = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
     noise = ActuationNoise(spec.noise.controller, spec.noise.actuation)
     states, actions, collisions = [state], [], []
-    collided = reached = False
+    reached = False
     for _ in range(spec.max_steps):
         action = follower.next_action(state)
         if action == Action.STOP:
             reached = True
             break
-        if collided and action == Action.MOVE_FORWARD:  # blocked: turn away before trying again
-            action = Action.TURN_LEFT if rng.random() < 0.5 else Action.TURN_RIGHT
         state, collided = step_agent(scene, state, action, noise, act_rng)
         states.append(state)
         actions.append(action)

@@ -1,0 +1,222 @@
+"""Real RGB-D recordings in the TUM RGB-D benchmark's folder layout, as an odolab ``Sequence``.
+
+Layout (Sturm et al., IROS 2012): ``rgb.txt`` and ``depth.txt`` list ``timestamp path`` per
+line (``#`` comments; paths relative to the folder), ``groundtruth.txt`` holds
+``timestamp tx ty tz qx qy qz qw`` (``T_world_cam``, read by
+:func:`odolab.io.tum.read_tum_trajectory`). Colour images are 8-bit, depth images 16-bit PNG with
+metres = value / 5000 (0 = no reading), registered to the colour image.
+
+A frame is an RGB image, the depth image nearest in time and the ground-truth sample nearest in
+time, each within ``max_time_diff`` seconds (:func:`odolab.io.tum.associate`); frames without
+all three are left out. Images are checked to exist when the folder is read and are decoded
+when a frame is asked for. Every problem raises :class:`~odolab.io.errors.FileFormatError`
+naming the file, the line and what is wrong.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from odolab.io.errors import FileFormatError
+from odolab.io.textfiles import read_lines
+from odolab.io.tum import associate, read_tum_trajectory
+from odolab.odometer import Action, Frame, Intrinsics
+from odolab.trajectory import Trajectory
+
+__all__ = ["TUM_CAMERAS", "TUM_DEPTH_SCALE", "TumSequence", "load_tum_sequence", "tum_camera_for"]
+
+#: Depth PNG value per metre.
+TUM_DEPTH_SCALE = 5000.0
+
+#: The benchmark's published pinhole intrinsics of its three Kinects (640x480, no undistortion).
+TUM_CAMERAS: dict[str, Intrinsics] = {
+    "freiburg1": Intrinsics(517.3, 516.5, 318.6, 255.3, 640, 480),
+    "freiburg2": Intrinsics(520.9, 521.0, 325.1, 249.7, 640, 480),
+    "freiburg3": Intrinsics(535.4, 539.2, 320.1, 247.6, 640, 480),
+}
+
+_CAMERA_IN_NAME = re.compile(r"(?:freiburg|fr)_?([123])(?![0-9])", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class _Listed:
+    """One image named in ``rgb.txt`` / ``depth.txt``: where, when, and which line said so."""
+
+    timestamp: float
+    path: Path
+    list_file: Path
+    line_no: int
+
+
+@dataclass(frozen=True)
+class _FrameFiles:
+    """The files and ground truth that make one frame."""
+
+    rgb: _Listed
+    depth: _Listed
+    gt_pose: np.ndarray
+
+
+class TumSequence:
+    """A TUM RGB-D recording as an :class:`odolab.odometer.Sequence` (frames decoded lazily).
+
+    ``seq[i]`` is a :class:`~odolab.odometer.Frame`: ``rgb`` (H, W, 3) uint8 in RGB order,
+    ``depth`` (H, W) float32 metres (0 = no reading), ``timestamp`` (s, the colour image's) and
+    ``gt_pose`` ``T_world_cam`` (4x4, the nearest ground-truth sample). ``action(i)`` is always
+    None (real data has no discrete actions).
+    """
+
+    def __init__(self, root: Path, intrinsics: Intrinsics, frames: list[_FrameFiles]) -> None:
+        self.root = root
+        self.intrinsics = intrinsics
+        self._frames = frames
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __repr__(self) -> str:
+        return f"TumSequence({str(self.root)!r}, {len(self)} frames)"
+
+    def __getitem__(self, i: int) -> Frame:
+        f = self._frames[self._index(i)]
+        return Frame(
+            rgb=self._read_rgb(f.rgb),
+            depth=self._read_depth(f.depth),
+            timestamp=f.rgb.timestamp,
+            gt_pose=f.gt_pose.copy(),
+        )
+
+    def action(self, i: int) -> Action | None:
+        """None: a real recording has no discrete actions."""
+        self._index(i)
+        return None
+
+    def gt_pose(self, i: int) -> np.ndarray:
+        """``T_world_cam`` (4x4, metres) of frame ``i`` from the nearest ground-truth sample."""
+        return self._frames[self._index(i)].gt_pose.copy()
+
+    @property
+    def timestamps(self) -> np.ndarray:
+        """Frame times (N,), seconds (the colour images' timestamps)."""
+        return np.array([f.rgb.timestamp for f in self._frames])
+
+    def ground_truth(self) -> Trajectory:
+        """The frames' ground-truth poses ``T_world_cam`` with the frames' timestamps."""
+        return Trajectory(self.timestamps, np.stack([f.gt_pose for f in self._frames]))
+
+    def _index(self, i: int) -> int:
+        n = len(self._frames)
+        if not isinstance(i, (int, np.integer)):
+            raise TypeError(f"TumSequence indices must be integers, not {type(i).__name__}")
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range for a sequence of {n} frames")
+        return int(i) % n
+
+    def _check_size(self, listed: _Listed, shape: tuple[int, ...], kind: str) -> None:
+        w, h = self.intrinsics.width, self.intrinsics.height
+        if shape[:2] != (h, w):
+            raise _image_error(listed, f"{kind} image is {shape[1]}x{shape[0]}, the camera's is {w}x{h}")
+
+    def _read_rgb(self, listed: _Listed) -> np.ndarray:
+        bgr = cv2.imread(str(listed.path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise _image_error(listed, "cannot be read as an image")
+        self._check_size(listed, bgr.shape, "colour")
+        return np.ascontiguousarray(bgr[:, :, ::-1])
+
+    def _read_depth(self, listed: _Listed) -> np.ndarray:
+        raw = cv2.imread(str(listed.path), cv2.IMREAD_UNCHANGED)
+        if raw is None:
+            raise _image_error(listed, "cannot be read as an image")
+        if raw.ndim != 2 or raw.dtype != np.uint16:
+            kind = f"{raw.shape[2]}-channel " if raw.ndim == 3 else ""
+            raise _image_error(listed, f"depth must be a 16-bit single-channel image, got {kind}{raw.dtype}")
+        self._check_size(listed, raw.shape, "depth")
+        return raw.astype(np.float32) / np.float32(TUM_DEPTH_SCALE)
+
+
+def tum_camera_for(folder: str | os.PathLike) -> Intrinsics | None:
+    """The TUM camera named in a folder's name (``freiburg1``, ``fr2``...), or None."""
+    match = _CAMERA_IN_NAME.search(Path(folder).resolve().name)
+    return TUM_CAMERAS[f"freiburg{match.group(1)}"] if match else None
+
+
+def load_tum_sequence(
+    path: str | os.PathLike, intrinsics: Intrinsics | None = None, max_time_diff: float = 0.02
+) -> TumSequence:
+    """Read the TUM RGB-D folder ``path`` (see the module docstring) as a :class:`TumSequence`.
+
+    ``intrinsics``: the camera; by default the TUM camera named in the folder's name.
+    ``max_time_diff``: seconds allowed between a colour image and its depth image and between a
+    frame and its ground-truth sample (TUM's ``associate.py`` uses 0.02).
+    """
+    root = Path(path)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no such folder (expected a TUM RGB-D sequence)")
+    if intrinsics is None:
+        intrinsics = tum_camera_for(root)
+        if intrinsics is None:
+            raise ValueError(
+                f"{root}: cannot tell the camera from the folder name (no 'freiburg1/2/3' or "
+                f"'fr1/2/3' in it); pass intrinsics=..., e.g. odolab.io.tum_rgbd.TUM_CAMERAS['freiburg1']"
+            )
+    rgb = _read_list(root / "rgb.txt")
+    depth = _read_list(root / "depth.txt")
+    gt = read_tum_trajectory(root / "groundtruth.txt")
+
+    i_rgb, i_depth = associate(
+        np.array([r.timestamp for r in rgb]), np.array([d.timestamp for d in depth]), max_time_diff
+    )
+    if len(i_rgb) == 0:
+        raise FileFormatError(root, None, f"no colour image has a depth image within {max_time_diff} s")
+    rgb_t = np.array([rgb[i].timestamp for i in i_rgb])
+    i_pair, i_gt = associate(rgb_t, gt.timestamps, max_time_diff)
+    if len(i_pair) == 0:
+        raise FileFormatError(
+            root,
+            None,
+            f"no frame has a ground-truth pose within {max_time_diff} s (frames {rgb_t[0]:.3f}-{rgb_t[-1]:.3f} s, "
+            f"ground truth {gt.timestamps[0]:.3f}-{gt.timestamps[-1]:.3f} s)",
+        )
+    frames = [
+        _FrameFiles(rgb[i_rgb[k]], depth[i_depth[k]], gt.poses[g]) for k, g in zip(i_pair, i_gt)
+    ]
+    return TumSequence(root, intrinsics, frames)
+
+
+def _read_list(path: Path) -> list[_Listed]:
+    """Entries ``timestamp path`` of ``rgb.txt`` / ``depth.txt``, checked, in increasing time."""
+    entries: list[_Listed] = []
+    for no, line in enumerate(read_lines(path), start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        fields = text.split()
+        if len(fields) != 2:
+            raise FileFormatError(path, no, f"expected 2 columns (timestamp path), got {len(fields)}")
+        try:
+            stamp = float(fields[0])
+        except ValueError:
+            raise FileFormatError(path, no, f"timestamp {fields[0]!r} is not a number") from None
+        if not np.isfinite(stamp):
+            raise FileFormatError(path, no, f"timestamp {fields[0]!r} is not finite")
+        if entries and stamp <= entries[-1].timestamp:
+            raise FileFormatError(
+                path, no, f"timestamp {fields[0]} is not after the previous line's; times must increase"
+            )
+        image = path.parent / fields[1]
+        if not image.is_file():
+            raise FileFormatError(path, no, f"{fields[1]}: no such file")
+        entries.append(_Listed(stamp, image, path, no))
+    if not entries:
+        raise FileFormatError(path, None, "lists no images (empty or only comments)")
+    return entries
+
+
+def _image_error(listed: _Listed, problem: str) -> FileFormatError:
+    return FileFormatError(listed.path, None, f"{problem} (listed in {listed.list_file.name}, line {listed.line_no})")

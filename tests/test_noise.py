@@ -1,0 +1,101 @@
+"""Noise models against their formulas (facts.md section 2), by statistics over many samples."""
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from odolab.odometer import Action
+from odolab.sim.noise import ActuationNoise, GaussianTable, RedwoodDepthNoise, RGBNoise
+
+TRUNC3_VAR = 1 - 2 * 3 * norm.pdf(3) / (norm.cdf(3) - norm.cdf(-3))  # variance factor of a +-3 sigma cut
+
+
+def test_gaussian_table_is_standard_normal():
+    z = GaussianTable().draw(np.random.default_rng(0), (400_000,))
+    assert z.dtype == np.float32
+    assert abs(z.mean()) < 0.01 and abs(z.std() - 1) < 0.01
+    for q in (0.01, 0.1, 0.5, 0.9, 0.99):
+        assert np.quantile(z, q) == pytest.approx(norm.ppf(q), abs=0.02)
+
+
+def test_rgb_noise_std_and_mean():
+    img = np.full((300, 400, 3), 128, np.uint8)
+    out = RGBNoise().apply(img, np.random.default_rng(1)).astype(float)
+    # clip(img/255 + 0.1 N) * 255, stored as uint8 (truncation: mean drops by 0.5)
+    assert out.mean() == pytest.approx(127.5, abs=0.15)
+    assert out.std() == pytest.approx(np.sqrt(25.5 ** 2 + 1 / 12), rel=0.01)
+
+
+def test_rgb_noise_clips_and_zero_multiplier_is_exact():
+    img = np.full((100, 100, 3), 250, np.uint8)
+    out = RGBNoise().apply(img, np.random.default_rng(2))
+    assert out.max() == 255 and (out == 255).mean() > 0.3
+    assert np.array_equal(RGBNoise(multiplier=0).apply(img, np.random.default_rng(2)), img)
+
+
+def test_redwood_disparity_quantisation_matches_formula():
+    d = 2.0
+    depth = np.full((480, 640), d, np.float32)
+    out = RedwoodDepthNoise().apply(depth, np.random.default_rng(3))
+    denom = np.round(35.130 * 8 / out).astype(int)
+    assert np.allclose(35.130 * 8 / denom, out, rtol=1e-6)  # every value is a quantisation level
+    # denom = round((35.13/d + 0.027778 N) * 8): P(denom = k) from the normal CDF
+    centre = 35.130 / d * 8
+    sigma = 0.027778 * 8
+    n = out.size
+    for k in (140, 141):
+        p = norm.cdf((k + 0.5 - centre) / sigma) - norm.cdf((k - 0.5 - centre) / sigma)
+        assert (denom == k).sum() == pytest.approx(p * n, abs=5 * np.sqrt(n * p * (1 - p)) + 1)
+
+
+def test_redwood_jitter_and_downsampling():
+    H, W = 400, 64
+    b = 32  # even column where the depth steps from 1 m to 3 m
+    depth = np.where(np.arange(W)[None, :] < b, 1.0, 3.0).astype(np.float32).repeat(H, 0)
+    out = RedwoodDepthNoise().apply(depth, np.random.default_rng(4))
+    far = out > 2.0
+    # column b-1 reads column b (then rounded down to even b) iff 0.25 N >= 0.5, i.e. N >= 2
+    assert far[:, b - 1].mean() == pytest.approx(norm.sf(2.0), abs=0.02)
+    assert not far[:, b - 2].any() and far[:, b + 2].all()
+    # column b reads b-1 -> b-2 (near) iff N <= -2
+    assert (~far[:, b]).mean() == pytest.approx(norm.cdf(-2.0), abs=0.02)
+
+
+def test_redwood_far_and_missing_give_no_reading():
+    depth = np.full((50, 50), 12.0, np.float32)
+    depth[:, :10] = 0.0
+    out = RedwoodDepthNoise().apply(depth, np.random.default_rng(5))
+    assert np.all(out[:, 12:] == 0) and np.all(out[:, :8] == 0)
+    clean = RedwoodDepthNoise(multiplier=0).apply(np.full((4, 4), 3.3, np.float32), np.random.default_rng(0))
+    assert np.all(clean == np.float32(3.3))
+
+
+def _samples(action, n=20_000, mult=0.5):
+    rng = np.random.default_rng(6)
+    noise = ActuationNoise("proportional", mult)
+    return np.array([[m.forward, m.right, m.yaw] for m in (noise.sample(action, rng) for _ in range(n))])
+
+
+def test_actuation_forward_statistics():
+    s = _samples(Action.MOVE_FORWARD)
+    mean = np.array([0.25 + 0.5 * 0.017, 0.5 * 0.042, 0.5 * 0.031])
+    std = 0.5 * np.sqrt([0.007, 0.023, 0.026]) * np.sqrt(TRUNC3_VAR)
+    assert s.mean(0) == pytest.approx(mean, abs=4 * std.max() / np.sqrt(len(s)))
+    assert s.std(0) == pytest.approx(std, rel=0.03)
+    # truncated at +-3 sigma around the mean
+    assert np.all(np.abs(s - mean) <= 3 * 0.5 * np.sqrt([0.007, 0.023, 0.026]) + 1e-12)
+
+
+def test_actuation_turns_overshoot_symmetrically():
+    left, right = _samples(Action.TURN_LEFT), _samples(Action.TURN_RIGHT)
+    turn = np.radians(30)
+    assert left[:, 2].mean() == pytest.approx(turn + 0.5 * 0.043, abs=0.002)
+    assert right[:, 2].mean() == pytest.approx(-turn - 0.5 * 0.043, abs=0.002)
+    assert left[:, 2].std() == pytest.approx(0.5 * np.sqrt(0.017 * TRUNC3_VAR), rel=0.03)
+    assert left[:, 0].mean() == pytest.approx(0.5 * 0.001, abs=0.001)
+
+
+def test_zero_multiplier_is_exact_motion():
+    s = _samples(Action.TURN_RIGHT, n=10, mult=0.0)
+    assert np.allclose(s, [0.0, 0.0, -np.radians(30)])
+    with pytest.raises(ValueError, match="controller"):
+        ActuationNoise("pid")
