@@ -59,7 +59,7 @@ def _check_writable(out: Path) -> None:
         raise UsageError(f"--out {out}: not a writable folder ({exc.strerror or exc})") from None
 
 
-def _odometers(spec: str | None) -> dict:
+def _odometer_names(spec: str | None) -> list[str]:
     names = available_odometers()
     chosen = names if spec is None else [n.strip() for n in spec.split(",") if n.strip()]
     if not chosen:
@@ -67,6 +67,10 @@ def _odometers(spec: str | None) -> dict:
     unknown = [n for n in chosen if n not in names]
     if unknown:
         raise UsageError(f"unknown odometer {unknown[0]!r}; available: {', '.join(names)}")
+    return chosen
+
+
+def _load_odometers(chosen: list[str]) -> dict:
     out = {}
     for n in chosen:
         try:
@@ -80,8 +84,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.split not in SPLITS:
         raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
-    odometers = _odometers(args.odometers)
+    names = _odometer_names(args.odometers)
     _check_writable(args.out)
+    odometers = _load_odometers(names)
 
     from odolab import runner, summary
     from odolab.report import format_table, write_report

@@ -1,0 +1,64 @@
+"""`python -m odolab.compare`: outputs, determinism by seed, and one-line errors for bad input."""
+import csv
+import subprocess
+import sys
+
+import pytest
+
+from odolab.cli import run_cli
+from odolab.compare import main
+
+FAST = ["--odometers", "ground-truth,action-prior", "--episodes", "2", "--max-steps", "12", "--serial", "--quiet"]
+
+
+def _table(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def _errors(rows):
+    return [(r["odometer"], r["dx"], r["dz"], r["dyaw"], r["ate_m"]) for r in rows]
+
+
+def test_compare_writes_table_report_and_trajectories(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_cli(main, "odolab.compare", [*FAST, "--out", str(out), "--cache", str(tmp_path / "c")]) == 0
+    rows = _table(out / "table.csv")
+    assert {"odometer", "dx", "dz", "dyaw", "fps", "failures"} <= set(rows[0])
+    assert [r["odometer"] for r in rows] == ["ground-truth", "action-prior"]
+    assert float(rows[0]["dz"]) == 0 and float(rows[1]["dz"]) > 0
+    for f in ("report.html", "errors.png", "trajectories.png", "table_per_action.csv"):
+        assert (out / f).stat().st_size > 0
+    seq = sorted((out / "trajectories").iterdir())[0]
+    assert {p.name for p in seq.iterdir()} >= {"action-prior.tum", "action-prior.kitti", "groundtruth.tum",
+                                                 "groundtruth.kitti"}
+    printed = capsys.readouterr().out
+    assert "action-prior" in printed and "table.csv" in printed
+
+
+def test_same_seed_same_errors_other_seed_other_errors(tmp_path):
+    tables = {}
+    for name, seed in (("a", "3"), ("b", "3"), ("c", "4")):
+        out = tmp_path / name
+        # no cache: each run generates its own episodes
+        assert run_cli(main, "odolab.compare", [*FAST, "--seed", seed, "--no-cache", "--out", str(out)]) == 0
+        tables[name] = _errors(_table(out / "table.csv"))
+    assert tables["a"] == tables["b"]
+    assert tables["a"] != tables["c"]
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--odometers", "nope"], "unknown odometer 'nope'; available:"),
+    (["--odometers", ","], "--odometers is empty"),
+    (["--split", "dev"], "choose one of train, val, test"),
+    (["--episodes", "0"], "--episodes must be positive"),
+    (["--max-steps", "-3"], "--max-steps must be positive"),
+    (["--episodes", "two"], "--episodes must be an integer"),
+    (["--out", "/proc/odolab-cannot-write"], "not a writable folder"),
+])
+def test_bad_input_is_one_line_and_exit_2(args, words):
+    proc = subprocess.run([sys.executable, "-m", "odolab.compare", *args], capture_output=True, text=True)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0] and lines[0].startswith("odolab.compare: error:")
+    assert "Traceback" not in proc.stderr

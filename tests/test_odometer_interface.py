@@ -1,0 +1,113 @@
+"""The Odometer contract, the registry, the reference odometers and the runner's bookkeeping."""
+import numpy as np
+import pytest
+
+from odolab import api, runner, summary
+from odolab.action_prior import ActionPrior, fit_action_prior
+from odolab.episodes import EpisodeSpec, load_episodes
+from odolab.sim.camera import CameraSpec
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    camera = CameraSpec(width=96, height=54)
+    specs = [EpisodeSpec(split="test", index=i, max_steps=40, camera=camera) for i in range(3)]
+    return load_episodes(specs, None, parallel=False, progress=False)
+
+
+class ConstantForward(api.Odometer):
+    """The README's example of a third-party odometer: always 0.2 m forward."""
+
+    def step(self, prev, cur, action):
+        return api.Estimate.from_planar(0.0, 0.2, 0.0)
+
+
+def test_register_and_load_a_new_odometer():
+    api.register_odometer("constant-forward", ConstantForward)
+    assert "constant-forward" in api.available_odometers()
+    odo = api.load_odometer("constant-forward")
+    assert odo.name == "constant-forward"
+    est = odo.step(None, None, api.Action.TURN_LEFT)
+    assert est.planar == pytest.approx([0.0, 0.2, 0.0]) and est.valid
+
+
+def test_unknown_odometer_lists_the_choices():
+    with pytest.raises(api.UnknownOdometerError) as info:
+        api.load_odometer("no-such-odometer")
+    assert "ground-truth" in str(info.value) and "action-prior" in str(info.value)
+
+
+def test_entry_point_odometers_are_listed():
+    names = api.available_odometers()
+    assert {"ground-truth", "action-prior", "icp", "feature-essential"} <= set(names)
+
+
+def test_ground_truth_has_zero_error(episodes):
+    res = runner.run({"ground-truth": api.load_odometer("ground-truth")}, episodes, progress=False)
+    row = summary.summarize(res)[0]
+    assert row.oracle and row.failures == 0
+    assert max(row.dx, row.dz, row.dyaw, row.ate_m, row.drift_m) < 1e-9
+
+
+def test_action_prior_error_has_the_size_the_noise_implies(episodes):
+    res = runner.run({"action-prior": api.load_odometer("action-prior")}, episodes, progress=False)
+    per_action = {r.action: r for r in summary.summarize_actions(res)}
+    # Turns: yaw noise 0.5 * N(0.043, 0.017) truncated -> E|e| = 0.5 * sqrt(0.017) * sqrt(2/pi) ~ 0.052 rad
+    for a in ("turn_left", "turn_right"):
+        if per_action.get(a) and per_action[a].steps >= 8:
+            assert 2.5 < per_action[a].dyaw < 9.0  # x 1e-2 rad
+    fwd = per_action["move_forward"]
+    # Forward yaw noise 0.5 * sqrt(0.026) * sqrt(2/pi) ~ 0.064 rad; lateral 0.5 * sqrt(0.023) * 0.8 ~ 0.06 m
+    assert 3.0 < fwd.dyaw < 10.0 and 2.0 < fwd.dx < 10.0
+    row = summary.summarize(res)[0]
+    assert row.failures == 0 and row.ate_m > 0.01
+
+
+def test_shipped_action_prior_matches_a_fresh_fit():
+    shipped = ActionPrior.shipped()
+    fresh = fit_action_prior(n_episodes=40, max_steps=200, seed=123)
+    for a in api.MOTION_ACTIONS:
+        assert np.allclose(shipped.motion(a), fresh.motion(a), atol=0.02)
+    assert shipped.motion(api.Action.MOVE_FORWARD)[1] == pytest.approx(0.25 + 0.0085, abs=0.03)
+    assert shipped.motion(None) == pytest.approx([0, 0, 0])
+
+
+class Flaky(api.Odometer):
+    """Raises on even steps, says invalid on every third, else answers identity."""
+
+    def reset(self, intrinsics):
+        super().reset(intrinsics)
+        self.k = 0
+
+    def step(self, prev, cur, action):
+        self.k += 1
+        assert prev.gt_pose is None and cur.gt_pose is None  # non-oracles never see ground truth
+        if self.k % 2 == 0:
+            raise RuntimeError("boom")
+        if self.k % 3 == 0:
+            return api.Estimate.invalid()
+        return api.Estimate(np.eye(4))
+
+
+def test_runner_counts_failures_and_falls_back_to_the_prior(episodes):
+    ep = episodes[0]
+    prior = ActionPrior.shipped()
+    res = runner.run_sequence(Flaky(), ep, "flaky", prior)
+    n = len(ep) - 1
+    k = np.arange(1, n + 1)
+    expect_fail = (k % 2 == 0) | (k % 3 == 0)
+    assert np.array_equal(~res.valid, expect_fail)
+    assert res.failures == expect_fail.sum()
+    assert res.errors and "boom" in res.errors[0]
+    i = int(np.argmax(expect_fail))
+    assert api.transform_to_planar(res.estimates[i]) == pytest.approx(prior.motion(ep.action(i)))
+    assert np.allclose(res.poses[0], ep.poses[0])
+    assert res.step_seconds.shape == (n,) and np.all(res.step_seconds >= 0)
+
+
+def test_estimate_helpers():
+    e = api.Estimate.from_planar(0.1, 0.2, -0.3)
+    assert e.planar == pytest.approx([0.1, 0.2, -0.3]) and e.covariance is None
+    assert not api.Estimate.invalid().valid
+    K = api.Intrinsics.from_hfov(341, 192, 70.0)
+    assert K.fx == pytest.approx(243.5, abs=0.05) and K.cx == 170.5 and K.cy == 96
