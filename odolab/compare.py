@@ -80,6 +80,14 @@ def _load_odometers(chosen: list[str]) -> dict:
     return out
 
 
+def _floor_plan(scene_seed: int):
+    from odolab.report import FloorPlan
+    from odolab.sim.scenes import generate_scene
+
+    scene = generate_scene(scene_seed)
+    return FloorPlan(scene.free, scene.origin, scene.resolution)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.split not in SPLITS:
@@ -99,6 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sequences = [load_tum_sequence(args.tum)]
         except (FileFormatError, ValueError) as exc:
             raise UsageError(str(exc)) from None
+        plans = None
         title = f"odolab compare on TUM folder {args.tum}"
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
                  "Rows marked oracle read ground truth."]
@@ -110,6 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cache = None if args.no_cache else EpisodeCache(args.cache)
         sequences = load_episodes(specs, cache, ray_address=args.ray_address, parallel=not args.serial,
                                   progress=not args.quiet)
+        plans = {ep.name: _floor_plan(ep.info["scene_seed"]) for ep in sequences[:4]}
         steps = sum(len(s) - 1 for s in sequences)
         collided = sum(int(s.collisions.sum()) for s in sequences)
         title = f"odolab compare: {len(sequences)} {args.split} episodes, seed {args.seed}"
@@ -122,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     results = runner.run(odometers, sequences, progress=not args.quiet)
     rows = summary.summarize(results)
     action_rows = summary.summarize_actions(results) if args.tum is None else []
-    write_report(args.out, rows, action_rows, results, title, notes)
+    write_report(args.out, rows, action_rows, results, title, notes, plans)
     print(title)
     print(format_table(rows, real_data=args.tum is not None))
     for r in results:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import csv
 import html
 import io
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -82,8 +82,20 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
     plt.close(fig)
 
 
-def plot_trajectories(results: list[SequenceResult], path: Path, max_sequences: int = 4) -> None:
-    """Top-down (world X, Y in metres) true vs integrated trajectories of the first sequences."""
+@dataclass(frozen=True)
+class FloorPlan:
+    """A top-down occupancy image to draw under trajectories: ``free`` (rows, cols) bool, cell
+    (r, c) at world x = origin[0] + c * resolution, y = origin[1] + r * resolution (metres)."""
+
+    free: np.ndarray
+    origin: tuple[float, float]
+    resolution: float
+
+
+def plot_trajectories(results: list[SequenceResult], path: Path, max_sequences: int = 4,
+                      plans: dict[str, FloorPlan] | None = None) -> None:
+    """Top-down (world X, Y in metres) true vs integrated trajectories of the first sequences,
+    over the floor plan of each sequence when ``plans`` has one (free = white, obstacles = grey)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -100,6 +112,13 @@ def plot_trajectories(results: list[SequenceResult], path: Path, max_sequences: 
     for ax, seq in zip(axes.flat, seqs):
         mine = [r for r in results if r.sequence == seq]
         gt = mine[0].gt_poses[:, :3, 3]
+        plan = (plans or {}).get(seq)
+        if plan is not None:
+            h, w = plan.free.shape
+            extent = (plan.origin[0], plan.origin[0] + w * plan.resolution,
+                      plan.origin[1], plan.origin[1] + h * plan.resolution)
+            ax.imshow(np.where(plan.free, 1.0, 0.75), cmap="gray", vmin=0, vmax=1, origin="lower",
+                      extent=extent, interpolation="nearest")
         ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2.5, label="ground truth")
         ax.plot(gt[0, 0], gt[0, 1], "ko", ms=7)
         for r in mine:
@@ -148,7 +167,7 @@ def _html_table(rows: list, cls) -> str:
 
 
 def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], results: list[SequenceResult],
-                 title: str, notes: list[str]) -> None:
+                 title: str, notes: list[str], plans: dict[str, FloorPlan] | None = None) -> None:
     """Write the tables, figures, trajectories and ``report.html`` into ``out``."""
     from odolab.summary import __doc__ as definitions
 
@@ -159,7 +178,7 @@ def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], resul
     if action_rows:
         plot_errors(action_rows, out / "errors.png")
         figures.append(("Per-step error by odometer and action", "errors.png"))
-    plot_trajectories(results, out / "trajectories.png")
+    plot_trajectories(results, out / "trajectories.png", plans=plans)
     if (out / "trajectories.png").exists():
         figures.append(("Top-down trajectories: ground truth vs each odometer", "trajectories.png"))
     write_trajectories(results, out)

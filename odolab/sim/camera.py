@@ -59,20 +59,20 @@ class Renderer:
         n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
         axis = np.argmax(np.abs(n), axis=1)
-        # Texture plane per triangle: the two world axes other than its dominant normal axis,
-        # with v = Z (up) on vertical faces so bricks and panels stand upright.
-        self._tri_u = np.array([1, 0, 0])[axis].astype(np.intp)
-        self._tri_v = np.array([2, 2, 1])[axis].astype(np.intp)
+        self._tri_axis = axis.astype(np.int8)  # dominant normal axis: picks the texture plane
         shade = 0.55 + 0.45 * np.abs(n @ (_LIGHT / np.linalg.norm(_LIGHT)))
         colors = np.array([m.color for m in scene.materials], dtype=np.float32)
         self._tri_rgb = (colors[scene.triangle_material] * shade[:, None] * 255.0).astype(np.float32)
-        self._tri_tile = np.array([m.tile for m in scene.materials])[scene.triangle_material]
+        tile = np.array([m.tile for m in scene.materials])[scene.triangle_material]
+        self._tri_tile_offset = (tile << self._tile_shift2).astype(np.intp)
 
         K = camera.intrinsics
         u, v_ = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
         self._dirs_cam = np.stack(
             [(u - K.cx) / K.fx, (v_ - K.cy) / K.fy, np.ones_like(u)], axis=-1
         ).reshape(-1, 3).astype(np.float32)
+        self._dirs_cam_t = np.ascontiguousarray(self._dirs_cam.T)
+        self._dirs_world = np.empty_like(self._dirs_cam_t)
         self._rays = np.empty((self._dirs_cam.shape[0], 6), dtype=np.float32)
 
     @property
@@ -87,7 +87,12 @@ class Renderer:
         """
         R = T_world_cam[:3, :3].astype(np.float32)
         self._rays[:, :3] = T_world_cam[:3, 3]
-        np.matmul(self._dirs_cam, R.T, out=self._rays[:, 3:])
+        d, w = self._dirs_cam_t, self._dirs_world  # (3, N): contiguous rows
+        for i in range(3):  # elementwise, not BLAS: BLAS threads fight Open3D's spinning OpenMP pool
+            np.multiply(d[0], R[i, 0], out=w[i])
+            w[i] += R[i, 1] * d[1]
+            w[i] += R[i, 2] * d[2]
+        self._rays[:, 3:] = self._dirs_world.T
         return self._rays
 
     def cast(self, T_world_cam: np.ndarray) -> dict:
@@ -100,23 +105,22 @@ class Renderer:
         ``T_world_cam``: 4x4 camera pose (OpenCV camera axes, world Z up).
         """
         cam = self.camera
-        rays = self.rays(T_world_cam)
-        hit = self._rc.cast_rays(rays)
+        hit = self._rc.cast_rays(self.rays(T_world_cam))
         t = hit["t_hit"].numpy()
         ok = np.isfinite(t)
         t[~ok] = 0.0
         tri = hit["primitive_ids"].numpy().astype(np.intp)
         tri[~ok] = 0
-        # World coordinates of the hit along the triangle's two texture axes only.
-        flat = rays.reshape(-1)
-        base = np.arange(0, flat.size, 6)
-        u_ax, v_ax = self._tri_u[tri], self._tri_v[tri]
-        pu = flat[base + u_ax] + t * flat[base + 3 + u_ax]
-        pv = flat[base + v_ax] + t * flat[base + 3 + v_ax]
-        iu = (pu * (1.0 / TEXEL_SIZE)).astype(np.intp)  # trunc; the floor's edge is invisible
-        iv = (pv * (1.0 / TEXEL_SIZE)).astype(np.intp)
-        tex = self._tiles_flat[(self._tri_tile[tri] << self._tile_shift2) + ((iv & self._tile_mask) << self._tile_shift)
-                               + (iu & self._tile_mask)]
+        # Hit point coordinates (contiguous rows), then the triangle's texture plane:
+        # normal along X -> (Y, Z), along Y -> (X, Z), along Z (floor, ceiling) -> (X, Y).
+        o, d = T_world_cam[:3, 3].astype(np.float32), self._dirs_world
+        px, py, pz = o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]
+        axis = self._tri_axis[tri]
+        pu = np.where(axis == 0, py, px)
+        pv = np.where(axis == 2, py, pz)
+        iu = (pu * (1.0 / TEXEL_SIZE)).astype(np.intp) & self._tile_mask  # trunc: an invisible seam at 0
+        iv = (pv * (1.0 / TEXEL_SIZE)).astype(np.intp) & self._tile_mask
+        tex = self._tiles_flat[self._tri_tile_offset[tri] + (iv << self._tile_shift) + iu]
         rgb = self._tri_rgb[tri] * tex[:, None]
         rgb[~ok] = 0.0
         depth = np.where(ok & (t >= cam.min_depth) & (t < cam.max_depth), t, 0.0).astype(np.float32)
