@@ -1,0 +1,249 @@
+"""The classical odometers of ``baselines/`` on real TUM frames and on views with known motion."""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baselines.depth_geometry import (
+    DepthRange,
+    normal_constraint,
+    point_to_point_covariance,
+)
+from baselines.measure_tum import relative_pose_error
+from odolab.api import (
+    Action,
+    Frame,
+    Intrinsics,
+    invert,
+    load_odometer,
+    load_tum_sequence,
+    planar_to_transform,
+)
+
+TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
+ODOMETERS = ["feature-essential", "icp", "open3d-rgbd"]
+#: facts.md section 6: Open3D's hybrid RGB-D odometry scores 4.43 mm here; the issue's bound is 2x.
+MAX_MEAN_TRANSLATION_MM = 8.8
+MAX_MEAN_ROTATION_DEG = 0.5
+
+
+@pytest.fixture(scope="module")
+def tum() -> tuple[list[Frame], Intrinsics]:
+    seq = load_tum_sequence(TUM)
+    return [seq[i] for i in range(len(seq))], seq.intrinsics
+
+
+def render_view(frame: Frame, intr: Intrinsics, T_prev_cur: np.ndarray) -> Frame:
+    """What a camera at ``T_prev_cur`` sees of ``frame``'s coloured point cloud (z-buffered).
+
+    Each point is splatted on 2x2 pixels so that a forward motion leaves no cracks; pixels
+    nothing lands on get depth 0 and black colour. ``gt_pose`` moves along.
+    """
+    h, w = frame.depth.shape
+    v, u = np.nonzero(frame.depth > 0)
+    z = frame.depth[v, u].astype(np.float64)
+    X = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
+    T = invert(T_prev_cur)
+    Y = X @ T[:3, :3].T + T[:3, 3]
+    colour = frame.rgb[v, u]
+    front = Y[:, 2] > 0.05
+    Y, colour = Y[front], colour[front]
+    pu = np.floor(intr.fx * Y[:, 0] / Y[:, 2] + intr.cx).astype(int)
+    pv = np.floor(intr.fy * Y[:, 1] / Y[:, 2] + intr.cy).astype(int)
+    depth = np.full(h * w, np.inf)
+    rgb = np.zeros((h * w, 3), np.uint8)
+    far_first = np.argsort(-Y[:, 2])
+    for du in (0, 1):
+        for dv in (0, 1):
+            x, y = pu[far_first] + du, pv[far_first] + dv
+            inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+            idx, src = y[inside] * w + x[inside], far_first[inside]
+            cand = np.full(h * w, np.inf)
+            who = np.zeros(h * w, dtype=int)
+            cand[idx], who[idx] = Y[src, 2], src  # later (nearer) writes win
+            nearer = cand < depth
+            depth[nearer], rgb[nearer] = cand[nearer], colour[who[nearer]]
+    depth[~np.isfinite(depth)] = 0.0
+    return dataclasses.replace(
+        frame,
+        rgb=rgb.reshape(h, w, 3),
+        depth=depth.reshape(h, w).astype(np.float32),
+        gt_pose=frame.gt_pose @ T_prev_cur,
+    )
+
+
+def run_pairs(name: str, frames: list[Frame], intr: Intrinsics) -> np.ndarray:
+    """(N, 2): translation (mm) and rotation (deg) error of each consecutive pair."""
+    odo = load_odometer(name)
+    odo.reset(intr)
+    errors = []
+    for prev, cur in itertools.pairwise(frames):
+        est = odo.step(prev, cur, None)
+        assert est.valid
+        assert est.transform.shape == (4, 4)
+        t, r = relative_pose_error(est.transform, invert(prev.gt_pose) @ cur.gt_pose)
+        errors.append((1000.0 * t, np.degrees(r)))
+    return np.array(errors)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ODOMETERS)
+def test_accuracy_on_real_tum_frames(name, tum):
+    frames, intr = tum
+    errors = run_pairs(name, frames, intr)
+    t_mm, r_deg = errors.mean(axis=0)
+    print(f"{name}: mean translation error {t_mm:.2f} mm, rotation error {r_deg:.3f} deg")
+    assert t_mm < MAX_MEAN_TRANSLATION_MM
+    assert r_deg < MAX_MEAN_ROTATION_DEG
+
+
+def test_oracle_rotation_uses_ground_truth(tum):
+    frames, intr = tum
+    errors = run_pairs("feature-essential-oracle-rot", frames[:4], intr)
+    assert errors[:, 1].max() < 1e-3
+    assert errors[:, 0].mean() < MAX_MEAN_TRANSLATION_MM
+
+
+def test_oracle_rotation_without_ground_truth_raises(tum):
+    frames, intr = tum
+    odo = load_odometer("feature-essential-oracle-rot")
+    assert odo.oracle and not load_odometer("feature-essential").oracle
+    odo.reset(intr)
+    with pytest.raises(ValueError, match="ground-truth"):
+        odo.step(frames[0], dataclasses.replace(frames[1], gt_pose=None), None)
+
+
+KNOWN_MOTIONS = [
+    pytest.param(Action.MOVE_FORWARD, planar_to_transform(0.03, 0.25, np.radians(4.0)), id="forward"),
+    pytest.param(Action.TURN_LEFT, planar_to_transform(0.01, 0.0, np.radians(30.0)), id="turn_left_30"),
+    pytest.param(Action.TURN_RIGHT, planar_to_transform(0.0, -0.01, np.radians(-33.0)), id="turn_right_33"),
+    pytest.param(None, planar_to_transform(-0.02, 0.03, np.radians(-3.0)), id="small_no_action"),
+]
+
+
+@pytest.fixture(scope="module")
+def known_views(tum):
+    frames, intr = tum
+    return {id(T): render_view(frames[0], intr, T) for _, T in (p.values for p in KNOWN_MOTIONS)}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ODOMETERS)
+@pytest.mark.parametrize("action,T_true", KNOWN_MOTIONS)
+def test_convention_on_views_with_known_motion(name, action, T_true, tum, known_views):
+    """T_prev_cur, camera axes, turn signs: a synthetic view of frame 0 from a known pose."""
+    frames, intr = tum
+    odo = load_odometer(name)
+    odo.reset(intr)
+    est = odo.step(frames[0], known_views[id(T_true)], action)
+    assert est.valid
+    t, r = relative_pose_error(est.transform, T_true)
+    assert t < 0.01 and np.degrees(r) < 0.5, (t, np.degrees(r), est.planar)
+    assert np.sign(est.planar[2]) == np.sign(T_true_yaw := np.arctan2(-T_true[0, 2], T_true[2, 2]))
+    assert abs(est.planar[2] - T_true_yaw) < np.radians(0.5)
+    if est.covariance is not None:
+        assert est.covariance.shape == (6, 6)
+        assert np.allclose(est.covariance, est.covariance.T)
+        assert np.all(np.linalg.eigvalsh(est.covariance) > 0)
+
+
+@pytest.mark.parametrize(
+    "T_true,path",
+    [
+        pytest.param(planar_to_transform(0.03, 0.25, np.radians(4.0)), "essential", id="forward_0.25m"),
+        pytest.param(planar_to_transform(0.01, 0.0, np.radians(30.0)), "pnp", id="turn_in_place"),
+    ],
+)
+def test_feature_essential_uses_the_essential_matrix_only_with_parallax(T_true, path, tum, known_views):
+    frames, intr = tum
+    odo = load_odometer("feature-essential")
+    odo.reset(intr)
+    view = known_views.get(id(T_true)) or render_view(frames[0], intr, T_true)
+    est = odo.step(frames[0], view, None)
+    assert est.valid and odo.last_path == path
+    assert relative_pose_error(est.transform, T_true)[0] < 0.01
+    odo.step(frames[0], frames[1], None)
+    assert odo.last_path == "pnp"  # ~1.5 cm baseline at 1-2 m
+
+
+def degenerate_frames(frame: Frame) -> dict[str, tuple[Frame, Frame]]:
+    """Pairs no odometer can estimate from."""
+    no_depth = dataclasses.replace(frame, depth=np.zeros_like(frame.depth))
+    blank = dataclasses.replace(
+        frame, rgb=np.full_like(frame.rgb, 128), depth=np.full_like(frame.depth, 2.0)
+    )
+    far = dataclasses.replace(frame, depth=np.full_like(frame.depth, 9.0))  # all beyond max_depth
+    nan_depth = dataclasses.replace(frame, depth=np.full_like(frame.depth, np.nan))
+    return {
+        "no depth": (frame, no_depth),
+        "both without depth": (no_depth, no_depth),
+        "blank wall": (blank, blank),
+        "all depth beyond range": (far, frame),
+        "NaN depth": (frame, nan_depth),
+    }
+
+
+@pytest.mark.parametrize("name", [*ODOMETERS, "feature-essential-oracle-rot"])
+def test_degenerate_frames_are_invalid_not_errors(name, tum):
+    frames, intr = tum
+    odo = load_odometer(name)
+    odo.reset(intr)
+    for what, (prev, cur) in degenerate_frames(frames[0]).items():
+        for action in (None, Action.MOVE_FORWARD):
+            est = odo.step(prev, cur, action)
+            assert not est.valid, f"{name} accepted {what}"
+            assert np.all(np.isfinite(est.transform))
+
+
+@pytest.mark.parametrize("name", ["icp", "open3d-rgbd"])
+def test_unrelated_view_is_invalid(name, tum):
+    """Open3D reports success on frames that do not overlap (facts.md section 8); we do not."""
+    frames, intr = tum
+    odo = load_odometer(name)
+    odo.reset(intr)
+    flipped = dataclasses.replace(
+        frames[0], rgb=frames[0].rgb[::-1, ::-1].copy(), depth=frames[0].depth[::-1, ::-1].copy()
+    )
+    assert not odo.step(frames[0], flipped, None).valid
+
+
+def test_a_failed_turn_from_the_wrong_prior_is_invalid(tum):
+    """Told 'turn left' for a right turn of 30 degrees, ICP cannot converge and must say so."""
+    frames, intr = tum
+    odo = load_odometer("icp")
+    odo.reset(intr)
+    view = render_view(frames[0], intr, planar_to_transform(0.0, 0.0, np.radians(-30.0)))
+    assert not odo.step(frames[0], view, Action.TURN_LEFT).valid
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError, match="variant"):
+        load_odometer("icp", variant="spline")
+    with pytest.raises(ValueError, match="term"):
+        load_odometer("open3d-rgbd", term="magic")
+    with pytest.raises(ValueError, match="max_depth"):
+        load_odometer("feature-essential", max_depth=0.05)
+
+
+def test_normal_constraint_flags_a_plane_and_accepts_a_room(tum):
+    frames, intr = tum
+    rng = DepthRange()
+    assert normal_constraint(np.full((480, 640), 2.0, np.float32), intr, rng) < 1e-6
+    assert normal_constraint(frames[0].depth, intr, rng) > 0.05
+
+
+def test_point_to_point_covariance_matches_open3d_information():
+    """Same ordering (rx, ry, rz, tx, ty, tz) and frame as Open3D's information matrix."""
+    import open3d as o3d
+
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1, 1, (500, 3)) + [0, 0, 3]
+    residuals = rng.normal(size=(500, 3))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    info = o3d.pipelines.registration.get_information_matrix_from_point_clouds(cloud, cloud, 0.01, np.eye(4))
+    sigma2 = (residuals**2).sum() / (3 * 500 - 6)
+    assert np.allclose(np.linalg.inv(point_to_point_covariance(points, residuals)) * sigma2, info)
