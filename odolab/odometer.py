@@ -144,6 +144,18 @@ class Odometer:
     name: str = "odometer"
     oracle: bool = False
     needs_actions: bool = False
+    _intrinsics: Intrinsics | None = None
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        """The camera of the current sequence (set by :meth:`reset`)."""
+        if self._intrinsics is None:
+            raise RuntimeError(f"{type(self).__name__}: call reset(intrinsics) before step()")
+        return self._intrinsics
+
+    @intrinsics.setter
+    def intrinsics(self, value: Intrinsics) -> None:
+        self._intrinsics = value
 
     def reset(self, intrinsics: Intrinsics) -> None:
         """Start a new sequence seen through a camera with these intrinsics."""

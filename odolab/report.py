@@ -43,13 +43,13 @@ def _csv(rows: list, cls) -> str:
 def format_table(rows: list[Row], real_data: bool = False) -> str:
     """A fixed-width text table for the terminal."""
     if real_data:
-        head = f"{'odometer':<30} {'trans mm':>9} {'rot deg':>8} {'fps':>8} {'failures':>8}"
-        lines = [f"{r.odometer + (' (oracle)' if r.oracle else ''):<30} {r.trans_mm:9.2f} {r.rot_deg:8.3f} "
+        head = f"{'odometer':<38} {'trans mm':>9} {'rot deg':>8} {'fps':>8} {'failures':>8}"
+        lines = [f"{r.odometer + (' (oracle)' if r.oracle else ''):<38} {r.trans_mm:9.2f} {r.rot_deg:8.3f} "
                  f"{r.fps:8.1f} {r.failures:8d}" for r in rows]
     else:
-        head = (f"{'odometer':<30} {'dx':>7} {'dz':>7} {'dyaw':>7} {'ATE m':>7} {'drift m':>8} "
+        head = (f"{'odometer':<38} {'dx':>7} {'dz':>7} {'dyaw':>7} {'ATE m':>7} {'drift m':>8} "
                 f"{'fps':>8} {'failures':>8}")
-        lines = [f"{r.odometer + (' (oracle)' if r.oracle else ''):<30} {r.dx:7.2f} {r.dz:7.2f} {r.dyaw:7.2f} "
+        lines = [f"{r.odometer + (' (oracle)' if r.oracle else ''):<38} {r.dx:7.2f} {r.dz:7.2f} {r.dyaw:7.2f} "
                  f"{r.ate_m:7.3f} {r.drift_m:8.3f} {r.fps:8.1f} {r.failures:8d}" for r in rows]
     return "\n".join([head, "-" * len(head), *lines])
 

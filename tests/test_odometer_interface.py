@@ -111,3 +111,12 @@ def test_estimate_helpers():
     assert not api.Estimate.invalid().valid
     K = api.Intrinsics.from_hfov(341, 192, 70.0)
     assert K.fx == pytest.approx(243.5, abs=0.05) and K.cx == 170.5 and K.cy == 96
+
+
+def test_step_before_reset_says_so():
+    class NeedsCamera(api.Odometer):
+        def step(self, prev, cur, action):
+            return api.Estimate.from_planar(0, self.intrinsics.fx * 0, 0)
+
+    with pytest.raises(RuntimeError, match="reset"):
+        NeedsCamera().step(None, None, None)
