@@ -34,7 +34,7 @@ def _positive(name: str):
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
     ap.add_argument("--odometers", default=None,
-                    help="comma-separated names (default: all available: %(choices)s)".replace(
+                    help="comma-separated names or module:Class (default: all available: %(choices)s)".replace(
                         "%(choices)s", ", ".join(available_odometers())))
     ap.add_argument("--episodes", type=_positive("--episodes"), default=5, help="number of episodes (default 5)")
     ap.add_argument("--seed", type=int, default=0, help="episode seed (default 0)")
@@ -64,7 +64,7 @@ def _odometer_names(spec: str | None) -> list[str]:
     chosen = names if spec is None else [n.strip() for n in spec.split(",") if n.strip()]
     if not chosen:
         raise UsageError(f"--odometers is empty; available: {', '.join(names)}")
-    unknown = [n for n in chosen if n not in names]
+    unknown = [n for n in chosen if n not in names and ":" not in n]  # "module:Class" loads on demand
     if unknown:
         raise UsageError(f"unknown odometer {unknown[0]!r}; available: {', '.join(names)}")
     return chosen

@@ -9,7 +9,8 @@ An odometer sees a sequence of :class:`Frame` pairs and answers, for each pair, 
         est = odo.step(prev, cur, action)   # est.transform: 4x4, est.valid: bool
 
 Odometers are found by name: built-ins and third-party packages declare an entry point in the
-group ``odolab.odometers``; a class can also be registered in code with :func:`register_odometer`.
+group ``odolab.odometers``; a class can also be registered in code with :func:`register_odometer`,
+or named directly as ``"package.module:Class"``.
 Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is imported.
 """
 from __future__ import annotations
@@ -201,15 +202,20 @@ class OdometerRegistry:
     def resolve(self, name: str) -> Callable[..., Odometer]:
         """The factory for ``name``; :class:`UnknownOdometerError` lists the valid choices."""
         target = self._extra.get(name) or _registry().get(name)
+        if target is None and ":" in name:  # "package.module:Class", imported on demand
+            target = name
         if target is None:
             raise UnknownOdometerError(
                 f"unknown odometer {name!r}; available: {', '.join(self.names())}"
             )
         if isinstance(target, str):
             module, _, attr = target.partition(":")
-            obj = importlib.import_module(module)
-            for part in attr.split("."):
-                obj = getattr(obj, part)
+            try:
+                obj = importlib.import_module(module)
+                for part in attr.split("."):
+                    obj = getattr(obj, part)
+            except (ImportError, AttributeError) as exc:
+                raise UnknownOdometerError(f"odometer {name!r}: cannot import {target!r} ({exc})") from None
             return obj
         return target
 

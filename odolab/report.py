@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import html
 import io
+import re
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -149,6 +150,7 @@ def write_trajectories(results: list[SequenceResult], out: Path) -> None:
         if r.gt_poses is not None:
             todo.append(("groundtruth", r.gt_poses))
         for name, poses in todo:
+            name = re.sub(r"[^A-Za-z0-9_.+-]", "_", name)  # "module:Class" names make portable files
             write_tum_trajectory(d / f"{name}.tum", Trajectory(stamps, poses))
             # KITTI: poses relative to the first camera (camera i -> camera 0)
             write_kitti_poses(d / f"{name}.kitti", Trajectory(None, np.linalg.inv(poses[0]) @ poses))

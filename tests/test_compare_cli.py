@@ -2,6 +2,7 @@
 import csv
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -62,3 +63,17 @@ def test_bad_input_is_one_line_and_exit_2(args, words):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0] and lines[0].startswith("odolab.compare: error:")
     assert "Traceback" not in proc.stderr
+
+
+def test_compare_loads_a_user_class_by_module_path(tmp_path):
+    out = tmp_path / "run"
+    args = ["--odometers", "action-prior,examples.nominal_motion:NominalMotion", "--episodes", "1",
+            "--max-steps", "10", "--serial", "--quiet", "--no-cache", "--out", str(out)]
+    proc = subprocess.run([sys.executable, "-m", "odolab.compare", *args], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr
+    names = [r["odometer"] for r in _table(out / "table.csv")]
+    assert names == ["action-prior", "examples.nominal_motion:NominalMotion"]
+    bad = subprocess.run([sys.executable, "-m", "odolab.compare", "--odometers", "nowhere.mod:Nope"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "cannot import 'nowhere.mod:Nope'" in bad.stderr and "Traceback" not in bad.stderr
