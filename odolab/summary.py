@@ -68,13 +68,19 @@ def step_errors(r: SequenceResult) -> np.ndarray:
     return per_step_abs_error(_planar(r.estimates), _planar(r.truth))
 
 
+def by_odometer(results: list[SequenceResult]) -> dict[str, list[SequenceResult]]:
+    """Results with ground truth grouped by odometer, in first-seen order."""
+    groups: dict[str, list[SequenceResult]] = {}
+    for r in results:
+        if r.truth is not None:
+            groups.setdefault(r.odometer, []).append(r)
+    return groups
+
+
 def summarize(results: list[SequenceResult]) -> list[Row]:
     """One :class:`Row` per odometer, in first-seen order. Needs ground truth."""
     rows = []
-    for name in dict.fromkeys(r.odometer for r in results):
-        mine = [r for r in results if r.odometer == name and r.truth is not None]
-        if not mine:
-            continue
+    for name, mine in by_odometer(results).items():
         errs = [step_errors(r) for r in mine]
         pooled = np.concatenate(errs) * 100.0
         per_seq = np.array([e.mean(axis=0) for e in errs if len(e)]) * 100.0
@@ -99,10 +105,7 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
 def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
     """Per-step error (x 1e-2) per odometer and motion action."""
     rows = []
-    for name in dict.fromkeys(r.odometer for r in results):
-        mine = [r for r in results if r.odometer == name and r.truth is not None]
-        if not mine:
-            continue
+    for name, mine in by_odometer(results).items():
         errs = np.concatenate([step_errors(r) for r in mine]) * 100.0
         acts = np.concatenate([r.actions for r in mine])
         for a in MOTION_ACTIONS:
