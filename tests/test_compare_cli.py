@@ -77,3 +77,29 @@ def test_compare_loads_a_user_class_by_module_path(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "odolab.compare", "--odometers", "nowhere.mod:Nope"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "cannot import 'nowhere.mod:Nope'" in bad.stderr and "Traceback" not in bad.stderr
+
+
+DATA = Path(__file__).resolve().parent / "data" / "tum_fr1_xyz_10"
+
+
+def test_compare_on_a_tum_folder(tmp_path, capsys):
+    out = tmp_path / "tum"
+    args = ["--tum", str(DATA), "--odometers", "action-prior,ground-truth", "--out", str(out), "--quiet"]
+    assert run_cli(main, "odolab.compare", args) == 0
+    rows = {r["odometer"]: r for r in _table(out / "table.csv")}
+    assert float(rows["action-prior"]["trans_mm"]) == pytest.approx(12.10, abs=0.01)  # no motion, facts.md
+    assert float(rows["ground-truth"]["trans_mm"]) < 1e-6
+    assert "trans mm" in capsys.readouterr().out
+
+
+def test_compare_on_a_broken_tum_folder_is_one_line(tmp_path):
+    import shutil
+
+    broken = tmp_path / "rgbd_dataset_freiburg1_broken"
+    shutil.copytree(DATA, broken)
+    (broken / "depth.txt").write_text("# header\n1305031102.175304 depth/1305031102.160407.png extra\n")
+    proc = subprocess.run([sys.executable, "-m", "odolab.compare", "--tum", str(broken), "--odometers",
+                           "action-prior", "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    line = proc.stderr.strip()
+    assert "depth.txt" in line and "line 2" in line and len(line.splitlines()) == 1
