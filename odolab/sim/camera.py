@@ -35,6 +35,14 @@ class CameraSpec:
         return Intrinsics.from_hfov(self.width, self.height, self.hfov_deg)
 
 
+def _aligned_empty(shape: tuple[int, ...], align: int = 64) -> np.ndarray:
+    """An uninitialised float32 array whose data starts on an ``align``-byte boundary."""
+    n = int(np.prod(shape)) * 4
+    buf = np.empty(n + align, np.uint8)
+    offset = (-buf.ctypes.data) % align
+    return buf[offset:offset + n].view(np.float32).reshape(shape)
+
+
 class Renderer:
     """Ray-casts one scene; :meth:`render` returns clean (noise-free) RGB and z-depth."""
 
@@ -62,9 +70,10 @@ class Renderer:
         self._tri_axis = axis.astype(np.int8)  # dominant normal axis: picks the texture plane
         shade = 0.55 + 0.45 * np.abs(n @ (_LIGHT / np.linalg.norm(_LIGHT)))
         colors = np.array([m.color for m in scene.materials], dtype=np.float32)
-        self._tri_rgb = (colors[scene.triangle_material] * shade[:, None] * 255.0).astype(np.float32)
+        self._tri_rgb_t = np.ascontiguousarray((colors[scene.triangle_material] * shade[:, None] * 255.0).T,
+                                               dtype=np.float32)  # (3, F)
         tile = np.array([m.tile for m in scene.materials])[scene.triangle_material]
-        self._tri_tile_offset = (tile << self._tile_shift2).astype(np.intp)
+        self._tri_tile_offset = (tile << self._tile_shift2).astype(np.int32)
 
         K = camera.intrinsics
         u, v_ = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
@@ -73,7 +82,7 @@ class Renderer:
         ).reshape(-1, 3).astype(np.float32)
         self._dirs_cam_t = np.ascontiguousarray(self._dirs_cam.T)
         self._dirs_world = np.empty_like(self._dirs_cam_t)
-        self._rays = np.empty((self._dirs_cam.shape[0], 6), dtype=np.float32)
+        self._rays = _aligned_empty((self._dirs_cam.shape[0], 6))
 
     @property
     def raycasting_scene(self):
@@ -83,17 +92,18 @@ class Renderer:
     def rays(self, T_world_cam: np.ndarray) -> np.ndarray:
         """(H * W, 6) float32 rays (origin, direction with camera-z = 1) in world coordinates.
 
-        The returned array is reused by the next call; copy it to keep it.
+        The array is a reused 64-byte-aligned buffer (Embree casts unaligned rays 30% slower):
+        copy it to keep it past the next call.
         """
         R = T_world_cam[:3, :3].astype(np.float32)
-        self._rays[:, :3] = T_world_cam[:3, 3]
         d, w = self._dirs_cam_t, self._dirs_world  # (3, N): contiguous rows
         for i in range(3):  # elementwise, not BLAS: BLAS threads fight Open3D's spinning OpenMP pool
             np.multiply(d[0], R[i, 0], out=w[i])
             w[i] += R[i, 1] * d[1]
             w[i] += R[i, 2] * d[2]
-        self._rays[:, 3:] = self._dirs_world.T
-        return self._rays
+        origin = np.broadcast_to(T_world_cam[:3, 3].astype(np.float32), (w.shape[1], 3))
+        # concatenate: 10x faster than filling strided columns; the buffer is reused
+        return np.concatenate([origin, w.T], axis=1, out=self._rays)
 
     def cast(self, T_world_cam: np.ndarray) -> dict:
         """Ray casting at a pose: Open3D's result dict."""
@@ -109,19 +119,21 @@ class Renderer:
         t = hit["t_hit"].numpy()
         ok = np.isfinite(t)
         t[~ok] = 0.0
-        tri = hit["primitive_ids"].numpy().astype(np.intp)
+        tri = hit["primitive_ids"].numpy().astype(np.int32)  # np.take below: 3x faster than []
         tri[~ok] = 0
         # Hit point coordinates (contiguous rows), then the triangle's texture plane:
         # normal along X -> (Y, Z), along Y -> (X, Z), along Z (floor, ceiling) -> (X, Y).
         o, d = T_world_cam[:3, 3].astype(np.float32), self._dirs_world
         px, py, pz = o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]
-        axis = self._tri_axis[tri]
+        axis = np.take(self._tri_axis, tri)
         pu = np.where(axis == 0, py, px)
         pv = np.where(axis == 2, py, pz)
-        iu = (pu * (1.0 / TEXEL_SIZE)).astype(np.intp) & self._tile_mask  # trunc: an invisible seam at 0
-        iv = (pv * (1.0 / TEXEL_SIZE)).astype(np.intp) & self._tile_mask
-        tex = self._tiles_flat[self._tri_tile_offset[tri] + (iv << self._tile_shift) + iu]
-        rgb = self._tri_rgb[tri] * tex[:, None]
-        rgb[~ok] = 0.0
+        iu = (pu * (1.0 / TEXEL_SIZE)).astype(np.int32) & self._tile_mask  # trunc: an invisible seam at 0
+        iv = (pv * (1.0 / TEXEL_SIZE)).astype(np.int32) & self._tile_mask
+        tex = np.take(self._tiles_flat, np.take(self._tri_tile_offset, tri) + (iv << self._tile_shift) + iu)
+        tex[~ok] = 0.0
+        rgb = np.empty((len(t), 3), np.uint8)
+        for k in range(3):  # one 1-D gather per channel: 3x faster than gathering (N, 3) rows
+            rgb[:, k] = np.take(self._tri_rgb_t[k], tri) * tex
         depth = np.where(ok & (t >= cam.min_depth) & (t < cam.max_depth), t, 0.0).astype(np.float32)
-        return rgb.astype(np.uint8).reshape(cam.height, cam.width, 3), depth.reshape(cam.height, cam.width)
+        return rgb.reshape(cam.height, cam.width, 3), depth.reshape(cam.height, cam.width)
