@@ -62,6 +62,17 @@ def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> l
     return rows
 
 
+def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
+    """End-to-end episode generation in one process (scene, planning, noisy motion, rendering)."""
+    from odolab.episodes import EpisodeSpec, render_episode
+
+    frames, t0 = 0, time.perf_counter()
+    for i in range(n):
+        frames += len(render_episode(EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps)))
+    seconds = time.perf_counter() - t0
+    return {"episodes": n, "frames": frames, "seconds": seconds, "frames_per_s": frames / seconds}
+
+
 def bench_odometers(names: list[str], episodes: int = 2, max_steps: int = 40) -> list[dict]:
     """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192)."""
     from odolab import runner, summary
@@ -112,6 +123,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         report["simulator"] = bench_simulator()
         print("\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays)\n")
         print(_table(report["simulator"]))
+        report["episodes"] = bench_episodes()
+        print("\n## Episode generation, end to end, one process\n")
+        print(_table([report["episodes"]]))
     if "odometers" in parts:
         report["odometers"] = bench_odometers(names)
         print("\n## Odometers (steps/s of step() on test-split episodes, 341x192)\n")
