@@ -103,3 +103,21 @@ def test_compare_on_a_broken_tum_folder_is_one_line(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     line = proc.stderr.strip()
     assert "depth.txt" in line and "line 2" in line and len(line.splitlines()) == 1
+
+
+def test_evaluate_reads_what_compare_wrote(tmp_path):
+    import json
+
+    out = tmp_path / "one"
+    args = ["--odometers", "action-prior", "--episodes", "1", "--max-steps", "15", "--serial", "--quiet",
+            "--no-cache", "--out", str(out)]
+    assert run_cli(main, "odolab.compare", args) == 0
+    ate = float(_table(out / "table.csv")[0]["ate_m"])
+    seq = next((out / "trajectories").iterdir())
+    for fmt in ("tum", "kitti"):
+        proc = subprocess.run([sys.executable, "-m", "odolab.evaluate", str(seq / f"groundtruth.{fmt}"),
+                               str(seq / f"action-prior.{fmt}"), "--format", fmt, "--align", "none", "--json"],
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        doc = json.loads(proc.stdout)
+        assert doc["estimates"][0]["ate"] == pytest.approx(ate, rel=1e-3)
