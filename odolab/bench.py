@@ -73,7 +73,7 @@ def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
     return {"episodes": n, "frames": frames, "seconds": seconds, "frames_per_s": frames / seconds}
 
 
-def bench_odometers(names: list[str], episodes: int = 2, max_steps: int = 40) -> list[dict]:
+def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) -> list[dict]:
     """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192)."""
     from odolab import runner, summary
     from odolab.episodes import EpisodeSpec, load_episodes

@@ -33,7 +33,13 @@ class GaussianTable:
         self.table = ndtri((np.arange(65536) + 0.5) / 65536.0).astype(np.float32)
 
     def draw(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-        return np.take(self.table, rng.integers(0, 65536, size=shape, dtype=np.uint16))  # take: 3x faster than []
+        return np.take(self.table, uniform_u16(rng, shape))  # np.take: 3x faster than []
+
+
+def uniform_u16(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Uniform 16-bit integers: raw 64-bit draws viewed as four uint16 each (2x ``rng.integers``)."""
+    n = int(np.prod(shape))
+    return rng.bit_generator.random_raw((n + 3) // 4).view(np.uint16)[:n].reshape(shape)
 
 
 @dataclass
@@ -44,12 +50,18 @@ class RGBNoise:
     multiplier: float = 1.0
     gauss: GaussianTable = field(default_factory=GaussianTable, repr=False)
 
+    def __post_init__(self) -> None:
+        # Habitat stores (clip(img / 255 + s N, 0, 1) * 255) as uint8, i.e. floor(clip(img + 255 s N)).
+        # For integer img that is clip(img + floor(255 s N)): an integer table per 16-bit draw, exact.
+        self._steps = np.floor(self.gauss.table * (255.0 * self.sigma * self.multiplier)).astype(np.int16)
+
     def apply(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Noisy copy of a (H, W, 3) uint8 image."""
         if self.multiplier == 0:
             return rgb.copy()
-        noise = self.gauss.draw(rng, rgb.shape) * np.float32(self.sigma * self.multiplier * 255.0)
-        return np.clip(rgb + noise, 0.0, 255.0).astype(np.uint8)
+        out = np.take(self._steps, uniform_u16(rng, rgb.shape))
+        out += rgb
+        return np.clip(out, 0, 255, out=out).astype(np.uint8)
 
 
 @dataclass
@@ -70,7 +82,7 @@ class RedwoodDepthNoise:
         if self.multiplier == 0:
             return np.where(depth < self.max_depth, depth, 0.0).astype(np.float32)
         H, W = depth.shape
-        draws = rng.integers(0, 65536, size=(3, H, W), dtype=np.uint16)
+        draws = uniform_u16(rng, (3, H, W))
         # 1. jitter pixel coordinates (rounded, clipped to the image); 2. read on the 2x-downsampled grid
         pad = int(np.abs(self._shift).max())
         # lookup tables from a padded index to the clipped, even (downsampled) index
