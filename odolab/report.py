@@ -64,18 +64,25 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
 
     names = list(dict.fromkeys(r.odometer for r in action_rows))
     actions = list(dict.fromkeys(r.action for r in action_rows))
-    fig, axes = plt.subplots(1, 3, figsize=(max(9, 1.6 * len(names) * 1.5), 4.2))
+    fig, axes = plt.subplots(1, 4, figsize=(max(12, 2.6 * len(names)), 4.4))
     x = np.arange(len(names))
     width = 0.8 / max(len(actions), 1)
-    for ax, comp, unit in zip(axes, ("dx", "dz", "dyaw"), ("m", "m", "rad")):
+    panels = [("dx", "mean |error| of dx (x1e-2 m)", "per-step error: dx"),
+              ("dz", "mean |error| of dz (x1e-2 m)", "per-step error: dz"),
+              ("dyaw", "mean |error| of dyaw (x1e-2 rad)", "per-step error: dyaw"),
+              ("failed", "failed steps (% of the action's steps)", "failures (prior used instead)")]
+    for ax, (comp, ylabel, title) in zip(axes, panels):
         for k, a in enumerate(actions):
-            vals = [next((getattr(r, comp) for r in action_rows if r.odometer == n and r.action == a), np.nan)
-                    for n in names]
+            vals = []
+            for n in names:
+                row = next((r for r in action_rows if r.odometer == n and r.action == a), None)
+                vals.append(np.nan if row is None else
+                            100.0 * row.failures / row.steps if comp == "failed" else getattr(row, comp))
             ax.bar(x + (k - (len(actions) - 1) / 2) * width, vals, width, label=a,
                    color=_ACTION_COLORS.get(a))
         ax.set_xticks(x, names, rotation=30, ha="right", fontsize=8)
-        ax.set_ylabel(f"mean |error| of {comp} (x1e-2 {unit})")
-        ax.set_title(f"per-step error: {comp}")
+        ax.set_ylabel(ylabel)
+        ax.set_title(title)
         ax.grid(True, axis="y", alpha=0.3)
     axes[0].legend(title="action", fontsize=8)
     fig.tight_layout()

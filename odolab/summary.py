@@ -49,7 +49,7 @@ class Row:
 
 @dataclass(frozen=True)
 class ActionRow:
-    """Per-step error (x 1e-2) of one odometer for one action."""
+    """Per-step error (x 1e-2) of one odometer for one action, and its failed steps."""
 
     odometer: str
     action: str
@@ -57,6 +57,7 @@ class ActionRow:
     dz: float
     dyaw: float
     steps: int
+    failures: int
 
 
 def _planar(T: np.ndarray) -> np.ndarray:
@@ -108,9 +109,11 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
     for name, mine in by_odometer(results).items():
         errs = np.concatenate([step_errors(r) for r in mine]) * 100.0
         acts = np.concatenate([r.actions for r in mine])
+        valid = np.concatenate([r.valid for r in mine])
         for a in MOTION_ACTIONS:
             sel = acts == a.value
             if sel.any():
                 e = errs[sel].mean(axis=0)
-                rows.append(ActionRow(name, a.label, float(e[0]), float(e[1]), float(e[2]), int(sel.sum())))
+                rows.append(ActionRow(name, a.label, float(e[0]), float(e[1]), float(e[2]), int(sel.sum()),
+                                      int((~valid[sel]).sum())))
     return rows
