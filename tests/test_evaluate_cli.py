@@ -47,7 +47,8 @@ def test_tum_reference_figure_and_provenance(capsys):
     assert est["pairing"]["pairs"] == 785 and est["pairing"]["max_diff_s"] == 0.01
     assert est["pairing"]["largest_time_diff_s"] <= 0.01
     assert est["poses"]["est"] == {"total": 788, "used": 785, "dropped": 3}
-    assert est["coverage"] == pytest.approx(785 / 3000)
+    # 100 Hz ground truth, ~30 Hz estimate: coverage counts ground truth within reach of an estimate
+    assert 0.8 < est["coverage"] < 0.9
     assert est["t_rel"] is None and est["kitti"]["segments"] == 0  # 0.5 m of motion: no 100 m segment
     assert est["rpe_trans"] > 0 and est["rpe_rot"] > 0
 
@@ -155,3 +156,12 @@ def test_bad_options_are_one_line(capsys, tmp_path, args, words):
     assert run_cli(main, "odolab.evaluate", [str(gt), str(gt), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0]
+
+
+def test_coverage_halves_when_tracking_is_lost_halfway(capsys, tmp_path):
+    lines = [ln for ln in Path(TUM_EST).read_text().splitlines(True) if not ln.startswith("#")]
+    half = tmp_path / "half.txt"
+    half.write_text("".join(lines[: len(lines) // 2]))
+    full = run_json(capsys, TUM_GT, TUM_EST, "--format", "tum")["estimates"][0]["coverage"]
+    part = run_json(capsys, TUM_GT, str(half), "--format", "tum")["estimates"][0]["coverage"]
+    assert part == pytest.approx(full / 2, abs=0.03)
