@@ -107,29 +107,43 @@ def main(argv: Sequence[str] | None = None) -> int:
             sequences = [load_tum_sequence(args.tum)]
         except (FileFormatError, ValueError) as exc:
             raise UsageError(str(exc)) from None
-        plans = None
+        plans, total = None, None
         title = f"odolab compare on TUM folder {args.tum}"
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
                  "Rows marked oracle read ground truth."]
     else:
-        from odolab.episodes import EpisodeCache, EpisodeSpec, load_episodes
+        from odolab.episodes import EpisodeCache, EpisodeSpec, generate_episodes, load_episodes, stream_episodes
 
         specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps)
                  for i in range(args.episodes)]
-        cache = None if args.no_cache else EpisodeCache(args.cache)
-        sequences = load_episodes(specs, cache, ray_address=args.ray_address, parallel=not args.serial,
-                                  progress=not args.quiet)
-        plans = {ep.name: _floor_plan(ep.info["scene_seed"]) for ep in sequences[:4]}
-        steps = sum(len(s) - 1 for s in sequences)
-        collided = sum(int(s.collisions.sum()) for s in sequences)
-        title = f"odolab compare: {len(sequences)} {args.split} episodes, seed {args.seed}"
-        notes = [f"{steps} steps, {collided} of them collisions ({100 * collided / max(steps, 1):.1f}%).",
-                 "Errors are x 1e-2 (m, m, rad), mean absolute error over all steps; "
+        make = dict(ray_address=args.ray_address, parallel=not args.serial, progress=not args.quiet)
+        if args.no_cache:
+            episodes, total = load_episodes(specs, None, **make), None
+        else:  # generate what is missing, then read one episode at a time: memory holds one
+            cache = EpisodeCache(args.cache)
+            generate_episodes(specs, cache, **make)
+            episodes, total = stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
+        scenes: dict[str, int] = {}
+
+        def noted(stream):
+            for ep in stream:
+                scenes[ep.name] = ep.info["scene_seed"]
+                yield ep
+
+        sequences = noted(episodes)
+        title = f"odolab compare: {args.episodes} {args.split} episodes, seed {args.seed}"
+        notes = ["Errors are x 1e-2 (m, m, rad), mean absolute error over all steps; "
                  "rows marked oracle read ground truth.",
                  f"Command: python -m odolab.compare --episodes {args.episodes} --seed {args.seed} "
                  f"--split {args.split} --max-steps {args.max_steps}"]
 
-    results = runner.run(odometers, sequences, progress=not args.quiet)
+    results = runner.run(odometers, sequences, progress=not args.quiet, total_steps=total)
+    if args.tum is None:
+        plans = {name: _floor_plan(seed) for name, seed in list(scenes.items())[:4]}
+        one = [r for r in results if r.odometer == results[0].odometer]
+        steps = sum(len(r.actions) for r in one)
+        collided = sum(int(r.collisions.sum()) for r in one)
+        notes.insert(0, f"{steps} steps, {collided} of them collisions ({100 * collided / max(steps, 1):.1f}%).")
     rows = summary.summarize(results)
     action_rows = summary.summarize_actions(results) if args.tum is None else []
     write_report(args.out, rows, action_rows, results, title, notes, plans)

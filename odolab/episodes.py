@@ -16,6 +16,7 @@ import os
 import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -216,6 +217,11 @@ class EpisodeCache:
         except (OSError, ValueError, KeyError):
             return None
 
+    def steps(self, spec: EpisodeSpec) -> int:
+        """Number of steps of the cached episode of ``spec`` (reads only its actions)."""
+        with np.load(self.path(spec), allow_pickle=False) as z:
+            return len(z["actions"])
+
     def put(self, episode: Episode) -> Path:
         """Write atomically (temporary file + rename); returns the path."""
         self.root.mkdir(parents=True, exist_ok=True)
@@ -233,20 +239,42 @@ class EpisodeCache:
         return p
 
 
-def load_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None, *,
-                  ray_address: str | None = None, parallel: bool = True, progress: bool = True) -> list[Episode]:
-    """Episodes of ``specs`` in order: from ``cache`` where present, else generated (as ray tasks
-    when ``parallel`` and more than one is missing) and written to the cache as each finishes."""
+def generate_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None, *,
+                      ray_address: str | None = None, parallel: bool = True,
+                      progress: bool = True) -> dict[int, Episode]:
+    """Generate the episodes of ``specs`` that ``cache`` lacks (all without a cache), as Ray tasks
+    when ``parallel`` and more than one is missing. With a cache each is written as it finishes and
+    not kept in memory; without one they are returned, by index into ``specs``."""
     from odolab.parallel import fan_out
 
-    found = {i: cache.get(s) for i, s in enumerate(specs)} if cache else {}
-    missing = [i for i, s in enumerate(specs) if found.get(i) is None]
+    missing = [i for i, s in enumerate(specs) if cache is None or cache.get(s) is None]
+    kept: dict[int, Episode] = {}
 
-    def keep(i: int, ep: Episode) -> None:
-        found[i] = ep
-        if cache:
+    def done(k: int, ep: Episode) -> None:
+        if cache is not None:
             cache.put(ep)
+        else:
+            kept[missing[k]] = ep
 
-    fan_out(render_episode, [specs[i] for i in missing], on_result=lambda k, ep: keep(missing[k], ep),
-            parallel=parallel, ray_address=ray_address, progress=progress, desc="episodes")
-    return [found[i] for i in range(len(specs))]
+    fan_out(render_episode, [specs[i] for i in missing], on_result=done, parallel=parallel,
+            ray_address=ray_address, progress=progress, desc="episodes")
+    return kept
+
+
+def load_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None, *,
+                  ray_address: str | None = None, parallel: bool = True, progress: bool = True) -> list[Episode]:
+    """All episodes of ``specs`` in memory, in order (generated where the cache lacks them)."""
+    return list(stream_episodes(specs, cache, ray_address=ray_address, parallel=parallel, progress=progress))
+
+
+def stream_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None, *,
+                    ray_address: str | None = None, parallel: bool = True,
+                    progress: bool = True) -> Iterator[Episode]:
+    """The episodes of ``specs`` in order, one at a time: the missing ones are generated first; with
+    a cache, each is then read back only when its turn comes, so memory holds one episode."""
+    fresh = generate_episodes(specs, cache, ray_address=ray_address, parallel=parallel, progress=progress)
+    for i, spec in enumerate(specs):
+        ep = fresh.pop(i, None) or (cache.get(spec) if cache is not None else None)
+        if ep is None:  # the cache lost it meanwhile (another process, a full disk): make it here
+            ep = render_episode(spec)
+        yield ep

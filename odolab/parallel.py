@@ -15,16 +15,18 @@ def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
     """``[fn(item) for item in items]``, as Ray tasks when ``parallel`` and there are 2+ items.
 
     ``on_result(k, result)`` is called in the driver as each item finishes (in completion order),
-    e.g. to write it to disk at once so finished work survives an interruption.
+    e.g. to write it to disk at once so finished work survives an interruption; results are then
+    handed to it and not kept (the returned list holds None), so large results can stream.
     ``ray_address``: None starts (or reuses) a local instance; otherwise e.g. "ray://host:10001".
     """
     results: list[Any] = [None] * len(items)
     bar = tqdm(total=len(items), desc=desc, disable=not progress or not items, leave=False)
 
     def done(k: int, value: Any) -> None:
-        results[k] = value
         if on_result:
             on_result(k, value)
+        else:
+            results[k] = value
         bar.update(1)
 
     try:

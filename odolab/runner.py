@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from typing import Iterable
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -97,15 +98,19 @@ def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrio
                           np.array(stamps), errors)
 
 
-def run(odometers: dict[str, Odometer], sequences: list[Sequence], prior: ActionPrior | None = None,
-        progress: bool = True) -> list[SequenceResult]:
-    """Every odometer on every sequence (odometer-major order), with one progress bar over steps."""
+def run(odometers: dict[str, Odometer], sequences: Iterable[Sequence], prior: ActionPrior | None = None,
+        progress: bool = True, total_steps: int | None = None) -> list[SequenceResult]:
+    """Every odometer on every sequence, one sequence at a time (so ``sequences`` may be a stream
+    that holds one episode in memory), with one progress bar over steps. ``total_steps`` (steps
+    per odometer, summed over sequences) sizes the bar when ``sequences`` has no length."""
     prior = prior or ActionPrior.shipped()
-    total = len(odometers) * sum(len(s) - 1 for s in sequences)
+    if total_steps is None and hasattr(sequences, "__len__"):
+        total_steps = sum(len(s) - 1 for s in sequences)
+    total = None if total_steps is None else len(odometers) * total_steps
     results = []
     with tqdm(total=total, desc="odometry steps", unit="step", disable=not progress) as bar:
-        for name, odo in odometers.items():
-            bar.set_postfix_str(name)
-            for seq in sequences:
+        for seq in sequences:
+            for name, odo in odometers.items():
+                bar.set_postfix_str(name)
                 results.append(run_sequence(odo, seq, name, prior, bar))
     return results
