@@ -31,6 +31,18 @@ def _positive(name: str):
     return parse
 
 
+def _non_negative(name: str):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not value >= 0:  # also refuses NaN
+            raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {text}")
+        return value
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
     ap.add_argument("--odometers", default=None,
@@ -40,6 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0, help="episode seed (default 0)")
     ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
     ap.add_argument("--max-steps", type=_positive("--max-steps"), default=60, help="steps per episode (default 60)")
+    for kind, default, what in (("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"), ("depth", 1.0, "Redwood depth"),
+                                ("actuation", 0.5, "PyRobot actuation")):
+        ap.add_argument(f"--{kind}-noise", type=_non_negative(f"--{kind}-noise"), default=default, metavar="M",
+                        help=f"{what} noise multiplier, 0 = none (default {default:g})")
     ap.add_argument("--out", type=Path, default=Path("runs/compare"), help="output folder (default runs/compare)")
     ap.add_argument("--tum", type=Path, default=None, help="run on a TUM RGB-D folder instead of the simulator")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
@@ -112,9 +128,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
                  "Rows marked oracle read ground truth."]
     else:
-        from odolab.episodes import EpisodeCache, EpisodeSpec, generate_episodes, load_episodes, stream_episodes
+        from odolab.episodes import (EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes,
+                                     stream_episodes)
 
-        specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps)
+        noise = NoiseConfig(rgb=args.rgb_noise, depth=args.depth_noise, actuation=args.actuation_noise)
+        specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
                  for i in range(args.episodes)]
         make = dict(ray_address=args.ray_address, parallel=not args.serial, progress=not args.quiet)
         if args.no_cache:
@@ -134,8 +152,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         title = f"odolab compare: {args.episodes} {args.split} episodes, seed {args.seed}"
         notes = ["Errors are x 1e-2 (m, m, rad), mean absolute error over all steps; "
                  "rows marked oracle read ground truth.",
+                 f"Noise multipliers: RGB {noise.rgb:g}, depth {noise.depth:g}, actuation {noise.actuation:g} "
+                 "(the action prior was fitted at 1, 1, 0.5).",
                  f"Command: python -m odolab.compare --episodes {args.episodes} --seed {args.seed} "
-                 f"--split {args.split} --max-steps {args.max_steps}"]
+                 f"--split {args.split} --max-steps {args.max_steps} --rgb-noise {noise.rgb:g} "
+                 f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
 
     results = runner.run(odometers, sequences, progress=not args.quiet, total_steps=total)
     if args.tum is None:

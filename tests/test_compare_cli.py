@@ -56,6 +56,8 @@ def test_same_seed_same_errors_other_seed_other_errors(tmp_path):
     (["--max-steps", "-3"], "--max-steps must be positive"),
     (["--episodes", "two"], "--episodes must be an integer"),
     (["--out", "/proc/odolab-cannot-write"], "not a writable folder"),
+    (["--depth-noise", "-1"], "--depth-noise must be >= 0"),
+    (["--rgb-noise", "nan"], "--rgb-noise must be >= 0"),
 ])
 def test_bad_input_is_one_line_and_exit_2(args, words):
     proc = subprocess.run([sys.executable, "-m", "odolab.compare", *args], capture_output=True, text=True)
@@ -121,3 +123,13 @@ def test_evaluate_reads_what_compare_wrote(tmp_path):
         assert proc.returncode == 0, proc.stderr
         doc = json.loads(proc.stdout)
         assert doc["estimates"][0]["ate"] == pytest.approx(ate, rel=1e-3)
+
+
+def test_noiseless_sensors_and_actuation_change_the_errors(tmp_path):
+    base = ["--odometers", "action-prior", "--episodes", "1", "--max-steps", "12", "--serial", "--quiet",
+            "--no-cache"]
+    assert run_cli(main, "odolab.compare", [*base, "--out", str(tmp_path / "a")]) == 0
+    assert run_cli(main, "odolab.compare", [*base, "--actuation-noise", "0", "--out", str(tmp_path / "b")]) == 0
+    noisy, exact = _table(tmp_path / "a" / "table.csv")[0], _table(tmp_path / "b" / "table.csv")[0]
+    # Without actuation noise the true motion is the nominal one; the prior's mean is off by its bias only
+    assert float(exact["dyaw"]) < float(noisy["dyaw"])
