@@ -11,6 +11,7 @@ import pytest
 from baselines.depth_geometry import (
     DepthRange,
     normal_constraint,
+    planar_search,
     point_to_point_covariance,
 )
 from baselines.measure_tum import relative_pose_error
@@ -22,6 +23,7 @@ from odolab.api import (
     load_odometer,
     load_tum_sequence,
     planar_to_transform,
+    transform_to_planar,
 )
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
@@ -234,6 +236,15 @@ def test_normal_constraint_flags_a_plane_and_accepts_a_room(tum):
     rng = DepthRange()
     assert normal_constraint(np.full((480, 640), 2.0, np.float32), intr, rng) < 1e-6
     assert normal_constraint(frames[0].depth, intr, rng) > 0.05
+
+
+@pytest.mark.parametrize("action,T_true", KNOWN_MOTIONS[:3])
+def test_planar_search_lands_near_the_true_motion(action, T_true, tum, known_views):
+    """The dense solvers' start: within 2 degrees and 6 cm of the truth (their convergence basin)."""
+    frames, intr = tum
+    best = planar_search(frames[0], known_views[id(T_true)], action, intr, DepthRange())[0]
+    err = np.abs(transform_to_planar(best) - transform_to_planar(T_true))
+    assert err[2] < np.radians(2.0) and max(err[0], err[1]) < 0.06, err
 
 
 def test_point_to_point_covariance_matches_open3d_information():
