@@ -24,6 +24,10 @@ point-to-plane 4 cm 3.2 mm / 0.40 deg, point-to-plane 2 cm 3.5 mm (``variant="po
 remains available; it also refuses frames whose surfaces do not constrain translation, see
 :func:`~baselines.depth_geometry.normal_constraint`).
 
+Speed (test split, 5 episodes, 124 steps, ``python -m odolab.compare --odometers icp``): normals
+from 15 instead of 30 neighbours and 10 instead of 15 iterations per level took ICP from 22.0 to
+23.5 steps/s with the same errors ((1.27, 0.81, 1.46) -> (1.27, 0.78, 1.40) x 1e-2, 24 -> 22 failed).
+
 Validity is judged on the images, not on ICP's own fitness (which stays above 0.25 for wrong
 alignments of indoor scenes): see :class:`~baselines.depth_geometry.Verifier` (motion bounds of
 the action, depth agreement, grey-level correlation).
@@ -93,7 +97,7 @@ class ICPOdometer(Odometer):
         levels: tuple[tuple[float, float], ...] = LEVELS,
         variant: str = "colored",
         pixel_stride: int = 2,
-        max_iterations: int = 15,
+        max_iterations: int = 10,
         tolerance: float = 1e-5,
         min_points: int = 200,
         min_agreement: float = 0.8,
@@ -182,7 +186,7 @@ class ICPOdometer(Odometer):
         for scale, _ in reversed(self.levels):  # fine to coarse, each level from the one before
             voxel = scale * self.voxel
             cloud = cloud.voxel_down_sample(voxel)
-            cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.0 * voxel, max_nn=30))
+            cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.0 * voxel, max_nn=15))
             clouds.append(cloud)
         if len(clouds[-1].points) < self.min_points / 10 or len(clouds[0].points) < self.min_points:
             return None
