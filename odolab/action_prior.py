@@ -11,8 +11,6 @@ Fitting needs only the motion (no images), so 400 episodes take a few seconds.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
@@ -85,26 +83,22 @@ def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
 
 
 def _main(argv=None) -> int:
-    from odolab.cli import ArgumentParser, UsageError
+    from odolab.cli import ArgumentParser, number
+    from odolab.io.atomic import write_text_atomic
 
     ap = ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
-    ap.add_argument("--episodes", type=int, default=400)
-    ap.add_argument("--max-steps", type=int, default=500)
+    ap.add_argument("--episodes", type=number("--episodes", int, 1), default=400, help="train episodes (400)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1), default=500, help="steps each (500)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
-    if args.episodes < 1 or args.max_steps < 1:
-        raise UsageError("--episodes and --max-steps must be positive")
     prior = fit_action_prior(args.episodes, args.max_steps, args.seed)
     text = json.dumps(prior.to_json(), indent=2) + "\n"
     if args.out is None:
         print(text, end="")
         return 0
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=args.out.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, args.out)
+    write_text_atomic(args.out, text)
     print(f"wrote {args.out}")
     return 0
 

@@ -12,35 +12,11 @@ import tempfile
 from pathlib import Path
 from typing import Sequence
 
-from odolab.cli import ArgumentParser, UsageError, run_cli
+from odolab.cli import ArgumentParser, UsageError, number, run_cli
 from odolab.odometer import available_odometers, load_odometer
 from odolab.sim.scenes import SPLITS
 
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "odolab" / "episodes"
-
-
-def _positive(name: str):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if value < 1:
-            raise argparse.ArgumentTypeError(f"{name} must be positive, got {value}")
-        return value
-    return parse
-
-
-def _non_negative(name: str):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not value >= 0:  # also refuses NaN
-            raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {text}")
-        return value
-    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,13 +24,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--odometers", default=None,
                     help="comma-separated names or module:Class (default: all available: %(choices)s)".replace(
                         "%(choices)s", ", ".join(available_odometers())))
-    ap.add_argument("--episodes", type=_positive("--episodes"), default=5, help="number of episodes (default 5)")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1), default=5, help="number of episodes (default 5)")
     ap.add_argument("--seed", type=int, default=0, help="episode seed (default 0)")
     ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
-    ap.add_argument("--max-steps", type=_positive("--max-steps"), default=60, help="steps per episode (default 60)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1), default=60, help="steps per episode (default 60)")
     for kind, default, what in (("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"), ("depth", 1.0, "Redwood depth"),
                                 ("actuation", 0.5, "PyRobot actuation")):
-        ap.add_argument(f"--{kind}-noise", type=_non_negative(f"--{kind}-noise"), default=default, metavar="M",
+        ap.add_argument(f"--{kind}-noise", type=number(f"--{kind}-noise", float, 0), default=default, metavar="M",
                         help=f"{what} noise multiplier, 0 = none (default {default:g})")
     ap.add_argument("--out", type=Path, default=Path("runs/compare"), help="output folder (default runs/compare)")
     ap.add_argument("--tum", type=Path, default=None, help="run on a TUM RGB-D folder instead of the simulator")
