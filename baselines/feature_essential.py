@@ -30,13 +30,13 @@ three test episodes: 37 -> 51 of 71) and leave TUM unchanged (4.6 mm).
 Validity: the simulator's repetitive textures (bricks, tiles) make most ratio-test matches wrong
 (on turns often 5-25 true matches among 40-160), and a pose from a bad RANSAC consensus used to
 pass as valid (errors up to 2 m). Every estimate is now checked against the images by
-:class:`~baselines.depth_geometry.Verifier` (motion bounds of the action, depth agreement,
+:class:`~baselines.verification.Verifier` (motion bounds of the action, depth agreement,
 grey-level correlation): on the val split the valid steps' mean error fell from (6.0, 2.1, 2.2)
 to (1.7, 0.6, 0.7) x 1e-2 (m, m, rad), at the price of more steps declared invalid.
 
 With a known action (a robot on a floor), two more steps (val, 12 episodes, 472 steps: valid
 139 -> 339, valid-step error (1.55, 0.61, 0.70) -> (0.82, 0.34, 0.33)): matches are searched only
-where :func:`~baselines.depth_geometry.planar_search`'s motion puts each keypoint (``guide_px``,
+where :func:`~baselines.motion_search.planar_search`'s motion puts each keypoint (``guide_px``,
 see :meth:`FeatureEssentialOdometer._guided_match`; alone 139 -> 166), and the result is made
 planar by a least-squares fit of the final 3D inlier pairs seen from above (the essential
 matrix's out-of-plane error, 3 cm of height or 2 degrees of tilt, failed the motion bounds on a
@@ -50,16 +50,16 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import (
     DepthRange,
     FrameMemo,
-    Verifier,
     backproject_pixels,
-    planar_search,
-    point_to_point_covariance,
     sample_depth,
     too_little_depth,
 )
+from baselines.motion_search import planar_search
+from baselines.verification import Verifier
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, planar_to_transform, transform_to_planar
 
 __all__ = ["FeatureEssentialOdometer", "OracleRotationFeatureEssentialOdometer"]
@@ -103,7 +103,7 @@ class FeatureEssentialOdometer(Odometer):
 
     Covariance: point-to-point Gauss-Newton covariance of the final inliers that have depth in
     both frames (noise level from their residuals), see
-    :func:`baselines.depth_geometry.point_to_point_covariance`.
+    :func:`baselines.covariance.point_to_point_covariance`.
     """
 
     def __init__(
@@ -265,7 +265,7 @@ class FeatureEssentialOdometer(Odometer):
     def _guided_match(self, prev: Frame, cur: Frame, fp: _Features, fc: _Features, action: Action) -> _Matches:
         """Matches searched only near where the motion prior puts each previous keypoint.
 
-        The prior is :func:`~baselines.depth_geometry.planar_search`'s best motion; a previous
+        The prior is :func:`~baselines.motion_search.planar_search`'s best motion; a previous
         keypoint with depth is moved into the current image by it and may match only current
         keypoints within ``guide_px`` pixels, the nearest descriptor winning if it beats the
         runner-up in that window by ``guide_ratio`` and the match is mutual (the best previous

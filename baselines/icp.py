@@ -5,8 +5,8 @@ to ``[min_depth, max_depth]`` and voxel-downsampled at two levels (2, 1 x ``voxe
 default: 8, 4 cm; correspondences up to 16 and 6 cm) with normals and mean colours; the clouds are
 built once per frame and reused by the next step. The current cloud is registered onto the
 previous one, so the result is ``T_prev_cur`` directly, starting from the first ``max_starts`` (2)
-of :func:`~baselines.depth_geometry.initial_guesses` (the two best motions of a planar search
-scored on the images) until :class:`~baselines.depth_geometry.Verifier` accepts.
+of :func:`~baselines.motion_search.initial_guesses` (the two best motions of a planar search
+scored on the images) until :class:`~baselines.verification.Verifier` accepts.
 
 Why the search and no 16 cm level (val, 12 episodes, 472 steps): started even from the *true*
 motion, the former three levels (16 cm top, 64 cm reach) without a robust kernel diverged (tilt,
@@ -29,7 +29,7 @@ from 15 instead of 30 neighbours and 10 instead of 15 iterations per level took 
 23.5 steps/s with the same errors ((1.27, 0.81, 1.46) -> (1.27, 0.78, 1.40) x 1e-2, 24 -> 22 failed).
 
 Validity is judged on the images, not on ICP's own fitness (which stays above 0.25 for wrong
-alignments of indoor scenes): see :class:`~baselines.depth_geometry.Verifier` (motion bounds of
+alignments of indoor scenes): see :class:`~baselines.verification.Verifier` (motion bounds of
 the action, depth agreement, grey-level correlation).
 """
 from __future__ import annotations
@@ -39,16 +39,10 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.depth_geometry import (
-    DepthRange,
-    FrameMemo,
-    MotionBounds,
-    Verifier,
-    backproject,
-    covariance_from_information,
-    initial_guesses,
-    normal_constraint,
-)
+from baselines.covariance import covariance_from_information
+from baselines.depth_geometry import DepthRange, FrameMemo, backproject, normal_constraint
+from baselines.motion_search import initial_guesses
+from baselines.verification import MotionBounds, Verifier
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 
 __all__ = ["ICPOdometer"]
@@ -77,7 +71,7 @@ class ICPOdometer(Odometer):
     ``variant`` (``"colored"`` or ``"point_to_plane"``), ``pixel_stride`` (back-project every
     n-th row and column), ``max_iterations`` per level and ``tolerance`` (relative change of
     fitness and RMSE that ends a level), ``min_points`` (fewer usable depth points = invalid),
-    ``min_agreement`` / ``min_ncc`` / ``bounds`` (see :class:`~baselines.depth_geometry.Verifier`),
+    ``min_agreement`` / ``min_ncc`` / ``bounds`` (see :class:`~baselines.verification.Verifier`),
     ``min_normal_constraint`` (point-to-plane only: either frame's surfaces must constrain
     translation this well, see :func:`~baselines.depth_geometry.normal_constraint`),
     ``tukey_k`` (Tukey robust kernel width, None = plain least squares), ``max_starts`` (initial

@@ -7,16 +7,16 @@ one as *target*, Open3D returns the motion mapping source points into the target
 
 Open3D reports success on frames that do not overlap (Open3D issue 3781; measured here too: a
 blank depth image and an unrelated view both came back "successful"), so validity is judged on
-the images (:class:`baselines.depth_geometry.Verifier`: motion bounds of the action, depth
+the images (:class:`baselines.verification.Verifier`: motion bounds of the action, depth
 agreement, grey-level correlation) as well as on the flag.
 
 Simulator tuning (val split, 12 episodes of <= 60 steps, 472 steps): started from the action's
 nominal motion, Open3D converged on only 337 steps (the actuation noise is up to 0.23 m lateral and
 14 degrees of yaw), and even from the *true* motion its former set-up (five pyramid levels, 7 cm
 gate) diverged on 57: the 21x12-pixel top level throws it off. It is now started from
-:func:`~baselines.depth_geometry.planar_search` (a brute-force planar search scored on depth and
+:func:`~baselines.motion_search.planar_search` (a brute-force planar search scored on depth and
 grey levels, ~3 ms, within 2 degrees of the true yaw on 84% of steps), then from the nominal motion
-and the blocked step (:func:`~baselines.depth_geometry.initial_guesses`), with four levels and
+and the blocked step (:func:`~baselines.motion_search.initial_guesses`), with four levels and
 Open3D's default 3 cm gate: 448/472 valid, valid-step error (0.36, 0.23, 0.21) x 1e-2 (m, m, rad);
 TUM frames 4.56 mm. (A 5 cm gate: 452 valid, (0.41, 0.26, 0.20), but worse on the test episodes.)
 """
@@ -25,17 +25,10 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from baselines.depth_geometry import (
-    DepthRange,
-    FrameMemo,
-    MotionBounds,
-    Verifier,
-    covariance_from_information,
-    depth_mask,
-    image_texture,
-    initial_guesses,
-    normal_constraint,
-)
+from baselines.covariance import covariance_from_information
+from baselines.depth_geometry import DepthRange, FrameMemo, depth_mask, image_texture, normal_constraint
+from baselines.motion_search import initial_guesses
+from baselines.verification import MotionBounds, Verifier
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 
 __all__ = ["Open3DRGBDOdometer"]
@@ -54,10 +47,10 @@ class Open3DRGBDOdometer(Odometer):
     value the reference figure used), ``term`` (``"hybrid"`` photometric + geometric, or
     ``"color"``), ``iterations`` per pyramid level (coarse to fine), ``depth_diff_max`` (metres,
     Open3D's correspondence gate), ``min_points``, ``min_agreement``, ``min_ncc`` and ``bounds``
-    (see :class:`~baselines.depth_geometry.Verifier`), ``min_texture``
+    (see :class:`~baselines.verification.Verifier`), ``min_texture``
     and ``min_normal_constraint`` (a frame below both, e.g. a blank wall, is invalid; see
     :func:`~baselines.depth_geometry.image_texture` and ``normal_constraint``).
-    Started from each of :func:`~baselines.depth_geometry.initial_guesses` until one is accepted.
+    Started from each of :func:`~baselines.motion_search.initial_guesses` until one is accepted.
 
     Covariance: ``sigma^2 * inv(I)`` with ``I`` the information matrix Open3D returns (point-to-
     point, previous camera frame, (rx, ry, rz, tx, ty, tz)) and ``sigma^2`` a third of the mean

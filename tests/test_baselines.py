@@ -8,12 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baselines.depth_geometry import (
-    DepthRange,
-    normal_constraint,
-    planar_search,
-    point_to_point_covariance,
-)
+from baselines.covariance import point_to_point_covariance
+from baselines.depth_geometry import DepthRange, normal_constraint
+from baselines.motion_search import planar_search
 from baselines.measure_tum import relative_pose_error
 from odolab.api import (
     Action,

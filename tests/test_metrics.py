@@ -2,7 +2,6 @@
 reference figures of evo's shipped test data (tests/data/evo/README.md)."""
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +12,7 @@ from evo.core.trajectory import PosePath3D
 from evo.core.units import Unit
 
 from odolab import metrics as M
-from odolab.geometry import integrate, invert, rotation_angle
+from odolab.geometry import integrate, rotation_angle
 from odolab.io.kitti import read_kitti_poses
 from odolab.io.tum import associate, quaternion_to_matrix, read_tum_trajectory
 

@@ -1,7 +1,6 @@
 """Trajectory files (TUM, KITTI) and timestamp association, checked against evo."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
