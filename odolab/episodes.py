@@ -28,7 +28,10 @@ from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import SPLITS, generate_scene, scene_seed
 
 _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
-FORMAT_VERSION = 1
+FORMAT_VERSION = 1  # the .npz layout
+#: Bump whenever the simulator's output for a given spec changes (scenes, rendering, noise, motion,
+#: follower): it is part of every cache key, so stale cached episodes are never reused.
+SIMULATOR_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -63,7 +66,7 @@ class EpisodeSpec:
 
     def key(self) -> str:
         """Stable short hash of the spec (the cache file name)."""
-        blob = json.dumps({"v": FORMAT_VERSION, **asdict(self)}, sort_keys=True)
+        blob = json.dumps({"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, **asdict(self)}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def streams(self) -> list[np.random.Generator]:
