@@ -75,13 +75,16 @@ def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrio
         t0 = time.perf_counter()
         try:
             est = odometer.step(prev, cur, action)
-            ok = bool(est.valid) and np.all(np.isfinite(est.transform))
+            T = np.asarray(est.transform, dtype=np.float64)
+            if T.shape != (4, 4):
+                raise ValueError(f"Estimate.transform has shape {T.shape}; expected (4, 4)")
+            ok = bool(est.valid) and bool(np.all(np.isfinite(T)))
         except Exception as exc:  # an odometer's bug must not end the comparison
             ok = False
             if len(errors) < max_errors:
                 errors.append(f"step {i}: {type(exc).__name__}: {exc}")
         seconds[i] = time.perf_counter() - t0
-        estimates[i] = est.transform if ok else planar_to_transform(*prior.motion(action))
+        estimates[i] = T if ok else planar_to_transform(*prior.motion(action))
         valid[i] = ok
         prev = cur
         if progress is not None:

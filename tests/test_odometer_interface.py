@@ -120,3 +120,13 @@ def test_step_before_reset_says_so():
 
     with pytest.raises(RuntimeError, match="reset"):
         NeedsCamera().step(None, None, None)
+
+
+def test_runner_survives_a_malformed_estimate(episodes):
+    class Malformed(api.Odometer):
+        def step(self, prev, cur, action):
+            return api.Estimate(np.eye(4)[:3])
+
+    res = runner.run_sequence(Malformed(), episodes[0], "malformed", ActionPrior.shipped())
+    assert res.failures == len(episodes[0]) - 1
+    assert "shape (3, 4)" in res.errors[0]

@@ -79,6 +79,11 @@ class TumSequence:
     def __len__(self) -> int:
         return len(self._frames)
 
+    @property
+    def name(self) -> str:
+        """The folder's name, e.g. ``rgbd_dataset_freiburg1_xyz``."""
+        return self.root.name
+
     def __repr__(self) -> str:
         return f"TumSequence({str(self.root)!r}, {len(self)} frames)"
 
