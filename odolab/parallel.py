@@ -36,15 +36,20 @@ def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
             return results
         import ray
 
-        if not ray.is_initialized():
+        started = not ray.is_initialized()
+        if started:
             ray.init(address=ray_address, include_dashboard=False, log_to_driver=False,
                      configure_logging=False)
-        task = ray.remote(fn)
-        pending = {task.remote(item): k for k, item in enumerate(items)}
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            for ref in ready:
-                done(pending.pop(ref), ray.get(ref))
+        try:
+            task = ray.remote(fn)
+            pending = {task.remote(item): k for k, item in enumerate(items)}
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                for ref in ready:
+                    done(pending.pop(ref), ray.get(ref))
+        finally:
+            if started:  # a local instance's daemons would otherwise slow the timed work that follows
+                ray.shutdown()
         return results
     finally:
         bar.close()
