@@ -17,7 +17,7 @@ from odolab.api import Action, Frame, Intrinsics, transform_to_planar
 
 @dataclass(frozen=True)
 class DepthAgreement:
-    """How well a motion explains the previous depth image (see :func:`depth_agreement`).
+    """How well a motion explains the previous depth image (see :func:`alignment_check`).
 
     ``in_view``: current points that land on a usable previous depth pixel; ``fraction``: the
     share of those whose depth agrees (0 when none lands); ``rms``: root mean square depth
@@ -61,27 +61,17 @@ def _agrees(z_moved: np.ndarray, z_prev: np.ndarray) -> np.ndarray:
     return np.abs(z_prev - z_moved) < 0.01 + 0.01 * z_moved**2
 
 
-def depth_agreement(
-    prev_depth: np.ndarray,
-    cur_depth: np.ndarray,
-    T_prev_cur: np.ndarray,
-    intr: Intrinsics,
-    rng: DepthRange,
-    stride: int = 4,
-) -> DepthAgreement:
-    """Check a motion against the depth images themselves, independently of any solver's flag.
+def _depth_agreement(z_moved: np.ndarray, z_prev: np.ndarray) -> tuple[DepthAgreement, np.ndarray]:
+    """Agreement statistics of moved vs previous depths, and the mask of agreeing points.
 
-    Back-projects every ``stride``-th current pixel, moves it by ``T_prev_cur`` into the previous
-    camera, projects it and compares with the previous depth there. Agreement tolerance
-    ``0.01 m + 0.01 * z^2`` (z in metres): a Kinect's and the Redwood model's disparity noise
-    grows with z^2 (about 4 cm at 4 m). A wrong motion leaves most points disagreeing.
+    Tolerance ``0.01 m + 0.01 * z^2`` (z in metres): a Kinect's and the Redwood model's disparity
+    noise grows with z^2 (about 4 cm at 4 m). A wrong motion leaves most points disagreeing.
     """
-    _, _, z, z_prev = _reproject(prev_depth, cur_depth, T_prev_cur, intr, rng, stride)
-    if len(z) == 0:
-        return DepthAgreement(0, 0.0, 0.0)
-    agree = _agrees(z, z_prev)
-    rms = float(np.sqrt(np.mean((z_prev - z)[agree] ** 2))) if agree.any() else 0.0
-    return DepthAgreement(len(z), float(agree.mean()), rms)
+    if len(z_moved) == 0:
+        return DepthAgreement(0, 0.0, 0.0), np.zeros(0, dtype=bool)
+    agree = _agrees(z_moved, z_prev)
+    rms = float(np.sqrt(np.mean((z_prev - z_moved)[agree] ** 2))) if agree.any() else 0.0
+    return DepthAgreement(len(z_moved), float(agree.mean()), rms), agree
 
 
 @dataclass(frozen=True)
@@ -108,7 +98,7 @@ def alignment_check(
     blur_sigma: float = 1.5,
     min_points: int = 100,
 ) -> Alignment:
-    """Depth agreement (as :func:`depth_agreement`) and colour agreement of ``T_prev_cur``.
+    """Depth agreement and colour agreement of ``T_prev_cur``.
 
     Every ``stride``-th current pixel is moved into the previous image; of those whose depth
     agrees, the grey levels (Gaussian blur of ``blur_sigma`` pixels first: the simulator's RGB
@@ -117,11 +107,7 @@ def alignment_check(
     of 5 cm or more along a textured wall scores well below.
     """
     (v, u), (pv, pu), z, z_prev = _reproject(prev.depth, cur.depth, T_prev_cur, intr, rng, stride)
-    if len(z) == 0:
-        return Alignment(DepthAgreement(0, 0.0, 0.0), 0.0)
-    agree = _agrees(z, z_prev)
-    rms = float(np.sqrt(np.mean((z_prev - z)[agree] ** 2))) if agree.any() else 0.0
-    depth = DepthAgreement(len(z), float(agree.mean()), rms)
+    depth, agree = _depth_agreement(z, z_prev)
     if agree.sum() < min_points:
         return Alignment(depth, 0.0)
     a = blurred_grey(cur.rgb, blur_sigma)[v[agree], u[agree]].astype(np.float64)

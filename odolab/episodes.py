@@ -220,6 +220,14 @@ class EpisodeCache:
         except (OSError, ValueError, KeyError):
             return None
 
+    def has(self, spec: EpisodeSpec) -> bool:
+        """True if a readable file for ``spec`` is cached (reads its small ``info`` member only)."""
+        try:
+            with np.load(self.path(spec), allow_pickle=False) as z:
+                return json.loads(str(z["info"])).get("spec_key") == spec.key()
+        except (OSError, ValueError, KeyError):
+            return False
+
     def steps(self, spec: EpisodeSpec) -> int:
         """Number of steps of the cached episode of ``spec`` (reads only its actions)."""
         with np.load(self.path(spec), allow_pickle=False) as z:
@@ -250,7 +258,7 @@ def generate_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = Non
     not kept in memory; without one they are returned, by index into ``specs``."""
     from odolab.parallel import fan_out
 
-    missing = [i for i, s in enumerate(specs) if cache is None or cache.get(s) is None]
+    missing = [i for i, s in enumerate(specs) if cache is None or not cache.has(s)]
     kept: dict[int, Episode] = {}
 
     def done(k: int, ep: Episode) -> None:

@@ -138,13 +138,11 @@ class Odometer:
     """Base class of all odometers. Subclass it and override :meth:`step` (and :meth:`reset`).
 
     Class attributes: ``name`` (registry key), ``oracle`` (True if it reads ground truth, e.g.
-    ``Frame.gt_pose``; reports mark such rows), ``needs_actions`` (True if it cannot run without
-    the action, as on real data).
+    ``Frame.gt_pose``; reports mark such rows).
     """
 
     name: str = "odometer"
     oracle: bool = False
-    needs_actions: bool = False
     _intrinsics: Intrinsics | None = None
 
     @property

@@ -12,7 +12,7 @@ Definitions (each metric's formula lives in :mod:`odolab.metrics`):
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,9 +42,6 @@ class Row:
     failures: int
     steps: int
     sequences: int
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

@@ -66,14 +66,15 @@ def test_noiseless_rollouts_reach_the_goal_without_collisions():
 
 def test_cache_round_trip_and_atomic_files(tmp_path, small_spec):
     cache = EpisodeCache(tmp_path)
-    assert cache.get(small_spec) is None
+    assert cache.get(small_spec) is None and not cache.has(small_spec)
     ep = render_episode(small_spec)
     path = cache.put(ep)
+    assert cache.has(small_spec) and cache.steps(small_spec) == len(ep.actions)
     assert path.exists() and not list(tmp_path.glob("*.tmp"))
     back = cache.get(small_spec)
     assert np.array_equal(back.rgb, ep.rgb) and back.info == ep.info
     path.write_bytes(b"garbage")  # a damaged file is treated as missing, not an error
-    assert cache.get(small_spec) is None
+    assert cache.get(small_spec) is None and not cache.has(small_spec)
 
 
 def test_load_episodes_uses_the_cache(tmp_path, small_spec):

@@ -104,10 +104,6 @@ class Renderer:
             rays[:, i] = T_world_cam[i, 3]
         return rays
 
-    def cast(self, T_world_cam: np.ndarray) -> dict:
-        """Ray casting at a pose: Open3D's result dict."""
-        return self._rc.cast_rays(self.rays(T_world_cam))
-
     def render(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Clean ``rgb`` (H, W, 3) uint8 and ``depth`` (H, W) float32 metres (0 = no reading).
 

@@ -48,8 +48,6 @@ def geodesic_distance(scene: Scene, x: float, y: float, wall_penalty: float = 0.
     if 0 <= r < scene.navigable.shape[0] and 0 <= c < scene.navigable.shape[1] and nav[r + 1, c + 1]:
         out[nav] = dijkstra(graph, indices=int(index[r + 1, c + 1]))
     return out[1:-1, 1:-1]
-    out[nav] = dijkstra(graph, indices=int(index[r, c]))
-    return out
 
 
 def largest_component(scene: Scene) -> np.ndarray:
