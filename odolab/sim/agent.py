@@ -1,8 +1,9 @@
 """The agent: a 0.18 m-radius cylinder on the scene's occupancy grid, moved by noisy actions.
 
 Collisions do not slide (Habitat PointNav Challenge 2020): if the straight path of a step crosses
-a cell where the agent does not fit, its position stays where it was; the rotation (with its
-noise) still happens.
+a cell where the agent does not fit, it stops at contact, where the path first leaves the navigable
+area (habitat-sim's ``PathFinder::tryStep`` without sliding); the rotation (with its noise) still
+happens.
 """
 from __future__ import annotations
 
@@ -25,11 +26,22 @@ class AgentState:
     yaw: float
 
 
-def path_is_free(scene: Scene, x0: float, y0: float, x1: float, y1: float, spacing: float = 0.02) -> bool:
-    """True if every point of the segment (sampled every ``spacing`` m) is navigable."""
+def advance(scene: Scene, x0: float, y0: float, x1: float, y1: float, spacing: float = 0.01) -> tuple[float, float, bool]:
+    """Move the agent's centre from (x0, y0) towards (x1, y1) without sliding.
+
+    As habitat-sim's navmesh ``try_step`` without sliding: the agent stops where the straight path
+    first leaves the navigable area (at contact, to ``spacing`` m) and the step counts as a
+    collision; returns the reached (x, y) and whether it was blocked.
+    """
     n = max(2, int(np.ceil(np.hypot(x1 - x0, y1 - y0) / spacing)) + 1)
     s = np.linspace(0.0, 1.0, n)
-    return bool(np.all(scene.is_navigable(x0 + s * (x1 - x0), y0 + s * (y1 - y0))))
+    free = scene.is_navigable(x0 + s * (x1 - x0), y0 + s * (y1 - y0))
+    if free.all():
+        return float(x1), float(y1), False
+    last = int(np.argmin(free)) - 1  # the last free sample before the first blocked one
+    if last < 0:
+        return float(x0), float(y0), True
+    return float(x0 + s[last] * (x1 - x0)), float(y0 + s[last] * (y1 - y0)), True
 
 
 def apply_motion(scene: Scene, state: AgentState, motion: Motion) -> tuple[AgentState, bool]:
@@ -38,10 +50,8 @@ def apply_motion(scene: Scene, state: AgentState, motion: Motion) -> tuple[Agent
     # forward = (c, s); right = (s, -c) in world XY
     x1 = state.x + motion.forward * c + motion.right * s
     y1 = state.y + motion.forward * s - motion.right * c
-    blocked = not path_is_free(scene, state.x, state.y, x1, y1)
-    if blocked:
-        x1, y1 = state.x, state.y
-    return AgentState(float(x1), float(y1), float(wrap_angle(state.yaw + motion.yaw))), blocked
+    x1, y1, blocked = advance(scene, state.x, state.y, x1, y1)
+    return AgentState(x1, y1, float(wrap_angle(state.yaw + motion.yaw))), blocked
 
 
 def step_agent(scene: Scene, state: AgentState, action: Action, noise: ActuationNoise,
