@@ -56,6 +56,7 @@ class EpisodeSpec:
     max_goal_distance: float = 30.0  # m, geodesic
     min_geodesic_ratio: float = 1.1  # geodesic / euclidean below this is mostly rejected (as habitat-lab)
     goal_radius: float = 0.36  # m: the follower calls STOP within this geodesic distance (PointNav success)
+    stop_at_contact: bool = True  # blocked steps stop at contact (habitat-sim) or, if False, stay put
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     camera: CameraSpec = field(default_factory=CameraSpec)
 
@@ -143,7 +144,7 @@ def rollout(spec: EpisodeSpec) -> Rollout:
     (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
     noise = ActuationNoise(spec.noise.controller, spec.noise.actuation)
     follower = ShortestPathFollower(geodesic_field(scene, gx, gy), goal_radius=spec.goal_radius, noise=noise,
-                                    rng=act_rng)
+                                    rng=act_rng, stop_at_contact=spec.stop_at_contact)
 
     state = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
     states, actions, collisions = [state], [], []
@@ -153,7 +154,7 @@ def rollout(spec: EpisodeSpec) -> Rollout:
         if action == Action.STOP:
             reached = True
             break
-        state, collided = step_agent(scene, state, action, noise, act_rng)
+        state, collided = step_agent(scene, state, action, noise, act_rng, spec.stop_at_contact)
         states.append(state)
         actions.append(action)
         collisions.append(collided)

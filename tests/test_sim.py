@@ -99,6 +99,9 @@ def test_blocked_forward_step_stops_at_contact_without_sliding_and_still_turns()
     # ... and it stopped within 1 cm of where the straight path leaves the navigable area
     nx, ny = s1.x + 0.011 * np.cos(s0.yaw), s1.y + 0.011 * np.sin(s0.yaw)
     assert not scene.is_navigable(nx, ny) or not scene.is_navigable(nx + 0.01 * np.cos(s0.yaw), ny + 0.01 * np.sin(s0.yaw))
+    # the other rule: a blocked step leaves the agent where it was
+    s3, c3 = apply_motion(scene, s0, Motion(forward=0.25, right=0.0, yaw=0.05), stop_at_contact=False)
+    assert c3 and (s3.x, s3.y) == (s0.x, s0.y) and s3.yaw == pytest.approx(s0.yaw + 0.05)
     # A free step moves the full amount
     free = AgentState(s0.x, s0.y, s0.yaw + np.pi)
     if scene.is_navigable(free.x + 0.3 * np.cos(free.yaw), free.y + 0.3 * np.sin(free.yaw)):

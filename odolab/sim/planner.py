@@ -124,6 +124,7 @@ class ShortestPathFollower:
     goal_radius: float = 0.36
     noise: ActuationNoise | None = None  # the look-ahead's forward step: noiseless if None
     rng: np.random.Generator | None = None  # draws the look-ahead's noise
+    stop_at_contact: bool = True  # the agent's collision rule (odolab.sim.agent.advance)
     _edge: np.ndarray = field(init=False, repr=False)
     _history: deque = field(init=False, repr=False)
     _queued: list = field(init=False, repr=False)
@@ -140,11 +141,11 @@ class ShortestPathFollower:
 
     def _reward(self, state: AgentState, yaw: float, turns: int, here: float) -> float:
         if self.noise is None:
-            x, y, collided = advance(self.geodesic.scene, state.x, state.y,
-                                     state.x + FORWARD_STEP * np.cos(yaw), state.y + FORWARD_STEP * np.sin(yaw))
+            x, y, collided = advance(self.geodesic.scene, state.x, state.y, state.x + FORWARD_STEP * np.cos(yaw),
+                                     state.y + FORWARD_STEP * np.sin(yaw), self.stop_at_contact)
         else:  # habitat's follower tries the agent's own (noisy) move_forward
             end, collided = apply_motion(self.geodesic.scene, AgentState(state.x, state.y, yaw),
-                                         self.noise.sample(Action.MOVE_FORWARD, self.rng))
+                                         self.noise.sample(Action.MOVE_FORWARD, self.rng), self.stop_at_contact)
             x, y = end.x, end.y
         after = self.geodesic.at(x, y)
         return ((here - after) / FORWARD_STEP - TURN_COST * turns
