@@ -3,7 +3,9 @@
 The camera is a level pinhole (LoCoBot-like, Habitat PointNav Challenge 2020): 341 x 192 pixels,
 70 degree horizontal field of view, 0.88 m above the floor, depth range 0.1-10 m. Ray directions
 are computed once in the camera frame with z = 1, so the ray parameter of a hit *is* the z-depth;
-per pose they are only rotated. Noise is added separately (:mod:`odolab.sim.noise`).
+per pose they are only rotated. Each ray passes through a pixel centre, at integer image coordinates
+with cx = (W - 1) / 2 (the convention of :class:`~odolab.odometer.Intrinsics`, used everywhere).
+Noise is added separately (:mod:`odolab.sim.noise`).
 """
 from __future__ import annotations
 
