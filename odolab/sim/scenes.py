@@ -178,7 +178,7 @@ def _divide(rect: _Rect, rng: np.random.Generator, depth: int, walls: list, door
     else:
         return [rect]
     lo, hi = (rect.y0, rect.y1) if vertical else (rect.x0, rect.x1)
-    door_w = rng.uniform(0.8, 1.0)
+    door_w = rng.uniform(0.7, 0.95)
     door_c = rng.uniform(lo + 0.3 + door_w / 2, hi - 0.3 - door_w / 2)
     at = start + cut
     walls.append((vertical, at, lo, hi, door_c - door_w / 2, door_c + door_w / 2))
@@ -210,7 +210,7 @@ def _furnish(rooms: list[_Rect], doors: list, rng: np.random.Generator, n_materi
     for room in rooms:
         w, h = room.x1 - room.x0, room.y1 - room.y0
         corridor = min(w, h) < 2.0  # corridors get at most a couple of small round things
-        for _ in range(rng.integers(0, 3) if corridor else rng.integers(3, 10)):
+        for _ in range(rng.integers(0, 4) if corridor else rng.integers(4, 13)):
             mat = int(rng.integers(WALL_MATERIALS[1], n_materials))
             for _attempt in range(10):
                 if not corridor and rng.random() < 0.7:
