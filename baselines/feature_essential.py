@@ -60,7 +60,16 @@ from baselines.depth_geometry import (
 )
 from baselines.motion_search import planar_search
 from baselines.verification import Verifier
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, planar_to_transform, transform_to_planar
+from odolab.api import (
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Odometer,
+    invert,
+    planar_to_transform,
+    transform_to_planar,
+)
 
 __all__ = ["FeatureEssentialOdometer", "OracleRotationFeatureEssentialOdometer"]
 
@@ -279,7 +288,7 @@ class FeatureEssentialOdometer(Odometer):
         if len(has) < 2:
             return _Matches(np.zeros((0, 2)), np.zeros((0, 2)))
         X = backproject_pixels(fp.uv[has, 0], fp.uv[has, 1], z[has], intr)
-        T_cur_prev = np.linalg.inv(T)
+        T_cur_prev = invert(T)
         Y = X @ T_cur_prev[:3, :3].T + T_cur_prev[:3, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             pred = (Y @ intr.matrix.T)[:, :2] / Y[:, 2:3]
