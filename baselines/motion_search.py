@@ -44,6 +44,13 @@ def initial_guesses(
     return guesses
 
 
+#: A depth difference costs fully at this multiple of the noise model's tolerance (the verifier
+#: uses 1): the grid's candidates are only near the true motion, and a wider band ranks them smoothly.
+DEPTH_COST_SCALE = 2.0
+#: A grey-level difference (0-255 scale, after the blur) costs fully at this many levels.
+GREY_COST_SCALE = 30.0
+
+
 def _search_grid(action: Action | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coarse candidate offsets (lateral m, forward m, yaw rad) around an action's nominal motion."""
     yaw = np.radians(np.arange(-16.0, 16.1, 2.0))
@@ -59,13 +66,15 @@ def _planar_candidates(center: np.ndarray, dx: np.ndarray, dz: np.ndarray, dyaw:
 
 
 def _planar_costs(
-    X: np.ndarray, g_cur: np.ndarray, z_prev: np.ndarray, g_prev: np.ndarray, cand: np.ndarray, intr: Intrinsics
+    X: np.ndarray, g_cur: np.ndarray, z_prev: np.ndarray, g_prev: np.ndarray, cand: np.ndarray, intr: Intrinsics,
+    rng: DepthRange,
 ) -> np.ndarray:
     """Mean robust cost (K,) of planar motions ``cand`` (K, 3) moving points ``X`` (N, 3) with grey
     levels ``g_cur`` onto the previous depth ``z_prev`` (0 = unusable) and grey ``g_prev`` (float32).
 
     Per point: 1 when it leaves the image or meets no depth; else the mean of its depth difference
-    over ``0.02 m + 0.02 z^2`` and its grey difference over 30 levels, each capped at 1.
+    over ``DEPTH_COST_SCALE`` times the noise model's tolerance (``rng.tolerance``) and its grey
+    difference over ``GREY_COST_SCALE`` levels, each capped at 1.
     """
     c = np.cos(cand[:, 2:3]).astype(np.float32)
     s = np.sin(cand[:, 2:3]).astype(np.float32)
@@ -80,8 +89,8 @@ def _planar_costs(
     idx = np.where(inside, pv * w + pu, 0)
     zq = z_prev.reshape(-1)[idx]
     gq = g_prev.reshape(-1)[idx]
-    dz_cost = np.minimum(np.abs(zq - zp) / (0.02 + 0.02 * zp * zp), 1.0)
-    dg_cost = np.minimum(np.abs(gq - g_cur) * np.float32(1.0 / 30.0), 1.0)
+    dz_cost = np.minimum(np.abs(zq - zp) / (DEPTH_COST_SCALE * rng.tolerance(zp)), 1.0)
+    dg_cost = np.minimum(np.abs(gq - g_cur) * np.float32(1.0 / GREY_COST_SCALE), 1.0)
     cost = np.where(inside & (zq > 0), 0.5 * (dz_cost + dg_cost), 1.0)
     return cost.mean(axis=1)
 
@@ -106,7 +115,7 @@ def planar_search(
     g_prev = blurred_grey(prev.rgb, 3.0)
     nominal = transform_to_planar(nominal_motion(action))
     cand = _planar_candidates(nominal, *_search_grid(action))
-    costs = _planar_costs(X[::2], g_cur[::2], z_prev, g_prev, cand, intr)  # coarse grid: half the points
+    costs = _planar_costs(X[::2], g_cur[::2], z_prev, g_prev, cand, intr, rng)  # coarse grid: half the points
     order = np.argsort(costs)
     seeds = [cand[order[0]]]
     for k in order[1:]:
@@ -118,6 +127,6 @@ def planar_search(
     for seed in seeds[:top]:
         fine = _planar_candidates(seed, np.array([-0.04, 0.0, 0.04]), np.array([-0.05, 0.0, 0.05]),
                                   np.radians([-1.0, 0.0, 1.0]))
-        fc = _planar_costs(X, g_cur, z_prev, g_prev, fine, intr)
+        fc = _planar_costs(X, g_cur, z_prev, g_prev, fine, intr, rng)
         out.append(planar_to_transform(*fine[np.argmin(fc)]))
     return out

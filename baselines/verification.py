@@ -56,20 +56,17 @@ def _reproject(
     return (v[inside][seen], u[inside][seen]), (pv[seen], pu[seen]), z[inside][seen], z_prev[seen]
 
 
-def _agrees(z_moved: np.ndarray, z_prev: np.ndarray) -> np.ndarray:
-    """Depths (metres) equal within ``0.01 m + 0.01 * z^2`` (Kinect / Redwood noise grows as z^2)."""
-    return np.abs(z_prev - z_moved) < 0.01 + 0.01 * z_moved**2
+def _depth_agreement(
+    z_moved: np.ndarray, z_prev: np.ndarray, rng: DepthRange
+) -> tuple[DepthAgreement, np.ndarray]:
+    """Agreement statistics of moved vs previous depths (metres), and the mask of agreeing points.
 
-
-def _depth_agreement(z_moved: np.ndarray, z_prev: np.ndarray) -> tuple[DepthAgreement, np.ndarray]:
-    """Agreement statistics of moved vs previous depths, and the mask of agreeing points.
-
-    Tolerance ``0.01 m + 0.01 * z^2`` (z in metres): a Kinect's and the Redwood model's disparity
-    noise grows with z^2 (about 4 cm at 4 m). A wrong motion leaves most points disagreeing.
+    Two depths agree within the noise model's :meth:`~baselines.depth_geometry.DepthRange.tolerance`.
+    A wrong motion leaves most points disagreeing.
     """
     if len(z_moved) == 0:
         return DepthAgreement(0, 0.0, 0.0), np.zeros(0, dtype=bool)
-    agree = _agrees(z_moved, z_prev)
+    agree = np.abs(z_prev - z_moved) < rng.tolerance(z_moved)
     rms = float(np.sqrt(np.mean((z_prev - z_moved)[agree] ** 2))) if agree.any() else 0.0
     return DepthAgreement(len(z_moved), float(agree.mean()), rms), agree
 
@@ -107,7 +104,7 @@ def alignment_check(
     of 5 cm or more along a textured wall scores well below.
     """
     (v, u), (pv, pu), z, z_prev = _reproject(prev.depth, cur.depth, T_prev_cur, intr, rng, stride)
-    depth, agree = _depth_agreement(z, z_prev)
+    depth, agree = _depth_agreement(z, z_prev, rng)
     if agree.sum() < min_points:
         return Alignment(depth, 0.0)
     a = blurred_grey(cur.rgb, blur_sigma)[v[agree], u[agree]].astype(np.float64)
