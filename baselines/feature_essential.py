@@ -30,7 +30,7 @@ three test episodes: 37 -> 51 of 71) and leave TUM unchanged (4.6 mm).
 Validity: the simulator's repetitive textures (bricks, tiles) make most ratio-test matches wrong
 (on turns often 5-25 true matches among 40-160), and a pose from a bad RANSAC consensus used to
 pass as valid (errors up to 2 m). Every estimate is now checked against the images by
-:class:`~baselines.verification.Verifier` (motion bounds of the action, depth agreement,
+:func:`~baselines.verification.verify` (motion bounds of the action, depth agreement,
 grey-level correlation): on the val split the valid steps' mean error fell from (6.0, 2.1, 2.2)
 to (1.7, 0.6, 0.7) x 1e-2 (m, m, rad), at the price of more steps declared invalid.
 
@@ -44,7 +44,6 @@ third of the otherwise correct steps). ``planar=False`` keeps the 6-DoF result.
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -59,7 +58,7 @@ from baselines.depth_geometry import (
     too_little_depth,
 )
 from baselines.motion_search import planar_search
-from baselines.verification import Verifier
+from baselines.verification import VerifyConfig, verify
 from odolab.api import (
     Action,
     Estimate,
@@ -128,13 +127,13 @@ class FeatureEssentialOdometer(Odometer):
         min_inliers: int = 15,
         min_cheirality: float = 0.5,
         min_parallax: float = 0.05,
-        verifier: Verifier | None = Verifier(),
+        verifier: VerifyConfig | None = VerifyConfig(),
         guide_px: float = 20.0,
         guide_ratio: float = 0.9,
         planar: bool = True,
     ) -> None:
         self.depth_range = DepthRange(min_depth, max_depth)
-        self.verifier = verifier and dataclasses.replace(verifier, depth_range=self.depth_range)
+        self.verifier = verifier
         self.n_features = n_features
         self.contrast_threshold = contrast_threshold
         self.blur_sigma = blur_sigma
@@ -172,7 +171,7 @@ class FeatureEssentialOdometer(Odometer):
             T = self._planar_fit if self._planar_fit is not None else transform_to_planar(est.transform)
             est = Estimate(planar_to_transform(*T), covariance=est.covariance)
         if est.valid and self.verifier is not None:
-            if self.verifier.check(prev, cur, est.transform, action, self.intrinsics) is None:
+            if verify(prev, cur, est.transform, action, self.intrinsics, self.depth_range, self.verifier) is None:
                 self.last_path = None
                 return Estimate.invalid()
         return est

@@ -6,7 +6,8 @@ default: 8, 4 cm; correspondences up to 16 and 6 cm) with normals and mean colou
 built once per frame and reused by the next step. The current cloud is registered onto the
 previous one, so the result is ``T_prev_cur`` directly, starting from the first ``max_starts`` (2)
 of :func:`~baselines.motion_search.initial_guesses` (the two best motions of a planar search
-scored on the images) until :class:`~baselines.verification.Verifier` accepts.
+scored on the images) until :func:`~baselines.verification.verify` accepts
+(:func:`~baselines.verification.first_verified`).
 
 Why the search and no 16 cm level (val, 12 episodes, 472 steps): started even from the *true*
 motion, the former three levels (16 cm top, 64 cm reach) without a robust kernel diverged (tilt,
@@ -29,7 +30,7 @@ from 15 instead of 30 neighbours and 10 instead of 15 iterations per level took 
 23.5 steps/s with the same errors ((1.27, 0.81, 1.46) -> (1.27, 0.78, 1.40) x 1e-2, 24 -> 22 failed).
 
 Validity is judged on the images, not on ICP's own fitness (which stays above 0.25 for wrong
-alignments of indoor scenes): see :class:`~baselines.verification.Verifier` (motion bounds of
+alignments of indoor scenes): see :func:`~baselines.verification.verify` (motion bounds of
 the action, depth agreement, grey-level correlation).
 """
 from __future__ import annotations
@@ -42,7 +43,7 @@ import open3d as o3d
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import DepthRange, FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
-from baselines.verification import MotionBounds, Verifier
+from baselines.verification import MotionBounds, VerifyConfig, first_verified
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 
 __all__ = ["ICPOdometer"]
@@ -71,7 +72,7 @@ class ICPOdometer(Odometer):
     ``variant`` (``"colored"`` or ``"point_to_plane"``), ``pixel_stride`` (back-project every
     n-th row and column), ``max_iterations`` per level and ``tolerance`` (relative change of
     fitness and RMSE that ends a level), ``min_points`` (fewer usable depth points = invalid),
-    ``min_agreement`` / ``min_ncc`` / ``bounds`` (see :class:`~baselines.verification.Verifier`),
+    ``min_agreement`` / ``min_ncc`` / ``bounds`` (see :class:`~baselines.verification.VerifyConfig`),
     ``min_normal_constraint`` (point-to-plane only: either frame's surfaces must constrain
     translation this well, see :func:`~baselines.depth_geometry.normal_constraint`),
     ``tukey_k`` (Tukey robust kernel width, None = plain least squares), ``max_starts`` (initial
@@ -116,7 +117,7 @@ class ICPOdometer(Odometer):
         self.min_normal_constraint = min_normal_constraint
         self.tukey_k = tukey_k
         self.max_starts = int(max_starts)
-        self.verifier = Verifier(self.depth_range, bounds, min_points, min_agreement, min_ncc)
+        self.verify = VerifyConfig(bounds, min_points, min_agreement, min_ncc)
         self._clouds: FrameMemo[_Pyramid | None] = FrameMemo()
 
     def reset(self, intrinsics: Intrinsics) -> None:
@@ -131,12 +132,15 @@ class ICPOdometer(Odometer):
             return Estimate.invalid()
         if min(target.constraint, source.constraint) < self.min_normal_constraint and self.variant != "colored":
             return Estimate.invalid()  # a plane, or a floor and one wall: point-to-plane ICP would slide
-        for guess in initial_guesses(action, prev, cur, self.intrinsics, self.depth_range)[: self.max_starts]:
-            T, rmse = self._coarse_to_fine(source, target, guess)
-            check = self.verifier.check(prev, cur, T, action, self.intrinsics)
-            if check is not None:
-                return Estimate(T, covariance=self._covariance(source, target, T, rmse))
-        return Estimate.invalid()
+        guesses = initial_guesses(action, prev, cur, self.intrinsics, self.depth_range)[: self.max_starts]
+        found = first_verified(
+            guesses, lambda T: self._coarse_to_fine(source, target, T),
+            prev, cur, action, self.intrinsics, self.depth_range, self.verify,
+        )
+        if found is None:
+            return Estimate.invalid()
+        T, rmse = found.T_prev_cur, found.detail
+        return Estimate(T, covariance=self._covariance(source, target, T, rmse))
 
     def _coarse_to_fine(self, source: _Pyramid, target: _Pyramid, T: np.ndarray) -> tuple[np.ndarray | None, float]:
         """ICP at every level from ``T``: (``T_prev_cur`` or None on failure, final inlier RMSE m)."""

@@ -7,7 +7,7 @@ one as *target*, Open3D returns the motion mapping source points into the target
 
 Open3D reports success on frames that do not overlap (Open3D issue 3781; measured here too: a
 blank depth image and an unrelated view both came back "successful"), so validity is judged on
-the images (:class:`baselines.verification.Verifier`: motion bounds of the action, depth
+the images (:func:`baselines.verification.verify`: motion bounds of the action, depth
 agreement, grey-level correlation) as well as on the flag.
 
 Simulator tuning (val split, 12 episodes of <= 60 steps, 472 steps): started from the action's
@@ -28,7 +28,7 @@ import open3d as o3d
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import DepthRange, FrameMemo, depth_mask, image_texture, normal_constraint
 from baselines.motion_search import initial_guesses
-from baselines.verification import MotionBounds, Verifier
+from baselines.verification import MotionBounds, VerifyConfig, first_verified
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 
 __all__ = ["Open3DRGBDOdometer"]
@@ -47,7 +47,7 @@ class Open3DRGBDOdometer(Odometer):
     value the reference figure used), ``term`` (``"hybrid"`` photometric + geometric, or
     ``"color"``), ``iterations`` per pyramid level (coarse to fine), ``depth_diff_max`` (metres,
     Open3D's correspondence gate), ``min_points``, ``min_agreement``, ``min_ncc`` and ``bounds``
-    (see :class:`~baselines.verification.Verifier`), ``min_texture``
+    (see :class:`~baselines.verification.VerifyConfig`), ``min_texture``
     and ``min_normal_constraint`` (a frame below both, e.g. a blank wall, is invalid; see
     :func:`~baselines.depth_geometry.image_texture` and ``normal_constraint``).
     Started from each of :func:`~baselines.motion_search.initial_guesses` until one is accepted.
@@ -79,7 +79,7 @@ class Open3DRGBDOdometer(Odometer):
         self.iterations = tuple(int(n) for n in iterations)
         self.depth_diff_max = depth_diff_max
         self.min_points = min_points
-        self.verifier = Verifier(self.depth_range, bounds, min_points, min_agreement, min_ncc)
+        self.verify = VerifyConfig(bounds, min_points, min_agreement, min_ncc)
         self.min_texture = min_texture
         self.min_normal_constraint = min_normal_constraint
         self._images: FrameMemo[o3d.geometry.RGBDImage | None] = FrameMemo()
@@ -94,12 +94,15 @@ class Open3DRGBDOdometer(Odometer):
         source = self._images.get(cur, lambda: self._rgbd(cur))
         if target is None or source is None or self._featureless(prev) or self._featureless(cur):
             return Estimate.invalid()
-        for guess in initial_guesses(action, prev, cur, self.intrinsics, self.depth_range):
-            T, info = self._align(source, target, guess)
-            check = self.verifier.check(prev, cur, T, action, self.intrinsics)
-            if check is not None:
-                return Estimate(T, covariance=covariance_from_information(info, check.depth.rms**2 / 3.0))
-        return Estimate.invalid()
+        found = first_verified(
+            initial_guesses(action, prev, cur, self.intrinsics, self.depth_range),
+            lambda T: self._align(source, target, T),
+            prev, cur, action, self.intrinsics, self.depth_range, self.verify,
+        )
+        if found is None:
+            return Estimate.invalid()
+        sigma2 = found.check.depth.rms**2 / 3.0  # per-coordinate variance of the agreeing depths
+        return Estimate(found.T_prev_cur, covariance=covariance_from_information(found.detail, sigma2))
 
     def _align(
         self, source: o3d.geometry.RGBDImage, target: o3d.geometry.RGBDImage, guess: np.ndarray

@@ -2,11 +2,13 @@
 
 A motion ``T_prev_cur`` is accepted when it respects the action's motion bounds, moves the current
 depth onto the previous depth image, and lines up the two images' grey levels
-(:class:`Verifier`). Conventions: :mod:`odolab.api`.
+(:func:`verify`, configured by :class:`VerifyConfig`). Conventions: :mod:`odolab.api`.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import numpy as np
 
@@ -156,35 +158,86 @@ _UNBOUNDED = MotionBounds(np.inf, np.inf, np.inf, np.inf, (-np.inf, np.inf), np.
 
 
 @dataclass(frozen=True)
-class Verifier:
-    """Accepts a motion only if the images themselves confirm it; shared by the dense odometers.
+class VerifyConfig:
+    """When the images confirm a motion; one configuration shared by all baselines.
 
     A motion ``T_prev_cur`` passes when it is in ``bounds`` for the action (see
-    :class:`MotionBounds`; None = unbounded), at least ``min_points`` current depth points land on
-    the previous depth image, a share ``min_agreement`` of them agree in depth and their grey
-    levels correlate with NCC >= ``min_ncc`` (see :func:`alignment_check`). On the simulator's
-    validation episodes, 0.8 / 0.85 cut the mean error of the accepted Open3D RGB-D steps from
-    3.4 to 0.8 cm (dx) while rejecting 4 of 175 good ones.
+    :class:`MotionBounds`; None = unbounded), at least ``min_points_in_view`` of the current depth
+    points (every ``pixel_stride``-th row and column) land on a usable previous depth pixel, a share
+    ``min_agreement`` of them agree in depth (the noise model of
+    :class:`~baselines.depth_geometry.DepthRange`) and their grey levels, blurred by
+    ``ncc_blur_sigma`` pixels, correlate with NCC >= ``min_ncc`` (0 when fewer than
+    ``min_ncc_points`` agree); see :func:`alignment_check`. On the simulator's validation
+    episodes, 0.8 / 0.85 cut the mean error of the accepted Open3D RGB-D steps from 3.4 to 0.8 cm
+    (dx) while rejecting 4 of 175 good ones.
     """
 
-    depth_range: DepthRange = DepthRange()
     bounds: MotionBounds | None = MotionBounds()
-    min_points: int = 200
+    min_points_in_view: int = 200
     min_agreement: float = 0.8
     min_ncc: float = 0.85
+    pixel_stride: int = 2
+    ncc_blur_sigma: float = 1.5
+    min_ncc_points: int = 100
 
-    def check(
-        self, prev: Frame, cur: Frame, T_prev_cur: np.ndarray | None, action: Action | None, intr: Intrinsics
-    ) -> Alignment | None:
-        """The :class:`Alignment` of an accepted motion; None when rejected (or ``T_prev_cur`` is None)."""
-        if T_prev_cur is None or not np.all(np.isfinite(T_prev_cur)):
-            return None
-        if not (self.bounds or _UNBOUNDED).contains(T_prev_cur, action):
-            return None
-        check = alignment_check(prev, cur, T_prev_cur, intr, self.depth_range)
-        ok = (
-            check.depth.in_view >= self.min_points
-            and check.depth.fraction >= self.min_agreement
-            and check.ncc >= self.min_ncc
-        )
-        return check if ok else None
+
+def verify(
+    prev: Frame,
+    cur: Frame,
+    T_prev_cur: np.ndarray | None,
+    action: Action | None,
+    intr: Intrinsics,
+    rng: DepthRange,
+    config: VerifyConfig,
+) -> Alignment | None:
+    """The :class:`Alignment` of an accepted motion; None when rejected (or ``T_prev_cur`` is None)."""
+    if T_prev_cur is None or not np.all(np.isfinite(T_prev_cur)):
+        return None
+    if not (config.bounds or _UNBOUNDED).contains(T_prev_cur, action):
+        return None
+    check = alignment_check(
+        prev, cur, T_prev_cur, intr, rng, config.pixel_stride, config.ncc_blur_sigma, config.min_ncc_points
+    )
+    ok = (
+        check.depth.in_view >= config.min_points_in_view
+        and check.depth.fraction >= config.min_agreement
+        and check.ncc >= config.min_ncc
+    )
+    return check if ok else None
+
+
+_X = TypeVar("_X")
+
+
+@dataclass(frozen=True)
+class Verified(Generic[_X]):
+    """A refined motion ``T_prev_cur`` (4x4) the images confirmed, what the solver reported with
+    it (``detail``, e.g. an RMSE or an information matrix) and the verifier's :class:`Alignment`."""
+
+    T_prev_cur: np.ndarray
+    detail: _X
+    check: Alignment
+
+
+def first_verified(
+    guesses: Iterable[np.ndarray],
+    register: Callable[[np.ndarray], tuple[np.ndarray | None, _X]],
+    prev: Frame,
+    cur: Frame,
+    action: Action | None,
+    intr: Intrinsics,
+    rng: DepthRange,
+    config: VerifyConfig,
+) -> Verified[_X] | None:
+    """Guess, refine, verify: the outer loop of the dense odometers.
+
+    Each initial motion ``T_prev_cur`` of ``guesses`` (most likely first) is refined by
+    ``register(initial) -> (T_prev_cur or None on failure, detail)`` and checked by :func:`verify`;
+    the first one accepted is returned, None when none is.
+    """
+    for guess in guesses:
+        T, detail = register(guess)
+        check = verify(prev, cur, T, action, intr, rng, config)
+        if check is not None:
+            return Verified(T, detail, check)
+    return None
