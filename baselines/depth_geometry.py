@@ -80,7 +80,7 @@ def depth_mask(depth: np.ndarray, rng: DepthRange) -> np.ndarray:
         return np.isfinite(d) & (d > rng.min_depth) & (d <= rng.max_depth)
 
 
-def too_little_depth(depth: np.ndarray, rng: DepthRange, min_valid: int = 500) -> bool:
+def too_little_depth(depth: np.ndarray, rng: DepthRange, min_valid: int) -> bool:
     """True for frames with fewer than ``min_valid`` usable depth pixels."""
     return int(depth_mask(depth, rng).sum()) < min_valid
 
@@ -89,6 +89,13 @@ def image_texture(rgb: np.ndarray) -> float:
     """Mean absolute grey-level difference between neighbouring pixels (0 for a constant image)."""
     grey = np.asarray(rgb, dtype=np.float32).mean(axis=2)
     return float((np.abs(np.diff(grey, axis=0)).mean() + np.abs(np.diff(grey, axis=1)).mean()) / 2.0)
+
+
+#: Neighbouring points farther apart than this fraction of their depth per pixel between them
+#: straddle a depth edge (no surface normal there).
+EDGE_STEP = 0.05
+#: Fewer surface normals than this constrain nothing.
+MIN_NORMALS = 10
 
 
 def normal_constraint(depth: np.ndarray, intr: Intrinsics, rng: DepthRange, stride: int = 4) -> float:
@@ -108,11 +115,11 @@ def normal_constraint(depth: np.ndarray, intr: Intrinsics, rng: DepthRange, stri
     zc = P[:-1, :-1, 2].reshape(-1)
     step = np.maximum(np.linalg.norm(du, axis=-1), np.linalg.norm(dv, axis=-1)).reshape(-1)
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(n).all(axis=1) & (step < 0.05 * stride * zc)  # no jump across an edge
+        ok = np.isfinite(n).all(axis=1) & (step < EDGE_STEP * stride * zc)  # no jump across an edge
     n = n[ok]
     norm = np.linalg.norm(n, axis=1)
     n = n[norm > 0] / norm[norm > 0, None]
-    if len(n) < 10:
+    if len(n) < MIN_NORMALS:
         return 0.0
     return float(np.linalg.eigvalsh(n.T @ n / len(n))[0])
 

@@ -49,9 +49,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from baselines.config import OdometerConfig, configure
 from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import (
-    DepthRange,
     FrameMemo,
     backproject_pixels,
     sample_depth,
@@ -77,7 +77,7 @@ from odolab.api import (
     transform_to_planar,
 )
 
-__all__ = ["FeatureEssentialOdometer", "OracleRotationFeatureEssentialOdometer"]
+__all__ = ["FeatureEssentialConfig", "FeatureEssentialOdometer", "OracleRotationFeatureEssentialOdometer"]
 
 
 @dataclass(frozen=True)
@@ -127,24 +127,59 @@ MIN_PNP_POINTS = 6
 MIN_3D_PAIRS = 4
 #: Predicted keypoints closer than this (metres) in front of the current camera match nothing.
 MIN_PREDICTED_DEPTH = 0.05
+#: SIFT keypoints per frame by default at the simulator's image size (``SIM_IMAGE_AREA`` pixels,
+#: 341 x 192), scaled with the image area up to ``MAX_AUTO_FEATURES``.
+AUTO_FEATURES = 800
+SIM_IMAGE_AREA = 341 * 192
+MAX_AUTO_FEATURES = 2000
+
+
+@dataclass(frozen=True)
+class FeatureEssentialConfig(OdometerConfig):
+    """Options of :class:`FeatureEssentialOdometer` (besides ``depth`` and ``verify``, see
+    :class:`~baselines.config.OdometerConfig`; ``verify=None`` accepts every solved motion)."""
+
+    verify: VerifyConfig | None = VerifyConfig()
+    #: Fewer usable depth pixels in either frame = invalid step.
+    min_depth_pixels: int = 500
+    #: SIFT keypoints per frame; 0 = all; None = by image size (see ``_n_features``).
+    n_features: int | None = None
+    #: SIFT's contrast threshold (half OpenCV's default).
+    contrast_threshold: float = 0.02
+    #: Gaussian pre-blur before SIFT, pixels (0 = none).
+    blur_sigma: float = 1.0
+    #: Lowe's ratio test of the unguided matching.
+    ratio: float = 0.8
+    #: Guided matching (known action): search window radius, pixels (0 = off) ...
+    guide_px: float = 20.0
+    #: ... and its ratio test against the runner-up in the window.
+    guide_ratio: float = 0.9
+    #: Essential-matrix RANSAC threshold, pixels ...
+    ransac_px: float = 1.0
+    #: ... and iteration cap (OpenCV's 1000 took 28 ms a pair on the simulator's outlier-heavy matches).
+    ransac_iterations: int = 200
+    #: PnP (and oracle-rotation translation) RANSAC threshold, pixels (the 3D points add depth noise) ...
+    pnp_px: float = 2.0
+    #: ... and iteration cap of PnP ...
+    pnp_iterations: int = 200
+    #: ... and of the oracle-rotation translation fit.
+    translation_iterations: int = 100
+    #: Fewer final inliers = invalid step.
+    min_inliers: int = 15
+    #: Share of the essential matrix's inliers that ``recoverPose`` must keep, else PnP.
+    min_cheirality: float = 0.5
+    #: Depth-scaled baseline over the median inlier depth below which the essential matrix's
+    #: direction is not trusted and PnP is used (0.05 ~ 3 degrees of parallax).
+    min_parallax: float = 0.05
+    #: With a known action, fit a planar motion to the final inliers.
+    planar: bool = True
 
 
 class FeatureEssentialOdometer(Odometer):
     """SIFT matches -> essential matrix (R, t direction) -> scale from depth; PnP when degenerate.
 
-    Options: ``min_depth`` / ``max_depth`` (metres, depth readings outside are ignored; 4 m
-    default: beyond it a Kinect's and the simulated Redwood depth's quantisation step exceeds
-    ~5 cm), ``n_features`` (SIFT keypoints per frame, 0 = all, None = by image size, see
-    :meth:`_n_features`), ``contrast_threshold`` (SIFT's;
-    half OpenCV's default), ``blur_sigma`` (Gaussian pre-blur, pixels), ``ratio`` (Lowe's test),
-    ``ransac_px`` (RANSAC threshold, pixels), ``ransac_iterations`` (essential-matrix
-    RANSAC cap; OpenCV's 1000 took 28 ms a pair on the simulator's outlier-heavy matches),
-    ``min_inliers`` (fewer final inliers = invalid),
-    ``min_cheirality`` (fraction of essential inliers ``recoverPose`` must keep, else PnP),
-    ``min_parallax`` (the depth-scaled baseline over the median inlier depth below which the
-    essential matrix's direction is not trusted and PnP is used; 0.05 ~ 3 degrees),
-    ``guide_px`` / ``guide_ratio`` (guided matching window, pixels, 0 = off, and its ratio test),
-    ``planar`` (with a known action, fit a planar motion to the final inliers).
+    Configured by :class:`FeatureEssentialConfig` (``config``, or keyword overrides of its fields,
+    e.g. ``FeatureEssentialOdometer(ransac_px=2.0, max_depth=3.0)``).
 
     ``last_path`` tells how the last :meth:`step` solved: ``"essential"`` (the paper's pipeline),
     ``"pnp"`` (the fallback) or None (invalid).
@@ -154,40 +189,8 @@ class FeatureEssentialOdometer(Odometer):
     :func:`baselines.covariance.point_to_point_covariance`.
     """
 
-    def __init__(
-        self,
-        min_depth: float = 0.1,
-        max_depth: float = 4.0,
-        n_features: int | None = None,
-        contrast_threshold: float = 0.02,
-        blur_sigma: float = 1.0,
-        ratio: float = 0.8,
-        ransac_px: float = 1.0,
-        ransac_iterations: int = 200,
-        min_inliers: int = 15,
-        min_cheirality: float = 0.5,
-        min_parallax: float = 0.05,
-        verifier: VerifyConfig | None = VerifyConfig(),
-        guide_px: float = 20.0,
-        guide_ratio: float = 0.9,
-        planar: bool = True,
-    ) -> None:
-        self.depth_range = DepthRange(min_depth, max_depth)
-        self.verifier = verifier
-        self.n_features = n_features
-        self.contrast_threshold = contrast_threshold
-        self.blur_sigma = blur_sigma
-        self.ratio = ratio
-        self.ransac_px = ransac_px
-        self.ransac_iterations = int(ransac_iterations)
-        self.min_inliers = min_inliers
-        self.min_cheirality = min_cheirality
-        self.min_parallax = min_parallax
-        self.guide_px = guide_px
-        self.guide_ratio = guide_ratio
-        self.planar = planar
-        self.pnp_px = 2.0 * ransac_px
-        self.pnp_iterations = 200
+    def __init__(self, config: FeatureEssentialConfig | None = None, **overrides) -> None:
+        self.config = configure(FeatureEssentialConfig, config, **overrides)
         self._features: FrameMemo[_Features] = FrameMemo()
         self.last_path: str | None = None
 
@@ -205,13 +208,14 @@ class FeatureEssentialOdometer(Odometer):
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         """``T_prev_cur`` from features; ``valid=False`` with too few matches, inliers or depth, or
-        when the images do not confirm the result (``verifier``)."""
+        when the images do not confirm the result (``config.verify``)."""
+        cfg = self.config
         R_oracle = self.oracle_rotation(prev, cur)
         self.last_path = None
-        if too_little_depth(prev.depth, self.depth_range) or too_little_depth(cur.depth, self.depth_range):
+        if any(too_little_depth(f.depth, cfg.depth, cfg.min_depth_pixels) for f in (prev, cur)):
             return Estimate.invalid()
         matches = self._match(prev, cur, action)
-        if len(matches) < max(self.min_inliers, MIN_MATCHES):
+        if len(matches) < max(cfg.min_inliers, MIN_MATCHES):
             return Estimate.invalid()
         fit = self._solve_essential(prev, cur, matches, R_oracle)
         if fit is None:  # no parallax: the essential matrix cannot tell the direction
@@ -219,11 +223,10 @@ class FeatureEssentialOdometer(Odometer):
         if fit is None:
             return Estimate.invalid()
         T = fit.T_prev_cur
-        if action is not None and self.planar:
+        if action is not None and cfg.planar:
             T = _planarise(fit, fixed_yaw=R_oracle is not None)
-        if self.verifier is not None:
-            if verify(prev, cur, T, action, self.intrinsics, self.depth_range, self.verifier) is None:
-                return Estimate.invalid()
+        if cfg.verify is not None and verify(prev, cur, T, action, self.intrinsics, cfg.depth, cfg.verify) is None:
+            return Estimate.invalid()
         self.last_path = fit.path
         return Estimate(T, covariance=_covariance(fit))
 
@@ -231,31 +234,33 @@ class FeatureEssentialOdometer(Odometer):
         self, prev: Frame, cur: Frame, m: _Matches, R_oracle: np.ndarray | None
     ) -> _PoseFit | None:
         """The paper's solver (see the module docstring); None where it cannot be trusted."""
-        e = essential_motion(m.prev, m.cur, self.intrinsics.matrix, self.ransac_px, self.ransac_iterations)
-        if e is None or e.n_in_front < max(self.min_inliers, self.min_cheirality * e.inliers.sum()):
+        cfg = self.config
+        e = essential_motion(m.prev, m.cur, self.intrinsics.matrix, cfg.ransac_px, cfg.ransac_iterations)
+        if e is None or e.n_in_front < max(cfg.min_inliers, cfg.min_cheirality * e.inliers.sum()):
             return None
         P_prev, P_cur = self._pairs_3d(prev, cur, m.subset(e.inliers))
-        if len(P_prev) < self.min_inliers:
+        if len(P_prev) < cfg.min_inliers:
             return None
         T = scale_from_depth(P_prev, P_cur, e.R if R_oracle is None else R_oracle, e.t_dir)
-        if np.linalg.norm(T[:3, 3]) < self.min_parallax * np.median(P_prev[:, 2]):
+        if np.linalg.norm(T[:3, 3]) < cfg.min_parallax * np.median(P_prev[:, 2]):
             return None
         return _PoseFit(T, P_prev, P_cur, "essential")
 
     def _solve_pnp(self, prev: Frame, cur: Frame, m: _Matches, R_oracle: np.ndarray | None) -> _PoseFit | None:
-        """Pose from 3D points of the current frame and their pixels in the previous one."""
-        intr = self.intrinsics
-        z_cur = sample_depth(cur.depth, m.cur, self.depth_range)
+        """Pose from 3D points of the current frame and their pixels in the previous one (with an
+        oracle rotation: the translation only)."""
+        cfg, intr = self.config, self.intrinsics
+        z_cur = sample_depth(cur.depth, m.cur, cfg.depth)
         has = z_cur > 0
-        if has.sum() < max(self.min_inliers, MIN_PNP_POINTS):
+        if has.sum() < max(cfg.min_inliers, MIN_PNP_POINTS):
             return None
         X_cur = backproject_pixels(m.cur[has, 0], m.cur[has, 1], z_cur[has], intr)
         uv_prev = m.prev[has]
         if R_oracle is None:
-            T, inl = pnp(X_cur, uv_prev, intr.matrix, self.pnp_px, self.pnp_iterations)
+            T, inl = pnp(X_cur, uv_prev, intr.matrix, cfg.pnp_px, cfg.pnp_iterations)
         else:
-            T, inl = translation_given_rotation(X_cur, uv_prev, R_oracle, intr, self.pnp_px)
-        if T is None or inl.sum() < self.min_inliers:
+            T, inl = translation_given_rotation(X_cur, uv_prev, R_oracle, intr, cfg.pnp_px, cfg.translation_iterations)
+        if T is None or inl.sum() < cfg.min_inliers:
             return None
         P_prev, P_cur = self._pairs_3d(prev, cur, m.subset(np.flatnonzero(has)[inl]))
         return _PoseFit(T, P_prev, P_cur, "pnp")
@@ -264,21 +269,23 @@ class FeatureEssentialOdometer(Odometer):
 
     def _detect(self, frame: Frame) -> _Features:
         gray = cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2GRAY)
-        if self.blur_sigma > 0:
-            gray = cv2.GaussianBlur(gray, (0, 0), self.blur_sigma)
-        sift = cv2.SIFT_create(nfeatures=self._n_features(), contrastThreshold=self.contrast_threshold)
+        cfg = self.config
+        if cfg.blur_sigma > 0:
+            gray = cv2.GaussianBlur(gray, (0, 0), cfg.blur_sigma)
+        sift = cv2.SIFT_create(nfeatures=self._n_features(), contrastThreshold=cfg.contrast_threshold)
         kps, desc = sift.detectAndCompute(gray, None)
         uv = np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2)
         return _Features(uv, desc)
 
     def _n_features(self) -> int:
-        """``n_features``, or by default 800 per 341x192 image area, within [800, 2000]: at the
-        simulator's size 800 keeps the accuracy of 2000 and saves a third of the time; on 640x480
-        TUM frames 2000 (800 costs precision: 0.50 vs 0.45 degrees on a synthetic forward step)."""
-        if self.n_features is not None:
-            return int(self.n_features)
-        area = self.intrinsics.width * self.intrinsics.height / (341 * 192)
-        return int(np.clip(round(800 * area), 800, 2000))
+        """``n_features``, or by default ``AUTO_FEATURES`` per 341x192 image area, at most
+        ``MAX_AUTO_FEATURES``: at the simulator's size 800 keeps the accuracy of 2000 and saves a
+        third of the time; on 640x480 TUM frames 2000 (800 costs precision: 0.50 vs 0.45 degrees
+        on a synthetic forward step)."""
+        if self.config.n_features is not None:
+            return int(self.config.n_features)
+        area = self.intrinsics.width * self.intrinsics.height / SIM_IMAGE_AREA
+        return int(np.clip(round(AUTO_FEATURES * area), AUTO_FEATURES, MAX_AUTO_FEATURES))
 
     def _match(self, prev: Frame, cur: Frame, action: Action | None = None) -> _Matches:
         """Ratio-test matches; with a known action, matches guided by the motion prior instead."""
@@ -287,10 +294,10 @@ class FeatureEssentialOdometer(Odometer):
         empty = _Matches.none()
         if fp.desc is None or fc.desc is None or len(fp.uv) < 2 or len(fc.uv) < 2:
             return empty
-        if action is not None and self.guide_px > 0:
+        if action is not None and self.config.guide_px > 0:
             return self._guided_match(prev, cur, fp, fc, action)
         pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(fp.desc, fc.desc, k=2)
-        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.ratio * p[1].distance]
+        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.config.ratio * p[1].distance]
         if not good:
             return empty
         i_prev = np.array([g.queryIdx for g in good])
@@ -308,8 +315,8 @@ class FeatureEssentialOdometer(Odometer):
         (bricks, tiles) the global ratio test rejects most true matches: every brick looks alike.
         """
         intr = self.intrinsics
-        T = planar_search(prev, cur, action, intr, self.depth_range)[0]
-        z = sample_depth(prev.depth, fp.uv, self.depth_range)
+        T = planar_search(prev, cur, action, intr, self.config.depth)[0]
+        z = sample_depth(prev.depth, fp.uv, self.config.depth)
         has = np.flatnonzero(z > 0)
         if len(has) < 2:
             return _Matches.none()
@@ -321,7 +328,7 @@ class FeatureEssentialOdometer(Odometer):
         # two 2-D outer differences: 10x faster than one (N, M, 2) broadcast
         du = np.subtract.outer(pred[:, 0], fc.uv[:, 0])
         dv = np.subtract.outer(pred[:, 1], fc.uv[:, 1])
-        near = du * du + dv * dv < self.guide_px**2
+        near = du * du + dv * dv < self.config.guide_px**2
         near &= (Y[:, 2] > MIN_PREDICTED_DEPTH)[:, None]
         a, b = fp.desc[has].astype(np.float32), fc.desc.astype(np.float32)
         d2 = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2.0 * (a @ b.T)
@@ -332,14 +339,14 @@ class FeatureEssentialOdometer(Odometer):
         d2[rows, best] = np.inf
         second = d2.min(axis=1)
         d2[rows, best] = first
-        ok = np.isfinite(first) & (first < self.guide_ratio**2 * second)
+        ok = np.isfinite(first) & (first < self.config.guide_ratio**2 * second)
         ok &= np.argmin(d2, axis=0)[best] == rows  # mutual
         return _Matches(fp.uv[has[ok]], fc.uv[best[ok]])
 
     def _pairs_3d(self, prev: Frame, cur: Frame, m: _Matches) -> tuple[np.ndarray, np.ndarray]:
         """The matches with depth in both frames, back-projected into each camera ((N, 3) each)."""
-        z_prev = sample_depth(prev.depth, m.prev, self.depth_range)
-        z_cur = sample_depth(cur.depth, m.cur, self.depth_range)
+        z_prev = sample_depth(prev.depth, m.prev, self.config.depth)
+        z_cur = sample_depth(cur.depth, m.cur, self.config.depth)
         ok = (z_prev > 0) & (z_cur > 0)
         P_prev = backproject_pixels(m.prev[ok, 0], m.prev[ok, 1], z_prev[ok], self.intrinsics)
         P_cur = backproject_pixels(m.cur[ok, 0], m.cur[ok, 1], z_cur[ok], self.intrinsics)

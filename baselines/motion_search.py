@@ -49,6 +49,15 @@ def initial_guesses(
 DEPTH_COST_SCALE = 2.0
 #: A grey-level difference (0-255 scale, after the blur) costs fully at this many levels.
 GREY_COST_SCALE = 30.0
+#: Gaussian blur of both images before their grey levels are compared, pixels.
+SEARCH_BLUR_SIGMA = 3.0
+#: Points closer than this (metres) in front of the previous camera count as leaving the image.
+MIN_POINT_DEPTH = 0.05
+#: The runner-up motion differs from the best by more than this yaw (rad) or shift (m).
+RUNNER_UP_YAW = np.radians(3.0)
+RUNNER_UP_SHIFT = 0.08
+#: The fine search around each seed: offsets (lateral m, forward m, yaw rad).
+FINE_OFFSETS = (np.array([-0.04, 0.0, 0.04]), np.array([-0.05, 0.0, 0.05]), np.radians([-1.0, 0.0, 1.0]))
 
 
 def _search_grid(action: Action | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -82,10 +91,10 @@ def _planar_costs(
     zp = s * x + c * z + cand[:, 1:2].astype(np.float32)
     h, w = z_prev.shape
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.float32(1.0) / np.maximum(zp, np.float32(0.05))
+        inv = np.float32(1.0) / np.maximum(zp, np.float32(MIN_POINT_DEPTH))
         pu = (intr.fx * (c * x - s * z + cand[:, 0:1].astype(np.float32)) * inv + intr.cx + 0.5).astype(np.int32)
         pv = (intr.fy * y * inv + intr.cy + 0.5).astype(np.int32)
-    inside = (zp > 0.05) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
+    inside = (zp > MIN_POINT_DEPTH) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
     idx = np.where(inside, pv * w + pu, 0)
     zq = z_prev.reshape(-1)[idx]
     gq = g_prev.reshape(-1)[idx]
@@ -110,9 +119,9 @@ def planar_search(
     """
     v, u = np.nonzero(depth_mask(cur.depth, rng) & pixel_grid(cur.depth.shape, stride))
     X = backproject_pixels(u, v, cur.depth[v, u], intr)
-    g_cur = blurred_grey(cur.rgb, 3.0)[v, u]
+    g_cur = blurred_grey(cur.rgb, SEARCH_BLUR_SIGMA)[v, u]
     z_prev = np.where(depth_mask(prev.depth, rng), prev.depth, 0.0).astype(np.float32)
-    g_prev = blurred_grey(prev.rgb, 3.0)
+    g_prev = blurred_grey(prev.rgb, SEARCH_BLUR_SIGMA)
     nominal = transform_to_planar(nominal_motion(action))
     cand = _planar_candidates(nominal, *_search_grid(action))
     costs = _planar_costs(X[::2], g_cur[::2], z_prev, g_prev, cand, intr, rng)  # coarse grid: half the points
@@ -120,13 +129,12 @@ def planar_search(
     seeds = [cand[order[0]]]
     for k in order[1:]:
         d = np.abs(cand[k] - seeds[0])
-        if d[2] > np.radians(3.0) or max(d[0], d[1]) > 0.08:
+        if d[2] > RUNNER_UP_YAW or max(d[0], d[1]) > RUNNER_UP_SHIFT:
             seeds.append(cand[k])
             break
     out = []
     for seed in seeds[:top]:
-        fine = _planar_candidates(seed, np.array([-0.04, 0.0, 0.04]), np.array([-0.05, 0.0, 0.05]),
-                                  np.radians([-1.0, 0.0, 1.0]))
+        fine = _planar_candidates(seed, *FINE_OFFSETS)
         fc = _planar_costs(X, g_cur, z_prev, g_prev, fine, intr, rng)
         out.append(planar_to_transform(*fine[np.argmin(fc)]))
     return out

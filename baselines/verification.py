@@ -163,7 +163,7 @@ class VerifyConfig:
 
     A motion ``T_prev_cur`` passes when it is in ``bounds`` for the action (see
     :class:`MotionBounds`; None = unbounded), at least ``min_points_in_view`` of the current depth
-    points (every ``pixel_stride``-th row and column) land on a usable previous depth pixel, a share
+    points (every ``check_stride``-th row and column) land on a usable previous depth pixel, a share
     ``min_agreement`` of them agree in depth (the noise model of
     :class:`~baselines.depth_geometry.DepthRange`) and their grey levels, blurred by
     ``ncc_blur_sigma`` pixels, correlate with NCC >= ``min_ncc`` (0 when fewer than
@@ -176,7 +176,7 @@ class VerifyConfig:
     min_points_in_view: int = 200
     min_agreement: float = 0.8
     min_ncc: float = 0.85
-    pixel_stride: int = 2
+    check_stride: int = 2
     ncc_blur_sigma: float = 1.5
     min_ncc_points: int = 100
 
@@ -196,7 +196,7 @@ def verify(
     if not (config.bounds or _UNBOUNDED).contains(T_prev_cur, action):
         return None
     check = alignment_check(
-        prev, cur, T_prev_cur, intr, rng, config.pixel_stride, config.ncc_blur_sigma, config.min_ncc_points
+        prev, cur, T_prev_cur, intr, rng, config.check_stride, config.ncc_blur_sigma, config.min_ncc_points
     )
     ok = (
         check.depth.in_view >= config.min_points_in_view

@@ -1,0 +1,100 @@
+"""Configuration of the baselines: what they all share, and keyword overrides of nested configs.
+
+Every odometer in ``baselines/`` takes one frozen config dataclass (``ICPConfig``,
+``Open3DRGBDConfig``, ``FeatureEssentialConfig``), derived from :class:`OdometerConfig`, and keeps
+it as ``odometer.config`` (``dataclasses.asdict`` writes it out). Keyword options override single
+fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` sets
+``config.depth.max_depth`` and ``config.voxel``.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, fields, is_dataclass, replace
+from typing import Any, TypeVar
+
+from baselines.depth_geometry import DepthRange
+from baselines.verification import VerifyConfig
+
+
+@dataclass(frozen=True)
+class OdometerConfig:
+    """What every baseline shares: the depth readings it trusts and their noise model (``depth``),
+    and when the images confirm a motion (``verify``)."""
+
+    depth: DepthRange = DepthRange()
+    verify: VerifyConfig = VerifyConfig()
+
+
+_C = TypeVar("_C")
+
+
+class _Changes(dict):
+    """Field name -> new value, or -> the changes of a nested config (another ``_Changes``)."""
+
+
+def configure(cls: type[_C], config: _C | None = None, **overrides: Any) -> _C:
+    """``config`` (default ``cls()``) with each keyword override applied to the field of that name.
+
+    The field is looked up in the config and in the configs nested in it (a field holding a
+    dataclass); the shallowest match wins. ``TypeError`` for a name no field has, or one that two
+    nested configs share at the same depth; the config's own checks raise ``ValueError``.
+    """
+    config = cls() if config is None else config
+    if not isinstance(config, cls):
+        raise TypeError(f"expected a {cls.__name__}, got {type(config).__name__}")
+    changes = _Changes()
+    for name, value in overrides.items():
+        paths = _paths(config, name)
+        if not paths:
+            raise TypeError(f"{cls.__name__} has no option {name!r}; options: {', '.join(option_names(config))}")
+        shallowest = [p for p in paths if len(p) == len(paths[0])]
+        if len(shallowest) > 1:
+            raise TypeError(f"{cls.__name__}: option {name!r} is ambiguous: {', '.join('.'.join(p) for p in shallowest)}")
+        node = changes
+        for part in paths[0][:-1]:
+            node = node.setdefault(part, _Changes())
+            if not isinstance(node, _Changes):
+                raise TypeError(f"{cls.__name__}: {part!r} and {name!r} both given; give one")
+        node[name] = value
+    return _apply(config, changes)
+
+
+def check_choice(name: str, value: object, choices: Iterable[object]) -> None:
+    """``ValueError`` unless ``value`` (of option ``name``) is one of ``choices``."""
+    choices = tuple(choices)
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(map(str, choices))}; got {value!r}")
+
+
+def option_names(config: object) -> list[str]:
+    """Every field name of ``config`` and of the configs nested in it, sorted."""
+    names = set()
+    for f in fields(config):
+        names.add(f.name)
+        value = getattr(config, f.name)
+        if _is_config(value):
+            names.update(option_names(value))
+    return sorted(names)
+
+
+def _paths(config: object, name: str) -> list[tuple[str, ...]]:
+    """Paths (field names, outermost first) to the fields called ``name``, shallowest first."""
+    found = []
+    for f in fields(config):
+        if f.name == name:
+            found.append((f.name,))
+        value = getattr(config, f.name)
+        if _is_config(value):
+            found += [(f.name, *p) for p in _paths(value, name)]
+    return sorted(found, key=len)
+
+
+def _apply(config: _C, changes: _Changes) -> _C:
+    """One ``dataclasses.replace`` per config level (so checks see all changes of a level at once)."""
+    return replace(config, **{
+        k: _apply(getattr(config, k), v) if isinstance(v, _Changes) else v for k, v in changes.items()
+    })
+
+
+def _is_config(value: object) -> bool:
+    return is_dataclass(value) and not isinstance(value, type)
