@@ -9,7 +9,7 @@ fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` se
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, fields, is_dataclass, replace
+from dataclasses import Field, dataclass, fields, is_dataclass, replace
 from typing import Any, TypeVar
 
 from baselines.depth_geometry import DepthRange
@@ -36,8 +36,9 @@ def configure(cls: type[_C], config: _C | None = None, **overrides: Any) -> _C:
     """``config`` (default ``cls()``) with each keyword override applied to the field of that name.
 
     The field is looked up in the config and in the configs nested in it (a field holding a
-    dataclass); the shallowest match wins. ``TypeError`` for a name no field has, or one that two
-    nested configs share at the same depth; the config's own checks raise ``ValueError``.
+    dataclass); the shallowest match wins. ``TypeError`` for a name no field has, one that two
+    nested configs share at the same depth, or a value its simple annotation (``float``, ``int |
+    None``, ...) does not allow; the configs' own checks raise ``ValueError``.
     """
     config = cls() if config is None else config
     if not isinstance(config, cls):
@@ -50,6 +51,7 @@ def configure(cls: type[_C], config: _C | None = None, **overrides: Any) -> _C:
         shallowest = [p for p in paths if len(p) == len(paths[0])]
         if len(shallowest) > 1:
             raise TypeError(f"{cls.__name__}: option {name!r} is ambiguous: {', '.join('.'.join(p) for p in shallowest)}")
+        _check_type(cls.__name__, _field(config, paths[0]), value)
         node = changes
         for part in paths[0][:-1]:
             node = node.setdefault(part, _Changes())
@@ -94,6 +96,29 @@ def _apply(config: _C, changes: _Changes) -> _C:
     return replace(config, **{
         k: _apply(getattr(config, k), v) if isinstance(v, _Changes) else v for k, v in changes.items()
     })
+
+
+#: Simple annotations -> the Python types a value may have (an int is a number; a bool is not).
+_SIMPLE = {"float": (int, float), "int": (int,), "str": (str,), "bool": (bool,)}
+
+
+def _field(config: object, path: tuple[str, ...]) -> Field:
+    for part in path[:-1]:
+        config = getattr(config, part)
+    return next(f for f in fields(config) if f.name == path[-1])
+
+
+def _check_type(owner: str, f: Field, value: Any) -> None:
+    """``TypeError`` for a value a simple annotation (``float``, ``int | None``, ...) does not allow;
+    other annotations are left to the config's own checks."""
+    parts = [p.strip() for p in str(f.type).split("|")]
+    if value is None and "None" in parts:
+        return
+    simple = [p for p in parts if p != "None"]
+    if not simple or not all(p in _SIMPLE for p in simple):
+        return
+    if not any(isinstance(value, _SIMPLE[p]) and (p == "bool" or not isinstance(value, bool)) for p in simple):
+        raise TypeError(f"{owner}: option {f.name} must be {' or '.join(simple)}, got {value!r}")
 
 
 def _is_config(value: object) -> bool:

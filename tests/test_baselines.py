@@ -232,6 +232,11 @@ def test_options_are_checked():
         load_odometer("icp", voxels=0.05)
     with pytest.raises(TypeError, match="'min_ncc'"):  # no verification, so nothing to set there
         load_odometer("feature-essential", verify=None, min_ncc=0.9)
+    with pytest.raises(TypeError, match="voxel must be float, got 'big'"):
+        load_odometer("icp", voxel="big")
+    with pytest.raises(TypeError, match="min_inliers must be int, got True"):
+        load_odometer("feature-essential", min_inliers=True)
+    assert load_odometer("feature-essential", n_features=None, max_depth=3).config.depth.max_depth == 3
 
 
 @pytest.mark.parametrize("name", [*ODOMETERS, "feature-essential-oracle-rot"])
