@@ -79,7 +79,7 @@ class Alignment:
 
     ``depth``: the :class:`DepthAgreement`; ``ncc``: normalised cross-correlation (-1..1) of the
     blurred grey levels of the depth-agreeing points in the two images (0 when fewer than
-    ``min_points`` agree). Depth alone cannot see a slide along a wall (every point still lands
+    ``min_ncc_points`` agree). Depth alone cannot see a slide along a wall (every point still lands
     on the wall); the texture can.
     """
 
@@ -93,24 +93,22 @@ def alignment_check(
     T_prev_cur: np.ndarray,
     intr: Intrinsics,
     rng: DepthRange,
-    stride: int = 2,
-    blur_sigma: float = 1.5,
-    min_points: int = 100,
+    config: VerifyConfig,
 ) -> Alignment:
     """Depth agreement and colour agreement of ``T_prev_cur``.
 
-    Every ``stride``-th current pixel is moved into the previous image; of those whose depth
-    agrees, the grey levels (Gaussian blur of ``blur_sigma`` pixels first: the simulator's RGB
-    noise has sigma = 25 grey levels) are compared by normalised cross-correlation. On the
-    simulator's validation episodes a correct motion scores NCC > 0.9 in 95% of steps; a slide
-    of 5 cm or more along a textured wall scores well below.
+    Every ``config.check_stride``-th current pixel is moved into the previous image; of those
+    whose depth agrees, the grey levels (Gaussian blur of ``config.ncc_blur_sigma`` pixels first:
+    the simulator's RGB noise has sigma = 25 grey levels) are compared by normalised
+    cross-correlation. On the simulator's validation episodes a correct motion scores NCC > 0.9
+    in 95% of steps; a slide of 5 cm or more along a textured wall scores well below.
     """
-    (v, u), (pv, pu), z, z_prev = _reproject(prev.depth, cur.depth, T_prev_cur, intr, rng, stride)
+    (v, u), (pv, pu), z, z_prev = _reproject(prev.depth, cur.depth, T_prev_cur, intr, rng, config.check_stride)
     depth, agree = _depth_agreement(z, z_prev, rng)
-    if agree.sum() < min_points:
+    if agree.sum() < config.min_ncc_points:
         return Alignment(depth, 0.0)
-    a = blurred_grey(cur.rgb, blur_sigma)[v[agree], u[agree]].astype(np.float64)
-    b = blurred_grey(prev.rgb, blur_sigma)[pv[agree], pu[agree]].astype(np.float64)
+    a = blurred_grey(cur.rgb, config.ncc_blur_sigma)[v[agree], u[agree]].astype(np.float64)
+    b = blurred_grey(prev.rgb, config.ncc_blur_sigma)[pv[agree], pu[agree]].astype(np.float64)
     a -= a.mean()
     b -= b.mean()
     denom = np.sqrt(np.sum(a * a) * np.sum(b * b))
@@ -195,9 +193,7 @@ def verify(
         return None
     if not (config.bounds or _UNBOUNDED).contains(T_prev_cur, action):
         return None
-    check = alignment_check(
-        prev, cur, T_prev_cur, intr, rng, config.check_stride, config.ncc_blur_sigma, config.min_ncc_points
-    )
+    check = alignment_check(prev, cur, T_prev_cur, intr, rng, config)
     ok = (
         check.depth.in_view >= config.min_points_in_view
         and check.depth.fraction >= config.min_agreement
