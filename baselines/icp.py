@@ -96,6 +96,11 @@ class ICPConfig(OdometerConfig):
             raise ValueError(f"voxel must be positive, got {self.voxel}")
         object.__setattr__(self, "levels", tuple((float(a), float(b)) for a, b in self.levels))
 
+    def reach(self, level: int) -> float:
+        """Maximum correspondence distance (metres) at ``level`` (0 = coarsest, -1 = finest)."""
+        scale, reach = self.levels[level]
+        return reach * scale * self.voxel
+
 
 @dataclass(frozen=True)
 class _Pyramid:
@@ -149,8 +154,8 @@ class ICPOdometer(Odometer):
         """ICP at every level from ``T``: (``T_prev_cur`` or None on failure, final inlier RMSE m)."""
         rmse = 0.0
         try:
-            for (scale, reach), src, tgt in zip(self.config.levels, source.clouds, target.clouds):
-                result = self._register(src, tgt, reach * scale * self.config.voxel, T)
+            for level, (src, tgt) in enumerate(zip(source.clouds, target.clouds)):
+                result = self._register(src, tgt, self.config.reach(level), T)
                 T, rmse = np.array(result.transformation), float(result.inlier_rmse)
         except RuntimeError:  # Open3D raises when no correspondence is left (colored ICP)
             return None, rmse
@@ -158,8 +163,7 @@ class ICPOdometer(Odometer):
 
     def _covariance(self, source: _Pyramid, target: _Pyramid, T: np.ndarray, rmse: float) -> np.ndarray | None:
         """``sigma^2 inv(I)`` at the finest level (see the class docstring)."""
-        scale, reach = self.config.levels[-1]
-        dist = reach * scale * self.config.voxel
+        dist = self.config.reach(-1)
         info = _reg.get_information_matrix_from_point_clouds(source.clouds[-1], target.clouds[-1], dist, T)
         return covariance_from_information(info, rmse**2 / 3.0)
 

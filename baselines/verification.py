@@ -17,6 +17,10 @@ from baselines.motion_search import nominal_motion
 from odolab.api import Action, Frame, Intrinsics, transform_to_planar
 
 
+#: Moved points nearer than this (metres) to the previous camera's plane land nowhere.
+_IN_FRONT = 1e-6
+
+
 @dataclass(frozen=True)
 class DepthAgreement:
     """How well a motion explains the previous depth image (see :func:`alignment_check`).
@@ -51,7 +55,7 @@ def _reproject(
         pu = np.rint(intr.fx * Y[0] / z + intr.cx)
         pv = np.rint(intr.fy * Y[1] / z + intr.cy)
     h, w = prev_depth.shape
-    inside = (z > 1e-6) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
+    inside = (z > _IN_FRONT) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
     pu, pv = pu[inside].astype(np.int64), pv[inside].astype(np.int64)
     z_prev = np.asarray(prev_depth)[pv, pu].astype(np.float64)
     seen = depth_mask(z_prev, rng)
