@@ -8,6 +8,7 @@ fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` se
 """
 from __future__ import annotations
 
+import inspect
 from collections.abc import Iterable
 from dataclasses import Field, dataclass, fields, is_dataclass, replace
 from typing import Any, TypeVar
@@ -61,6 +62,23 @@ def configure(cls: type[_C], config: _C | None = None, **overrides: Any) -> _C:
     return _apply(config, changes)
 
 
+def options_signature(config_cls: type) -> inspect.Signature:
+    """What an odometer configured by ``config_cls`` accepts, for ``inspect.signature`` (and option
+    checkers that read it): ``config``, then every field name, nested or not, keyword-only, with its
+    annotation and default. Set it as the odometer class's ``__signature__``."""
+    default = config_cls()
+    params = [inspect.Parameter("config", inspect.Parameter.POSITIONAL_OR_KEYWORD, default=None,
+                                annotation=f"{config_cls.__name__} | None")]
+    for name in dict.fromkeys(path[-1] for path in _all_paths(default)):  # declaration order
+        path = _paths(default, name)[0]
+        value = default
+        for part in path:
+            value = getattr(value, part)
+        params.append(inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=value,
+                                        annotation=_field(default, path).type))
+    return inspect.Signature(params)
+
+
 def check_choice(name: str, value: object, choices: Iterable[object]) -> None:
     """``ValueError`` unless ``value`` (of option ``name``) is one of ``choices``."""
     choices = tuple(choices)
@@ -70,25 +88,23 @@ def check_choice(name: str, value: object, choices: Iterable[object]) -> None:
 
 def option_names(config: object) -> list[str]:
     """Every field name of ``config`` and of the configs nested in it, sorted."""
-    names = set()
+    return sorted({path[-1] for path in _all_paths(config)})
+
+
+def _all_paths(config: object) -> list[tuple[str, ...]]:
+    """Paths (field names, outermost first) to every field, nested ones too, in declaration order."""
+    found = []
     for f in fields(config):
-        names.add(f.name)
+        found.append((f.name,))
         value = getattr(config, f.name)
         if _is_config(value):
-            names.update(option_names(value))
-    return sorted(names)
+            found += [(f.name, *p) for p in _all_paths(value)]
+    return found
 
 
 def _paths(config: object, name: str) -> list[tuple[str, ...]]:
-    """Paths (field names, outermost first) to the fields called ``name``, shallowest first."""
-    found = []
-    for f in fields(config):
-        if f.name == name:
-            found.append((f.name,))
-        value = getattr(config, f.name)
-        if _is_config(value):
-            found += [(f.name, *p) for p in _paths(value, name)]
-    return sorted(found, key=len)
+    """Paths to the fields called ``name``, shallowest first."""
+    return sorted((p for p in _all_paths(config) if p[-1] == name), key=len)
 
 
 def _apply(config: _C, changes: _Changes) -> _C:

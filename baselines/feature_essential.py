@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from baselines.config import OdometerConfig, configure
+from baselines.config import OdometerConfig, configure, options_signature
 from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import (
     FrameMemo,
@@ -188,6 +188,8 @@ class FeatureEssentialOdometer(Odometer):
     both frames (noise level from their residuals), see
     :func:`baselines.covariance.point_to_point_covariance`.
     """
+
+    __signature__ = options_signature(FeatureEssentialConfig)  # the options, not just (config, **overrides)
 
     def __init__(self, config: FeatureEssentialConfig | None = None, **overrides) -> None:
         self.config = configure(FeatureEssentialConfig, config, **overrides)

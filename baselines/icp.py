@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, configure
+from baselines.config import OdometerConfig, check_choice, configure, options_signature
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
@@ -122,6 +122,8 @@ class ICPOdometer(Odometer):
     (rx, ry, rz, tx, ty, tz)) and ``sigma^2 = inlier_rmse^2 / 3``. Dense correspondences are not
     independent, so it is optimistic in absolute terms; use it to compare steps.
     """
+
+    __signature__ = options_signature(ICPConfig)  # the options, not just (config, **overrides)
 
     def __init__(self, config: ICPConfig | None = None, **overrides) -> None:
         self.config = configure(ICPConfig, config, **overrides)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, configure
+from baselines.config import OdometerConfig, check_choice, configure, options_signature
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import FrameMemo, depth_mask, image_texture, normal_constraint
 from baselines.motion_search import initial_guesses
@@ -80,6 +80,8 @@ class Open3DRGBDOdometer(Odometer):
     squared depth residual of the agreeing points. Optimistic in absolute terms (dense pixels are
     not independent).
     """
+
+    __signature__ = options_signature(Open3DRGBDConfig)  # the options, not just (config, **overrides)
 
     def __init__(self, config: Open3DRGBDConfig | None = None, **overrides) -> None:
         self.config = configure(Open3DRGBDConfig, config, **overrides)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import itertools
 from pathlib import Path
 
@@ -251,6 +252,17 @@ def test_config_is_a_frozen_dataclass_with_nested_keyword_overrides(name):
     written = dataclasses.asdict(cfg)
     assert written["depth"]["max_depth"] == 3.0 and written["verify"]["bounds"]["max_height"] == 0.05
     assert type(load_odometer(name, config=cfg).config) is type(cfg)
+    options = inspect.signature(type(odo)).parameters  # what option checkers (and help) see
+    assert options["max_depth"].default == 4.0 and options["max_depth"].annotation == "float"
+    assert set(options) == {"config", *(f.name for f in _all_fields(default))}
+
+
+def _all_fields(config):
+    for f in dataclasses.fields(config):
+        yield f
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from _all_fields(value)
 
 
 @pytest.mark.parametrize("name", ODOMETERS)
