@@ -31,6 +31,10 @@ def point_to_point_covariance(points: np.ndarray, residuals: np.ndarray) -> np.n
     return covariance_from_information(info, sigma2)
 
 
+#: An information matrix worse conditioned than this leaves a direction unconstrained.
+MAX_CONDITION = 1e12
+
+
 def covariance_from_information(info: np.ndarray, sigma2: float) -> np.ndarray | None:
     """``sigma2 * inv(info)`` for a 6x6 information matrix of unit-variance residuals.
 
@@ -38,6 +42,6 @@ def covariance_from_information(info: np.ndarray, sigma2: float) -> np.ndarray |
     geometry leaves a direction unconstrained, e.g. a single plane).
     """
     info = np.asarray(info, dtype=np.float64)
-    if not np.all(np.isfinite(info)) or np.linalg.cond(info) > 1e12:
+    if not np.all(np.isfinite(info)) or np.linalg.cond(info) > MAX_CONDITION:
         return None
     return sigma2 * np.linalg.inv(info)

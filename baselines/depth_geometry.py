@@ -17,14 +17,29 @@ from odolab.api import Intrinsics
 
 @dataclass(frozen=True)
 class DepthRange:
-    """Depth readings (metres) trusted by an odometer: ``min_depth < d <= max_depth``."""
+    """The depth readings an odometer trusts, and how far two readings of one surface may differ.
+
+    ``min_depth < d <= max_depth`` (metres; beyond 4 m a Kinect's and the simulated Redwood
+    depth's quantisation step exceeds ~5 cm). Noise model, the one all baselines use: two readings
+    of one surface at depth ``z`` agree within :meth:`tolerance` ``= noise_floor + noise_growth *
+    z^2`` (metres; ``noise_growth`` in 1/m): a Kinect's and the Redwood model's disparity noise
+    grows with z^2 (about 4 cm at 4 m).
+    """
 
     min_depth: float = 0.1
     max_depth: float = 4.0
+    noise_floor: float = 0.01
+    noise_growth: float = 0.01
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_depth < self.max_depth:
             raise ValueError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
+        if not (self.noise_floor >= 0.0 and self.noise_growth >= 0.0):
+            raise ValueError(f"need noise_floor, noise_growth >= 0, got {self.noise_floor}, {self.noise_growth}")
+
+    def tolerance(self, z: np.ndarray) -> np.ndarray:
+        """Largest difference (metres) between two readings of one surface at depth ``z`` (metres)."""
+        return self.noise_floor + self.noise_growth * z**2
 
 
 _V = TypeVar("_V")
@@ -65,7 +80,7 @@ def depth_mask(depth: np.ndarray, rng: DepthRange) -> np.ndarray:
         return np.isfinite(d) & (d > rng.min_depth) & (d <= rng.max_depth)
 
 
-def too_little_depth(depth: np.ndarray, rng: DepthRange, min_valid: int = 500) -> bool:
+def too_little_depth(depth: np.ndarray, rng: DepthRange, min_valid: int) -> bool:
     """True for frames with fewer than ``min_valid`` usable depth pixels."""
     return int(depth_mask(depth, rng).sum()) < min_valid
 
@@ -74,6 +89,13 @@ def image_texture(rgb: np.ndarray) -> float:
     """Mean absolute grey-level difference between neighbouring pixels (0 for a constant image)."""
     grey = np.asarray(rgb, dtype=np.float32).mean(axis=2)
     return float((np.abs(np.diff(grey, axis=0)).mean() + np.abs(np.diff(grey, axis=1)).mean()) / 2.0)
+
+
+#: Neighbouring points farther apart than this fraction of their depth per pixel between them
+#: straddle a depth edge (no surface normal there).
+EDGE_STEP = 0.05
+#: Fewer surface normals than this constrain nothing.
+MIN_NORMALS = 10
 
 
 def normal_constraint(depth: np.ndarray, intr: Intrinsics, rng: DepthRange, stride: int = 4) -> float:
@@ -93,11 +115,11 @@ def normal_constraint(depth: np.ndarray, intr: Intrinsics, rng: DepthRange, stri
     zc = P[:-1, :-1, 2].reshape(-1)
     step = np.maximum(np.linalg.norm(du, axis=-1), np.linalg.norm(dv, axis=-1)).reshape(-1)
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(n).all(axis=1) & (step < 0.05 * stride * zc)  # no jump across an edge
+        ok = np.isfinite(n).all(axis=1) & (step < EDGE_STEP * stride * zc)  # no jump across an edge
     n = n[ok]
     norm = np.linalg.norm(n, axis=1)
     n = n[norm > 0] / norm[norm > 0, None]
-    if len(n) < 10:
+    if len(n) < MIN_NORMALS:
         return 0.0
     return float(np.linalg.eigvalsh(n.T @ n / len(n))[0])
 

@@ -30,7 +30,7 @@ three test episodes: 37 -> 51 of 71) and leave TUM unchanged (4.6 mm).
 Validity: the simulator's repetitive textures (bricks, tiles) make most ratio-test matches wrong
 (on turns often 5-25 true matches among 40-160), and a pose from a bad RANSAC consensus used to
 pass as valid (errors up to 2 m). Every estimate is now checked against the images by
-:class:`~baselines.verification.Verifier` (motion bounds of the action, depth agreement,
+:func:`~baselines.verification.verify` (motion bounds of the action, depth agreement,
 grey-level correlation): on the val split the valid steps' mean error fell from (6.0, 2.1, 2.2)
 to (1.7, 0.6, 0.7) x 1e-2 (m, m, rad), at the price of more steps declared invalid.
 
@@ -44,25 +44,40 @@ third of the otherwise correct steps). ``planar=False`` keeps the 6-DoF result.
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from baselines.config import OdometerConfig, configure, options_signature
 from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import (
-    DepthRange,
     FrameMemo,
     backproject_pixels,
     sample_depth,
     too_little_depth,
 )
 from baselines.motion_search import planar_search
-from baselines.verification import Verifier
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, planar_to_transform, transform_to_planar
+from baselines.pose_solvers import (
+    essential_motion,
+    planar_procrustes,
+    pnp,
+    scale_from_depth,
+    translation_given_rotation,
+)
+from baselines.verification import VerifyConfig, verify
+from odolab.api import (
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Odometer,
+    invert,
+    planar_to_transform,
+    transform_to_planar,
+)
 
-__all__ = ["FeatureEssentialOdometer", "OracleRotationFeatureEssentialOdometer"]
+__all__ = ["FeatureEssentialConfig", "FeatureEssentialOdometer", "OracleRotationFeatureEssentialOdometer"]
 
 
 @dataclass(frozen=True)
@@ -80,23 +95,91 @@ class _Matches:
     prev: np.ndarray
     cur: np.ndarray
 
+    @staticmethod
+    def none() -> _Matches:
+        return _Matches(np.zeros((0, 2)), np.zeros((0, 2)))
+
+    def __len__(self) -> int:
+        return len(self.prev)
+
+    def subset(self, index: np.ndarray) -> _Matches:
+        """The matches at ``index`` (integer indices or a boolean mask)."""
+        return _Matches(self.prev[index], self.cur[index])
+
+
+@dataclass(frozen=True)
+class _PoseFit:
+    """A solver's ``T_prev_cur`` (4x4), the 3D pairs supporting it (matched inliers with depth in
+    both frames, (N, 3) each, metres, in the previous and the current camera) and how it was
+    solved: ``"essential"`` or ``"pnp"``."""
+
+    T_prev_cur: np.ndarray
+    P_prev: np.ndarray
+    P_cur: np.ndarray
+    path: str
+
+
+#: Fewer matches than this leave no essential matrix worth fitting (invalid step).
+MIN_MATCHES = 8
+#: PnP needs at least this many matched points with depth in the current frame.
+MIN_PNP_POINTS = 6
+#: The planar fit and the covariance need at least this many 3D pairs.
+MIN_3D_PAIRS = 4
+#: Predicted keypoints closer than this (metres) in front of the current camera match nothing.
+MIN_PREDICTED_DEPTH = 0.05
+#: SIFT keypoints per frame by default at the simulator's image size (``SIM_IMAGE_AREA`` pixels,
+#: 341 x 192), scaled with the image area up to ``MAX_AUTO_FEATURES``.
+AUTO_FEATURES = 800
+SIM_IMAGE_AREA = 341 * 192
+MAX_AUTO_FEATURES = 2000
+
+
+@dataclass(frozen=True)
+class FeatureEssentialConfig(OdometerConfig):
+    """Options of :class:`FeatureEssentialOdometer` (besides ``depth`` and ``verify``, see
+    :class:`~baselines.config.OdometerConfig`; ``verify=None`` accepts every solved motion)."""
+
+    verify: VerifyConfig | None = VerifyConfig()
+    #: Fewer usable depth pixels in either frame = invalid step.
+    min_depth_pixels: int = 500
+    #: SIFT keypoints per frame; 0 = all; None = by image size (see ``_n_features``).
+    n_features: int | None = None
+    #: SIFT's contrast threshold (half OpenCV's default).
+    contrast_threshold: float = 0.02
+    #: Gaussian pre-blur before SIFT, pixels (0 = none).
+    blur_sigma: float = 1.0
+    #: Lowe's ratio test of the unguided matching.
+    ratio: float = 0.8
+    #: Guided matching (known action): search window radius, pixels (0 = off) ...
+    guide_px: float = 20.0
+    #: ... and its ratio test against the runner-up in the window.
+    guide_ratio: float = 0.9
+    #: Essential-matrix RANSAC threshold, pixels ...
+    ransac_px: float = 1.0
+    #: ... and iteration cap (OpenCV's 1000 took 28 ms a pair on the simulator's outlier-heavy matches).
+    ransac_iterations: int = 200
+    #: PnP (and oracle-rotation translation) RANSAC threshold, pixels (the 3D points add depth noise) ...
+    pnp_px: float = 2.0
+    #: ... and iteration cap of PnP ...
+    pnp_iterations: int = 200
+    #: ... and of the oracle-rotation translation fit.
+    translation_iterations: int = 100
+    #: Fewer final inliers = invalid step.
+    min_inliers: int = 15
+    #: Share of the essential matrix's inliers that ``recoverPose`` must keep, else PnP.
+    min_cheirality: float = 0.5
+    #: Depth-scaled baseline over the median inlier depth below which the essential matrix's
+    #: direction is not trusted and PnP is used (0.05 ~ 3 degrees of parallax).
+    min_parallax: float = 0.05
+    #: With a known action, fit a planar motion to the final inliers.
+    planar: bool = True
+
 
 class FeatureEssentialOdometer(Odometer):
     """SIFT matches -> essential matrix (R, t direction) -> scale from depth; PnP when degenerate.
 
-    Options: ``min_depth`` / ``max_depth`` (metres, depth readings outside are ignored; 4 m
-    default: beyond it a Kinect's and the simulated Redwood depth's quantisation step exceeds
-    ~5 cm), ``n_features`` (SIFT keypoints per frame, 0 = all, None = by image size, see
-    :meth:`_n_features`), ``contrast_threshold`` (SIFT's;
-    half OpenCV's default), ``blur_sigma`` (Gaussian pre-blur, pixels), ``ratio`` (Lowe's test),
-    ``ransac_px`` (RANSAC threshold, pixels), ``ransac_iterations`` (essential-matrix
-    RANSAC cap; OpenCV's 1000 took 28 ms a pair on the simulator's outlier-heavy matches),
-    ``min_inliers`` (fewer final inliers = invalid),
-    ``min_cheirality`` (fraction of essential inliers ``recoverPose`` must keep, else PnP),
-    ``min_parallax`` (the depth-scaled baseline over the median inlier depth below which the
-    essential matrix's direction is not trusted and PnP is used; 0.05 ~ 3 degrees),
-    ``guide_px`` / ``guide_ratio`` (guided matching window, pixels, 0 = off, and its ratio test),
-    ``planar`` (with a known action, fit a planar motion to the final inliers).
+    Configured by :class:`FeatureEssentialConfig` (``config``, or keyword overrides of its fields,
+    e.g. ``FeatureEssentialOdometer(ransac_px=2.0, max_depth=3.0)``).
 
     ``last_path`` tells how the last :meth:`step` solved: ``"essential"`` (the paper's pipeline),
     ``"pnp"`` (the fallback) or None (invalid).
@@ -106,40 +189,10 @@ class FeatureEssentialOdometer(Odometer):
     :func:`baselines.covariance.point_to_point_covariance`.
     """
 
-    def __init__(
-        self,
-        min_depth: float = 0.1,
-        max_depth: float = 4.0,
-        n_features: int | None = None,
-        contrast_threshold: float = 0.02,
-        blur_sigma: float = 1.0,
-        ratio: float = 0.8,
-        ransac_px: float = 1.0,
-        ransac_iterations: int = 200,
-        min_inliers: int = 15,
-        min_cheirality: float = 0.5,
-        min_parallax: float = 0.05,
-        verifier: Verifier | None = Verifier(),
-        guide_px: float = 20.0,
-        guide_ratio: float = 0.9,
-        planar: bool = True,
-    ) -> None:
-        self.depth_range = DepthRange(min_depth, max_depth)
-        self.verifier = verifier and dataclasses.replace(verifier, depth_range=self.depth_range)
-        self.n_features = n_features
-        self.contrast_threshold = contrast_threshold
-        self.blur_sigma = blur_sigma
-        self.ratio = ratio
-        self.ransac_px = ransac_px
-        self.ransac_iterations = int(ransac_iterations)
-        self.min_inliers = min_inliers
-        self.min_cheirality = min_cheirality
-        self.min_parallax = min_parallax
-        self.guide_px = guide_px
-        self.guide_ratio = guide_ratio
-        self.planar = planar
-        self._planar_fit: np.ndarray | None = None  # (dx, dz, dyaw) of the last solve's inliers
-        self._oracle_yaw = False
+    __signature__ = options_signature(FeatureEssentialConfig)  # the options, not just (config, **overrides)
+
+    def __init__(self, config: FeatureEssentialConfig | None = None, **overrides) -> None:
+        self.config = configure(FeatureEssentialConfig, config, **overrides)
         self._features: FrameMemo[_Features] = FrameMemo()
         self.last_path: str | None = None
 
@@ -153,109 +206,100 @@ class FeatureEssentialOdometer(Odometer):
         """Rotation ``R_prev_cur`` (3x3) to use instead of the estimate; None = estimate it."""
         return None
 
-    # -- the pipeline ------------------------------------------------------------------------
+    # -- the pipeline: match -> solve -> planarise -> verify ----------------------------------
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         """``T_prev_cur`` from features; ``valid=False`` with too few matches, inliers or depth, or
-        when the images do not confirm the result (``verifier``)."""
-        est = self._solve(prev, cur, action)
-        if est.valid and action is not None and self.planar:
-            T = self._planar_fit if self._planar_fit is not None else transform_to_planar(est.transform)
-            est = Estimate(planar_to_transform(*T), covariance=est.covariance)
-        if est.valid and self.verifier is not None:
-            if self.verifier.check(prev, cur, est.transform, action, self.intrinsics) is None:
-                self.last_path = None
-                return Estimate.invalid()
-        return est
-
-    def _solve(self, prev: Frame, cur: Frame, action: Action | None = None) -> Estimate:
-        """The feature pipeline itself (see the module docstring)."""
+        when the images do not confirm the result (``config.verify``)."""
+        cfg = self.config
         R_oracle = self.oracle_rotation(prev, cur)
-        self._planar_fit, self._oracle_yaw = None, R_oracle is not None
         self.last_path = None
-        if too_little_depth(prev.depth, self.depth_range) or too_little_depth(cur.depth, self.depth_range):
+        if any(too_little_depth(f.depth, cfg.depth, cfg.min_depth_pixels) for f in (prev, cur)):
             return Estimate.invalid()
-        m = self._match(prev, cur, action)
-        if len(m.prev) < max(self.min_inliers, 8):
+        matches = self._match(prev, cur, action)
+        if len(matches) < max(cfg.min_inliers, MIN_MATCHES):
             return Estimate.invalid()
-        K = self.intrinsics.matrix
-        # Points of the current image first: R, t map current-camera points into the previous one.
-        E, e_mask = cv2.findEssentialMat(m.cur, m.prev, K, cv2.RANSAC, 0.999, self.ransac_px, self.ransac_iterations)
-        if E is None or E.shape != (3, 3) or e_mask is None:
-            return self._solve_pnp(prev, cur, m, R_oracle)
-        e_inl = e_mask.ravel() > 0
-        n_good, R, t_dir, _ = cv2.recoverPose(E, m.cur[e_inl], m.prev[e_inl], K)
-        if n_good < max(self.min_inliers, self.min_cheirality * e_inl.sum()):
-            return self._solve_pnp(prev, cur, m, R_oracle)
-        inliers = _subset(m, e_inl)
-        P_prev, P_cur, ok = self._points_3d(prev, cur, inliers)
-        if ok.sum() < self.min_inliers:
-            return self._solve_pnp(prev, cur, m, R_oracle)
-        T = _scale_from_depth(P_prev[ok], P_cur[ok], R if R_oracle is None else R_oracle, t_dir.ravel())
-        if np.linalg.norm(T[:3, 3]) < self.min_parallax * np.median(P_prev[ok, 2]):
-            return self._solve_pnp(prev, cur, m, R_oracle)
-        self.last_path = "essential"
-        return self._estimate(T, P_prev[ok], P_cur[ok])
+        fit = self._solve_essential(prev, cur, matches, R_oracle)
+        if fit is None:  # no parallax: the essential matrix cannot tell the direction
+            fit = self._solve_pnp(prev, cur, matches, R_oracle)
+        if fit is None:
+            return Estimate.invalid()
+        T = fit.T_prev_cur
+        if action is not None and cfg.planar:
+            T = _planarise(fit, fixed_yaw=R_oracle is not None)
+        if cfg.verify is not None and verify(prev, cur, T, action, self.intrinsics, cfg.depth, cfg.verify) is None:
+            return Estimate.invalid()
+        self.last_path = fit.path
+        return Estimate(T, covariance=_covariance(fit))
 
-    def _solve_pnp(self, prev: Frame, cur: Frame, m: _Matches, R_oracle: np.ndarray | None) -> Estimate:
-        """Fallback: pose from 3D points of the current frame and their pixels in the previous one."""
-        intr = self.intrinsics
-        z_cur = sample_depth(cur.depth, m.cur, self.depth_range)
+    def _solve_essential(
+        self, prev: Frame, cur: Frame, m: _Matches, R_oracle: np.ndarray | None
+    ) -> _PoseFit | None:
+        """The paper's solver (see the module docstring); None where it cannot be trusted."""
+        cfg = self.config
+        e = essential_motion(m.prev, m.cur, self.intrinsics.matrix, cfg.ransac_px, cfg.ransac_iterations)
+        if e is None or e.n_in_front < max(cfg.min_inliers, cfg.min_cheirality * e.inliers.sum()):
+            return None
+        P_prev, P_cur = self._pairs_3d(prev, cur, m.subset(e.inliers))
+        if len(P_prev) < cfg.min_inliers:
+            return None
+        T = scale_from_depth(P_prev, P_cur, e.R if R_oracle is None else R_oracle, e.t_dir)
+        if np.linalg.norm(T[:3, 3]) < cfg.min_parallax * np.median(P_prev[:, 2]):
+            return None
+        return _PoseFit(T, P_prev, P_cur, "essential")
+
+    def _solve_pnp(self, prev: Frame, cur: Frame, m: _Matches, R_oracle: np.ndarray | None) -> _PoseFit | None:
+        """Pose from 3D points of the current frame and their pixels in the previous one (with an
+        oracle rotation: the translation only)."""
+        cfg, intr = self.config, self.intrinsics
+        z_cur = sample_depth(cur.depth, m.cur, cfg.depth)
         has = z_cur > 0
-        if has.sum() < max(self.min_inliers, 6):
-            return Estimate.invalid()
+        if has.sum() < max(cfg.min_inliers, MIN_PNP_POINTS):
+            return None
         X_cur = backproject_pixels(m.cur[has, 0], m.cur[has, 1], z_cur[has], intr)
         uv_prev = m.prev[has]
         if R_oracle is None:
-            T, inl = _pnp(X_cur, uv_prev, intr.matrix, 2.0 * self.ransac_px)
+            T, inl = pnp(X_cur, uv_prev, intr.matrix, cfg.pnp_px, cfg.pnp_iterations)
         else:
-            T, inl = _translation_given_rotation(X_cur, uv_prev, R_oracle, intr, 2.0 * self.ransac_px)
-        if T is None or inl.sum() < self.min_inliers:
-            return Estimate.invalid()
-        self.last_path = "pnp"
-        P_prev, P_cur, ok = self._points_3d(prev, cur, _subset(m, np.flatnonzero(has)[inl]))
-        return self._estimate(T, P_prev[ok], P_cur[ok])
-
-    def _estimate(self, T: np.ndarray, P_prev: np.ndarray, P_cur: np.ndarray) -> Estimate:
-        """Wrap ``T`` with the point-to-point covariance of the 3D pairs (None if < 4 pairs)."""
-        fixed = transform_to_planar(T)[2] if self._oracle_yaw else None
-        self._planar_fit = _planar_procrustes(P_prev, P_cur, T, fixed) if len(P_prev) >= 4 else None
-        if len(P_prev) < 4:
-            return Estimate(T, covariance=None)
-        fitted = P_cur @ T[:3, :3].T + T[:3, 3]
-        return Estimate(T, covariance=point_to_point_covariance(fitted, P_prev - fitted))
+            T, inl = translation_given_rotation(X_cur, uv_prev, R_oracle, intr, cfg.pnp_px, cfg.translation_iterations)
+        if T is None or inl.sum() < cfg.min_inliers:
+            return None
+        P_prev, P_cur = self._pairs_3d(prev, cur, m.subset(np.flatnonzero(has)[inl]))
+        return _PoseFit(T, P_prev, P_cur, "pnp")
 
     # -- features ----------------------------------------------------------------------------
 
     def _detect(self, frame: Frame) -> _Features:
         gray = cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2GRAY)
-        if self.blur_sigma > 0:
-            gray = cv2.GaussianBlur(gray, (0, 0), self.blur_sigma)
-        sift = cv2.SIFT_create(nfeatures=self._n_features(), contrastThreshold=self.contrast_threshold)
+        cfg = self.config
+        if cfg.blur_sigma > 0:
+            gray = cv2.GaussianBlur(gray, (0, 0), cfg.blur_sigma)
+        sift = cv2.SIFT_create(nfeatures=self._n_features(), contrastThreshold=cfg.contrast_threshold)
         kps, desc = sift.detectAndCompute(gray, None)
         uv = np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2)
         return _Features(uv, desc)
 
     def _n_features(self) -> int:
-        """``n_features``, or by default 800 per 341x192 image area, within [800, 2000]: at the
-        simulator's size 800 keeps the accuracy of 2000 and saves a third of the time; on 640x480
-        TUM frames 2000 (800 costs precision: 0.50 vs 0.45 degrees on a synthetic forward step)."""
-        if self.n_features is not None:
-            return int(self.n_features)
-        area = self.intrinsics.width * self.intrinsics.height / (341 * 192)
-        return int(np.clip(round(800 * area), 800, 2000))
+        """``n_features``, or by default ``AUTO_FEATURES`` per 341x192 image area, at most
+        ``MAX_AUTO_FEATURES``: at the simulator's size 800 keeps the accuracy of 2000 and saves a
+        third of the time; on 640x480 TUM frames 2000 (800 costs precision: 0.50 vs 0.45 degrees
+        on a synthetic forward step)."""
+        if self.config.n_features is not None:
+            return int(self.config.n_features)
+        area = self.intrinsics.width * self.intrinsics.height / SIM_IMAGE_AREA
+        return int(np.clip(round(AUTO_FEATURES * area), AUTO_FEATURES, MAX_AUTO_FEATURES))
 
     def _match(self, prev: Frame, cur: Frame, action: Action | None = None) -> _Matches:
         """Ratio-test matches; with a known action, matches guided by the motion prior instead."""
         fp = self._features.get(prev, lambda: self._detect(prev))
         fc = self._features.get(cur, lambda: self._detect(cur))
-        empty = _Matches(np.zeros((0, 2)), np.zeros((0, 2)))
+        empty = _Matches.none()
         if fp.desc is None or fc.desc is None or len(fp.uv) < 2 or len(fc.uv) < 2:
             return empty
-        if action is not None and self.guide_px > 0:
+        if action is not None and self.config.guide_px > 0:
             return self._guided_match(prev, cur, fp, fc, action)
         pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(fp.desc, fc.desc, k=2)
-        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.ratio * p[1].distance]
+        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.config.ratio * p[1].distance]
         if not good:
             return empty
         i_prev = np.array([g.queryIdx for g in good])
@@ -273,21 +317,21 @@ class FeatureEssentialOdometer(Odometer):
         (bricks, tiles) the global ratio test rejects most true matches: every brick looks alike.
         """
         intr = self.intrinsics
-        T = planar_search(prev, cur, action, intr, self.depth_range)[0]
-        z = sample_depth(prev.depth, fp.uv, self.depth_range)
+        T = planar_search(prev, cur, action, intr, self.config.depth)[0]
+        z = sample_depth(prev.depth, fp.uv, self.config.depth)
         has = np.flatnonzero(z > 0)
         if len(has) < 2:
-            return _Matches(np.zeros((0, 2)), np.zeros((0, 2)))
+            return _Matches.none()
         X = backproject_pixels(fp.uv[has, 0], fp.uv[has, 1], z[has], intr)
-        T_cur_prev = np.linalg.inv(T)
+        T_cur_prev = invert(T)
         Y = X @ T_cur_prev[:3, :3].T + T_cur_prev[:3, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             pred = (Y @ intr.matrix.T)[:, :2] / Y[:, 2:3]
         # two 2-D outer differences: 10x faster than one (N, M, 2) broadcast
         du = np.subtract.outer(pred[:, 0], fc.uv[:, 0])
         dv = np.subtract.outer(pred[:, 1], fc.uv[:, 1])
-        near = du * du + dv * dv < self.guide_px**2
-        near &= (Y[:, 2] > 0.05)[:, None]
+        near = du * du + dv * dv < self.config.guide_px**2
+        near &= (Y[:, 2] > MIN_PREDICTED_DEPTH)[:, None]
         a, b = fp.desc[has].astype(np.float32), fc.desc.astype(np.float32)
         d2 = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2.0 * (a @ b.T)
         d2 = np.where(near, d2, np.inf)
@@ -297,17 +341,18 @@ class FeatureEssentialOdometer(Odometer):
         d2[rows, best] = np.inf
         second = d2.min(axis=1)
         d2[rows, best] = first
-        ok = np.isfinite(first) & (first < self.guide_ratio**2 * second)
+        ok = np.isfinite(first) & (first < self.config.guide_ratio**2 * second)
         ok &= np.argmin(d2, axis=0)[best] == rows  # mutual
         return _Matches(fp.uv[has[ok]], fc.uv[best[ok]])
 
-    def _points_3d(self, prev: Frame, cur: Frame, m: _Matches) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Back-projected matches in each camera (N, 3) and the mask of pairs with both depths."""
-        z_prev = sample_depth(prev.depth, m.prev, self.depth_range)
-        z_cur = sample_depth(cur.depth, m.cur, self.depth_range)
-        P_prev = backproject_pixels(m.prev[:, 0], m.prev[:, 1], z_prev, self.intrinsics)
-        P_cur = backproject_pixels(m.cur[:, 0], m.cur[:, 1], z_cur, self.intrinsics)
-        return P_prev, P_cur, (z_prev > 0) & (z_cur > 0)
+    def _pairs_3d(self, prev: Frame, cur: Frame, m: _Matches) -> tuple[np.ndarray, np.ndarray]:
+        """The matches with depth in both frames, back-projected into each camera ((N, 3) each)."""
+        z_prev = sample_depth(prev.depth, m.prev, self.config.depth)
+        z_cur = sample_depth(cur.depth, m.cur, self.config.depth)
+        ok = (z_prev > 0) & (z_cur > 0)
+        P_prev = backproject_pixels(m.prev[ok, 0], m.prev[ok, 1], z_prev[ok], self.intrinsics)
+        P_cur = backproject_pixels(m.cur[ok, 0], m.cur[ok, 1], z_cur[ok], self.intrinsics)
+        return P_prev, P_cur
 
 
 class OracleRotationFeatureEssentialOdometer(FeatureEssentialOdometer):
@@ -329,103 +374,20 @@ class OracleRotationFeatureEssentialOdometer(FeatureEssentialOdometer):
         return np.asarray(prev.gt_pose)[:3, :3].T @ np.asarray(cur.gt_pose)[:3, :3]
 
 
-def _scale_from_depth(P_prev: np.ndarray, P_cur: np.ndarray, R: np.ndarray, t_dir: np.ndarray) -> np.ndarray:
-    """Paper step 3: ``T_prev_cur`` with rotation ``R`` and translation ``s * t_dir``.
-
-    ``s`` is the median offset, along the direction, between the previous frame's points and
-    the rotated current ones (points (N, 3) in metres, paired by row).
-    """
-    d = t_dir / np.linalg.norm(t_dir)
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.median((P_prev - P_cur @ R.T) @ d) * d
-    return T
+def _planarise(fit: _PoseFit, fixed_yaw: bool) -> np.ndarray:
+    """The planar motion (4x4) closest to ``fit``: a planar least-squares fit of its 3D pairs seen
+    from above (keeping ``fit``'s yaw when ``fixed_yaw``), or with too few pairs its projection."""
+    T = fit.T_prev_cur
+    if len(fit.P_prev) < MIN_3D_PAIRS:
+        return planar_to_transform(*transform_to_planar(T))
+    yaw = transform_to_planar(T)[2] if fixed_yaw else None
+    return planar_to_transform(*planar_procrustes(fit.P_prev, fit.P_cur, T, yaw))
 
 
-def _planar_procrustes(
-    P_prev: np.ndarray, P_cur: np.ndarray, T: np.ndarray, yaw: float | None = None
-) -> np.ndarray:
-    """Planar motion (dx, dz, dyaw) best mapping ``P_cur`` onto ``P_prev`` (N, 3) seen from above.
-
-    Least squares on the (x, z) coordinates of the pairs within 3 median residuals of ``T``;
-    ``yaw`` (rad) fixes the rotation (oracle) and fits the translation only.
-    """
-    r = np.linalg.norm(P_prev - (P_cur @ T[:3, :3].T + T[:3, 3]), axis=1)
-    keep = r <= 3.0 * max(np.median(r), 0.005)
-    a, b = P_cur[keep][:, [0, 2]], P_prev[keep][:, [0, 2]]
-    ca, cb = a.mean(0), b.mean(0)
-    H = (a - ca).T @ (b - cb)
-    # b ~ R a + t with R = [[c, -s], [s, c]] in (x, z): x' = c x - s z, z' = s x + c z.
-    if yaw is None:
-        yaw = np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
-    c, s = np.cos(yaw), np.sin(yaw)
-    t = cb - np.array([[c, -s], [s, c]]) @ ca
-    return np.array([t[0], t[1], yaw])
-
-
-def _subset(m: _Matches, index: np.ndarray) -> _Matches:
-    return _Matches(m.prev[index], m.cur[index])
-
-
-def _pnp(X: np.ndarray, uv: np.ndarray, K: np.ndarray, px: float) -> tuple[np.ndarray | None, np.ndarray]:
-    """``T`` (4x4) mapping points ``X`` (N, 3) into the camera that sees them at ``uv``; inliers."""
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        X, uv, K, None, iterationsCount=200, reprojectionError=px, confidence=0.999, flags=cv2.SOLVEPNP_EPNP
-    )
-    mask = np.zeros(len(X), dtype=bool)
-    if not ok or inl is None or len(inl) < 4:
-        return None, mask
-    mask[inl.ravel()] = True
-    rvec, tvec = cv2.solvePnPRefineLM(X[mask], uv[mask], K, None, rvec, tvec)
-    T = np.eye(4)
-    T[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T[:3, 3] = tvec.ravel()
-    mask = _reprojection_error(T, X, uv, K) < px
-    return T, mask
-
-
-def _translation_given_rotation(
-    X: np.ndarray, uv: np.ndarray, R: np.ndarray, intr: Intrinsics, px: float, iterations: int = 100
-) -> tuple[np.ndarray, np.ndarray]:
-    """``t`` with ``uv ~ project(R X + t)``: 2-point RANSAC + linear least squares; (T 4x4, inliers).
-
-    Each pair gives two linear equations in ``t``: ``t_x - a t_z = a Y_z - Y_x`` and
-    ``t_y - b t_z = b Y_z - Y_y`` with ``Y = R X`` and (a, b) the normalised pixel.
-    """
-    Y = X @ R.T
-    a = (uv[:, 0] - intr.cx) / intr.fx
-    b = (uv[:, 1] - intr.cy) / intr.fy
-    n = len(X)
-    one, zero = np.ones(n), np.zeros(n)
-    A = np.stack([np.stack([one, zero, -a], 1), np.stack([zero, one, -b], 1)], axis=1)  # (N, 2, 3)
-    rhs = np.stack([a * Y[:, 2] - Y[:, 0], b * Y[:, 2] - Y[:, 1]], axis=1)  # (N, 2)
-    T = np.eye(4)
-    T[:3, :3] = R
-
-    def solve(idx: np.ndarray) -> np.ndarray:
-        return np.linalg.lstsq(A[idx].reshape(-1, 3), rhs[idx].reshape(-1), rcond=None)[0]
-
-    rand = np.random.default_rng(0)
-    best = np.zeros(n, dtype=bool)
-    for _ in range(iterations):
-        T[:3, 3] = solve(rand.choice(n, size=2, replace=False))
-        inl = _reprojection_error(T, X, uv, intr.matrix) < px
-        if inl.sum() > best.sum():
-            best = inl
-    if best.sum() < 2:
-        return T, best
-    for _ in range(2):
-        T[:3, 3] = solve(best)
-        best = _reprojection_error(T, X, uv, intr.matrix) < px
-        if best.sum() < 2:
-            break
-    return T, best
-
-
-def _reprojection_error(T: np.ndarray, X: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pixel distance (N,) between ``uv`` and the projection of ``T`` applied to ``X``."""
-    Y = X @ T[:3, :3].T + T[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        proj = (Y @ K.T)[:, :2] / Y[:, 2:3]
-    err = np.linalg.norm(proj - uv, axis=1)
-    return np.where(Y[:, 2] > 0, err, np.inf)
+def _covariance(fit: _PoseFit) -> np.ndarray | None:
+    """Point-to-point covariance of ``fit``'s 3D pairs (None with too few)."""
+    if len(fit.P_prev) < MIN_3D_PAIRS:
+        return None
+    T = fit.T_prev_cur
+    fitted = fit.P_cur @ T[:3, :3].T + T[:3, 3]
+    return point_to_point_covariance(fitted, fit.P_prev - fitted)

@@ -6,7 +6,8 @@ default: 8, 4 cm; correspondences up to 16 and 6 cm) with normals and mean colou
 built once per frame and reused by the next step. The current cloud is registered onto the
 previous one, so the result is ``T_prev_cur`` directly, starting from the first ``max_starts`` (2)
 of :func:`~baselines.motion_search.initial_guesses` (the two best motions of a planar search
-scored on the images) until :class:`~baselines.verification.Verifier` accepts.
+scored on the images) until :func:`~baselines.verification.verify` accepts
+(:func:`~baselines.verification.first_verified`).
 
 Why the search and no 16 cm level (val, 12 episodes, 472 steps): started even from the *true*
 motion, the former three levels (16 cm top, 64 cm reach) without a robust kernel diverged (tilt,
@@ -29,7 +30,7 @@ from 15 instead of 30 neighbours and 10 instead of 15 iterations per level took 
 23.5 steps/s with the same errors ((1.27, 0.81, 1.46) -> (1.27, 0.78, 1.40) x 1e-2, 24 -> 22 failed).
 
 Validity is judged on the images, not on ICP's own fitness (which stays above 0.25 for wrong
-alignments of indoor scenes): see :class:`~baselines.verification.Verifier` (motion bounds of
+alignments of indoor scenes): see :func:`~baselines.verification.verify` (motion bounds of
 the action, depth agreement, grey-level correlation).
 """
 from __future__ import annotations
@@ -39,18 +40,66 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
+from baselines.config import OdometerConfig, check_choice, configure, options_signature
 from baselines.covariance import covariance_from_information
-from baselines.depth_geometry import DepthRange, FrameMemo, backproject, normal_constraint
+from baselines.depth_geometry import FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
-from baselines.verification import MotionBounds, Verifier
+from baselines.verification import first_verified
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 
-__all__ = ["ICPOdometer"]
+__all__ = ["ICPConfig", "ICPOdometer"]
 
 _reg = o3d.pipelines.registration
 _VARIANTS = ("point_to_plane", "colored")
-#: (voxel as a multiple of the finest, max correspondence distance as a multiple of that voxel)
-LEVELS = ((2.0, 2.0), (1.0, 1.5))
+
+
+@dataclass(frozen=True)
+class ICPConfig(OdometerConfig):
+    """Options of :class:`ICPOdometer` (besides ``depth`` and ``verify``, see
+    :class:`~baselines.config.OdometerConfig`; the 4 m depth cut: beyond it the depth is coarsely
+    quantised on a Kinect and in the simulator's Redwood model, >5 cm steps)."""
+
+    #: ``"colored"`` (depth + texture) or ``"point_to_plane"``.
+    variant: str = "colored"
+    #: Back-project every n-th pixel row and column.
+    pixel_stride: int = 2
+    #: Finest voxel edge, metres.
+    voxel: float = 0.04
+    #: Per level, coarse to fine: (voxel as a multiple of ``voxel``, correspondence reach as a
+    #: multiple of that level's voxel).
+    levels: tuple[tuple[float, float], ...] = ((2.0, 2.0), (1.0, 1.5))
+    #: Normals from neighbours within this many voxels of a level ...
+    normal_radius: float = 2.0
+    #: ... and at most this many of them.
+    normal_neighbours: int = 15
+    #: ICP iterations per level.
+    max_iterations: int = 10
+    #: Relative change of fitness and RMSE that ends a level.
+    tolerance: float = 1e-5
+    #: Colored ICP's weight of the geometric term against the colour term (Open3D's default).
+    geometric_weight: float = 0.968
+    #: Tukey robust kernel width, metres; None = plain least squares.
+    tukey_k: float | None = 0.05
+    #: Initial guesses tried (:func:`~baselines.motion_search.initial_guesses`, best first).
+    max_starts: int = 2
+    #: Fewer points in a frame's finest cloud = invalid step ...
+    min_cloud_points: int = 200
+    #: ... or fewer in its coarsest cloud.
+    min_coarse_points: int = 20
+    #: Point-to-plane only: either frame's surfaces must constrain translation this well (0 to 1/3,
+    #: :func:`~baselines.depth_geometry.normal_constraint`).
+    min_normal_constraint: float = 0.02
+
+    def __post_init__(self) -> None:
+        check_choice("variant", self.variant, _VARIANTS)
+        if self.voxel <= 0:
+            raise ValueError(f"voxel must be positive, got {self.voxel}")
+        object.__setattr__(self, "levels", tuple((float(a), float(b)) for a, b in self.levels))
+
+    def reach(self, level: int) -> float:
+        """Maximum correspondence distance (metres) at ``level`` (0 = coarsest, -1 = finest)."""
+        scale, reach = self.levels[level]
+        return reach * scale * self.voxel
 
 
 @dataclass(frozen=True)
@@ -65,17 +114,8 @@ class _Pyramid:
 class ICPOdometer(Odometer):
     """Open3D ICP of the current depth cloud onto the previous one, coarse to fine.
 
-    Options: ``min_depth`` / ``max_depth`` (metres; 4 m default: the depth beyond is coarsely
-    quantised on a Kinect and in the simulator's Redwood model, >5 cm steps), ``voxel`` (finest
-    voxel, metres), ``levels`` ((voxel multiple, reach multiple) per level, coarse to fine),
-    ``variant`` (``"colored"`` or ``"point_to_plane"``), ``pixel_stride`` (back-project every
-    n-th row and column), ``max_iterations`` per level and ``tolerance`` (relative change of
-    fitness and RMSE that ends a level), ``min_points`` (fewer usable depth points = invalid),
-    ``min_agreement`` / ``min_ncc`` / ``bounds`` (see :class:`~baselines.verification.Verifier`),
-    ``min_normal_constraint`` (point-to-plane only: either frame's surfaces must constrain
-    translation this well, see :func:`~baselines.depth_geometry.normal_constraint`),
-    ``tukey_k`` (Tukey robust kernel width, None = plain least squares), ``max_starts`` (initial
-    guesses tried).
+    Configured by :class:`ICPConfig` (``config``, or keyword overrides of its fields, e.g.
+    ``ICPOdometer(voxel=0.05, max_depth=3.0)``).
 
     Covariance: ``sigma^2 * inv(I)`` with ``I`` Open3D's
     ``get_information_matrix_from_point_clouds`` at the result (previous camera frame, ordering
@@ -83,40 +123,10 @@ class ICPOdometer(Odometer):
     independent, so it is optimistic in absolute terms; use it to compare steps.
     """
 
-    def __init__(
-        self,
-        min_depth: float = 0.1,
-        max_depth: float = 4.0,
-        voxel: float = 0.04,
-        levels: tuple[tuple[float, float], ...] = LEVELS,
-        variant: str = "colored",
-        pixel_stride: int = 2,
-        max_iterations: int = 10,
-        tolerance: float = 1e-5,
-        min_points: int = 200,
-        min_agreement: float = 0.8,
-        min_ncc: float = 0.85,
-        min_normal_constraint: float = 0.02,
-        bounds: MotionBounds | None = MotionBounds(),
-        tukey_k: float | None = 0.05,
-        max_starts: int = 2,
-    ) -> None:
-        if variant not in _VARIANTS:
-            raise ValueError(f"variant must be one of {', '.join(_VARIANTS)}; got {variant!r}")
-        if voxel <= 0:
-            raise ValueError(f"voxel must be positive, got {voxel}")
-        self.depth_range = DepthRange(min_depth, max_depth)
-        self.voxel = voxel
-        self.levels = tuple((float(a), float(b)) for a, b in levels)
-        self.variant = variant
-        self.pixel_stride = int(pixel_stride)
-        self.max_iterations = max_iterations
-        self.tolerance = tolerance
-        self.min_points = min_points
-        self.min_normal_constraint = min_normal_constraint
-        self.tukey_k = tukey_k
-        self.max_starts = int(max_starts)
-        self.verifier = Verifier(self.depth_range, bounds, min_points, min_agreement, min_ncc)
+    __signature__ = options_signature(ICPConfig)  # the options, not just (config, **overrides)
+
+    def __init__(self, config: ICPConfig | None = None, **overrides) -> None:
+        self.config = configure(ICPConfig, config, **overrides)
         self._clouds: FrameMemo[_Pyramid | None] = FrameMemo()
 
     def reset(self, intrinsics: Intrinsics) -> None:
@@ -125,25 +135,29 @@ class ICPOdometer(Odometer):
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         """``T_prev_cur`` by ICP from each initial guess until one checks out; else invalid."""
+        cfg = self.config
         target = self._clouds.get(prev, lambda: self._pyramid(prev))
         source = self._clouds.get(cur, lambda: self._pyramid(cur))
         if target is None or source is None:
             return Estimate.invalid()
-        if min(target.constraint, source.constraint) < self.min_normal_constraint and self.variant != "colored":
+        if min(target.constraint, source.constraint) < cfg.min_normal_constraint and cfg.variant != "colored":
             return Estimate.invalid()  # a plane, or a floor and one wall: point-to-plane ICP would slide
-        for guess in initial_guesses(action, prev, cur, self.intrinsics, self.depth_range)[: self.max_starts]:
-            T, rmse = self._coarse_to_fine(source, target, guess)
-            check = self.verifier.check(prev, cur, T, action, self.intrinsics)
-            if check is not None:
-                return Estimate(T, covariance=self._covariance(source, target, T, rmse))
-        return Estimate.invalid()
+        found = first_verified(
+            initial_guesses(action, prev, cur, self.intrinsics, cfg.depth)[: cfg.max_starts],
+            lambda T: self._coarse_to_fine(source, target, T),
+            prev, cur, action, self.intrinsics, cfg.depth, cfg.verify,
+        )
+        if found is None:
+            return Estimate.invalid()
+        T, rmse = found.T_prev_cur, found.detail
+        return Estimate(T, covariance=self._covariance(source, target, T, rmse))
 
     def _coarse_to_fine(self, source: _Pyramid, target: _Pyramid, T: np.ndarray) -> tuple[np.ndarray | None, float]:
         """ICP at every level from ``T``: (``T_prev_cur`` or None on failure, final inlier RMSE m)."""
         rmse = 0.0
         try:
-            for (scale, reach), src, tgt in zip(self.levels, source.clouds, target.clouds):
-                result = self._register(src, tgt, reach * scale * self.voxel, T)
+            for level, (src, tgt) in enumerate(zip(source.clouds, target.clouds)):
+                result = self._register(src, tgt, self.config.reach(level), T)
                 T, rmse = np.array(result.transformation), float(result.inlier_rmse)
         except RuntimeError:  # Open3D raises when no correspondence is left (colored ICP)
             return None, rmse
@@ -151,8 +165,7 @@ class ICPOdometer(Odometer):
 
     def _covariance(self, source: _Pyramid, target: _Pyramid, T: np.ndarray, rmse: float) -> np.ndarray | None:
         """``sigma^2 inv(I)`` at the finest level (see the class docstring)."""
-        scale, reach = self.levels[-1]
-        dist = reach * scale * self.voxel
+        dist = self.config.reach(-1)
         info = _reg.get_information_matrix_from_point_clouds(source.clouds[-1], target.clouds[-1], dist, T)
         return covariance_from_information(info, rmse**2 / 3.0)
 
@@ -160,29 +173,32 @@ class ICPOdometer(Odometer):
         self, src: o3d.geometry.PointCloud, tgt: o3d.geometry.PointCloud, dist: float, T: np.ndarray
     ) -> _reg.RegistrationResult:
         """One ICP run of ``src`` onto ``tgt`` (correspondences within ``dist`` m) from ``T``."""
+        cfg = self.config
         criteria = _reg.ICPConvergenceCriteria(
-            relative_fitness=self.tolerance, relative_rmse=self.tolerance, max_iteration=self.max_iterations
+            relative_fitness=cfg.tolerance, relative_rmse=cfg.tolerance, max_iteration=cfg.max_iterations
         )
-        kernel = () if self.tukey_k is None else (_reg.TukeyLoss(k=self.tukey_k),)
-        if self.variant == "colored":
-            estimation = _reg.TransformationEstimationForColoredICP(0.968, *kernel)
+        kernel = () if cfg.tukey_k is None else (_reg.TukeyLoss(k=cfg.tukey_k),)
+        if cfg.variant == "colored":
+            estimation = _reg.TransformationEstimationForColoredICP(cfg.geometric_weight, *kernel)
             return _reg.registration_colored_icp(src, tgt, dist, T, estimation, criteria)
         return _reg.registration_icp(src, tgt, dist, T, _reg.TransformationEstimationPointToPlane(*kernel), criteria)
 
     def _pyramid(self, frame: Frame) -> _Pyramid | None:
         """Clouds of ``frame`` at each level; None when it has too few depth readings."""
-        points, index = backproject(frame.depth, self.intrinsics, self.depth_range, self.pixel_stride)
-        if len(points) < self.min_points / self.pixel_stride**2:
+        cfg = self.config
+        points, index = backproject(frame.depth, self.intrinsics, cfg.depth, cfg.pixel_stride)
+        if len(points) < cfg.min_cloud_points:  # the finest cloud cannot have more
             return None
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
         cloud.colors = o3d.utility.Vector3dVector(frame.rgb.reshape(-1, 3)[index] / 255.0)
         clouds = []
-        for scale, _ in reversed(self.levels):  # fine to coarse, each level from the one before
-            voxel = scale * self.voxel
+        for scale, _ in reversed(cfg.levels):  # fine to coarse, each level from the one before
+            voxel = scale * cfg.voxel
             cloud = cloud.voxel_down_sample(voxel)
-            cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.0 * voxel, max_nn=15))
+            search = o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.normal_radius * voxel, max_nn=cfg.normal_neighbours)
+            cloud.estimate_normals(search)
             clouds.append(cloud)
-        if len(clouds[-1].points) < self.min_points / 10 or len(clouds[0].points) < self.min_points:
+        if len(clouds[-1].points) < cfg.min_coarse_points or len(clouds[0].points) < cfg.min_cloud_points:
             return None
-        constraint = normal_constraint(frame.depth, self.intrinsics, self.depth_range)
+        constraint = normal_constraint(frame.depth, self.intrinsics, cfg.depth)
         return _Pyramid(tuple(reversed(clouds)), constraint)

@@ -44,6 +44,22 @@ def initial_guesses(
     return guesses
 
 
+#: A depth difference costs fully at this multiple of the noise model's tolerance (the verifier
+#: uses 1): the grid's candidates are only near the true motion, and a wider band ranks them smoothly.
+DEPTH_COST_SCALE = 2.0
+#: A grey-level difference (0-255 scale, after the blur) costs fully at this many levels.
+GREY_COST_SCALE = 30.0
+#: Gaussian blur of both images before their grey levels are compared, pixels.
+SEARCH_BLUR_SIGMA = 3.0
+#: Points closer than this (metres) in front of the previous camera count as leaving the image.
+MIN_POINT_DEPTH = 0.05
+#: The runner-up motion differs from the best by more than this yaw (rad) or shift (m).
+RUNNER_UP_YAW = np.radians(3.0)
+RUNNER_UP_SHIFT = 0.08
+#: The fine search around each seed: offsets (lateral m, forward m, yaw rad).
+FINE_OFFSETS = (np.array([-0.04, 0.0, 0.04]), np.array([-0.05, 0.0, 0.05]), np.radians([-1.0, 0.0, 1.0]))
+
+
 def _search_grid(action: Action | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coarse candidate offsets (lateral m, forward m, yaw rad) around an action's nominal motion."""
     yaw = np.radians(np.arange(-16.0, 16.1, 2.0))
@@ -59,13 +75,15 @@ def _planar_candidates(center: np.ndarray, dx: np.ndarray, dz: np.ndarray, dyaw:
 
 
 def _planar_costs(
-    X: np.ndarray, g_cur: np.ndarray, z_prev: np.ndarray, g_prev: np.ndarray, cand: np.ndarray, intr: Intrinsics
+    X: np.ndarray, g_cur: np.ndarray, z_prev: np.ndarray, g_prev: np.ndarray, cand: np.ndarray, intr: Intrinsics,
+    rng: DepthRange,
 ) -> np.ndarray:
     """Mean robust cost (K,) of planar motions ``cand`` (K, 3) moving points ``X`` (N, 3) with grey
     levels ``g_cur`` onto the previous depth ``z_prev`` (0 = unusable) and grey ``g_prev`` (float32).
 
     Per point: 1 when it leaves the image or meets no depth; else the mean of its depth difference
-    over ``0.02 m + 0.02 z^2`` and its grey difference over 30 levels, each capped at 1.
+    over ``DEPTH_COST_SCALE`` times the noise model's tolerance (``rng.tolerance``) and its grey
+    difference over ``GREY_COST_SCALE`` levels, each capped at 1.
     """
     c = np.cos(cand[:, 2:3]).astype(np.float32)
     s = np.sin(cand[:, 2:3]).astype(np.float32)
@@ -73,15 +91,15 @@ def _planar_costs(
     zp = s * x + c * z + cand[:, 1:2].astype(np.float32)
     h, w = z_prev.shape
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.float32(1.0) / np.maximum(zp, np.float32(0.05))
+        inv = np.float32(1.0) / np.maximum(zp, np.float32(MIN_POINT_DEPTH))
         pu = (intr.fx * (c * x - s * z + cand[:, 0:1].astype(np.float32)) * inv + intr.cx + 0.5).astype(np.int32)
         pv = (intr.fy * y * inv + intr.cy + 0.5).astype(np.int32)
-    inside = (zp > 0.05) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
+    inside = (zp > MIN_POINT_DEPTH) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
     idx = np.where(inside, pv * w + pu, 0)
     zq = z_prev.reshape(-1)[idx]
     gq = g_prev.reshape(-1)[idx]
-    dz_cost = np.minimum(np.abs(zq - zp) / (0.02 + 0.02 * zp * zp), 1.0)
-    dg_cost = np.minimum(np.abs(gq - g_cur) * np.float32(1.0 / 30.0), 1.0)
+    dz_cost = np.minimum(np.abs(zq - zp) / (DEPTH_COST_SCALE * rng.tolerance(zp)), 1.0)
+    dg_cost = np.minimum(np.abs(gq - g_cur) * np.float32(1.0 / GREY_COST_SCALE), 1.0)
     cost = np.where(inside & (zq > 0), 0.5 * (dz_cost + dg_cost), 1.0)
     return cost.mean(axis=1)
 
@@ -101,23 +119,22 @@ def planar_search(
     """
     v, u = np.nonzero(depth_mask(cur.depth, rng) & pixel_grid(cur.depth.shape, stride))
     X = backproject_pixels(u, v, cur.depth[v, u], intr)
-    g_cur = blurred_grey(cur.rgb, 3.0)[v, u]
+    g_cur = blurred_grey(cur.rgb, SEARCH_BLUR_SIGMA)[v, u]
     z_prev = np.where(depth_mask(prev.depth, rng), prev.depth, 0.0).astype(np.float32)
-    g_prev = blurred_grey(prev.rgb, 3.0)
+    g_prev = blurred_grey(prev.rgb, SEARCH_BLUR_SIGMA)
     nominal = transform_to_planar(nominal_motion(action))
     cand = _planar_candidates(nominal, *_search_grid(action))
-    costs = _planar_costs(X[::2], g_cur[::2], z_prev, g_prev, cand, intr)  # coarse grid: half the points
+    costs = _planar_costs(X[::2], g_cur[::2], z_prev, g_prev, cand, intr, rng)  # coarse grid: half the points
     order = np.argsort(costs)
     seeds = [cand[order[0]]]
     for k in order[1:]:
         d = np.abs(cand[k] - seeds[0])
-        if d[2] > np.radians(3.0) or max(d[0], d[1]) > 0.08:
+        if d[2] > RUNNER_UP_YAW or max(d[0], d[1]) > RUNNER_UP_SHIFT:
             seeds.append(cand[k])
             break
     out = []
     for seed in seeds[:top]:
-        fine = _planar_candidates(seed, np.array([-0.04, 0.0, 0.04]), np.array([-0.05, 0.0, 0.05]),
-                                  np.radians([-1.0, 0.0, 1.0]))
-        fc = _planar_costs(X, g_cur, z_prev, g_prev, fine, intr)
+        fine = _planar_candidates(seed, *FINE_OFFSETS)
+        fc = _planar_costs(X, g_cur, z_prev, g_prev, fine, intr, rng)
         out.append(planar_to_transform(*fine[np.argmin(fc)]))
     return out

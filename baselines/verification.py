@@ -2,17 +2,23 @@
 
 A motion ``T_prev_cur`` is accepted when it respects the action's motion bounds, moves the current
 depth onto the previous depth image, and lines up the two images' grey levels
-(:class:`Verifier`). Conventions: :mod:`odolab.api`.
+(:func:`verify`, configured by :class:`VerifyConfig`). Conventions: :mod:`odolab.api`.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import numpy as np
 
 from baselines.depth_geometry import DepthRange, backproject_pixels, blurred_grey, depth_mask, pixel_grid
 from baselines.motion_search import nominal_motion
 from odolab.api import Action, Frame, Intrinsics, transform_to_planar
+
+
+#: Moved points nearer than this (metres) to the previous camera's plane land nowhere.
+_IN_FRONT = 1e-6
 
 
 @dataclass(frozen=True)
@@ -49,27 +55,24 @@ def _reproject(
         pu = np.rint(intr.fx * Y[0] / z + intr.cx)
         pv = np.rint(intr.fy * Y[1] / z + intr.cy)
     h, w = prev_depth.shape
-    inside = (z > 1e-6) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
+    inside = (z > _IN_FRONT) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
     pu, pv = pu[inside].astype(np.int64), pv[inside].astype(np.int64)
     z_prev = np.asarray(prev_depth)[pv, pu].astype(np.float64)
     seen = depth_mask(z_prev, rng)
     return (v[inside][seen], u[inside][seen]), (pv[seen], pu[seen]), z[inside][seen], z_prev[seen]
 
 
-def _agrees(z_moved: np.ndarray, z_prev: np.ndarray) -> np.ndarray:
-    """Depths (metres) equal within ``0.01 m + 0.01 * z^2`` (Kinect / Redwood noise grows as z^2)."""
-    return np.abs(z_prev - z_moved) < 0.01 + 0.01 * z_moved**2
+def _depth_agreement(
+    z_moved: np.ndarray, z_prev: np.ndarray, rng: DepthRange
+) -> tuple[DepthAgreement, np.ndarray]:
+    """Agreement statistics of moved vs previous depths (metres), and the mask of agreeing points.
 
-
-def _depth_agreement(z_moved: np.ndarray, z_prev: np.ndarray) -> tuple[DepthAgreement, np.ndarray]:
-    """Agreement statistics of moved vs previous depths, and the mask of agreeing points.
-
-    Tolerance ``0.01 m + 0.01 * z^2`` (z in metres): a Kinect's and the Redwood model's disparity
-    noise grows with z^2 (about 4 cm at 4 m). A wrong motion leaves most points disagreeing.
+    Two depths agree within the noise model's :meth:`~baselines.depth_geometry.DepthRange.tolerance`.
+    A wrong motion leaves most points disagreeing.
     """
     if len(z_moved) == 0:
         return DepthAgreement(0, 0.0, 0.0), np.zeros(0, dtype=bool)
-    agree = _agrees(z_moved, z_prev)
+    agree = np.abs(z_prev - z_moved) < rng.tolerance(z_moved)
     rms = float(np.sqrt(np.mean((z_prev - z_moved)[agree] ** 2))) if agree.any() else 0.0
     return DepthAgreement(len(z_moved), float(agree.mean()), rms), agree
 
@@ -80,7 +83,7 @@ class Alignment:
 
     ``depth``: the :class:`DepthAgreement`; ``ncc``: normalised cross-correlation (-1..1) of the
     blurred grey levels of the depth-agreeing points in the two images (0 when fewer than
-    ``min_points`` agree). Depth alone cannot see a slide along a wall (every point still lands
+    ``min_ncc_points`` agree). Depth alone cannot see a slide along a wall (every point still lands
     on the wall); the texture can.
     """
 
@@ -94,24 +97,22 @@ def alignment_check(
     T_prev_cur: np.ndarray,
     intr: Intrinsics,
     rng: DepthRange,
-    stride: int = 2,
-    blur_sigma: float = 1.5,
-    min_points: int = 100,
+    config: VerifyConfig,
 ) -> Alignment:
     """Depth agreement and colour agreement of ``T_prev_cur``.
 
-    Every ``stride``-th current pixel is moved into the previous image; of those whose depth
-    agrees, the grey levels (Gaussian blur of ``blur_sigma`` pixels first: the simulator's RGB
-    noise has sigma = 25 grey levels) are compared by normalised cross-correlation. On the
-    simulator's validation episodes a correct motion scores NCC > 0.9 in 95% of steps; a slide
-    of 5 cm or more along a textured wall scores well below.
+    Every ``config.check_stride``-th current pixel is moved into the previous image; of those
+    whose depth agrees, the grey levels (Gaussian blur of ``config.ncc_blur_sigma`` pixels first:
+    the simulator's RGB noise has sigma = 25 grey levels) are compared by normalised
+    cross-correlation. On the simulator's validation episodes a correct motion scores NCC > 0.9
+    in 95% of steps; a slide of 5 cm or more along a textured wall scores well below.
     """
-    (v, u), (pv, pu), z, z_prev = _reproject(prev.depth, cur.depth, T_prev_cur, intr, rng, stride)
-    depth, agree = _depth_agreement(z, z_prev)
-    if agree.sum() < min_points:
+    (v, u), (pv, pu), z, z_prev = _reproject(prev.depth, cur.depth, T_prev_cur, intr, rng, config.check_stride)
+    depth, agree = _depth_agreement(z, z_prev, rng)
+    if agree.sum() < config.min_ncc_points:
         return Alignment(depth, 0.0)
-    a = blurred_grey(cur.rgb, blur_sigma)[v[agree], u[agree]].astype(np.float64)
-    b = blurred_grey(prev.rgb, blur_sigma)[pv[agree], pu[agree]].astype(np.float64)
+    a = blurred_grey(cur.rgb, config.ncc_blur_sigma)[v[agree], u[agree]].astype(np.float64)
+    b = blurred_grey(prev.rgb, config.ncc_blur_sigma)[pv[agree], pu[agree]].astype(np.float64)
     a -= a.mean()
     b -= b.mean()
     denom = np.sqrt(np.sum(a * a) * np.sum(b * b))
@@ -159,35 +160,84 @@ _UNBOUNDED = MotionBounds(np.inf, np.inf, np.inf, np.inf, (-np.inf, np.inf), np.
 
 
 @dataclass(frozen=True)
-class Verifier:
-    """Accepts a motion only if the images themselves confirm it; shared by the dense odometers.
+class VerifyConfig:
+    """When the images confirm a motion; one configuration shared by all baselines.
 
     A motion ``T_prev_cur`` passes when it is in ``bounds`` for the action (see
-    :class:`MotionBounds`; None = unbounded), at least ``min_points`` current depth points land on
-    the previous depth image, a share ``min_agreement`` of them agree in depth and their grey
-    levels correlate with NCC >= ``min_ncc`` (see :func:`alignment_check`). On the simulator's
-    validation episodes, 0.8 / 0.85 cut the mean error of the accepted Open3D RGB-D steps from
-    3.4 to 0.8 cm (dx) while rejecting 4 of 175 good ones.
+    :class:`MotionBounds`; None = unbounded), at least ``min_points_in_view`` of the current depth
+    points (every ``check_stride``-th row and column) land on a usable previous depth pixel, a share
+    ``min_agreement`` of them agree in depth (the noise model of
+    :class:`~baselines.depth_geometry.DepthRange`) and their grey levels, blurred by
+    ``ncc_blur_sigma`` pixels, correlate with NCC >= ``min_ncc`` (0 when fewer than
+    ``min_ncc_points`` agree); see :func:`alignment_check`. On the simulator's validation
+    episodes, 0.8 / 0.85 cut the mean error of the accepted Open3D RGB-D steps from 3.4 to 0.8 cm
+    (dx) while rejecting 4 of 175 good ones.
     """
 
-    depth_range: DepthRange = DepthRange()
     bounds: MotionBounds | None = MotionBounds()
-    min_points: int = 200
+    min_points_in_view: int = 200
     min_agreement: float = 0.8
     min_ncc: float = 0.85
+    check_stride: int = 2
+    ncc_blur_sigma: float = 1.5
+    min_ncc_points: int = 100
 
-    def check(
-        self, prev: Frame, cur: Frame, T_prev_cur: np.ndarray | None, action: Action | None, intr: Intrinsics
-    ) -> Alignment | None:
-        """The :class:`Alignment` of an accepted motion; None when rejected (or ``T_prev_cur`` is None)."""
-        if T_prev_cur is None or not np.all(np.isfinite(T_prev_cur)):
-            return None
-        if not (self.bounds or _UNBOUNDED).contains(T_prev_cur, action):
-            return None
-        check = alignment_check(prev, cur, T_prev_cur, intr, self.depth_range)
-        ok = (
-            check.depth.in_view >= self.min_points
-            and check.depth.fraction >= self.min_agreement
-            and check.ncc >= self.min_ncc
-        )
-        return check if ok else None
+
+def verify(
+    prev: Frame,
+    cur: Frame,
+    T_prev_cur: np.ndarray | None,
+    action: Action | None,
+    intr: Intrinsics,
+    rng: DepthRange,
+    config: VerifyConfig,
+) -> Alignment | None:
+    """The :class:`Alignment` of an accepted motion; None when rejected (or ``T_prev_cur`` is None)."""
+    if T_prev_cur is None or not np.all(np.isfinite(T_prev_cur)):
+        return None
+    if not (config.bounds or _UNBOUNDED).contains(T_prev_cur, action):
+        return None
+    check = alignment_check(prev, cur, T_prev_cur, intr, rng, config)
+    ok = (
+        check.depth.in_view >= config.min_points_in_view
+        and check.depth.fraction >= config.min_agreement
+        and check.ncc >= config.min_ncc
+    )
+    return check if ok else None
+
+
+_X = TypeVar("_X")
+
+
+@dataclass(frozen=True)
+class Verified(Generic[_X]):
+    """A refined motion ``T_prev_cur`` (4x4) the images confirmed, what the solver reported with
+    it (``detail``, e.g. an RMSE or an information matrix) and the verifier's :class:`Alignment`."""
+
+    T_prev_cur: np.ndarray
+    detail: _X
+    check: Alignment
+
+
+def first_verified(
+    guesses: Iterable[np.ndarray],
+    register: Callable[[np.ndarray], tuple[np.ndarray | None, _X]],
+    prev: Frame,
+    cur: Frame,
+    action: Action | None,
+    intr: Intrinsics,
+    rng: DepthRange,
+    config: VerifyConfig,
+) -> Verified[_X] | None:
+    """Guess, refine, verify: the outer loop of the dense odometers.
+
+    Each initial motion ``T_prev_cur`` of ``guesses`` (most likely first) is refined by
+    ``register(initial) -> (T_prev_cur or None on failure, detail)`` and checked by :func:`verify`;
+    the first one accepted is returned, None when none is.
+    """
+    for guess in guesses:
+        T, detail = register(guess)
+        check = verify(prev, cur, T, action, intr, rng, config)
+        if check is not None:
+            return Verified(T, detail, check)
+    return None

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import itertools
 from pathlib import Path
 
@@ -12,6 +13,8 @@ from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import DepthRange, normal_constraint
 from baselines.motion_search import planar_search
 from baselines.measure_tum import relative_pose_error
+from baselines.pose_solvers import planar_procrustes, pnp, translation_given_rotation
+from baselines.verification import VerifyConfig, first_verified
 from odolab.api import (
     Action,
     Frame,
@@ -226,6 +229,88 @@ def test_options_are_checked():
         load_odometer("open3d-rgbd", term="magic")
     with pytest.raises(ValueError, match="max_depth"):
         load_odometer("feature-essential", max_depth=0.05)
+    with pytest.raises(TypeError, match="'voxels'"):
+        load_odometer("icp", voxels=0.05)
+    with pytest.raises(TypeError, match="'min_ncc'"):  # no verification, so nothing to set there
+        load_odometer("feature-essential", verify=None, min_ncc=0.9)
+    with pytest.raises(TypeError, match="voxel must be float, got 'big'"):
+        load_odometer("icp", voxel="big")
+    with pytest.raises(TypeError, match="min_inliers must be int, got True"):
+        load_odometer("feature-essential", min_inliers=True)
+    assert load_odometer("feature-essential", n_features=None, max_depth=3).config.depth.max_depth == 3
+
+
+@pytest.mark.parametrize("name", [*ODOMETERS, "feature-essential-oracle-rot"])
+def test_config_is_a_frozen_dataclass_with_nested_keyword_overrides(name):
+    default = load_odometer(name).config
+    odo = load_odometer(name, max_depth=3.0, min_ncc=0.9, max_height=0.05)
+    cfg = odo.config
+    assert (cfg.depth.max_depth, cfg.verify.min_ncc, cfg.verify.bounds.max_height) == (3.0, 0.9, 0.05)
+    assert dataclasses.replace(cfg, depth=default.depth, verify=default.verify) == default  # nothing else moved
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.depth = None
+    written = dataclasses.asdict(cfg)
+    assert written["depth"]["max_depth"] == 3.0 and written["verify"]["bounds"]["max_height"] == 0.05
+    assert type(load_odometer(name, config=cfg).config) is type(cfg)
+    options = inspect.signature(type(odo)).parameters  # what option checkers (and help) see
+    assert options["max_depth"].default == 4.0 and options["max_depth"].annotation == "float"
+    assert set(options) == {"config", *(f.name for f in _all_fields(default))}
+
+
+def _all_fields(config):
+    for f in dataclasses.fields(config):
+        yield f
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from _all_fields(value)
+
+
+@pytest.mark.parametrize("name", ODOMETERS)
+def test_the_config_reaches_the_odometer(name, tum):
+    """The first TUM pair (depth 0.9-3.7 m) is solved by default, and invalid with a 0.5 m depth cut."""
+    frames, intr = tum
+    results = []
+    for options in ({}, {"max_depth": 0.5}):
+        odo = load_odometer(name, **options)
+        odo.reset(intr)
+        results.append(odo.step(frames[0], frames[1], None).valid)
+    assert results == [True, False]
+
+
+def test_first_verified_returns_the_first_guess_the_images_confirm(tum):
+    frames, intr = tum
+    T_true = planar_to_transform(0.02, 0.05, np.radians(3.0))
+    view = render_view(frames[0], intr, T_true)
+    wrong = planar_to_transform(0.0, 0.0, np.radians(-20.0))
+    tried = []
+
+    def register(T):  # a solver that stays where it starts
+        tried.append(len(tried))
+        return T, len(tried) - 1
+
+    found = first_verified([wrong, T_true, wrong], register, frames[0], view, None, intr, DepthRange(), VerifyConfig())
+    assert found is not None and found.detail == 1 and tried == [0, 1]
+    assert found.check.depth.fraction > 0.8 and found.check.ncc > 0.85
+    assert first_verified([wrong], register, frames[0], view, None, intr, DepthRange(), VerifyConfig()) is None
+
+
+def test_pose_solvers_recover_a_known_motion(tum):
+    """PnP, translation given the rotation, and the planar fit on exact synthetic correspondences."""
+    _, intr = tum
+    rng = np.random.default_rng(1)
+    T = planar_to_transform(0.1, 0.2, np.radians(10.0))
+    X_cur = rng.uniform([-1.0, -0.5, 1.0], [1.0, 0.5, 3.0], (60, 3))
+    P_prev = X_cur @ T[:3, :3].T + T[:3, 3]
+    uv_prev = P_prev @ intr.matrix.T
+    uv_prev = uv_prev[:, :2] / uv_prev[:, 2:]
+    T_pnp, inl = pnp(X_cur, uv_prev, intr.matrix, px=1.0, iterations=100)
+    assert inl.all() and np.allclose(T_pnp, T, atol=1e-6)
+    T_t, inl = translation_given_rotation(X_cur, uv_prev, T[:3, :3], intr, px=1.0)
+    assert inl.all() and np.allclose(T_t, T, atol=1e-9)
+    outliers = P_prev.copy()
+    outliers[:5] += 0.5
+    planar = planar_procrustes(outliers, X_cur, T)
+    assert np.allclose(planar, transform_to_planar(T), atol=1e-9)
 
 
 def test_normal_constraint_flags_a_plane_and_accepts_a_room(tum):
