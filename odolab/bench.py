@@ -83,7 +83,7 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) ->
                         parallel=False, progress=False)
     out = []
     for name in names:
-        res = runner.run({name: load_odometer(name)}, eps, progress=False)
+        res = runner.run({name: load_odometer(name)}, eps)
         row = summary.summarize(res)[0]
         out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
     return out

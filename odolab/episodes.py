@@ -21,7 +21,7 @@ from typing import Iterator
 import numpy as np
 
 from odolab.geometry import camera_pose_from_agent
-from odolab.odometer import Action, Frame, Intrinsics
+from odolab.types import Action, Frame, Intrinsics
 from odolab.sim.agent import AgentState, step_agent
 from odolab.sim.camera import CameraSpec
 from odolab.sim.noise import ActuationNoise

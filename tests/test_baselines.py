@@ -275,7 +275,6 @@ def test_beats_the_action_prior_on_the_simulator(name, short_sim_episodes):
 
     rows = summary.summarize(runner.run(
         {"action-prior": load_odometer("action-prior"), name: load_odometer(name)}, short_sim_episodes,
-        progress=False,
     ))
     prior, odo = (np.array([r.dx, r.dz, r.dyaw]) for r in rows)
     assert np.all(odo < 0.8 * prior), (name, odo, prior)

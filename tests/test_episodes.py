@@ -6,7 +6,7 @@ import pytest
 
 from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, load_episodes, render_episode, rollout
 from odolab.geometry import invert, transform_to_planar
-from odolab.odometer import Action, Sequence
+from odolab.types import Action, Sequence
 
 
 def test_same_spec_same_episode_bit_for_bit(small_spec):

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from odolab.odometer import Action
+from odolab.types import Action
 from odolab.sim.noise import ActuationNoise, GaussianTable, RedwoodDepthNoise, RGBNoise
 
 TRUNC3_VAR = 1 - 2 * 3 * norm.pdf(3) / (norm.cdf(3) - norm.cdf(-3))  # variance factor of a +-3 sigma cut

@@ -43,14 +43,14 @@ def test_entry_point_odometers_are_listed():
 
 
 def test_ground_truth_has_zero_error(episodes):
-    res = runner.run({"ground-truth": api.load_odometer("ground-truth")}, episodes, progress=False)
+    res = runner.run({"ground-truth": api.load_odometer("ground-truth")}, episodes)
     row = summary.summarize(res)[0]
     assert row.oracle and row.failures == 0
     assert max(row.dx, row.dz, row.dyaw, row.ate_m, row.drift_m) < 1e-9
 
 
 def test_action_prior_error_has_the_size_the_noise_implies(episodes):
-    res = runner.run({"action-prior": api.load_odometer("action-prior")}, episodes, progress=False)
+    res = runner.run({"action-prior": api.load_odometer("action-prior")}, episodes)
     per_action = {r.action: r for r in summary.summarize_actions(res)}
     # Turns: yaw noise 0.5 * N(0.043, 0.017) truncated -> E|e| = 0.5 * sqrt(0.017) * sqrt(2/pi) ~ 0.052 rad
     for a in ("turn_left", "turn_right"):
@@ -99,6 +99,7 @@ def test_runner_counts_failures_and_falls_back_to_the_prior(episodes):
     assert np.array_equal(~res.valid, expect_fail)
     assert res.failures == expect_fail.sum()
     assert res.errors and "boom" in res.errors[0]
+    assert res.failure_reasons == {"raised": int((k % 2 == 0).sum()), "not-valid": int(((k % 2 != 0) & (k % 3 == 0)).sum())}
     i = int(np.argmax(expect_fail))
     assert api.transform_to_planar(res.estimates[i]) == pytest.approx(prior.motion(ep.action(i)))
     assert np.allclose(res.poses[0], ep.poses[0])
@@ -129,4 +130,4 @@ def test_runner_survives_a_malformed_estimate(episodes):
 
     res = runner.run_sequence(Malformed(), episodes[0], "malformed", ActionPrior.shipped())
     assert res.failures == len(episodes[0]) - 1
-    assert "shape (3, 4)" in res.errors[0]
+    assert res.failure_reasons == {"bad-shape": len(episodes[0]) - 1}

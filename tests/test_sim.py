@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from odolab.geometry import camera_pose_from_agent, invert
-from odolab.odometer import Action
+from odolab.types import Action
 from odolab.sim.agent import AgentState, apply_motion, step_agent
 from odolab.sim.camera import CameraSpec, Renderer
 from odolab.sim.noise import ActuationNoise, Motion

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.odometer import Intrinsics
+from odolab.types import Intrinsics
 from odolab.sim.scenes import Scene
 from odolab.sim.textures import TEXEL_SIZE, make_tiles
 

@@ -20,10 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from odolab.odometer import Action
-
-FORWARD_STEP = 0.25  # m
-TURN_ANGLE = np.radians(30.0)  # rad
+from odolab.types import FORWARD_STEP, TURN_ANGLE, Action  # the nominal motions, defined once
 
 
 class GaussianTable:

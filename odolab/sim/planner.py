@@ -10,9 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.odometer import Action
 from odolab.sim.agent import AgentState, path_is_free
-from odolab.sim.noise import FORWARD_STEP, TURN_ANGLE
+from odolab.types import FORWARD_STEP, TURN_ANGLE, Action
 from odolab.sim.scenes import Scene
 
 _NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
