@@ -25,7 +25,7 @@ from odolab.api import (
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 ODOMETERS = ["feature-essential", "icp", "open3d-rgbd"]
-#: facts.md section 6: Open3D's hybrid RGB-D odometry scores 4.43 mm here; the issue's bound is 2x.
+#: docs/reference-facts.md section 6: Open3D's hybrid RGB-D odometry scores 4.43 mm here; the issue's bound is 2x.
 MAX_MEAN_TRANSLATION_MM = 8.8
 MAX_MEAN_ROTATION_DEG = 0.5
 
@@ -200,7 +200,7 @@ def test_degenerate_frames_are_invalid_not_errors(name, tum):
 
 @pytest.mark.parametrize("name", ["icp", "open3d-rgbd"])
 def test_unrelated_view_is_invalid(name, tum):
-    """Open3D reports success on frames that do not overlap (facts.md section 8); we do not."""
+    """Open3D reports success on frames that do not overlap (docs/reference-facts.md section 8); we do not."""
     frames, intr = tum
     odo = load_odometer(name)
     odo.reset(intr)

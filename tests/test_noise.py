@@ -1,4 +1,4 @@
-"""Noise models against their formulas (facts.md section 2), by statistics over many samples."""
+"""Noise models against their formulas (docs/reference-facts.md section 2), by statistics over many samples."""
 import numpy as np
 import pytest
 from scipy.stats import norm

@@ -1,4 +1,4 @@
-"""Sensor and actuation noise of the Habitat PointNav Challenge 2020 (facts.md section 2).
+"""Sensor and actuation noise of the Habitat PointNav Challenge 2020 (docs/reference-facts.md section 2, with its sources).
 
 * RGB: ``out = clip(img / 255 + N(0, 1) * sigma * m, 0, 1) * 255`` per channel (sigma = 0.1).
 * Depth: the Redwood model (Choi et al., CVPR 2015) as Habitat applies it, multiplier ``m``:
@@ -97,7 +97,7 @@ class RedwoodDepthNoise:
         return out.astype(np.float32)
 
 
-# (mean, VARIANCE) per component, metres and radians (facts.md section 2; PyRobot LoCoBot).
+# (mean, VARIANCE) per component, metres and radians (docs/reference-facts.md section 2; habitat-sim pyrobot_noisy_controls.py).
 _ACTUATION = {
     "ilqr": {"forward": ((0.014, 0.009, 0.008), (0.006, 0.005, 0.004)),
              "turn": ((0.003, 0.003, 0.023), (0.002, 0.003, 0.012))},
