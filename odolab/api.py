@@ -43,12 +43,12 @@ __all__ = [
     "EpisodeCache", "EpisodeSpec", "NoiseConfig", "Pair", "PairDataset", "SPLITS", "episode_specs",
     "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
     # running and comparing
-    "ComparisonConfig", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison", "run_odometers",
+    "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison", "run_odometers",
     "load_tum_sequence", "write_bytes_atomic",
 ]
 
 if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and import-linter
-    from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonResult, run_comparison
+    from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonError, ComparisonResult, run_comparison
     from odolab.datasets import Pair, PairDataset, episode_specs, true_motions
     from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes, stream_episodes
     from odolab.io.atomic import write_bytes_atomic
@@ -63,6 +63,7 @@ _LAZY = {
     "Pair": "odolab.datasets", "PairDataset": "odolab.datasets", "episode_specs": "odolab.datasets",
     "true_motions": "odolab.datasets",
     "ComparisonConfig": "odolab.comparison", "ComparisonResult": "odolab.comparison",
+    "ComparisonError": "odolab.comparison",
     "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner",
     "load_tum_sequence": "odolab.io.tum_rgbd", "write_bytes_atomic": "odolab.io.atomic",
 }

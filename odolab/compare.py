@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Sequence
 
 from odolab.cli import ArgumentParser, UsageError, number, run_cli
-from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonError, odometer_names, run_comparison
+from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
+                               run_comparison)
 from odolab.odometer import available_odometers
 from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 from odolab.sim.scenes import SPLITS
@@ -102,6 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for r in result.results:
         for e in r.errors[:1]:
             print(f"note: {r.odometer} raised on {r.sequence}: {e}")
+    for name, reasons in failure_reasons(result.results).items():
+        print(f"note: {name} failed steps by reason: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
     print(f"wrote {args.out / 'table.csv'} and {args.out / 'report.html'}")
     return 0
 

@@ -28,7 +28,7 @@ from odolab.runner import RunObserver, SequenceResult
 from odolab.sim.scenes import SPLITS
 
 __all__ = ["DEFAULT_CACHE", "ComparisonConfig", "ComparisonError", "ComparisonResult", "load_odometers",
-           "odometer_names", "run_comparison"]
+           "failure_reasons", "odometer_names", "run_comparison"]
 
 #: Where episodes are cached unless told otherwise.
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "odolab" / "episodes"
@@ -105,6 +105,17 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
         except Exception as exc:  # a broken plugin or a bad option value is reported, not a traceback
             detail = f" with options {opts}" if opts else ""
             raise ComparisonError(f"could not load odometer {name!r}{detail}: {type(exc).__name__}: {exc}") from None
+    return out
+
+
+def failure_reasons(results: list[SequenceResult]) -> dict[str, dict[str, int]]:
+    """Failed steps per reason (:data:`odolab.runner.FAILURE_REASONS`), summed per odometer; odometers
+    without failures are left out."""
+    out: dict[str, dict[str, int]] = {}
+    for r in results:
+        for reason, count in r.failure_reasons.items():
+            mine = out.setdefault(r.odometer, {})
+            mine[reason] = mine.get(reason, 0) + count
     return out
 
 

@@ -19,19 +19,11 @@ import importlib
 from importlib.metadata import entry_points
 from typing import Callable, Iterator
 
-from odolab.types import (  # re-exported: older code imports the value types from here
-    MOTION_ACTIONS,
-    Action,
-    Estimate,
-    Frame,
-    Intrinsics,
-    Sequence,
-)
+from odolab.types import Action, Estimate, Frame, Intrinsics
 
 __all__ = [
-    "ENTRY_POINT_GROUP", "MOTION_ACTIONS", "REGISTRY", "Action", "Estimate", "Frame", "Intrinsics", "Odometer",
-    "OdometerRegistry", "Sequence", "UnknownOdometerError", "available_odometers", "load_odometer",
-    "register_odometer",
+    "ENTRY_POINT_GROUP", "REGISTRY", "Odometer", "OdometerRegistry", "UnknownOdometerError",
+    "available_odometers", "load_odometer", "register_odometer",
 ]
 
 ENTRY_POINT_GROUP = "odolab.odometers"

@@ -161,3 +161,9 @@ def test_a_bad_option_value_is_one_line(tmp_path):
     with pytest.raises(Exception) as info:
         main(["--odometers", "scaled", "--odometer-option", "scaled.step=7", *BASE, "--out", str(tmp_path)])
     assert "could not load odometer 'scaled'" in str(info.value) and "step must be in (0, 1) m, got 7" in str(info.value)
+
+
+def test_every_public_name_of_the_api_resolves():
+    assert [n for n in api.__all__ if getattr(api, n, None) is None] == []
+    with pytest.raises(AttributeError):
+        api.no_such_name

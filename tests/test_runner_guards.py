@@ -180,3 +180,16 @@ def test_progress_reaches_an_observer(episode):
     n = len(episode) - 1
     assert ear.events[0] == ("start", n) and ear.events[-1] == ("close",)
     assert sum(e[1] for e in ear.events[1:-1]) == n
+
+
+def test_compare_prints_failure_reasons(tmp_path, capsys):
+    from odolab.cli import run_cli
+    from odolab.compare import main
+
+    api.register_odometer("broken-reset", BrokenReset)
+    args = ["--odometers", "broken-reset,action-prior", "--episodes", "1", "--max-steps", "5", "--serial",
+            "--quiet", "--no-cache", "--out", str(tmp_path)]
+    assert run_cli(main, "odolab.compare", args) == 0
+    out = capsys.readouterr().out
+    assert "note: broken-reset failed steps by reason: reset-raised 5" in out
+    assert "action-prior failed" not in out
