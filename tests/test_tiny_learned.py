@@ -87,3 +87,29 @@ def test_a_checkpoint_with_pickled_code_is_refused(tmp_path):
         compare(["--odometers", NAME, "--odometer-option", f"{NAME}.checkpoint={bad}", "--episodes", "1",
                  "--max-steps", "3", "--serial", "--quiet", "--no-cache", "--out", str(tmp_path / "o")])
     assert "Weights only load failed" in str(info.value) or "weights_only" in str(info.value)
+
+
+def test_the_runner_applies_an_odometers_torch_threads_and_restores_them():
+    from odolab import runner
+    from odolab.action_prior import ActionPrior
+
+    class Watcher(api.Odometer):
+        threads = 1
+
+        def reset(self, intrinsics):
+            super().reset(intrinsics)
+            self.seen = {torch.get_num_threads()}
+
+        def step(self, prev, cur, action):
+            self.seen.add(torch.get_num_threads())
+            return api.Estimate(np.eye(4))
+
+    ep = api.load_episodes(api.episode_specs("test", 1, max_steps=3), None, parallel=False, progress=False)[0]
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        odo = Watcher()
+        runner.run_sequence(odo, ep, "watcher", ActionPrior.shipped())
+        assert odo.seen == {1} and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
