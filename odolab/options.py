@@ -84,7 +84,31 @@ def check_options(name: str, factory: Callable[..., Any], options: Mapping[str, 
         return
     accepted = [p for p, v in params.items()
                 if v.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
-    for key in options:
+    for key, value in options.items():
         if key not in accepted:
             raise OptionError(f"odometer {name!r} has no option {key!r}; "
                               f"it accepts: {', '.join(accepted) or 'no options'}")
+        parts = _simple_parts(params[key].annotation)
+        if parts and not any(_fits(value, p) for p in parts):
+            want = " or ".join(_SIMPLE[p][1] for p in parts)
+            raise OptionError(f"odometer {name!r} option {key}: expected {want}, got {value!r}")
+
+
+#: Annotation -> (accepted Python types, words for the error). bool is never a number here.
+_SIMPLE = {"float": ((int, float), "a number"), "int": ((int,), "an integer"), "str": ((str,), "text"),
+           "bool": ((bool,), "true or false")}
+
+
+def _fits(value: Any, part: str) -> bool:
+    return isinstance(value, _SIMPLE[part][0]) and (part == "bool" or not isinstance(value, bool))
+
+
+def _simple_parts(annotation: Any) -> list[str]:
+    """The simple types (``float``, ``int``, ``str``, ``bool``) an annotation allows, ``| None``
+    ignored; empty for anything else (the constructor then checks its own arguments)."""
+    if isinstance(annotation, type):
+        annotation = annotation.__name__
+    if not isinstance(annotation, str):
+        return []
+    parts = [p.strip() for p in annotation.split("|") if p.strip() != "None"]
+    return parts if parts and all(p in _SIMPLE for p in parts) else []

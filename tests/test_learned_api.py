@@ -148,6 +148,11 @@ def test_compare_passes_options_to_the_constructor(tmp_path):
     (["--odometers", "examples.nominal_motion:NominalMotion", "--odometer-option",
       "examples.nominal_motion:NominalMotion.speed=2"], "has no option 'speed'"),
     (["--config", "/nonexistent/o.toml"], "/nonexistent/o.toml: cannot read"),
+    (["--odometers", "icp", "--odometer-option", "icp.max_depth=abc"],
+     "odometer 'icp' option max_depth: expected a number, got 'abc'"),
+    (["--odometers", "icp", "--odometer-option", "icp.max_iterations=2.5"],
+     "odometer 'icp' option max_iterations: expected an integer, got 2.5"),
+    (["--odometers", "icp", "--odometer-option", "icp.max_depth=true"], "expected a number, got True"),
 ])
 def test_bad_options_are_one_line(args, words, tmp_path):
     proc = subprocess.run([sys.executable, "-m", "odolab.compare", *args, *BASE, "--out", str(tmp_path)],
