@@ -16,16 +16,17 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 from odolab import runner, summary
-from odolab.datasets import episode_specs
-from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes, stream_episodes
 from odolab.odometer import REGISTRY, Odometer, UnknownOdometerError, available_odometers
 from odolab.options import OptionError, check_options
 from odolab.report import FloorPlan
 from odolab.runner import RunObserver, SequenceResult
 from odolab.sim.scenes import SPLITS
+
+if TYPE_CHECKING:  # the simulator's modules load only when episodes are made
+    from odolab.episodes import EpisodeSpec, NoiseConfig
 
 __all__ = ["DEFAULT_CACHE", "ComparisonConfig", "ComparisonError", "ComparisonResult", "load_odometers",
            "failure_reasons", "odometer_names", "run_comparison"]
@@ -42,7 +43,8 @@ class ComparisonError(ValueError):
 class ComparisonConfig:
     """What to compare on what. ``odometers``: names or ``module:Class`` (None = all available);
     ``options``: constructor keyword arguments per odometer name. Simulator episodes: ``episodes``
-    of ``split`` from ``seed``, at most ``max_steps`` steps, ``noise`` multipliers; ``cache``: the
+    of ``split`` from ``seed``, at most ``max_steps`` steps, ``noise`` multipliers (None = the
+    challenge's defaults, :class:`~odolab.episodes.NoiseConfig`); ``cache``: the
     episode cache folder, or None to keep episodes in memory only. ``tum``: a TUM RGB-D folder
     instead of the simulator. ``ray_address`` / ``parallel``: how missing episodes are generated;
     ``progress``: show progress bars while generating."""
@@ -53,7 +55,7 @@ class ComparisonConfig:
     seed: int = 0
     split: str = "test"
     max_steps: int = 60
-    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    noise: NoiseConfig | None = None
     tum: Path | None = None
     cache: Path | None = DEFAULT_CACHE
     ray_address: str | None = None
@@ -139,6 +141,8 @@ def _tum_sequences(config: ComparisonConfig):
 def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple[Iterator, int | None]:
     """Episodes in spec order and the total step count when known. With a cache the missing ones
     are generated first and each is read back when its turn comes, so memory holds one."""
+    from odolab.episodes import EpisodeCache, generate_episodes, load_episodes, stream_episodes
+
     make = dict(ray_address=config.ray_address, parallel=config.parallel, progress=config.progress)
     if config.cache is None:
         return iter(load_episodes(specs, None, **make)), None
@@ -164,8 +168,11 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
                  "Rows marked oracle read ground truth.", *_options_note(config)]
         return ComparisonResult(results, summary.summarize(results), [], title, notes, None)
 
-    specs = episode_specs(config.split, config.episodes, seed=config.seed, max_steps=config.max_steps,
-                          noise=config.noise)
+    from odolab.datasets import episode_specs
+    from odolab.episodes import NoiseConfig
+
+    noise = config.noise or NoiseConfig()
+    specs = episode_specs(config.split, config.episodes, seed=config.seed, max_steps=config.max_steps, noise=noise)
     episodes, total = _episode_stream(config, specs)
     scenes: dict[str, int] = {}
 
@@ -175,7 +182,6 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
             yield ep
 
     results = runner.run(odometers, noted(episodes), observer=observer, total_steps=total)
-    noise = config.noise
     one = [r for r in results if r.odometer == results[0].odometer]
     steps = sum(len(r.actions) for r in one)
     collided = sum(int(r.collisions.sum()) for r in one if r.collisions is not None)
