@@ -143,7 +143,7 @@ def guarded_frame(frame: Frame, oracle: bool) -> Frame:
 def _step_chunks(odometer: Odometer, seq: Sequence, oracle: bool, n: int, stamps: list[float]):
     """``(first index, [(prev, cur, action), ...])`` chunks of ``odometer.batch_size`` pairs;
     appends each frame's timestamp to ``stamps`` as it is read."""
-    size = max(1, int(getattr(odometer, "batch_size", 1) or 1))
+    size = max(1, int(odometer.batch_size))
     prev = guarded_frame(seq[0], oracle)
     stamps.append(prev.timestamp)
     chunk: list[tuple[Frame, Frame, Action | None]] = []
@@ -217,7 +217,7 @@ def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrio
     n = len(seq) - 1
     log = _StepLog(n, max_errors)
     actions = np.array([NO_ACTION if a is None else a.value for a in (seq.action(i) for i in range(n))], np.int8)
-    oracle = bool(getattr(odometer, "oracle", False))
+    oracle = bool(odometer.oracle)
     with odometer_threads(odometer):
         try:
             odometer.reset(seq.intrinsics)

@@ -16,13 +16,15 @@ import contextlib
 import sys
 from typing import Iterator
 
+from odolab.odometer import Odometer
+
 __all__ = ["odometer_threads"]
 
 
 @contextlib.contextmanager
-def odometer_threads(odometer: object) -> Iterator[None]:
+def odometer_threads(odometer: Odometer) -> Iterator[None]:
     """Apply ``odometer.threads`` (an int >= 1, or None = leave as is) to torch's pool for the block."""
-    threads = getattr(odometer, "threads", None)
+    threads = odometer.threads
     torch = sys.modules.get("torch")
     if threads is None or torch is None:
         yield
