@@ -43,18 +43,22 @@ __all__ = [
     "EpisodeCache", "EpisodeSpec", "NoiseConfig", "Pair", "PairDataset", "SPLITS", "episode_specs",
     "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
     # running and comparing
-    "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison", "run_odometers",
-    "load_tum_sequence", "write_bytes_atomic",
+    "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison",
+    "run_odometers", "load_tum_sequence", "write_bytes_atomic",
+    # evaluating trajectories (the library behind python -m odolab.evaluate)
+    "Evaluation", "Trajectory", "evaluate_trajectory", "pair_trajectories",
 ]
 
 if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and import-linter
     from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonError, ComparisonResult, run_comparison
     from odolab.datasets import Pair, PairDataset, episode_specs, true_motions
     from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes, stream_episodes
+    from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.io.atomic import write_bytes_atomic
     from odolab.io.tum_rgbd import load_tum_sequence
     from odolab.runner import SequenceResult
     from odolab.sim.scenes import SPLITS
+    from odolab.trajectory import Trajectory
 
 _LAZY = {
     "EpisodeCache": "odolab.episodes", "EpisodeSpec": "odolab.episodes", "NoiseConfig": "odolab.episodes",
@@ -66,6 +70,8 @@ _LAZY = {
     "ComparisonError": "odolab.comparison",
     "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner",
     "load_tum_sequence": "odolab.io.tum_rgbd", "write_bytes_atomic": "odolab.io.atomic",
+    "Evaluation": "odolab.evaluation", "evaluate_trajectory": "odolab.evaluation",
+    "pair_trajectories": "odolab.evaluation", "Trajectory": "odolab.trajectory",
 }
 
 

@@ -12,6 +12,8 @@ truth once (``--align``, default ``se3``: rigid Umeyama, as ``evo_ape -a``); ATE
 KITTI errors are then computed on the aligned estimate (a rigid alignment changes neither RPE nor
 the KITTI errors; ``sim3`` rescales them). Definitions: :mod:`odolab.metrics`. Every figure is
 printed with its pairing, the poses used and dropped, the alignment and the coverage.
+This module parses, calls :mod:`odolab.evaluation` (the library: pairing, metrics, JSON summary)
+and prints.
 """
 from __future__ import annotations
 
