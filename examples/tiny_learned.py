@@ -133,20 +133,35 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[TinyConfig, TinyNet]:
     return cfg, net.eval()
 
 
+class TorchPairs(torch.utils.data.Dataset):
+    """A :class:`~odolab.api.PairDataset` as a torch ``Dataset`` of (images, action one-hot, planar target)."""
+
+    def __init__(self, pairs: PairDataset, cfg: TinyConfig) -> None:
+        self.pairs, self.cfg = pairs, cfg
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __getitem__(self, k: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
+        p = self.pairs[k]
+        images, onehot = network_inputs([(p.prev, p.cur, p.action)], self.cfg)
+        return images[0], onehot[0], torch.tensor(p.planar, dtype=torch.float32), p.action.value
+
+
 def train(dataset: PairDataset, cfg: TinyConfig, iterations: int, batch: int = 32, lr: float = 3e-3,
           seed: int = 0) -> TinyNet:
     """Fit the network to the true planar motions of ``dataset`` (L1 on the scaled correction)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    pairs = [dataset[k] for k in range(len(dataset))]  # a few episodes: pooled inputs fit in memory
-    images, onehot = network_inputs([(p.prev, p.cur, p.action) for p in pairs], cfg)
-    target = torch.tensor(np.stack([p.planar for p in pairs]), dtype=torch.float32)
-    actions = [p.action for p in pairs]
+    data = TorchPairs(dataset, cfg)
+    # a few episodes: every pooled input fits in memory, so read each pair once
+    images, onehot, target, action_values = torch.utils.data.default_collate([data[k] for k in range(len(data))])
+    actions = [Action(int(v)) for v in action_values]
     net = TinyNet(cfg)
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     scale = torch.tensor(CORRECTION_SCALE)
     for _ in range(iterations):
-        idx = rng.integers(len(pairs), size=min(batch, len(pairs)))
+        idx = rng.integers(len(data), size=min(batch, len(data)))
         pred = planar_from_output(net(images[idx], onehot[idx]), [actions[i] for i in idx])
         loss = ((pred - target[idx]).abs() / scale).mean()
         opt.zero_grad()

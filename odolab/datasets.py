@@ -13,7 +13,7 @@ two frames of page reads, there is no second copy of the data on disk, the opera
 page cache is shared by every data-loader worker, and nothing is decompressed. (Writing ``.npy``
 shards beside the cache would double the disk use for the same access pattern; compressed
 ``.npz`` members cannot be mapped at all.) This module imports no torch; a torch ``Dataset`` is a
-three-line wrapper (see ``examples/tiny_learned.py``).
+small wrapper (``TorchPairs`` in ``examples/tiny_learned.py``).
 """
 from __future__ import annotations
 
