@@ -31,7 +31,7 @@ _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
 FORMAT_VERSION = 1  # the .npz layout
 #: Bump whenever the simulator's output for a given spec changes (scenes, rendering, noise, motion,
 #: follower): it is part of every cache key, so stale cached episodes are never reused.
-SIMULATOR_VERSION = 2
+SIMULATOR_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -52,9 +52,11 @@ class EpisodeSpec:
     index: int = 0
     seed: int = 0
     max_steps: int = 100
-    min_goal_distance: float = 2.0  # m, geodesic
-    max_goal_distance: float = 12.0  # m, geodesic
-    wall_penalty: float = 0.0  # > 0 keeps paths off walls (see planner.geodesic_distance)
+    min_goal_distance: float = 1.0  # m, geodesic (habitat-lab's PointNav generator: 1-30 m)
+    max_goal_distance: float = 30.0  # m, geodesic
+    min_geodesic_ratio: float = 1.1  # geodesic / euclidean below this is mostly rejected (as habitat-lab)
+    goal_radius: float = 0.36  # m: the follower calls STOP within this geodesic distance (PointNav success)
+    stop_at_contact: bool = True  # blocked steps stop at contact (habitat-sim) or, if False, stay put
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     camera: CameraSpec = field(default_factory=CameraSpec)
 
@@ -66,7 +68,11 @@ class EpisodeSpec:
 
     def key(self) -> str:
         """Stable short hash of the spec (the cache file name)."""
-        blob = json.dumps({"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, **asdict(self)}, sort_keys=True)
+        from odolab.sim.redwood import default_table
+
+        table = hashlib.sha256(default_table().factors.tobytes()).hexdigest()[:16]  # exact or surrogate
+        blob = json.dumps({"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table, **asdict(self)},
+                          sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def streams(self) -> list[np.random.Generator]:
@@ -86,6 +92,7 @@ class Rollout:
     scene_seed: int
     goal: tuple[float, float]
     start_distance: float  # geodesic, m
+    euclidean_distance: float  # m, start to goal
     states: list[AgentState]
     actions: list[Action]
     collisions: list[bool]
@@ -96,30 +103,50 @@ class Rollout:
         return np.stack([camera_pose_from_agent(s.x, s.y, s.yaw, mount_height) for s in self.states])
 
 
+def straight_episode_keep_rate(ratio: float) -> float:
+    """habitat-lab's chance of keeping an episode whose geodesic / euclidean ratio is below the
+    threshold: ``20 (ratio - 0.98)^2`` (0.008 at 1.0, 0.144 at 1.1)."""
+    return 20.0 * (ratio - 0.98) ** 2
+
+
+def sample_start_goal(spec: EpisodeSpec, scene, rng: np.random.Generator, max_tries: int = 200):
+    """A start and goal as habitat-lab's PointNav generator picks them: a navigable start on the
+    largest island, up to 10 navigable goals tried per start; a goal is kept when its geodesic
+    distance is within [min, max] and, if geodesic / euclidean < ``min_geodesic_ratio``, only with
+    probability :func:`straight_episode_keep_rate`. Returns (start xy, goal xy, geodesic m)."""
+    from odolab.sim.planner import geodesic_field, largest_component
+
+    cells = np.argwhere(largest_component(scene))
+    for _attempt in range(max_tries):
+        sx, sy = (float(v) for v in scene.cell_to_world(*cells[rng.integers(len(cells))]))
+        field = geodesic_field(scene, sx, sy)
+        for _target in range(10):
+            gx, gy = (float(v) for v in scene.cell_to_world(*cells[rng.integers(len(cells))]))
+            geo = field.at(gx, gy)
+            euclid = float(np.hypot(gx - sx, gy - sy))
+            if not (spec.min_goal_distance <= geo <= spec.max_goal_distance) or euclid <= 0:
+                continue
+            ratio = geo / euclid
+            if ratio < spec.min_geodesic_ratio and rng.random() > straight_episode_keep_rate(ratio):
+                continue
+            return (sx, sy), (gx, gy), geo
+    raise RuntimeError(f"scene {scene.seed}: no start/goal pair within "
+                       f"{spec.min_goal_distance}-{spec.max_goal_distance} m in {max_tries} tries")
+
+
 def rollout(spec: EpisodeSpec) -> Rollout:
     """Sample scene, start and goal, and follow the shortest path under actuation noise."""
-    from odolab.sim.planner import ShortestPathFollower, geodesic_distance, largest_component
+    from odolab.sim.planner import ShortestPathFollower, geodesic_field
 
     rng, act_rng = spec.streams()[:2]
     seed = scene_seed(spec.split, int(rng.integers(1 << 31)))
     scene = generate_scene(seed)
-    cells = np.argwhere(largest_component(scene))
-    for _attempt in range(50):
-        sr, sc = cells[rng.integers(len(cells))]
-        sx, sy = (float(v) for v in scene.cell_to_world(sr, sc))
-        from_start = geodesic_distance(scene, sx, sy)
-        ok = (from_start >= spec.min_goal_distance) & (from_start <= spec.max_goal_distance)
-        if ok.any():
-            break
-    else:
-        raise RuntimeError(f"scene {seed}: no goal within {spec.min_goal_distance}-{spec.max_goal_distance} m")
-    goals = np.argwhere(ok)
-    gr, gc = goals[rng.integers(len(goals))]
-    gx, gy = (float(v) for v in scene.cell_to_world(gr, gc))
-    follower = ShortestPathFollower(scene, geodesic_distance(scene, gx, gy, wall_penalty=spec.wall_penalty))
+    (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
+    noise = ActuationNoise(spec.noise.controller, spec.noise.actuation)
+    follower = ShortestPathFollower(geodesic_field(scene, gx, gy), goal_radius=spec.goal_radius, noise=noise,
+                                    rng=act_rng, stop_at_contact=spec.stop_at_contact)
 
     state = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
-    noise = ActuationNoise(spec.noise.controller, spec.noise.actuation)
     states, actions, collisions = [state], [], []
     reached = False
     for _ in range(spec.max_steps):
@@ -127,16 +154,16 @@ def rollout(spec: EpisodeSpec) -> Rollout:
         if action == Action.STOP:
             reached = True
             break
-        state, collided = step_agent(scene, state, action, noise, act_rng)
+        state, collided = step_agent(scene, state, action, noise, act_rng, spec.stop_at_contact)
         states.append(state)
         actions.append(action)
         collisions.append(collided)
-    return Rollout(seed, (gx, gy), float(from_start[gr, gc]), states, actions, collisions, reached)
+    return Rollout(seed, (gx, gy), geo, float(np.hypot(gx - sx, gy - sy)), states, actions, collisions, reached)
 
 
 @dataclass(frozen=True)
 class Episode:
-    """A rendered episode; a :class:`~odolab.odometer.Sequence` of T + 1 frames and T actions.
+    """A rendered episode; a :class:`~odolab.types.Sequence` of T + 1 frames and T actions.
 
     ``rgb`` (T+1, H, W, 3) uint8; ``depth`` (T+1, H, W) float32 m (0 = no reading);
     ``poses`` (T+1, 4, 4) ``T_world_cam``; ``actions`` (T,) int8 :class:`Action` values;
@@ -182,7 +209,7 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
     cam = spec.camera
     renderer = Renderer(generate_scene(motion.scene_seed), cam)
     rgb_noise = RGBNoise(multiplier=spec.noise.rgb)
-    depth_noise = RedwoodDepthNoise(multiplier=spec.noise.depth, max_depth=cam.max_depth)
+    depth_noise = RedwoodDepthNoise(multiplier=spec.noise.depth, min_depth=cam.min_depth, max_depth=cam.max_depth)
     n = len(motion.states)
     rgb = np.empty((n, cam.height, cam.width, 3), np.uint8)
     depth = np.empty((n, cam.height, cam.width), np.float32)
@@ -192,7 +219,7 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
         rgb[i] = rgb_noise.apply(clean_rgb, rgb_rng)
         depth[i] = depth_noise.apply(clean_depth, depth_rng)
     info = {"scene_seed": motion.scene_seed, "goal": list(motion.goal), "start_distance": motion.start_distance,
-            "reached_goal": motion.reached_goal}
+            "euclidean_distance": motion.euclidean_distance, "reached_goal": motion.reached_goal}
     return Episode(spec, rgb, depth, poses, np.array([a.value for a in motion.actions], np.int8),
                    np.array(motion.collisions, bool), info)
 

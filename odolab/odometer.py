@@ -19,7 +19,7 @@ import importlib
 from importlib.metadata import entry_points
 from typing import Callable, Iterator
 
-from odolab.types import Action, Estimate, Frame, Intrinsics
+from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence  # noqa: F401 (older imports)
 
 __all__ = [
     "ENTRY_POINT_GROUP", "REGISTRY", "Odometer", "OdometerRegistry", "UnknownOdometerError",

@@ -62,7 +62,10 @@ def nominal_motion(action: Action | None) -> np.ndarray:
 class Intrinsics:
     """Pinhole intrinsics in pixels; the image is ``width`` x ``height``.
 
-    The pixel (u, v) with u along the width sees the ray ((u - cx) / fx, (v - cy) / fy, 1).
+    Pixel convention (OpenCV's, used everywhere in odolab): the pixel in column ``i`` and row ``j``
+    has its centre at image coordinates (u, v) = (i, j) and sees the ray
+    ((u - cx) / fx, (v - cy) / fy, 1); the image spans u in [-0.5, width - 0.5]. A centred principal
+    point is therefore cx = (width - 1) / 2, cy = (height - 1) / 2.
     """
 
     fx: float
@@ -79,9 +82,10 @@ class Intrinsics:
 
     @classmethod
     def from_hfov(cls, width: int, height: int, hfov_deg: float) -> "Intrinsics":
-        """Square-pixel pinhole with the given horizontal field of view (degrees)."""
+        """Square-pixel pinhole, principal point at the image centre, whose horizontal field of view
+        (degrees) spans the whole image width (edge to edge: ``fx = width / 2 / tan(hfov / 2)``)."""
         f = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
-        return cls(f, f, width / 2.0, height / 2.0, width, height)
+        return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height)
 
 
 @dataclass(frozen=True)

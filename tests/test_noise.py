@@ -4,7 +4,8 @@ import pytest
 from scipy.stats import norm
 
 from odolab.types import Action
-from odolab.sim.noise import ActuationNoise, GaussianTable, RedwoodDepthNoise, RGBNoise
+from odolab.sim.noise import ActuationNoise, GaussianTable, RedwoodDepthNoise, RGBNoise, habitat_normalized_depth
+from odolab.sim.redwood import load_table, surrogate_table
 
 TRUNC3_VAR = 1 - 2 * 3 * norm.pdf(3) / (norm.cdf(3) - norm.cdf(-3))  # variance factor of a +-3 sigma cut
 
@@ -35,7 +36,7 @@ def test_rgb_noise_clips_and_zero_multiplier_is_exact():
 def test_redwood_disparity_quantisation_matches_formula():
     d = 2.0
     depth = np.full((480, 640), d, np.float32)
-    out = RedwoodDepthNoise().apply(depth, np.random.default_rng(3))
+    out = RedwoodDepthNoise(use_distortion=False).apply(depth, np.random.default_rng(3))
     denom = np.round(35.130 * 8 / out).astype(int)
     assert np.allclose(35.130 * 8 / denom, out, rtol=1e-6)  # every value is a quantisation level
     # denom = round((35.13/d + 0.027778 N) * 8): P(denom = k) from the normal CDF
@@ -51,7 +52,7 @@ def test_redwood_jitter_and_downsampling():
     H, W = 400, 64
     b = 32  # even column where the depth steps from 1 m to 3 m
     depth = np.where(np.arange(W)[None, :] < b, 1.0, 3.0).astype(np.float32).repeat(H, 0)
-    out = RedwoodDepthNoise().apply(depth, np.random.default_rng(4))
+    out = RedwoodDepthNoise(use_distortion=False).apply(depth, np.random.default_rng(4))
     far = out > 2.0
     # column b-1 reads column b (then rounded down to even b) iff 0.25 N >= 0.5, i.e. N >= 2
     assert far[:, b - 1].mean() == pytest.approx(norm.sf(2.0), abs=0.02)
@@ -67,6 +68,90 @@ def test_redwood_far_and_missing_give_no_reading():
     assert np.all(out[:, 12:] == 0) and np.all(out[:, :8] == 0)
     clean = RedwoodDepthNoise(multiplier=0).apply(np.full((4, 4), 3.3, np.float32), np.random.default_rng(0))
     assert np.all(clean == np.float32(3.3))
+
+
+def _habitat_redwood_reference(depth, table, rng, multiplier=1.0):
+    """habitat-sim's RedwoodNoiseModelCPUImpl._simulate, pixel by pixel, then habitat-lab's clip to
+    [0.1, 10] m (holes and readings below 0.1 m as 0): an independent transcription."""
+    H, W = depth.shape
+    ymax, xmax = H - 1.0, W - 1.0
+    rand = rng.standard_normal((H, W, 3))
+    out = np.zeros((H, W))
+    for j in range(H):
+        for i in range(W):
+            y = int(min(max(j + rand[j, i, 0] * 0.25 * multiplier, 0.0), ymax) + 0.5)
+            x = int(min(max(i + rand[j, i, 1] * 0.25 * multiplier, 0.0), xmax) + 0.5)
+            d = depth[y - y % 2, x - x % 2]
+            if d >= 10.0 or d <= 0:
+                continue
+            xx, yy = int(x / xmax * 639.0 + 0.5) // 8, int(y / ymax * 479.0 + 0.5) // 6
+            i2 = int((d + 1) / 2)
+            i1 = i2 - 1
+            a = (d - (i1 * 2.0 + 1.0)) / 2.0
+            f = (1.0 - a) * table[yy, xx, min(max(i1, 0), 4)] + a * table[yy, xx, min(i2, 4)]
+            if f < 1e-5:
+                continue
+            denom = round((35.130 / (d / f) + rand[j, i, 2] * 0.027778 * multiplier) * 8.0)
+            if denom > 1e-5:
+                out[j, i] = min(35.130 * 8.0 / denom, 10.0)
+    out[out < 0.1] = 0.0
+    return out
+
+
+@pytest.mark.parametrize("d", [1.5, 3.0, 5.5, 8.5])
+def test_redwood_distortion_matches_habitat_statistics(d):
+    """Hole share and location, bias and spread per depth, against the pixel-by-pixel reference."""
+    table = surrogate_table()
+    depth = np.full((192, 341), d, np.float32)
+    ours = RedwoodDepthNoise(distortion=table).apply(depth, np.random.default_rng(7))
+    ref = _habitat_redwood_reference(depth, table.factors, np.random.default_rng(8))
+    for out in (ours, ref):
+        assert 0.10 < (out == 0).mean() < 0.125  # the hole band: ~11 % of a 341 x 192 frame
+    # holes where the table's hole cells are: the borders, widest on the right
+    assert (ours[:, -15:] == 0).mean() > 0.95 and (ours[10:-10, 10:-25] == 0).mean() < 0.001
+    assert abs((ours == 0).mean() - (ref == 0).mean()) < 0.004
+    assert np.mean((ours == 0) == (ref == 0)) > 0.99
+    a, b = ours[ours > 0] / d - 1, ref[ref > 0] / d - 1
+    assert abs(a.mean() - b.mean()) < 0.002 + 0.1 * abs(b.mean())
+    assert a.std() == pytest.approx(b.std(), rel=0.05)
+
+
+def test_redwood_distortion_widens_the_spread_beyond_3m():
+    """The table adds a cell-dependent scale error: within 1 % on average, but beyond 3 m it at
+    least doubles the spread of the disparity noise alone (measured on habitat-sim's table:
+    0.025 vs 0.004 at 5.5 m, 0.033 vs 0.010 at 9 m)."""
+    table = surrogate_table()
+    for d in (2.0, 5.5, 9.0):
+        depth = np.full((192, 341), d, np.float32)
+        rel = {}
+        for use in (True, False):
+            out = RedwoodDepthNoise(distortion=table if use else None, use_distortion=use).apply(
+                depth, np.random.default_rng(9))
+            rel[use] = out[out > 0] / d - 1
+        assert abs(rel[True].mean()) < 0.01
+        if d > 3:
+            assert rel[True].std() > 2 * rel[False].std()
+
+
+def test_redwood_table_files_are_checked(tmp_path):
+    good = tmp_path / "table.npy"
+    np.save(good, np.ones((80, 400), np.float32))
+    assert load_table(good).factors.shape == (80, 80, 5)
+    bad = tmp_path / "bad.npy"
+    np.save(bad, np.ones((80, 80), np.float32))
+    with pytest.raises(ValueError, match="bad.npy.*32000"):
+        load_table(bad)
+    junk = tmp_path / "junk.npy"
+    junk.write_bytes(b"not numpy")
+    with pytest.raises(ValueError, match="junk.npy"):
+        load_table(junk)
+
+
+def test_range_clip_like_habitat_lab():
+    depth = np.full((40, 40), 9.99, np.float32)
+    out = RedwoodDepthNoise(use_distortion=False).apply(depth, np.random.default_rng(10))
+    assert out.max() <= 10.0 and (out == 10.0).any()  # noisy readings past 10 m are clipped to 10 m
+    assert np.allclose(habitat_normalized_depth(np.array([0.0, 0.1, 5.05, 10.0])), [0, 0, 0.5, 1])
 
 
 def _samples(action, n=20_000, mult=0.5):

@@ -3,7 +3,9 @@
 The camera is a level pinhole (LoCoBot-like, Habitat PointNav Challenge 2020): 341 x 192 pixels,
 70 degree horizontal field of view, 0.88 m above the floor, depth range 0.1-10 m. Ray directions
 are computed once in the camera frame with z = 1, so the ray parameter of a hit *is* the z-depth;
-per pose they are only rotated. Noise is added separately (:mod:`odolab.sim.noise`).
+per pose they are only rotated. Each ray passes through a pixel centre, at integer image coordinates
+with cx = (W - 1) / 2 (the convention of :class:`~odolab.types.Intrinsics`, used everywhere).
+Noise is added separately (:mod:`odolab.sim.noise`).
 """
 from __future__ import annotations
 
@@ -13,9 +15,13 @@ import numpy as np
 
 from odolab.types import Intrinsics
 from odolab.sim.scenes import Scene
-from odolab.sim.textures import TEXEL_SIZE, make_tiles
+from odolab.sim.textures import TEXEL_SIZE, make_tiles, mip_levels
 
-_LIGHT = np.array([0.35, 0.55, 0.76])  # world direction of the (distant) light
+_KEY_LIGHT = np.array([0.45, 0.3, 0.84]) / np.linalg.norm([0.45, 0.3, 0.84])  # world direction to the light
+AMBIENT, KEY, FILL = 0.4, 0.7, 0.25  # shading = AMBIENT + KEY max(n.l, 0) + FILL max(-n.l, 0)
+TEX_FLOOR, TEX_GAIN = 0.25, 1.25  # brightness factor of a texel with reflectance r: TEX_FLOOR + TEX_GAIN r
+MIP_LEVELS = 7  # 512 -> 8 texels
+_TEXEL_OFFSET = 1 << 16  # texels
 
 
 @dataclass(frozen=True)
@@ -44,22 +50,31 @@ def _aligned_empty(shape: tuple[int, ...], align: int = 64) -> np.ndarray:
 
 
 class Renderer:
-    """Ray-casts one scene; :meth:`render` returns clean (noise-free) RGB and z-depth."""
+    """Ray-casts one scene; :meth:`render` returns clean (noise-free) RGB and z-depth.
+
+    Colour = material albedo x texture x shading. Textures are sampled from a mip pyramid at the
+    level matching each pixel's footprint on the surface (the geometric mean of its two axes, so
+    grazing views blur a little rather than alias). Shading is Lambertian under a directional key
+    light and a weaker fill light from the opposite side, on top of ambient light, so walls facing
+    different ways differ in brightness.
+    """
 
     def __init__(self, scene: Scene, camera: CameraSpec = CameraSpec(), tiles: np.ndarray | None = None,
                  nthreads: int = 0) -> None:
         import open3d as o3d
 
         self.camera = camera
-        self._tiles = make_tiles() if tiles is None else tiles
-        size = self._tiles.shape[-1]
+        tiles = make_tiles() if tiles is None else tiles
+        size = tiles.shape[-1]
         if size & (size - 1):
             raise ValueError("texture tiles must have a power-of-two size")
+        self._log_size = size.bit_length() - 1
         self._tile_mask = size - 1
-        self._tile_shift = size.bit_length() - 1
-        self._tile_shift2 = 2 * self._tile_shift
-        # brightness factor 0.25 + 0.75 * pattern, flattened for a single gather per pixel
-        self._tiles_flat = (0.25 + 0.75 * self._tiles).astype(np.float32).reshape(-1)
+        levels = mip_levels(tiles, min(MIP_LEVELS, self._log_size + 1))
+        self._levels = len(levels)
+        # all levels of all tiles in one flat array, reflectance mapped to a brightness factor
+        self._mip_offset = np.cumsum([0] + [lv.size for lv in levels[:-1]]).astype(np.int32)
+        self._mip_flat = np.concatenate([(TEX_FLOOR + TEX_GAIN * lv).reshape(-1) for lv in levels]).astype(np.float32)
         self._rc = o3d.t.geometry.RaycastingScene(nthreads=nthreads)
         self._rc.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
 
@@ -68,19 +83,23 @@ class Renderer:
         n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
         axis = np.argmax(np.abs(n), axis=1)
         self._tri_axis = axis.astype(np.int8)  # dominant normal axis: picks the texture plane
-        shade = 0.55 + 0.45 * np.abs(n @ (_LIGHT / np.linalg.norm(_LIGHT)))
+        lit = n @ _KEY_LIGHT
+        shade = AMBIENT + KEY * np.maximum(lit, 0.0) + FILL * np.maximum(-lit, 0.0)
         colors = np.array([m.color for m in scene.materials], dtype=np.float32)
         self._tri_rgb_t = np.ascontiguousarray((colors[scene.triangle_material] * shade[:, None] * 255.0).T,
                                                dtype=np.float32)  # (3, F)
-        tile = np.array([m.tile for m in scene.materials])[scene.triangle_material]
-        self._tri_tile_offset = (tile << self._tile_shift2).astype(np.int32)
+        tile = np.array([m.tile for m in scene.materials])[scene.triangle_material] % len(tiles)
+        self._tri_tile = tile.astype(np.int32)
 
         K = camera.intrinsics
-        u, v_ = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
+        u, v_ = np.meshgrid(np.arange(camera.width), np.arange(camera.height))  # pixel centres (Intrinsics)
         self._dirs_cam = np.stack(
             [(u - K.cx) / K.fx, (v_ - K.cy) / K.fy, np.ones_like(u)], axis=-1
         ).reshape(-1, 3).astype(np.float32)
         self._dirs_cam_t = np.ascontiguousarray(self._dirs_cam.T)
+        # a pixel's footprint at unit ray parameter, in texels: |d| / fx / TEXEL_SIZE
+        self._dir_norm = np.linalg.norm(self._dirs_cam, axis=1).astype(np.float32)
+        self._foot_unit = (self._dir_norm / (K.fx * TEXEL_SIZE)).astype(np.float32)
         self._rays = _aligned_empty((self._dirs_cam.shape[0], 6))
 
     @property
@@ -124,12 +143,20 @@ class Renderer:
         axis = np.take(self._tri_axis, tri, mode="clip")
         pu = np.where(axis == 0, py, px)
         pv = np.where(axis == 2, py, pz)
-        iu = (pu * (1.0 / TEXEL_SIZE)).astype(np.int32) & self._tile_mask  # trunc: an invisible seam at 0
-        iv = (pv * (1.0 / TEXEL_SIZE)).astype(np.int32) & self._tile_mask
-        tex = np.take(self._tiles_flat, np.take(self._tri_tile_offset, tri, mode="clip") + (iv << self._tile_shift) + iu)
+        # the offset keeps coordinates positive (no mirrored seam at 0); it is a multiple of the tile
+        iu = (pu * (1.0 / TEXEL_SIZE) + _TEXEL_OFFSET).astype(np.int32) & self._tile_mask
+        iv = (pv * (1.0 / TEXEL_SIZE) + _TEXEL_OFFSET).astype(np.int32) & self._tile_mask
+        # mip level: log2 of the footprint t |d| / (fx texel) / sqrt(cos), cos = |d . n| / |d|
+        d_axis = np.abs(np.where(axis == 0, rays[:, 3], np.where(axis == 1, rays[:, 4], rays[:, 5])))
+        foot = t * self._foot_unit * np.sqrt(self._dir_norm / np.maximum(d_axis, 1e-3))
+        level = np.clip(np.frexp(foot)[1] - 1, 0, self._levels - 1).astype(np.int32)
+        shift = self._log_size - level
+        index = (np.take(self._mip_offset, level) + (np.take(self._tri_tile, tri, mode="clip") << (2 * shift))
+                 + ((iv >> level) << shift) + (iu >> level))
+        tex = np.take(self._mip_flat, index)
         tex[~ok] = 0.0
         rgb = np.empty((len(t), 3), np.uint8)
         for k in range(3):  # one 1-D gather per channel: 3x faster than gathering (N, 3) rows
-            rgb[:, k] = np.take(self._tri_rgb_t[k], tri, mode="clip") * tex
+            rgb[:, k] = np.minimum(np.take(self._tri_rgb_t[k], tri, mode="clip") * tex, 255.0)
         depth = np.where(ok & (t >= cam.min_depth) & (t < cam.max_depth), t, 0.0).astype(np.float32)
         return rgb.reshape(cam.height, cam.width, 3), depth.reshape(cam.height, cam.width)

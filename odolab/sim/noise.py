@@ -4,7 +4,8 @@
 * Depth: the Redwood model (Choi et al., CVPR 2015) as Habitat applies it, multiplier ``m``:
   pixel jitter N(0, (0.25 m)^2) px, read on the 2x-downsampled grid, d >= 10 m -> 0, then
   disparity quantisation ``denom = round((35.130 / d + N(0, 1) * 0.027778 * m) * 8)``,
-  ``out = 35.130 * 8 / denom`` (0 if denom <= 0). The optional distortion table is not used.
+  ``out = 35.130 * 8 / denom`` (0 if denom <= 0), with habitat-sim's distortion table
+  (:mod:`odolab.sim.redwood`) between the two, and habitat-lab's clip to [0.1, 10] m after.
 * Actuation: PyRobot's LoCoBot model, each component an independent normal truncated at
   +-3 sigma, scaled by the multiplier (Proportional controller, multiplier 0.5 in the challenge).
 
@@ -20,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
+from odolab.sim.redwood import BINS, COLS, DistortionTable, cell_lookup, default_table
 from odolab.types import FORWARD_STEP, TURN_ANGLE, Action  # the nominal motions, defined once
 
 
@@ -63,38 +65,87 @@ class RGBNoise:
 
 @dataclass
 class RedwoodDepthNoise:
-    """Redwood depth noise (Habitat's implementation, without the distortion table)."""
+    """Redwood depth noise exactly as habitat-sim applies it, then habitat-lab's range clip.
+
+    Per output pixel (j, i): jitter the coordinates by N(0, (0.25 m)^2) px (rounded, clipped to the
+    image); read depth d on the 2x-downsampled grid; d >= ``max_depth`` -> no reading; divide by the
+    distortion factor of the jittered pixel's table cell (:mod:`odolab.sim.redwood`; a hole cell ->
+    no reading); quantise disparity: ``denom = round((35.130 / d + N(0, 1) * 0.027778 * m) * 8)``,
+    ``out = 35.130 * 8 / denom`` (no reading if denom <= 0). Finally habitat-lab's depth sensor clips
+    to [``min_depth``, ``max_depth``]: readings beyond ``max_depth`` become ``max_depth``; readings
+    below ``min_depth`` and holes are 0 here, odolab's "no reading", which habitat-lab's normalised
+    depth ``(d - min) / (max - min)`` clipped to [0, 1] maps to the same 0 (see
+    :func:`habitat_normalized_depth`). ``distortion=None`` uses :func:`odolab.sim.redwood.default_table`;
+    ``use_distortion=False`` skips the table (the Redwood paper's optional step).
+    """
 
     multiplier: float = 1.0
+    min_depth: float = 0.1
     max_depth: float = 10.0
+    distortion: DistortionTable | None = None
+    use_distortion: bool = True
     gauss: GaussianTable = field(default_factory=GaussianTable, repr=False)
 
     def __post_init__(self) -> None:
         # Pixel shift of step 1 per 16-bit draw: floor(0.25 m N + 0.5). Adding it to the integer pixel
         # index and then clipping equals Habitat's int(clip(j + 0.25 m N, 0, H - 1) + 0.5) exactly.
         self._shift = np.floor(0.25 * self.multiplier * self.gauss.table + 0.5).astype(np.int16)
+        if self.use_distortion and self.distortion is None:
+            self.distortion = default_table()
+        self._lut_shape: tuple[int, int] | None = None
+
+    def _luts(self, H: int, W: int) -> None:
+        """Index tables for an H x W image: padded index -> clipped index, and -> table cell."""
+        pad = int(np.abs(self._shift).max())
+        self._pad = pad
+        self._rows = np.clip(np.arange(-pad, H + pad), 0, H - 1).astype(np.int32)
+        self._cols = np.clip(np.arange(-pad, W + pad), 0, W - 1).astype(np.int32)
+        self._y_base = np.arange(pad, H + pad, dtype=np.int16)[:, None]
+        self._x_base = np.arange(pad, W + pad, dtype=np.int16)[None, :]
+        if self.distortion is not None:
+            cell_r, cell_c = cell_lookup(W, H)
+            self._cell_row = (cell_r[self._rows] * COLS).astype(np.int32)
+            self._cell_col = cell_c[self._cols].astype(np.int32)
+            self._flat = self.distortion.factors.reshape(-1, BINS)
+        self._lut_shape = (H, W)
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Noisy copy of a (H, W) float32 depth image in metres (0 = no reading)."""
-        if self.multiplier == 0:
-            return np.where(depth < self.max_depth, depth, 0.0).astype(np.float32)
+        if self.multiplier == 0:  # noise off: the clean depth within habitat-lab's range
+            return np.where((depth >= self.min_depth) & (depth <= self.max_depth), depth, 0.0).astype(np.float32)
         H, W = depth.shape
+        if self._lut_shape != (H, W):
+            self._luts(H, W)
         draws = uniform_u16(rng, (3, H, W))
-        # 1. jitter pixel coordinates (rounded, clipped to the image); 2. read on the 2x-downsampled grid
-        pad = int(np.abs(self._shift).max())
-        # lookup tables from a padded index to the clipped, even (downsampled) index
-        y_lut = ((np.clip(np.arange(-pad, H + pad), 0, H - 1) & ~1) * W).astype(np.int32)  # row offsets
-        x_lut = (np.clip(np.arange(-pad, W + pad), 0, W - 1) & ~1).astype(np.int32)
-        ys = np.take(y_lut, np.arange(pad, H + pad, dtype=np.int16)[:, None] + np.take(self._shift, draws[0]))
-        xs = np.take(x_lut, np.arange(pad, W + pad, dtype=np.int16)[None, :] + np.take(self._shift, draws[1]))
-        d = np.take(depth.reshape(-1), ys + xs)
+        jy = self._y_base + np.take(self._shift, draws[0])  # padded, jittered row index
+        jx = self._x_base + np.take(self._shift, draws[1])
+        rows, cols = np.take(self._rows, jy), np.take(self._cols, jx)
+        d = np.take(depth.reshape(-1), (rows & ~1) * W + (cols & ~1))  # 2x-downsampled read
         valid = (d > 0) & (d < self.max_depth)
-        # 4. disparity quantisation (step 3, the distortion table, is skipped)
+        if self.distortion is not None:
+            cell = np.take(self._cell_row, jy) + np.take(self._cell_col, jx)
+            i2 = ((d + 1.0) * 0.5).astype(np.int32)
+            i1 = i2 - 1
+            a = (d - (2.0 * i1 + 1.0)) * 0.5
+            flat = self._flat.reshape(-1)
+            f1 = np.take(flat, cell * BINS + np.clip(i1, 0, BINS - 1))
+            f2 = np.take(flat, cell * BINS + np.clip(i2, 0, BINS - 1))
+            f = (1.0 - a) * f1 + a * f2
+            valid &= f >= 1e-5
+            d = d / np.where(valid, f, 1.0)
         with np.errstate(divide="ignore"):
             noise = np.take(self.gauss.table, draws[2]) * np.float32(0.027778 * self.multiplier)
             denom = np.round((35.130 / np.where(valid, d, 1.0) + noise) * 8.0)
             out = np.where(valid & (denom > 0), 35.130 * 8.0 / denom, 0.0)
+        out = np.minimum(out, self.max_depth)  # habitat-lab's clip from above
+        out[out < self.min_depth] = 0.0  # and from below: "no reading" (normalised 0)
         return out.astype(np.float32)
+
+
+def habitat_normalized_depth(depth: np.ndarray, min_depth: float = 0.1, max_depth: float = 10.0) -> np.ndarray:
+    """habitat-lab's normalised depth observation, ``clip((d - min) / (max - min), 0, 1)``, from
+    odolab depth in metres (0 = no reading maps to 0, as a clipped hole does in habitat-lab)."""
+    return np.clip((np.asarray(depth, np.float32) - min_depth) / (max_depth - min_depth), 0.0, 1.0)
 
 
 # (mean, VARIANCE) per component, metres and radians (docs/reference-facts.md section 2; habitat-sim pyrobot_noisy_controls.py).

@@ -21,6 +21,7 @@ WALL_HEIGHT = 2.6  # m
 WALL_THICKNESS = 0.12  # m
 DOOR_HEIGHT = 2.1  # m
 GRID_RESOLUTION = 0.05  # m per occupancy cell
+WALL_MATERIALS = (2, 5)  # material indices [first, end) used by walls
 
 
 def scene_seed(split: str, k: int) -> int:
@@ -166,9 +167,9 @@ def _divide(rect: _Rect, rng: np.random.Generator, depth: int, walls: list, door
     # Keep the new wall's ends away from doorways of the walls it meets.
     blocked = [dx if vertical else dy for dx, dy in doors]
     for _attempt in range(20):
-        # Sometimes carve a corridor (a 1.3-1.7 m strip), else a room-sized split.
+        # Sometimes carve a corridor (a 1.1-1.5 m strip), else a room-sized split.
         if rng.random() < 0.3 and length > 5.0:
-            cut = rng.uniform(1.3, 1.7) * (1 if rng.random() < 0.5 else -1)
+            cut = rng.uniform(1.1, 1.5) * (1 if rng.random() < 0.5 else -1)
             cut = cut if cut > 0 else length + cut
         else:
             cut = rng.uniform(0.35, 0.65) * length
@@ -177,7 +178,7 @@ def _divide(rect: _Rect, rng: np.random.Generator, depth: int, walls: list, door
     else:
         return [rect]
     lo, hi = (rect.y0, rect.y1) if vertical else (rect.x0, rect.x1)
-    door_w = rng.uniform(0.9, 1.2)
+    door_w = rng.uniform(0.8, 1.0)
     door_c = rng.uniform(lo + 0.3 + door_w / 2, hi - 0.3 - door_w / 2)
     at = start + cut
     walls.append((vertical, at, lo, hi, door_c - door_w / 2, door_c + door_w / 2))
@@ -189,10 +190,11 @@ def _divide(rect: _Rect, rng: np.random.Generator, depth: int, walls: list, door
     return [r for p in parts for r in _divide(p, rng, depth - 1, walls, doors)]
 
 
-def _wall_boxes(walls: list, material: int) -> list[Box]:
+def _wall_boxes(walls: list, rng: np.random.Generator) -> list[Box]:
     t = WALL_THICKNESS / 2
     boxes = []
     for vertical, at, lo, hi, d0, d1 in walls:
+        material = int(rng.integers(WALL_MATERIALS[0], WALL_MATERIALS[1]))
         spans = [(lo, d0, 0.0, WALL_HEIGHT), (d1, hi, 0.0, WALL_HEIGHT), (d0, d1, DOOR_HEIGHT, WALL_HEIGHT)]
         for s0, s1, z0, z1 in spans:
             if vertical:
@@ -207,12 +209,11 @@ def _furnish(rooms: list[_Rect], doors: list, rng: np.random.Generator, n_materi
     m = 0.08  # keep furniture off the walls' faces
     for room in rooms:
         w, h = room.x1 - room.x0, room.y1 - room.y0
-        if min(w, h) < 2.0:  # corridors stay clear
-            continue
-        for _ in range(rng.integers(1, 5)):
-            mat = int(rng.integers(3, n_materials))
+        corridor = min(w, h) < 2.0  # corridors get at most a couple of small round things
+        for _ in range(rng.integers(0, 3) if corridor else rng.integers(3, 10)):
+            mat = int(rng.integers(WALL_MATERIALS[1], n_materials))
             for _attempt in range(10):
-                if rng.random() < 0.7:
+                if not corridor and rng.random() < 0.7:
                     sx, sy = rng.uniform(0.4, min(1.6, w / 2)), rng.uniform(0.4, min(1.0, h / 2))
                     if rng.random() < 0.5:
                         sx, sy = sy, sx
@@ -221,23 +222,23 @@ def _furnish(rooms: list[_Rect], doors: list, rng: np.random.Generator, n_materi
                     cx, cy, r = x + sx / 2, y + sy / 2, np.hypot(sx, sy) / 2
                     cand = Box((x, y, 0.0), (x + sx, y + sy, float(rng.uniform(0.4, 2.0))), mat)
                 else:
-                    r = rng.uniform(0.15, 0.4)
+                    r = rng.uniform(0.1, 0.2) if corridor else rng.uniform(0.12, 0.4)
                     cx = rng.uniform(room.x0 + m + r, room.x1 - m - r)
                     cy = rng.uniform(room.y0 + m + r, room.y1 - m - r)
                     cand = Cylinder(cx, cy, r, float(rng.uniform(0.5, 1.5)), mat)
-                if all(np.hypot(cx - dx, cy - dy) > r + 0.9 for dx, dy in doors):
+                if all(np.hypot(cx - dx, cy - dy) > r + 0.7 for dx, dy in doors):
                     (boxes if isinstance(cand, Box) else cylinders).append(cand)
                     break
     return boxes, cylinders
 
 
-def _materials(rng: np.random.Generator, n_tiles: int, n: int = 12) -> tuple[Material, ...]:
-    """0 floor, 1 ceiling, 2 walls, 3.. furniture."""
-    floor = Material(tuple(rng.uniform([0.45, 0.3, 0.2], [0.75, 0.55, 0.4])), int(rng.integers(n_tiles)))
-    ceiling = Material((0.85, 0.85, 0.82), int(rng.integers(n_tiles)))
-    wall = Material(tuple(rng.uniform(0.55, 0.95, 3)), int(rng.integers(n_tiles)))
-    furniture = [Material(tuple(rng.uniform(0.15, 0.95, 3)), int(rng.integers(n_tiles))) for _ in range(n - 3)]
-    return (floor, ceiling, wall, *furniture)
+def _materials(rng: np.random.Generator, n_tiles: int, n: int = 14) -> tuple[Material, ...]:
+    """0 floor, 1 ceiling, 2-4 walls (``WALL_MATERIALS``), 5.. furniture."""
+    floor = Material(tuple(rng.uniform([0.6, 0.45, 0.3], [0.95, 0.8, 0.65])), int(rng.integers(n_tiles)))
+    ceiling = Material((0.9, 0.9, 0.88), int(rng.integers(n_tiles)))
+    walls = [Material(tuple(rng.uniform(0.7, 1.0, 3)), int(rng.integers(n_tiles))) for _ in range(3)]
+    furniture = [Material(tuple(rng.uniform(0.3, 1.0, 3)), int(rng.integers(n_tiles))) for _ in range(n - 5)]
+    return (floor, ceiling, *walls, *furniture)
 
 
 def _occupancy(boxes: list[Box], cylinders: list[Cylinder], bounds: _Rect, res: float) -> tuple[np.ndarray, tuple[float, float]]:
@@ -259,14 +260,25 @@ def _occupancy(boxes: list[Box], cylinders: list[Cylinder], bounds: _Rect, res: 
     return free, (ox, oy)
 
 
-def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 8) -> Scene:
-    """Build the scene of ``seed`` (deterministic): 2-6 rooms/corridors, walls, furniture."""
+def _without_slivers(navigable: np.ndarray, width: float = 0.1) -> np.ndarray:
+    """Remove navigable strips narrower than about ``width`` m (a morphological opening with a
+    disk), as a navmesh's region filtering does: the agent's centre cannot follow a 5 cm sliver."""
+    from scipy.ndimage import binary_opening
+
+    r = int(round(width / 2 / GRID_RESOLUTION))
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return binary_opening(navigable, structure=(xx ** 2 + yy ** 2) <= r * r)
+
+
+def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 12) -> Scene:
+    """Build the scene of ``seed`` (deterministic): a 7-18 m x 6-14 m floor plan of 2-16 rooms and
+    corridors, walls with doorways, furniture."""
     from scipy.ndimage import distance_transform_edt
 
     rng = np.random.default_rng(np.random.SeedSequence([0x5CE7E, int(seed)]))
-    bounds = _Rect(0.0, 0.0, float(rng.uniform(6.0, 12.0)), float(rng.uniform(5.0, 10.0)))
+    bounds = _Rect(0.0, 0.0, float(rng.uniform(7.0, 18.0)), float(rng.uniform(6.0, 14.0)))
     walls, doors = [], []
-    rooms = _divide(bounds, rng, depth=int(rng.integers(1, 4)), walls=walls, doors=doors)
+    rooms = _divide(bounds, rng, depth=int(rng.integers(2, 5)), walls=walls, doors=doors)
     materials = _materials(rng, n_tiles)
     t = WALL_THICKNESS
     outer = [
@@ -276,7 +288,7 @@ def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 8) -> S
         Box((bounds.x1, bounds.y0, 0.0), (bounds.x1 + t, bounds.y1, WALL_HEIGHT), 2),
     ]
     furniture, cylinders = _furnish(rooms, doors, rng, len(materials))
-    boxes = outer + _wall_boxes(walls, 2) + furniture
+    boxes = outer + _wall_boxes(walls, rng) + furniture
     slabs = [  # floor and ceiling as thin boxes, so every surface is a closed solid
         Box((bounds.x0 - t, bounds.y0 - t, -0.05), (bounds.x1 + t, bounds.y1 + t, 0.0), 0),
         Box((bounds.x0 - t, bounds.y0 - t, WALL_HEIGHT), (bounds.x1 + t, bounds.y1 + t, WALL_HEIGHT + 0.05), 1),
@@ -297,7 +309,7 @@ def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 8) -> S
         triangle_material=np.concatenate(mats),
         materials=materials,
         free=free,
-        navigable=clearance >= agent_radius,
+        navigable=_without_slivers(clearance >= agent_radius),
         origin=origin,
         resolution=GRID_RESOLUTION,
         agent_radius=agent_radius,
