@@ -23,7 +23,7 @@ def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
                                             "--max-steps", "8", "--seed", "5", "--no-cache", "--serial",
                                             "--quiet", "--out", str(out)]) == 0
     table = {r["odometer"]: float(r["ate_m"]) for r in csv.DictReader(open(out / "table.csv"))}
-    assert table["action-prior"] == pytest.approx(result.rows[1].ate_m, rel=1e-6)
+    assert table["action-prior"] == pytest.approx(result.rows[1].ate_m, abs=1e-5)  # the CSV keeps 5 decimals
 
 
 def test_run_comparison_reports_bad_configuration_as_one_line():

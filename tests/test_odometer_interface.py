@@ -112,7 +112,7 @@ def test_estimate_helpers():
     assert e.planar == pytest.approx([0.1, 0.2, -0.3]) and e.covariance is None
     assert not api.Estimate.invalid().valid
     K = api.Intrinsics.from_hfov(341, 192, 70.0)
-    assert K.fx == pytest.approx(243.5, abs=0.05) and K.cx == 170.5 and K.cy == 96
+    assert K.fx == pytest.approx(243.5, abs=0.05) and K.cx == 170.0 and K.cy == 95.5  # pixel centres at integers
 
 
 def test_step_before_reset_says_so():
