@@ -7,21 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines.depth_geometry import DepthRange, backproject_pixels, blurred_grey, depth_mask, pixel_grid
-from odolab.api import Action, Frame, Intrinsics, planar_to_transform, transform_to_planar
-
-
-def nominal_motion(action: Action | None) -> np.ndarray:
-    """``T_prev_cur`` (4x4) of an action's noiseless motion; identity for STOP or no action.
-
-    move_forward = 0.25 m forward, turn_left / turn_right = +/-30 degrees (PointNav 2020).
-    """
-    if action is Action.MOVE_FORWARD:
-        return planar_to_transform(0.0, 0.25, 0.0)
-    if action is Action.TURN_LEFT:
-        return planar_to_transform(0.0, 0.0, np.radians(30.0))
-    if action is Action.TURN_RIGHT:
-        return planar_to_transform(0.0, 0.0, -np.radians(30.0))
-    return np.eye(4)
+from odolab.api import Action, Frame, Intrinsics, nominal_motion, planar_to_transform, transform_to_planar
 
 
 def initial_guesses(

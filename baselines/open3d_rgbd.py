@@ -1,6 +1,6 @@
 """Open3D's dense RGB-D odometry (``compute_rgbd_odometry``, Steinbruecker/Park hybrid term).
 
-The peer a user would reach for (facts.md section 6: 4.43 mm / 0.241 deg on the TUM frames with
+The peer a user would reach for (docs/reference-facts.md section 6: 4.43 mm / 0.241 deg on the TUM frames with
 default options and a 4 m depth cut). Called with the current frame as *source* and the previous
 one as *target*, Open3D returns the motion mapping source points into the target camera, i.e.
 ``T_prev_cur``; checked against ground truth on TUM and on synthetic views with known motion.

@@ -129,7 +129,7 @@ class MotionBounds:
     nominal one: yaw within ``max_yaw_error`` (rad); ``move_forward``: ``|dx| <= max_lateral``
     and ``dz`` in ``forward_range`` (m; a blocked step moves ~0); turns: ``|dx|, |dz| <=
     max_turn_translation`` (m). The defaults are the PointNav 2020 actuation noise (LoCoBot,
-    Proportional controller, multiplier 0.5; facts.md section 2) truncated at 3 sigma (yaw
+    Proportional controller, multiplier 0.5; docs/reference-facts.md section 2) truncated at 3 sigma (yaw
     0.24 rad forward, 0.22 rad turning; lateral 0.25 m forward, 0.10 m turning), plus margin.
     """
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from odolab.geometry import invert, transform_to_planar
-from odolab.odometer import MOTION_ACTIONS, Action
+from odolab.types import MOTION_ACTIONS, Action
 
 _SHIPPED = "action_prior.json"
 

@@ -1,8 +1,11 @@
-"""odolab's public face: everything an odometer author or a script needs, in one import.
+"""odolab's public face: everything an odometer author, a learned model or a study needs, in one import.
 
-``baselines/`` and third-party odometers import only from here.
+``baselines/``, ``examples/`` and third-party code import only from here (an import-linter contract
+in ``pyproject.toml`` holds them to it). Heavy modules (the simulator, Open3D) load on first use.
 """
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 from odolab.geometry import (
     integrate,
@@ -12,42 +15,78 @@ from odolab.geometry import (
     wrap_angle,
 )
 from odolab.odometer import (
-    MOTION_ACTIONS,
-    Action,
-    Estimate,
-    Frame,
-    Intrinsics,
     Odometer,
-    Sequence,
     UnknownOdometerError,
     available_odometers,
     load_odometer,
     register_odometer,
 )
+from odolab.types import (
+    FORWARD_STEP,
+    MOTION_ACTIONS,
+    TURN_ANGLE,
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Sequence,
+    nominal_motion,
+    nominal_planar,
+)
 
 __all__ = [
-    "MOTION_ACTIONS",
-    "Action",
-    "Estimate",
-    "Frame",
-    "Intrinsics",
-    "Odometer",
-    "Sequence",
-    "UnknownOdometerError",
-    "available_odometers",
-    "integrate",
-    "invert",
-    "load_odometer",
-    "load_tum_sequence",
-    "planar_to_transform",
-    "register_odometer",
-    "transform_to_planar",
+    "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Odometer",
+    "Sequence", "UnknownOdometerError", "available_odometers", "integrate", "invert", "load_odometer",
+    "nominal_motion", "nominal_planar", "planar_to_transform", "register_odometer", "transform_to_planar",
     "wrap_angle",
+    # episodes and training data (loaded on first use)
+    "EpisodeCache", "EpisodeSpec", "NoiseConfig", "Pair", "PairDataset", "SPLITS", "episode_specs",
+    "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
+    # running and comparing
+    "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison",
+    "run_odometers", "load_tum_sequence", "write_bytes_atomic",
+    # evaluating trajectories (the library behind python -m odolab.evaluate)
+    "Evaluation", "Trajectory", "evaluate_trajectory", "pair_trajectories",
 ]
 
+if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and import-linter
+    from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonError, ComparisonResult, run_comparison
+    from odolab.datasets import Pair, PairDataset, episode_specs, true_motions
+    from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes, stream_episodes
+    from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
+    from odolab.io.atomic import write_bytes_atomic
+    from odolab.io.tum_rgbd import load_tum_sequence
+    from odolab.runner import SequenceResult
+    from odolab.sim.scenes import SPLITS
+    from odolab.trajectory import Trajectory
 
-def load_tum_sequence(path, **options):
-    """Read a TUM RGB-D folder as a :class:`Sequence` (see :mod:`odolab.io.tum_rgbd`)."""
-    from odolab.io.tum_rgbd import load_tum_sequence as _load
+_LAZY = {
+    "EpisodeCache": "odolab.episodes", "EpisodeSpec": "odolab.episodes", "NoiseConfig": "odolab.episodes",
+    "generate_episodes": "odolab.episodes", "load_episodes": "odolab.episodes",
+    "stream_episodes": "odolab.episodes", "SPLITS": "odolab.sim.scenes",
+    "Pair": "odolab.datasets", "PairDataset": "odolab.datasets", "episode_specs": "odolab.datasets",
+    "true_motions": "odolab.datasets",
+    "ComparisonConfig": "odolab.comparison", "ComparisonResult": "odolab.comparison",
+    "ComparisonError": "odolab.comparison",
+    "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner",
+    "load_tum_sequence": "odolab.io.tum_rgbd", "write_bytes_atomic": "odolab.io.atomic",
+    "Evaluation": "odolab.evaluation", "evaluate_trajectory": "odolab.evaluation",
+    "pair_trajectories": "odolab.evaluation", "Trajectory": "odolab.trajectory",
+}
 
-    return _load(path, **options)
+
+def run_odometers(odometers, sequences, **kw):
+    """Every odometer on every sequence (see :func:`odolab.runner.run`)."""
+    from odolab.runner import run
+
+    return run(odometers, sequences, **kw)
+
+
+def __getattr__(name: str):
+    """Load episode, dataset and comparison names on first use (keeps ``import odolab.api`` light)."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'odolab.api' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(module), name)

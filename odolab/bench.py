@@ -1,7 +1,7 @@
 """``python -m odolab.bench``: speed of the simulator, the odometers and the evaluator.
 
 Simulator figures are ratios to the physical limit measured in the same run: bare Open3D
-``cast_rays`` on precomputed rays of the same scene and poses (facts.md section 7). A noisy,
+``cast_rays`` on precomputed rays of the same scene and poses (docs/reference-facts.md section 7). A noisy,
 textured frame should cost at most 2x that (aim 1.5x).
 """
 from __future__ import annotations
@@ -83,7 +83,7 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) ->
                         parallel=False, progress=False)
     out = []
     for name in names:
-        res = runner.run({name: load_odometer(name)}, eps, progress=False)
+        res = runner.run({name: load_odometer(name)}, eps)
         row = summary.summarize(res)[0]
         out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
     return out

@@ -7,16 +7,16 @@ written to ``runs/compare`` (table.csv, report.html, figures, trajectories). Epi
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 from pathlib import Path
 from typing import Sequence
 
 from odolab.cli import ArgumentParser, UsageError, number, run_cli
-from odolab.odometer import available_odometers, load_odometer
+from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
+                               run_comparison)
+from odolab.odometer import available_odometers
+from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 from odolab.sim.scenes import SPLITS
-
-DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "odolab" / "episodes"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,6 +39,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value",
+                    help="constructor option of one odometer, e.g. icp.max_depth=4.0 or "
+                         "examples.tiny_learned:TinyLearnedOdometer.checkpoint=runs/tiny.pt (repeatable)")
+    ap.add_argument("--config", type=Path, default=None, metavar="FILE.toml",
+                    help='odometer options from a TOML file: [odometers."NAME"] key = value '
+                         "(--odometer-option overrides it)")
     return ap
 
 
@@ -51,104 +57,54 @@ def _check_writable(out: Path) -> None:
         raise UsageError(f"--out {out}: not a writable folder ({exc.strerror or exc})") from None
 
 
-def _odometer_names(spec: str | None) -> list[str]:
-    names = available_odometers()
-    chosen = names if spec is None else [n.strip() for n in spec.split(",") if n.strip()]
-    if not chosen:
-        raise UsageError(f"--odometers is empty; available: {', '.join(names)}")
-    unknown = [n for n in chosen if n not in names and ":" not in n]  # "module:Class" loads on demand
-    if unknown:
-        raise UsageError(f"unknown odometer {unknown[0]!r}; available: {', '.join(names)}")
-    return chosen
+def _config(args: argparse.Namespace) -> ComparisonConfig:
+    from odolab.episodes import NoiseConfig
 
-
-def _load_odometers(chosen: list[str]) -> dict:
-    out = {}
-    for n in chosen:
-        try:
-            out[n] = load_odometer(n)
-        except Exception as exc:  # a broken plugin is reported, not a traceback
-            raise UsageError(f"could not load odometer {n!r}: {type(exc).__name__}: {exc}") from None
-    return out
-
-
-def _floor_plan(scene_seed: int):
-    from odolab.report import FloorPlan
-    from odolab.sim.scenes import generate_scene
-
-    scene = generate_scene(scene_seed)
-    return FloorPlan(scene.free, scene.origin, scene.resolution)
+    try:
+        options = merge_options(read_options_file(args.config) if args.config else {},
+                                parse_assignments(args.odometer_option))
+    except OptionError as exc:
+        raise UsageError(str(exc)) from None
+    names = None
+    if args.odometers is not None:
+        names = [n.strip() for n in args.odometers.split(",") if n.strip()]
+        if not names:
+            raise UsageError(f"--odometers is empty; available: {', '.join(available_odometers())}")
+    try:
+        names = odometer_names(names)
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
+    if args.split not in SPLITS:
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    return ComparisonConfig(
+        odometers=names, options=options, episodes=args.episodes, seed=args.seed, split=args.split,
+        max_steps=args.max_steps,
+        noise=NoiseConfig(rgb=args.rgb_noise, depth=args.depth_noise, actuation=args.actuation_noise),
+        tum=args.tum, cache=None if args.no_cache else args.cache, ray_address=args.ray_address,
+        parallel=not args.serial, progress=not args.quiet)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Parse, run the comparison (:func:`odolab.comparison.run_comparison`), print and write."""
     args = build_parser().parse_args(argv)
-    if args.split not in SPLITS:
-        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
-    names = _odometer_names(args.odometers)
+    config = _config(args)
     _check_writable(args.out)
-    odometers = _load_odometers(names)
-
-    from odolab import runner, summary
+    from odolab.progress import StepProgressBar
     from odolab.report import format_table, write_report
 
-    if args.tum is not None:
-        from odolab.api import load_tum_sequence
-        from odolab.io.errors import FileFormatError
-
-        try:
-            sequences = [load_tum_sequence(args.tum)]
-        except (FileFormatError, ValueError) as exc:
-            raise UsageError(str(exc)) from None
-        plans, total = None, None
-        title = f"odolab compare on TUM folder {args.tum}"
-        notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
-                 "Rows marked oracle read ground truth."]
-    else:
-        from odolab.episodes import (EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes,
-                                     stream_episodes)
-
-        noise = NoiseConfig(rgb=args.rgb_noise, depth=args.depth_noise, actuation=args.actuation_noise)
-        specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
-                 for i in range(args.episodes)]
-        make = dict(ray_address=args.ray_address, parallel=not args.serial, progress=not args.quiet)
-        if args.no_cache:
-            episodes, total = load_episodes(specs, None, **make), None
-        else:  # generate what is missing, then read one episode at a time: memory holds one
-            cache = EpisodeCache(args.cache)
-            generate_episodes(specs, cache, **make)
-            episodes, total = stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
-        scenes: dict[str, int] = {}
-
-        def noted(stream):
-            for ep in stream:
-                scenes[ep.name] = ep.info["scene_seed"]
-                yield ep
-
-        sequences = noted(episodes)
-        title = f"odolab compare: {args.episodes} {args.split} episodes, seed {args.seed}"
-        notes = ["Errors are x 1e-2 (m, m, rad), mean absolute error over all steps; "
-                 "rows marked oracle read ground truth.",
-                 f"Noise multipliers: RGB {noise.rgb:g}, depth {noise.depth:g}, actuation {noise.actuation:g} "
-                 "(the action prior was fitted at 1, 1, 0.5).",
-                 f"Command: python -m odolab.compare --episodes {args.episodes} --seed {args.seed} "
-                 f"--split {args.split} --max-steps {args.max_steps} --rgb-noise {noise.rgb:g} "
-                 f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
-
-    results = runner.run(odometers, sequences, progress=not args.quiet, total_steps=total)
-    if args.tum is None:
-        plans = {name: _floor_plan(seed) for name, seed in list(scenes.items())[:4]}
-        one = [r for r in results if r.odometer == results[0].odometer]
-        steps = sum(len(r.actions) for r in one)
-        collided = sum(int(r.collisions.sum()) for r in one)
-        notes.insert(0, f"{steps} steps, {collided} of them collisions ({100 * collided / max(steps, 1):.1f}%).")
-    rows = summary.summarize(results)
-    action_rows = summary.summarize_actions(results) if args.tum is None else []
-    write_report(args.out, rows, action_rows, results, title, notes, plans)
-    print(title)
-    print(format_table(rows, real_data=args.tum is not None))
-    for r in results:
+    try:
+        result = run_comparison(config, observer=StepProgressBar(disable=args.quiet))
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
+    write_report(args.out, result.rows, result.action_rows, result.results, result.title, result.notes,
+                 result.plans)
+    print(result.title)
+    print(format_table(result.rows, real_data=args.tum is not None))
+    for r in result.results:
         for e in r.errors[:1]:
             print(f"note: {r.odometer} raised on {r.sequence}: {e}")
+    for name, reasons in failure_reasons(result.results).items():
+        print(f"note: {name} failed steps by reason: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
     print(f"wrote {args.out / 'table.csv'} and {args.out / 'report.html'}")
     return 0
 

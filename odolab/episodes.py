@@ -21,7 +21,7 @@ from typing import Iterator
 import numpy as np
 
 from odolab.geometry import camera_pose_from_agent
-from odolab.odometer import Action, Frame, Intrinsics
+from odolab.types import Action, Frame, Intrinsics
 from odolab.sim.agent import AgentState, step_agent
 from odolab.sim.camera import CameraSpec
 from odolab.sim.noise import ActuationNoise
@@ -163,7 +163,7 @@ def rollout(spec: EpisodeSpec) -> Rollout:
 
 @dataclass(frozen=True)
 class Episode:
-    """A rendered episode; a :class:`~odolab.odometer.Sequence` of T + 1 frames and T actions.
+    """A rendered episode; a :class:`~odolab.types.Sequence` of T + 1 frames and T actions.
 
     ``rgb`` (T+1, H, W, 3) uint8; ``depth`` (T+1, H, W) float32 m (0 = no reading);
     ``poses`` (T+1, 4, 4) ``T_world_cam``; ``actions`` (T,) int8 :class:`Action` values;

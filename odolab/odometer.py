@@ -1,4 +1,4 @@
-"""The one interface every odometer implements, its value types, and the name registry.
+"""The one interface every odometer implements, and the name registry (value types: :mod:`odolab.types`).
 
 An odometer sees a sequence of :class:`Frame` pairs and answers, for each pair, an
 :class:`Estimate` of ``T_prev_cur`` (conventions in :mod:`odolab.geometry`)::
@@ -15,138 +15,33 @@ Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is impor
 """
 from __future__ import annotations
 
-import enum
 import importlib
-from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import Callable, Iterator, Protocol, runtime_checkable
+from typing import Callable, Iterator
 
-import numpy as np
+from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence  # noqa: F401 (older imports)
 
-from odolab.geometry import planar_to_transform, transform_to_planar
+__all__ = [
+    "ENTRY_POINT_GROUP", "REGISTRY", "Odometer", "OdometerRegistry", "UnknownOdometerError",
+    "available_odometers", "load_odometer", "register_odometer",
+]
 
 ENTRY_POINT_GROUP = "odolab.odometers"
-
-
-class Action(enum.Enum):
-    """Discrete actions of the PointNav task (Habitat PointNav Challenge 2020)."""
-
-    STOP = 0
-    MOVE_FORWARD = 1
-    TURN_LEFT = 2
-    TURN_RIGHT = 3
-
-    @property
-    def label(self) -> str:
-        """Lower-case name as the paper writes it, e.g. ``move_forward``."""
-        return self.name.lower()
-
-
-MOTION_ACTIONS = (Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT)
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics in pixels; the image is ``width`` x ``height``.
-
-    Pixel convention (OpenCV's, used everywhere in odolab): the pixel in column ``i`` and row ``j``
-    has its centre at image coordinates (u, v) = (i, j) and sees the ray
-    ((u - cx) / fx, (v - cy) / fy, 1); the image spans u in [-0.5, width - 0.5]. A centred principal
-    point is therefore cx = (width - 1) / 2, cy = (height - 1) / 2.
-    """
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-
-    @property
-    def matrix(self) -> np.ndarray:
-        """The 3x3 camera matrix K."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @classmethod
-    def from_hfov(cls, width: int, height: int, hfov_deg: float) -> "Intrinsics":
-        """Square-pixel pinhole, principal point at the image centre, whose horizontal field of view
-        (degrees) spans the whole image width (edge to edge: ``fx = width / 2 / tan(hfov / 2)``)."""
-        f = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
-        return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height)
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One RGB-D observation.
-
-    ``rgb``: (H, W, 3) uint8. ``depth``: (H, W) float32 metres, 0 = no reading.
-    ``timestamp``: seconds. ``gt_pose``: ``T_world_cam`` 4x4 when ground truth exists; only
-    oracle odometers (see :attr:`Odometer.oracle`) may read it.
-    """
-
-    rgb: np.ndarray
-    depth: np.ndarray
-    timestamp: float = 0.0
-    gt_pose: np.ndarray | None = field(default=None, repr=False)
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """An odometer's answer for one frame pair.
-
-    ``transform``: 4x4 ``T_prev_cur`` (camera axes, metres). ``valid``: False when the odometer
-    could not estimate (the runner then falls back to the action prior and counts a failure).
-    ``covariance``: 6x6 over (rx, ry, rz, tx, ty, tz) in the previous camera frame, or None.
-    """
-
-    transform: np.ndarray
-    valid: bool = True
-    covariance: np.ndarray | None = None
-
-    @classmethod
-    def from_planar(cls, dx: float, dz: float, dyaw: float, **kw) -> "Estimate":
-        """Build from the paper's planar motion (signs: :mod:`odolab.geometry`)."""
-        return cls(planar_to_transform(dx, dz, dyaw), **kw)
-
-    @classmethod
-    def invalid(cls) -> "Estimate":
-        """An estimate that says 'I could not tell' (identity transform, ``valid=False``)."""
-        return cls(np.eye(4), valid=False)
-
-    @property
-    def planar(self) -> np.ndarray:
-        """``(dx m, dz m, dyaw rad)`` in the previous agent frame."""
-        return transform_to_planar(self.transform)
-
-
-@runtime_checkable
-class Sequence(Protocol):
-    """What the runner consumes: simulated episodes and real recordings alike."""
-
-    intrinsics: Intrinsics
-
-    def __len__(self) -> int: ...
-
-    def __getitem__(self, i: int) -> Frame: ...
-
-    def action(self, i: int) -> Action | None:
-        """The action taken between frame ``i`` and ``i + 1`` (None on real data)."""
-        ...
-
-    def gt_pose(self, i: int) -> np.ndarray | None:
-        """``T_world_cam`` of frame ``i``, or None."""
-        ...
 
 
 class Odometer:
     """Base class of all odometers. Subclass it and override :meth:`step` (and :meth:`reset`).
 
     Class attributes: ``name`` (registry key), ``oracle`` (True if it reads ground truth, e.g.
-    ``Frame.gt_pose``; reports mark such rows).
+    ``Frame.gt_pose``; reports mark such rows), ``batch_size`` (how many consecutive pairs the
+    runner hands to :meth:`step_batch` at once; 1 = one :meth:`step` per pair), ``threads``
+    (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`).
     """
 
     name: str = "odometer"
     oracle: bool = False
+    batch_size: int = 1
+    threads: int | None = None
     _intrinsics: Intrinsics | None = None
 
     @property
@@ -167,6 +62,12 @@ class Odometer:
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         """Estimate ``T_prev_cur`` for one consecutive frame pair; ``action`` is None on real data."""
         raise NotImplementedError(f"{type(self).__name__} must implement step()")
+
+    def step_batch(self, pairs: list[tuple[Frame, Frame, Action | None]]) -> list[Estimate]:
+        """Estimates for consecutive ``(prev, cur, action)`` pairs, in order (default: :meth:`step`
+        on each). Override it to batch the work (e.g. one network forward pass) and set
+        ``batch_size``; it must return exactly one :class:`Estimate` per pair."""
+        return [self.step(prev, cur, action) for prev, cur, action in pairs]
 
 
 class UnknownOdometerError(KeyError):

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from odolab.action_prior import ActionPrior
 from odolab.geometry import invert
-from odolab.odometer import Action, Estimate, Frame, Odometer
+from odolab.odometer import Odometer
+from odolab.types import Action, Estimate, Frame
 
 
 class GroundTruthOdometer(Odometer):

@@ -149,7 +149,7 @@ def merge_images(parts: list[ImageStats]) -> ImageStats:
 
 def summarize_motion(stats: list[MotionStats]) -> dict:
     """Action mix and collision rate per action (%), distances, ratios and lengths."""
-    from odolab.odometer import MOTION_ACTIONS
+    from odolab.types import MOTION_ACTIONS
 
     acts = np.concatenate([s.actions for s in stats]).astype(int)
     hits = np.concatenate([s.collisions for s in stats]).astype(bool)

@@ -18,7 +18,7 @@ import numpy as np
 
 from odolab.geometry import transform_to_planar
 from odolab.metrics import ate, per_step_abs_error, relative_motion_errors
-from odolab.odometer import MOTION_ACTIONS
+from odolab.types import MOTION_ACTIONS
 from odolab.runner import SequenceResult
 
 

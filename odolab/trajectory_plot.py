@@ -9,7 +9,7 @@ import numpy as np
 from odolab.io.atomic import save_figure_atomic
 
 if TYPE_CHECKING:
-    from odolab.evaluate import Evaluation
+    from odolab.evaluation import Evaluation
 
 __all__ = ["plot_evaluations", "top_down_axes"]
 

@@ -89,7 +89,7 @@ def test_compare_on_a_tum_folder(tmp_path, capsys):
     args = ["--tum", str(DATA), "--odometers", "action-prior,ground-truth", "--out", str(out), "--quiet"]
     assert run_cli(main, "odolab.compare", args) == 0
     rows = {r["odometer"]: r for r in _table(out / "table.csv")}
-    assert float(rows["action-prior"]["trans_mm"]) == pytest.approx(12.10, abs=0.01)  # no motion, facts.md
+    assert float(rows["action-prior"]["trans_mm"]) == pytest.approx(12.10, abs=0.01)  # no motion, docs/reference-facts.md section 6
     assert float(rows["ground-truth"]["trans_mm"]) < 1e-6
     assert "trans mm" in capsys.readouterr().out
 

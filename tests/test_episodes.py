@@ -4,9 +4,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from odolab import episodes
 from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, load_episodes, render_episode, rollout
 from odolab.geometry import invert, transform_to_planar
-from odolab.odometer import Action, Sequence
+from odolab.types import Action, Sequence
 
 
 def test_same_spec_same_episode_bit_for_bit(small_spec):
@@ -80,11 +81,17 @@ def test_cache_round_trip_and_atomic_files(tmp_path, small_spec):
     assert cache.get(small_spec) is None and not cache.has(small_spec)
 
 
-def test_load_episodes_uses_the_cache(tmp_path, small_spec):
+def test_load_episodes_uses_the_cache(tmp_path, small_spec, monkeypatch):
     specs = [small_spec, dataclasses.replace(small_spec, index=1)]
     cache = EpisodeCache(tmp_path)
     first = load_episodes(specs, cache, parallel=False, progress=False)
     assert len(list(tmp_path.glob("*.npz"))) == 2
+
+    def no_second_generation(*args, **kwargs):
+        raise AssertionError("episode rendered again although it is cached")
+
+    # generation is deterministic, so equal episodes alone would not show the cache was read
+    monkeypatch.setattr(episodes, "render_episode", no_second_generation)
     again = load_episodes(specs, cache, parallel=False, progress=False)
     assert all(np.array_equal(a.rgb, b.rgb) for a, b in zip(first, again))
 

@@ -1,9 +1,9 @@
-"""Noise models against their formulas (facts.md section 2), by statistics over many samples."""
+"""Noise models against their formulas (docs/reference-facts.md section 2), by statistics over many samples."""
 import numpy as np
 import pytest
 from scipy.stats import norm
 
-from odolab.odometer import Action
+from odolab.types import Action
 from odolab.sim.noise import ActuationNoise, GaussianTable, RedwoodDepthNoise, RGBNoise, habitat_normalized_depth
 from odolab.sim.redwood import load_table, surrogate_table
 

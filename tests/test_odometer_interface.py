@@ -43,19 +43,20 @@ def test_entry_point_odometers_are_listed():
 
 
 def test_ground_truth_has_zero_error(episodes):
-    res = runner.run({"ground-truth": api.load_odometer("ground-truth")}, episodes, progress=False)
+    res = runner.run({"ground-truth": api.load_odometer("ground-truth")}, episodes)
     row = summary.summarize(res)[0]
     assert row.oracle and row.failures == 0
     assert max(row.dx, row.dz, row.dyaw, row.ate_m, row.drift_m) < 1e-9
 
 
 def test_action_prior_error_has_the_size_the_noise_implies(episodes):
-    res = runner.run({"action-prior": api.load_odometer("action-prior")}, episodes, progress=False)
+    res = runner.run({"action-prior": api.load_odometer("action-prior")}, episodes)
     per_action = {r.action: r for r in summary.summarize_actions(res)}
     # Turns: yaw noise 0.5 * N(0.043, 0.017) truncated -> E|e| = 0.5 * sqrt(0.017) * sqrt(2/pi) ~ 0.052 rad
-    for a in ("turn_left", "turn_right"):
-        if per_action.get(a) and per_action[a].steps >= 8:
-            assert 2.5 < per_action[a].dyaw < 9.0  # x 1e-2 rad
+    turns = [per_action[a] for a in ("turn_left", "turn_right") if a in per_action]
+    steps = sum(t.steps for t in turns)
+    assert steps >= 8  # enough turns to judge (the episodes are fixed by their specs)
+    assert 2.5 < sum(t.dyaw * t.steps for t in turns) / steps < 9.0  # x 1e-2 rad, pooled over both turns
     fwd = per_action["move_forward"]
     # Forward yaw noise 0.5 * sqrt(0.026) * sqrt(2/pi) ~ 0.064 rad; lateral 0.5 * sqrt(0.023) * 0.8 ~ 0.06 m
     assert 3.0 < fwd.dyaw < 10.0 and 2.0 < fwd.dx < 10.0
@@ -99,6 +100,7 @@ def test_runner_counts_failures_and_falls_back_to_the_prior(episodes):
     assert np.array_equal(~res.valid, expect_fail)
     assert res.failures == expect_fail.sum()
     assert res.errors and "boom" in res.errors[0]
+    assert res.failure_reasons == {"raised": int((k % 2 == 0).sum()), "not-valid": int(((k % 2 != 0) & (k % 3 == 0)).sum())}
     i = int(np.argmax(expect_fail))
     assert api.transform_to_planar(res.estimates[i]) == pytest.approx(prior.motion(ep.action(i)))
     assert np.allclose(res.poses[0], ep.poses[0])
@@ -110,7 +112,7 @@ def test_estimate_helpers():
     assert e.planar == pytest.approx([0.1, 0.2, -0.3]) and e.covariance is None
     assert not api.Estimate.invalid().valid
     K = api.Intrinsics.from_hfov(341, 192, 70.0)
-    assert K.fx == pytest.approx(243.5, abs=0.05) and K.cx == 170.5 and K.cy == 96
+    assert K.fx == pytest.approx(243.5, abs=0.05) and K.cx == 170.0 and K.cy == 95.5  # pixel centres at integers
 
 
 def test_step_before_reset_says_so():
@@ -129,4 +131,4 @@ def test_runner_survives_a_malformed_estimate(episodes):
 
     res = runner.run_sequence(Malformed(), episodes[0], "malformed", ActionPrior.shipped())
     assert res.failures == len(episodes[0]) - 1
-    assert "shape (3, 4)" in res.errors[0]
+    assert res.failure_reasons == {"bad-shape": len(episodes[0]) - 1}

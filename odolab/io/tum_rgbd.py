@@ -25,7 +25,7 @@ import numpy as np
 from odolab.io.errors import FileFormatError
 from odolab.io.textfiles import read_lines
 from odolab.io.tum import associate, read_tum_trajectory
-from odolab.odometer import Action, Frame, Intrinsics
+from odolab.types import Action, Frame, Intrinsics
 from odolab.trajectory import Trajectory
 
 __all__ = ["TUM_CAMERAS", "TUM_DEPTH_SCALE", "TumSequence", "load_tum_sequence", "tum_camera_for"]
@@ -68,8 +68,10 @@ class TumSequence:
     ``seq[i]`` is a :class:`~odolab.odometer.Frame`: ``rgb`` (H, W, 3) uint8 in RGB order,
     ``depth`` (H, W) float32 metres (0 = no reading), ``timestamp`` (s, the colour image's) and
     ``gt_pose`` ``T_world_cam`` (4x4, the nearest ground-truth sample). ``action(i)`` is always
-    None (real data has no discrete actions).
+    None (real data has no discrete actions); ``collisions`` is None (unknown).
     """
+
+    collisions = None
 
     def __init__(self, root: Path, intrinsics: Intrinsics, frames: list[_FrameFiles]) -> None:
         self.root = root

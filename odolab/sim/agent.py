@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from odolab.geometry import wrap_angle
-from odolab.odometer import Action
+from odolab.types import Action
 from odolab.sim.noise import ActuationNoise, Motion
 from odolab.sim.scenes import Scene
 

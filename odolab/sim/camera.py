@@ -4,7 +4,7 @@ The camera is a level pinhole (LoCoBot-like, Habitat PointNav Challenge 2020): 3
 70 degree horizontal field of view, 0.88 m above the floor, depth range 0.1-10 m. Ray directions
 are computed once in the camera frame with z = 1, so the ray parameter of a hit *is* the z-depth;
 per pose they are only rotated. Each ray passes through a pixel centre, at integer image coordinates
-with cx = (W - 1) / 2 (the convention of :class:`~odolab.odometer.Intrinsics`, used everywhere).
+with cx = (W - 1) / 2 (the convention of :class:`~odolab.types.Intrinsics`, used everywhere).
 Noise is added separately (:mod:`odolab.sim.noise`).
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.odometer import Intrinsics
+from odolab.types import Intrinsics
 from odolab.sim.scenes import Scene
 from odolab.sim.textures import TEXEL_SIZE, make_tiles, mip_levels
 

@@ -1,4 +1,4 @@
-"""Sensor and actuation noise of the Habitat PointNav Challenge 2020 (facts.md section 2).
+"""Sensor and actuation noise of the Habitat PointNav Challenge 2020 (docs/reference-facts.md section 2, with its sources).
 
 * RGB: ``out = clip(img / 255 + N(0, 1) * sigma * m, 0, 1) * 255`` per channel (sigma = 0.1).
 * Depth: the Redwood model (Choi et al., CVPR 2015) as Habitat applies it, multiplier ``m``:
@@ -21,11 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from odolab.odometer import Action
 from odolab.sim.redwood import BINS, COLS, DistortionTable, cell_lookup, default_table
-
-FORWARD_STEP = 0.25  # m
-TURN_ANGLE = np.radians(30.0)  # rad
+from odolab.types import FORWARD_STEP, TURN_ANGLE, Action  # the nominal motions, defined once
 
 
 class GaussianTable:
@@ -151,7 +148,7 @@ def habitat_normalized_depth(depth: np.ndarray, min_depth: float = 0.1, max_dept
     return np.clip((np.asarray(depth, np.float32) - min_depth) / (max_depth - min_depth), 0.0, 1.0)
 
 
-# (mean, VARIANCE) per component, metres and radians (facts.md section 2; PyRobot LoCoBot).
+# (mean, VARIANCE) per component, metres and radians (docs/reference-facts.md section 2; habitat-sim pyrobot_noisy_controls.py).
 _ACTUATION = {
     "ilqr": {"forward": ((0.014, 0.009, 0.008), (0.006, 0.005, 0.004)),
              "turn": ((0.003, 0.003, 0.023), (0.002, 0.003, 0.012))},

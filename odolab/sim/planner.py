@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from odolab.odometer import Action
 from odolab.sim.agent import AgentState, advance, apply_motion
-from odolab.sim.noise import FORWARD_STEP, TURN_ANGLE, ActuationNoise
+from odolab.sim.noise import ActuationNoise
+from odolab.types import FORWARD_STEP, TURN_ANGLE, Action
 from odolab.sim.scenes import Scene
 
 UNREACHABLE = np.inf

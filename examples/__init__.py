@@ -1,0 +1,1 @@
+"""Small examples written against odolab.api only (run from the repository root)."""

@@ -1,0 +1,114 @@
+"""Per-odometer options (a checkpoint path, a device, a parameter), passed to the constructor.
+
+From the command line, ``NAME.key=value`` (``NAME`` as given to ``--odometers``, which may itself
+contain dots and a colon: the key is what follows the *last* dot before ``=``). The value is read
+as a TOML value when it is one (``3``, ``0.5``, ``true``, ``"text"``, ``[1, 2]``) and as plain text
+otherwise (``runs/tiny.pt``). From a TOML file (read with :mod:`tomllib`, never evaluated)::
+
+    [odometers."examples.tiny_learned:TinyLearnedOdometer"]
+    checkpoint = "runs/tiny.pt"
+
+Command-line options override the file's. Every problem raises :class:`OptionError` with one line
+naming the option and what was expected.
+"""
+from __future__ import annotations
+
+import inspect
+import os
+import tomllib
+from typing import Any, Callable, Iterable, Mapping
+
+__all__ = ["OptionError", "parse_assignments", "read_options_file", "merge_options", "check_options"]
+
+Options = dict[str, dict[str, Any]]
+
+
+class OptionError(ValueError):
+    """A per-odometer option that cannot be used; the message is one line naming it."""
+
+
+def _value(text: str) -> Any:
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignments(assignments: Iterable[str]) -> Options:
+    """``["NAME.key=value", ...]`` -> ``{NAME: {key: value}}`` (see the module docstring)."""
+    out: Options = {}
+    for text in assignments:
+        target, eq, value = text.partition("=")
+        name, dot, key = target.strip().rpartition(".")
+        if not eq or not dot or not name or not key.isidentifier():
+            raise OptionError(f"--odometer-option {text!r}: expected NAME.key=value, e.g. icp.max_depth=4.0")
+        out.setdefault(name, {})[key] = _value(value.strip())
+    return out
+
+
+def read_options_file(path: str | os.PathLike) -> Options:
+    """The ``[odometers.NAME]`` tables of a TOML file (other top-level keys are an error)."""
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise OptionError(f"{path}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise OptionError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    extra = sorted(set(doc) - {"odometers"})
+    if extra:
+        raise OptionError(f"{path}: unknown top-level key {extra[0]!r}; expected only [odometers.NAME] tables")
+    tables = doc.get("odometers", {})
+    for name, table in tables.items():
+        if not isinstance(table, dict):
+            raise OptionError(f"{path}: odometers.{name} must be a table of options, got {table!r}")
+    return {name: dict(table) for name, table in tables.items()}
+
+
+def merge_options(*layers: Mapping[str, Mapping[str, Any]]) -> Options:
+    """Later layers override earlier ones, key by key."""
+    out: Options = {}
+    for layer in layers:
+        for name, table in layer.items():
+            out.setdefault(name, {}).update(table)
+    return out
+
+
+def check_options(name: str, factory: Callable[..., Any], options: Mapping[str, Any]) -> None:
+    """Refuse keys ``factory``'s signature does not accept (unless it takes ``**kwargs``)."""
+    try:
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):  # a builtin without a signature: let the call decide
+        return
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    accepted = [p for p, v in params.items()
+                if v.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
+    for key, value in options.items():
+        if key not in accepted:
+            raise OptionError(f"odometer {name!r} has no option {key!r}; "
+                              f"it accepts: {', '.join(accepted) or 'no options'}")
+        parts = _simple_parts(params[key].annotation)
+        if parts and not any(_fits(value, p) for p in parts):
+            want = " or ".join(_SIMPLE[p][1] for p in parts)
+            raise OptionError(f"odometer {name!r} option {key}: expected {want}, got {value!r}")
+
+
+#: Annotation -> (accepted Python types, words for the error). bool is never a number here.
+_SIMPLE = {"float": ((int, float), "a number"), "int": ((int,), "an integer"), "str": ((str,), "text"),
+           "bool": ((bool,), "true or false")}
+
+
+def _fits(value: Any, part: str) -> bool:
+    return isinstance(value, _SIMPLE[part][0]) and (part == "bool" or not isinstance(value, bool))
+
+
+def _simple_parts(annotation: Any) -> list[str]:
+    """The simple types (``float``, ``int``, ``str``, ``bool``) an annotation allows, ``| None``
+    ignored; empty for anything else (the constructor then checks its own arguments)."""
+    if isinstance(annotation, type):
+        annotation = annotation.__name__
+    if not isinstance(annotation, str):
+        return []
+    parts = [p.strip() for p in annotation.split("|") if p.strip() != "None"]
+    return parts if parts and all(p in _SIMPLE for p in parts) else []

@@ -1,0 +1,37 @@
+"""How many threads an odometer's torch work may use while it runs (two cores, shared with Open3D).
+
+torch and Open3D each keep an OpenMP thread pool whose idle threads spin for a while after each
+parallel region. On a 2-core machine a torch odometer left at torch's default pool (one thread
+per core) would keep both cores busy between its own calls and slow whatever runs next. The
+runner therefore enters :func:`odometer_threads` around each odometer's sequence: an odometer
+that declares ``threads = k`` runs with ``torch.set_num_threads(k)``, and the previous setting is
+restored before the next odometer runs, so one odometer's choice never leaks into another's
+timing. Odometers that do not declare ``threads`` (all classical ones) leave torch alone; the
+simulator avoids BLAS calls next to Open3D work for the same reason (see :mod:`odolab.sim.camera`).
+torch is never imported here: only odometers that already imported it are affected.
+"""
+from __future__ import annotations
+
+import contextlib
+import sys
+from typing import Iterator
+
+from odolab.odometer import Odometer
+
+__all__ = ["odometer_threads"]
+
+
+@contextlib.contextmanager
+def odometer_threads(odometer: Odometer) -> Iterator[None]:
+    """Apply ``odometer.threads`` (an int >= 1, or None = leave as is) to torch's pool for the block."""
+    threads = odometer.threads
+    torch = sys.modules.get("torch")
+    if threads is None or torch is None:
+        yield
+        return
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, int(threads)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

@@ -1,0 +1,31 @@
+"""compare's orchestration as one library call: what a study, a notebook or navigation would make."""
+import csv
+
+import pytest
+
+from odolab import api
+from odolab.cli import run_cli
+from odolab.compare import main
+
+
+def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the library call writes nothing
+    config = api.ComparisonConfig(odometers=["ground-truth", "action-prior"], episodes=2, max_steps=8, seed=5,
+                                  cache=None, parallel=False, progress=False)
+    result = api.run_comparison(config)
+    assert list(tmp_path.iterdir()) == []
+    assert [r.odometer for r in result.rows] == ["ground-truth", "action-prior"]
+    assert len(result.results) == 4 and len(result.plans) == 2
+    assert result.rows[0].ate_m < 1e-9 < result.rows[1].ate_m
+    assert any("collisions" in n for n in result.notes) and result.action_rows
+    out = tmp_path / "cli"
+    assert run_cli(main, "odolab.compare", ["--odometers", "ground-truth,action-prior", "--episodes", "2",
+                                            "--max-steps", "8", "--seed", "5", "--no-cache", "--serial",
+                                            "--quiet", "--out", str(out)]) == 0
+    table = {r["odometer"]: float(r["ate_m"]) for r in csv.DictReader(open(out / "table.csv"))}
+    assert table["action-prior"] == pytest.approx(result.rows[1].ate_m, abs=1e-5)  # the CSV keeps 5 decimals
+
+
+def test_run_comparison_reports_bad_configuration_as_one_line():
+    with pytest.raises(api.ComparisonError, match="split 'dev'"):
+        api.run_comparison(api.ComparisonConfig(split="dev", cache=None))
