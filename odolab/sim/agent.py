@@ -36,7 +36,7 @@ def advance(scene: Scene, x0: float, y0: float, x1: float, y1: float, stop_at_co
     the navigable area, as habitat-sim's ``PathFinder::tryStep`` without sliding does; otherwise it
     stays at (x0, y0). Stopping at contact puts the agent against obstacles, so that turns collide
     too (through their translation noise), as in the paper's data (Table S2: 12.7 % of left turns
-    collided); staying put makes turn collisions rare (3 % here).
+    collided); staying put makes turn collisions rare (2-3 % here).
     Returns the reached (x, y) and whether the step was blocked.
     """
     n = max(2, int(np.ceil(np.hypot(x1 - x0, y1 - y0) / spacing)) + 1)
