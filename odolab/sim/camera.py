@@ -148,8 +148,10 @@ class Renderer:
         iv = (pv * (1.0 / TEXEL_SIZE) + _TEXEL_OFFSET).astype(np.int32) & self._tile_mask
         # mip level: log2 of the footprint t |d| / (fx texel) / sqrt(cos), cos = |d . n| / |d|
         d_axis = np.abs(np.where(axis == 0, rays[:, 3], np.where(axis == 1, rays[:, 4], rays[:, 5])))
-        foot = t * self._foot_unit * np.sqrt(self._dir_norm / np.maximum(d_axis, 1e-3))
-        level = np.clip(np.frexp(foot)[1] - 1, 0, self._levels - 1).astype(np.int32)
+        foot = t * self._foot_unit * np.sqrt(self._dir_norm / np.maximum(d_axis, 1e-3), dtype=np.float32)
+        # floor(log2(foot)) from the float32 exponent bits (foot >= 0; 0 and subnormals -> level 0)
+        level = (foot.view(np.int32) >> 23) - 127
+        np.clip(level, 0, self._levels - 1, out=level)
         shift = self._log_size - level
         index = (np.take(self._mip_offset, level) + (np.take(self._tri_tile, tri, mode="clip") << (2 * shift))
                  + ((iv >> level) << shift) + (iu >> level))

@@ -24,6 +24,10 @@ from scipy.special import ndtri
 from odolab.sim.redwood import BINS, COLS, DistortionTable, cell_lookup, default_table
 from odolab.types import FORWARD_STEP, TURN_ANGLE, Action  # the nominal motions, defined once
 
+_DISPARITY = 35.130  # Redwood's baseline x focal length, m px / 8
+_CELL_BITS = 13  # table cells (6400) fit in 13 bits of the packed index
+_CELL_MASK = (1 << _CELL_BITS) - 1
+
 
 class GaussianTable:
     """Standard-normal samples by 16-bit inverse-CDF lookup: ``draw(rng, shape)`` -> float32."""
@@ -92,21 +96,33 @@ class RedwoodDepthNoise:
         self._shift = np.floor(0.25 * self.multiplier * self.gauss.table + 0.5).astype(np.int16)
         if self.use_distortion and self.distortion is None:
             self.distortion = default_table()
+        # disparity noise in the units of 8 x disparity, one 16-bit draw each
+        self._noise8 = (self.gauss.table * np.float32(0.027778 * 8.0 * self.multiplier)).astype(np.float32)
         self._lut_shape: tuple[int, int] | None = None
 
     def _luts(self, H: int, W: int) -> None:
-        """Index tables for an H x W image: padded index -> clipped index, and -> table cell."""
+        """Index tables for an H x W image, from a padded jittered row (column) index to a packed
+        integer ``(source pixel << 13) | table cell``, so that adding a row and a column entry gives
+        both the downsampled pixel to read and the distortion cell of the jittered coordinates."""
         pad = int(np.abs(self._shift).max())
-        self._pad = pad
-        self._rows = np.clip(np.arange(-pad, H + pad), 0, H - 1).astype(np.int32)
-        self._cols = np.clip(np.arange(-pad, W + pad), 0, W - 1).astype(np.int32)
+        rows = np.clip(np.arange(-pad, H + pad), 0, H - 1)
+        cols = np.clip(np.arange(-pad, W + pad), 0, W - 1)
+        cell_r, cell_c = cell_lookup(W, H)
+        packed = np.int32 if (H * W) << _CELL_BITS < 2 ** 31 else np.int64  # int32 is faster to gather
+        self._row_pack = ((((rows & ~1) * W) << _CELL_BITS) + cell_r[rows] * COLS).astype(packed)
+        self._col_pack = (((cols & ~1) << _CELL_BITS) + cell_c[cols]).astype(packed)
         self._y_base = np.arange(pad, H + pad, dtype=np.int16)[:, None]
         self._x_base = np.arange(pad, W + pad, dtype=np.int16)[None, :]
         if self.distortion is not None:
-            cell_r, cell_c = cell_lookup(W, H)
-            self._cell_row = (cell_r[self._rows] * COLS).astype(np.int32)
-            self._cell_col = cell_c[self._cols].astype(np.int32)
-            self._flat = self.distortion.factors.reshape(-1, BINS)
+            # f(d) is piecewise linear in d between bin centres 1, 3, 5, 7, 9 m (constant outside):
+            # on segment k = clip(int((d + 1) / 2), 0, 5), f = A[cell, k] + B[cell, k] d
+            T = self.distortion.factors.reshape(-1, BINS).astype(np.float64)
+            A, B = np.empty((len(T), BINS + 1)), np.zeros((len(T), BINS + 1))
+            A[:, 0], A[:, BINS] = T[:, 0], T[:, BINS - 1]
+            for k in range(1, BINS):
+                B[:, k] = (T[:, k] - T[:, k - 1]) / 2.0
+                A[:, k] = T[:, k - 1] - B[:, k] * (2 * k - 1)
+            self._seg_a, self._seg_b = A.astype(np.float32).reshape(-1), B.astype(np.float32).reshape(-1)
         self._lut_shape = (H, W)
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -117,29 +133,23 @@ class RedwoodDepthNoise:
         if self._lut_shape != (H, W):
             self._luts(H, W)
         draws = uniform_u16(rng, (3, H, W))
-        jy = self._y_base + np.take(self._shift, draws[0])  # padded, jittered row index
-        jx = self._x_base + np.take(self._shift, draws[1])
-        rows, cols = np.take(self._rows, jy), np.take(self._cols, jx)
-        d = np.take(depth.reshape(-1), (rows & ~1) * W + (cols & ~1))  # 2x-downsampled read
+        packed = (np.take(self._row_pack, self._y_base + np.take(self._shift, draws[0]))
+                  + np.take(self._col_pack, self._x_base + np.take(self._shift, draws[1])))
+        d = np.take(depth.reshape(-1), packed >> _CELL_BITS)  # 2x-downsampled read at the jittered pixel
         valid = (d > 0) & (d < self.max_depth)
-        if self.distortion is not None:
-            cell = np.take(self._cell_row, jy) + np.take(self._cell_col, jx)
-            i2 = ((d + 1.0) * 0.5).astype(np.int32)
-            i1 = i2 - 1
-            a = (d - (2.0 * i1 + 1.0)) * 0.5
-            flat = self._flat.reshape(-1)
-            f1 = np.take(flat, cell * BINS + np.clip(i1, 0, BINS - 1))
-            f2 = np.take(flat, cell * BINS + np.clip(i2, 0, BINS - 1))
-            f = (1.0 - a) * f1 + a * f2
+        if self.distortion is not None:  # disparity 35.130 / (d / f) = 35.130 f / d
+            k = (packed & _CELL_MASK) * (BINS + 1) + np.minimum(((d + 1.0) * 0.5).astype(np.int32), BINS)
+            f = np.take(self._seg_a, k) + np.take(self._seg_b, k) * d
             valid &= f >= 1e-5
-            d = d / np.where(valid, f, 1.0)
-        with np.errstate(divide="ignore"):
-            noise = np.take(self.gauss.table, draws[2]) * np.float32(0.027778 * self.multiplier)
-            denom = np.round((35.130 / np.where(valid, d, 1.0) + noise) * 8.0)
-            out = np.where(valid & (denom > 0), 35.130 * 8.0 / denom, 0.0)
-        out = np.minimum(out, self.max_depth)  # habitat-lab's clip from above
+        else:
+            f = np.float32(1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scaled = np.where(valid, f / d, np.float32(0.0)) * np.float32(_DISPARITY * 8.0)
+            denom = np.rint(scaled + np.take(self._noise8, draws[2]))
+            out = np.where(valid & (denom > 0), np.float32(_DISPARITY * 8.0) / denom, np.float32(0.0))
+        np.minimum(out, np.float32(self.max_depth), out=out)  # habitat-lab's clip from above
         out[out < self.min_depth] = 0.0  # and from below: "no reading" (normalised 0)
-        return out.astype(np.float32)
+        return out
 
 
 def habitat_normalized_depth(depth: np.ndarray, min_depth: float = 0.1, max_depth: float = 10.0) -> np.ndarray:
