@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from odolab.cli import ArgumentParser, UsageError, run_cli
+from odolab.cli import ArgumentParser, UsageError, check_output_file, run_cli
 
 
 def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> list[dict]:
@@ -108,6 +108,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON here")
     args = ap.parse_args(argv)
+    if args.json is not None:
+        check_output_file(args.json, "--json")
     parts = args.only or ["simulator", "odometers", "evaluate"]
     names = available_odometers() if args.odometers is None else args.odometers.split(",")
     unknown = set(names) - set(available_odometers())

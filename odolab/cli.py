@@ -78,14 +78,14 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
     folder) and, when ``suffixes`` is given, that its extension is one of them; else
     :class:`UsageError` naming ``option``. Nothing is left behind."""
     path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"{option} {path}: is a folder, not a file")
     if suffixes is not None:
         allowed = sorted(s.lower().lstrip(".") for s in suffixes)
         ext = path.suffix.lower().lstrip(".")
         if ext not in allowed:
             raise UsageError(f"{option} {path}: unknown image type {path.suffix or '(no extension)'!r}; "
                              f"use one of {', '.join('.' + s for s in allowed)}")
-    if path.is_dir():
-        raise UsageError(f"{option} {path}: is a folder, not a file")
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise UsageError(f"{option} {path}: folder {folder} does not exist")
