@@ -134,8 +134,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(str(exc)) from None
         plans, total = None, None
         title = f"odolab compare on TUM folder {args.tum}"
+        dropped = sequences[0].dropped
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
-                 "Rows marked oracle read ground truth."]
+                 "Rows marked oracle read ground truth.",
+                 f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
+                 f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s."]
+        if any(dropped.values()):
+            print(f"note: {notes[-1]}", file=sys.stderr)
     else:
         from odolab.episodes import (EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes,
                                      stream_episodes)

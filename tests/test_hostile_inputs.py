@@ -170,3 +170,32 @@ def test_outputs_honour_the_umask(tmp_path):
         os.umask(old)
     for name in ("a.txt", "b.bin"):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o640
+
+
+# ----------------------------------------------------------------------------- --tum and its options
+
+TUM_DIR = ROOT / "tests" / "data" / "tum_fr1_xyz_10"
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--episodes", "3"], "--episodes: simulator option, meaningless with --tum"),
+    (["--split=val", "--rgb-noise", "2"], "--split, --rgb-noise: simulator options"),
+])
+def test_tum_refuses_simulator_options(tmp_path, args, words):
+    one_line_error("odolab.compare", "--tum", TUM_DIR, *args, "--out", tmp_path, words=words)
+
+
+def test_tum_says_how_many_frames_it_left_out(tmp_path, capsys):
+    import shutil
+
+    from odolab.compare import main
+
+    folder = tmp_path / "rgbd_dataset_freiburg1_cut"
+    shutil.copytree(TUM_DIR, folder)
+    lines = (folder / "depth.txt").read_text().splitlines()
+    (folder / "depth.txt").write_text("\n".join(lines[:-3]) + "\n")
+    out = tmp_path / "out"
+    assert run_cli(main, "odolab.compare", ["--tum", str(folder), "--odometers", "action-prior", "--quiet",
+                                            "--out", str(out)]) == 0
+    said = "7 frames; colour images left out: 3 without a depth image and 0 without a ground-truth pose"
+    assert said in capsys.readouterr().err and said in (out / "report.html").read_text()
