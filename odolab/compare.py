@@ -142,6 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if any(dropped.values()):
             print(f"note: {notes[-1]}", file=sys.stderr)
     else:
+        from odolab.io.errors import FileFormatError
         from odolab.episodes import (EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes,
                                      stream_episodes)
 
@@ -172,18 +173,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                  f"--split {args.split} --max-steps {args.max_steps} --rgb-noise {noise.rgb:g} "
                  f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
 
-    results = runner.run(odometers, sequences, progress=not args.quiet, total_steps=total)
+    try:
+        results = runner.run(odometers, sequences, progress=not args.quiet, total_steps=total)
+    except FileFormatError as exc:  # an image that went bad after the folder was checked
+        raise UsageError(str(exc)) from None
     if args.tum is None:
-        plans = {name: _floor_plan(seed) for name, seed in list(scenes.items())[:4]}
+        plans = {name: _floor_plan(seed) for name, seed in scenes.items()}
         one = [r for r in results if r.odometer == results[0].odometer]
         steps = sum(len(r.actions) for r in one)
         collided = sum(int(r.collisions.sum()) for r in one)
         notes.insert(0, f"{steps} steps, {collided} of them collisions ({100 * collided / max(steps, 1):.1f}%).")
     rows = summary.summarize(results)
     action_rows = summary.summarize_actions(results) if args.tum is None else []
-    write_report(args.out, rows, action_rows, results, title, notes, plans)
-    print(title)
+    print(title)  # the table first: nothing that follows can lose it
     print(format_table(rows, real_data=args.tum is not None))
+    write_report(args.out, rows, action_rows, results, title, notes, plans)
     for r in results:
         for e in r.errors[:1]:
             print(f"note: {r.odometer} raised on {r.sequence}: {e}")

@@ -28,11 +28,11 @@ def test_compare_writes_table_report_and_trajectories(tmp_path, capsys):
     assert {"odometer", "dx", "dz", "dyaw", "fps", "failures"} <= set(rows[0])
     assert [r["odometer"] for r in rows] == ["ground-truth", "action-prior"]
     assert float(rows[0]["dz"]) == 0 and float(rows[1]["dz"]) > 0
-    for f in ("report.html", "errors.png", "trajectories.png", "table_per_action.csv"):
+    for f in ("report.html", "errors.png", "table_per_action.csv", "manifest.txt"):
         assert (out / f).stat().st_size > 0
     seq = sorted((out / "trajectories").iterdir())[0]
     assert {p.name for p in seq.iterdir()} >= {"action-prior.tum", "action-prior.kitti", "groundtruth.tum",
-                                                 "groundtruth.kitti"}
+                                                 "groundtruth.kitti", "top-down.png"}
     printed = capsys.readouterr().out
     assert "action-prior" in printed and "table.csv" in printed
 
