@@ -92,11 +92,11 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) ->
 def _table(rows: list[dict]) -> str:
     if not rows:
         return ""
+    from odolab.summary import text_table
+
     keys = list(rows[0])
-    fmt = lambda v: f"{v:.2f}" if isinstance(v, float) else str(v)  # noqa: E731
-    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    lines += ["| " + " | ".join(fmt(r[k]) for k in keys) + " |" for r in rows]
-    return "\n".join(lines)
+    return text_table(keys, [[f"{r[k]:.2f}" if isinstance(r[k], float) else str(r[k]) for k in keys] for r in rows],
+                      markdown=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -277,9 +277,9 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
             f(ev.rpe.rot.rmse, ".4f"), f(ev.kitti.t_rel, ".4f"), f(ev.kitti.r_rel, ".4f"),
             str(ev.kitti.n_segments),
         ])
-    widths = [max(len(r[i]) for r in [cols] + body) for i in range(len(cols))]
-    fmt_row = lambda r: "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
-    return "\n".join(head + [fmt_row(cols)] + [fmt_row(r) for r in body])
+    from odolab.summary import text_table
+
+    return "\n".join(head + [text_table(cols, body)])
 
 
 def main(argv: Sequence[str] | None = None) -> int:
