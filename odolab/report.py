@@ -37,7 +37,7 @@ from odolab.trajectory import Trajectory
 
 _ACTION_COLORS = {"move_forward": "#4C72B0", "turn_left": "#DD8452", "turn_right": "#55A868"}
 MANIFEST = "manifest.txt"
-#: Metres of floor plan shown around the trajectories in each top-down figure.
+#: Metres of floor plan shown around the trajectories in each top-down figure (with a plan).
 ZOOM_MARGIN = 1.5
 GROUND_TRUTH_FILE = "groundtruth"
 
@@ -235,7 +235,9 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
         ax.plot(p[:, 0], p[:, 1], "-", lw=1.3, color=cmap(names.index(r.odometer) % 10), label=r.odometer)
     everything = np.concatenate([gt[:, :2]] + [r.poses[:, :2, 3] for r in mine])
     centre = (everything.min(axis=0) + everything.max(axis=0)) / 2
-    half = np.ptp(everything, axis=0).max() / 2 + ZOOM_MARGIN  # a square view: equal axes, no warning
+    extent = float(np.ptp(everything, axis=0).max())
+    margin = ZOOM_MARGIN if plan is not None else max(0.1 * extent, 0.02)  # real data: no map to show
+    half = extent / 2 + margin  # a square view: equal axes, no warning
     ax.set_xlim(centre[0] - half, centre[0] + half)  # the trajectories, not the whole plan, fill it
     ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_aspect("equal", adjustable="box")
@@ -364,7 +366,8 @@ def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], resul
             cards.append(f'<figure><a href="{html.escape(rel)}"><img src="{html.escape(rel)}" loading="lazy" '
                          f'alt="{html.escape(seq)}"></a><figcaption>{html.escape(seq)}</figcaption></figure>')
     if cards:
-        sections.append(f"<h2>Trajectories, top-down ({len(cards)} sequences)</h2><p>Ground truth (black) and "
+        sections.append(f"<h2>Trajectories, top-down ({len(cards)} sequence{'s' if len(cards) > 1 else ''})</h2>"
+                        "<p>Ground truth (black) and "
                         "each odometer's integrated trajectory, world x/y in metres, over the floor plan where "
                         "known (obstacles grey). Click a figure for full size.</p>"
                         f"<div class=\"gallery\">{''.join(cards)}</div>")
