@@ -199,3 +199,12 @@ def test_tum_says_how_many_frames_it_left_out(tmp_path, capsys):
                                             "--out", str(out)]) == 0
     said = "7 frames; colour images left out: 3 without a depth image and 0 without a ground-truth pose"
     assert said in capsys.readouterr().err and said in (out / "report.html").read_text()
+
+
+def test_fan_out_checks_the_address_before_starting_ray():
+    from odolab.parallel import fan_out
+
+    start = time.monotonic()
+    with pytest.raises(ValueError, match="no Ray cluster there"):
+        fan_out(abs, [1, 2], ray_address="127.0.0.1:1", progress=False)
+    assert time.monotonic() - start < 10
