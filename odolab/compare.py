@@ -178,7 +178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except FileFormatError as exc:  # an image that went bad after the folder was checked
         raise UsageError(str(exc)) from None
     if args.tum is None:
-        plans = {name: _floor_plan(seed) for name, seed in scenes.items()}
+        plans = {name: _floor_plan(s) for name, s in scenes.items()}
         one = [r for r in results if r.odometer == results[0].odometer]
         steps = sum(len(r.actions) for r in one)
         collided = sum(int(r.collisions.sum()) for r in one)
