@@ -83,15 +83,20 @@ def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
 
 
 def _main(argv=None) -> int:
-    from odolab.cli import ArgumentParser, number
+    from odolab.cli import MAX_SEED, ArgumentParser, check_output_file, number, seed
     from odolab.io.atomic import write_text_atomic
 
     ap = ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
-    ap.add_argument("--episodes", type=number("--episodes", int, 1), default=400, help="train episodes (400)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1), default=500, help="steps each (500)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, 100_000), default=400,
+                    help="train episodes, 1-100000 (400)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 2000), default=500,
+                    help="steps each, 1-2000 (500)")
+    ap.add_argument("--seed", type=seed(), default=0, help=f"seed, 0-{MAX_SEED} (0)")
     ap.add_argument("--out", type=Path, default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        check_output_file(args.out, "--out")
     prior = fit_action_prior(args.episodes, args.max_steps, args.seed)
     text = json.dumps(prior.to_json(), indent=2) + "\n"
     if args.out is None:

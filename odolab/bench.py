@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from odolab.cli import ArgumentParser, UsageError, run_cli
+from odolab.cli import ArgumentParser, UsageError, check_output_file, run_cli
 
 
 def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> list[dict]:
@@ -92,11 +92,11 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) ->
 def _table(rows: list[dict]) -> str:
     if not rows:
         return ""
+    from odolab.summary import text_table
+
     keys = list(rows[0])
-    fmt = lambda v: f"{v:.2f}" if isinstance(v, float) else str(v)  # noqa: E731
-    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    lines += ["| " + " | ".join(fmt(r[k]) for k in keys) + " |" for r in rows]
-    return "\n".join(lines)
+    return text_table(keys, [[f"{r[k]:.2f}" if isinstance(r[k], float) else str(r[k]) for k in keys] for r in rows],
+                      markdown=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -108,6 +108,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON here")
     args = ap.parse_args(argv)
+    if args.json is not None:
+        check_output_file(args.json, "--json")
     parts = args.only or ["simulator", "odometers", "evaluate"]
     names = available_odometers() if args.odometers is None else args.odometers.split(",")
     unknown = set(names) - set(available_odometers())

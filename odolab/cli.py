@@ -1,9 +1,20 @@
-"""Shared command-line plumbing: user mistakes become one line on stderr and exit code 2."""
+"""Shared command-line plumbing: user mistakes become one line on stderr and exit code 2.
+
+Every numeric option is parsed by :func:`number`, which enforces a documented closed range and
+refuses NaN and infinity; output paths are checked by :func:`check_output_dir` and
+:func:`check_output_file` *before* any work starts, so a run never ends on an unwritable path.
+"""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
-from typing import Callable, Sequence
+import tempfile
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+#: Largest accepted seed (seeds feed numpy's SeedSequence; 2^32 - 1 keeps them portable).
+MAX_SEED = 2**32 - 1
 
 
 class UsageError(Exception):
@@ -17,19 +28,72 @@ class ArgumentParser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
-def number(name: str, kind: type = int, minimum: float | None = None) -> Callable[[str], float]:
-    """An argparse ``type`` parsing ``kind`` (int or float) no smaller than ``minimum``; the error
-    names the option: ``--episodes must be >= 1, got 0``. NaN is refused."""
+def number(name: str, kind: type = int, minimum: float | None = None,
+           maximum: float | None = None) -> Callable[[str], float]:
+    """An argparse ``type`` parsing ``kind`` (int or float) in ``[minimum, maximum]`` (either bound
+    may be None); the error names the option: ``--episodes must be >= 1, got 0``. NaN and infinity
+    are always refused."""
     def parse(text: str):
+        noun = "an integer" if kind is int else "a number"
         try:
             value = kind(text)
         except ValueError:
-            noun = "an integer" if kind is int else "a number"
             raise argparse.ArgumentTypeError(f"{name} must be {noun}, got {text!r}") from None
-        if value != value or (minimum is not None and value < minimum):
-            raise argparse.ArgumentTypeError(f"{name} must be >= {minimum:g}, got {text}")
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{name} must be a finite number, got {text}")
+        if minimum is not None and value < minimum:
+            bound = f"in [{minimum:g}, {maximum:g}]" if maximum is not None else f">= {minimum:g}"
+            raise argparse.ArgumentTypeError(f"{name} must be {bound}, got {text}")
+        if maximum is not None and value > maximum:
+            bound = f"in [{minimum:g}, {maximum:g}]" if minimum is not None else f"<= {maximum:g}"
+            raise argparse.ArgumentTypeError(f"{name} must be {bound}, got {text}")
         return value
     return parse
+
+
+def seed(name: str = "--seed") -> Callable[[str], int]:
+    """An argparse ``type`` for a seed: an integer in ``[0, MAX_SEED]``."""
+    return number(name, int, 0, MAX_SEED)
+
+
+def _describe(exc: OSError) -> str:
+    return (exc.strerror or str(exc)).lower()
+
+
+def check_output_dir(path: Path, option: str) -> None:
+    """Create folder ``path`` if needed and prove it writable, or raise :class:`UsageError` naming
+    ``option`` (e.g. a path that is a file, or a read-only location)."""
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"{option} {path}: is a file, not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test"):
+            pass
+    except OSError as exc:
+        raise UsageError(f"{option} {path}: not a writable folder ({_describe(exc)})") from None
+
+
+def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = None) -> None:
+    """Check that file ``path`` can be written (its folder exists and is writable, it is not a
+    folder) and, when ``suffixes`` is given, that its extension is one of them; else
+    :class:`UsageError` naming ``option``. Nothing is left behind."""
+    path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"{option} {path}: is a folder, not a file")
+    if suffixes is not None:
+        allowed = sorted(s.lower().lstrip(".") for s in suffixes)
+        ext = path.suffix.lower().lstrip(".")
+        if ext not in allowed:
+            raise UsageError(f"{option} {path}: unknown image type {path.suffix or '(no extension)'!r}; "
+                             f"use one of {', '.join('.' + s for s in allowed)}")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise UsageError(f"{option} {path}: folder {folder} does not exist")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".write-test"):
+            pass
+    except OSError as exc:
+        raise UsageError(f"{option} {path}: cannot write in {folder} ({_describe(exc)})") from None
 
 
 def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,

@@ -7,11 +7,11 @@ written to ``runs/compare`` (table.csv, report.html, figures, trajectories). Epi
 from __future__ import annotations
 
 import argparse
-import tempfile
+import sys
 from pathlib import Path
 from typing import Sequence
 
-from odolab.cli import ArgumentParser, UsageError, number, run_cli
+from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, run_cli, seed
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
 from odolab.odometer import available_odometers
@@ -19,24 +19,38 @@ from odolab.options import OptionError, merge_options, parse_assignments, read_o
 from odolab.sim.scenes import SPLITS
 
 
+#: Documented ranges of the numeric options (enforced with one line by odolab.cli.number).
+MAX_EPISODES = 1000
+MAX_STEPS = 500
+MAX_NOISE = 10.0
+#: Options that choose simulator episodes; with --tum they would be silently meaningless.
+SIMULATOR_OPTIONS = ("--episodes", "--seed", "--split", "--max-steps", "--rgb-noise", "--depth-noise",
+                     "--actuation-noise", "--cache", "--no-cache", "--ray-address", "--serial")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
     ap.add_argument("--odometers", default=None,
                     help="comma-separated names or module:Class (default: all available: %(choices)s)".replace(
                         "%(choices)s", ", ".join(available_odometers())))
-    ap.add_argument("--episodes", type=number("--episodes", int, 1), default=5, help="number of episodes (default 5)")
-    ap.add_argument("--seed", type=int, default=0, help="episode seed (default 0)")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, MAX_EPISODES), default=5,
+                    help=f"number of episodes, 1-{MAX_EPISODES} (default 5)")
+    ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
     ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1), default=60, help="steps per episode (default 60)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_STEPS), default=60,
+                    help=f"steps per episode, 1-{MAX_STEPS} (default 60)")
     for kind, default, what in (("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"), ("depth", 1.0, "Redwood depth"),
                                 ("actuation", 0.5, "PyRobot actuation")):
-        ap.add_argument(f"--{kind}-noise", type=number(f"--{kind}-noise", float, 0), default=default, metavar="M",
-                        help=f"{what} noise multiplier, 0 = none (default {default:g})")
-    ap.add_argument("--out", type=Path, default=Path("runs/compare"), help="output folder (default runs/compare)")
-    ap.add_argument("--tum", type=Path, default=None, help="run on a TUM RGB-D folder instead of the simulator")
+        ap.add_argument(f"--{kind}-noise", type=number(f"--{kind}-noise", float, 0, MAX_NOISE), default=default,
+                        metavar="M", help=f"{what} noise multiplier, 0-{MAX_NOISE:g}, 0 = none (default {default:g})")
+    ap.add_argument("--out", type=Path, default=Path("runs/compare"),
+                    help="output folder (default runs/compare); files a previous run wrote there are replaced")
+    ap.add_argument("--tum", type=Path, default=None,
+                    help="run on a TUM RGB-D folder instead of the simulator (simulator options are then refused)")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
     ap.add_argument("--no-cache", action="store_true", help="do not read or write the episode cache")
-    ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
+    ap.add_argument("--ray-address", default=None,
+                    help="Ray cluster address host:port or ray://host:port (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value",
@@ -48,13 +62,33 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _check_writable(out: Path) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test"):
-            pass
-    except OSError as exc:
-        raise UsageError(f"--out {out}: not a writable folder ({exc.strerror or exc})") from None
+def _given(argv: Sequence[str], options: Sequence[str]) -> list[str]:
+    """The ``options`` that appear in ``argv`` (``--opt value`` or ``--opt=value``)."""
+    used = {a.split("=", 1)[0] for a in argv if a.startswith("--")}
+    return [o for o in options if o in used]
+
+
+def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
+    """Every check that can fail on the user's input, done before any episode or odometer runs."""
+    if args.split not in SPLITS:
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    if args.tum is not None:
+        ignored = _given(argv, SIMULATOR_OPTIONS)
+        if ignored:
+            raise UsageError(f"{', '.join(ignored)}: simulator option{'s' if len(ignored) > 1 else ''}, "
+                             "meaningless with --tum (a TUM folder is one real recording); drop "
+                             f"{'them' if len(ignored) > 1 else 'it'}")
+    else:
+        if not args.no_cache:
+            check_output_dir(args.cache, "--cache")
+        if args.ray_address is not None and not args.serial:
+            from odolab.parallel import check_ray_address
+
+            try:
+                check_ray_address(args.ray_address)
+            except ValueError as exc:
+                raise UsageError(str(exc)) from None
+    check_output_dir(args.out, "--out")
 
 
 def _config(args: argparse.Namespace) -> ComparisonConfig:
@@ -74,8 +108,6 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
         names = odometer_names(names)
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
-    if args.split not in SPLITS:
-        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     return ComparisonConfig(
         odometers=names, options=options, episodes=args.episodes, seed=args.seed, split=args.split,
         max_steps=args.max_steps,
@@ -85,10 +117,11 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse, run the comparison (:func:`odolab.comparison.run_comparison`), print and write."""
+    """Parse, check, run the comparison (:func:`odolab.comparison.run_comparison`), print and write."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     config = _config(args)
-    _check_writable(args.out)
+    _check_before_work(args, argv)
     from odolab.progress import StepProgressBar
     from odolab.report import format_table, write_report
 
@@ -96,10 +129,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = run_comparison(config, observer=StepProgressBar(disable=args.quiet))
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
+    for warning in result.warnings:
+        print(f"note: {warning}", file=sys.stderr)
+    print(result.title)  # the table first: nothing that follows can lose it
+    print(format_table(result.rows, real_data=args.tum is not None))
     write_report(args.out, result.rows, result.action_rows, result.results, result.title, result.notes,
                  result.plans)
-    print(result.title)
-    print(format_table(result.rows, real_data=args.tum is not None))
     for r in result.results:
         for e in r.errors[:1]:
             print(f"note: {r.odometer} raised on {r.sequence}: {e}")

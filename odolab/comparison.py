@@ -65,8 +65,8 @@ class ComparisonConfig:
 
 @dataclass(frozen=True)
 class ComparisonResult:
-    """Per-sequence results, the summary tables, a title and notes for reports, and floor plans
-    (sequence name -> :class:`~odolab.report.FloorPlan`, simulator only, first few sequences)."""
+    """Per-sequence results, the summary tables, a title and notes for reports, floor plans
+    (sequence name -> :class:`~odolab.report.FloorPlan`, simulator only) and warnings."""
 
     results: list[SequenceResult]
     rows: list[summary.Row]
@@ -74,6 +74,8 @@ class ComparisonResult:
     title: str
     notes: list[str]
     plans: dict[str, FloorPlan] | None
+    warnings: list[str] = field(default_factory=list)
+    """What a person should hear at once (e.g. frames a TUM folder had to leave out)."""
 
 
 def odometer_names(names: list[str] | None) -> list[str]:
@@ -151,6 +153,16 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     return stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
 
 
+def _run(odometers: dict[str, Odometer], sequences, observer: RunObserver | None,
+         total: int | None = None) -> list[SequenceResult]:
+    from odolab.io.errors import FileFormatError
+
+    try:
+        return runner.run(odometers, sequences, observer=observer, total_steps=total)
+    except FileFormatError as exc:  # an image that went bad after the folder was checked
+        raise ComparisonError(str(exc)) from None
+
+
 def _options_note(config: ComparisonConfig) -> list[str]:
     return [f"Odometer options: " + "; ".join(f"{name}: " + ", ".join(f"{k}={v!r}" for k, v in opts.items())
                                               for name, opts in config.options.items())] if config.options else []
@@ -162,11 +174,16 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     odometers = load_odometers(config.odometers, config.options)
     if config.tum is not None:
-        results = runner.run(odometers, _tum_sequences(config), observer=observer)
+        sequences = _tum_sequences(config)
+        results = _run(odometers, sequences, observer)
         title = f"odolab compare on TUM folder {config.tum}"
+        dropped = sequences[0].dropped
+        left_out = (f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
+                    f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s.")
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
-                 "Rows marked oracle read ground truth.", *_options_note(config)]
-        return ComparisonResult(results, summary.summarize(results), [], title, notes, None)
+                 "Rows marked oracle read ground truth.", left_out, *_options_note(config)]
+        return ComparisonResult(results, summary.summarize(results), [], title, notes, None,
+                                [left_out] if any(dropped.values()) else [])
 
     from odolab.datasets import episode_specs
     from odolab.episodes import NoiseConfig
@@ -181,7 +198,7 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
             scenes[ep.name] = ep.info["scene_seed"]
             yield ep
 
-    results = runner.run(odometers, noted(episodes), observer=observer, total_steps=total)
+    results = _run(odometers, noted(episodes), observer, total)
     one = [r for r in results if r.odometer == results[0].odometer]
     steps = sum(len(r.actions) for r in one)
     collided = sum(int(r.collisions.sum()) for r in one if r.collisions is not None)
@@ -194,7 +211,7 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
              f"--split {config.split} --max-steps {config.max_steps} --rgb-noise {noise.rgb:g} "
              f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
     notes += _options_note(config)
-    plans = {name: _floor_plan(seed) for name, seed in list(scenes.items())[:4]}
+    plans = {name: _floor_plan(seed) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
     return ComparisonResult(results, summary.summarize(results), summary.summarize_actions(results), title,
                             notes, plans)

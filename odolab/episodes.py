@@ -13,7 +13,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
+import sys
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -21,6 +23,7 @@ from typing import Iterator
 import numpy as np
 
 from odolab.geometry import camera_pose_from_agent
+from odolab.io.atomic import atomic_open
 from odolab.types import Action, Frame, Intrinsics
 from odolab.sim.agent import AgentState, step_agent
 from odolab.sim.camera import CameraSpec
@@ -32,6 +35,8 @@ FORMAT_VERSION = 1  # the .npz layout
 #: Bump whenever the simulator's output for a given spec changes (scenes, rendering, noise, motion,
 #: follower): it is part of every cache key, so stale cached episodes are never reused.
 SIMULATOR_VERSION = 3
+#: What reading a damaged cache file raises (truncated zip, bad CRC, bad header, short read).
+_DAMAGE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
 
 
 @dataclass(frozen=True)
@@ -225,7 +230,11 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
 
 
 class EpisodeCache:
-    """Episodes on disk under ``root``, one ``<spec key>.npz`` each (atomic writes, no pickle)."""
+    """Episodes on disk under ``root``, one ``<spec key>.npz`` each (atomic writes, no pickle).
+
+    A damaged entry (truncated, bad CRC, unreadable) is named in one line on stderr, deleted and
+    reported missing, so it is regenerated; it never ends a run.
+    """
 
     def __init__(self, root: str | os.PathLike) -> None:
         self.root = Path(root)
@@ -233,8 +242,14 @@ class EpisodeCache:
     def path(self, spec: EpisodeSpec) -> Path:
         return self.root / f"{spec.key()}.npz"
 
+    def _discard(self, path: Path, exc: BaseException) -> None:
+        """Name a damaged entry on stderr and delete it."""
+        print(f"odolab: episode cache entry {path} is damaged ({type(exc).__name__}: {exc}); regenerating it",
+              file=sys.stderr)
+        path.unlink(missing_ok=True)
+
     def get(self, spec: EpisodeSpec) -> Episode | None:
-        """The cached episode of ``spec``, or None (also for an unreadable file, which is replaced)."""
+        """The cached episode of ``spec``, or None (missing, or damaged: then discarded)."""
         p = self.path(spec)
         if not p.exists():
             return None
@@ -244,36 +259,42 @@ class EpisodeCache:
                 if info.pop("spec_key", None) != spec.key():
                     return None
                 return Episode(spec, z["rgb"], z["depth"], z["poses"], z["actions"], z["collisions"], info)
-        except (OSError, ValueError, KeyError):
+        except _DAMAGE as exc:
+            self._discard(p, exc)
             return None
 
     def has(self, spec: EpisodeSpec) -> bool:
-        """True if a readable file for ``spec`` is cached (reads its small ``info`` member only)."""
+        """True if a readable file for ``spec`` is cached (reads its small ``info`` member only; a
+        damaged file is discarded)."""
+        p = self.path(spec)
+        if not p.exists():
+            return False
         try:
-            with np.load(self.path(spec), allow_pickle=False) as z:
+            with np.load(p, allow_pickle=False) as z:
                 return json.loads(str(z["info"])).get("spec_key") == spec.key()
-        except (OSError, ValueError, KeyError):
+        except _DAMAGE as exc:
+            self._discard(p, exc)
             return False
 
     def steps(self, spec: EpisodeSpec) -> int:
-        """Number of steps of the cached episode of ``spec`` (reads only its actions)."""
-        with np.load(self.path(spec), allow_pickle=False) as z:
-            return len(z["actions"])
+        """Number of steps of the cached episode of ``spec`` (reads only its actions); for a
+        damaged file, which is discarded, ``spec.max_steps`` (an upper bound)."""
+        p = self.path(spec)
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                return len(z["actions"])
+        except _DAMAGE as exc:
+            self._discard(p, exc)
+            return spec.max_steps
 
     def put(self, episode: Episode) -> Path:
-        """Write atomically (temporary file + rename); returns the path."""
+        """Write atomically (:func:`odolab.io.atomic.atomic_open`); returns the path."""
         self.root.mkdir(parents=True, exist_ok=True)
         p = self.path(episode.spec)
         info = json.dumps({**episode.info, "spec_key": episode.spec.key()})
-        fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".npz.tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, rgb=episode.rgb, depth=episode.depth, poses=episode.poses,
-                         actions=episode.actions, collisions=episode.collisions, info=np.array(info))
-            os.replace(tmp, p)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_open(p, "wb") as f:
+            np.savez(f, rgb=episode.rgb, depth=episode.depth, poses=episode.poses,
+                     actions=episode.actions, collisions=episode.collisions, info=np.array(info))
         return p
 
 
@@ -313,6 +334,8 @@ def stream_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None,
     fresh = generate_episodes(specs, cache, ray_address=ray_address, parallel=parallel, progress=progress)
     for i, spec in enumerate(specs):
         ep = fresh.pop(i, None) or (cache.get(spec) if cache is not None else None)
-        if ep is None:  # the cache lost it meanwhile (another process, a full disk): make it here
+        if ep is None:  # the cache lost it meanwhile (damaged, another process, a full disk): make it again
             ep = render_episode(spec)
+            if cache is not None:
+                cache.put(ep)
         yield ep

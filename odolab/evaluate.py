@@ -22,10 +22,11 @@ import json
 import math
 import os
 import sys
+from pathlib import Path
 from typing import Sequence
 
 from odolab import metrics
-from odolab.cli import ArgumentParser, UsageError, run_cli
+from odolab.cli import ArgumentParser, UsageError, check_output_file, number, run_cli
 from odolab.evaluation import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
 from odolab.io.errors import FileFormatError
 from odolab.trajectory import Trajectory
@@ -33,6 +34,11 @@ from odolab.trajectory import Trajectory
 __all__ = ["main"]
 
 FORMATS = ("kitti", "tum")
+#: Documented ranges of the numeric options.
+MAX_DELTA = 1e6
+MAX_TIME_DIFF = 60.0
+#: Image types --plot accepts (matplotlib's Agg backend and Pillow write them).
+IMAGE_SUFFIXES = ("png", "pdf", "svg", "jpg", "jpeg", "eps", "ps", "tif", "tiff", "webp")
 
 
 # ----------------------------------------------------------------------------- command line
@@ -48,30 +54,40 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--format", required=True, choices=FORMATS, help="file format of all files")
     ap.add_argument("--align", default="se3", choices=metrics.ALIGNMENTS,
                     help="Umeyama alignment of each estimate to the ground truth (default se3)")
-    ap.add_argument("--delta", type=float, default=1.0, help="RPE pair distance (default 1)")
+    ap.add_argument("--delta", type=number("--delta", float, 0, MAX_DELTA), default=1.0,
+                    help=f"RPE pair distance, > 0 and <= {MAX_DELTA:g} (default 1)")
     ap.add_argument("--delta-unit", default="f", choices=("f", "m"), help="frames or metres (default f)")
-    ap.add_argument("--t-max-diff", type=float, default=0.01,
-                    help="TUM: largest timestamp gap (s) of an associated pair (default 0.01)")
+    ap.add_argument("--t-max-diff", type=number("--t-max-diff", float, 0, MAX_TIME_DIFF), default=0.01,
+                    help=f"TUM: largest timestamp gap (s) of an associated pair, 0-{MAX_TIME_DIFF:g} (default 0.01)")
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    ap.add_argument("--plot", metavar="FILE.png", help="draw trajectories and errors into this image")
-    ap.add_argument("--min-coverage", type=float, default=None, metavar="X",
-                    help="fail (exit 2) if an estimate covers less than this share of GT poses")
+    ap.add_argument("--plot", metavar="FILE.png",
+                    help=f"draw trajectories and errors into this image ({', '.join(IMAGE_SUFFIXES)})")
+    ap.add_argument("--min-coverage", type=number("--min-coverage", float, 0, 1), default=None, metavar="X",
+                    help="fail (exit 2) if an estimate's coverage is below X, 0-1. Coverage: the share of "
+                         "ground-truth poses with an estimate within reach (half the estimate's median "
+                         "interval, at least --t-max-diff), so a complete estimate at half the rate covers 1")
     return ap
 
 
-def _read(path: str, fmt: str) -> Trajectory:
-    if fmt == "kitti":
-        from odolab.io.kitti import read_kitti_poses as reader
-    else:
-        from odolab.io.tum import read_tum_trajectory as reader
+def _read(path: str, fmt: str, duplicates: dict[str, int]) -> Trajectory:
+    """Read ``path``; TUM duplicate timestamps dropped (first kept) are counted in ``duplicates``."""
+    from odolab.io.kitti import read_kitti_poses
+    from odolab.io.tum import read_tum_file
+
     try:
-        return reader(path)
+        if fmt == "kitti":
+            return read_kitti_poses(path)
+        traj, duplicates[path] = read_tum_file(path)
+        return traj
     except FileFormatError as exc:
         raise UsageError(str(exc)) from None
 
 
 def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[str, Evaluation]]) -> str:
     pairing = "by index" if fmt == "kitti" else f"by timestamp, max diff {args.t_max_diff:g} s"
+    dropped = [f"{n} in {p}" for p, n in args.duplicates.items() if n]
+    if dropped:
+        pairing += f" (repeated timestamps dropped, first kept: {', '.join(dropped)})"
     unit = "frames" if args.delta_unit == "f" else "m"
     head = [
         f"ground truth: {gt_path} ({rows[0][1].pairing.n_gt} poses, {fmt}); pairing {pairing}; "
@@ -93,26 +109,25 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
             f(ev.rpe.rot.rmse, ".4f"), f(ev.kitti.t_rel, ".4f"), f(ev.kitti.r_rel, ".4f"),
             str(ev.kitti.n_segments),
         ])
-    widths = [max(len(r[i]) for r in [cols] + body) for i in range(len(cols))]
-    fmt_row = lambda r: "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
-    return "\n".join(head + [fmt_row(cols)] + [fmt_row(r) for r in body])
+    from odolab.summary import text_table
+
+    return "\n".join(head + [text_table(cols, body)])
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; see the module docstring."""
     args = _parser().parse_args(argv)
-    if args.t_max_diff < 0:
-        raise UsageError(f"--t-max-diff must be >= 0, got {args.t_max_diff:g}")
-    if args.min_coverage is not None and not 0.0 <= args.min_coverage <= 1.0:
-        raise UsageError(f"--min-coverage must be in [0, 1], got {args.min_coverage:g}")
+    if args.plot:
+        check_output_file(Path(args.plot), "--plot", IMAGE_SUFFIXES)
     if args.delta <= 0 or (args.delta_unit == "f" and args.delta != int(args.delta)):
         raise UsageError(f"--delta must be positive (a whole number of frames for -u f), got {args.delta:g}")
 
-    gt = _read(args.gt, args.format)
+    args.duplicates = {}
+    gt = _read(args.gt, args.format, args.duplicates)
     method = "index" if args.format == "kitti" else "timestamp"
     rows: list[tuple[str, Evaluation]] = []
     for path in args.est:
-        est = _read(path, args.format)
+        est = _read(path, args.format, args.duplicates)
         try:
             pairing = pair_trajectories(gt, est, method, args.t_max_diff)
         except ValueError as exc:
@@ -120,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.min_coverage is not None and pairing.coverage < args.min_coverage:
             raise UsageError(
                 f"{path}: coverage {pairing.coverage:.3f} is below --min-coverage {args.min_coverage:g} "
-                f"({pairing.used('gt')} of {pairing.n_gt} ground-truth poses have an estimate)"
+                f"(share of the {pairing.n_gt} ground-truth poses with an estimate within reach)"
             )
         try:
             ev = evaluate_trajectory(gt, est, pairing, args.align, args.delta, args.delta_unit)
@@ -128,10 +143,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"{path}: {exc}") from None
         rows.append((path, ev))
 
-    if args.plot:
-        from odolab.trajectory_plot import plot_evaluations
-
-        plot_evaluations(args.plot, [(os.path.basename(p), ev) for p, ev in rows])
     if args.json:
         doc = {
             "gt": {"path": args.gt, "format": args.format, "poses": len(gt)},
@@ -141,7 +152,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stdout.write("\n")
     else:
         print(_table(args.gt, args.format, args, rows))
-    if args.plot:
+    if args.plot:  # after the table: a failing figure never loses it
+        from odolab.trajectory_plot import plot_evaluations
+
+        try:
+            plot_evaluations(args.plot, [(os.path.basename(p), ev) for p, ev in rows])
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"--plot {args.plot}: the figure could not be written ({exc})") from None
         print(f"plot written to {args.plot}", file=sys.stderr)
     return 0
 

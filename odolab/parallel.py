@@ -4,9 +4,34 @@ single items), so results never depend on where they were computed.
 """
 from __future__ import annotations
 
+import re
+import socket
 from typing import Any, Callable, Sequence
 
 from tqdm.auto import tqdm
+
+#: Seconds to wait for a cluster's address to accept a connection before giving up.
+CONNECT_TIMEOUT = 3.0
+_ADDRESS = re.compile(r"^(?:ray://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):(?P<port>[0-9]{1,5})$")
+
+
+def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Check a Ray cluster address (``host:port``, ``ray://host:port`` or ``auto``) before use:
+    malformed, or nothing accepting connections there within ``timeout`` seconds, raises
+    ``ValueError`` with one line naming the address (instead of Ray's minutes-long retries)."""
+    if address == "auto":
+        return
+    match = _ADDRESS.match(address)
+    if match is None or not 0 < int(match["port"]) < 65536:
+        raise ValueError(f"--ray-address {address!r} is not an address; expected host:port, "
+                         "ray://host:port or auto")
+    host = match["host"].strip("[]")
+    try:
+        with socket.create_connection((host, int(match["port"])), timeout=timeout):
+            pass
+    except OSError as exc:
+        reason = f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc)).lower()
+        raise ValueError(f"--ray-address {address}: no Ray cluster there ({reason})") from None
 
 
 def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
@@ -17,7 +42,8 @@ def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
     ``on_result(k, result)`` is called in the driver as each item finishes (in completion order),
     e.g. to write it to disk at once so finished work survives an interruption; results are then
     handed to it and not kept (the returned list holds None), so large results can stream.
-    ``ray_address``: None starts (or reuses) a local instance; otherwise e.g. "ray://host:10001".
+    ``ray_address``: None starts (or reuses) a local instance; otherwise e.g. "ray://host:10001"
+    (checked first by :func:`check_ray_address`: ``ValueError`` within seconds if unreachable).
     """
     results: list[Any] = [None] * len(items)
     bar = tqdm(total=len(items), desc=desc, disable=not progress or not items, leave=False)
@@ -37,6 +63,8 @@ def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
         import ray
 
         started = not ray.is_initialized()
+        if started and ray_address is not None:
+            check_ray_address(ray_address)
         if started:
             ray.init(address=ray_address, include_dashboard=False, log_to_driver=False,
                      configure_logging=False)

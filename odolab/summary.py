@@ -1,18 +1,31 @@
-"""Turn runner results into the comparison tables (one row per odometer).
+"""Turn runner results into the comparison tables (one row per odometer), and format any table.
 
 Definitions (each metric's formula lives in :mod:`odolab.metrics`):
 
-* ``dx, dz, dyaw``: the paper's per-step error, mean absolute error over all steps of all
-  sequences pooled, x 1e-2 (m, m, rad); ``*_std``: standard deviation of the per-sequence means.
-* ``fps``: steps per second of the odometer's ``step`` calls alone (total steps / total time).
-* ``failures``: steps that raised or returned ``valid=False`` (the action prior was used instead).
+* ``dx, dz, dyaw``: the paper's per-step error *as used*: mean absolute error over all steps of
+  all sequences pooled, x 1e-2 (m, m, rad), where a failed step is scored with the action prior's
+  motion that replaced it (what a robot would have used); ``*_std``: standard deviation of the
+  per-sequence means.
+* ``dx_own, dz_own, dyaw_own``: the same error on the steps the odometer answered itself (failed
+  steps left out), as the paper scored raw estimates; read it together with ``failure_share``.
+* ``failure_share``: share of steps that raised or returned ``valid=False``; ``failures``: their
+  number (the action prior was used instead).
+* ``fps``: steps per second of the odometer's ``step`` calls alone (total steps / total time);
+  not applicable (NaN, shown as -) for the reference rows, which only look numbers up.
 * ``ate_m``: mean over sequences of the ATE RMSE (m) with *no* alignment: every trajectory starts
-  at the true first pose, so this is the drift a robot would suffer. ``drift_m``: mean final
-  position error (m). ``trans_mm`` / ``rot_deg``: mean per-frame relative pose error (real data).
+  at the true first pose, so this is the drift a robot would suffer (``python -m odolab.evaluate``
+  aligns by default, SE(3) as ``evo_ape -a``; pass ``--align none`` to get these figures).
+  ``drift_m``: mean final position error (m). ``*_std``: standard deviation over sequences.
+* ``trans_mm`` / ``rot_deg``: mean per-frame relative pose error, as used (real data);
+  ``trans_mm_own`` / ``rot_deg_own``: the same on the answered steps.
+
+Reference rows (``ground-truth``, ``action-prior``) come first, then the odometers in the order
+they were given.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -21,6 +34,9 @@ from odolab.metrics import ate, per_step_abs_error, relative_motion_errors
 from odolab.types import MOTION_ACTIONS
 from odolab.runner import SequenceResult
 
+#: Rows that bracket every real odometer: zero error (an oracle) and the paper's ``sys_error``.
+REFERENCE_ODOMETERS = ("action-prior", "ground-truth")
+
 
 @dataclass(frozen=True)
 class Row:
@@ -28,18 +44,27 @@ class Row:
 
     odometer: str
     oracle: bool
+    reference: bool
     dx: float
     dz: float
     dyaw: float
     dx_std: float
     dz_std: float
     dyaw_std: float
+    dx_own: float
+    dz_own: float
+    dyaw_own: float
     trans_mm: float
     rot_deg: float
+    trans_mm_own: float
+    rot_deg_own: float
     ate_m: float
+    ate_std: float
     drift_m: float
+    drift_std: float
     fps: float
     failures: int
+    failure_share: float
     steps: int
     sequences: int
 
@@ -67,41 +92,54 @@ def step_errors(r: SequenceResult) -> np.ndarray:
 
 
 def by_odometer(results: list[SequenceResult]) -> dict[str, list[SequenceResult]]:
-    """Results with ground truth grouped by odometer, in first-seen order."""
+    """Results with ground truth grouped by odometer: reference rows first, then first-seen order."""
     groups: dict[str, list[SequenceResult]] = {}
     for r in results:
         if r.truth is not None:
             groups.setdefault(r.odometer, []).append(r)
-    return groups
+    order = sorted(groups, key=lambda n: n not in REFERENCE_ODOMETERS)  # stable: given order kept
+    return {n: groups[n] for n in order}
+
+
+def _mean(x: np.ndarray) -> float:
+    return float(x.mean()) if len(x) else float("nan")
 
 
 def summarize(results: list[SequenceResult]) -> list[Row]:
-    """One :class:`Row` per odometer, in first-seen order. Needs ground truth."""
+    """One :class:`Row` per odometer (reference rows first). Needs ground truth."""
     rows = []
     for name, mine in by_odometer(results).items():
         errs = [step_errors(r) for r in mine]
         pooled = np.concatenate(errs) * 100.0
+        valid = np.concatenate([r.valid for r in mine])
         per_seq = np.array([e.mean(axis=0) for e in errs if len(e)]) * 100.0
         rel = [relative_motion_errors(r.gt_poses, r.poses) for r in mine]
+        trans = np.concatenate([t for t, _ in rel]) * 1e3
+        rot = np.concatenate([a for _, a in rel])
+        ates = np.array([ate(r.gt_poses, r.poses).rmse for r in mine])
+        drifts = np.array([np.linalg.norm(r.poses[-1, :3, 3] - r.gt_poses[-1, :3, 3]) for r in mine])
         seconds = sum(float(r.step_seconds.sum()) for r in mine)
         steps = len(pooled)
+        reference = name in REFERENCE_ODOMETERS
         rows.append(Row(
-            odometer=name, oracle=mine[0].oracle,
-            dx=float(pooled[:, 0].mean()), dz=float(pooled[:, 1].mean()), dyaw=float(pooled[:, 2].mean()),
+            odometer=name, oracle=mine[0].oracle, reference=reference,
+            dx=_mean(pooled[:, 0]), dz=_mean(pooled[:, 1]), dyaw=_mean(pooled[:, 2]),
             dx_std=float(per_seq[:, 0].std()), dz_std=float(per_seq[:, 1].std()),
             dyaw_std=float(per_seq[:, 2].std()),
-            trans_mm=float(np.concatenate([t for t, _ in rel]).mean() * 1e3),
-            rot_deg=float(np.concatenate([a for _, a in rel]).mean()),
-            ate_m=float(np.mean([ate(r.gt_poses, r.poses).rmse for r in mine])),
-            drift_m=float(np.mean([np.linalg.norm(r.poses[-1, :3, 3] - r.gt_poses[-1, :3, 3]) for r in mine])),
-            fps=steps / seconds if seconds > 0 else float("inf"),
-            failures=sum(r.failures for r in mine), steps=steps, sequences=len(mine),
+            dx_own=_mean(pooled[valid, 0]), dz_own=_mean(pooled[valid, 1]), dyaw_own=_mean(pooled[valid, 2]),
+            trans_mm=_mean(trans), rot_deg=_mean(rot), trans_mm_own=_mean(trans[valid]),
+            rot_deg_own=_mean(rot[valid]),
+            ate_m=float(ates.mean()), ate_std=float(ates.std()),
+            drift_m=float(drifts.mean()), drift_std=float(drifts.std()),
+            fps=float("nan") if reference else steps / seconds if seconds > 0 else float("inf"),
+            failures=int((~valid).sum()), failure_share=float((~valid).mean()) if steps else 0.0,
+            steps=steps, sequences=len(mine),
         ))
     return rows
 
 
 def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
-    """Per-step error (x 1e-2) per odometer and motion action."""
+    """Per-step error (x 1e-2) per odometer and motion action (reference rows first)."""
     rows = []
     for name, mine in by_odometer(results).items():
         errs = np.concatenate([step_errors(r) for r in mine]) * 100.0
@@ -114,3 +152,29 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
                 rows.append(ActionRow(name, a.label, float(e[0]), float(e[1]), float(e[2]), int(sel.sum()),
                                       int((~valid[sel]).sum())))
     return rows
+
+
+def fmt(value: float, spec: str, std: float | None = None) -> str:
+    """``value`` formatted by ``spec``, ``"-"`` when it is NaN (does not apply), and `` +- std``
+    when ``std`` is given and finite."""
+    if value is None or not np.isfinite(value):
+        return "-" if value is None or np.isnan(value) else str(value)
+    text = format(value, spec)
+    return text if std is None or not np.isfinite(std) else f"{text} +- {format(std, spec)}"
+
+
+def text_table(header: Sequence[str], rows: Sequence[Sequence[str]], markdown: bool = False) -> str:
+    """The one table formatter of odolab: cells are strings; the first column is left-aligned,
+    the others right-aligned. ``markdown`` gives a ``| a | b |`` table, else fixed-width text with
+    a dashed rule under the header."""
+    if markdown:
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+    widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    head = line(header)
+    return "\n".join([head, "-" * len(head), *(line(r) for r in rows)])

@@ -28,11 +28,11 @@ def test_compare_writes_table_report_and_trajectories(tmp_path, capsys):
     assert {"odometer", "dx", "dz", "dyaw", "fps", "failures"} <= set(rows[0])
     assert [r["odometer"] for r in rows] == ["ground-truth", "action-prior"]
     assert float(rows[0]["dz"]) == 0 and float(rows[1]["dz"]) > 0
-    for f in ("report.html", "errors.png", "trajectories.png", "table_per_action.csv"):
+    for f in ("report.html", "errors.png", "table_per_action.csv", "manifest.txt"):
         assert (out / f).stat().st_size > 0
     seq = sorted((out / "trajectories").iterdir())[0]
     assert {p.name for p in seq.iterdir()} >= {"action-prior.tum", "action-prior.kitti", "groundtruth.tum",
-                                                 "groundtruth.kitti"}
+                                                 "groundtruth.kitti", "top-down.png"}
     printed = capsys.readouterr().out
     assert "action-prior" in printed and "table.csv" in printed
 
@@ -52,12 +52,12 @@ def test_same_seed_same_errors_other_seed_other_errors(tmp_path):
     (["--odometers", "nope"], "unknown odometer 'nope'; available:"),
     (["--odometers", ","], "--odometers is empty"),
     (["--split", "dev"], "choose one of train, val, test"),
-    (["--episodes", "0"], "--episodes must be >= 1, got 0"),
-    (["--max-steps", "-3"], "--max-steps must be >= 1, got -3"),
+    (["--episodes", "0"], "--episodes must be in [1, 1000], got 0"),
+    (["--max-steps", "-3"], "--max-steps must be in [1, 500], got -3"),
     (["--episodes", "two"], "--episodes must be an integer"),
     (["--out", "/proc/odolab-cannot-write"], "not a writable folder"),
-    (["--depth-noise", "-1"], "--depth-noise must be >= 0"),
-    (["--rgb-noise", "nan"], "--rgb-noise must be >= 0"),
+    (["--depth-noise", "-1"], "--depth-noise must be in [0, 10]"),
+    (["--rgb-noise", "nan"], "--rgb-noise must be a finite number"),
 ])
 def test_bad_input_is_one_line_and_exit_2(args, words):
     proc = subprocess.run([sys.executable, "-m", "odolab.compare", *args], capture_output=True, text=True)

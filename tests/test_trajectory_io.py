@@ -131,7 +131,6 @@ TUM_BAD = [
     ("inf", f"{TUM_LINE}\n2.0 0 0 0 0 0 0 inf\n", 2, "not finite"),
     ("zero quaternion", f"{TUM_LINE}\n2.0 0 0 0 0 0 0 0\n", 2, "zero quaternion"),
     ("backwards", f"{TUM_LINE}\n3.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n", 3, "backwards"),
-    ("duplicate", f"{TUM_LINE}\n{TUM_LINE}\n", 2, "duplicate timestamp"),
 ]
 
 

@@ -163,7 +163,7 @@ def test_no_ground_truth_near_the_frames(copy):
 
 def test_image_that_does_not_load(copy):
     (copy / "rgb" / "1305031102.066667.png").write_bytes(b"not a png at all")
-    seq = load_tum_sequence(copy)  # decoding is lazy
+    seq = load_tum_sequence(copy, check_images=False)  # decoding is lazy when asked
     seq[0]
     with pytest.raises(FileFormatError, match=r"1305031102.066667.png: cannot be read as an image \(listed in rgb.txt, line 6\)"):
         seq[2]
@@ -173,9 +173,8 @@ def test_depth_must_be_16_bit(copy):
     path = copy / "depth" / "1305031102.033333.png"
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(path), (raw // 256).astype(np.uint8))
-    seq = load_tum_sequence(copy)
     with pytest.raises(FileFormatError, match=r"depth must be a 16-bit single-channel image, got uint8 \(listed in depth.txt, line 5\)"):
-        seq[1]
+        load_tum_sequence(copy)
 
 
 def test_depth_of_the_wrong_size(copy):
@@ -184,3 +183,37 @@ def test_depth_of_the_wrong_size(copy):
     cv2.imwrite(str(path), raw[:240, :320])
     with pytest.raises(FileFormatError, match=r"depth image is 320x240, the camera's is 640x480"):
         load_tum_sequence(copy)[0]
+
+
+@pytest.mark.parametrize("kind,damage,problem", [
+    ("rgb", "truncated", "cannot be read as an image"),
+    ("depth", "truncated", "cannot be read as an image"),
+    ("depth", "three channels", "got 3-channel uint16"),
+    ("rgb", "smaller", "colour image is 320x240, the camera's is 640x480"),
+])
+def test_bad_images_are_found_before_any_frame_is_used(copy, kind, damage, problem):
+    listed = sorted((copy / kind).iterdir())
+    path = listed[len(listed) // 2]
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[:200])
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = np.dstack([img] * 3) if damage == "three channels" else img[:240, :320]
+        cv2.imwrite(str(path), img)
+    with pytest.raises(FileFormatError, match=problem) as info:
+        load_tum_sequence(copy)
+    assert path.name in str(info.value) and f"{kind}.txt, line" in str(info.value)
+
+
+def test_image_path_outside_the_folder_is_refused(copy):
+    edit_line(copy / "rgb.txt", 4, "1305031102.175304 ../../etc/passwd")
+    with pytest.raises(FileFormatError, match="rgb.txt, line 4: ../../etc/passwd: outside the sequence folder"):
+        load_tum_sequence(copy)
+
+
+def test_frames_without_depth_or_ground_truth_are_counted(copy):
+    assert load_tum_sequence(copy).dropped == {"no depth": 0, "no ground truth": 0}
+    lines = (copy / "depth.txt").read_text().splitlines()
+    (copy / "depth.txt").write_text("\n".join(lines[:-2]) + "\n")  # the last two depth maps are gone
+    seq = load_tum_sequence(copy)
+    assert seq.dropped["no depth"] == 2 and len(seq) == 8

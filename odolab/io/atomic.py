@@ -1,46 +1,77 @@
-"""Atomic file writes: readers never see a half-written file, and a failed write leaves the old one."""
+"""Atomic file writes: readers never see a half-written file, and a failed write leaves the old one.
+
+Files get the permissions an ordinary ``open(path, "w")`` would give (``0o666`` minus the
+process umask), not the ``0o600`` of a bare temporary file.
+"""
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
+from typing import IO, Iterator
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where the OS allows (Linux ``/proc``)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)  # elsewhere: read by setting, then restore at once
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def _temporary_beside(path: str, suffix: str) -> Iterator[str]:
+    """A temporary file name in ``path``'s folder, moved onto ``path`` when the block succeeds
+    (with umask-honouring permissions) and removed when it fails."""
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=suffix)
+    os.close(fd)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
+    """``open`` for writing (``"w"`` text UTF-8 or ``"wb"``) whose content replaces ``path`` only
+    when the block ends without an exception (flushed and fsynced first)."""
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_open: mode must be 'w' or 'wb', got {mode!r}")
+    with _temporary_beside(os.fspath(path), ".tmp") as tmp:
+        with open(tmp, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` via a temporary file in the same directory and ``os.replace``.
+    """Write ``text`` to ``path`` via a temporary file in the same directory and ``os.replace``.
 
     Readers never see a half-written file; on failure the previous file (if any) is untouched.
     """
-    write_bytes_atomic(path, text.encode("utf-8"))
+    with atomic_open(path, "w") as f:
+        f.write(text)
 
 
 def save_figure_atomic(fig, path: str | os.PathLike, dpi: int = 110) -> None:
     """``fig.savefig`` into a temporary file beside ``path``, then ``os.replace``."""
     path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    ext = os.path.splitext(path)[1] or ".png"
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=ext)
-    os.close(fd)
-    try:
+    with _temporary_beside(path, os.path.splitext(path)[1] or ".png") as tmp:
         fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory, fsync and ``os.replace``."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` to ``path`` like :func:`write_text_atomic` (replaced whole, or not at all)."""
+    with atomic_open(path, "wb") as f:
+        f.write(data)

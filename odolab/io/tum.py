@@ -18,6 +18,7 @@ from odolab.trajectory import Trajectory
 
 __all__ = [
     "read_tum_trajectory",
+    "read_tum_file",
     "write_tum_trajectory",
     "associate",
     "quaternion_to_matrix",
@@ -73,23 +74,34 @@ def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
 def read_tum_trajectory(path: str | os.PathLike) -> Trajectory:
     """Read a TUM trajectory file into poses ``T_world_cam`` with timestamps (s).
 
+    Same as :func:`read_tum_file` without the count of dropped duplicate timestamps.
+    """
+    return read_tum_file(path)[0]
+
+
+def read_tum_file(path: str | os.PathLike) -> tuple[Trajectory, int]:
+    """Read a TUM trajectory file: ``(poses T_world_cam with timestamps (s), duplicates dropped)``.
+
+    A timestamp equal to the previous line's (real TUM ground-truth files have some) keeps the
+    first line and drops the repeat, as evo does; the count of dropped lines is returned.
     Quaternions are normalised; a zero quaternion, a non-finite number, a wrong column count,
-    a timestamp not strictly after the previous one, or an empty file raise
+    a timestamp before the previous one, or an empty file raise
     :class:`~odolab.io.errors.FileFormatError`.
     """
     rows, line_nos = read_numeric_rows(path, 8, _LAYOUT)
     stamps = rows[:, 0]
     steps = np.diff(stamps)
-    bad = np.flatnonzero(steps <= 0)
+    bad = np.flatnonzero(steps < 0)
     if bad.size:
         k = int(bad[0]) + 1
-        what = "duplicate timestamp" if steps[k - 1] == 0 else "timestamp goes backwards:"
         raise FileFormatError(
             path,
             int(line_nos[k]),
-            f"{what} {stamps[k]!r} (previous line {line_nos[k - 1]} has {stamps[k - 1]!r}); "
-            "timestamps must increase strictly",
+            f"timestamp goes backwards: {float(stamps[k])!r} (previous line {line_nos[k - 1]} has "
+            f"{float(stamps[k - 1])!r}); timestamps must increase",
         )
+    keep = np.concatenate([[True], steps > 0])
+    rows, line_nos = rows[keep], line_nos[keep]
     norms = np.linalg.norm(rows[:, 4:8], axis=1)
     zero = np.flatnonzero(norms < _ZERO_QUAT)
     if zero.size:
@@ -97,7 +109,7 @@ def read_tum_trajectory(path: str | os.PathLike) -> Trajectory:
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :3] = quaternion_to_matrix(rows[:, 4:8])
     poses[:, :3, 3] = rows[:, 1:4]
-    return Trajectory(stamps.copy(), poses)
+    return Trajectory(rows[:, 0].copy(), poses), int((~keep).sum())
 
 
 def write_tum_trajectory(path: str | os.PathLike, traj: Trajectory) -> None:

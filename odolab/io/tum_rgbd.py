@@ -8,9 +8,11 @@ metres = value / 5000 (0 = no reading), registered to the colour image.
 
 A frame is an RGB image, the depth image nearest in time and the ground-truth sample nearest in
 time, each within ``max_time_diff`` seconds (:func:`odolab.io.tum.associate`); frames without
-all three are left out. Images are checked to exist when the folder is read and are decoded
-when a frame is asked for. Every problem raises :class:`~odolab.io.errors.FileFormatError`
-naming the file, the line and what is wrong.
+all three are left out and counted (:attr:`TumSequence.dropped`). When the folder is read every
+image of a kept frame is decoded once and checked (readable, colour 8-bit, depth 16-bit single
+channel, the camera's size, inside the folder), so a bad file is found before any odometer runs;
+frames are decoded again when asked for. Every problem raises
+:class:`~odolab.io.errors.FileFormatError` naming the file, the line and what is wrong.
 """
 from __future__ import annotations
 
@@ -73,10 +75,21 @@ class TumSequence:
 
     collisions = None
 
-    def __init__(self, root: Path, intrinsics: Intrinsics, frames: list[_FrameFiles]) -> None:
+    def __init__(self, root: Path, intrinsics: Intrinsics, frames: list[_FrameFiles],
+                 dropped: dict[str, int] | None = None) -> None:
         self.root = root
         self.intrinsics = intrinsics
         self._frames = frames
+        #: Colour images left out, by reason: ``"no depth"`` (no depth image within the time
+        #: limit) and ``"no ground truth"`` (no ground-truth sample within it).
+        self.dropped = dict(dropped or {"no depth": 0, "no ground truth": 0})
+
+    def check_images(self) -> None:
+        """Decode every image once and check it (see the module docstring); raises
+        :class:`~odolab.io.errors.FileFormatError` naming the first bad file."""
+        for f in self._frames:
+            self._read_rgb(f.rgb)
+            self._read_depth(f.depth)
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -154,13 +167,15 @@ def tum_camera_for(folder: str | os.PathLike) -> Intrinsics | None:
 
 
 def load_tum_sequence(
-    path: str | os.PathLike, intrinsics: Intrinsics | None = None, max_time_diff: float = 0.02
+    path: str | os.PathLike, intrinsics: Intrinsics | None = None, max_time_diff: float = 0.02,
+    check_images: bool = True,
 ) -> TumSequence:
     """Read the TUM RGB-D folder ``path`` (see the module docstring) as a :class:`TumSequence`.
 
     ``intrinsics``: the camera; by default the TUM camera named in the folder's name.
     ``max_time_diff``: seconds allowed between a colour image and its depth image and between a
     frame and its ground-truth sample (TUM's ``associate.py`` uses 0.02).
+    ``check_images``: decode and check every image now (:meth:`TumSequence.check_images`).
     """
     root = Path(path)
     if not root.is_dir():
@@ -193,7 +208,11 @@ def load_tum_sequence(
     frames = [
         _FrameFiles(rgb[i_rgb[k]], depth[i_depth[k]], gt.poses[g]) for k, g in zip(i_pair, i_gt)
     ]
-    return TumSequence(root, intrinsics, frames)
+    dropped = {"no depth": len(rgb) - len(i_rgb), "no ground truth": len(i_rgb) - len(i_pair)}
+    seq = TumSequence(root, intrinsics, frames, dropped)
+    if check_images:
+        seq.check_images()
+    return seq
 
 
 def _read_list(path: Path) -> list[_Listed]:
@@ -216,6 +235,8 @@ def _read_list(path: Path) -> list[_Listed]:
             raise FileFormatError(
                 path, no, f"timestamp {fields[0]} is not after the previous line's; times must increase"
             )
+        if os.path.isabs(fields[1]) or os.path.normpath(fields[1]).split(os.sep)[0] == "..":
+            raise FileFormatError(path, no, f"{fields[1]}: outside the sequence folder (paths must be relative to it)")
         image = path.parent / fields[1]
         if not image.is_file():
             raise FileFormatError(path, no, f"{fields[1]}: no such file")

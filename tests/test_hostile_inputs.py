@@ -1,0 +1,210 @@
+"""Hostile input, one test per class: every command answers with one line and exit code 2 (no
+traceback), damaged caches regenerate, finished work is never lost, outputs honour the umask."""
+from __future__ import annotations
+
+import os
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from odolab.cli import run_cli
+
+ROOT = Path(__file__).resolve().parents[1]
+TUM_OK = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 1 1 0 0 0 0 1\n4.0 0 1 1 0 0 0 1\n"
+
+
+def one_line_error(module: str, *args: str, words: str) -> None:
+    """Run ``python -m module args``: exit 2, one line on stderr naming ``words``, no traceback."""
+    proc = subprocess.run([sys.executable, "-m", module, *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert words in lines[0] and "Traceback" not in proc.stderr, lines[0]
+
+
+# ----------------------------------------------------------------------------- numeric options
+
+@pytest.mark.parametrize("args,words", [
+    (["--seed", "-1"], "--seed must be in [0, 4.29497e+09], got -1"),
+    (["--seed", "99999999999"], "--seed must be in"),
+    (["--rgb-noise", "inf"], "--rgb-noise must be a finite number"),
+    (["--depth-noise", "1e300"], "--depth-noise must be in [0, 10]"),
+    (["--actuation-noise", "nan"], "--actuation-noise must be a finite number"),
+    (["--episodes", "10000000"], "--episodes must be in [1, 1000]"),
+    (["--max-steps", "100000"], "--max-steps must be in [1, 500]"),
+])
+def test_compare_numeric_options_have_ranges(args, words):
+    one_line_error("odolab.compare", *args, words=words)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--delta", "nan"], "--delta must be a finite number"),
+    (["--delta", "inf"], "--delta must be a finite number"),
+    (["--delta", "1e300"], "--delta must be in"),
+    (["--t-max-diff", "-1"], "--t-max-diff must be in [0, 60]"),
+    (["--min-coverage", "nan"], "--min-coverage must be a finite number"),
+])
+def test_evaluate_numeric_options_have_ranges(tmp_path, args, words):
+    gt = tmp_path / "gt.txt"
+    gt.write_text(TUM_OK)
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", *args, words=words)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--seed", "-5"], "--seed must be in"),
+    (["--episodes", "1e9"], "--episodes must be an integer"),
+    (["--episodes", "100000000"], "--episodes must be in"),
+    (["--max-steps", "0"], "--max-steps must be in"),
+])
+def test_action_prior_numeric_options_have_ranges(args, words):
+    one_line_error("odolab.action_prior", *args, words=words)
+
+
+# ----------------------------------------------------------------------------- output paths
+
+def test_compare_output_paths_are_checked_before_work(tmp_path):
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    one_line_error("odolab.compare", "--cache", a_file, "--out", tmp_path / "o", words="--cache")
+    one_line_error("odolab.compare", "--out", a_file, words="is a file, not a folder")
+    # /proc refuses new files even to root: a read-only location on every Linux machine
+    one_line_error("odolab.compare", "--cache", "/proc/odolab-cache", "--out", tmp_path / "o",
+                   words="--cache /proc/odolab-cache: not a writable folder")
+
+
+def test_evaluate_plot_path_is_checked_before_work(tmp_path):
+    gt = tmp_path / "gt.txt"
+    gt.write_text(TUM_OK)
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "fig.xyz",
+                   words="unknown image type '.xyz'")
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path,
+                   words="is a folder, not a file")
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "no" / "f.png",
+                   words="does not exist")
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", "/proc/f.png", words="cannot write in /proc")
+
+
+def test_bench_json_path_is_checked_before_work(tmp_path):
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", tmp_path, words="is a folder, not a file")
+
+
+# ----------------------------------------------------------------------------- Ray addresses
+
+@pytest.mark.parametrize("address,words", [
+    ("127.0.0.1:1", "no Ray cluster there"),        # a dead loopback port: nothing listens
+    ("not an address", "is not an address"),
+    ("127.0.0.1:99999", "is not an address"),
+])
+def test_ray_address_fails_within_seconds(tmp_path, address, words):
+    start = time.monotonic()
+    one_line_error("odolab.compare", "--ray-address", address, "--odometers", "action-prior", "--episodes", "2",
+                   "--max-steps", "5", "--no-cache", "--out", tmp_path, words=words)
+    assert time.monotonic() - start < 30
+
+
+# ----------------------------------------------------------------------------- damaged cache
+
+@pytest.mark.parametrize("damage", ["truncated", "bad crc"])
+def test_damaged_cache_entry_is_named_and_regenerated(tmp_path, small_spec, capsys, damage):
+    from odolab.episodes import EpisodeCache, load_episodes, render_episode
+
+    cache = EpisodeCache(tmp_path)
+    path = cache.put(render_episode(small_spec))
+    good = path.read_bytes()
+    k = len(good) // 3  # inside the rgb member: the zip directory stays readable, the CRC fails
+    path.write_bytes(good[: len(good) // 2] if damage == "truncated" else
+                     good[:k] + bytes([good[k] ^ 0xFF]) + good[k + 1:])
+    capsys.readouterr()
+    (ep,) = load_episodes([small_spec], cache, parallel=False, progress=False)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and "damaged" in err[0]
+    assert path.read_bytes() == good  # regenerated, bit for bit, and written back
+    assert cache.get(small_spec) is not None and np.array_equal(ep.rgb, cache.get(small_spec).rgb)
+
+
+# ----------------------------------------------------------------------------- TUM files
+
+def test_duplicate_timestamps_keep_the_first_and_are_counted(tmp_path, capsys):
+    from odolab.evaluate import main
+    from odolab.io.tum import read_tum_file
+
+    gt = tmp_path / "gt.txt"
+    lines = TUM_OK.splitlines(True)
+    gt.write_text(lines[0] + lines[1] + lines[1].replace(" 1 0 0 0", " 9 0 0 0", 1) + "".join(lines[2:]))
+    traj, dropped = read_tum_file(gt)
+    assert dropped == 1 and len(traj) == 4 and traj.poses[1, 0, 3] == 1.0
+    est = tmp_path / "est.txt"
+    est.write_text(TUM_OK)
+    assert run_cli(main, "odolab.evaluate", [str(gt), str(est), "--format", "tum"]) == 0
+    assert f"repeated timestamps dropped, first kept: 1 in {gt}" in capsys.readouterr().out
+
+
+def test_error_messages_print_plain_numbers(tmp_path):
+    from odolab.io.errors import FileFormatError
+    from odolab.io.tum import read_tum_trajectory
+
+    bad = tmp_path / "t.txt"
+    bad.write_text("2.5 0 0 0 0 0 0 1\n1.5 0 0 0 0 0 0 1\n")
+    with pytest.raises(FileFormatError) as info:
+        read_tum_trajectory(bad)
+    assert "1.5 (previous line 1 has 2.5)" in str(info.value) and "np." not in str(info.value)
+
+
+# ----------------------------------------------------------------------------- file modes
+
+def test_outputs_honour_the_umask(tmp_path):
+    from odolab.io.atomic import atomic_open, write_text_atomic
+
+    old = os.umask(0o027)
+    try:
+        write_text_atomic(tmp_path / "a.txt", "x")
+        with atomic_open(tmp_path / "b.bin") as f:
+            f.write(b"y")
+    finally:
+        os.umask(old)
+    for name in ("a.txt", "b.bin"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o640
+
+
+# ----------------------------------------------------------------------------- --tum and its options
+
+TUM_DIR = ROOT / "tests" / "data" / "tum_fr1_xyz_10"
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--episodes", "3"], "--episodes: simulator option, meaningless with --tum"),
+    (["--split=val", "--rgb-noise", "2"], "--split, --rgb-noise: simulator options"),
+])
+def test_tum_refuses_simulator_options(tmp_path, args, words):
+    one_line_error("odolab.compare", "--tum", TUM_DIR, *args, "--out", tmp_path, words=words)
+
+
+def test_tum_says_how_many_frames_it_left_out(tmp_path, capsys):
+    import shutil
+
+    from odolab.compare import main
+
+    folder = tmp_path / "rgbd_dataset_freiburg1_cut"
+    shutil.copytree(TUM_DIR, folder)
+    lines = (folder / "depth.txt").read_text().splitlines()
+    (folder / "depth.txt").write_text("\n".join(lines[:-3]) + "\n")
+    out = tmp_path / "out"
+    assert run_cli(main, "odolab.compare", ["--tum", str(folder), "--odometers", "action-prior", "--quiet",
+                                            "--out", str(out)]) == 0
+    said = "7 frames; colour images left out: 3 without a depth image and 0 without a ground-truth pose"
+    assert said in capsys.readouterr().err and said in (out / "report.html").read_text()
+
+
+def test_fan_out_checks_the_address_before_starting_ray():
+    from odolab.parallel import fan_out
+
+    start = time.monotonic()
+    with pytest.raises(ValueError, match="no Ray cluster there"):
+        fan_out(abs, [1, 2], ray_address="127.0.0.1:1", progress=False)
+    assert time.monotonic() - start < 10
