@@ -262,7 +262,7 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
         f"align {args.align}; RPE delta {args.delta:g} {unit}, consecutive pairs (evo_rpe defaults); "
         "figures are RMSEs",
     ]
-    cols = ["estimate", "pairs", "dropped gt/est", "coverage", "scale", "ATE m",
+    cols = ["estimate", "pairs", "dropped gt/est", "coverage", "scale", f"ATE m ({args.align})",
             "RPE m", "RPE deg", "t_rel %", "r_rel deg/100m", "segments"]
 
     def f(x: float, spec: str) -> str:
