@@ -226,3 +226,19 @@ def test_fan_out_checks_the_address_before_starting_ray():
     with pytest.raises(ValueError, match="no Ray cluster there"):
         fan_out(abs, [1, 2], ray_address="127.0.0.1:1", progress=False)
     assert time.monotonic() - start < 10
+
+
+@pytest.mark.parametrize("command", ["odolab.compare", "baselines.measure_tum"])
+def test_a_bad_image_stops_before_any_odometer_runs(tmp_path, command):
+    import shutil
+
+    folder = tmp_path / "rgbd_dataset_freiburg1_bad"
+    shutil.copytree(TUM_DIR, folder)
+    depth = sorted((folder / "depth").iterdir())[-1]  # the last frame: found before the first step
+    depth.write_bytes(depth.read_bytes()[:100])
+    args = ["--tum", folder, "--out", tmp_path / "o"] if command == "odolab.compare" else [folder]
+    proc = subprocess.run([sys.executable, "-m", command, *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stdout == ""
+    (line,) = proc.stderr.strip().splitlines()
+    assert f"{depth}: cannot be read as an image (listed in depth.txt, line 13)" in line
