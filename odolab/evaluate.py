@@ -30,6 +30,7 @@ from odolab import metrics
 from odolab.cli import ArgumentParser, UsageError, check_output_file, number, run_cli
 from odolab.io.errors import FileFormatError
 from odolab.trajectory import Trajectory
+from odolab.trajectory_plot import IMAGE_SUFFIXES
 
 __all__ = ["Pairing", "Evaluation", "pair_trajectories", "evaluate_trajectory", "evaluation_to_dict", "main"]
 
@@ -37,8 +38,6 @@ FORMATS = ("kitti", "tum")
 #: Documented ranges of the numeric options.
 MAX_DELTA = 1e6
 MAX_TIME_DIFF = 60.0
-#: Image types --plot accepts (matplotlib's Agg backend and Pillow write them).
-IMAGE_SUFFIXES = ("png", "pdf", "svg", "jpg", "jpeg", "eps", "ps", "tif", "tiff", "webp")
 
 
 @dataclass(frozen=True)
