@@ -246,7 +246,10 @@ class EpisodeCache:
         """Name a damaged entry on stderr and delete it."""
         print(f"odolab: episode cache entry {path} is damaged ({type(exc).__name__}: {exc}); regenerating it",
               file=sys.stderr)
-        path.unlink(missing_ok=True)
+        try:
+            path.unlink(missing_ok=True)
+        except OSError:  # e.g. a folder in its place: put() will then say so
+            pass
 
     def get(self, spec: EpisodeSpec) -> Episode | None:
         """The cached episode of ``spec``, or None (missing, or damaged: then discarded)."""

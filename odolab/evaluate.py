@@ -30,6 +30,7 @@ from odolab.cli import ArgumentParser, UsageError, check_output_file, number, ru
 from odolab.evaluation import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
 from odolab.io.errors import FileFormatError
 from odolab.trajectory import Trajectory
+from odolab.trajectory_plot import IMAGE_SUFFIXES
 
 __all__ = ["main"]
 
@@ -37,8 +38,6 @@ FORMATS = ("kitti", "tum")
 #: Documented ranges of the numeric options.
 MAX_DELTA = 1e6
 MAX_TIME_DIFF = 60.0
-#: Image types --plot accepts (matplotlib's Agg backend and Pillow write them).
-IMAGE_SUFFIXES = ("png", "pdf", "svg", "jpg", "jpeg", "eps", "ps", "tif", "tiff", "webp")
 
 
 # ----------------------------------------------------------------------------- command line
@@ -94,7 +93,7 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
         f"align {args.align}; RPE delta {args.delta:g} {unit}, consecutive pairs (evo_rpe defaults); "
         "figures are RMSEs",
     ]
-    cols = ["estimate", "pairs", "dropped gt/est", "coverage", "scale", "ATE m",
+    cols = ["estimate", "pairs", "dropped gt/est", "coverage", "scale", f"ATE m ({args.align})",
             "RPE m", "RPE deg", "t_rel %", "r_rel deg/100m", "segments"]
 
     def f(x: float, spec: str) -> str:

@@ -305,9 +305,11 @@ def _html_table(header: list[str], rows: list[list[str]], caption: str = "") -> 
 
 def _action_table(action_rows: list[ActionRow]) -> str:
     header = ["odometer", "action", "dx error, x1e-2 m, as used", "dz error, x1e-2 m, as used",
-              "dyaw error, x1e-2 rad, as used", "steps", "failed steps"]
-    rows = [[r.odometer, r.action, f"{r.dx:.2f}", f"{r.dz:.2f}", f"{r.dyaw:.2f}", str(r.steps), str(r.failures)]
-            for r in action_rows]
+              "dyaw error, x1e-2 rad, as used", "dx error, x1e-2 m, on answered steps",
+              "dz error, x1e-2 m, on answered steps", "dyaw error, x1e-2 rad, on answered steps", "steps",
+              "failed steps"]
+    rows = [[r.odometer, r.action, *(fmt(v, ".2f") for v in (r.dx, r.dz, r.dyaw, r.dx_own, r.dz_own, r.dyaw_own)),
+             str(r.steps), str(r.failures)] for r in action_rows]
     return _html_table(header, rows, "Mean absolute error per step of each action (no alignment).")
 
 

@@ -71,13 +71,17 @@ class Row:
 
 @dataclass(frozen=True)
 class ActionRow:
-    """Per-step error (x 1e-2) of one odometer for one action, and its failed steps."""
+    """Per-step error (x 1e-2) of one odometer for one action, as used and on the answered steps
+    (``*_own``, NaN when every step failed), and its failed steps."""
 
     odometer: str
     action: str
     dx: float
     dz: float
     dyaw: float
+    dx_own: float
+    dz_own: float
+    dyaw_own: float
     steps: int
     failures: int
 
@@ -148,9 +152,9 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
         for a in MOTION_ACTIONS:
             sel = acts == a.value
             if sel.any():
-                e = errs[sel].mean(axis=0)
-                rows.append(ActionRow(name, a.label, float(e[0]), float(e[1]), float(e[2]), int(sel.sum()),
-                                      int((~valid[sel]).sum())))
+                e, own = errs[sel], errs[sel & valid]
+                rows.append(ActionRow(name, a.label, *(_mean(e[:, k]) for k in range(3)),
+                                      *(_mean(own[:, k]) for k in range(3)), int(sel.sum()), int((~valid[sel]).sum())))
     return rows
 
 

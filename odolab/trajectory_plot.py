@@ -11,7 +11,10 @@ from odolab.io.atomic import save_figure_atomic
 if TYPE_CHECKING:
     from odolab.evaluation import Evaluation
 
-__all__ = ["plot_evaluations", "top_down_axes"]
+__all__ = ["IMAGE_SUFFIXES", "plot_evaluations", "top_down_axes"]
+
+#: Image types :func:`plot_evaluations` writes (matplotlib's Agg backend and Pillow), by extension.
+IMAGE_SUFFIXES = ("png", "pdf", "svg", "jpg", "jpeg", "eps", "ps", "tif", "tiff", "webp")
 
 _AXIS_NAMES = ("x", "y", "z")
 

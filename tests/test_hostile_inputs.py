@@ -19,13 +19,28 @@ TUM_OK = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 1 1 0 0 0 0 1\n4.0 0 1 1 0 0
 
 
 def one_line_error(module: str, *args: str, words: str) -> None:
-    """Run ``python -m module args``: exit 2, one line on stderr naming ``words``, no traceback."""
-    proc = subprocess.run([sys.executable, "-m", module, *map(str, args)], capture_output=True, text=True,
+    """Run ``python -m module args`` in this process (as its ``__main__`` would, through
+    ``run_cli``): exit 2, one line on stderr naming ``words``, no traceback."""
+    import contextlib
+    import importlib
+    import io
+
+    mod = importlib.import_module(module)
+    main = getattr(mod, "main", None) or getattr(mod, "_main")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = run_cli(main, module, [str(a) for a in args])
+    assert code == 2, err.getvalue()
+    lines = err.getvalue().strip().splitlines()
+    assert len(lines) == 1, err.getvalue()
+    assert words in lines[0] and lines[0].startswith(f"{module}: error: "), lines[0]
+
+
+def test_a_bad_option_is_one_line_from_the_command_line():
+    proc = subprocess.run([sys.executable, "-m", "odolab.compare", "--seed", "-1"], capture_output=True, text=True,
                           cwd=ROOT, timeout=60)
-    assert proc.returncode == 2, proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1, proc.stderr
-    assert words in lines[0] and "Traceback" not in proc.stderr, lines[0]
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == "odolab.compare: error: argument --seed: --seed must be in [0, 4.29497e+09], got -1"
 
 
 # ----------------------------------------------------------------------------- numeric options
@@ -114,6 +129,9 @@ def test_ray_address_fails_within_seconds(tmp_path, address, words):
 def test_damaged_cache_entry_is_named_and_regenerated(tmp_path, small_spec, capsys, damage):
     from odolab.episodes import EpisodeCache, load_episodes, render_episode
 
+    import dataclasses
+
+    small_spec = dataclasses.replace(small_spec, max_steps=4)
     cache = EpisodeCache(tmp_path)
     path = cache.put(render_episode(small_spec))
     good = path.read_bytes()
@@ -208,3 +226,19 @@ def test_fan_out_checks_the_address_before_starting_ray():
     with pytest.raises(ValueError, match="no Ray cluster there"):
         fan_out(abs, [1, 2], ray_address="127.0.0.1:1", progress=False)
     assert time.monotonic() - start < 10
+
+
+@pytest.mark.parametrize("command", ["odolab.compare", "baselines.measure_tum"])
+def test_a_bad_image_stops_before_any_odometer_runs(tmp_path, command):
+    import shutil
+
+    folder = tmp_path / "rgbd_dataset_freiburg1_bad"
+    shutil.copytree(TUM_DIR, folder)
+    depth = sorted((folder / "depth").iterdir())[-1]  # the last frame: found before the first step
+    depth.write_bytes(depth.read_bytes()[:100])
+    args = ["--tum", folder, "--out", tmp_path / "o"] if command == "odolab.compare" else [folder]
+    proc = subprocess.run([sys.executable, "-m", command, *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stdout == ""
+    (line,) = proc.stderr.strip().splitlines()
+    assert f"{depth}: cannot be read as an image (listed in depth.txt, line 13)" in line
