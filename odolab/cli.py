@@ -33,6 +33,8 @@ def number(name: str, kind: type = int, minimum: float | None = None,
     """An argparse ``type`` parsing ``kind`` (int or float) in ``[minimum, maximum]`` (either bound
     may be None); the error names the option: ``--episodes must be >= 1, got 0``. NaN and infinity
     are always refused."""
+    show = (lambda v: str(int(v))) if kind is int else (lambda v: f"{v:g}")  # noqa: E731
+
     def parse(text: str):
         noun = "an integer" if kind is int else "a number"
         try:
@@ -42,10 +44,10 @@ def number(name: str, kind: type = int, minimum: float | None = None,
         if not math.isfinite(value):
             raise argparse.ArgumentTypeError(f"{name} must be a finite number, got {text}")
         if minimum is not None and value < minimum:
-            bound = f"in [{minimum:g}, {maximum:g}]" if maximum is not None else f">= {minimum:g}"
+            bound = f"in [{show(minimum)}, {show(maximum)}]" if maximum is not None else f">= {show(minimum)}"
             raise argparse.ArgumentTypeError(f"{name} must be {bound}, got {text}")
         if maximum is not None and value > maximum:
-            bound = f"in [{minimum:g}, {maximum:g}]" if minimum is not None else f"<= {maximum:g}"
+            bound = f"in [{show(minimum)}, {show(maximum)}]" if minimum is not None else f"<= {show(maximum)}"
             raise argparse.ArgumentTypeError(f"{name} must be {bound}, got {text}")
         return value
     return parse

@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from odolab.cli import ArgumentParser, UsageError, number, run_cli
+from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, run_cli, seed
 
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
 PAPER_MIX = {"move_forward": 57.32, "turn_left": 21.34, "turn_right": 21.33}  # % of 1,000,000 steps
@@ -294,13 +294,15 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
 def build_parser() -> ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.simcard", description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="train", choices=["train", "val", "test"], help="scene split (default train)")
-    ap.add_argument("--episodes", type=number("--episodes", int, 1), default=400,
-                    help="rollouts for the motion statistics (default 400)")
-    ap.add_argument("--rendered", type=number("--rendered", int, 1), default=24,
-                    help="episodes rendered for the image statistics (default 24)")
-    ap.add_argument("--frames", type=number("--frames", int, 1), default=30, help="frames per rendered episode (30)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1), default=500, help="steps per episode (500)")
-    ap.add_argument("--seed", type=number("--seed", int, 0), default=0, help="episode seed (default 0)")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, 100_000), default=400,
+                    help="rollouts for the motion statistics, 1-100000 (default 400)")
+    ap.add_argument("--rendered", type=number("--rendered", int, 1, 1000), default=24,
+                    help="episodes rendered for the image statistics, 1-1000 (default 24)")
+    ap.add_argument("--frames", type=number("--frames", int, 1, 500), default=30,
+                    help="frames per rendered episode, 1-500 (default 30)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 2000), default=500,
+                    help="steps per episode, 1-2000 (default 500)")
+    ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
     ap.add_argument("--out", type=Path, default=Path("runs/simcard"), help="output folder (default runs/simcard)")
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="no Ray: everything in this process")
@@ -314,10 +316,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.sim.redwood import default_table
 
     args = build_parser().parse_args(argv)
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"--out {args.out}: cannot create the folder ({exc.strerror or exc})") from None
+    check_output_dir(args.out, "--out")
+    if args.ray_address is not None and not args.serial:
+        from odolab.parallel import check_ray_address
+
+        try:
+            check_ray_address(args.ray_address)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps)
              for i in range(args.episodes)]
     run = dict(parallel=not args.serial, ray_address=args.ray_address, progress=not args.quiet)
