@@ -34,7 +34,7 @@ _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
 FORMAT_VERSION = 1  # the .npz layout
 #: Bump whenever the simulator's output for a given spec changes (scenes, rendering, noise, motion,
 #: follower): it is part of every cache key, so stale cached episodes are never reused.
-SIMULATOR_VERSION = 3
+SIMULATOR_VERSION = 4
 #: What reading a damaged cache file raises (truncated zip, bad CRC, bad header, short read).
 _DAMAGE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
 

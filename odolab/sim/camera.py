@@ -15,13 +15,14 @@ import numpy as np
 
 from odolab.types import Intrinsics
 from odolab.sim.scenes import Scene
-from odolab.sim.textures import TEXEL_SIZE, make_tiles, mip_levels
+from odolab.sim.textures import TEXEL_SIZE, make_tiles, mip_stack
 
 _KEY_LIGHT = np.array([0.45, 0.3, 0.84]) / np.linalg.norm([0.45, 0.3, 0.84])  # world direction to the light
 AMBIENT, KEY, FILL = 0.4, 0.7, 0.25  # shading = AMBIENT + KEY max(n.l, 0) + FILL max(-n.l, 0)
 TEX_FLOOR, TEX_GAIN = 0.25, 1.25  # brightness factor of a texel with reflectance r: TEX_FLOOR + TEX_GAIN r
 MIP_LEVELS = 7  # 512 -> 8 texels
 _TEXEL_OFFSET = 1 << 16  # texels
+_T_STEPS = 16  # mip lookup bins per metre of hit distance
 
 
 @dataclass(frozen=True)
@@ -70,11 +71,10 @@ class Renderer:
             raise ValueError("texture tiles must have a power-of-two size")
         self._log_size = size.bit_length() - 1
         self._tile_mask = size - 1
-        levels = mip_levels(tiles, min(MIP_LEVELS, self._log_size + 1))
-        self._levels = len(levels)
-        # all levels of all tiles in one flat array, reflectance mapped to a brightness factor
-        self._mip_offset = np.cumsum([0] + [lv.size for lv in levels[:-1]]).astype(np.int32)
-        self._mip_flat = np.concatenate([(TEX_FLOOR + TEX_GAIN * lv).reshape(-1) for lv in levels]).astype(np.float32)
+        # every mip level at full size (nearest-upsampled), as brightness codes: factor x 128
+        self._tex = mip_stack(tiles, min(MIP_LEVELS, self._log_size + 1), TEX_FLOOR, TEX_GAIN)
+        self._levels = self._tex.shape[0]
+        self._level_stride = int(self._tex[0].size)
         self._rc = o3d.t.geometry.RaycastingScene(nthreads=nthreads)
         self._rc.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
 
@@ -82,14 +82,15 @@ class Renderer:
         n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
         axis = np.argmax(np.abs(n), axis=1)
-        self._tri_axis = axis.astype(np.int8)  # dominant normal axis: picks the texture plane
+        self._tri_axis = np.append(axis, 2).astype(np.int8)  # dominant normal axis: the texture plane
         lit = n @ _KEY_LIGHT
         shade = AMBIENT + KEY * np.maximum(lit, 0.0) + FILL * np.maximum(-lit, 0.0)
         colors = np.array([m.color for m in scene.materials], dtype=np.float32)
-        self._tri_rgb_t = np.ascontiguousarray((colors[scene.triangle_material] * shade[:, None] * 255.0).T,
-                                               dtype=np.float32)  # (3, F)
+        rgb = np.clip(np.round(colors[scene.triangle_material] * shade[:, None] * 255.0), 0, 255)
+        # (3, F + 1) 8-bit colour x shading, and each triangle's tile; the last entry is for misses
+        self._tri_rgb_t = np.ascontiguousarray(np.append(rgb, np.zeros((1, 3)), axis=0).T, dtype=np.uint16)
         tile = np.array([m.tile for m in scene.materials])[scene.triangle_material] % len(tiles)
-        self._tri_tile = tile.astype(np.int32)
+        self._tri_tile_offset = np.append(tile * size * size, 0).astype(np.int32)
 
         K = camera.intrinsics
         u, v_ = np.meshgrid(np.arange(camera.width), np.arange(camera.height))  # pixel centres (Intrinsics)
@@ -97,9 +98,15 @@ class Renderer:
             [(u - K.cx) / K.fx, (v_ - K.cy) / K.fy, np.ones_like(u)], axis=-1
         ).reshape(-1, 3).astype(np.float32)
         self._dirs_cam_t = np.ascontiguousarray(self._dirs_cam.T)
-        # a pixel's footprint at unit ray parameter, in texels: |d| / fx / TEXEL_SIZE
-        self._dir_norm = np.linalg.norm(self._dirs_cam, axis=1).astype(np.float32)
-        self._foot_unit = (self._dir_norm / (K.fx * TEXEL_SIZE)).astype(np.float32)
+        # Mip level = log2 of a pixel's footprint in texels, t |d| / (fx TEXEL_SIZE) / sqrt(cos), cos the
+        # incidence: from the hit distance by a lookup (centre |d| = 1), plus for floor and ceiling the
+        # per-pixel foreshortening of a level camera, cos = |d_y| / |d|.
+        t_bins = (np.arange(int(camera.max_depth * _T_STEPS) + 2) + 0.5) / _T_STEPS
+        by_t = np.floor(np.log2(np.maximum(t_bins / (K.fx * TEXEL_SIZE), 1.0)))
+        self._level_by_t = (np.clip(by_t, 0, self._levels - 1) * self._level_stride).astype(np.int32)
+        norm = np.linalg.norm(self._dirs_cam, axis=1)
+        tilt = np.round(0.5 * np.log2(norm / np.maximum(np.abs(self._dirs_cam[:, 1]), 1e-3)) + np.log2(norm))
+        self._floor_bias = (np.clip(tilt, 0, self._levels - 1) * self._level_stride).astype(np.int32)
         self._rays = _aligned_empty((self._dirs_cam.shape[0], 6))
 
     @property
@@ -118,10 +125,17 @@ class Renderer:
         for i in range(3):  # elementwise, not BLAS: BLAS threads fight Open3D's spinning OpenMP pool
             col = rays[:, 3 + i]
             np.multiply(d[0], R[i, 0], out=col)
-            col += R[i, 1] * d[1]
-            col += R[i, 2] * d[2]
+            if R[i, 1] != 0:  # zero for the vertical axis of a level camera
+                col += R[i, 1] * d[1]
+            col += R[i, 2]  # d[2] == 1
             rays[:, i] = T_world_cam[i, 3]
         return rays
+
+    def _rays_tensor(self, T_world_cam: np.ndarray):
+        """:meth:`rays` as an Open3D tensor sharing the buffer (no 1.5 MB copy per frame)."""
+        import open3d as o3d
+
+        return o3d.core.Tensor.from_numpy(self.rays(T_world_cam))
 
     def render(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Clean ``rgb`` (H, W, 3) uint8 and ``depth`` (H, W) float32 metres (0 = no reading).
@@ -129,36 +143,29 @@ class Renderer:
         ``T_world_cam``: 4x4 camera pose (OpenCV camera axes, world Z up).
         """
         cam = self.camera
-        hit = self._rc.cast_rays(self.rays(T_world_cam))
-        t = hit["t_hit"].numpy()
-        ok = np.isfinite(t)
-        t[~ok] = 0.0
-        # misses carry an invalid id (2^32 - 1 = -1 as int32): mode="clip" reads triangle 0,
-        # and the texture factor of misses is zeroed below. np.take: 3x faster than [].
+        hit = self._rc.cast_rays(self._rays_tensor(T_world_cam))
+        t = hit["t_hit"].numpy()  # inf for a miss
+        # a miss carries the invalid id 2^32 - 1 = -1 as int32: with mode="wrap" it reads the last entry
+        # of each per-triangle table, a black "miss" triangle. np.take: 3x faster than [].
         tri = hit["primitive_ids"].numpy().view(np.int32)
         # Hit point coordinates, then the triangle's texture plane:
         # normal along X -> (Y, Z), along Y -> (X, Z), along Z (floor, ceiling) -> (X, Y).
         rays = self._rays
-        px, py, pz = (rays[:, i] + t * rays[:, 3 + i] for i in range(3))
-        axis = np.take(self._tri_axis, tri, mode="clip")
-        pu = np.where(axis == 0, py, px)
-        pv = np.where(axis == 2, py, pz)
-        # the offset keeps coordinates positive (no mirrored seam at 0); it is a multiple of the tile
-        iu = (pu * (1.0 / TEXEL_SIZE) + _TEXEL_OFFSET).astype(np.int32) & self._tile_mask
-        iv = (pv * (1.0 / TEXEL_SIZE) + _TEXEL_OFFSET).astype(np.int32) & self._tile_mask
-        # mip level: log2 of the footprint t |d| / (fx texel) / sqrt(cos), cos = |d . n| / |d|
-        d_axis = np.abs(np.where(axis == 0, rays[:, 3], np.where(axis == 1, rays[:, 4], rays[:, 5])))
-        foot = t * self._foot_unit * np.sqrt(self._dir_norm / np.maximum(d_axis, 1e-3), dtype=np.float32)
-        # floor(log2(foot)) from the float32 exponent bits (foot >= 0; 0 and subnormals -> level 0)
-        level = (foot.view(np.int32) >> 23) - 127
-        np.clip(level, 0, self._levels - 1, out=level)
-        shift = self._log_size - level
-        index = (np.take(self._mip_offset, level) + (np.take(self._tri_tile, tri, mode="clip") << (2 * shift))
-                 + ((iv >> level) << shift) + (iu >> level))
-        tex = np.take(self._mip_flat, index)
-        tex[~ok] = 0.0
+        with np.errstate(invalid="ignore"):  # misses: inf / nan coordinates, cast to any int, unseen
+            px, py, pz = (rays[:, i] + t * rays[:, 3 + i] for i in range(3))
+            axis = np.take(self._tri_axis, tri, mode="wrap")
+            pu = np.where(axis == 0, py, px)
+            pv = np.where(axis == 2, py, pz)
+            # the offset keeps coordinates positive (no mirrored seam at 0); it is a multiple of the tile
+            iu = (pu * (1.0 / TEXEL_SIZE) + _TEXEL_OFFSET).astype(np.int32) & self._tile_mask
+            iv = (pv * (1.0 / TEXEL_SIZE) + _TEXEL_OFFSET).astype(np.int32) & self._tile_mask
+            level = np.take(self._level_by_t, (t * _T_STEPS).astype(np.int32), mode="clip")
+        level += (axis == 2) * self._floor_bias
+        np.minimum(level, (self._levels - 1) * self._level_stride, out=level)
+        index = level + np.take(self._tri_tile_offset, tri, mode="wrap") + (iv << self._log_size) + iu
+        tex = np.take(self._tex.reshape(-1), index).astype(np.uint16)
         rgb = np.empty((len(t), 3), np.uint8)
         for k in range(3):  # one 1-D gather per channel: 3x faster than gathering (N, 3) rows
-            rgb[:, k] = np.minimum(np.take(self._tri_rgb_t[k], tri, mode="clip") * tex, 255.0)
-        depth = np.where(ok & (t >= cam.min_depth) & (t < cam.max_depth), t, 0.0).astype(np.float32)
+            rgb[:, k] = np.minimum((np.take(self._tri_rgb_t[k], tri, mode="wrap") * tex) >> 7, 255)
+        depth = np.where((t >= cam.min_depth) & (t < cam.max_depth), t, np.float32(0.0))
         return rgb.reshape(cam.height, cam.width, 3), depth.reshape(cam.height, cam.width)

@@ -112,3 +112,26 @@ def mip_levels(tiles: np.ndarray, levels: int) -> list[np.ndarray]:
         t = out[-1]
         out.append(0.25 * (t[:, 0::2, 0::2] + t[:, 1::2, 0::2] + t[:, 0::2, 1::2] + t[:, 1::2, 1::2]))
     return out
+
+
+def mip_stack(tiles: np.ndarray, levels: int, floor: float, gain: float) -> np.ndarray:
+    """(levels, count, size, size) uint8: level k of :func:`mip_levels`, nearest-upsampled back to
+    full size, as brightness codes ``round((floor + gain * reflectance) * 128)`` (so a lookup at
+    level k needs no per-level index arithmetic). Cached for the default tiles."""
+    if tiles is make_tiles():
+        return _default_mip_stack(levels, floor, gain)
+    return _mip_stack(tiles, levels, floor, gain)
+
+
+def _mip_stack(tiles: np.ndarray, levels: int, floor: float, gain: float) -> np.ndarray:
+    out = np.empty((levels, *tiles.shape), np.uint8)
+    for k, level in enumerate(mip_levels(tiles, levels)):
+        up = np.repeat(np.repeat(level, 1 << k, axis=1), 1 << k, axis=2)
+        out[k] = np.clip(np.round((floor + gain * up) * 128.0), 0, 255)
+    out.flags.writeable = False
+    return out
+
+
+@lru_cache(maxsize=2)
+def _default_mip_stack(levels: int, floor: float, gain: float) -> np.ndarray:
+    return _mip_stack(make_tiles(), levels, floor, gain)
