@@ -1,25 +1,26 @@
-"""Side-by-side accuracy and speed of the classical odometers on a TUM RGB-D folder.
+"""Side-by-side accuracy and speed of odometers on a TUM RGB-D folder, per frame pair.
 
     python -m baselines.measure_tum tests/data/tum_fr1_xyz_10
 
-For every consecutive frame pair: relative pose error ``E = inv(T_gt_rel) T_est_rel`` with
-``T_rel = T_prev_cur``; translation error ``|t_E|`` (mm) and rotation error ``angle(R_E)`` (deg),
-averaged over pairs. A step an odometer marks invalid is scored as no motion (the fallback a
-runner has on real data, where no action is known) and counted. Speed: steps per second of
-``step()`` alone (frames decoded beforehand; each step meets one new frame, as in a run), the
-median of ``--repeat`` passes. Prints a markdown table.
+A thin use of odolab's runner (:func:`odolab.api.run_odometers`: same frames to each odometer,
+timing, failures) scored with the relative pose error of every consecutive pair,
+``E = inv(T_gt_rel) T_est_rel`` with ``T_rel = T_prev_cur``: translation ``|t_E|`` (mm) and rotation
+``angle(R_E)`` (deg), averaged over pairs, the figures facts are quoted in for Open3D and KISS-ICP.
+A step an odometer cannot answer is scored as no motion (the runner's fallback on real data, where
+no action is known) and counted. ``no-motion`` is that fallback as a row of its own (the registered
+``action-prior`` odometer). Speed: steps per second of ``step()`` alone, median over ``--repeat``
+passes. Prints a markdown table; bad input is one line on stderr and exit code 2.
 """
 from __future__ import annotations
 
 import argparse
-import itertools
+import math
 import sys
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.api import Estimate, Frame, invert, load_odometer, load_tum_sequence
+from odolab.api import SequenceResult, UnknownOdometerError, invert, load_odometer, load_tum_sequence, run_odometers
 
 NO_MOTION = "no-motion"
 DEFAULT_ODOMETERS = (NO_MOTION, "feature-essential", "icp", "open3d-rgbd")
@@ -27,7 +28,7 @@ DEFAULT_ODOMETERS = (NO_MOTION, "feature-essential", "icp", "open3d-rgbd")
 
 @dataclass(frozen=True)
 class Row:
-    """One odometer's figures: mean errors (mm, deg), invalid steps, steps per second."""
+    """One odometer's figures: mean errors (mm, deg), invalid steps, steps per second (None: untimed)."""
 
     name: str
     translation_mm: float
@@ -44,33 +45,20 @@ def relative_pose_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, flo
     return float(np.linalg.norm(E[:3, 3])), float(np.arccos(cos))
 
 
-def measure(name: str, frames: list[Frame], intrinsics, repeat: int = 3, **options) -> Row:
-    """Run odometer ``name`` (or ``"no-motion"``) over ``frames``; errors vs the frames' gt_pose."""
-    pairs = list(itertools.pairwise(frames))
-    gt = [invert(a.gt_pose) @ b.gt_pose for a, b in pairs]
-    if name == NO_MOTION:
-        estimates = [Estimate(np.eye(4)) for _ in pairs]
-        speed = None
-    else:
-        times = []
-        for _ in range(max(repeat, 1)):
-            odo = load_odometer(name, **options)
-            odo.reset(intrinsics)
-            start = time.perf_counter()
-            estimates = [odo.step(a, b, None) for a, b in pairs]
-            times.append(time.perf_counter() - start)
-        speed = len(pairs) / float(np.median(times))
-    errors = np.array(
-        [relative_pose_error(e.transform if e.valid else np.eye(4), g) for e, g in zip(estimates, gt)]
-    )
-    return Row(
-        name,
-        1000.0 * float(errors[:, 0].mean()),
-        float(np.degrees(errors[:, 1].mean())),
-        sum(not e.valid for e in estimates),
-        len(pairs),
-        speed,
-    )
+def score(result: SequenceResult, steps_per_s: float | None) -> Row:
+    """Mean per-pair errors of one runner result (its estimates as used: failed steps = no motion)."""
+    errors = np.array([relative_pose_error(e, g) for e, g in zip(result.estimates, result.truth)])
+    return Row(result.odometer, 1000.0 * float(errors[:, 0].mean()), float(np.degrees(errors[:, 1].mean())),
+               result.failures, len(result.estimates), steps_per_s)
+
+
+def load(name: str, max_depth: float):
+    """The odometer ``name`` with the depth cut where it takes one (reference rows take none)."""
+    target = "action-prior" if name == NO_MOTION else name
+    try:
+        return load_odometer(target, max_depth=max_depth)
+    except TypeError:  # no max_depth option: run it as it is
+        return load_odometer(target)
 
 
 def markdown_table(rows: list[Row], width: int, height: int) -> str:
@@ -81,10 +69,20 @@ def markdown_table(rows: list[Row], width: int, height: int) -> str:
     ]
     for r in rows:
         speed = "-" if r.steps_per_s is None else f"{r.steps_per_s:.1f}"
-        lines.append(
-            f"| {r.name} | {r.translation_mm:.2f} | {r.rotation_deg:.3f} | {r.invalid}/{r.steps} | {speed} |"
-        )
+        lines.append(f"| {r.name} | {r.translation_mm:.2f} | {r.rotation_deg:.3f} | {r.invalid}/{r.steps} | {speed} |")
     return "\n".join(lines)
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got {text!r}") from None
+        if not math.isfinite(value) or value <= 0 or value > 1000:
+            raise argparse.ArgumentTypeError(f"must be in (0, 1000], got {text}")
+        return value
+    return parse
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,24 +90,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("folder", help="TUM RGB-D sequence folder (rgb.txt, depth.txt, groundtruth.txt)")
     parser.add_argument("--odometers", nargs="+", default=list(DEFAULT_ODOMETERS), metavar="NAME",
                         help=f"registered odometer names, or {NO_MOTION!r} (default: %(default)s)")
-    parser.add_argument("--max-depth", type=float, default=4.0, help="depth cut, metres (default: 4)")
-    parser.add_argument("--repeat", type=int, default=3, help="timed passes per odometer (default: 3)")
+    parser.add_argument("--max-depth", type=_positive(float), default=4.0, help="depth cut, metres, (0, 1000] (4)")
+    parser.add_argument("--repeat", type=_positive(int), default=3, help="timed passes per odometer, 1-1000 (3)")
     args = parser.parse_args(argv)
     try:
         seq = load_tum_sequence(args.folder)
-    except (OSError, ValueError) as exc:
+        if len(seq) < 2:
+            raise ValueError(f"{args.folder}: needs at least 2 frames with depth and ground truth")
+        odometers = {name: load(name, args.max_depth) for name in dict.fromkeys(args.odometers)}
+    except (OSError, ValueError, UnknownOdometerError, TypeError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
-    frames = [seq[i] for i in range(len(seq))]
-    if len(frames) < 2:
-        print(f"{parser.prog}: error: {args.folder}: needs at least 2 frames", file=sys.stderr)
-        return 2
     rows = []
-    for name in args.odometers:
-        options = {} if name == NO_MOTION else {"max_depth": args.max_depth}
-        rows.append(measure(name, frames, seq.intrinsics, args.repeat, **options))
+    for name, odo in odometers.items():
+        timed = name not in (NO_MOTION, "action-prior", "ground-truth")
+        passes = [run_odometers({name: odo}, [seq])[0] for _ in range(args.repeat if timed else 1)]
+        speed = float(np.median([len(p.step_seconds) / p.step_seconds.sum() for p in passes])) if timed else None
+        rows.append(score(passes[0], speed))
     i = seq.intrinsics
-    print(f"{args.folder}: {len(frames)} frames, {len(frames) - 1} consecutive pairs, depth cut {args.max_depth} m\n")
+    print(f"{args.folder}: {len(seq)} frames, {len(seq) - 1} consecutive pairs, depth cut {args.max_depth:g} m\n")
     print(markdown_table(rows, i.width, i.height))
     return 0
 

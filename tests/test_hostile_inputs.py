@@ -242,3 +242,15 @@ def test_a_bad_image_stops_before_any_odometer_runs(tmp_path, command):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stdout == ""
     (line,) = proc.stderr.strip().splitlines()
     assert f"{depth}: cannot be read as an image (listed in depth.txt, line 13)" in line
+
+
+def test_measure_tum_runs_reference_rows_and_names_an_unknown_odometer(capsys):
+    from baselines.measure_tum import main as measure_main
+
+    assert measure_main([str(TUM_DIR), "--odometers", "ground-truth", "action-prior", "no-motion", "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split("|")[1].strip(): line.split("|")[2].strip() for line in out.splitlines() if line.startswith("| ")}
+    assert rows["ground-truth"] == "0.00" and float(rows["no-motion"]) > 5 and rows["action-prior"] == rows["no-motion"]
+    assert measure_main([str(TUM_DIR), "--odometers", "nope"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown odometer 'nope'" in err[0]
