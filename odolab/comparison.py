@@ -187,7 +187,12 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
 
     from odolab.datasets import episode_specs
     from odolab.episodes import NoiseConfig
+    from odolab.sim.redwood import default_table
 
+    try:
+        default_table()  # a bad ODOLAB_REDWOOD_TABLE is named before any episode is made
+    except ValueError as exc:
+        raise ComparisonError(str(exc)) from None
     noise = config.noise or NoiseConfig()
     specs = episode_specs(config.split, config.episodes, seed=config.seed, max_steps=config.max_steps, noise=noise)
     episodes, total = _episode_stream(config, specs)

@@ -317,6 +317,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     check_output_dir(args.out, "--out")
+    try:
+        source = default_table().source  # a bad ODOLAB_REDWOOD_TABLE is one line, before any work
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if args.ray_address is not None and not args.serial:
         from odolab.parallel import check_ray_address
 
@@ -336,7 +340,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     samples = [s for _, ss in parts for s in ss]
     command = (f"python -m odolab.simcard --split {args.split} --episodes {args.episodes} --rendered {args.rendered} "
                f"--frames {args.frames} --max-steps {args.max_steps} --seed {args.seed}")
-    write_card(args.out, motion, images, samples, default_table().source, command)
+    write_card(args.out, motion, images, samples, source, command)
     print((args.out / "card.md").read_text())
     print(f"wrote {args.out / 'card.md'}, card.json, motion.png, depth.png, frames.png")
     return 0

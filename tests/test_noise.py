@@ -184,3 +184,16 @@ def test_zero_multiplier_is_exact_motion():
     assert np.allclose(s, [0.0, 0.0, -np.radians(30)])
     with pytest.raises(ValueError, match="controller"):
         ActuationNoise("pid")
+
+
+def test_a_bad_table_named_by_the_environment_is_one_line(tmp_path, monkeypatch):
+    from odolab.sim.redwood import default_table
+
+    bad = tmp_path / "table.npy"
+    bad.write_text("not numpy")
+    monkeypatch.setenv("ODOLAB_REDWOOD_TABLE", str(bad))
+    with pytest.raises(ValueError, match=r"^ODOLAB_REDWOOD_TABLE: .*table.npy: not a .npy file"):
+        default_table()
+    np.save(bad, np.ones(3, np.float32))
+    with pytest.raises(ValueError, match="expected 32000 float values"):
+        default_table()

@@ -95,9 +95,15 @@ def load_table(path: str | os.PathLike) -> DistortionTable:
     """
     p = Path(path)
     try:
-        arr = np.load(p, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise ValueError(f"{p}: not a readable .npy depth-distortion table ({exc})") from None
+        with open(p, "rb") as f:
+            if f.read(6) != b"\x93NUMPY":
+                raise ValueError(f"{p}: not a .npy file (expected habitat-sim's redwood-depth-dist-model.npy)")
+        try:
+            arr = np.load(p, allow_pickle=False)
+        except (ValueError, EOFError) as exc:
+            raise ValueError(f"{p}: damaged .npy file ({exc})") from None
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot be read ({exc.strerror or exc})") from None
     if arr.size != ROWS * COLS * BINS or not np.issubdtype(arr.dtype, np.floating):
         raise ValueError(f"{p}: expected {ROWS * COLS * BINS} float values (80 x 80 cells x 5 bins), "
                          f"got {arr.size} of {arr.dtype}")
@@ -128,9 +134,18 @@ def find_exact_table() -> Path | None:
 
 
 def default_table() -> DistortionTable:
-    """The exact table when :func:`find_exact_table` finds one, else :func:`surrogate_table`."""
+    """The exact table when :func:`find_exact_table` finds one, else :func:`surrogate_table`.
+
+    A bad file raises ``ValueError`` naming it (and ``ODOLAB_REDWOOD_TABLE`` when that chose it)."""
     exact = find_exact_table()
-    return load_table(exact) if exact is not None else surrogate_table()
+    if exact is None:
+        return surrogate_table()
+    try:
+        return load_table(exact)
+    except ValueError as exc:
+        if os.environ.get(ENV_VAR):
+            raise ValueError(f"{ENV_VAR}: {exc}") from None
+        raise
 
 
 def cell_lookup(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
