@@ -168,6 +168,20 @@ def _options_note(config: ComparisonConfig) -> list[str]:
                                               for name, opts in config.options.items())] if config.options else []
 
 
+def _config_notes(odometers: dict) -> list[str]:
+    """One line per odometer that exposes a dataclass ``config``: its settings, flattened."""
+    import dataclasses
+
+    def flat(prefix: str, value) -> list[str]:
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return [item for f in dataclasses.fields(value)
+                    for item in flat(f"{prefix}{f.name}.", getattr(value, f.name))]
+        return [f"{prefix[:-1]}={value!r}"]
+
+    return [f"{name} configuration: " + ", ".join(flat("", odo.config))
+            for name, odo in odometers.items() if dataclasses.is_dataclass(getattr(odo, "config", None))]
+
+
 def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None) -> ComparisonResult:
     """Run every odometer of ``config`` on its sequences and summarise (nothing is written)."""
     if config.split not in SPLITS:
@@ -181,7 +195,8 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
         left_out = (f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
                     f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s.")
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
-                 "Rows marked oracle read ground truth.", left_out, *_options_note(config)]
+                 "Rows marked oracle read ground truth.", left_out, *_options_note(config),
+                 *_config_notes(odometers)]
         return ComparisonResult(results, summary.summarize(results), [], title, notes, None,
                                 [left_out] if any(dropped.values()) else [])
 
@@ -215,7 +230,7 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
              f"Command: python -m odolab.compare --episodes {config.episodes} --seed {config.seed} "
              f"--split {config.split} --max-steps {config.max_steps} --rgb-noise {noise.rgb:g} "
              f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
-    notes += _options_note(config)
+    notes += _options_note(config) + _config_notes(odometers)
     plans = {name: _floor_plan(seed) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
     return ComparisonResult(results, summary.summarize(results), summary.summarize_actions(results), title,

@@ -28,6 +28,7 @@ from typing import Callable
 
 import numpy as np
 
+from odolab.geometry import invert
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.kitti import write_kitti_poses
 from odolab.io.tum import write_tum_trajectory
@@ -265,7 +266,7 @@ def write_trajectories(results: list[SequenceResult], out: OutputFolder) -> None
         for name, poses in todo:
             write_tum_trajectory(out.path(f"{folder}/{name}.tum"), Trajectory(stamps, poses))
             # KITTI: poses relative to the first camera (camera i -> camera 0)
-            write_kitti_poses(out.path(f"{folder}/{name}.kitti"), Trajectory(None, np.linalg.inv(poses[0]) @ poses))
+            write_kitti_poses(out.path(f"{folder}/{name}.kitti"), Trajectory(None, invert(poses[0]) @ poses))
 
 
 def _inline(text: str) -> str:
