@@ -10,7 +10,8 @@ from odolab.api import Action, Estimate, Frame, Odometer
 
 
 class NominalMotion(Odometer):
-    """Predicts the commanded motion: 0.25 m forward or a 30 degree turn (identity without action)."""
+    """Predicts the commanded motion: 0.25 m forward or a 30 degree turn; without an action (real
+    data) it says it cannot tell, and the runner uses its fallback and counts a failure."""
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         if action == Action.MOVE_FORWARD:
@@ -18,4 +19,4 @@ class NominalMotion(Odometer):
         if action in (Action.TURN_LEFT, Action.TURN_RIGHT):
             sign = 1.0 if action == Action.TURN_LEFT else -1.0
             return Estimate.from_planar(0.0, 0.0, sign * np.radians(30.0))
-        return Estimate(np.eye(4))
+        return Estimate(np.eye(4), valid=False)

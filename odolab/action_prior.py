@@ -83,7 +83,7 @@ def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
 
 
 def _main(argv=None) -> int:
-    from odolab.cli import MAX_SEED, ArgumentParser, check_output_file, number, seed
+    from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_file, number, seed
     from odolab.io.atomic import write_text_atomic
 
     ap = ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
@@ -95,14 +95,16 @@ def _main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        check_output_file(args.out, "--out")
+        check_output_file(args.out, "--out")  # its folder must exist: nothing is created on a typo
     prior = fit_action_prior(args.episodes, args.max_steps, args.seed)
+    unseen = [a.label for a, n in prior.samples.items() if n == 0]
+    if unseen:
+        raise UsageError(f"no {' or '.join(unseen)} step in {args.episodes} episodes of at most {args.max_steps} "
+                         "steps: a mean of nothing is no prior; use more --episodes or --max-steps")
     text = json.dumps(prior.to_json(), indent=2) + "\n"
     if args.out is None:
         print(text, end="")
         return 0
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out, text)
     print(f"wrote {args.out}")
     return 0

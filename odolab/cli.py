@@ -62,6 +62,24 @@ def _describe(exc: OSError) -> str:
     return (exc.strerror or str(exc)).lower()
 
 
+def path_arg(option: str) -> Callable[[str], Path]:
+    """An argparse ``type`` for a path: an empty string is refused (it would mean the current folder)."""
+    def parse(text: str) -> Path:
+        if not text.strip():
+            raise argparse.ArgumentTypeError(f"{option} is empty; give a path")
+        return Path(text)
+    return parse
+
+
+def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") -> None:
+    """:func:`check_output_dir`, and refuse a folder holding files that no odolab run wrote there
+    (no ``manifest`` file): a report must not overwrite a user's own files."""
+    if path.is_dir() and not (path / manifest).is_file() and any(path.iterdir()):
+        raise UsageError(f"{option} {path}: holds files odolab did not write (no {manifest}); "
+                         "choose a new or empty folder")
+    check_output_dir(path, option)
+
+
 def check_output_dir(path: Path, option: str) -> None:
     """Create folder ``path`` if needed and prove it writable, or raise :class:`UsageError` naming
     ``option`` (e.g. a path that is a file, or a read-only location)."""
@@ -89,6 +107,8 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
             raise UsageError(f"{option} {path}: unknown image type {path.suffix or '(no extension)'!r}; "
                              f"use one of {', '.join('.' + s for s in allowed)}")
     folder = path.parent if str(path.parent) else Path(".")
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{option} {path}: {folder} is a file, not a folder")
     if not folder.is_dir():
         raise UsageError(f"{option} {path}: folder {folder} does not exist")
     try:

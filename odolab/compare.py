@@ -11,7 +11,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, run_cli, seed
+from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_report_dir, number, path_arg,
+                        run_cli, seed)
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
 from odolab.odometer import available_odometers
@@ -43,11 +44,11 @@ def build_parser() -> argparse.ArgumentParser:
                                 ("actuation", 0.5, "PyRobot actuation")):
         ap.add_argument(f"--{kind}-noise", type=number(f"--{kind}-noise", float, 0, MAX_NOISE), default=default,
                         metavar="M", help=f"{what} noise multiplier, 0-{MAX_NOISE:g}, 0 = none (default {default:g})")
-    ap.add_argument("--out", type=Path, default=Path("runs/compare"),
+    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/compare"),
                     help="output folder (default runs/compare); files a previous run wrote there are replaced")
     ap.add_argument("--tum", type=Path, default=None,
                     help="run on a TUM RGB-D folder instead of the simulator (simulator options are then refused)")
-    ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
+    ap.add_argument("--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
     ap.add_argument("--no-cache", action="store_true", help="do not read or write the episode cache")
     ap.add_argument("--ray-address", default=None,
                     help="Ray cluster address host:port or ray://host:port (default: a local instance)")
@@ -88,7 +89,7 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
                 check_ray_address(args.ray_address)
             except ValueError as exc:
                 raise UsageError(str(exc)) from None
-    check_output_dir(args.out, "--out")
+    check_report_dir(args.out, "--out")
 
 
 def _config(args: argparse.Namespace) -> ComparisonConfig:

@@ -51,7 +51,7 @@ def read_options_file(path: str | os.PathLike) -> Options:
     try:
         with open(path, "rb") as f:
             doc = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise OptionError(f"{path}: not valid TOML ({exc})") from None
     except OSError as exc:
         raise OptionError(f"{path}: cannot read ({exc.strerror or exc})") from None
@@ -59,6 +59,8 @@ def read_options_file(path: str | os.PathLike) -> Options:
     if extra:
         raise OptionError(f"{path}: unknown top-level key {extra[0]!r}; expected only [odometers.NAME] tables")
     tables = doc.get("odometers", {})
+    if not isinstance(tables, dict):
+        raise OptionError(f"{path}: odometers must be a table ([odometers.NAME] sections), got {tables!r}")
     for name, table in tables.items():
         if not isinstance(table, dict):
             raise OptionError(f"{path}: odometers.{name} must be a table of options, got {table!r}")

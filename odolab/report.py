@@ -49,43 +49,61 @@ def _safe(name: str) -> str:
 
 
 class OutputFolder:
-    """The files one run writes under ``root``; :meth:`finish` records them in ``manifest.txt``
-    and removes the files the previous run's manifest lists that this run did not write."""
+    """The files one run writes under ``root``, listed in ``manifest.txt`` as they are written.
+
+    On creation the files the previous run's manifest lists are removed (only those: never a file
+    the manifest does not name, nothing outside ``root``), so the folder never mixes two runs; each
+    :meth:`path` records its file in the manifest before the file is written, so an interrupted run
+    leaves a manifest naming everything it wrote and the next run cleans it up.
+    """
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.written: list[str] = []
+        self.removed = self._remove_previous()
 
     def path(self, relative: str) -> Path:
         """The path of ``relative`` (its folder created), recorded as written by this run."""
         p = self.root / relative
         p.parent.mkdir(parents=True, exist_ok=True)
-        self.written.append(relative)
+        if relative not in self.written:
+            self.written.append(relative)
+            self._write_manifest()
         return p
 
-    def _previous(self) -> list[str]:
+    def discard(self, relative: str) -> None:
+        """Forget ``relative`` (a file that could not be written after all)."""
+        if relative in self.written:
+            self.written.remove(relative)
+            self._write_manifest()
+
+    def _write_manifest(self) -> None:
+        write_text_atomic(self.root / MANIFEST, "".join(f"{rel}\n" for rel in sorted(self.written)))
+
+    def _remove_previous(self) -> list[str]:
         try:
             lines = (self.root / MANIFEST).read_text(encoding="utf-8").splitlines()
         except (OSError, UnicodeDecodeError):
             return []
-        # only plain relative paths inside the folder: a hostile manifest cannot delete elsewhere
-        return [ln for ln in lines if ln and not Path(ln).is_absolute() and ".." not in Path(ln).parts]
-
-    def finish(self) -> list[str]:
-        """Write the manifest, remove the previous run's leftovers; returns what was removed."""
-        mine = set(self.written)
         removed = []
-        for rel in self._previous():
+        # only plain relative paths inside the folder: a hostile manifest cannot delete elsewhere
+        for rel in lines:
+            if not rel or Path(rel).is_absolute() or ".." in Path(rel).parts or rel == MANIFEST:
+                continue
             p = self.root / rel
-            if rel not in mine and rel != MANIFEST and p.is_file() and not p.is_symlink():
+            if p.is_file() and not p.is_symlink():
                 p.unlink()
                 removed.append(rel)
                 for parent in p.parents:  # drop folders the removal emptied, up to the root
                     if parent == self.root or any(parent.iterdir()):
                         break
                     parent.rmdir()
-        write_text_atomic(self.root / MANIFEST, "".join(f"{rel}\n" for rel in sorted(mine)))
         return removed
+
+    def finish(self) -> list[str]:
+        """Write the final manifest; returns what the previous run had and this one removed."""
+        self._write_manifest()
+        return self.removed
 
 
 def _csv(rows: list, cls) -> str:
@@ -345,7 +363,7 @@ def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], resul
             draw(folder.path(relative))
             return True
         except Exception as exc:  # noqa: BLE001 - a figure must never cost the tables
-            folder.written.remove(relative)
+            folder.discard(relative)
             problems.append(f"{relative}: {type(exc).__name__}: {exc}")
             print(f"odolab: warning: figure {out / relative} could not be drawn ({type(exc).__name__}: {exc})",
                   file=sys.stderr)

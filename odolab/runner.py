@@ -203,7 +203,7 @@ def _run_steps(odometer: Odometer, name: str, seq: Sequence, oracle: bool, log: 
         t0 = time.perf_counter()
         try:
             answers = list(odometer.step_batch(chunk))
-        except Exception as exc:  # an odometer's bug must not end the comparison
+        except (Exception, SystemExit) as exc:  # an odometer's bug (even sys.exit) must not end the comparison
             answers = None
             log.note(f"step {first}" if len(chunk) == 1 else f"steps {first}-{first + len(chunk) - 1}", exc)
         log.answer(first, len(chunk), answers, time.perf_counter() - t0)
@@ -221,7 +221,7 @@ def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrio
     with odometer_threads(odometer):
         try:
             odometer.reset(seq.intrinsics)
-        except Exception as exc:  # a broken odometer fails this sequence, not the comparison
+        except (Exception, SystemExit) as exc:  # a broken odometer fails this sequence, not the comparison
             log.note("reset", exc)
             if observer is not None:
                 observer.advance(name, n)

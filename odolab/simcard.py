@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, run_cli, seed
+from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, path_arg, run_cli, seed
 
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
 PAPER_MIX = {"move_forward": 57.32, "turn_left": 21.34, "turn_right": 21.33}  # % of 1,000,000 steps
@@ -157,7 +157,7 @@ def summarize_motion(stats: list[MotionStats]) -> dict:
     for a in MOTION_ACTIONS:
         sel = acts == a.value
         out["mix_pct"][a.label] = 100 * float(sel.mean())
-        out["collisions_pct"][a.label] = 100 * float(hits[sel].mean()) if sel.any() else float("nan")
+        out["collisions_pct"][a.label] = 100 * float(hits[sel].mean()) if sel.any() else None  # null: no step
     out["collisions_pct"]["all"] = 100 * float(hits.mean())
     geo = np.array([s.geodesic for s in stats])
     ratio = geo / np.array([s.euclidean for s in stats])
@@ -178,7 +178,7 @@ def card_table(motion: dict, images: ImageStats) -> list[tuple[str, str, str]]:
     geo, ratio, lengths = (np.array(motion[k]) for k in ("geodesic_m", "ratio", "lengths"))
     rows = [
         ("collisions, % of steps: forward / left / right / all",
-         " / ".join(f"{c[k]:.1f}" for k in ("move_forward", "turn_left", "turn_right", "all")),
+         " / ".join("-" if c[k] is None else f"{c[k]:.1f}" for k in ("move_forward", "turn_left", "turn_right", "all")),
          " / ".join(f"{PAPER_COLLISIONS[k]:.1f}" for k in ("move_forward", "turn_left", "turn_right", "all"))
          + " (paper, Table S2)"),
         ("action mix, %: forward / left / right", " / ".join(f"{m[k]:.1f}" for k in PAPER_MIX),
@@ -207,15 +207,17 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     import matplotlib.pyplot as plt
 
     from odolab.io.atomic import save_figure_atomic, write_text_atomic
+    from odolab.report import OutputFolder
 
     out.mkdir(parents=True, exist_ok=True)
+    folder = OutputFolder(out)  # a manifest: an interrupted run never leaves two runs' files mixed
     rows = card_table(motion, images)
     depth_rows = images.depth_rows()
     data = {"command": command, "redwood_table": source, "motion": motion,
             "images": {"frames": images.frames, "grey_mean": images.grey_mean, "grey_std": images.grey_std,
                        "holes_pct": 100 * images.holes / max(images.pixels, 1), "depth_bins": depth_rows},
             "table": [{"statistic": a, "odolab": b, "reference": c} for a, b, c in rows]}
-    write_text_atomic(out / "card.json", json.dumps(data, indent=1, default=float))
+    write_text_atomic(folder.path("card.json"), json.dumps(data, indent=1, default=float, allow_nan=False))
     md = [f"# The simulator in numbers\n\n`{command}`\n\nRedwood distortion table: {source}\n",
           "| statistic | odolab | reference |", "|---|---|---|"]
     md += [f"| {a} | {b} | {c} |" for a, b, c in rows]
@@ -224,13 +226,13 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     md += [f"| {r['depth_m']} | {r['pixels']} | {r['bias_pct']:+.2f} | {r['spread_pct']:.2f} | {r['outliers_pct']:.2f} |"
            for r in depth_rows]
     md += ["\nFigures: `motion.png`, `depth.png`, `frames.png`."]
-    write_text_atomic(out / "card.md", "\n".join(md) + "\n")
+    write_text_atomic(folder.path("card.md"), "\n".join(md) + "\n")
 
     fig, ax = plt.subplots(2, 3, figsize=(15, 8))
     labels = ["move_forward", "turn_left", "turn_right"]
     x = np.arange(4)
     c = motion["collisions_pct"]
-    ax[0, 0].bar(x - 0.2, [c[k] for k in labels + ["all"]], 0.4, label="odolab")
+    ax[0, 0].bar(x - 0.2, [c[k] or 0.0 for k in labels + ["all"]], 0.4, label="odolab (no bar: no step)")
     ax[0, 0].bar(x + 0.2, [PAPER_COLLISIONS[k] for k in labels + ["all"]], 0.4, label="paper (Table S2)")
     ax[0, 0].set(xticks=x, xticklabels=["forward", "left", "right", "all"], ylabel="collided steps (%)",
                  title="Collision rate per action")
@@ -257,7 +259,7 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     ax[1, 2].legend()
     fig.suptitle(f"odolab simulator: {motion['episodes']} episodes, {motion['steps']} steps")
     fig.tight_layout()
-    save_figure_atomic(fig, out / "motion.png")
+    save_figure_atomic(fig, folder.path("motion.png"))
     plt.close(fig)
 
     fig, ax = plt.subplots(1, 2, figsize=(13, 4.5))
@@ -273,7 +275,7 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     ax[1].set(title=f"Depth holes per pixel ({100 * images.holes / max(images.pixels, 1):.1f} % of pixels)",
               xlabel="image column (px)", ylabel="image row (px)")
     fig.tight_layout()
-    save_figure_atomic(fig, out / "depth.png")
+    save_figure_atomic(fig, folder.path("depth.png"))
     plt.close(fig)
 
     if samples:
@@ -287,8 +289,9 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
                 if i == 0:
                     ax[i, j].set_title(title)
         fig.tight_layout()
-        save_figure_atomic(fig, out / "frames.png", dpi=80)
+        save_figure_atomic(fig, folder.path("frames.png"), dpi=80)
         plt.close(fig)
+    folder.finish()
 
 
 def build_parser() -> ArgumentParser:
@@ -303,7 +306,7 @@ def build_parser() -> ArgumentParser:
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 2000), default=500,
                     help="steps per episode, 1-2000 (default 500)")
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
-    ap.add_argument("--out", type=Path, default=Path("runs/simcard"), help="output folder (default runs/simcard)")
+    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/simcard"), help="output folder (default runs/simcard)")
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="no Ray: everything in this process")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -254,3 +254,64 @@ def test_measure_tum_runs_reference_rows_and_names_an_unknown_odometer(capsys):
     assert measure_main([str(TUM_DIR), "--odometers", "nope"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown odometer 'nope'" in err[0]
+
+
+def test_an_empty_out_or_a_folder_of_someone_elses_files_is_refused(tmp_path):
+    one_line_error("odolab.compare", "--out", "", words="--out is empty")
+    one_line_error("odolab.compare", "--cache", "", words="--cache is empty")
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "report.html").write_text("mine")
+    one_line_error("odolab.compare", "--out", theirs, "--serial", words="holds files odolab did not write")
+    assert (theirs / "report.html").read_text() == "mine"
+
+
+def test_an_interrupted_rerun_never_mixes_two_runs(tmp_path):
+    from odolab.report import MANIFEST, OutputFolder
+
+    first = OutputFolder(tmp_path)
+    for rel in ("table.csv", "report.html", "trajectories/a/icp.tum"):
+        first.path(rel).write_text("old")
+    first.finish()
+    second = OutputFolder(tmp_path)  # the previous run's files go first
+    assert not (tmp_path / "report.html").exists() and not (tmp_path / "trajectories").exists()
+    second.path("table.csv").write_text("new")
+    # interrupted here: the manifest already names what this run wrote, and nothing else
+    assert (tmp_path / MANIFEST).read_text().split() == ["table.csv"]
+    OutputFolder(tmp_path)  # the next run cleans it up
+    assert not (tmp_path / "table.csv").exists()
+
+
+def test_an_odometer_calling_sys_exit_fails_its_steps_not_the_comparison():
+    from odolab.api import Estimate, Odometer, run_odometers
+    from odolab.api import load_tum_sequence
+
+    class Quitter(Odometer):
+        def step(self, prev, cur, action) -> Estimate:
+            raise SystemExit(0)
+
+    class QuitsOnReset(Odometer):
+        def reset(self, intrinsics) -> None:
+            raise SystemExit(3)
+
+    seq = load_tum_sequence(TUM_DIR)
+    a, b = run_odometers({"quitter": Quitter(), "reset": QuitsOnReset()}, [seq])
+    assert a.failures == b.failures == len(seq) - 1
+    assert "SystemExit" in a.errors[0] and "SystemExit" in b.errors[0]
+
+
+def test_config_files_that_are_not_option_tables_are_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("odometers = 5\n")
+    one_line_error("odolab.compare", "--config", bad, "--out", tmp_path / "o", words="odometers must be a table")
+    bad.write_bytes(b"\x90\xff\x00garbage")
+    one_line_error("odolab.compare", "--config", bad, "--out", tmp_path / "o", words="not valid TOML")
+
+
+def test_action_prior_refuses_a_prior_of_nothing_and_odd_out_paths(tmp_path):
+    one_line_error("odolab.action_prior", "--episodes", "1", "--max-steps", "1", words="a mean of nothing is no prior")
+    one_line_error("odolab.action_prior", "--out", tmp_path / "missing" / "x.json", words="does not exist")
+    assert not (tmp_path / "missing").exists()
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    one_line_error("odolab.action_prior", "--out", afile / "x.json", words="is a file, not a folder")
