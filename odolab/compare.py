@@ -135,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(result.title)  # the table first: nothing that follows can lose it
     print(format_table(result.rows, real_data=args.tum is not None))
     write_report(args.out, result.rows, result.action_rows, result.results, result.title, result.notes,
-                 result.plans)
+                 result.plans, result.configs)
     for r in result.results:
         for e in r.errors[:1]:
             print(f"note: {r.odometer} raised on {r.sequence}: {e}")

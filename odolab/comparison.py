@@ -76,6 +76,8 @@ class ComparisonResult:
     plans: dict[str, FloorPlan] | None
     warnings: list[str] = field(default_factory=list)
     """What a person should hear at once (e.g. frames a TUM folder had to leave out)."""
+    configs: dict[str, str] = field(default_factory=dict)
+    """Each configurable odometer's settings (:func:`odometer_configs`), for the report."""
 
 
 def odometer_names(names: list[str] | None) -> list[str]:
@@ -168,8 +170,8 @@ def _options_note(config: ComparisonConfig) -> list[str]:
                                               for name, opts in config.options.items())] if config.options else []
 
 
-def _config_notes(odometers: dict) -> list[str]:
-    """One line per odometer that exposes a dataclass ``config``: its settings, flattened."""
+def odometer_configs(odometers: dict) -> dict[str, str]:
+    """Name -> settings (flattened ``key=value`` list) of each odometer exposing a dataclass ``config``."""
     import dataclasses
 
     def flat(prefix: str, value) -> list[str]:
@@ -178,8 +180,8 @@ def _config_notes(odometers: dict) -> list[str]:
                     for item in flat(f"{prefix}{f.name}.", getattr(value, f.name))]
         return [f"{prefix[:-1]}={value!r}"]
 
-    return [f"{name} configuration: " + ", ".join(flat("", odo.config))
-            for name, odo in odometers.items() if dataclasses.is_dataclass(getattr(odo, "config", None))]
+    return {name: ", ".join(flat("", odo.config))
+            for name, odo in odometers.items() if dataclasses.is_dataclass(getattr(odo, "config", None))}
 
 
 def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None) -> ComparisonResult:
@@ -195,10 +197,9 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
         left_out = (f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
                     f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s.")
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
-                 "Rows marked oracle read ground truth.", left_out, *_options_note(config),
-                 *_config_notes(odometers)]
+                 "Rows marked oracle read ground truth.", left_out, *_options_note(config)]
         return ComparisonResult(results, summary.summarize(results), [], title, notes, None,
-                                [left_out] if any(dropped.values()) else [])
+                                [left_out] if any(dropped.values()) else [], odometer_configs(odometers))
 
     from odolab.datasets import episode_specs
     from odolab.episodes import NoiseConfig
@@ -230,8 +231,8 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
              f"Command: python -m odolab.compare --episodes {config.episodes} --seed {config.seed} "
              f"--split {config.split} --max-steps {config.max_steps} --rgb-noise {noise.rgb:g} "
              f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
-    notes += _options_note(config) + _config_notes(odometers)
+    notes += _options_note(config)
     plans = {name: _floor_plan(seed) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
     return ComparisonResult(results, summary.summarize(results), summary.summarize_actions(results), title,
-                            notes, plans)
+                            notes, plans, configs=odometer_configs(odometers))

@@ -344,7 +344,8 @@ tbody tr:nth-child(even){background:#f8f9fb} code{background:#f2f2f2;padding:0 3
 
 
 def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], results: list[SequenceResult],
-                 title: str, notes: list[str], plans: dict[str, FloorPlan] | None = None) -> None:
+                 title: str, notes: list[str], plans: dict[str, FloorPlan] | None = None,
+                 configs: dict[str, str] | None = None) -> None:
     """Write the tables, figures, trajectories and ``report.html`` into ``out`` (layout: module
     docstring); files of the previous run into ``out`` that this one did not write are removed."""
     from odolab.summary import __doc__ as summary_doc
@@ -396,6 +397,11 @@ def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], resul
     sections.append("<h2>Definitions</h2>" + rst_to_html(definitions))
     failures = [f"<li>{html.escape(r.odometer)} on {html.escape(r.sequence)}: {html.escape(e)}</li>"
                 for r in results for e in r.errors]
+    if configs:
+        sections.append("<h2>Odometer configurations</h2><details><summary>every setting of each odometer "
+                        "(its frozen config)</summary><ul>" + "".join(
+                            f"<li><b>{html.escape(n)}</b>: {html.escape(c)}</li>" for n, c in configs.items())
+                        + "</ul></details>")
     sections.append("<h2>Exceptions raised by odometers (first few)</h2>"
                     f"<ul>{''.join(failures) or '<li>none</li>'}</ul>")
     if problems:

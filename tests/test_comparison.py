@@ -29,3 +29,11 @@ def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
 def test_run_comparison_reports_bad_configuration_as_one_line():
     with pytest.raises(api.ComparisonError, match="split 'dev'"):
         api.run_comparison(api.ComparisonConfig(split="dev", cache=None))
+
+
+def test_each_configurable_odometers_settings_reach_the_result():
+    from odolab.api import load_odometer
+    from odolab.comparison import odometer_configs
+
+    configs = odometer_configs({"icp": load_odometer("icp", max_depth=3.0), "gt": load_odometer("ground-truth")})
+    assert list(configs) == ["icp"] and "depth.max_depth=3.0" in configs["icp"]
