@@ -3,7 +3,6 @@ image loads, every table has rows; and the report's content is what a reader nee
 from __future__ import annotations
 
 import os
-
 from pathlib import Path
 
 import pytest
