@@ -73,10 +73,9 @@ class EpisodeSpec:
 
     def key(self) -> str:
         """Stable short hash of the spec (the cache file name)."""
-        from odolab.sim.redwood import default_table
+        from odolab.sim.redwood import table_digest
 
-        table = hashlib.sha256(default_table().factors.tobytes()).hexdigest()[:16]  # exact or surrogate
-        blob = json.dumps({"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table, **asdict(self)},
+        blob = json.dumps({"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **asdict(self)},
                           sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
@@ -204,29 +203,35 @@ class Episode:
         return self.poses[i]
 
 
-def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
-    """Render the (noisy) frames of an episode; ``motion`` defaults to ``rollout(spec)``."""
+def render_frames(spec: EpisodeSpec, motion: Rollout) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """``(clean rgb, clean depth, noisy rgb, noisy depth)`` of each state of ``motion``, in order,
+    with the sensor noise of ``spec`` drawn from its own streams (so any consumer sees the same frames)."""
     from odolab.sim.camera import Renderer
     from odolab.sim.noise import RedwoodDepthNoise, RGBNoise
 
-    motion = motion or rollout(spec)
     _, _, rgb_rng, depth_rng = spec.streams()
     cam = spec.camera
     renderer = Renderer(generate_scene(motion.scene_seed), cam)
     rgb_noise = RGBNoise(multiplier=spec.noise.rgb)
     depth_noise = RedwoodDepthNoise(multiplier=spec.noise.depth, min_depth=cam.min_depth, max_depth=cam.max_depth)
+    for pose in motion.camera_poses(cam.mount_height):
+        clean_rgb, clean_depth = renderer.render(pose)
+        yield clean_rgb, clean_depth, rgb_noise.apply(clean_rgb, rgb_rng), depth_noise.apply(clean_depth, depth_rng)
+
+
+def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
+    """Render the (noisy) frames of an episode; ``motion`` defaults to ``rollout(spec)``."""
+    motion = motion or rollout(spec)
+    cam = spec.camera
     n = len(motion.states)
     rgb = np.empty((n, cam.height, cam.width, 3), np.uint8)
     depth = np.empty((n, cam.height, cam.width), np.float32)
-    poses = motion.camera_poses(cam.mount_height)
-    for i in range(n):
-        clean_rgb, clean_depth = renderer.render(poses[i])
-        rgb[i] = rgb_noise.apply(clean_rgb, rgb_rng)
-        depth[i] = depth_noise.apply(clean_depth, depth_rng)
+    for i, (_, _, noisy_rgb, noisy_depth) in enumerate(render_frames(spec, motion)):
+        rgb[i], depth[i] = noisy_rgb, noisy_depth
     info = {"scene_seed": motion.scene_seed, "goal": list(motion.goal), "start_distance": motion.start_distance,
             "euclidean_distance": motion.euclidean_distance, "reached_goal": motion.reached_goal}
-    return Episode(spec, rgb, depth, poses, np.array([a.value for a in motion.actions], np.int8),
-                   np.array(motion.collisions, bool), info)
+    return Episode(spec, rgb, depth, motion.camera_poses(cam.mount_height),
+                   np.array([a.value for a in motion.actions], np.int8), np.array(motion.collisions, bool), info)
 
 
 class EpisodeCache:

@@ -109,24 +109,16 @@ class ImageStats:
 def render_stats(spec, max_frames: int = 30, keep: int = 0) -> tuple[ImageStats, list[tuple]]:
     """Clean and noisy frames of ``spec``'s first ``max_frames`` poses; also returns ``keep`` sample
     frames (clean rgb, noisy rgb, clean depth, noisy depth) for the contact sheet."""
-    from odolab.episodes import rollout
-    from odolab.sim.camera import Renderer
-    from odolab.sim.noise import RedwoodDepthNoise, RGBNoise
-    from odolab.sim.scenes import generate_scene
+    from itertools import islice
+
+    from odolab.episodes import render_frames, rollout
 
     motion = rollout(spec)
-    _, _, rgb_rng, depth_rng = spec.streams()
-    cam = spec.camera
-    renderer = Renderer(generate_scene(motion.scene_seed), cam)
-    rgb_noise = RGBNoise(multiplier=spec.noise.rgb)
-    depth_noise = RedwoodDepthNoise(multiplier=spec.noise.depth, min_depth=cam.min_depth, max_depth=cam.max_depth)
+    n = min(max_frames, len(motion.states))
     stats, samples = ImageStats(), []
-    poses = motion.camera_poses(cam.mount_height)[:max_frames]
-    for i, pose in enumerate(poses):
-        rgb, depth = renderer.render(pose)
-        noisy_rgb, noisy_depth = rgb_noise.apply(rgb, rgb_rng), depth_noise.apply(depth, depth_rng)
+    for i, (rgb, depth, noisy_rgb, noisy_depth) in enumerate(islice(render_frames(spec, motion), n)):
         stats.add(rgb, depth, noisy_depth)
-        if len(samples) < keep and i % max(1, len(poses) // max(keep, 1)) == 0:
+        if len(samples) < keep and i % max(1, n // max(keep, 1)) == 0:
             samples.append((rgb, noisy_rgb, depth, noisy_depth))
     return stats, samples
 

@@ -54,8 +54,9 @@ class Renderer:
     """Ray-casts one scene; :meth:`render` returns clean (noise-free) RGB and z-depth.
 
     Colour = material albedo x texture x shading. Textures are sampled from a mip pyramid at the
-    level matching each pixel's footprint on the surface (the geometric mean of its two axes, so
-    grazing views blur a little rather than alias). Shading is Lambertian under a directional key
+    level matching each pixel's footprint: from the hit distance, plus, on floor and ceiling, the
+    foreshortening a level camera sees there (so distant and grazing surfaces blur a little rather
+    than alias). Shading is Lambertian under a directional key
     light and a weaker fill light from the opposite side, on top of ambient light, so walls facing
     different ways differ in brightness.
     """

@@ -26,8 +26,10 @@ statistical model of the same table, written from its measured properties:
 """
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -56,11 +58,6 @@ class DistortionTable:
 
     factors: np.ndarray
     source: str
-
-    @property
-    def holes(self) -> np.ndarray:
-        """(80, 80) bool: cells that never return a reading."""
-        return (self.factors < 1e-5).all(axis=2)
 
 
 def hole_cells() -> np.ndarray:
@@ -153,3 +150,14 @@ def cell_lookup(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     rows = ((np.arange(height) / max(height - 1, 1) * (SENSOR_HEIGHT - 1) + 0.5).astype(np.int64) // 6)
     cols = ((np.arange(width) / max(width - 1, 1) * (SENSOR_WIDTH - 1) + 0.5).astype(np.int64) // 8)
     return np.minimum(rows, ROWS - 1), np.minimum(cols, COLS - 1)
+
+
+def table_digest() -> str:
+    """A short hash of :func:`default_table`'s factors, for cache keys (episodes made with another
+    table are never reused); computed once per value of ``ODOLAB_REDWOOD_TABLE``."""
+    return _digest(os.environ.get(ENV_VAR, ""))
+
+
+@lru_cache(maxsize=8)
+def _digest(_named: str) -> str:
+    return hashlib.sha256(default_table().factors.tobytes()).hexdigest()[:16]
