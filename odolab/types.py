@@ -87,6 +87,14 @@ class Intrinsics:
         f = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
         return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height)
 
+    def resized(self, width: int, height: int) -> "Intrinsics":
+        """The same camera seen through an image resized (stretched) to ``width`` x ``height``: pixel
+        edges map to pixel edges, so u' = (u + 0.5) * width / self.width - 0.5 (likewise v)."""
+        sx, sy = width / self.width, height / self.height
+        return Intrinsics(float(self.fx * sx), float(self.fy * sy), float((self.cx + 0.5) * sx - 0.5),
+                          float((self.cy + 0.5) * sy - 0.5),
+                          int(width), int(height))
+
 
 @dataclass(frozen=True)
 class Frame:

@@ -1,0 +1,20 @@
+"""What learned odometers share (torch): device choice, safe checkpoints, TOML configs, a resumable
+epoch loop with validation curves, and the training data as torch batches.
+
+The public face for learned code beside :mod:`odolab.api` (which stays torch-free): the robust VO
+(:mod:`odolab.robust_vo`) and ``baselines/deepvo`` are written against these two modules only.
+"""
+from __future__ import annotations
+
+from odolab.learning.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from odolab.learning.configs import ConfigError, dataclass_from_toml, read_toml
+from odolab.learning.curves import Curves
+from odolab.learning.device import pick_device
+from odolab.learning.epochs import EpochLoop, StopRequested
+from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
+
+__all__ = [
+    "CheckpointError", "ConfigError", "Curves", "DataConfig", "EpochLoop", "StopRequested", "TrainingData",
+    "dataclass_from_toml", "load_checkpoint", "make_training_data", "pick_device", "read_toml", "resize_frame",
+    "save_checkpoint",
+]

@@ -1,0 +1,75 @@
+"""Training curves: rows of numbers per epoch, kept as CSV and drawn as small multiples."""
+from __future__ import annotations
+
+import csv
+import io
+import os
+from typing import Any, Sequence
+
+from odolab.io.atomic import write_bytes_atomic
+
+
+class Curves:
+    """Rows (dicts of numbers and labels) accumulated over epochs; saved atomically as CSV."""
+
+    def __init__(self, rows: Sequence[dict[str, Any]] = ()) -> None:
+        self.rows: list[dict[str, Any]] = [dict(r) for r in rows]
+
+    def add(self, rows: Sequence[dict[str, Any]]) -> None:
+        self.rows.extend(dict(r) for r in rows)
+
+    def to_csv(self, path: str | os.PathLike) -> None:
+        """All rows, columns in first-seen order."""
+        columns: list[str] = []
+        for row in self.rows:
+            columns += [k for k in row if k not in columns]
+        out = io.StringIO()
+        writer = csv.DictWriter(out, columns, lineterminator="\n")
+        writer.writeheader()
+        for row in self.rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        write_bytes_atomic(path, out.getvalue().encode())
+
+    def plot(self, path: str | os.PathLike, *, x: str, series: dict[str, dict[str, Any]], rows: str, cols: str,
+             where: dict[str, Any] | None = None, ylabel: dict[str, str] | None = None, title: str = "",
+             scale: dict[str, float] | None = None) -> None:
+        """Small multiples: one panel per (``rows`` value, ``cols`` value), ``x`` on the horizontal axis
+        and one line per ``series`` column (value: matplotlib style, with ``label``). ``where``
+        filters rows; ``scale`` multiplies values per ``cols`` value (e.g. rad -> deg);
+        ``ylabel`` per ``cols`` value."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        data = [r for r in self.rows if all(r.get(k) == v for k, v in (where or {}).items())]
+        row_keys = list(dict.fromkeys(r[rows] for r in data))
+        col_keys = list(dict.fromkeys(r[cols] for r in data))
+        if not data:
+            return
+        fig, axes = plt.subplots(len(row_keys), len(col_keys), figsize=(3.6 * len(col_keys), 2.6 * len(row_keys)),
+                                 squeeze=False, constrained_layout=True)
+        for i, rk in enumerate(row_keys):
+            for j, ck in enumerate(col_keys):
+                ax = axes[i][j]
+                cell = [r for r in data if r[rows] == rk and r[cols] == ck]
+                factor = (scale or {}).get(ck, 1.0)
+                for column, style in series.items():
+                    pts = [(r[x], r[column] * factor) for r in cell if r.get(column) not in (None, "")]
+                    if pts:
+                        xs, ys = zip(*pts)
+                        ax.plot(xs, ys, **{"marker": "o", "markersize": 3, **style})
+                ax.set_title(f"{rk}: {ck}", fontsize=9)
+                ax.set_xlabel(x)
+                ax.set_ylabel((ylabel or {}).get(ck, ""))
+                ax.grid(alpha=0.3)
+                ax.set_ylim(bottom=0)
+                if i == 0 and j == 0:
+                    ax.legend(fontsize=7)
+        if title:
+            fig.suptitle(title, fontsize=10)
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=110)
+        plt.close(fig)
+        write_bytes_atomic(path, buffer.getvalue())

@@ -1,0 +1,96 @@
+"""A resumable epoch loop: after every epoch the models, the optimiser, the epoch number and the
+curves are saved atomically, so a killed run loses at most the epoch in progress and a rerun goes on
+from the last saved epoch with the same numbers (each epoch's randomness is seeded by (seed, epoch))."""
+from __future__ import annotations
+
+import os
+import time
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from odolab.learning.checkpoints import load_checkpoint, save_checkpoint
+from odolab.learning.curves import Curves
+
+STATE_KIND = "odolab-training-state"
+STATE_FORMAT = 1
+
+
+class StopRequested(Exception):
+    """Raised inside an epoch to stop training cleanly (the epoch in progress is not saved)."""
+
+
+class EpochLoop:
+    """Train ``modules`` with ``optimizer`` for ``epochs`` epochs, saving to ``path`` after each.
+
+    ``identity``: plain data describing the run (config, data); a saved state made for another
+    identity is refused, so a changed config never silently continues an old run.
+    """
+
+    def __init__(self, path: str | os.PathLike, modules: dict[str, nn.Module], optimizer: torch.optim.Optimizer,
+                 epochs: int, seed: int, identity: dict[str, Any]) -> None:
+        self.path, self.modules, self.optimizer = path, modules, optimizer
+        self.epochs, self.seed, self.identity = int(epochs), int(seed), identity
+        self.curves = Curves()
+        self.epoch = 0  # epochs done
+        self.seconds = 0.0  # training time spent so far, over all chunks
+
+    def resume(self) -> int:
+        """Load the saved state if there is one; returns the number of epochs already done."""
+        if not os.path.exists(self.path):
+            return 0
+        doc = load_checkpoint(self.path, STATE_KIND, STATE_FORMAT)
+        if doc["identity"] != self.identity:
+            changed = sorted(k for k in set(doc["identity"]) | set(self.identity)
+                             if doc["identity"].get(k) != self.identity.get(k))
+            raise ValueError(f"{self.path}: saved training state belongs to another run (differs in: "
+                             f"{', '.join(changed)}); delete it or use another work folder")
+        for name, module in self.modules.items():
+            module.load_state_dict(doc["modules"][name])
+        self.optimizer.load_state_dict(doc["optimizer"])
+        self.epoch, self.seconds = int(doc["epoch"]), float(doc["seconds"])
+        self.curves = Curves(doc["curves"])
+        return self.epoch
+
+    def save(self) -> None:
+        save_checkpoint(self.path, STATE_KIND, STATE_FORMAT, {
+            "identity": self.identity, "epoch": self.epoch, "seconds": self.seconds, "curves": self.curves.rows,
+            "modules": {n: m.state_dict() for n, m in self.modules.items()}, "optimizer": self.optimizer.state_dict()})
+
+    @property
+    def finished(self) -> bool:
+        return self.epoch >= self.epochs
+
+    def run(self, train_epoch: Callable[[int, np.random.Generator], dict[str, Any]],
+            validate: Callable[[int], list[dict[str, Any]]], *, deadline: float | None = None,
+            after_epoch: Callable[["EpochLoop"], None] | None = None) -> bool:
+        """Run the remaining epochs; ``train_epoch(epoch, rng)`` returns training numbers (one curve
+        row), ``validate(epoch)`` validation rows. Stops before an epoch that would start after
+        ``deadline`` (``time.monotonic()`` seconds). Returns True when all epochs are done."""
+        while not self.finished:
+            if deadline is not None and time.monotonic() >= deadline:
+                return False
+            epoch = self.epoch + 1
+            torch.manual_seed(self.seed * 100_003 + epoch)
+            rng = np.random.default_rng([self.seed, epoch])
+            started = time.monotonic()
+            for m in self.modules.values():
+                m.train()
+            try:
+                train_row = train_epoch(epoch, rng)
+            except StopRequested:
+                return False
+            for m in self.modules.values():
+                m.eval()
+            with torch.inference_mode():
+                val_rows = validate(epoch)
+            self.seconds += time.monotonic() - started
+            self.curves.add([{"epoch": epoch, "split": "train", **train_row}] + [{"epoch": epoch, "split": "val", **r}
+                                                                                  for r in val_rows])
+            self.epoch = epoch
+            self.save()
+            if after_epoch is not None:
+                after_epoch(self)
+        return True

@@ -1,0 +1,88 @@
+"""Training samples of the robust VO: which pairs, which augmentation, and the tensors of a batch."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from odolab.api import Action
+from odolab.learning import TrainingData
+from odolab.robust_vo.config import ModelConfig, StageConfig
+from odolab.robust_vo.inputs import pair_channels
+from odolab.robust_vo.motion import OPPOSITE_TURN, inverse, mirror, swap_action
+
+TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT)
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Parallel arrays: pair index into the data, and whether its frames are swapped / mirrored."""
+
+    pair: np.ndarray
+    swap: np.ndarray
+    flip: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pair)
+
+    def take(self, k: np.ndarray) -> "Samples":
+        return Samples(self.pair[k], self.swap[k], self.flip[k])
+
+
+def stage_samples(data: TrainingData, stage: StageConfig) -> Samples:
+    """Every sample of a stage: its actions' pairs, plus (``data_aug``) swapped turn pairs whose new
+    action is in the stage, plus (``mirror``) mirrored ones likewise. GeoInv stages swap inside the
+    batch instead, so their samples are only the (possibly mirrored) turn pairs."""
+    wanted = {a.value for a in stage.action_set}
+    acts = data.pair_actions
+    parts = [(np.flatnonzero(np.isin(acts, list(wanted))), False, False)]
+    is_turn = np.isin(acts, [a.value for a in TURNS])
+    opposite = swap_action(acts) if len(acts) else acts
+    in_stage = np.isin(opposite, list(wanted))
+    if stage.data_aug and not stage.geoinv:
+        parts.append((np.flatnonzero(is_turn & in_stage), True, False))
+    if stage.mirror:
+        parts.append((np.flatnonzero(in_stage), False, True))
+        if stage.data_aug and not stage.geoinv:
+            parts.append((np.flatnonzero(is_turn & np.isin(acts, list(wanted))), True, True))
+    pair = np.concatenate([p for p, _, _ in parts])
+    swap = np.concatenate([np.full(len(p), s) for p, s, _ in parts])
+    flip = np.concatenate([np.full(len(p), f) for p, _, f in parts])
+    return Samples(pair.astype(np.int64), swap.astype(bool), flip.astype(bool))
+
+
+@dataclass
+class Batch:
+    """Network inputs (B, 2C, H, W), the action each sample now stands for, and true (dx, dz, dyaw)."""
+
+    x: torch.Tensor
+    action: np.ndarray
+    target: torch.Tensor
+
+
+def make_batch(data: TrainingData, samples: Samples, cfg: ModelConfig, device: torch.device,
+               swap_all: bool = False) -> Batch:
+    """Read and transform the pairs of ``samples``; ``swap_all`` additionally swaps every pair
+    (the other half of a GeoInv step)."""
+    b = data.pair_batch(samples.pair)
+    rgb, depth = b["rgb"], b["depth"]
+    target = torch.from_numpy(b["planar"]).to(torch.float32)
+    action = b["action"].copy()
+    swap = samples.swap ^ swap_all
+    flip = samples.flip
+    if swap.any():
+        rgb[swap], depth[swap] = rgb[swap][:, ::-1], depth[swap][:, ::-1]
+        target[swap] = inverse(target[swap])
+        action[swap] = swap_action(action[swap])
+    if flip.any():
+        rgb[flip], depth[flip] = rgb[flip][:, :, :, ::-1], depth[flip][:, :, :, ::-1]
+        target[flip] = mirror(target[flip])
+        action[flip] = swap_action(action[flip])
+    x = pair_channels(torch.from_numpy(np.ascontiguousarray(rgb)), torch.from_numpy(np.ascontiguousarray(depth)),
+                      data.intrinsics, cfg)
+    return Batch(x.to(device), action, target.to(device))
+
+
+def opposite(action: Action) -> Action:
+    return OPPOSITE_TURN[action]

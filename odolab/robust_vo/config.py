@@ -1,0 +1,142 @@
+"""The robust VO's switches (every one of the paper's Table 1 and a few after it) and its training
+recipe, as frozen dataclasses read from TOML (see ``studies/robust_vo/*.toml``)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from odolab.api import MOTION_ACTIONS, Action
+from odolab.learning import ConfigError, DataConfig, dataclass_from_toml
+
+ACTION_BY_LABEL = {a.label: a for a in MOTION_ACTIONS}
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Network and input switches.
+
+    ``kind``: ``sepact`` (one network per action, picked by the action taken), ``unified`` (one
+    network, no action information) or ``actembed`` (one network with a learned action embedding of
+    ``embed_dim`` before the head). ``visual``: which images enter (``rgb``, ``depth``, ``rgbd``);
+    ``dd_bins``: one-hot discretised depth channels per frame over [0, ``max_depth``] m (0 = off);
+    ``sproj``: the soft top-down projection channel; ``width`` x ``height``: input pixels (frames are
+    resized to it, the paper's 341 x 192 is selectable); ``base_planes`` and ``groups``: ResNet-18
+    width and GroupNorm groups; ``compress_channels``: the 3x3 compression conv's outputs;
+    ``dropout``: before each of the two FC layers (``hidden`` units).
+    """
+
+    kind: Literal["sepact", "unified", "actembed"] = "sepact"
+    visual: Literal["rgb", "depth", "rgbd"] = "rgbd"
+    dd_bins: int = 10
+    sproj: bool = True
+    width: int = 170
+    height: int = 96
+    base_planes: int = 32
+    groups: int = 16
+    compress_channels: int = 31
+    dropout: float = 0.2
+    hidden: int = 512
+    embed_dim: int = 32
+    max_depth: float = 10.0
+    sproj_rows: float = 100 / 192  # central share of image rows projected (the reference keeps 100 of 192)
+
+    def __post_init__(self) -> None:
+        if self.dd_bins < 0 or self.dd_bins > 64:
+            raise ValueError(f"dd_bins must be in [0, 64], got {self.dd_bins}")
+        if not (8 <= self.width <= 2048 and 8 <= self.height <= 2048):
+            raise ValueError(f"width and height must be in [8, 2048], got {self.width} x {self.height}")
+        if self.base_planes < 1 or self.base_planes % self.groups:
+            raise ValueError(f"base_planes ({self.base_planes}) must be a positive multiple of groups ({self.groups})")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if not 0.0 < self.sproj_rows <= 1.0:
+            raise ValueError(f"sproj_rows must be in (0, 1], got {self.sproj_rows}")
+        if self.max_depth <= 0:
+            raise ValueError(f"max_depth must be > 0, got {self.max_depth}")
+
+    @property
+    def channels_per_frame(self) -> int:
+        rgb = 3 if self.visual in ("rgb", "rgbd") else 0
+        depth = 1 if self.visual in ("depth", "rgbd") else 0
+        return rgb + depth + self.dd_bins + int(self.sproj)
+
+    def model_names(self) -> tuple[str, ...]:
+        """The networks of this kind: one per action label for SepAct, else ``("all",)``."""
+        return tuple(a.label for a in MOTION_ACTIONS) if self.kind == "sepact" else ("all",)
+
+    def model_for(self, action: Action) -> str:
+        return action.label if self.kind == "sepact" else "all"
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    """One training stage: which actions' pairs, for how long, with which augmentations and losses.
+
+    ``data_aug``: also train on pairs with their frames swapped (a reversed turn_left pair is a
+    turn_right sample; turns only). ``mirror``: also on mirrored pairs (dx, dyaw negated, left and right
+    swapped; Partsey et al. 2022). ``geoinv``: add the geometric-invariance loss between each turn pair
+    and its swap (needs both turn actions). ``pairs_per_epoch``: 0 = every pair (with augmentations)
+    once per epoch.
+    """
+
+    name: str
+    actions: tuple[str, ...]
+    epochs: int
+    lr: float = 2.5e-4
+    batch: int = 128
+    data_aug: bool = False
+    mirror: bool = False
+    geoinv: bool = False
+    pairs_per_epoch: int = 0
+
+    def __post_init__(self) -> None:
+        bad = [a for a in self.actions if a not in ACTION_BY_LABEL]
+        if bad or not self.actions:
+            raise ValueError(f"stage {self.name!r}: actions must be some of {', '.join(ACTION_BY_LABEL)}, got {list(self.actions)}")
+        if self.epochs < 1 or self.batch < 1 or self.pairs_per_epoch < 0 or not self.lr > 0:
+            raise ValueError(f"stage {self.name!r}: epochs and batch must be >= 1, lr > 0, pairs_per_epoch >= 0")
+        if self.geoinv and not {"turn_left", "turn_right"} <= set(self.actions):
+            raise ValueError(f"stage {self.name!r}: geoinv pairs turn_left with turn_right; list both actions")
+
+    @property
+    def action_set(self) -> tuple[Action, ...]:
+        return tuple(ACTION_BY_LABEL[a] for a in self.actions)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A whole recipe: data (made when missing), model, stages in order, validation size, seed."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    stages: tuple[StageConfig, ...] = ()
+    train_data: DataConfig = field(default_factory=DataConfig)
+    val_data: DataConfig = field(default_factory=lambda: DataConfig(split="val", episodes=64))
+    data_root: str = "data"
+    val_pairs: int = 3000
+    seed: int = 0
+    mc_samples: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.stages:
+            raise ValueError("a training config needs at least one [[stages]] table")
+        names = [s.name for s in self.stages]
+        if len(set(names)) != len(names):
+            raise ValueError(f"stage names must be unique, got {names}")
+        for data in (self.train_data, self.val_data):
+            if (data.width, data.height) != (self.model.width, self.model.height):
+                raise ValueError(f"{data.split} data is {data.width} x {data.height} px but the model takes "
+                                 f"{self.model.width} x {self.model.height}")
+
+    def data_folder(self, data: DataConfig) -> str:
+        """Where a data set lives: ``data_root/<split>-<episodes>-s<seed>-<width>x<height>``."""
+        return f"{self.data_root}/{data.split}-{data.episodes}-s{data.seed}-{data.width}x{data.height}"
+
+
+def load_train_config(path: str) -> TrainConfig:
+    """Read a recipe from TOML; :class:`ConfigError` names the file and field."""
+    try:
+        return dataclass_from_toml(TrainConfig, path)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: {exc}") from None

@@ -1,0 +1,104 @@
+"""``robust-vo``: the paper's learned visual odometry as an :class:`~odolab.api.Odometer`.
+
+    python -m odolab.compare --odometers action-prior,icp,robust-vo
+    python -m odolab.compare --odometers robust-vo --odometer-option robust-vo.checkpoint=runs/robust-vo/x/model.pt
+
+Each frame is resized to the model's input size (:func:`odolab.learning.resize_frame`, as the
+training data was), the pair's channels psi are computed and the network of the action taken
+predicts ``(dx, dz, dyaw)``. Options: ``checkpoint`` (default: the shipped model), ``mirror_tta``
+(also run the mirrored pair through the opposite action's network and average; Partsey et al.
+2022), ``mc_samples`` (> 1: that many passes with dropout on, whose spread gives
+``Estimate.covariance``; the paper's "rnd" mode), ``threads``, ``batch_size``, ``device``.
+A SepAct or ActEmbed model needs the action: on real data (no action) it answers ``valid=False``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from odolab.api import Action, Estimate, Frame, Odometer
+from odolab.learning import pick_device, resize_frame
+from odolab.robust_vo.checkpoint import SHIPPED, load_model
+from odolab.robust_vo.inputs import pair_channels
+from odolab.robust_vo.model import predict
+from odolab.robust_vo.motion import mirror, swap_action
+
+#: Variance (m^2 or rad^2) given to the out-of-plane components (rx, rz, ty) of the covariance.
+PLANAR_VARIANCE = 1e-6
+
+
+def planar_covariance_to_6d(cov: np.ndarray) -> np.ndarray:
+    """3x3 covariance of (dx, dz, dyaw) -> 6x6 over (rx, ry, rz, tx, ty, tz) of ``T_prev_cur``
+    (camera axes: ry = -dyaw because y points down, tx = dx, tz = dz)."""
+    J = np.zeros((6, 3))
+    J[1, 2], J[3, 0], J[5, 1] = -1.0, 1.0, 1.0
+    out = J @ cov @ J.T
+    out[[0, 2, 4], [0, 2, 4]] = PLANAR_VARIANCE
+    return out
+
+
+class RobustVOOdometer(Odometer):
+    """The robust VO. See the module docstring for the options."""
+
+    def __init__(self, checkpoint: str = "", mirror_tta: bool = False, mc_samples: int = 0, threads: int = 1,
+                 batch_size: int = 1, device: str = "") -> None:
+        if int(mc_samples) < 0 or int(mc_samples) == 1 or int(mc_samples) > 1000:
+            raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {mc_samples}")
+        if int(threads) < 1 or int(batch_size) < 1:
+            raise ValueError(f"threads and batch_size must be >= 1, got {threads} and {batch_size}")
+        self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
+        self.device = pick_device(device or "cpu")
+        self.nets.to(self.device)
+        self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
+        self.threads, self.batch_size = int(threads), int(batch_size)
+        self._needs_action = self.cfg.kind != "unified"
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        return self.step_batch([(prev, cur, action)])[0]
+
+    def _inputs(self, pairs: list[tuple[Frame, Frame, Action | None]]) -> tuple[torch.Tensor, torch.Tensor]:
+        w, h = self.cfg.width, self.cfg.height
+        small = [[resize_frame(f.rgb, f.depth, w, h) for f in (p, c)] for p, c, _ in pairs]
+        rgb = torch.from_numpy(np.stack([[r for r, _ in two] for two in small]))
+        depth = torch.from_numpy(np.stack([[d for _, d in two] for two in small]))
+        return rgb, depth
+
+    def _predict(self, rgb: torch.Tensor, depth: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
+        intr = self.intrinsics.resized(self.cfg.width, self.cfg.height)
+        x = pair_channels(rgb, depth, intr, self.cfg).to(self.device)
+        out = predict(self.nets, self.cfg, x, actions)
+        if self.mirror_tta:
+            xm = pair_channels(rgb.flip(3), depth.flip(3), intr, self.cfg).to(self.device)
+            out = 0.5 * (out + mirror(predict(self.nets, self.cfg, xm, swap_action(actions))))
+        return out.cpu()
+
+    def step_batch(self, pairs: list[tuple[Frame, Frame, Action | None]]) -> list[Estimate]:
+        answers: list[Estimate | None] = [None] * len(pairs)
+        todo = []
+        for k, (_, _, action) in enumerate(pairs):
+            if action is Action.STOP:
+                answers[k] = Estimate(np.eye(4))
+            elif action is None and self._needs_action:
+                answers[k] = Estimate.invalid()
+            else:
+                todo.append(k)
+        if todo:
+            rgb, depth = self._inputs([pairs[k] for k in todo])
+            actions = np.array([(pairs[k][2] or Action.MOVE_FORWARD).value for k in todo])
+            with torch.inference_mode():
+                if self.mc_samples:
+                    for m in self.nets.modules():
+                        if isinstance(m, torch.nn.Dropout):
+                            m.train()
+                    draws = torch.stack([self._predict(rgb, depth, actions) for _ in range(self.mc_samples)]).numpy()
+                    for m in self.nets.modules():
+                        m.eval()
+                    mean = draws.mean(axis=0)
+                    for j, k in enumerate(todo):
+                        cov = np.cov(draws[:, j].T) + np.diag([1e-8, 1e-8, 1e-8])
+                        answers[k] = Estimate.from_planar(*map(float, mean[j]), covariance=planar_covariance_to_6d(cov))
+                else:
+                    out = self._predict(rgb, depth, actions).numpy()
+                    for j, k in enumerate(todo):
+                        answers[k] = Estimate.from_planar(*map(float, out[j]))
+        return answers  # type: ignore[return-value]

@@ -1,0 +1,247 @@
+"""Train the robust VO from a TOML recipe, stage by stage, resumably; export the shipped checkpoint.
+
+    python -m odolab.robust_vo.train --config studies/robust_vo/shipped.toml --hours 1.8
+
+One command does everything: it makes the train and val data when missing (Ray tasks), then runs
+each stage of the recipe in order (each stage's networks start from the last stage that trained
+them), saving after every epoch under ``--work``; it writes validation curves (CSV, PNG) and a
+``training.json`` under ``--reports`` after every epoch, and exports the networks to ``--export``
+once every stage is finished. Stopped at any moment (or by ``--hours``), the same command resumes.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from odolab.api import MOTION_ACTIONS, Action, load_odometer, write_bytes_atomic
+from odolab.learning import EpochLoop, TrainingData, make_training_data, pick_device
+from odolab.robust_vo.batches import Samples, make_batch, stage_samples
+from odolab.robust_vo.checkpoint import save_model
+from odolab.robust_vo.config import StageConfig, TrainConfig, load_train_config
+from odolab.robust_vo.model import build_networks, predict
+from odolab.robust_vo.motion import geoinv_loss
+
+COMPONENTS = ("dx", "dz", "dyaw")
+
+
+def open_data(cfg: TrainConfig, *, ray_address: str | None = None, parallel: bool = True) -> tuple[TrainingData, TrainingData]:
+    """The recipe's train and val data, made first where missing."""
+    out = []
+    for data in (cfg.train_data, cfg.val_data):
+        folder = cfg.data_folder(data)
+        make_training_data(data, folder, ray_address=ray_address, parallel=parallel)
+        out.append(TrainingData(folder))
+    return out[0], out[1]
+
+
+def stage_networks(cfg: TrainConfig, stage: StageConfig) -> list[str]:
+    """Names of the networks a stage trains."""
+    return list(dict.fromkeys(cfg.model.model_for(a) for a in stage.action_set))
+
+
+def _mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (pred - target).pow(2).sum(dim=1).mean()
+
+
+class StageRunner:
+    """One stage: its samples, optimiser, epoch function and validation."""
+
+    def __init__(self, cfg: TrainConfig, stage: StageConfig, train: TrainingData, val: TrainingData,
+                 nets: torch.nn.ModuleDict, device: torch.device, progress: bool = True) -> None:
+        self.cfg, self.stage, self.train, self.val, self.nets, self.device = cfg, stage, train, val, nets, device
+        self.names = stage_networks(cfg, stage)
+        self.samples = stage_samples(train, stage)
+        if not len(self.samples):
+            raise ValueError(f"stage {stage.name!r}: no training pairs for {', '.join(stage.actions)}")
+        params = [p for n in self.names for p in nets[n].parameters()]
+        self.optimizer = torch.optim.Adam(params, lr=stage.lr)
+        self.progress = progress
+        rng = np.random.default_rng(cfg.seed)
+        chosen = val.select(stage.action_set)
+        if cfg.val_pairs and len(chosen) > cfg.val_pairs:
+            chosen = np.sort(rng.choice(chosen, cfg.val_pairs, replace=False))
+        self.val_pairs = chosen
+        self.prior = load_odometer("action-prior")
+
+    def init_bias(self) -> None:
+        """Start each network's output at the mean target of its training pairs (a fresh network then
+        begins at the action prior instead of at zero)."""
+        for name in self.names:
+            acts = [a for a in self.stage.action_set if self.cfg.model.model_for(a) == name]
+            mean = self.train.pair_planar[self.train.select(acts)].mean(axis=0)
+            with torch.no_grad():
+                self.nets[name].head[-1].bias.copy_(torch.from_numpy(mean).to(torch.float32))
+
+    def train_epoch(self, epoch: int, rng: np.random.Generator) -> dict:
+        stage = self.stage
+        order = rng.permutation(len(self.samples))
+        if stage.pairs_per_epoch:
+            order = order[:stage.pairs_per_epoch]
+        total, seen, started = 0.0, 0, time.monotonic()
+        bar = tqdm(total=len(order), desc=f"{stage.name} epoch {epoch}", unit="pair", disable=not self.progress,
+                   leave=False)
+        for start in range(0, len(order), stage.batch):
+            part: Samples = self.samples.take(np.sort(order[start:start + stage.batch]))
+            batch = make_batch(self.train, part, self.cfg.model, self.device)
+            pred = predict(self.nets, self.cfg.model, batch.x, batch.action)
+            loss = _mse(pred, batch.target)
+            if stage.geoinv:
+                other = make_batch(self.train, part, self.cfg.model, self.device, swap_all=True)
+                pred_ba = predict(self.nets, self.cfg.model, other.x, other.action)
+                loss = loss + _mse(pred_ba, other.target) + geoinv_loss(pred, pred_ba)
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimizer.step()
+            total += loss.item() * len(part)
+            seen += len(part)
+            bar.update(len(part))
+        bar.close()
+        seconds = time.monotonic() - started
+        return {"stage": stage.name, "loss": total / max(seen, 1), "pairs": seen, "pairs_per_s": seen / max(seconds, 1e-9)}
+
+    def validate(self, epoch: int) -> list[dict]:
+        """Mean absolute error per action and component on the val pairs, beside the action prior's."""
+        errors, actions = [], []
+        for start in range(0, len(self.val_pairs), 256):
+            idx = self.val_pairs[start:start + 256]
+            part = Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool))
+            batch = make_batch(self.val, part, self.cfg.model, self.device)
+            pred = predict(self.nets, self.cfg.model, batch.x, batch.action).cpu().numpy()
+            errors.append(np.abs(pred - batch.target.cpu().numpy()))
+            actions.append(batch.action)
+        if not errors:
+            return []
+        err, act = np.concatenate(errors), np.concatenate(actions)
+        rows = []
+        for action in self.stage.action_set:
+            mask = act == action.value
+            if not mask.any():
+                continue
+            truth = self.val.pair_planar[self.val_pairs[mask]]
+            prior = np.abs(truth - self.prior.step(None, None, action).planar)
+            for c, name in enumerate(COMPONENTS):
+                rows.append({"stage": self.stage.name, "action": action.label, "component": name, "pairs": int(mask.sum()),
+                             "mae": float(err[mask, c].mean()), "prior_mae": float(prior[:, c].mean())})
+        return rows
+
+
+def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
+    """What a saved stage state must match to be resumed (everything but the number of epochs)."""
+    doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    stage_doc = {k: v for k, v in json.loads(json.dumps(dataclasses.asdict(stage))).items() if k != "epochs"}
+    return {"model": doc["model"], "stage": stage_doc, "train_data": doc["train_data"], "val_data": doc["val_data"],
+            "seed": cfg.seed, "val_pairs": cfg.val_pairs}
+
+
+def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None:
+    from odolab.learning import Curves
+
+    offsets, total = {}, 0  # "epoch" counts within a stage; "epochs" counts over the stages in order
+    for row in curves_rows:
+        if row["stage"] not in offsets:
+            offsets[row["stage"]] = total
+        total = max(total, offsets[row["stage"]] + row["epoch"])
+    curves = Curves([{**r, "epochs": offsets[r["stage"]] + r["epoch"]} for r in curves_rows])
+    curves.to_csv(reports / "curves.csv")
+    curves.plot(reports / "curves.png", x="epochs", rows="action", cols="component", where={"split": "val"},
+                series={"mae": {"label": "robust VO (val)", "color": "C0"},
+                        "prior_mae": {"label": "action prior (val)", "color": "0.5", "linestyle": "--", "marker": ""}},
+                scale={"dyaw": 180 / np.pi}, ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
+                title="Robust VO: validation error after each epoch (all stages in order)")
+    write_bytes_atomic(reports / "training.json", json.dumps(status, indent=1).encode())
+
+
+def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: torch.device, hours: float | None,
+        ray_address: str | None = None, parallel_data: bool = True, progress: bool = True,
+        command: str = "") -> bool:
+    """Run (or resume) every stage; export when all are done. Returns True when finished."""
+    deadline = time.monotonic() + hours * 3600 if hours else None
+    train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data)
+    torch.manual_seed(cfg.seed)
+    nets = build_networks(cfg.model).to(device)
+    last_trained: dict[str, str] = {}  # network -> last stage that trained it
+    all_rows: list[dict] = []
+    status = {"command": command, "train_pairs": train.counts(), "val_pairs": val.counts(), "stages": {}}
+    finished = True
+    for stage in cfg.stages:
+        runner = StageRunner(cfg, stage, train, val, nets, device, progress)
+        loop = EpochLoop(work / f"{stage.name}.pt", {n: nets[n] for n in runner.names}, runner.optimizer,
+                         stage.epochs, cfg.seed, _identity(cfg, stage))
+        if loop.resume() == 0:
+            fresh = [n for n in runner.names if n not in last_trained]
+            if fresh:
+                runner.init_bias()
+        if finished:
+            def after(loop_: EpochLoop, stage=stage) -> None:
+                _write_reports(reports, all_rows + loop_.curves.rows,
+                               {**status, "stages": {**status["stages"], stage.name: _stage_status(loop_)}})
+            finished = loop.run(runner.train_epoch, runner.validate, deadline=deadline, after_epoch=after)
+        status["stages"][stage.name] = _stage_status(loop)
+        all_rows += loop.curves.rows
+        for n in runner.names:
+            last_trained[n] = stage.name
+        if not finished:
+            break
+    _write_reports(reports, all_rows, status)
+    if finished:
+        save_model(export, cfg, nets, status)
+    return finished
+
+
+def _stage_status(loop: EpochLoop) -> dict:
+    return {"epochs_done": loop.epoch, "epochs": loop.epochs, "hours": round(loop.seconds / 3600, 3),
+            "pairs_seen": int(sum(r.get("pairs", 0) for r in loop.curves.rows if r.get("split") == "train"))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from odolab.cli import ArgumentParser, number, path_arg
+
+    ap = ArgumentParser(prog="python -m odolab.robust_vo.train", description=__doc__.split("\n")[0],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", type=path_arg("--config"), required=True, help="TOML recipe (studies/robust_vo/*.toml)")
+    ap.add_argument("--work", type=path_arg("--work"), default=None, help="training states (default runs/robust-vo/<config name>)")
+    ap.add_argument("--reports", type=path_arg("--reports"), default=None,
+                    help="curves and status (default reports/robust-vo/<config name>)")
+    ap.add_argument("--export", type=path_arg("--export"), default=None, help="the trained model (default <work>/model.pt)")
+    ap.add_argument("--hours", type=number("--hours", float, 0.0), default=None,
+                    help="stop before an epoch that would start after this many hours (rerun to resume)")
+    ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
+    ap.add_argument("--threads", type=number("--threads", int, 1), default=None, help="torch CPU threads (default: all cores)")
+    ap.add_argument("--ray-address", default=None, help="Ray cluster for making the data (default: a local instance)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = ap.parse_args(argv)
+    try:
+        cfg = load_train_config(str(args.config))
+        device = pick_device(args.device)
+    except ValueError as exc:
+        ap.error(str(exc))
+    name = args.config.stem
+    work = args.work or Path("runs/robust-vo") / name
+    reports = args.reports or Path("reports/robust-vo") / name
+    export = args.export or work / "model.pt"
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    command = "python -m odolab.robust_vo.train " + " ".join(argv if argv is not None else sys.argv[1:])
+    try:
+        done = run(cfg, work=work, reports=reports, export=export, device=device, hours=args.hours,
+                   ray_address=args.ray_address, progress=not args.quiet, command=command)
+    except ValueError as exc:
+        ap.error(str(exc))
+    print(f"{'finished; model written to ' + str(export) if done else 'stopped; run the same command to resume'}"
+          f" (curves: {reports / 'curves.png'})")
+    return 0
+
+
+if __name__ == "__main__":
+    from odolab.cli import run_cli
+
+    sys.exit(run_cli(main, "python -m odolab.robust_vo.train"))

@@ -1,0 +1,349 @@
+"""Training data for learned odometers: simulator episodes rendered once, resized to the training
+resolution and stored as memory-mappable shards, with random access to frame pairs and windows.
+
+Make a data set (Ray tasks, one shard of a few episodes each; resumable: finished shards are kept)::
+
+    python -m odolab.training_data --split train --episodes 1200 --width 170 --height 96 --out data/vo/train
+
+A folder holds ``dataset.json`` (the config and, per shard, its file and counts) and the shards
+``shard-<index>-<digest>.npz``: uncompressed ``.npz`` files (members mapped in place, see
+:mod:`odolab.io.npz_mmap`) with, for the F frames of its episodes in order,
+
+* ``rgb`` (F, h, w, 3) uint8 and ``depth_mm`` (F, h, w) uint16 millimetres (0 = no reading),
+  resized by :func:`resize_frame` (the function learned odometers apply to their input at run time);
+* ``poses`` (F, 4, 4) ``T_world_cam``; ``actions`` (F,) int8: the action taken after the frame,
+  -1 on an episode's last frame; ``collisions`` (F,) bool; ``episode`` (F,) int32 episode index.
+
+:class:`TrainingData` opens a folder and hands out batches of pairs (``frame f -> f + 1`` of one
+episode) or windows of consecutive frames, reading only the frames asked for. No torch here.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Sequence as Seq
+
+import cv2
+import numpy as np
+
+from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
+from odolab.geometry import invert, transform_to_planar
+from odolab.io.atomic import atomic_open, write_bytes_atomic
+from odolab.io.npz_mmap import mmap_npz_member
+from odolab.sim.camera import CameraSpec
+from odolab.sim.scenes import SPLITS
+from odolab.types import MOTION_ACTIONS, Action, Intrinsics
+
+__all__ = ["DataConfig", "TrainingData", "make_training_data", "resize_frame"]
+
+FORMAT = 1
+MANIFEST = "dataset.json"
+_ARRAYS = ("rgb", "depth_mm", "poses", "actions", "collisions", "episode")
+
+
+def resize_frame(rgb: np.ndarray, depth: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """An RGB-D frame resized to ``width`` x ``height`` (intrinsics: :meth:`Intrinsics.resized`).
+
+    RGB: area average (``cv2.INTER_AREA``). Depth (m, 0 = no reading): the area average of the valid
+    readings, where at least half of the area is valid, else 0, so holes neither shrink to nothing nor
+    blend into their neighbours. Returns (h, w, 3) uint8 and (h, w) float32.
+    """
+    if rgb.shape[:2] == (height, width) and depth.shape == (height, width):
+        return np.asarray(rgb, np.uint8), np.asarray(depth, np.float32)
+    small_rgb = cv2.resize(np.ascontiguousarray(rgb), (width, height), interpolation=cv2.INTER_AREA)
+    depth = np.asarray(depth, np.float32)
+    valid = (depth > 0).astype(np.float32)
+    total = cv2.resize(depth, (width, height), interpolation=cv2.INTER_AREA)
+    share = cv2.resize(valid, (width, height), interpolation=cv2.INTER_AREA)
+    small_depth = np.where(share >= 0.5, total / np.maximum(share, 1e-6), 0.0).astype(np.float32)
+    return small_rgb, small_depth
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """What a training-data folder holds: episodes ``first .. first + episodes - 1`` of ``split``
+    from ``seed`` (at most ``max_steps`` actions each), frames resized to ``width`` x ``height`` px."""
+
+    split: str = "train"
+    episodes: int = 1200
+    seed: int = 0
+    first: int = 0
+    max_steps: int = 500
+    width: int = 170
+    height: int = 96
+    episodes_per_shard: int = 8
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+
+    def __post_init__(self) -> None:
+        if self.split not in SPLITS:
+            raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r}")
+        for name in ("episodes", "max_steps", "width", "height", "episodes_per_shard"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        camera = CameraSpec()
+        if self.width > camera.width or self.height > camera.height:
+            raise ValueError(f"width x height must be at most the camera's {camera.width} x {camera.height}, "
+                             f"got {self.width} x {self.height}")
+
+    @property
+    def specs(self) -> list[EpisodeSpec]:
+        return [EpisodeSpec(split=self.split, index=self.first + i, seed=self.seed, max_steps=self.max_steps,
+                            noise=self.noise) for i in range(self.episodes)]
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        """The camera of the stored (resized) frames."""
+        return CameraSpec().intrinsics.resized(self.width, self.height)
+
+    def shard_specs(self) -> list[list[EpisodeSpec]]:
+        specs, k = self.specs, self.episodes_per_shard
+        return [specs[i:i + k] for i in range(0, len(specs), k)]
+
+    def shard_name(self, index: int, specs: list[EpisodeSpec]) -> str:
+        """File name of shard ``index``; its digest changes with the simulator and the resolution."""
+        blob = json.dumps([FORMAT, self.width, self.height, [s.key() for s in specs]])
+        return f"shard-{index:05d}-{hashlib.sha256(blob.encode()).hexdigest()[:12]}.npz"
+
+    @classmethod
+    def from_dict(cls, doc: dict, source: str) -> "DataConfig":
+        """Inverse of ``asdict``; ``ValueError`` names ``source`` and the bad field."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(doc) - known)
+        if unknown:
+            raise ValueError(f"{source}: unknown data field(s) {', '.join(unknown)}; expected {', '.join(sorted(known))}")
+        doc = dict(doc)
+        if "noise" in doc:
+            if not isinstance(doc["noise"], dict):
+                raise ValueError(f"{source}: field 'noise' must be a table, got {doc['noise']!r}")
+            doc["noise"] = NoiseConfig(**doc["noise"])
+        try:
+            return cls(**doc)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: {exc}") from None
+
+
+def _render_shard(job: tuple[DataConfig, list[EpisodeSpec]]) -> dict[str, np.ndarray]:
+    """Render the episodes of one shard and resize their frames (a Ray task)."""
+    cfg, specs = job
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in _ARRAYS}
+    for spec in specs:
+        ep = render_episode(spec)
+        small = [resize_frame(ep.rgb[i], ep.depth[i], cfg.width, cfg.height) for i in range(len(ep))]
+        parts["rgb"].append(np.stack([r for r, _ in small]))
+        parts["depth_mm"].append(np.stack([np.round(d * 1000.0).clip(0, 65535).astype(np.uint16) for _, d in small]))
+        parts["poses"].append(ep.poses.astype(np.float64))
+        parts["actions"].append(np.concatenate([ep.actions.astype(np.int8), [-1]]).astype(np.int8))
+        parts["collisions"].append(np.concatenate([ep.collisions, [False]]))
+        parts["episode"].append(np.full(len(ep), spec.index, np.int32))
+    return {name: np.concatenate(v) for name, v in parts.items()}
+
+
+def _action_counts(actions: np.ndarray) -> dict[str, int]:
+    return {a.label: int(np.sum(actions == a.value)) for a in MOTION_ACTIONS}
+
+
+def _read_manifest(root: Path) -> dict | None:
+    path = root / MANIFEST
+    if not path.exists():
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not a readable training-data manifest ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("shards"), dict):
+        raise ValueError(f"{path}: not an odolab training-data manifest of format {FORMAT}")
+    return doc
+
+
+def make_training_data(cfg: DataConfig, root: str | os.PathLike, *, ray_address: str | None = None,
+                       parallel: bool = True, progress: bool = True) -> dict:
+    """Render the shards of ``cfg`` that ``root`` lacks (as Ray tasks), each written atomically as it
+    finishes, with ``dataset.json`` updated after each: an interrupted run resumes where it stopped.
+    A folder made with another config is refused (``ValueError`` naming the differing fields).
+    Returns the manifest."""
+    from odolab.parallel import fan_out
+
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    config = json.loads(json.dumps(asdict(cfg)))
+    doc = _read_manifest(root) or {"format": FORMAT, "config": config, "shards": {}}
+    if doc["config"] != config:
+        diff = [f"{k} (folder {doc['config'].get(k)!r}, asked {v!r})" for k, v in config.items()
+                if doc["config"].get(k) != v]
+        raise ValueError(f"{root} holds training data made with another config: {'; '.join(diff)}; "
+                         "choose another folder")
+    groups = cfg.shard_specs()
+    names = [cfg.shard_name(i, g) for i, g in enumerate(groups)]
+    todo = [i for i, name in enumerate(names) if name not in doc["shards"] or not (root / name).exists()]
+
+    def write_manifest() -> None:
+        write_bytes_atomic(root / MANIFEST, json.dumps(doc, indent=1).encode())
+
+    def done(k: int, arrays: dict[str, np.ndarray]) -> None:
+        i = todo[k]
+        with atomic_open(root / names[i], "wb") as f:
+            np.savez(f, **arrays)
+        doc["shards"][names[i]] = {"index": i, "episodes": len(groups[i]), "frames": int(len(arrays["actions"])),
+                                   "pairs": _action_counts(arrays["actions"])}
+        write_manifest()
+
+    write_manifest()
+    fan_out(_render_shard, [(cfg, groups[i]) for i in todo], on_result=done, parallel=parallel,
+            ray_address=ray_address, progress=progress, desc=f"{cfg.split} shards")
+    stale = set(doc["shards"]) - set(names)
+    for name in stale:  # shards of an older simulator: dropped from the manifest
+        doc["shards"].pop(name)
+    write_manifest()
+    return doc
+
+
+class TrainingData:
+    """A training-data folder, opened for random access (maps are opened lazily per process).
+
+    ``pairs``: (P,) global frame indices f such that (f, f + 1) is a pair of one episode;
+    ``pair_actions`` (P,) :class:`Action` values; ``pair_planar`` (P, 3) true ``(dx, dz, dyaw)``;
+    ``pair_motion`` (P, 4, 4) true ``T_prev_cur``; ``pair_collisions`` (P,) bool.
+    """
+
+    def __init__(self, root: str | os.PathLike) -> None:
+        self.root = Path(root)
+        doc = _read_manifest(self.root)
+        if doc is None:
+            raise ValueError(f"{self.root}: no {MANIFEST}; make the data first (python -m odolab.training_data ...)")
+        self.config = DataConfig.from_dict(doc["config"], str(self.root / MANIFEST))
+        expected = [self.config.shard_name(i, g) for i, g in enumerate(self.config.shard_specs())]
+        missing = [n for n in expected if n not in doc["shards"] or not (self.root / n).exists()]
+        if missing:
+            raise ValueError(f"{self.root}: {len(missing)} of {len(expected)} shards missing (e.g. {missing[0]}); "
+                             "run the same python -m odolab.training_data command again to finish it")
+        self.shards = expected
+        small = []
+        for name in self.shards:
+            try:
+                with np.load(self.root / name, allow_pickle=False) as z:
+                    small.append({k: np.array(z[k]) for k in ("poses", "actions", "collisions", "episode")})
+            except (OSError, ValueError, KeyError) as exc:
+                raise ValueError(f"{self.root / name}: unreadable shard ({exc}); delete it and run the "
+                                 "python -m odolab.training_data command again") from None
+        sizes = np.array([len(s["actions"]) for s in small])
+        self._start = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        actions = np.concatenate([s["actions"] for s in small])
+        poses = np.concatenate([s["poses"] for s in small])
+        self.episode = np.concatenate([s["episode"] for s in small])
+        self.pairs = np.flatnonzero(actions >= 0).astype(np.int64)
+        self.pair_actions = actions[self.pairs].astype(np.int64)
+        self.pair_motion = invert(poses[self.pairs]) @ poses[self.pairs + 1]
+        self.pair_planar = np.stack([transform_to_planar(m) for m in self.pair_motion])
+        self.pair_collisions = np.concatenate([s["collisions"] for s in small])[self.pairs]
+        self._maps: dict[int, dict[str, np.ndarray]] = {}
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return self.config.intrinsics
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def counts(self) -> dict[str, int]:
+        """Pairs per action label."""
+        return _action_counts(self.pair_actions)
+
+    def select(self, actions: Seq[Action] | None = None) -> np.ndarray:
+        """Indices into the pair arrays of the pairs whose action is in ``actions`` (all if None)."""
+        if actions is None:
+            return np.arange(len(self.pairs))
+        return np.flatnonzero(np.isin(self.pair_actions, [a.value for a in actions]))
+
+    def _shard(self, s: int) -> dict[str, np.ndarray]:
+        if s not in self._maps:
+            path = self.root / self.shards[s]
+            self._maps[s] = {k: mmap_npz_member(path, k) for k in ("rgb", "depth_mm")}
+        return self._maps[s]
+
+    def frames(self, frame_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """RGB (N, h, w, 3) uint8 and depth (N, h, w) float32 metres of global frames, in order."""
+        frame_indices = np.asarray(frame_indices, np.int64).ravel()
+        rgb = np.empty((len(frame_indices), self.config.height, self.config.width, 3), np.uint8)
+        depth = np.empty((len(frame_indices), self.config.height, self.config.width), np.float32)
+        shard = np.searchsorted(self._start, frame_indices, side="right") - 1
+        for k, (s, f) in enumerate(zip(shard, frame_indices)):
+            m = self._shard(int(s))
+            local = int(f - self._start[s])
+            rgb[k] = m["rgb"][local]
+            depth[k] = m["depth_mm"][local] * np.float32(0.001)
+        return rgb, depth
+
+    def pair_batch(self, idx: np.ndarray) -> dict[str, np.ndarray]:
+        """Pairs ``idx`` (indices into the pair arrays): ``rgb`` (B, 2, h, w, 3) uint8, ``depth``
+        (B, 2, h, w) float32 m, ``action`` (B,) Action values, ``planar`` (B, 3), ``motion`` (B, 4, 4)."""
+        idx = np.asarray(idx, np.int64)
+        f = self.pairs[idx]
+        rgb, depth = self.frames(np.stack([f, f + 1], axis=1))
+        b = len(idx)
+        return {"rgb": rgb.reshape(b, 2, *rgb.shape[1:]), "depth": depth.reshape(b, 2, *depth.shape[1:]),
+                "action": self.pair_actions[idx], "planar": self.pair_planar[idx], "motion": self.pair_motion[idx]}
+
+    def windows(self, length: int) -> np.ndarray:
+        """Indices into the pair arrays of the pairs that start ``length - 1`` consecutive pairs of one
+        episode (windows of ``length`` frames), e.g. for recurrent models."""
+        if length < 2:
+            raise ValueError(f"a window has at least 2 frames, got {length}")
+        f = self.pairs
+        ok = np.ones(len(f), bool)
+        for j in range(1, length - 1):
+            nxt = np.searchsorted(f, f + j)
+            ok &= (nxt < len(f)) & (f[np.minimum(nxt, len(f) - 1)] == f + j)
+        return np.flatnonzero(ok)
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_maps"] = {}
+        return state
+
+
+def main(argv: list[str] | None = None) -> int:
+    from odolab.cli import ArgumentParser, number, path_arg, seed
+
+    ap = ArgumentParser(prog="python -m odolab.training_data",
+                        description="Render simulator episodes into memory-mappable training shards (resumable).")
+    d = DataConfig()
+    ap.add_argument("--split", choices=SPLITS, default=d.split, help=f"scene pool (default {d.split})")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1), default=d.episodes,
+                    help=f"episodes (default {d.episodes})")
+    ap.add_argument("--first", type=number("--first", int, 0), default=0, help="index of the first episode (default 0)")
+    ap.add_argument("--seed", type=seed(), default=0, help="episode seed (default 0)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1), default=d.max_steps,
+                    help=f"actions per episode at most (default {d.max_steps})")
+    ap.add_argument("--width", type=number("--width", int, 8, 341), default=d.width, help=f"pixels (default {d.width})")
+    ap.add_argument("--height", type=number("--height", int, 8, 192), default=d.height,
+                    help=f"pixels (default {d.height})")
+    ap.add_argument("--episodes-per-shard", type=number("--episodes-per-shard", int, 1), default=d.episodes_per_shard)
+    ap.add_argument("--out", type=path_arg("--out"), required=True, help="folder (created; reused to resume)")
+    ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
+    ap.add_argument("--serial", action="store_true", help="render in this process, without Ray")
+    args = ap.parse_args(argv)
+    cfg = DataConfig(split=args.split, episodes=args.episodes, seed=args.seed, first=args.first,
+                     max_steps=args.max_steps, width=args.width, height=args.height,
+                     episodes_per_shard=args.episodes_per_shard)
+    if args.out.exists() and not args.out.is_dir():
+        ap.error(f"--out {args.out}: exists and is not a folder")
+    try:
+        make_training_data(cfg, args.out, ray_address=args.ray_address, parallel=not args.serial)
+        data = TrainingData(args.out)
+    except ValueError as exc:
+        ap.error(str(exc))
+    counts = ", ".join(f"{k} {v}" for k, v in data.counts().items())
+    print(f"{args.out}: {len(data)} pairs ({counts}) from {cfg.episodes} {cfg.split} episodes at "
+          f"{cfg.width}x{cfg.height}")
+    return 0
+
+
+if __name__ == "__main__":
+    from odolab.cli import run_cli
+
+    sys.exit(run_cli(main, "python -m odolab.training_data"))

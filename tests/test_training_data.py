@@ -1,0 +1,114 @@
+"""odolab/training_data.py: shards made once and resumed, refused when made otherwise, frames resized
+with holes kept, windows of consecutive pairs."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from odolab import training_data as td
+from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
+
+CFG = DataConfig(split="train", episodes=3, max_steps=6, width=40, height=24, episodes_per_shard=2)
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data") / "train"
+    make_training_data(CFG, root, parallel=False, progress=False)
+    return root
+
+
+def test_a_folder_lists_its_shards_and_counts(folder):
+    doc = json.loads((folder / td.MANIFEST).read_text())
+    assert len(doc["shards"]) == 2  # 3 episodes, 2 per shard
+    data = TrainingData(folder)
+    assert sum(data.counts().values()) == len(data) == sum(
+        sum(s["pairs"].values()) for s in doc["shards"].values())
+    assert data.config == CFG
+
+
+def test_an_interrupted_run_makes_only_the_missing_shard(folder, monkeypatch):
+    shards = sorted(folder.glob("shard-*.npz"))
+    before = {p.name: p.read_bytes() for p in shards}
+    shards[1].unlink()
+    with pytest.raises(ValueError, match="1 of 2 shards missing"):
+        TrainingData(folder)
+    rendered = []
+    real = td._render_shard
+    monkeypatch.setattr(td, "_render_shard", lambda job: rendered.append(len(job[1])) or real(job))
+    make_training_data(CFG, folder, parallel=False, progress=False)
+    assert rendered == [1]  # the third episode only
+    assert {p.name: p.read_bytes() for p in sorted(folder.glob("shard-*.npz"))} == before  # same bytes again
+
+
+def test_a_folder_made_otherwise_is_refused(folder):
+    with pytest.raises(ValueError, match=r"another config: width \(folder 40, asked 64\)"):
+        make_training_data(DataConfig(split="train", episodes=3, max_steps=6, width=64, height=24,
+                                      episodes_per_shard=2), folder, parallel=False, progress=False)
+
+
+def test_a_damaged_shard_or_manifest_is_named(folder, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(folder, copy)
+    shard = sorted(copy.glob("shard-*.npz"))[0]
+    shard.write_bytes(b"garbage")
+    with pytest.raises(ValueError, match=f"{shard.name}: unreadable shard"):
+        TrainingData(copy)
+    (copy / td.MANIFEST).write_text("{not json")
+    with pytest.raises(ValueError, match="not a readable training-data manifest"):
+        TrainingData(copy)
+    with pytest.raises(ValueError, match="no dataset.json"):
+        TrainingData(tmp_path)
+
+
+def test_windows_are_runs_of_consecutive_pairs_of_one_episode(folder):
+    data = TrainingData(folder)
+    for length in (2, 3, 5):
+        for k in data.windows(length):
+            f = data.pairs[k]
+            run = data.pairs[k:k + length - 1]
+            assert np.array_equal(run, f + np.arange(length - 1))
+            assert len(set(data.episode[f:f + length])) == 1
+    assert len(data.windows(2)) == len(data)
+    with pytest.raises(ValueError):
+        data.windows(1)
+
+
+def test_resize_keeps_holes_as_holes_and_averages_readings():
+    depth = np.full((48, 80), 2.0, np.float32)
+    depth[:, :40] = 0.0  # left half: no reading
+    depth[:24, 60:] = 4.0
+    depth[24:, 40:42] = 0.0  # a thin hole column: under half of each output pixel
+    rgb = np.zeros((48, 80, 3), np.uint8)
+    small_rgb, small = resize_frame(rgb, depth, 20, 12)
+    assert small_rgb.shape == (12, 20, 3) and small.shape == (12, 20)
+    assert np.all(small[:, :10] == 0)
+    assert np.allclose(small[:6, 15:], 4.0) and np.allclose(small[6:, 10], 2.0)
+
+
+def test_bad_data_configs_name_the_field():
+    with pytest.raises(ValueError, match="split must be one of"):
+        DataConfig(split="holdout")
+    with pytest.raises(ValueError, match="episodes must be >= 1"):
+        DataConfig(episodes=0)
+    with pytest.raises(ValueError, match="at most the camera's 341 x 192"):
+        DataConfig(width=400)
+    with pytest.raises(ValueError, match="unknown data field"):
+        DataConfig.from_dict({"colour": 1}, "x.json")
+
+
+def test_the_cli_makes_data_and_refuses_bad_options(tmp_path, capsys):
+    from odolab.cli import run_cli
+
+    out = tmp_path / "d"
+    args = ["--split", "val", "--episodes", "1", "--max-steps", "3", "--width", "32", "--height", "18",
+            "--serial", "--out", str(out)]
+    assert run_cli(td.main, "python -m odolab.training_data", args) == 0
+    assert "pairs" in capsys.readouterr().out
+    assert run_cli(td.main, "python -m odolab.training_data", args[:-2] + ["--width", "500", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--width" in err and "Traceback" not in err
