@@ -19,7 +19,6 @@ episode) or windows of consecutive frames, reading only the frames asked for. No
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -99,6 +98,16 @@ class DataConfig:
     def intrinsics(self) -> Intrinsics:
         """The camera of the stored (resized) frames."""
         return CameraSpec().intrinsics.resized(self.width, self.height)
+
+    def require_size(self, width: int, height: int) -> None:
+        """``ValueError`` unless the frames are ``width`` x ``height`` px (what a model takes)."""
+        if (self.width, self.height) != (width, height):
+            raise ValueError(f"{self.split} data is {self.width} x {self.height} px but the model takes {width} x {height}")
+
+    def folder(self, root: str | os.PathLike) -> Path:
+        """The conventional folder of this data under ``root``:
+        ``<split>-<episodes>-s<seed>-<width>x<height>`` (a folder made otherwise is refused on use)."""
+        return Path(root) / f"{self.split}-{self.episodes}-s{self.seed}-{self.width}x{self.height}"
 
     def shard_specs(self) -> list[list[EpisodeSpec]]:
         specs, k = self.specs, self.episodes_per_shard
@@ -207,7 +216,8 @@ class TrainingData:
 
     ``pairs``: (P,) global frame indices f such that (f, f + 1) is a pair of one episode;
     ``pair_actions`` (P,) :class:`Action` values; ``pair_planar`` (P, 3) true ``(dx, dz, dyaw)``;
-    ``pair_motion`` (P, 4, 4) true ``T_prev_cur``; ``pair_collisions`` (P,) bool.
+    ``pair_motion`` (P, 4, 4) true ``T_prev_cur``; ``pair_collisions`` (P,) bool; per frame,
+    ``poses`` (F, 4, 4) true ``T_world_cam`` and ``episode`` (F,) episode index.
     """
 
     def __init__(self, root: str | os.PathLike) -> None:
@@ -234,6 +244,7 @@ class TrainingData:
         self._start = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         actions = np.concatenate([s["actions"] for s in small])
         poses = np.concatenate([s["poses"] for s in small])
+        self.poses = poses  # (F, 4, 4) T_world_cam of every frame
         self.episode = np.concatenate([s["episode"] for s in small])
         self.pairs = np.flatnonzero(actions >= 0).astype(np.int64)
         self.pair_actions = actions[self.pairs].astype(np.int64)

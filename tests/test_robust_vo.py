@@ -11,7 +11,7 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import Action, Frame, Intrinsics, invert, load_odometer, transform_to_planar  # noqa: E402
+from odolab.api import Action, Intrinsics, invert, load_odometer, transform_to_planar  # noqa: E402
 from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode  # noqa: E402
 from odolab.learning import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data  # noqa: E402
 from odolab.robust_vo import train as trainer  # noqa: E402
@@ -320,7 +320,7 @@ def test_checkpoint_errors_name_the_file(trained, tmp_path):
     doc = torch.load(trained / "model.pt", weights_only=True)
     doc["model"]["base_planes"] = 16
     torch.save(doc, tmp_path / "mismatch.pt")
-    with pytest.raises(CheckpointError, match="do not fit its config"):
+    with pytest.raises(CheckpointError, match="do not fit the odolab-robust-vo config"):
         load_model(tmp_path / "mismatch.pt")
 
 

@@ -7,7 +7,7 @@ import io
 import os
 import pickle
 import zipfile
-from typing import Any
+from typing import Any, Callable
 
 import torch
 
@@ -42,3 +42,44 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str
     if doc.get("format") != format:
         raise CheckpointError(f"{path}: {kind} checkpoint of format {doc.get('format')!r}; this odolab reads format {format}")
     return doc
+
+
+MODEL_FORMAT = 1
+
+
+def save_model(path: str | os.PathLike, kind: str, recipe: Any, networks: dict[str, torch.nn.Module],
+               training: dict[str, Any]) -> None:
+    """A trained model file: the recipe (a dataclass with a ``model`` field; its ``model`` part is what
+    loading needs), each network's weights (on the CPU) and the training status, all plain data."""
+    import dataclasses
+    import json
+
+    doc = json.loads(json.dumps(dataclasses.asdict(recipe)))
+    save_checkpoint(path, kind, MODEL_FORMAT, {
+        "model": doc["model"], "recipe": doc, "training": json.loads(json.dumps(training)),
+        "networks": {name: {k: v.detach().cpu() for k, v in net.state_dict().items()} for name, net in networks.items()}})
+
+
+def load_model(path: str | os.PathLike, kind: str, model_cls: type,
+               build: Callable[[Any], dict[str, torch.nn.Module]]) -> tuple[Any, dict[str, torch.nn.Module], dict]:
+    """Read a model file of ``kind``: (``model_cls`` config, networks built by ``build(config)`` with
+    their weights, in eval mode, ``{"recipe": ..., "training": ...}``). :class:`CheckpointError`
+    names the file when it is not such a file or its weights do not fit its config."""
+    from odolab.learning.configs import dataclass_from_dict
+
+    doc = load_checkpoint(path, kind, MODEL_FORMAT)
+    try:
+        cfg = dataclass_from_dict(model_cls, doc["model"], f"{path}: model")
+        nets = build(cfg)
+        missing = sorted(set(nets) - set(doc["networks"]))
+        if missing:
+            raise CheckpointError(f"{path}: no weights for network(s) {', '.join(missing)}")
+        for name, net in nets.items():
+            net.load_state_dict(doc["networks"][name])
+            net.eval()
+    except CheckpointError:
+        raise
+    except (KeyError, TypeError, RuntimeError, ValueError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise CheckpointError(f"{path}: the weights do not fit the {kind} config ({first})") from None
+    return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {})}

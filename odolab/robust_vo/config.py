@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from odolab.api import MOTION_ACTIONS, Action
-from odolab.learning import ConfigError, DataConfig, dataclass_from_toml
+from odolab.learning import DataConfig, dataclass_from_toml
 
 ACTION_BY_LABEL = {a.label: a for a in MOTION_ACTIONS}
 
@@ -123,20 +123,13 @@ class TrainConfig:
         if len(set(names)) != len(names):
             raise ValueError(f"stage names must be unique, got {names}")
         for data in (self.train_data, self.val_data):
-            if (data.width, data.height) != (self.model.width, self.model.height):
-                raise ValueError(f"{data.split} data is {data.width} x {data.height} px but the model takes "
-                                 f"{self.model.width} x {self.model.height}")
+            data.require_size(self.model.width, self.model.height)
 
     def data_folder(self, data: DataConfig) -> str:
-        """Where a data set lives: ``data_root/<split>-<episodes>-s<seed>-<width>x<height>``."""
-        return f"{self.data_root}/{data.split}-{data.episodes}-s{data.seed}-{data.width}x{data.height}"
+        """Where a data set lives (:meth:`DataConfig.folder` under ``data_root``)."""
+        return str(data.folder(self.data_root))
 
 
 def load_train_config(path: str) -> TrainConfig:
-    """Read a recipe from TOML; :class:`ConfigError` names the file and field."""
-    try:
-        return dataclass_from_toml(TrainConfig, path)
-    except ConfigError:
-        raise
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+    """Read a recipe from TOML; :class:`~odolab.learning.ConfigError` names the file and field."""
+    return dataclass_from_toml(TrainConfig, path)

@@ -10,10 +10,8 @@ once every stage is finished. Stopped at any moment (or by ``--hours``), the sam
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -22,16 +20,13 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from odolab.api import MOTION_ACTIONS, Action, load_odometer, write_bytes_atomic
-from odolab.learning import EpochLoop, TrainingData, make_training_data, pick_device
+from odolab.learning import EpochLoop, TrainingData, make_training_data
+from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Samples, make_batch, stage_samples
 from odolab.robust_vo.checkpoint import save_model
 from odolab.robust_vo.config import StageConfig, TrainConfig, load_train_config
 from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
-
-COMPONENTS = ("dx", "dz", "dyaw")
-
 
 def open_data(cfg: TrainConfig, *, ray_address: str | None = None, parallel: bool = True) -> tuple[TrainingData, TrainingData]:
     """The recipe's train and val data, made first where missing."""
@@ -70,7 +65,6 @@ class StageRunner:
         if cfg.val_pairs and len(chosen) > cfg.val_pairs:
             chosen = np.sort(rng.choice(chosen, cfg.val_pairs, replace=False))
         self.val_pairs = chosen
-        self.prior = load_odometer("action-prior")
 
     def init_bias(self) -> None:
         """Start each network's output at the mean target of its training pairs (a fresh network then
@@ -110,28 +104,18 @@ class StageRunner:
 
     def validate(self, epoch: int) -> list[dict]:
         """Mean absolute error per action and component on the val pairs, beside the action prior's."""
-        errors, actions = [], []
+        preds, targets, actions = [], [], []
         for start in range(0, len(self.val_pairs), 256):
             idx = self.val_pairs[start:start + 256]
-            part = Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool))
-            batch = make_batch(self.val, part, self.cfg.model, self.device)
-            pred = predict(self.nets, self.cfg.model, batch.x, batch.action).cpu().numpy()
-            errors.append(np.abs(pred - batch.target.cpu().numpy()))
+            batch = make_batch(self.val, Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool)),
+                               self.cfg.model, self.device)
+            preds.append(predict(self.nets, self.cfg.model, batch.x, batch.action).cpu().numpy())
+            targets.append(batch.target.cpu().numpy())
             actions.append(batch.action)
-        if not errors:
+        if not preds:
             return []
-        err, act = np.concatenate(errors), np.concatenate(actions)
-        rows = []
-        for action in self.stage.action_set:
-            mask = act == action.value
-            if not mask.any():
-                continue
-            truth = self.val.pair_planar[self.val_pairs[mask]]
-            prior = np.abs(truth - self.prior.step(None, None, action).planar)
-            for c, name in enumerate(COMPONENTS):
-                rows.append({"stage": self.stage.name, "action": action.label, "component": name, "pairs": int(mask.sum()),
-                             "mae": float(err[mask, c].mean()), "prior_mae": float(prior[:, c].mean())})
-        return rows
+        return error_rows(np.concatenate(preds), np.concatenate(targets).astype(np.float64),
+                          np.concatenate(actions), stage=self.stage.name)
 
 
 def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
@@ -143,21 +127,13 @@ def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
 
 
 def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None:
-    from odolab.learning import Curves
-
     offsets, total = {}, 0  # "epoch" counts within a stage; "epochs" counts over the stages in order
     for row in curves_rows:
         if row["stage"] not in offsets:
             offsets[row["stage"]] = total
         total = max(total, offsets[row["stage"]] + row["epoch"])
-    curves = Curves([{**r, "epochs": offsets[r["stage"]] + r["epoch"]} for r in curves_rows])
-    curves.to_csv(reports / "curves.csv")
-    curves.plot(reports / "curves.png", x="epochs", rows="action", cols="component", where={"split": "val"},
-                series={"mae": {"label": "robust VO (val)", "color": "C0"},
-                        "prior_mae": {"label": "action prior (val)", "color": "0.5", "linestyle": "--", "marker": ""}},
-                scale={"dyaw": 180 / np.pi}, ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
-                title="Robust VO: validation error after each epoch (all stages in order)")
-    write_bytes_atomic(reports / "training.json", json.dumps(status, indent=1).encode())
+    write_report(reports, [{**r, "epochs": offsets[r["stage"]] + r["epoch"]} for r in curves_rows], status,
+                 "Robust VO: validation error after each epoch (all stages in order)", x="epochs")
 
 
 def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: torch.device, hours: float | None,
@@ -203,45 +179,13 @@ def _stage_status(loop: EpochLoop) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, number, path_arg
+    from odolab.learning.cli import training_main
 
-    ap = ArgumentParser(prog="python -m odolab.robust_vo.train", description=__doc__.split("\n")[0],
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--config", type=path_arg("--config"), required=True, help="TOML recipe (studies/robust_vo/*.toml)")
-    ap.add_argument("--work", type=path_arg("--work"), default=None, help="training states (default runs/robust-vo/<config name>)")
-    ap.add_argument("--reports", type=path_arg("--reports"), default=None,
-                    help="curves and status (default reports/robust-vo/<config name>)")
-    ap.add_argument("--export", type=path_arg("--export"), default=None, help="the trained model (default <work>/model.pt)")
-    ap.add_argument("--hours", type=number("--hours", float, 0.0), default=None,
-                    help="stop before an epoch that would start after this many hours (rerun to resume)")
-    ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
-    ap.add_argument("--threads", type=number("--threads", int, 1), default=None, help="torch CPU threads (default: all cores)")
-    ap.add_argument("--ray-address", default=None, help="Ray cluster for making the data (default: a local instance)")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    args = ap.parse_args(argv)
-    try:
-        cfg = load_train_config(str(args.config))
-        device = pick_device(args.device)
-    except ValueError as exc:
-        ap.error(str(exc))
-    name = args.config.stem
-    work = args.work or Path("runs/robust-vo") / name
-    reports = args.reports or Path("reports/robust-vo") / name
-    export = args.export or work / "model.pt"
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    command = "python -m odolab.robust_vo.train " + " ".join(argv if argv is not None else sys.argv[1:])
-    try:
-        done = run(cfg, work=work, reports=reports, export=export, device=device, hours=args.hours,
-                   ray_address=args.ray_address, progress=not args.quiet, command=command)
-    except ValueError as exc:
-        ap.error(str(exc))
-    print(f"{'finished; model written to ' + str(export) if done else 'stopped; run the same command to resume'}"
-          f" (curves: {reports / 'curves.png'})")
-    return 0
+    return training_main(argv, prog="python -m odolab.robust_vo.train", description=__doc__.split("\n")[0], family="robust-vo",
+                         load_config=load_train_config, run=run)
 
 
 if __name__ == "__main__":
-    from odolab.cli import run_cli
+    from odolab.learning.cli import run_training_cli
 
-    sys.exit(run_cli(main, "python -m odolab.robust_vo.train"))
+    sys.exit(run_training_cli(main, "python -m odolab.robust_vo.train"))

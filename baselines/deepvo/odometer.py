@@ -1,0 +1,72 @@
+"""``deepvo``: the DeepVO baseline as an :class:`~odolab.api.Odometer`.
+
+    python -m odolab.compare --odometers action-prior,deepvo,robust-vo
+    python -m odolab.compare --odometers deepvo --odometer-option deepvo.checkpoint=runs/deepvo/x/model.pt
+
+Frames are resized to the model's input (:func:`odolab.learning.resize_frame`, as its training data
+was); the LSTM state carries from one ``step`` to the next within a sequence and ``reset`` clears
+it. DeepVO sees no action: it answers on real data too. A STOP step is answered with no motion
+(and leaves the state as it is), as the other odometers do.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
+from odolab.learning import checkpoints, pick_device, resize_frame
+
+from baselines.deepvo.config import DeepVOModel, DeepVOTraining
+from baselines.deepvo.model import DeepVONet, frame_tensor
+
+KIND = "odolab-deepvo"
+SHIPPED = Path(__file__).resolve().parent / "deepvo.pt"
+
+
+def save_model(path, cfg: DeepVOTraining, net: DeepVONet, training: dict) -> None:
+    """The network's weights with its model config, the recipe and the training status."""
+    checkpoints.save_model(path, KIND, cfg, {"deepvo": net}, training)
+
+
+def load_model(path) -> tuple[DeepVOModel, DeepVONet, dict]:
+    """(model config, network in eval mode, the checkpoint's recipe and training info), read with
+    ``weights_only=True``; :class:`~odolab.learning.CheckpointError` names the file and problem."""
+    cfg, nets, info = checkpoints.load_model(path, KIND, DeepVOModel, lambda c: {"deepvo": DeepVONet(c)})
+    return cfg, nets["deepvo"], info
+
+
+class DeepVOOdometer(Odometer):
+    """DeepVO. Options: ``checkpoint`` (default: the shipped model), ``threads``, ``device``."""
+
+    def __init__(self, checkpoint: str = "", threads: int = 1, device: str = "") -> None:
+        if int(threads) < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
+        self.device = pick_device(device or "cpu")
+        self.net.to(self.device)
+        self.threads = int(threads)
+        self._state: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its tensor)
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        self._state, self._last = None, None
+
+    def _frame(self, frame: Frame) -> torch.Tensor:
+        if self._last is not None and self._last[0] is frame.rgb:  # the previous step's current frame
+            return self._last[1]
+        rgb, depth = resize_frame(frame.rgb, frame.depth, self.cfg.width, self.cfg.height)
+        x = frame_tensor(rgb, depth, self.cfg)
+        self._last = (frame.rgb, x)
+        return x
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        if action is Action.STOP:
+            return Estimate(np.eye(4))
+        frames = torch.stack([self._frame(prev), self._frame(cur)])[None].to(self.device)
+        with torch.inference_mode():
+            out, self._state = self.net(frames, self._state)
+        dx, dz, dyaw = (float(v) for v in out[0, 0].cpu())
+        return Estimate.from_planar(dx, dz, dyaw)

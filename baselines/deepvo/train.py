@@ -1,0 +1,132 @@
+"""Train DeepVO on windows of consecutive simulator frames, resumably; export the model.
+
+    python -m baselines.deepvo.train --config studies/deepvo/shipped.toml --hours 1.5
+
+Makes the train and val data when missing (the same folders as the robust VO's recipe of the same
+data config), then trains for the recipe's epochs, saving after each under ``--work`` and writing
+validation curves (CSV, PNG) and ``training.json`` under ``--reports``; exports to ``--export``
+when every epoch is done. Stopped at any moment (or by ``--hours``), the same command resumes.
+
+Targets are the pairs' true planar motions from SE(3) composition, ``inv(T_prev) @ T_cur`` (never
+differences of Euler angles); the loss is MSE(dx, dz) + ``rotation_weight`` x MSE(dyaw).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from odolab.api import MOTION_ACTIONS
+from odolab.learning import EpochLoop, TrainingData, make_training_data
+from odolab.learning.validation import error_rows, prior_planar, write_report
+
+from baselines.deepvo.config import DeepVOTraining, load_training
+from baselines.deepvo.model import DeepVONet, frame_tensor
+from baselines.deepvo.odometer import save_model
+
+
+def window_batch(data: TrainingData, starts: np.ndarray, window: int, cfg) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+    """Frames (B, window, C, H, W), true (dx, dz, dyaw) (B, window - 1, 3) and actions (B, window - 1)
+    of the windows starting at pair indices ``starts`` (from :meth:`TrainingData.windows`)."""
+    frames = data.pairs[starts][:, None] + np.arange(window)[None]
+    rgb, depth = data.frames(frames.ravel())
+    x = frame_tensor(rgb, depth, cfg).reshape(len(starts), window, *frame_tensor(rgb[:1], depth[:1], cfg).shape[1:])
+    pairs = starts[:, None] + np.arange(window - 1)[None]
+    return x, data.pair_planar[pairs], data.pair_actions[pairs]
+
+
+def loss_fn(pred: torch.Tensor, target: torch.Tensor, rotation_weight: float) -> torch.Tensor:
+    """MSE of (dx, dz) + ``rotation_weight`` x MSE of dyaw, over every pair of every window."""
+    return (pred[..., :2] - target[..., :2]).pow(2).mean() + rotation_weight * (pred[..., 2] - target[..., 2]).pow(2).mean()
+
+
+def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device: torch.device,
+        hours: float | None, ray_address: str | None = None, parallel_data: bool = True, progress: bool = True,
+        command: str = "") -> bool:
+    """Train (or resume); export when every epoch is done. Returns True when finished."""
+    deadline = time.monotonic() + hours * 3600 if hours else None
+    data = []
+    for dc in (cfg.train_data, cfg.val_data):
+        make_training_data(dc, cfg.data_folder(dc), ray_address=ray_address, parallel=parallel_data, progress=progress)
+        data.append(TrainingData(cfg.data_folder(dc)))
+    train, val = data
+    starts = train.windows(cfg.window)
+    if not len(starts):
+        raise ValueError(f"no window of {cfg.window} frames in the training data; use a shorter window")
+    val_starts = val.windows(cfg.window)
+    rng = np.random.default_rng(cfg.seed)
+    if len(val_starts) > cfg.val_windows:
+        val_starts = np.sort(rng.choice(val_starts, cfg.val_windows, replace=False))
+    torch.manual_seed(cfg.seed)
+    net = DeepVONet(cfg.model).to(device)
+    with torch.no_grad():  # start at the mean motion: the output bias is the mean target / scale
+        mean = train.pair_planar.mean(axis=0) if len(train) else np.array([prior_planar(a) for a in MOTION_ACTIONS]).mean(0)
+        net.head.bias.copy_(torch.from_numpy(mean).to(torch.float32) / net.scale.cpu())
+    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    identity = {k: v for k, v in recipe.items() if k != "epochs"}
+    loop = EpochLoop(work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity)
+    loop.resume()
+
+    def train_epoch(epoch: int, rng: np.random.Generator) -> dict:
+        order = rng.permutation(starts)
+        if cfg.windows_per_epoch:
+            order = order[:cfg.windows_per_epoch]
+        total, seen, t0 = 0.0, 0, time.monotonic()
+        bar = tqdm(total=len(order), desc=f"deepvo epoch {epoch}", unit="window", disable=not progress, leave=False)
+        for k in range(0, len(order), cfg.batch):
+            x, target, _ = window_batch(train, np.sort(order[k:k + cfg.batch]), cfg.window, cfg.model)
+            pred, _ = net(x.to(device))
+            loss = loss_fn(pred, torch.from_numpy(target).to(device, torch.float32), cfg.rotation_weight)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            total += loss.item() * len(x)
+            seen += len(x)
+            bar.update(len(x))
+        bar.close()
+        return {"loss": total / max(seen, 1), "windows": seen, "windows_per_s": seen / max(time.monotonic() - t0, 1e-9)}
+
+    def validate(epoch: int) -> list[dict]:
+        preds, truths, acts = [], [], []
+        for k in range(0, len(val_starts), 64):
+            x, target, actions = window_batch(val, val_starts[k:k + 64], cfg.window, cfg.model)
+            preds.append(net(x.to(device))[0].cpu().numpy().reshape(-1, 3))
+            truths.append(target.reshape(-1, 3))
+            acts.append(actions.ravel())
+        if not preds:
+            return []
+        return error_rows(np.concatenate(preds), np.concatenate(truths), np.concatenate(acts))
+
+    def status() -> dict:
+        return {"command": command, "train_pairs": train.counts(), "val_pairs": val.counts(),
+                "epochs_done": loop.epoch, "epochs": loop.epochs, "hours": round(loop.seconds / 3600, 3),
+                "windows_seen": int(sum(r.get("windows", 0) for r in loop.curves.rows if r.get("split") == "train"))}
+
+    def after(_: EpochLoop) -> None:
+        write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
+
+    finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
+    write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
+    if finished:
+        save_model(export, cfg, net, status())
+    return finished
+
+
+def main(argv: list[str] | None = None) -> int:
+    from odolab.learning.cli import training_main
+
+    return training_main(argv, prog="python -m baselines.deepvo.train", description=__doc__.split("\n")[0], family="deepvo",
+                         load_config=load_training, run=run)
+
+
+if __name__ == "__main__":
+    from odolab.learning.cli import run_training_cli
+
+    sys.exit(run_training_cli(main, "python -m baselines.deepvo.train"))

@@ -1,0 +1,104 @@
+"""The command line every trainer shares (``python -m odolab.robust_vo.train``,
+``python -m baselines.deepvo.train``): a TOML recipe, where states, curves and the model go, a time
+budget, the device and thread count. Mistakes are one line and exit code 2, before any work."""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from odolab.cli import ArgumentParser, UsageError, check_output_dir, check_output_file, number, path_arg, run_cli
+
+__all__ = ["TrainingJob", "parse_training_command", "run_training_cli", "training_main", "training_parser"]
+
+
+@dataclass(frozen=True)
+class TrainingJob:
+    """What a training command was asked to do: the recipe (``config``), the torch device, where the
+    per-epoch states (``work``), the curves (``reports``) and the finished model (``export``) go, the
+    time budget in hours (None: no limit), and the command line that asked (for the record)."""
+
+    config: Any
+    device: Any
+    work: Path
+    reports: Path
+    export: Path
+    hours: float | None
+    ray_address: str | None
+    progress: bool
+    command: str
+
+
+def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
+    """The shared options; ``family`` names the default folders (``runs/<family>/<recipe name>``,
+    ``reports/<family>/<recipe name>``)."""
+    ap = ArgumentParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", type=path_arg("--config"), required=True, help="TOML recipe")
+    ap.add_argument("--work", type=path_arg("--work"), default=None,
+                    help=f"per-epoch training states (default runs/{family}/<recipe name>)")
+    ap.add_argument("--reports", type=path_arg("--reports"), default=None,
+                    help=f"validation curves and status (default reports/{family}/<recipe name>)")
+    ap.add_argument("--export", type=path_arg("--export"), default=None,
+                    help="the trained model, written when every epoch is done (default <work>/model.pt)")
+    ap.add_argument("--hours", type=number("--hours", float, 0.001, 1000.0), default=None,
+                    help="stop before an epoch that would start after this many hours (rerun to resume)")
+    ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
+    ap.add_argument("--threads", type=number("--threads", int, 1, 1024), default=None,
+                    help="torch CPU threads (default: torch's choice, all cores)")
+    ap.add_argument("--ray-address", default=None, help="Ray cluster for making the data (default: a local instance)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    ap.set_defaults(family=family)
+    return ap
+
+
+def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
+                           load_config: Callable[[str], Any]) -> TrainingJob:
+    """Parse, read the recipe with ``load_config`` (its ``ValueError`` becomes a usage error), pick
+    the device, set the thread count and check every output path before any work."""
+    import torch
+
+    from odolab.learning.device import pick_device
+
+    args = ap.parse_args(argv)
+    try:
+        config = load_config(str(args.config))
+        device = pick_device(args.device)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    name = args.config.stem
+    work = args.work or Path("runs") / args.family / name
+    reports = args.reports or Path("reports") / args.family / name
+    export = args.export or work / "model.pt"
+    check_output_dir(work, "--work")
+    check_output_dir(reports, "--reports")
+    check_output_file(export, "--export")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    argv = list(argv) if argv is not None else sys.argv[1:]
+    return TrainingJob(config, device, work, reports, export, args.hours, args.ray_address, not args.quiet,
+                       " ".join([ap.prog, *argv]))
+
+
+def run_training_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,
+                     argv: Sequence[str] | None = None) -> int:
+    """:func:`odolab.cli.run_cli` for trainers (one line and exit 2 for a user's mistake)."""
+    return run_cli(main, prog, argv)
+
+
+def training_main(argv: Sequence[str] | None, *, prog: str, description: str, family: str,
+                  load_config: Callable[[str], Any], run: Callable[..., bool]) -> int:
+    """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
+    ``run(config, work=, reports=, export=, device=, hours=, ray_address=, progress=, command=)``
+    (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
+    ap = training_parser(prog, description, family)
+    job = parse_training_command(ap, argv, load_config)
+    try:
+        done = run(job.config, work=job.work, reports=job.reports, export=job.export, device=job.device,
+                   hours=job.hours, ray_address=job.ray_address, progress=job.progress, command=job.command)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    said = f"finished; model written to {job.export}" if done else "stopped; run the same command to resume"
+    print(f"{said} (curves: {job.reports / 'curves.png'})")
+    return 0

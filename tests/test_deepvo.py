@@ -1,0 +1,134 @@
+"""baselines/deepvo: targets by SE(3) composition, a tiny DeepVO that learns, an LSTM state that
+carries across steps and resets between sequences, resumable training, the odometer in compare."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
+
+from baselines.deepvo import train as trainer  # noqa: E402
+from baselines.deepvo.config import DeepVOModel, DeepVOTraining, load_training  # noqa: E402
+from baselines.deepvo.model import DeepVONet  # noqa: E402
+from baselines.deepvo.odometer import DeepVOOdometer, load_model  # noqa: E402
+from odolab.api import Action, integrate, invert, planar_to_transform  # noqa: E402
+from odolab.learning import CheckpointError, DataConfig, TrainingData, make_training_data  # noqa: E402
+
+W, H = 48, 32
+NAME = "baselines.deepvo.odometer:DeepVOOdometer"
+
+
+def _recipe(root, **kw) -> DeepVOTraining:
+    data = DataConfig(split="train", episodes=2, max_steps=12, width=W, height=H, episodes_per_shard=1)
+    model = DeepVOModel(width=W, height=H, width_scale=1 / 16, hidden=16)
+    return DeepVOTraining(**{"model": model, "train_data": data, "val_data": dataclasses.replace(data, split="val", episodes=1),
+                             "data_root": str(root), "window": 4, "batch": 4, "epochs": 2, "lr": 2e-3,
+                             "val_windows": 8, "seed": 5, **kw})
+
+
+@pytest.fixture(scope="module")
+def recipe(tmp_path_factory) -> DeepVOTraining:
+    cfg = _recipe(tmp_path_factory.mktemp("deepvo-data"))
+    for dc in (cfg.train_data, cfg.val_data):
+        make_training_data(dc, cfg.data_folder(dc), parallel=False, progress=False)
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def trained(recipe, tmp_path_factory):
+    root = tmp_path_factory.mktemp("deepvo-run")
+    assert trainer.run(recipe, work=root / "work", reports=root / "reports", export=root / "model.pt",
+                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    return root
+
+
+def test_targets_reintegrate_to_the_true_poses(recipe):
+    """The planar targets come from inv(T_prev) @ T_cur; composed again they give back every true
+    camera pose relative to the episode's first (the agent moves in the floor plane), turns included."""
+    data = TrainingData(recipe.data_folder(recipe.train_data))
+    for episode in np.unique(data.episode):
+        k = np.flatnonzero(data.episode[data.pairs] == episode)
+        first = data.pairs[k[0]]
+        truth = invert(data.poses[first]) @ data.poses[first:first + len(k) + 1]
+        rebuilt = integrate(np.stack([planar_to_transform(*p) for p in data.pair_planar[k]]))
+        assert np.allclose(rebuilt, truth, atol=1e-6)
+        assert np.any(np.abs(data.pair_planar[k, 2]) > 0.4)  # there are 30 degree turns in it
+
+
+def test_a_tiny_deepvo_learns_its_batch(recipe):
+    torch.manual_seed(0)
+    data = TrainingData(recipe.data_folder(recipe.train_data))
+    cfg = dataclasses.replace(recipe.model, dropout=0.0)
+    net = DeepVONet(cfg)
+    x, target, _ = trainer.window_batch(data, data.windows(4)[:6], 4, cfg)
+    target = torch.from_numpy(target).float()
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(60):
+        loss = trainer.loss_fn(net(x)[0], target, 100.0)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.2 * losses[0]
+
+
+def test_the_lstm_state_carries_across_steps_and_reset_clears_it(trained, recipe):
+    from odolab.episodes import render_episode
+
+    ep = render_episode(dataclasses.replace(recipe.val_data.specs[0], max_steps=6))
+    odo = DeepVOOdometer(checkpoint=str(trained / "model.pt"))
+    pairs = [(ep[i], ep[i + 1], ep.action(i)) for i in range(len(ep) - 1)]
+
+    def run_once():
+        odo.reset(ep.intrinsics)
+        return np.stack([odo.step(*p).transform for p in pairs])
+
+    first, second = run_once(), run_once()
+    assert np.array_equal(first, second)  # reset: the same sequence gives the same outputs
+    odo.reset(ep.intrinsics)
+    odo.step(*pairs[2])  # a state left by another step ...
+    carried = odo.step(*pairs[0]).transform
+    assert not np.allclose(carried, first[0], atol=1e-7)  # ... changes the next answer
+    assert np.all(np.isfinite(first))
+    assert np.array_equal(odo.step(ep[0], ep[1], Action.STOP).transform, np.eye(4))
+
+
+def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
+    one = dataclasses.replace(recipe, epochs=1)
+    assert trainer.run(one, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "one.pt",
+                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    assert trainer.run(recipe, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "two.pt",
+                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    a = torch.load(trained / "model.pt", weights_only=True)["networks"]["deepvo"]
+    b = torch.load(tmp_path / "two.pt", weights_only=True)["networks"]["deepvo"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    rows = (tmp_path / "r" / "curves.csv").read_text().splitlines()
+    assert sum(",val," in r for r in rows) == 2 * 9  # 2 epochs x 3 actions x 3 components
+    assert (tmp_path / "r" / "curves.png").stat().st_size > 10_000
+
+
+def test_compare_runs_deepvo_with_finite_errors(trained, tmp_path):
+    from odolab.api import ComparisonConfig, run_comparison
+
+    result = run_comparison(ComparisonConfig(odometers=["action-prior", NAME], episodes=1, max_steps=6, cache=None,
+                                             options={NAME: {"checkpoint": str(trained / "model.pt")}},
+                                             parallel=False, progress=False))
+    row = [r for r in result.rows if r.odometer == NAME][0]
+    assert np.all(np.isfinite([row.dx, row.dz, row.dyaw, row.ate_m])) and row.failures == 0
+
+
+def test_bad_checkpoints_and_recipes_are_named(trained, tmp_path):
+    with pytest.raises(CheckpointError, match="no such checkpoint"):
+        load_model(tmp_path / "none.pt")
+    robust_like = tmp_path / "x.pt"
+    torch.save({"kind": "odolab-robust-vo", "format": 1}, robust_like)
+    with pytest.raises(CheckpointError, match="expected a 'odolab-deepvo' checkpoint"):
+        load_model(robust_like)
+    bad = tmp_path / "r.toml"
+    bad.write_text("window = 1\n")
+    with pytest.raises(ValueError, match="window must be in"):
+        load_training(str(bad))
+    assert load_training("studies/deepvo/shipped.toml").model.width_scale == 0.125
