@@ -276,7 +276,8 @@ def test_a_changed_recipe_does_not_continue_an_old_run(trained, recipe):
 def _pairs(recipe):
     spec = dataclasses.replace(recipe.val_data.specs[0], max_steps=8)
     ep = render_episode(spec)
-    return [(ep[i], ep[i + 1], ep.action(i)) for i in range(len(ep) - 1)], ep
+    frames = [ep[i] for i in range(len(ep))]
+    return [(frames[i], frames[i + 1], ep.action(i)) for i in range(len(ep) - 1)], ep
 
 
 def test_the_odometer_is_deterministic_and_reads_weights_only(trained, recipe, monkeypatch):
@@ -287,10 +288,11 @@ def test_the_odometer_is_deterministic_and_reads_weights_only(trained, recipe, m
     assert calls == [True]
     pairs, ep = _pairs(recipe)
     odo.reset(ep.intrinsics)
-    one = [odo.step(*p).transform for p in pairs]
-    two = [e.transform for e in odo.step_batch(pairs)]
+    one = [odo.step(*p).transform for p in pairs]  # consecutive pairs share a frame: psi computed once
+    fresh = [(ep[i], ep[i + 1], ep.action(i)) for i in range(len(ep) - 1)]  # new arrays every time
+    two = [e.transform for e in odo.step_batch(fresh)]
     assert all(np.allclose(a, b, atol=1e-5) for a, b in zip(one, two))
-    assert all(np.array_equal(a, odo.step(*p).transform) for a, p in zip(one, pairs))
+    assert all(np.array_equal(a, odo.step(*p).transform) for a, p in zip(one, fresh))
     stop = odo.step(pairs[0][0], pairs[0][1], Action.STOP)
     assert np.array_equal(stop.transform, np.eye(4))
     assert not odo.step(pairs[0][0], pairs[0][1], None).valid  # SepAct needs the action

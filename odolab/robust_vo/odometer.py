@@ -16,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Odometer
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 from odolab.learning import pick_device, resize_frame
 from odolab.robust_vo.checkpoint import SHIPPED, load_model
-from odolab.robust_vo.inputs import pair_channels
+from odolab.robust_vo.inputs import frame_channels
 from odolab.robust_vo.model import predict
 from odolab.robust_vo.motion import mirror, swap_action
 
@@ -52,24 +52,34 @@ class RobustVOOdometer(Odometer):
         self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
         self.threads, self.batch_size = int(threads), int(batch_size)
         self._needs_action = self.cfg.kind != "unified"
+        self._input_intrinsics: Intrinsics | None = None
+        self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its psi)
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        self._input_intrinsics = intrinsics.resized(self.cfg.width, self.cfg.height)
+        self._last = None
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         return self.step_batch([(prev, cur, action)])[0]
 
-    def _inputs(self, pairs: list[tuple[Frame, Frame, Action | None]]) -> tuple[torch.Tensor, torch.Tensor]:
-        w, h = self.cfg.width, self.cfg.height
-        small = [[resize_frame(f.rgb, f.depth, w, h) for f in (p, c)] for p, c, _ in pairs]
-        rgb = torch.from_numpy(np.stack([[r for r, _ in two] for two in small]))
-        depth = torch.from_numpy(np.stack([[d for _, d in two] for two in small]))
-        return rgb, depth
+    def _frame_channels(self, frame: Frame) -> torch.Tensor:
+        """psi of one frame (C, h, w), resized as the training data was; the previous step's current
+        frame (the same arrays) is not computed twice."""
+        if self._last is not None and self._last[0] is frame.rgb:
+            return self._last[1]
+        rgb, depth = resize_frame(frame.rgb, frame.depth, self.cfg.width, self.cfg.height)
+        x = frame_channels(torch.from_numpy(rgb)[None], torch.from_numpy(depth)[None], self._input_intrinsics,
+                           self.cfg)[0]
+        self._last = (frame.rgb, x)
+        return x
 
-    def _predict(self, rgb: torch.Tensor, depth: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
-        intr = self.intrinsics.resized(self.cfg.width, self.cfg.height)
-        x = pair_channels(rgb, depth, intr, self.cfg).to(self.device)
+    def _predict(self, x: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
+        """(B, 3) motions of pair inputs ``x`` (B, 2C, h, w); with ``mirror_tta`` averaged with the
+        mirror of the prediction for the mirrored pair (taken with the opposite turn's network)."""
         out = predict(self.nets, self.cfg, x, actions)
         if self.mirror_tta:
-            xm = pair_channels(rgb.flip(3), depth.flip(3), intr, self.cfg).to(self.device)
-            out = 0.5 * (out + mirror(predict(self.nets, self.cfg, xm, swap_action(actions))))
+            out = 0.5 * (out + mirror(predict(self.nets, self.cfg, x.flip(-1), swap_action(actions))))
         return out.cpu()
 
     def step_batch(self, pairs: list[tuple[Frame, Frame, Action | None]]) -> list[Estimate]:
@@ -83,14 +93,15 @@ class RobustVOOdometer(Odometer):
             else:
                 todo.append(k)
         if todo:
-            rgb, depth = self._inputs([pairs[k] for k in todo])
+            x = torch.stack([torch.cat([self._frame_channels(pairs[k][0]), self._frame_channels(pairs[k][1])])
+                             for k in todo]).to(self.device)
             actions = np.array([(pairs[k][2] or Action.MOVE_FORWARD).value for k in todo])
             with torch.inference_mode():
                 if self.mc_samples:
                     for m in self.nets.modules():
                         if isinstance(m, torch.nn.Dropout):
                             m.train()
-                    draws = torch.stack([self._predict(rgb, depth, actions) for _ in range(self.mc_samples)]).numpy()
+                    draws = torch.stack([self._predict(x, actions) for _ in range(self.mc_samples)]).numpy()
                     for m in self.nets.modules():
                         m.eval()
                     mean = draws.mean(axis=0)
@@ -98,7 +109,7 @@ class RobustVOOdometer(Odometer):
                         cov = np.cov(draws[:, j].T) + np.diag([1e-8, 1e-8, 1e-8])
                         answers[k] = Estimate.from_planar(*map(float, mean[j]), covariance=planar_covariance_to_6d(cov))
                 else:
-                    out = self._predict(rgb, depth, actions).numpy()
+                    out = self._predict(x, actions).numpy()
                     for j, k in enumerate(todo):
                         answers[k] = Estimate.from_planar(*map(float, out[j]))
         return answers  # type: ignore[return-value]
