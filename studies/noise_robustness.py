@@ -1,0 +1,138 @@
+"""Study: how much each odometer's per-step error grows when the sensors get noisier.
+
+The paper's claim (Zhao et al. 2021, section 5): the learned VO degrades more gracefully than
+classical odometry. Every odometer runs on the same test-split episodes at sensor-noise multiplier
+1 (the challenge's RGB sigma 0.1 and Redwood depth noise) and at each other ``--levels`` value (RGB
+and depth noise both multiplied; actuation noise and paths unchanged, so the episodes differ only
+in their pixels). Per odometer and component: the per-step error as used (mean |error| x 1e-2 of
+dx m, dz m, dyaw rad; failed steps scored with the action prior that replaced them), the failure
+share, and the growth factor error(level) / error(1).
+
+    python -m studies.noise_robustness --out reports/noise-robustness            # 20 x 100 steps
+
+Resumable: each (level, odometer) result is written to ``results.json`` as it finishes and not run
+again; the table (``table.md``) and figure (``growth.png``) are redrawn from it at the end.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from odolab.api import ComparisonConfig, NoiseConfig, run_comparison, write_bytes_atomic
+
+COMPONENTS = ("dx", "dz", "dyaw")
+DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo"
+
+
+def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
+              options: dict | None = None) -> dict:
+    """Run what ``out/results.json`` lacks; returns ``{"config": ..., "results": {"<level>/<odometer>": row}}``."""
+    path = out / "results.json"
+    config = {"episodes": episodes, "max_steps": max_steps, "split": "test", "seed": 0}
+    doc = json.loads(path.read_text()) if path.exists() else {"config": config, "results": {}}
+    if doc.get("config") != config:
+        raise ValueError(f"{path} was made with {doc.get('config')}, not {config}; choose another --out")
+    for level in sorted(set([1.0, *levels])):
+        for name in odometers:
+            key = f"{level:g}/{name}"
+            if key in doc["results"]:
+                continue
+            result = run_comparison(ComparisonConfig(
+                odometers=[name], options={name: (options or {}).get(name, {})}, episodes=episodes,
+                max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level)))
+            row = [r for r in result.rows if r.odometer == name][0]
+            doc["results"][key] = {"level": level, "odometer": name, "steps": row.steps,
+                                   **{c: getattr(row, c) for c in COMPONENTS},
+                                   **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
+                                   "failure_share": row.failure_share, "ate_m": row.ate_m}
+            write_bytes_atomic(path, json.dumps(doc, indent=1).encode())
+            print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS), flush=True)
+    return doc
+
+
+def growth_table(doc: dict, odometers: list[str], levels: list[float]) -> str:
+    """Markdown: per odometer, errors at level 1 and each level, growth factors, failure shares."""
+    res = doc["results"]
+    lines = ["| odometer | noise | dx | dz | dyaw | growth dx | growth dz | growth dyaw | failed steps | ATE m |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for name in odometers:
+        base = res.get(f"1/{name}")
+        for level in sorted(set([1.0, *levels])):
+            r = res.get(f"{level:g}/{name}")
+            if r is None or base is None:
+                continue
+            growth = [r[c] / base[c] if base[c] > 0 else float("nan") for c in COMPONENTS]
+            lines.append(f"| {name} | x{level:g} | " + " | ".join(f"{r[c]:.2f}" for c in COMPONENTS) + " | "
+                         + " | ".join(f"{g:.2f}" for g in growth) + f" | {100 * r['failure_share']:.0f}% | {r['ate_m']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> None:
+    """Grouped bars: per component, each odometer's error at noise x1 (light) and x``level`` (dark)."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    res = doc["results"]
+    names = [n for n in odometers if f"1/{n}" in res and f"{level:g}/{n}" in res]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2), constrained_layout=True)
+    width = 0.38
+    for ax, comp, unit in zip(axes, COMPONENTS, ("lateral dx, m", "forward dz, m", "yaw, rad")):
+        x = np.arange(len(names))
+        lo = [res[f"1/{n}"][comp] for n in names]
+        hi = [res[f"{level:g}/{n}"][comp] for n in names]
+        ax.bar(x - width / 2, lo, width, color="C0", alpha=0.45, label="sensor noise x1")
+        ax.bar(x + width / 2, hi, width, color="C0", label=f"sensor noise x{level:g}")
+        for xi, a, b in zip(x, lo, hi):
+            ax.text(xi + width / 2, b, f"x{b / a:.1f}" if a > 0 else "", ha="center", va="bottom", fontsize=8)
+        ax.set_xticks(x, names, rotation=25, ha="right", fontsize=8)
+        ax.set_ylabel(f"mean |error| x 1e-2 ({unit})")
+        ax.set_title(f"{comp}: per-step error as used (label: growth)", fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Per-step error at sensor noise x1 and x{level:g} (RGB sigma and Redwood depth noise; "
+                 f"{doc['config']['episodes']} test episodes x {doc['config']['max_steps']} steps)", fontsize=10)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    write_bytes_atomic(path, buffer.getvalue())
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m studies.noise_robustness", description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("reports/noise-robustness"))
+    ap.add_argument("--odometers", default=DEFAULT_ODOMETERS, help=f"comma-separated (default {DEFAULT_ODOMETERS})")
+    ap.add_argument("--levels", default="2", help="sensor-noise multipliers besides 1 (default 2)")
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--max-steps", type=int, default=100)
+    args = ap.parse_args(argv)
+    try:
+        levels = [float(v) for v in args.levels.split(",")]
+    except ValueError:
+        ap.error(f"--levels must be comma-separated numbers, got {args.levels!r}")
+    if any(not 0 <= v <= 10 for v in levels) or not 1 <= args.episodes <= 1000 or not 1 <= args.max_steps <= 500:
+        ap.error("--levels in [0, 10], --episodes in [1, 1000], --max-steps in [1, 500]")
+    odometers = [n for n in args.odometers.split(",") if n]
+    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps)
+    except ValueError as exc:
+        ap.error(str(exc))
+    table = growth_table(doc, odometers, levels)
+    write_bytes_atomic(args.out / "table.md", table.encode())
+    for level in levels:
+        if level != 1.0:
+            growth_figure(doc, odometers, level, args.out / ("growth.png" if level == levels[-1] else f"growth-x{level:g}.png"))
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
