@@ -383,3 +383,30 @@ def test_resized_intrinsics_map_pixel_edges_to_pixel_edges():
     u2, v2 = k.fx * p[0] / p[2] + k.cx, k.fy * p[1] / p[2] + k.cy
     assert np.isclose(u2, (u + 0.5) * 170 / 341 - 0.5) and np.isclose(v2, (v + 0.5) * 96 / 192 - 0.5)
     assert np.isclose(k.cx, (170 - 1) / 2) and np.isclose(k.cy, (96 - 1) / 2)
+
+
+def test_a_variant_states_only_what_it_changes(tmp_path):
+    (tmp_path / "base.toml").write_text('seed = 4\n[model]\ndd_bins = 5\nsproj = false\n'
+                                        '[[stages]]\nname = "f"\nactions = ["move_forward"]\nepochs = 1\n')
+    (tmp_path / "v.toml").write_text('base = "base.toml"\n[model]\ndd_bins = 20\n')
+    cfg = load_train_config(str(tmp_path / "v.toml"))
+    assert (cfg.seed, cfg.model.dd_bins, cfg.model.sproj, len(cfg.stages)) == (4, 20, False, 1)
+    (tmp_path / "loop.toml").write_text('base = "loop2.toml"\n')
+    (tmp_path / "loop2.toml").write_text('base = "loop.toml"\n')
+    with pytest.raises(ConfigError, match="leads back to itself"):
+        load_train_config(str(tmp_path / "loop.toml"))
+    (tmp_path / "bad.toml").write_text('base = "missing.toml"\n')
+    with pytest.raises(ConfigError, match="missing.toml: no such config file"):
+        load_train_config(str(tmp_path / "bad.toml"))
+
+
+def test_every_ablation_recipe_changes_one_switch_of_the_shipped_one():
+    import glob
+
+    shipped = load_train_config("studies/robust_vo/shipped.toml")
+    paths = sorted(glob.glob("studies/robust_vo/ablations/*.toml"))
+    assert len(paths) >= 8
+    for path in paths:
+        cfg = load_train_config(path)
+        changed = [k for k in ("model", "stages", "train_data", "val_data") if getattr(cfg, k) != getattr(shipped, k)]
+        assert changed, path

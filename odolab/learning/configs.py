@@ -16,8 +16,33 @@ class ConfigError(ValueError):
     """A config that cannot be used; the message names the file and field."""
 
 
-def read_toml(path: str | os.PathLike) -> dict[str, Any]:
-    """The TOML document at ``path``; :class:`ConfigError` when missing or malformed."""
+def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The TOML document at ``path``; :class:`ConfigError` when missing or malformed.
+
+    A top-level ``base = "other.toml"`` (relative to this file) starts from that document: tables
+    are merged key by key, anything else (numbers, strings, lists such as ``[[stages]]``) replaces
+    the base's value. So a variant of a recipe states only what it changes.
+    """
+    doc = _read_toml_file(path)
+    base = doc.pop("base", None)
+    if base is None:
+        return doc
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"{path}: base must be the path of another TOML file, got {base!r}")
+    base_path = os.path.join(os.path.dirname(os.path.abspath(path)), base)
+    if os.path.abspath(base_path) in _seen or os.path.abspath(path) == os.path.abspath(base_path):
+        raise ConfigError(f"{path}: base {base!r} leads back to itself")
+    return _merge(read_toml(base_path, (*_seen, os.path.abspath(path))), doc)
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = _merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def _read_toml_file(path: str | os.PathLike) -> dict[str, Any]:
     try:
         with open(path, "rb") as f:
             return tomllib.load(f)
