@@ -23,6 +23,8 @@ import hashlib
 import json
 import os
 import sys
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Sequence as Seq
@@ -84,6 +86,8 @@ class DataConfig:
         for name in ("episodes", "max_steps", "width", "height", "episodes_per_shard"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.seed <= 2**32 - 1 or self.first < 0:
+            raise ValueError(f"seed must be in [0, 2^32 - 1] and first >= 0, got seed {self.seed}, first {self.first}")
         camera = CameraSpec()
         if self.width > camera.width or self.height > camera.height:
             raise ValueError(f"width x height must be at most the camera's {camera.width} x {camera.height}, "
@@ -164,8 +168,10 @@ def _read_manifest(root: Path) -> dict | None:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: not a readable training-data manifest ({exc})") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("shards"), dict):
-        raise ValueError(f"{path}: not an odolab training-data manifest of format {FORMAT}")
+    if (not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("shards"), dict)
+            or not isinstance(doc.get("config"), dict)):
+        raise ValueError(f"{path}: not an odolab training-data manifest of format {FORMAT} (no config or shards); "
+                         "delete it, or choose another folder")
     return doc
 
 
@@ -201,12 +207,15 @@ def make_training_data(cfg: DataConfig, root: str | os.PathLike, *, ray_address:
                                    "pairs": _action_counts(arrays["actions"])}
         write_manifest()
 
+    for orphan in root.glob(".shard-*.tmp"):  # a shard being written when a run was killed
+        orphan.unlink(missing_ok=True)
     write_manifest()
     fan_out(_render_shard, [(cfg, groups[i]) for i in todo], on_result=done, parallel=parallel,
             ray_address=ray_address, progress=progress, desc=f"{cfg.split} shards")
     stale = set(doc["shards"]) - set(names)
-    for name in stale:  # shards of an older simulator: dropped from the manifest
+    for name in stale:  # shards of an older simulator: dropped from the manifest and deleted
         doc["shards"].pop(name)
+        (root / name).unlink(missing_ok=True)
     write_manifest()
     return doc
 
@@ -237,7 +246,7 @@ class TrainingData:
             try:
                 with np.load(self.root / name, allow_pickle=False) as z:
                     small.append({k: np.array(z[k]) for k in ("poses", "actions", "collisions", "episode")})
-            except (OSError, ValueError, KeyError) as exc:
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
                 raise ValueError(f"{self.root / name}: unreadable shard ({exc}); delete it and run the "
                                  "python -m odolab.training_data command again") from None
         sizes = np.array([len(s["actions"]) for s in small])
@@ -318,7 +327,8 @@ class TrainingData:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, number, path_arg, seed
+    from odolab.cli import ArgumentParser, check_output_dir, number, path_arg, seed
+    from odolab.parallel import check_ray_address
 
     ap = ArgumentParser(prog="python -m odolab.training_data",
                         description="Render simulator episodes into memory-mappable training shards (resumable).")
@@ -341,9 +351,10 @@ def main(argv: list[str] | None = None) -> int:
     cfg = DataConfig(split=args.split, episodes=args.episodes, seed=args.seed, first=args.first,
                      max_steps=args.max_steps, width=args.width, height=args.height,
                      episodes_per_shard=args.episodes_per_shard)
-    if args.out.exists() and not args.out.is_dir():
-        ap.error(f"--out {args.out}: exists and is not a folder")
+    check_output_dir(args.out, "--out")
     try:
+        if args.ray_address is not None and not args.serial:
+            check_ray_address(args.ray_address)
         make_training_data(cfg, args.out, ray_address=args.ray_address, parallel=not args.serial)
         data = TrainingData(args.out)
     except ValueError as exc:

@@ -29,7 +29,7 @@ DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo"
 
 
 def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
-              options: dict | None = None) -> dict:
+              options: dict | None = None, parallel: bool = True) -> dict:
     """Run what ``out/results.json`` lacks; returns ``{"config": ..., "results": {"<level>/<odometer>": row}}``."""
     path = out / "results.json"
     config = {"episodes": episodes, "max_steps": max_steps, "split": "test", "seed": 0}
@@ -43,7 +43,7 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
                 continue
             result = run_comparison(ComparisonConfig(
                 odometers=[name], options={name: (options or {}).get(name, {})}, episodes=episodes,
-                max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level)))
+                max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level), parallel=parallel))
             row = [r for r in result.rows if r.odometer == name][0]
             doc["results"][key] = {"level": level, "odometer": name, "steps": row.steps,
                                    **{c: getattr(row, c) for c in COMPONENTS},
@@ -97,8 +97,9 @@ def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> 
         ax.set_title(f"{comp}: per-step error as used (label: growth)", fontsize=10)
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(fontsize=8)
+    n = doc["config"]["episodes"]
     fig.suptitle(f"Per-step error at sensor noise x1 and x{level:g} (RGB sigma and Redwood depth noise; "
-                 f"{doc['config']['episodes']} test episodes x {doc['config']['max_steps']} steps)", fontsize=10)
+                 f"{n} test episode{'s' if n != 1 else ''} x {doc['config']['max_steps']} steps)", fontsize=10)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
@@ -106,25 +107,41 @@ def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m studies.noise_robustness", description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=Path, default=Path("reports/noise-robustness"))
+    from odolab.api import available_odometers
+    from odolab.cli import ArgumentParser, UsageError, check_output_dir, number, path_arg
+
+    ap = ArgumentParser(prog="python -m studies.noise_robustness", description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=path_arg("--out"), default=Path("reports/noise-robustness"),
+                    help="results.json, table.md, growth.png (default reports/noise-robustness)")
     ap.add_argument("--odometers", default=DEFAULT_ODOMETERS, help=f"comma-separated (default {DEFAULT_ODOMETERS})")
-    ap.add_argument("--levels", default="2", help="sensor-noise multipliers besides 1 (default 2)")
-    ap.add_argument("--episodes", type=int, default=20)
-    ap.add_argument("--max-steps", type=int, default=100)
+    ap.add_argument("--levels", default="2", help="sensor-noise multipliers in [0, 10] besides 1 (default 2)")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, 1000), default=20, help="test episodes (default 20)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 500), default=100, help="steps each (default 100)")
+    ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
     args = ap.parse_args(argv)
+    parse_level = number("--levels", float, 0.0, 10.0)
     try:
-        levels = [float(v) for v in args.levels.split(",")]
-    except ValueError:
-        ap.error(f"--levels must be comma-separated numbers, got {args.levels!r}")
-    if any(not 0 <= v <= 10 for v in levels) or not 1 <= args.episodes <= 1000 or not 1 <= args.max_steps <= 500:
-        ap.error("--levels in [0, 10], --episodes in [1, 1000], --max-steps in [1, 500]")
-    odometers = [n for n in args.odometers.split(",") if n]
-    args.out.mkdir(parents=True, exist_ok=True)
+        levels = [parse_level(v) for v in args.levels.split(",")]
+    except argparse.ArgumentTypeError as exc:
+        raise UsageError(str(exc)) from None
+    odometers = [n.strip() for n in args.odometers.split(",") if n.strip()]
+    if not odometers:
+        raise UsageError("--odometers is empty; give at least one name")
+    unknown = [n for n in odometers if ":" not in n and n not in available_odometers()]
+    if unknown:
+        raise UsageError(f"unknown odometer {unknown[0]!r}; available: {', '.join(available_odometers())}")
+    check_output_dir(args.out, "--out")
+    results = args.out / "results.json"
+    if results.exists():
+        try:
+            doc = json.loads(results.read_text(encoding="utf-8"))
+            assert isinstance(doc, dict) and isinstance(doc.get("results"), dict)
+        except (ValueError, UnicodeDecodeError, AssertionError):
+            raise UsageError(f"{results}: not a results file of this study; delete it or choose another --out") from None
     try:
-        doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps)
+        doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps, parallel=not args.serial)
     except ValueError as exc:
-        ap.error(str(exc))
+        raise UsageError(str(exc)) from None
     table = growth_table(doc, odometers, levels)
     write_bytes_atomic(args.out / "table.md", table.encode())
     for level in levels:
@@ -135,4 +152,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from odolab.cli import run_cli
+
+    sys.exit(run_cli(main, "python -m studies.noise_robustness"))

@@ -132,3 +132,8 @@ def test_bad_checkpoints_and_recipes_are_named(trained, tmp_path):
     with pytest.raises(ValueError, match="window must be in"):
         load_training(str(bad))
     assert load_training("studies/deepvo/shipped.toml").model.width_scale == 0.125
+
+
+def test_validation_windows_do_not_share_pairs():
+    starts = np.array([0, 1, 2, 3, 4, 5, 9, 10, 20])
+    assert trainer.disjoint(starts, 3).tolist() == [0, 3, 9, 20]

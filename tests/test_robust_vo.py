@@ -410,3 +410,58 @@ def test_every_ablation_recipe_changes_one_switch_of_the_shipped_one():
         cfg = load_train_config(path)
         changed = [k for k in ("model", "stages", "train_data", "val_data") if getattr(cfg, k) != getattr(shipped, k)]
         assert changed, path
+
+
+def test_hostile_recipe_values_are_refused_with_their_field(tmp_path):
+    head = '[[stages]]\nactions = ["move_forward"]\nepochs = 1\n'
+    for body, match in (('name = "../evil"\n', "stage name must be letters"),
+                        ('name = "f"\nlr = inf\n', r"lr must be in \[1e-12, 1\], got inf"),
+                        ('name = "f"\nbatch = 0\n', r"batch must be in \[1, 65536\], got 0")):
+        path = tmp_path / "r.toml"
+        path.write_text(head + body)
+        with pytest.raises(ConfigError, match=match):
+            load_train_config(str(path))
+    for model, match in (("groups = 0", "groups must be in"), ("compress_channels = 0", "compress_channels must be in"),
+                         ("hidden = 0", "hidden must be in")):
+        path = tmp_path / "m.toml"
+        path.write_text(f"[model]\n{model}\n" + head + 'name = "f"\n')
+        with pytest.raises(ConfigError, match=match):
+            load_train_config(str(path))
+
+
+def test_a_non_finite_loss_stops_training_with_a_message():
+    from odolab.learning import require_finite
+
+    require_finite(torch.tensor(1.0), 1)
+    with pytest.raises(ValueError, match="loss became nan in epoch 3"):
+        require_finite(torch.tensor(float("nan")), 3)
+
+
+def test_mc_dropout_draws_are_the_same_for_the_same_seed(trained, recipe):
+    pairs, ep = _pairs(recipe)
+    runs = []
+    for seed in (0, 0, 1):
+        odo = RobustVOOdometer(checkpoint=str(trained / "model.pt"), mc_samples=4, seed=seed)
+        odo.reset(ep.intrinsics)
+        runs.append(np.stack([odo.step(*p).covariance for p in pairs[:3]]))
+    assert np.array_equal(runs[0], runs[1]) and not np.array_equal(runs[0], runs[2])
+
+
+def test_a_resumed_state_names_what_changed(trained, recipe):
+    from odolab.learning.epochs import differences
+
+    assert differences({"m": {"a": 1, "b": [1, 2]}}, {"m": {"a": 2, "b": [1, 2]}}) == ["m.a (saved 1, now 2)"]
+    changed = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, dd_bins=5))
+    with pytest.raises(ValueError, match=r"model.dd_bins \(saved 10, now 5\)"):
+        trainer.run(changed, work=trained / "work", reports=trained / "r3", export=trained / "y.pt",
+                    device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+
+
+def test_text_or_corrupt_checkpoints_are_refused_without_unsafe_advice(tmp_path):
+    text = tmp_path / "t.pt"
+    text.write_text("hello world")
+    with pytest.raises(CheckpointError, match="corrupt or not a torch file") as info:
+        load_model(text)
+    assert "weights_only=False" not in str(info.value)
+    with pytest.raises(CheckpointError, match="is a folder"):
+        load_model(tmp_path)

@@ -112,3 +112,17 @@ def test_the_cli_makes_data_and_refuses_bad_options(tmp_path, capsys):
     assert run_cli(td.main, "python -m odolab.training_data", args[:-2] + ["--width", "500", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "--width" in err and "Traceback" not in err
+
+
+def test_a_killed_runs_leftovers_are_cleared_and_a_bad_manifest_named(folder, tmp_path):
+    import shutil
+
+    copy = tmp_path / "c"
+    shutil.copytree(folder, copy)
+    orphan = copy / ".shard-00001-abc.npz.xyz.tmp"
+    orphan.write_bytes(b"half a shard")
+    make_training_data(CFG, copy, parallel=False, progress=False)
+    assert not orphan.exists()
+    (copy / td.MANIFEST).write_text('{"format": 1, "shards": {}}')
+    with pytest.raises(ValueError, match="no config or shards"):
+        make_training_data(CFG, copy, parallel=False, progress=False)

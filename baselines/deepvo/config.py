@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from odolab.learning import DataConfig, dataclass_from_toml
+from odolab.learning.configs import check_ranges
 
 #: The original encoder (FlowNetSimple's 9 convolutions): (output channels, kernel, stride).
 FLOWNET_LAYERS = ((64, 7, 2), (128, 5, 2), (256, 5, 2), (256, 3, 1), (512, 3, 2), (512, 3, 1), (512, 3, 2),
@@ -27,14 +28,8 @@ class DeepVOModel:
     max_depth: float = 10.0
 
     def __post_init__(self) -> None:
-        if not (8 <= self.width <= 2048 and 8 <= self.height <= 2048):
-            raise ValueError(f"width and height must be in [8, 2048], got {self.width} x {self.height}")
-        if not 0.0 < self.width_scale <= 4.0:
-            raise ValueError(f"width_scale must be in (0, 4], got {self.width_scale}")
-        if self.hidden < 1 or self.layers < 1:
-            raise ValueError(f"hidden and layers must be >= 1, got {self.hidden} and {self.layers}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        check_ranges("model", self, width=(8, 2048), height=(8, 2048), width_scale=(1e-3, 4.0), hidden=(1, 8192),
+                     layers=(1, 16), dropout=(0.0, 0.99), max_depth=(0.1, 100.0))
 
     @property
     def channels(self) -> tuple[int, ...]:
@@ -64,10 +59,9 @@ class DeepVOTraining:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not 2 <= self.window <= 64:
-            raise ValueError(f"window must be in [2, 64] frames, got {self.window}")
-        if self.batch < 1 or self.epochs < 1 or not self.lr > 0 or self.windows_per_epoch < 0 or self.val_windows < 1:
-            raise ValueError("batch, epochs and val_windows must be >= 1, lr > 0, windows_per_epoch >= 0")
+        check_ranges("recipe", self, window=(2, 64), batch=(1, 65_536), epochs=(1, 100_000), lr=(1e-12, 1.0),
+                     rotation_weight=(0.0, 1e6), windows_per_epoch=(0, 10**9), val_windows=(1, 10**7),
+                     seed=(0, 2**32 - 1))
         for data in (self.train_data, self.val_data):
             data.require_size(self.model.width, self.model.height)
 

@@ -46,6 +46,7 @@ class DeepVONet(nn.Module):
                             dropout=cfg.dropout if cfg.layers > 1 else 0.0)
         self.drop = nn.Dropout(cfg.dropout)
         self.head = nn.Linear(cfg.hidden, 3)
+        nn.init.zeros_(self.head.weight)  # start at the mean motion (the bias); see odolab.robust_vo.model
         self.register_buffer("scale", torch.tensor(SCALE))
 
     def forward(self, frames: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None = None

@@ -1,7 +1,9 @@
-"""``deepvo``: the DeepVO baseline as an :class:`~odolab.api.Odometer`.
+"""The DeepVO baseline as an :class:`~odolab.api.Odometer` (to be registered as ``deepvo`` once its
+trained model ships; until then name the class and give a checkpoint)::
 
-    python -m odolab.compare --odometers action-prior,deepvo,robust-vo
-    python -m odolab.compare --odometers deepvo --odometer-option deepvo.checkpoint=runs/deepvo/x/model.pt
+    python -m baselines.deepvo.train --config studies/deepvo/shipped.toml
+    python -m odolab.compare --odometers action-prior,baselines.deepvo.odometer:DeepVOOdometer \
+        --odometer-option baselines.deepvo.odometer:DeepVOOdometer.checkpoint=runs/deepvo/shipped/model.pt
 
 Frames are resized to the model's input (:func:`odolab.learning.resize_frame`, as its training data
 was); the LSTM state carries from one ``step`` to the next within a sequence and ``reset`` clears

@@ -23,7 +23,7 @@ import torch
 from tqdm.auto import tqdm
 
 from odolab.api import MOTION_ACTIONS
-from odolab.learning import EpochLoop, TrainingData, make_training_data
+from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
 from odolab.learning.validation import error_rows, prior_planar, write_report
 
 from baselines.deepvo.config import DeepVOTraining, load_training
@@ -39,6 +39,16 @@ def window_batch(data: TrainingData, starts: np.ndarray, window: int, cfg) -> tu
     x = frame_tensor(rgb, depth, cfg).reshape(len(starts), window, *frame_tensor(rgb[:1], depth[:1], cfg).shape[1:])
     pairs = starts[:, None] + np.arange(window - 1)[None]
     return x, data.pair_planar[pairs], data.pair_actions[pairs]
+
+
+def disjoint(starts: np.ndarray, pairs: int) -> np.ndarray:
+    """Window starts (sorted pair indices) thinned so that windows of ``pairs`` pairs do not overlap."""
+    keep, end = [], -1
+    for k in np.sort(starts):
+        if k >= end:
+            keep.append(k)
+            end = k + pairs
+    return np.array(keep, np.int64)
 
 
 def loss_fn(pred: torch.Tensor, target: torch.Tensor, rotation_weight: float) -> torch.Tensor:
@@ -59,7 +69,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
     starts = train.windows(cfg.window)
     if not len(starts):
         raise ValueError(f"no window of {cfg.window} frames in the training data; use a shorter window")
-    val_starts = val.windows(cfg.window)
+    val_starts = disjoint(val.windows(cfg.window), cfg.window - 1)  # every val pair counted once at most
     rng = np.random.default_rng(cfg.seed)
     if len(val_starts) > cfg.val_windows:
         val_starts = np.sort(rng.choice(val_starts, cfg.val_windows, replace=False))
@@ -84,6 +94,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
             x, target, _ = window_batch(train, np.sort(order[k:k + cfg.batch]), cfg.window, cfg.model)
             pred, _ = net(x.to(device))
             loss = loss_fn(pred, torch.from_numpy(target).to(device, torch.float32), cfg.rotation_weight)
+            require_finite(loss, epoch)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()

@@ -10,11 +10,11 @@ from odolab.learning.checkpoints import CheckpointError, load_checkpoint, save_c
 from odolab.learning.configs import ConfigError, dataclass_from_toml, read_toml
 from odolab.learning.curves import Curves
 from odolab.learning.device import pick_device
-from odolab.learning.epochs import EpochLoop, StopRequested
+from odolab.learning.epochs import EpochLoop, StopRequested, require_finite
 from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 __all__ = [
     "CheckpointError", "ConfigError", "Curves", "DataConfig", "EpochLoop", "StopRequested", "TrainingData",
-    "dataclass_from_toml", "load_checkpoint", "make_training_data", "pick_device", "read_toml", "resize_frame",
+    "dataclass_from_toml", "load_checkpoint", "make_training_data", "pick_device", "read_toml", "require_finite", "resize_frame",
     "save_checkpoint",
 ]

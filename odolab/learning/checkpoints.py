@@ -6,7 +6,6 @@ from __future__ import annotations
 import io
 import os
 import pickle
-import zipfile
 from typing import Any, Callable
 
 import torch
@@ -29,13 +28,18 @@ def save_checkpoint(path: str | os.PathLike, kind: str, format: int, doc: dict[s
 def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str, Any]:
     """Read a checkpoint written by :func:`save_checkpoint`; :class:`CheckpointError` names the file
     and what is wrong (missing, unreadable, unsafe content, another kind or format)."""
+    if os.path.isdir(path):
+        raise CheckpointError(f"{path}: is a folder, not a checkpoint file")
     if not os.path.isfile(path):
         raise CheckpointError(f"{path}: no such checkpoint file")
     try:
         doc = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise CheckpointError(f"{path}: not a readable torch checkpoint ({first})") from None
+    except pickle.UnpicklingError:  # torch's message would suggest weights_only=False: never for a file like this
+        raise CheckpointError(f"{path}: not a readable torch checkpoint (corrupt, or it holds objects other than "
+                              "tensors and plain data, which odolab never unpickles)") from None
+    except Exception as exc:  # truncated, not a zip, not torch's format at all: whatever torch raised
+        raise CheckpointError(f"{path}: not a readable torch checkpoint (corrupt or not a torch file: "
+                              f"{type(exc).__name__})") from None
     if not isinstance(doc, dict) or doc.get("kind") != kind:
         got = doc.get("kind") if isinstance(doc, dict) else type(doc).__name__
         raise CheckpointError(f"{path}: expected a {kind!r} checkpoint, got {got!r}")

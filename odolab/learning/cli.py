@@ -71,6 +71,13 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
     work = args.work or Path("runs") / args.family / name
     reports = args.reports or Path("reports") / args.family / name
     export = args.export or work / "model.pt"
+    if args.ray_address is not None:
+        from odolab.parallel import check_ray_address
+
+        try:
+            check_ray_address(args.ray_address)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     check_output_dir(work, "--work")
     check_output_dir(reports, "--reports")
     check_output_file(export, "--export")

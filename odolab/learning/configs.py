@@ -111,3 +111,14 @@ def dataclass_from_dict(cls: type[T], doc: dict[str, Any], where: str) -> T:
 def dataclass_from_toml(cls: type[T], path: str | os.PathLike) -> T:
     """Read ``path`` and build ``cls`` from it (see :func:`dataclass_from_dict`)."""
     return dataclass_from_dict(cls, read_toml(path), str(path))
+
+
+def check_ranges(what: str, obj: Any, **bounds: tuple[float, float]) -> None:
+    """``ValueError`` naming ``what``, the field, its range and the value, unless every field of
+    ``obj`` named in ``bounds`` is a finite number in its closed ``(low, high)`` range."""
+    import math
+
+    for name, (low, high) in bounds.items():
+        value = getattr(obj, name)
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high):
+            raise ValueError(f"{what}: {name} must be in [{low:g}, {high:g}], got {value!r}")

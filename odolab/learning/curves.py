@@ -42,6 +42,7 @@ class Curves:
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        from matplotlib.ticker import MaxNLocator
 
         data = [r for r in self.rows if all(r.get(k) == v for k, v in (where or {}).items())]
         row_keys = list(dict.fromkeys(r[rows] for r in data))
@@ -64,7 +65,9 @@ class Curves:
                 ax.set_xlabel(x)
                 ax.set_ylabel((ylabel or {}).get(ck, ""))
                 ax.grid(alpha=0.3)
+                ax.margins(y=0.12)
                 ax.set_ylim(bottom=0)
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
                 if i == 0 and j == 0:
                     ax.legend(fontsize=7)
         if title:

@@ -18,6 +18,24 @@ STATE_KIND = "odolab-training-state"
 STATE_FORMAT = 1
 
 
+def differences(saved: Any, now: Any, where: str = "") -> list[str]:
+    """Dotted paths where two plain-data documents differ, as ``path (saved X, now Y)``."""
+    if isinstance(saved, dict) and isinstance(now, dict):
+        return [d for k in sorted(set(saved) | set(now), key=str)
+                for d in differences(saved.get(k), now.get(k), f"{where}.{k}" if where else str(k))]
+    if isinstance(saved, list) and isinstance(now, list) and len(saved) == len(now):
+        return [d for i, (a, b) in enumerate(zip(saved, now)) for d in differences(a, b, f"{where}[{i}]")]
+    return [] if saved == now else [f"{where or 'all'} (saved {saved!r}, now {now!r})"]
+
+
+def require_finite(loss: torch.Tensor, epoch: int) -> None:
+    """``ValueError`` when a training loss is NaN or infinite (a learning rate too high, a bad
+    weight): the epoch in progress is dropped, the last saved one is kept."""
+    if not torch.isfinite(loss).all():
+        raise ValueError(f"the training loss became {loss.item()} in epoch {epoch}; nothing of that epoch was "
+                         "saved (is the learning rate or a loss weight too large?)")
+
+
 class StopRequested(Exception):
     """Raised inside an epoch to stop training cleanly (the epoch in progress is not saved)."""
 
@@ -41,12 +59,14 @@ class EpochLoop:
         """Load the saved state if there is one; returns the number of epochs already done."""
         if not os.path.exists(self.path):
             return 0
-        doc = load_checkpoint(self.path, STATE_KIND, STATE_FORMAT)
+        try:
+            doc = load_checkpoint(self.path, STATE_KIND, STATE_FORMAT)
+        except ValueError as exc:
+            raise ValueError(f"{exc}; delete it to start this training over") from None
         if doc["identity"] != self.identity:
-            changed = sorted(k for k in set(doc["identity"]) | set(self.identity)
-                             if doc["identity"].get(k) != self.identity.get(k))
+            changed = differences(doc["identity"], self.identity)
             raise ValueError(f"{self.path}: saved training state belongs to another run (differs in: "
-                             f"{', '.join(changed)}); delete it or use another work folder")
+                             f"{'; '.join(changed[:4])}); delete it or use another work folder")
         for name, module in self.modules.items():
             module.load_state_dict(doc["modules"][name])
         self.optimizer.load_state_dict(doc["optimizer"])

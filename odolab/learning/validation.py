@@ -43,7 +43,8 @@ def write_report(folder: str | Path, rows: list[dict[str, Any]], status: dict[st
     curves.to_csv(folder / "curves.csv")
     curves.plot(folder / "curves.png", x=x, rows="action", cols="component", where={"split": "val"},
                 series={"mae": {"label": "model (val)", "color": "C0"},
-                        "prior_mae": {"label": "action prior (val)", "color": "0.5", "linestyle": "--", "marker": ""}},
+                        "prior_mae": {"label": "action prior (val)", "color": "0.5", "linestyle": "--", "marker": "_",
+                                      "markersize": 8}},
                 scale={"dyaw": 180 / np.pi}, title=title,
                 ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"})
     write_bytes_atomic(folder / "training.json", json.dumps(status, indent=1).encode())

@@ -2,13 +2,16 @@
 recipe, as frozen dataclasses read from TOML (see ``studies/robust_vo/*.toml``)."""
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Literal
 
 from odolab.api import MOTION_ACTIONS, Action
 from odolab.learning import DataConfig, dataclass_from_toml
+from odolab.learning.configs import check_ranges
 
 ACTION_BY_LABEL = {a.label: a for a in MOTION_ACTIONS}
+STAGE_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,9 @@ class ModelConfig:
     sproj_rows: float = 100 / 192  # central share of image rows projected (the reference keeps 100 of 192)
 
     def __post_init__(self) -> None:
+        for name in ("groups", "compress_channels", "hidden", "embed_dim"):
+            if not 1 <= getattr(self, name) <= 4096:
+                raise ValueError(f"{name} must be in [1, 4096], got {getattr(self, name)}")
         if self.dd_bins < 0 or self.dd_bins > 64:
             raise ValueError(f"dd_bins must be in [0, 64], got {self.dd_bins}")
         if not (8 <= self.width <= 2048 and 8 <= self.height <= 2048):
@@ -51,8 +57,8 @@ class ModelConfig:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
         if not 0.0 < self.sproj_rows <= 1.0:
             raise ValueError(f"sproj_rows must be in (0, 1], got {self.sproj_rows}")
-        if self.max_depth <= 0:
-            raise ValueError(f"max_depth must be > 0, got {self.max_depth}")
+        if not 0 < self.max_depth <= 100:
+            raise ValueError(f"max_depth must be in (0, 100] m, got {self.max_depth}")
 
     @property
     def channels_per_frame(self) -> int:
@@ -90,11 +96,13 @@ class StageConfig:
     pairs_per_epoch: int = 0
 
     def __post_init__(self) -> None:
+        if not STAGE_NAME.fullmatch(self.name):
+            raise ValueError(f"stage name must be letters, digits, '-' or '_' (it names a file), got {self.name!r}")
         bad = [a for a in self.actions if a not in ACTION_BY_LABEL]
         if bad or not self.actions:
             raise ValueError(f"stage {self.name!r}: actions must be some of {', '.join(ACTION_BY_LABEL)}, got {list(self.actions)}")
-        if self.epochs < 1 or self.batch < 1 or self.pairs_per_epoch < 0 or not self.lr > 0:
-            raise ValueError(f"stage {self.name!r}: epochs and batch must be >= 1, lr > 0, pairs_per_epoch >= 0")
+        check_ranges(f"stage {self.name!r}", self, epochs=(1, 100_000), batch=(1, 65_536), lr=(1e-12, 1.0),
+                     pairs_per_epoch=(0, 10**9))
         if self.geoinv and not {"turn_left", "turn_right"} <= set(self.actions):
             raise ValueError(f"stage {self.name!r}: geoinv pairs turn_left with turn_right; list both actions")
 
@@ -114,9 +122,9 @@ class TrainConfig:
     data_root: str = "data"
     val_pairs: int = 3000
     seed: int = 0
-    mc_samples: int = 0
 
     def __post_init__(self) -> None:
+        check_ranges("recipe", self, val_pairs=(0, 10**7), seed=(0, 2**32 - 1))
         if not self.stages:
             raise ValueError("a training config needs at least one [[stages]] table")
         names = [s.name for s in self.stages]

@@ -10,6 +10,10 @@ from torch import nn
 from odolab.robust_vo.config import ModelConfig
 
 
+#: Negative slope of the head's hidden activation.
+HIDDEN_SLOPE = 0.01
+
+
 class RunningNorm(nn.Module):
     """Per-channel normalisation by the running mean and variance of every training batch seen
     (updated in training mode only; variance floored at 1e-2 as habitat-baselines does)."""
@@ -91,8 +95,14 @@ class VONet(nn.Module):
         features = cfg.compress_channels * fh * fw
         self.embed = nn.Embedding(3, cfg.embed_dim) if cfg.kind == "actembed" else None
         extra = cfg.embed_dim if self.embed is not None else 0
-        self.head = nn.Sequential(nn.Dropout(cfg.dropout), nn.Linear(features + extra, cfg.hidden), nn.ReLU(inplace=True),
-                                  nn.Dropout(cfg.dropout), nn.Linear(cfg.hidden, 3))
+        # The hidden layer leaks (slope 0.01; the paper: ReLU) and the last layer starts at zero (its
+        # bias is set to the mean motion before training). With ReLU, Adam and targets whose spread is
+        # ~0.05, every hidden unit of our turn networks died within the first epoch (measured: 0 of 512
+        # alive), leaving a network that predicts the mean motion and never recovers.
+        self.head = nn.Sequential(nn.Dropout(cfg.dropout), nn.Linear(features + extra, cfg.hidden),
+                                  nn.LeakyReLU(HIDDEN_SLOPE, inplace=True), nn.Dropout(cfg.dropout),
+                                  nn.Linear(cfg.hidden, 3))
+        nn.init.zeros_(self.head[-1].weight)
 
     def forward(self, x: torch.Tensor, action_index: torch.Tensor | None = None) -> torch.Tensor:
         f = self.compress(self.encoder(self.norm(x))).flatten(1)

@@ -8,7 +8,10 @@ training data was), the pair's channels psi are computed and the network of the 
 predicts ``(dx, dz, dyaw)``. Options: ``checkpoint`` (default: the shipped model), ``mirror_tta``
 (also run the mirrored pair through the opposite action's network and average; Partsey et al.
 2022), ``mc_samples`` (> 1: that many passes with dropout on, whose spread gives
-``Estimate.covariance``; the paper's "rnd" mode), ``threads``, ``batch_size``, ``device``.
+``Estimate.covariance``; the paper's "rnd" mode; its dropout draws are seeded by ``seed`` and the
+step's place in the sequence, so reruns give the same numbers), ``threads``, ``batch_size``,
+``device``. Frames are recognised by identity: the runner's frames are read-only, and a caller who
+rewrites a frame's arrays in place between steps must call ``reset``.
 A SepAct or ActEmbed model needs the action: on real data (no action) it answers ``valid=False``.
 """
 from __future__ import annotations
@@ -41,7 +44,7 @@ class RobustVOOdometer(Odometer):
     """The robust VO. See the module docstring for the options."""
 
     def __init__(self, checkpoint: str = "", mirror_tta: bool = False, mc_samples: int = 0, threads: int = 1,
-                 batch_size: int = 1, device: str = "") -> None:
+                 batch_size: int = 1, device: str = "", seed: int = 0) -> None:
         if int(mc_samples) < 0 or int(mc_samples) == 1 or int(mc_samples) > 1000:
             raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {mc_samples}")
         if int(threads) < 1 or int(batch_size) < 1:
@@ -51,6 +54,7 @@ class RobustVOOdometer(Odometer):
         self.nets.to(self.device)
         self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
         self.threads, self.batch_size = int(threads), int(batch_size)
+        self.seed, self._draws = int(seed), 0  # MC-dropout draws: seeded per call, counted from reset
         self._needs_action = self.cfg.kind != "unified"
         self._input_intrinsics: Intrinsics | None = None
         self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its psi)
@@ -59,6 +63,7 @@ class RobustVOOdometer(Odometer):
         super().reset(intrinsics)
         self._input_intrinsics = intrinsics.resized(self.cfg.width, self.cfg.height)
         self._last = None
+        self._draws = 0
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         return self.step_batch([(prev, cur, action)])[0]
@@ -101,7 +106,10 @@ class RobustVOOdometer(Odometer):
                     for m in self.nets.modules():
                         if isinstance(m, torch.nn.Dropout):
                             m.train()
-                    draws = torch.stack([self._predict(x, actions) for _ in range(self.mc_samples)]).numpy()
+                    with torch.random.fork_rng(devices=[]):  # same seed, same sequence: same draws
+                        torch.manual_seed(self.seed * 1_000_003 + self._draws)
+                        self._draws += 1
+                        draws = torch.stack([self._predict(x, actions) for _ in range(self.mc_samples)]).numpy()
                     for m in self.nets.modules():
                         m.eval()
                     mean = draws.mean(axis=0)

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from odolab.learning import EpochLoop, TrainingData, make_training_data
+from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Samples, make_batch, stage_samples
 from odolab.robust_vo.checkpoint import save_model
@@ -28,12 +28,13 @@ from odolab.robust_vo.config import StageConfig, TrainConfig, load_train_config
 from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
 
-def open_data(cfg: TrainConfig, *, ray_address: str | None = None, parallel: bool = True) -> tuple[TrainingData, TrainingData]:
+def open_data(cfg: TrainConfig, *, ray_address: str | None = None, parallel: bool = True,
+              progress: bool = True) -> tuple[TrainingData, TrainingData]:
     """The recipe's train and val data, made first where missing."""
     out = []
     for data in (cfg.train_data, cfg.val_data):
         folder = cfg.data_folder(data)
-        make_training_data(data, folder, ray_address=ray_address, parallel=parallel)
+        make_training_data(data, folder, ray_address=ray_address, parallel=parallel, progress=progress)
         out.append(TrainingData(folder))
     return out[0], out[1]
 
@@ -92,6 +93,7 @@ class StageRunner:
                 other = make_batch(self.train, part, self.cfg.model, self.device, swap_all=True)
                 pred_ba = predict(self.nets, self.cfg.model, other.x, other.action)
                 loss = loss + _mse(pred_ba, other.target) + geoinv_loss(pred, pred_ba)
+            require_finite(loss, epoch)
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
@@ -119,11 +121,13 @@ class StageRunner:
 
 
 def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
-    """What a saved stage state must match to be resumed (everything but the number of epochs)."""
+    """What a saved stage state must match to be resumed: everything but this stage's number of
+    epochs, the earlier stages included (a stage trained on top of other weights is another run)."""
     doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    stage_doc = {k: v for k, v in json.loads(json.dumps(dataclasses.asdict(stage))).items() if k != "epochs"}
-    return {"model": doc["model"], "stage": stage_doc, "train_data": doc["train_data"], "val_data": doc["val_data"],
-            "seed": cfg.seed, "val_pairs": cfg.val_pairs}
+    k = cfg.stages.index(stage)
+    stage_doc = {key: v for key, v in doc["stages"][k].items() if key != "epochs"}
+    return {"model": doc["model"], "stage": stage_doc, "before": doc["stages"][:k], "train_data": doc["train_data"],
+            "val_data": doc["val_data"], "seed": cfg.seed, "val_pairs": cfg.val_pairs}
 
 
 def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None:
@@ -141,7 +145,7 @@ def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: to
         command: str = "") -> bool:
     """Run (or resume) every stage; export when all are done. Returns True when finished."""
     deadline = time.monotonic() + hours * 3600 if hours else None
-    train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data)
+    train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data, progress=progress)
     torch.manual_seed(cfg.seed)
     nets = build_networks(cfg.model).to(device)
     last_trained: dict[str, str] = {}  # network -> last stage that trained it
