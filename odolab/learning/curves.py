@@ -65,8 +65,8 @@ class Curves:
                 ax.set_xlabel(x)
                 ax.set_ylabel((ylabel or {}).get(ck, ""))
                 ax.grid(alpha=0.3)
-                ax.margins(y=0.12)
-                ax.set_ylim(bottom=0)
+                values = [r[c] * factor for r in cell for c in series if r.get(c) not in (None, "")]
+                ax.set_ylim(0, 1.15 * max(values) if values and max(values) > 0 else 1)
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
                 if i == 0 and j == 0:
                     ax.legend(fontsize=7)

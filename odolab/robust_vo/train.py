@@ -136,8 +136,12 @@ def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None
         if row["stage"] not in offsets:
             offsets[row["stage"]] = total
         total = max(total, offsets[row["stage"]] + row["epoch"])
-    write_report(reports, [{**r, "epochs": offsets[r["stage"]] + r["epoch"]} for r in curves_rows], status,
-                 "Robust VO: validation error after each epoch (all stages in order)", x="epochs")
+    rows = [{**r, "epochs": offsets[r["stage"]] + r["epoch"]} for r in curves_rows]
+    spans = {}
+    for r in rows:
+        spans.setdefault(r["stage"], set()).add(r["epochs"])
+    said = ", ".join(f"{name}: {min(e)}" + (f"-{max(e)}" if max(e) > min(e) else "") for name, e in spans.items())
+    write_report(reports, rows, status, f"Robust VO: validation error after each epoch (epochs of {said})", x="epochs")
 
 
 def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: torch.device, hours: float | None,
