@@ -106,7 +106,8 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
         if not names:
             raise UsageError(f"--odometers is empty; available: {', '.join(available_odometers())}")
     try:
-        names = odometer_names(names)
+        if names is not None:  # None: every available odometer (those needing actions left out on real data)
+            names = odometer_names(names)
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
     return ComparisonConfig(

@@ -190,6 +190,11 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     odometers = load_odometers(config.odometers, config.options)
     if config.tum is not None:
+        blind = [name for name, odo in odometers.items() if getattr(odo, "needs_action", False)]
+        if blind and config.odometers is not None:
+            raise ComparisonError(f"{blind[0]} needs the action of every step (it picks its network by action), "
+                                  "and real data has none; leave it out of a --tum comparison")
+        odometers = {name: odo for name, odo in odometers.items() if name not in blind}  # all, by default
         sequences = _tum_sequences(config)
         results = _run(odometers, sequences, observer)
         title = f"odolab compare on TUM folder {config.tum}"
@@ -197,6 +202,7 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
         left_out = (f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
                     f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s.")
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
+                 *([f"Left out, as they need actions: {', '.join(blind)}."] if blind else []),
                  "Rows marked oracle read ground truth.", left_out, *_options_note(config)]
         return ComparisonResult(results, summary.summarize(results), [], title, notes, None,
                                 [left_out] if any(dropped.values()) else [], odometer_configs(odometers))

@@ -35,11 +35,14 @@ class Odometer:
     Class attributes: ``name`` (registry key), ``oracle`` (True if it reads ground truth, e.g.
     ``Frame.gt_pose``; reports mark such rows), ``batch_size`` (how many consecutive pairs the
     runner hands to :meth:`step_batch` at once; 1 = one :meth:`step` per pair), ``threads``
-    (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`).
+    (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`),
+    ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
+    network per action: it is refused on real data, which has no actions).
     """
 
     name: str = "odometer"
     oracle: bool = False
+    needs_action: bool = False
     batch_size: int = 1
     threads: int | None = None
     _intrinsics: Intrinsics | None = None

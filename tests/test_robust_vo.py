@@ -396,7 +396,7 @@ def test_a_variant_states_only_what_it_changes(tmp_path):
     with pytest.raises(ConfigError, match="leads back to itself"):
         load_train_config(str(tmp_path / "loop.toml"))
     (tmp_path / "bad.toml").write_text('base = "missing.toml"\n')
-    with pytest.raises(ConfigError, match="missing.toml: no such config file"):
+    with pytest.raises(ConfigError, match="bad.toml: its base 'missing.toml' is not a file"):
         load_train_config(str(tmp_path / "bad.toml"))
 
 
@@ -465,3 +465,12 @@ def test_text_or_corrupt_checkpoints_are_refused_without_unsafe_advice(tmp_path)
     assert "weights_only=False" not in str(info.value)
     with pytest.raises(CheckpointError, match="is a folder"):
         load_model(tmp_path)
+
+
+def test_real_data_without_actions_is_refused_for_an_action_model_and_bad_seeds_named():
+    from odolab.api import ComparisonConfig, ComparisonError, run_comparison
+
+    with pytest.raises(ComparisonError, match="robust-vo needs the action of every step"):
+        run_comparison(ComparisonConfig(odometers=["robust-vo"], tum=__import__("pathlib").Path("tests/data/tum_fr1_xyz_10")))
+    with pytest.raises(ValueError, match=r"seed must be in \[0, 4294967295\], got -1"):
+        RobustVOOdometer(seed=-1)

@@ -28,7 +28,7 @@ class DeepVOModel:
     max_depth: float = 10.0
 
     def __post_init__(self) -> None:
-        check_ranges("model", self, width=(8, 2048), height=(8, 2048), width_scale=(1e-3, 4.0), hidden=(1, 8192),
+        check_ranges("", self, width=(8, 2048), height=(8, 2048), width_scale=(1e-3, 4.0), hidden=(1, 8192),
                      layers=(1, 16), dropout=(0.0, 0.99), max_depth=(0.1, 100.0))
 
     @property

@@ -32,6 +32,8 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
     base_path = os.path.join(os.path.dirname(os.path.abspath(path)), base)
     if os.path.abspath(base_path) in _seen or os.path.abspath(path) == os.path.abspath(base_path):
         raise ConfigError(f"{path}: base {base!r} leads back to itself")
+    if not os.path.isfile(base_path):
+        raise ConfigError(f"{path}: its base {base!r} is not a file ({base_path})")
     return _merge(read_toml(base_path, (*_seen, os.path.abspath(path))), doc)
 
 
@@ -121,4 +123,6 @@ def check_ranges(what: str, obj: Any, **bounds: tuple[float, float]) -> None:
     for name, (low, high) in bounds.items():
         value = getattr(obj, name)
         if not (isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high):
-            raise ValueError(f"{what}: {name} must be in [{low:g}, {high:g}], got {value!r}")
+            show = [f"{b:d}" if isinstance(b, int) else f"{b:g}" for b in (low, high)]
+            prefix = f"{what}: " if what else ""
+            raise ValueError(f"{prefix}{name} must be in [{show[0]}, {show[1]}], got {value!r}")

@@ -49,13 +49,15 @@ class RobustVOOdometer(Odometer):
             raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {mc_samples}")
         if int(threads) < 1 or int(batch_size) < 1:
             raise ValueError(f"threads and batch_size must be >= 1, got {threads} and {batch_size}")
+        if not 0 <= int(seed) <= 2**32 - 1:
+            raise ValueError(f"seed must be in [0, 4294967295], got {seed}")
         self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
         self.device = pick_device(device or "cpu")
         self.nets.to(self.device)
         self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
         self.threads, self.batch_size = int(threads), int(batch_size)
         self.seed, self._draws = int(seed), 0  # MC-dropout draws: seeded per call, counted from reset
-        self._needs_action = self.cfg.kind != "unified"
+        self.needs_action = self.cfg.kind != "unified"  # SepAct and ActEmbed pick by action
         self._input_intrinsics: Intrinsics | None = None
         self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its psi)
 
@@ -93,7 +95,7 @@ class RobustVOOdometer(Odometer):
         for k, (_, _, action) in enumerate(pairs):
             if action is Action.STOP:
                 answers[k] = Estimate(np.eye(4))
-            elif action is None and self._needs_action:
+            elif action is None and self.needs_action:
                 answers[k] = Estimate.invalid()
             else:
                 todo.append(k)
