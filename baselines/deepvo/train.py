@@ -22,9 +22,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from odolab.api import MOTION_ACTIONS
 from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
-from odolab.learning.validation import error_rows, prior_planar, write_report
+from odolab.learning.validation import error_rows, write_report
 
 from baselines.deepvo.config import DeepVOTraining, load_training
 from baselines.deepvo.model import DeepVONet, frame_tensor
@@ -36,7 +35,8 @@ def window_batch(data: TrainingData, starts: np.ndarray, window: int, cfg) -> tu
     of the windows starting at pair indices ``starts`` (from :meth:`TrainingData.windows`)."""
     frames = data.pairs[starts][:, None] + np.arange(window)[None]
     rgb, depth = data.frames(frames.ravel())
-    x = frame_tensor(rgb, depth, cfg).reshape(len(starts), window, *frame_tensor(rgb[:1], depth[:1], cfg).shape[1:])
+    x = frame_tensor(rgb, depth, cfg)
+    x = x.reshape(len(starts), window, *x.shape[1:])
     pairs = starts[:, None] + np.arange(window - 1)[None]
     return x, data.pair_planar[pairs], data.pair_actions[pairs]
 
@@ -76,7 +76,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
     torch.manual_seed(cfg.seed)
     net = DeepVONet(cfg.model).to(device)
     with torch.no_grad():  # start at the mean motion: the output bias is the mean target / scale
-        mean = train.pair_planar.mean(axis=0) if len(train) else np.array([prior_planar(a) for a in MOTION_ACTIONS]).mean(0)
+        mean = train.pair_planar.mean(axis=0)
         net.head.bias.copy_(torch.from_numpy(mean).to(torch.float32) / net.scale.cpu())
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))

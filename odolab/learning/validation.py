@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from odolab.api import MOTION_ACTIONS, Action, load_odometer, write_bytes_atomic
+from odolab.api import MOTION_ACTIONS, load_odometer, write_bytes_atomic
 from odolab.learning.curves import Curves
 
 COMPONENTS = ("dx", "dz", "dyaw")
@@ -48,8 +48,3 @@ def write_report(folder: str | Path, rows: list[dict[str, Any]], status: dict[st
                 scale={"dyaw": 180 / np.pi}, title=title,
                 ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"})
     write_bytes_atomic(folder / "training.json", json.dumps(status, indent=1).encode())
-
-
-def prior_planar(action: Action) -> np.ndarray:
-    """The action prior's (dx, dz, dyaw) for ``action`` (a network's output bias starts there)."""
-    return np.asarray(load_odometer("action-prior").step(None, None, action).planar, np.float64)

@@ -10,7 +10,7 @@ from odolab.api import Action
 from odolab.learning import TrainingData
 from odolab.robust_vo.config import ModelConfig, StageConfig
 from odolab.robust_vo.inputs import pair_channels
-from odolab.robust_vo.motion import OPPOSITE_TURN, inverse, mirror, swap_action
+from odolab.robust_vo.motion import inverse, mirror, swap_action
 
 TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT)
 
@@ -82,7 +82,3 @@ def make_batch(data: TrainingData, samples: Samples, cfg: ModelConfig, device: t
     x = pair_channels(torch.from_numpy(np.ascontiguousarray(rgb)), torch.from_numpy(np.ascontiguousarray(depth)),
                       data.intrinsics, cfg)
     return Batch(x.to(device), action, target.to(device))
-
-
-def opposite(action: Action) -> Action:
-    return OPPOSITE_TURN[action]
