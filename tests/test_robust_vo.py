@@ -356,10 +356,11 @@ def test_recipe_errors_name_the_file_and_field(tmp_path):
         load_train_config(str(path))
 
 
-def test_the_shipped_recipe_is_the_papers_row_18():
+def test_the_shipped_recipe_is_the_papers_row_18_with_the_nominal_warp():
     cfg = load_train_config("studies/robust_vo/shipped.toml")
     m = cfg.model
-    assert (m.kind, m.visual, m.dd_bins, m.sproj) == ("sepact", "rgbd", 10, True)
+    assert (m.kind, m.visual, m.dd_bins, m.sproj, m.warp) == ("sepact", "rgbd", 10, True, "nominal")
+    assert load_train_config("studies/robust_vo/ablations/no-warp.toml").model == dataclasses.replace(m, warp="none")
     assert [s.name for s in cfg.stages] == ["forward", "turns", "joint"]
     assert cfg.stages[1].data_aug and cfg.stages[2].geoinv and not cfg.stages[0].data_aug
     assert all(not s.mirror for s in cfg.stages)

@@ -11,6 +11,7 @@ from odolab.learning import TrainingData
 from odolab.robust_vo.config import ModelConfig, StageConfig
 from odolab.robust_vo.inputs import pair_channels
 from odolab.robust_vo.motion import inverse, mirror, swap_action
+from odolab.robust_vo.warp import warp_pairs
 
 TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT)
 
@@ -63,8 +64,9 @@ class Batch:
 
 def make_batch(data: TrainingData, samples: Samples, cfg: ModelConfig, device: torch.device,
                swap_all: bool = False) -> Batch:
-    """Read and transform the pairs of ``samples``; ``swap_all`` additionally swaps every pair
-    (the other half of a GeoInv step)."""
+    """Read and transform the pairs of ``samples`` (swap, then mirror, then the ``warp`` of the
+    action the sample now stands for); ``swap_all`` additionally swaps every pair (the other half of
+    a GeoInv step)."""
     b = data.pair_batch(samples.pair)
     rgb, depth = b["rgb"], b["depth"]
     target = torch.from_numpy(b["planar"]).to(torch.float32)
@@ -79,6 +81,8 @@ def make_batch(data: TrainingData, samples: Samples, cfg: ModelConfig, device: t
         rgb[flip], depth[flip] = rgb[flip][:, :, :, ::-1], depth[flip][:, :, :, ::-1]
         target[flip] = mirror(target[flip])
         action[flip] = swap_action(action[flip])
-    x = pair_channels(torch.from_numpy(np.ascontiguousarray(rgb)), torch.from_numpy(np.ascontiguousarray(depth)),
-                      data.intrinsics, cfg)
+    rgb_t, depth_t = torch.from_numpy(np.ascontiguousarray(rgb)), torch.from_numpy(np.ascontiguousarray(depth))
+    if cfg.warp == "nominal":  # by the action each sample now stands for
+        rgb_t, depth_t = warp_pairs(rgb_t, depth_t, action, data.intrinsics)
+    x = pair_channels(rgb_t, depth_t, data.intrinsics, cfg)
     return Batch(x.to(device), action, target.to(device))

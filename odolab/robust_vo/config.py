@@ -25,7 +25,10 @@ class ModelConfig:
     ``sproj``: the soft top-down projection channel; ``width`` x ``height``: input pixels (frames are
     resized to it, the paper's 341 x 192 is selectable); ``base_planes`` and ``groups``: ResNet-18
     width and GroupNorm groups; ``compress_channels``: the 3x3 compression conv's outputs;
-    ``dropout``: before each of the two FC layers (``hidden`` units).
+    ``dropout``: before each of the two FC layers (``hidden`` units). ``warp`` (beyond the paper):
+    ``nominal`` resamples each pair's current frame into the previous view by the action's commanded
+    motion before psi (:mod:`odolab.robust_vo.warp`), so the network sees only the deviation from the
+    command; ``none`` is the paper's input.
     """
 
     kind: Literal["sepact", "unified", "actembed"] = "sepact"
@@ -42,6 +45,7 @@ class ModelConfig:
     embed_dim: int = 32
     max_depth: float = 10.0
     sproj_rows: float = 100 / 192  # central share of image rows projected (the reference keeps 100 of 192)
+    warp: Literal["none", "nominal"] = "none"
 
     def __post_init__(self) -> None:
         for name in ("groups", "compress_channels", "hidden", "embed_dim"):
@@ -57,6 +61,8 @@ class ModelConfig:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
         if not 0.0 < self.sproj_rows <= 1.0:
             raise ValueError(f"sproj_rows must be in (0, 1], got {self.sproj_rows}")
+        if self.warp not in ("none", "nominal"):
+            raise ValueError(f"warp must be 'none' or 'nominal', got {self.warp!r}")
         if not 0 < self.max_depth <= 100:
             raise ValueError(f"max_depth must be in (0, 100] m, got {self.max_depth}")
 

@@ -12,7 +12,8 @@ predicts ``(dx, dz, dyaw)``. Options: ``checkpoint`` (default: the shipped model
 step's place in the sequence, so reruns give the same numbers), ``threads``, ``batch_size``,
 ``device``. Frames are recognised by identity: the runner's frames are read-only, and a caller who
 rewrites a frame's arrays in place between steps must call ``reset``.
-A SepAct or ActEmbed model needs the action: on real data (no action) it answers ``valid=False``.
+A SepAct or ActEmbed model, or one with the ``nominal`` warp (:mod:`odolab.robust_vo.warp`), needs
+the action: on real data (no action) it answers ``valid=False``.
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from odolab.robust_vo.checkpoint import SHIPPED, load_model
 from odolab.robust_vo.inputs import frame_channels
 from odolab.robust_vo.model import predict
 from odolab.robust_vo.motion import mirror, swap_action
+from odolab.robust_vo.warp import nominal_transforms, warp_current
 
 #: Variance (m^2 or rad^2) given to the out-of-plane components (rx, rz, ty) of the covariance.
 PLANAR_VARIANCE = 1e-6
@@ -57,7 +59,8 @@ class RobustVOOdometer(Odometer):
         self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
         self.threads, self.batch_size = int(threads), int(batch_size)
         self.seed, self._draws = int(seed), 0  # MC-dropout draws: seeded per call, counted from reset
-        self.needs_action = self.cfg.kind != "unified"  # SepAct and ActEmbed pick by action
+        # SepAct and ActEmbed pick by action, the nominal warp moves by it
+        self.needs_action = self.cfg.kind != "unified" or self.cfg.warp != "none"
         self._input_intrinsics: Intrinsics | None = None
         self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its psi)
 
@@ -70,16 +73,30 @@ class RobustVOOdometer(Odometer):
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         return self.step_batch([(prev, cur, action)])[0]
 
+    def _resized(self, frame: Frame) -> tuple[torch.Tensor, torch.Tensor]:
+        """A frame's RGB (1, h, w, 3) and depth (1, h, w) at the model's size, as the training data was."""
+        rgb, depth = resize_frame(frame.rgb, frame.depth, self.cfg.width, self.cfg.height)
+        return torch.from_numpy(rgb)[None], torch.from_numpy(depth)[None]
+
     def _frame_channels(self, frame: Frame) -> torch.Tensor:
-        """psi of one frame (C, h, w), resized as the training data was; the previous step's current
-        frame (the same arrays) is not computed twice."""
+        """psi of one frame (C, h, w); the previous step's current frame (the same arrays) is not
+        computed twice."""
         if self._last is not None and self._last[0] is frame.rgb:
             return self._last[1]
-        rgb, depth = resize_frame(frame.rgb, frame.depth, self.cfg.width, self.cfg.height)
-        x = frame_channels(torch.from_numpy(rgb)[None], torch.from_numpy(depth)[None], self._input_intrinsics,
-                           self.cfg)[0]
+        x = frame_channels(*self._resized(frame), self._input_intrinsics, self.cfg)[0]
         self._last = (frame.rgb, x)
         return x
+
+    def _pair_channels(self, prev: Frame, cur: Frame, action: Action) -> torch.Tensor:
+        """psi of a pair (2C, h, w); with the ``nominal`` warp the current frame is first resampled
+        into the previous view by the action's commanded motion."""
+        if self.cfg.warp == "none":
+            return torch.cat([self._frame_channels(prev), self._frame_channels(cur)])
+        (_, prev_depth), (rgb, depth) = self._resized(prev), self._resized(cur)
+        rgb, depth = warp_current(rgb, depth, prev_depth, nominal_transforms(np.array([action.value])),
+                                  self._input_intrinsics)
+        return torch.cat([self._frame_channels(prev),
+                          frame_channels(rgb, depth, self._input_intrinsics, self.cfg)[0]])
 
     def _predict(self, x: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
         """(B, 3) motions of pair inputs ``x`` (B, 2C, h, w); with ``mirror_tta`` averaged with the
@@ -100,9 +117,10 @@ class RobustVOOdometer(Odometer):
             else:
                 todo.append(k)
         if todo:
-            x = torch.stack([torch.cat([self._frame_channels(pairs[k][0]), self._frame_channels(pairs[k][1])])
-                             for k in todo]).to(self.device)
-            actions = np.array([(pairs[k][2] or Action.MOVE_FORWARD).value for k in todo])
+            chosen = [pairs[k][2] or Action.MOVE_FORWARD for k in todo]  # a unified model may get no action
+            x = torch.stack([self._pair_channels(pairs[k][0], pairs[k][1], a) for k, a in zip(todo, chosen)]
+                            ).to(self.device)
+            actions = np.array([a.value for a in chosen])
             with torch.inference_mode():
                 if self.mc_samples:
                     for m in self.nets.modules():
