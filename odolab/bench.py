@@ -83,9 +83,12 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) ->
                         parallel=False, progress=False)
     out = []
     for name in names:
-        res = runner.run({name: load_odometer(name)}, eps)
+        odo = load_odometer(name)
+        res = runner.run({name: odo}, eps)
         row = summary.summarize(res)[0]
         out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
+        if hasattr(odo, "fusion_seconds"):  # a fused odometer: the graph's own share, its inputs excluded
+            out[-1]["graph_ms_per_step"] = 1000.0 * odo.fusion_seconds / max(odo.fused_steps, 1)
     return out
 
 
@@ -100,7 +103,7 @@ def _table(rows: list[dict]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.odometer import available_odometers
+    from odolab.odometer import available_odometers, split_odometer_names, standalone_odometers, unknown_odometer
 
     ap = ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["simulator", "odometers", "evaluate"], action="append",
@@ -111,10 +114,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json is not None:
         check_output_file(args.json, "--json")
     parts = args.only or ["simulator", "odometers", "evaluate"]
-    names = available_odometers() if args.odometers is None else args.odometers.split(",")
-    unknown = set(names) - set(available_odometers())
-    if unknown:
-        raise UsageError(f"unknown odometer {sorted(unknown)[0]!r}; available: {', '.join(available_odometers())}")
+    try:
+        names = standalone_odometers() if args.odometers is None else split_odometer_names(args.odometers)
+    except ValueError as exc:
+        raise UsageError(f"--odometers: {exc}") from None
+    unknown = [u for u in map(unknown_odometer, names) if u]
+    if unknown or not names:
+        raise UsageError(f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}")
 
     import os
 

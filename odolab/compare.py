@@ -15,7 +15,7 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
                         run_cli, seed)
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
-from odolab.odometer import available_odometers
+from odolab.odometer import available_odometers, split_odometer_names
 from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 from odolab.sim.scenes import SPLITS
 
@@ -102,7 +102,10 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
         raise UsageError(str(exc)) from None
     names = None
     if args.odometers is not None:
-        names = [n.strip() for n in args.odometers.split(",") if n.strip()]
+        try:
+            names = split_odometer_names(args.odometers)
+        except ValueError as exc:
+            raise UsageError(f"--odometers: {exc}") from None
         if not names:
             raise UsageError(f"--odometers is empty; available: {', '.join(available_odometers())}")
     try:

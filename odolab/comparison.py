@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
 from odolab import runner, summary
-from odolab.odometer import REGISTRY, Odometer, UnknownOdometerError, available_odometers
+from odolab.odometer import (REGISTRY, Odometer, UnknownOdometerError, available_odometers, standalone_odometers,
+                             unknown_odometer)
 from odolab.options import OptionError, check_options
 from odolab.report import FloorPlan
 from odolab.runner import RunObserver, SequenceResult
@@ -83,12 +84,13 @@ class ComparisonResult:
 def odometer_names(names: list[str] | None) -> list[str]:
     """The names to run (None = all available), checked without importing anything."""
     known = available_odometers()
-    chosen = known if names is None else list(names)
+    chosen = standalone_odometers() if names is None else list(names)
     if not chosen:
         raise ComparisonError(f"no odometer chosen; available: {', '.join(known)}")
-    unknown = [n for n in chosen if n not in known and ":" not in n]  # "module:Class" loads on demand
+    unknown = [u for u in map(unknown_odometer, chosen) if u]  # "module:Class" loads on demand
     if unknown:
-        raise ComparisonError(f"unknown odometer {unknown[0]!r}; available: {', '.join(known)}")
+        raise ComparisonError(f"unknown odometer {unknown[0]!r}; available: {', '.join(known)} "
+                              "(and fused(a,b,...) of any of them)")
     return chosen
 
 

@@ -15,7 +15,10 @@ Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is impor
 """
 from __future__ import annotations
 
+import functools
 import importlib
+import inspect
+import re
 from importlib.metadata import entry_points
 from typing import Callable, Iterator
 
@@ -85,10 +88,34 @@ def _registry() -> dict[str, Callable[..., Odometer] | str]:
     reg: dict[str, Callable[..., Odometer] | str] = {
         "ground-truth": "odolab.reference_odometers:GroundTruthOdometer",
         "action-prior": "odolab.reference_odometers:ActionPriorOdometer",
+        "fused": "odolab.fusion.odometer:FusedOdometer",
     }
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         reg.setdefault(ep.name, ep.value)
     return reg
+
+
+#: ``head(inputs)``: an odometer built on others, e.g. ``fused(icp,open3d-rgbd)``.
+COMPOSITE = re.compile(r"(?P<head>[A-Za-z0-9_.:-]+)\((?P<inputs>.*)\)")
+
+
+def split_odometer_names(text: str) -> list[str]:
+    """Comma-separated odometer names, commas inside parentheses kept: ``"icp,fused(icp,open3d-rgbd)"``
+    -> ``["icp", "fused(icp,open3d-rgbd)"]``. Raises ``ValueError`` on unbalanced parentheses."""
+    names, depth, part = [], 0, ""
+    for ch in text:
+        depth += {"(": 1, ")": -1}.get(ch, 0)
+        if depth < 0:
+            raise ValueError(f"unbalanced ')' in odometer names {text!r}")
+        if ch == "," and depth == 0:
+            names.append(part.strip())
+            part = ""
+        else:
+            part += ch
+    if depth:
+        raise ValueError(f"unbalanced '(' in odometer names {text!r}")
+    names.append(part.strip())
+    return [n for n in names if n]
 
 
 class OdometerRegistry:
@@ -106,7 +133,14 @@ class OdometerRegistry:
         return sorted({**_registry(), **self._extra})
 
     def resolve(self, name: str) -> Callable[..., Odometer]:
-        """The factory for ``name``; :class:`UnknownOdometerError` lists the valid choices."""
+        """The factory for ``name``; :class:`UnknownOdometerError` lists the valid choices.
+        ``head(a,b,...)`` is odometer ``head`` with its option ``inputs="a,b,..."`` (e.g. ``fused(icp,robust-vo)``)."""
+        composite = COMPOSITE.fullmatch(name)
+        if composite:
+            factory = self.resolve(composite["head"])
+            if "inputs" not in inspect.signature(factory).parameters:
+                raise UnknownOdometerError(f"odometer {composite['head']!r} takes no inputs, so {name!r} means nothing")
+            return functools.partial(factory, inputs=composite["inputs"])
         target = self._extra.get(name) or _registry().get(name)
         if target is None and ":" in name:  # "package.module:Class", imported on demand
             target = name
@@ -145,8 +179,33 @@ def register_odometer(name: str, factory: Callable[..., Odometer]) -> None:
 
 
 def available_odometers() -> list[str]:
-    """Names :func:`load_odometer` accepts."""
+    """Names :func:`load_odometer` accepts (composites such as ``fused`` take inputs: ``fused(a,b)``)."""
     return REGISTRY.names()
+
+
+#: Odometers built on others: never part of "every odometer", named with their inputs.
+COMPOSITES = frozenset({"fused"})
+
+
+def standalone_odometers() -> list[str]:
+    """:func:`available_odometers` without the composites: what "every odometer" means."""
+    return [n for n in REGISTRY.names() if n not in COMPOSITES]
+
+
+def unknown_odometer(name: str) -> str | None:
+    """The first part of ``name`` that names no odometer (``name`` itself, or an input of a
+    composite ``head(a,b)``), or None when every part is known. ``module:Class`` counts as known."""
+    known = set(REGISTRY.names())
+    composite = COMPOSITE.fullmatch(name)
+    if composite:
+        if composite["head"] not in known:
+            return composite["head"]
+        try:
+            parts = split_odometer_names(composite["inputs"])
+        except ValueError:
+            return name
+        return next((u for u in map(unknown_odometer, parts) if u), None) if parts else name
+    return None if name in known or ":" in name else name
 
 
 def load_odometer(name: str, **options) -> Odometer:

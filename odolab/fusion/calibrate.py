@@ -1,0 +1,119 @@
+"""Calibrate the covariances of fusion inputs on held-out episodes, or check a calibration.
+
+    python -m odolab.fusion.calibrate --odometers action-prior,icp,open3d-rgbd,robust-vo \
+        --split val --episodes 20 --max-steps 100 --out odolab/data/fusion/calibration.json
+    python -m odolab.fusion.calibrate --check odolab/data/fusion/calibration.json --split test --episodes 20
+
+Runs each odometer on the same episodes (generated as Ray tasks, cached like ``compare``'s),
+takes its valid raw steps against the true motions and fits :mod:`odolab.fusion.calibration`;
+``--check`` instead prints, per input and action, the share of steps inside the calibrated 95 %
+ellipsoid (0.95 when the calibration carries over). ``action-prior`` must be calibrated: fusion
+falls back on it.
+"""
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from odolab.api import EpisodeSpec, load_episodes
+from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_file, number, run_cli
+from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers
+from odolab.episodes import EpisodeCache
+from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
+from odolab.fusion.graph import residual, right_covariance
+from odolab.odometer import split_odometer_names
+from odolab.parallel import check_ray_address
+from odolab.runner import failure_reason, run
+from odolab.types import MOTION_ACTIONS
+
+
+def steps_of(results) -> tuple[np.ndarray, np.ndarray, list[np.ndarray | None], np.ndarray]:
+    """From one odometer's :class:`~odolab.runner.SequenceResult` list: residuals (N, 6), action
+    values (N,), own covariances (right perturbation) and the raw transforms of its valid steps."""
+    xi, actions, own, Ts = [], [], [], []
+    for r in results:
+        for k, est in enumerate(r.raw):
+            if est is None or failure_reason(est) is not None or r.truth is None:
+                continue
+            xi.append(residual(est.transform, r.truth[k]))
+            actions.append(int(r.actions[k]))
+            own.append(right_covariance(est.transform, est.covariance) if est.covariance is not None else None)
+            Ts.append(est.transform)
+    return np.array(xi).reshape(-1, 6), np.array(actions, np.int64), own, np.array(Ts).reshape(-1, 4, 4)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = ArgumentParser(prog="python -m odolab.fusion.calibrate", description=__doc__.splitlines()[0])
+    ap.add_argument("--odometers", default="action-prior,icp,open3d-rgbd,robust-vo",
+                    help="comma-separated inputs to calibrate (default: %(default)s)")
+    ap.add_argument("--check", type=Path, default=None, help="check this calibration instead of fitting one")
+    ap.add_argument("--out", type=Path, default=Path("odolab/data/fusion/calibration.json"))
+    ap.add_argument("--split", default="val", choices=["train", "val", "test"])
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 100_000), default=100)
+    ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
+    ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    ap.add_argument("--ray-address", default=None)
+    ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
+    args = ap.parse_args(argv)
+    try:
+        names = split_odometer_names(args.odometers)
+    except ValueError as exc:
+        raise UsageError(f"--odometers: {exc}") from None
+    calibration = None
+    if args.check is not None:
+        try:
+            calibration = Calibration.load(args.check)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if args.odometers == ap.get_default("odometers"):
+            names = sorted(calibration.inputs)
+        missing = [n for n in names if n not in calibration.inputs]
+        if missing:
+            raise UsageError(f"{args.check}: no calibration for {missing[0]!r} (it has {', '.join(sorted(calibration.inputs))})")
+    else:
+        check_output_file(args.out, "--out", suffixes=[".json"])
+        if "action-prior" not in names:
+            raise UsageError("--odometers must include action-prior: fusion falls back on it")
+    if args.ray_address:
+        try:
+            check_ray_address(args.ray_address)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    try:
+        odometers = load_odometers(names)
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
+    specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)]
+    episodes = load_episodes(specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial)
+    results = run(odometers, episodes)
+    fitted = {}
+    for name in names:
+        xi, actions, own, _ = steps_of([r for r in results if r.odometer == name])
+        if calibration is not None:
+            cal = calibration.for_input(name)
+            for a in MOTION_ACTIONS:
+                rows = np.flatnonzero(actions == a.value)
+                if len(rows):
+                    covs = np.stack([cal.covariance(a, own[k]) for k in rows])
+                    print(f"{name:>24} {a.label:>12}: {ellipsoid_share(xi[rows], covs):.3f} of {len(rows)} valid steps "
+                          "inside the 95 % ellipsoid")
+            continue
+        try:
+            fitted[name] = fit_input(xi, actions, own)
+        except ValueError as exc:
+            raise UsageError(f"{name}: {exc}; use more --episodes or --max-steps") from None
+        print(f"{name}: {fitted[name].steps} valid steps; own covariance scale {fitted[name].own_scale}")
+    if calibration is None:
+        command = "python -m odolab.fusion.calibrate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+        Calibration(fitted, source=command).save(args.out)
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(main, "python -m odolab.fusion.calibrate"))

@@ -1,0 +1,146 @@
+"""Calibrated covariances of each fused input, per action, fitted on held-out steps.
+
+An odometer's own covariance (Gauss-Newton on dense correspondences, MC-dropout spread) treats
+correlated errors as independent and is usually far too small; many odometers give none. For each
+input and action, from its valid steps on the val split (raw estimates against the true motions):
+
+* ``fixed``: six sigmas (rx, ry, rz rad, tx, ty, tz m; right perturbation,
+  :mod:`odolab.fusion.graph`), the RMS residual of each component (floored at :data:`SIGMA_FLOOR`),
+  all scaled by one factor so that 95 % of the steps fall inside the 95 % ellipsoid of the
+  chi-square law with 6 degrees of freedom; used for steps without a covariance of their own;
+* ``own_scale``: the factor that does the same to the odometer's own covariances (None when it
+  gives none).
+
+So "calibrated" means: the 95 % confidence ellipsoid holds 95 % of the val steps (a quantile fit,
+robust to the heavy tails that would make a variance fit meaningless). :func:`ellipsoid_share`
+checks it on other data.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from odolab.io.atomic import write_bytes_atomic
+from odolab.types import MOTION_ACTIONS, Action
+
+#: chi-square with 6 degrees of freedom: 95 % quantile.
+CHI2_6_95 = 12.591587243743977
+#: Smallest sigma per component (rad or m): planar odometers leave out-of-plane residuals near zero.
+SIGMA_FLOOR = 1e-3
+FORMAT = 1
+
+
+def mahalanobis2(xi: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distances of residuals ``xi`` (N, 6) under covariances ``cov`` (N, 6, 6)
+    or one (6, 6)."""
+    cov = np.broadcast_to(cov, (len(xi), 6, 6))
+    return np.einsum("ni,ni->n", xi, np.linalg.solve(cov, xi[..., None])[..., 0])
+
+
+def ellipsoid_share(xi: np.ndarray, cov: np.ndarray) -> float:
+    """Share of residuals inside their 95 % ellipsoid (0.95 when calibrated)."""
+    return float(np.mean(mahalanobis2(xi, cov) <= CHI2_6_95)) if len(xi) else float("nan")
+
+
+def _scale(m2: np.ndarray) -> float:
+    """Factor on a covariance that puts the 95 % quantile of ``m2`` on the chi-square one."""
+    return float(max(np.quantile(m2, 0.95) / CHI2_6_95, 1e-12))
+
+
+@dataclass(frozen=True)
+class InputCalibration:
+    """One input's calibration, per action label (see the module docstring)."""
+
+    fixed: dict[str, list[float]]
+    own_scale: dict[str, float | None]
+    steps: dict[str, int]
+    inside95: dict[str, float] = field(default_factory=dict)  # on the calibration steps themselves
+
+    def covariance(self, action: Action | None, own: np.ndarray | None) -> np.ndarray:
+        """Calibrated 6x6 (right perturbation) for a step of ``action``; ``own``: the step's own
+        covariance, already right-perturbation (or None). Unknown actions take the largest fixed one."""
+        label = action.label if action in MOTION_ACTIONS else None
+        if label is None or label not in self.fixed:
+            return np.diag(np.max([np.square(v) for v in self.fixed.values()], axis=0))
+        scale = self.own_scale.get(label)
+        if own is not None and scale is not None and np.all(np.isfinite(own)):
+            return scale * np.asarray(own, np.float64)
+        return np.diag(np.square(self.fixed[label]))
+
+
+def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None]) -> InputCalibration:
+    """Fit one input from its valid steps: residuals ``xi`` (N, 6), action values (N,), own
+    covariances (right perturbation) or None per step."""
+    fixed, own_scale, steps, inside = {}, {}, {}, {}
+    for a in MOTION_ACTIONS:
+        rows = np.flatnonzero(actions == a.value)
+        if len(rows) < 10:
+            continue
+        r = xi[rows]
+        sigma = np.maximum(np.sqrt(np.mean(r**2, axis=0)), SIGMA_FLOOR)
+        sigma = sigma * np.sqrt(_scale(mahalanobis2(r, np.diag(sigma**2))))
+        fixed[a.label] = [float(s) for s in sigma]
+        have = [k for k in rows if own[k] is not None and np.all(np.isfinite(own[k]))]
+        if len(have) >= 10:
+            covs = np.stack([own[k] for k in have])
+            try:
+                own_scale[a.label] = _scale(mahalanobis2(xi[have], covs))
+            except np.linalg.LinAlgError:
+                own_scale[a.label] = None
+        else:
+            own_scale[a.label] = None
+        steps[a.label] = int(len(rows))
+        cal = InputCalibration({a.label: fixed[a.label]}, {a.label: own_scale[a.label]}, {})
+        covs = np.stack([cal.covariance(a, own[k]) for k in rows])
+        inside[a.label] = ellipsoid_share(r, covs)
+    if not fixed:
+        raise ValueError("too few valid steps to calibrate (at least 10 of some action are needed)")
+    return InputCalibration(fixed, own_scale, steps, inside)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Calibrations by odometer name, and the command that made them."""
+
+    inputs: dict[str, InputCalibration]
+    source: str = ""
+
+    def for_input(self, name: str) -> InputCalibration:
+        if name not in self.inputs:
+            raise KeyError(f"no calibration for odometer {name!r} (calibrated: {', '.join(sorted(self.inputs))}); "
+                           f"run python -m odolab.fusion.calibrate --odometers {name},...")
+        return self.inputs[name]
+
+    def save(self, path: str | os.PathLike) -> None:
+        doc = {"format": FORMAT, "source": self.source, "inputs": {n: asdict(c) for n, c in self.inputs.items()}}
+        write_bytes_atomic(path, (json.dumps(doc, indent=1) + "\n").encode())
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Calibration":
+        """Read a calibration file; errors name the file and what is wrong."""
+        try:
+            doc = json.loads(open(path, encoding="utf-8").read())
+        except FileNotFoundError:
+            raise ValueError(f"{path}: no such calibration file") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{path}: not a calibration file ({exc})") from None
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("inputs"), dict):
+            raise ValueError(f"{path}: not a calibration file of format {FORMAT} (expected keys format, inputs)")
+        inputs = {}
+        for name, c in doc["inputs"].items():
+            try:
+                cal = InputCalibration({k: [float(x) for x in v] for k, v in c["fixed"].items()},
+                                       {k: (None if v is None else float(v)) for k, v in c["own_scale"].items()},
+                                       {k: int(v) for k, v in c["steps"].items()},
+                                       {k: float(v) for k, v in c.get("inside95", {}).items()})
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+                raise ValueError(f"{path}: input {name!r}: expected fixed, own_scale, steps per action ({exc})") from None
+            bad = [k for k, v in cal.fixed.items() if len(v) != 6 or not all(np.isfinite(v)) or min(v) <= 0]
+            if bad or not cal.fixed:
+                raise ValueError(f"{path}: input {name!r}: fixed sigmas must be 6 positive numbers per action "
+                                 f"(bad: {bad or 'none given'})")
+            inputs[name] = cal
+        return cls(inputs, str(doc.get("source", "")))

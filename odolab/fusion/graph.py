@@ -1,0 +1,145 @@
+"""The pose graph behind fusion: relative-pose factors between camera poses, solved online with
+iSAM2 (causal) or in one batch with Levenberg-Marquardt (smoothing).
+
+Conventions (GTSAM's): a pose is ``T_world_cam`` (4x4); a factor between poses i and j measures
+``T_ij = inv(T_i) @ T_j`` and its covariance is over (rx, ry, rz, tx, ty, tz) of the *right*
+perturbation, ``T_ij_true = T_ij @ exp(xi)`` (rotation first, radians then metres). odolab's
+``Estimate.covariance`` is the *left* perturbation in the previous camera; :func:`right_covariance`
+converts it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+#: Sigmas of the prior that pins the first pose (rad, rad, rad, m, m, m).
+ANCHOR_SIGMAS = np.full(6, 1e-6)
+KERNELS = ("huber", "cauchy", "none")
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One relative-pose factor: ``T_ij`` (4x4) between poses ``i`` < ``j`` with covariance ``cov``
+    (6x6, right perturbation, see the module docstring); ``source`` names who measured it."""
+
+    i: int
+    j: int
+    T_ij: np.ndarray
+    cov: np.ndarray
+    source: str = ""
+
+
+def right_covariance(T: np.ndarray, cov_left: np.ndarray) -> np.ndarray:
+    """Covariance of ``exp(delta) @ T`` (left, previous frame) re-expressed as of ``T @ exp(xi)``:
+    ``xi = Ad(inv(T)) delta``."""
+    ad = gtsam.Pose3(np.asarray(T, np.float64)).inverse().AdjointMap()
+    return ad @ np.asarray(cov_left, np.float64) @ ad.T
+
+
+def left_covariance(T: np.ndarray, cov_right: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`right_covariance`: ``delta = Ad(T) xi``."""
+    ad = gtsam.Pose3(np.asarray(T, np.float64)).AdjointMap()
+    return ad @ np.asarray(cov_right, np.float64) @ ad.T
+
+
+def residual(T_measured: np.ndarray, T_true: np.ndarray) -> np.ndarray:
+    """xi (6,) with ``T_true = T_measured @ exp(xi)``: what a factor's noise model must explain."""
+    return gtsam.Pose3.Logmap(gtsam.Pose3(np.asarray(T_measured, np.float64)).between(
+        gtsam.Pose3(np.asarray(T_true, np.float64))))
+
+
+def noise_model(cov: np.ndarray, kernel: str = "huber", k: float = 1.345) -> gtsam.noiseModel.Base:
+    """Gaussian noise of covariance ``cov`` (6x6), wrapped in a robust ``kernel`` (``huber``,
+    ``cauchy`` or ``none``) of width ``k`` (in standard deviations of the whitened error)."""
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+    cov = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).T)
+    gaussian = gtsam.noiseModel.Gaussian.Covariance(cov)
+    if kernel == "none":
+        return gaussian
+    estimator = (gtsam.noiseModel.mEstimator.Huber if kernel == "huber" else gtsam.noiseModel.mEstimator.Cauchy)
+    return gtsam.noiseModel.Robust.Create(estimator.Create(k), gaussian)
+
+
+def _factor(m: Measurement, kernel: str, k: float) -> gtsam.BetweenFactorPose3:
+    return gtsam.BetweenFactorPose3(m.i, m.j, gtsam.Pose3(np.asarray(m.T_ij, np.float64)), noise_model(m.cov, kernel, k))
+
+
+def _anchor() -> gtsam.PriorFactorPose3:
+    return gtsam.PriorFactorPose3(0, gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS))
+
+
+class OnlineGraph:
+    """Poses 0, 1, 2, ... added one at a time with iSAM2; pose 0 is the origin.
+
+    :meth:`add_pose` takes the factors that end at the new pose (from the previous pose and,
+    optionally, from earlier ones) and returns the new estimate of ``inv(T_{j-1}) @ T_j`` given
+    everything so far (the past is not revised in the returned steps: a robot uses them as they come).
+    """
+
+    def __init__(self, kernel: str = "huber", k: float = 1.345, iterations: int = 2) -> None:
+        noise_model(np.eye(6), kernel, k)  # checks the kernel's name
+        self.kernel, self.k, self.iterations = kernel, float(k), int(iterations)
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(0.01)  # rad or m of change before a pose is relinearised
+        params.relinearizeSkip = 1
+        self.isam = gtsam.ISAM2(params)
+        self.n = 0  # poses so far
+        self.estimate: gtsam.Values | None = None
+
+    def add_pose(self, measurements: list[Measurement], guess: np.ndarray) -> np.ndarray:
+        """Add pose ``n`` with ``measurements`` (each ``j == n``, ``i < n``); ``guess``: its initial
+        ``inv(T_{n-1}) @ T_n`` (used when nothing constrains it better). Returns the estimate of
+        ``inv(T_{n-1}) @ T_n`` (4x4); the very first call (pose 0) returns the identity."""
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        j = self.n
+        if j == 0:
+            graph.add(_anchor())
+            values.insert(0, gtsam.Pose3())
+        else:
+            bad = [m for m in measurements if m.j != j or not 0 <= m.i < j]
+            if bad:
+                raise ValueError(f"measurements for pose {j} must end at it and start before it, got {bad[0].i}->{bad[0].j}")
+            for m in measurements:
+                graph.add(_factor(m, self.kernel, self.k))
+            previous = self.estimate.atPose3(j - 1)
+            values.insert(j, previous.compose(gtsam.Pose3(np.asarray(guess, np.float64))))
+        self.isam.update(graph, values)
+        for _ in range(self.iterations - 1):
+            self.isam.update()
+        self.estimate = self.isam.calculateEstimate()
+        self.n += 1
+        if j == 0:
+            return np.eye(4)
+        return self.estimate.atPose3(j - 1).between(self.estimate.atPose3(j)).matrix()
+
+    def poses(self) -> np.ndarray:
+        """(n, 4, 4) current estimates of every pose (revised by later factors)."""
+        return np.stack([self.estimate.atPose3(i).matrix() for i in range(self.n)]) if self.n else np.zeros((0, 4, 4))
+
+
+def smooth(n_poses: int, measurements: list[Measurement], guess: np.ndarray | None = None, kernel: str = "huber",
+           k: float = 1.345) -> np.ndarray:
+    """Batch Levenberg-Marquardt over poses 0 .. n_poses - 1 (pose 0 at the origin): (n, 4, 4).
+
+    ``guess`` (n, 4, 4): initial poses (default: the first measurement of each consecutive pair,
+    integrated; identity steps where there is none)."""
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(_anchor())
+    for m in measurements:
+        if not 0 <= m.i < m.j < n_poses:
+            raise ValueError(f"measurement {m.i}->{m.j} outside poses 0..{n_poses - 1}")
+        graph.add(_factor(m, kernel, k))
+    if guess is None:
+        step = {m.j: m.T_ij for m in reversed(measurements) if m.j == m.i + 1}
+        guess = np.empty((n_poses, 4, 4))
+        guess[0] = np.eye(4)
+        for j in range(1, n_poses):
+            guess[j] = guess[j - 1] @ step.get(j, np.eye(4))
+    values = gtsam.Values()
+    for j in range(n_poses):
+        values.insert(j, gtsam.Pose3(np.asarray(guess[j], np.float64)))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+    return np.stack([result.atPose3(j).matrix() for j in range(n_poses)])

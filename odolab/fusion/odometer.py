@@ -1,0 +1,145 @@
+"""``fused(a,b,...)``: several odometers fused through a GTSAM pose graph, itself an odometer.
+
+    python -m odolab.compare --odometers 'icp,open3d-rgbd,robust-vo,fused(icp,open3d-rgbd,robust-vo)'
+
+Every step, each input odometer sees the same pair; each valid answer becomes a between-factor
+from the previous pose to the new one, with the input's calibrated covariance for the action
+(:mod:`odolab.fusion.calibration`; file: option ``calibration``, default the shipped one) inside a
+robust kernel (``kernel``: huber, cauchy or none; ``kernel_width`` in whitened sigmas), so one
+wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
+that can register frames further apart, e.g. icp) also measure pose t-k+1..t-2 -> t without an
+action, which ties the graph across steps. iSAM2 solves it online: the answer for step t uses frames
+up to t only. When no input answered and no span factor constrains the step, the action prior's
+motion enters with its calibrated covariance and the step is reported invalid (the runner then uses
+that prior motion, as it would for any failed step). The answer's covariance is the inverse of the
+summed information of the step's factors (span factors left out), as of the previous camera.
+
+Options of the inputs themselves come from ``options_file`` (TOML, ``[odometers."icp"] key = value``
+tables, as ``python -m odolab.compare --options-file``).
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+
+from odolab.action_prior import ActionPrior
+from odolab.fusion.calibration import Calibration
+from odolab.fusion.graph import KERNELS, Measurement, OnlineGraph, left_covariance, right_covariance
+from odolab.geometry import planar_to_transform
+from odolab.odometer import REGISTRY, Odometer, split_odometer_names
+from odolab.options import check_options, read_options_file
+from odolab.runner import failure_reason
+from odolab.types import Action, Estimate, Frame, Intrinsics
+
+#: The calibration shipped with odolab (its command is in the file's ``source``).
+SHIPPED_CALIBRATION = Path(__file__).resolve().parent.parent / "data" / "fusion" / "calibration.json"
+PRIOR = "action-prior"
+
+
+class FusedOdometer(Odometer):
+    """Pose-graph fusion of ``inputs`` (comma-separated odometer names); see the module docstring."""
+
+    def __init__(self, inputs: str = "", calibration: str = "", kernel: str = "huber", kernel_width: float = 1.345,
+                 span: int = 1, span_inputs: str = "", options_file: str = "") -> None:
+        names = split_odometer_names(inputs)
+        if not names:
+            raise ValueError("fused needs its inputs, e.g. fused(icp,open3d-rgbd) or the option inputs='icp,open3d-rgbd'")
+        if len(set(names)) != len(names):
+            raise ValueError(f"fused: an input is named twice in {names}")
+        if any(n.startswith("fused") for n in names):
+            raise ValueError("fused: an input cannot itself be fused(...)")
+        if kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+        if not 0.1 <= float(kernel_width) <= 100:
+            raise ValueError(f"kernel_width must be in [0.1, 100] sigmas, got {kernel_width}")
+        if not 1 <= int(span) <= 10:
+            raise ValueError(f"span must be in [1, 10] steps, got {span}")
+        spanning = split_odometer_names(span_inputs)
+        if [n for n in spanning if n not in names]:
+            raise ValueError(f"span_inputs must be among the inputs {names}, got {spanning}")
+        self.calibration = Calibration.load(calibration or SHIPPED_CALIBRATION)
+        self.input_calibration = {n: self.calibration.for_input(n) for n in names}
+        self.prior_calibration = self.calibration.for_input(PRIOR)
+        option_tables = read_options_file(options_file) if options_file else {}
+        stray = [n for n in option_tables if n not in names]
+        if stray:
+            raise ValueError(f"{options_file}: options for {stray[0]!r}, which is not an input of fused ({', '.join(names)})")
+        self.inputs: dict[str, Odometer] = {}
+        for n in names:
+            opts = option_tables.get(n, {})
+            check_options(n, REGISTRY.resolve(n), opts)
+            self.inputs[n] = REGISTRY.load(n, **opts)
+        self.spanning = spanning
+        self.kernel, self.kernel_width, self.span = kernel, float(kernel_width), int(span)
+        self.prior = ActionPrior.shipped()
+        self.needs_action = all(o.needs_action for o in self.inputs.values())
+        #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
+        self.fusion_seconds, self.fused_steps = 0.0, 0
+        self._graph: OnlineGraph | None = None
+        self._frames: deque[Frame] = deque(maxlen=self.span)
+        self._history: deque[tuple[Action | None, dict[str, np.ndarray]]] = deque(maxlen=self.span)
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        for odo in self.inputs.values():
+            odo.reset(intrinsics)
+        self._graph = OnlineGraph(self.kernel, self.kernel_width)
+        self._graph.add_pose([], np.eye(4))
+        self._frames.clear()
+        self._history.clear()
+
+    def _answer(self, odo: Odometer, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
+        try:
+            est = odo.step(prev, cur, action)
+        except Exception:  # an input that raises is an input that did not answer
+            return None
+        return est if failure_reason(est) is None else None
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        if self._graph is None:
+            raise RuntimeError("call reset(intrinsics) before step")
+        j = self._graph.n  # the new pose
+        if not self._frames:
+            self._frames.append(prev)
+        answers = {n: self._answer(o, prev, cur, action) for n, o in self.inputs.items()}
+        started = time.perf_counter()
+        steps, step_covs = [], {}
+        for n, est in answers.items():
+            if est is None:
+                continue
+            own = right_covariance(est.transform, est.covariance) if est.covariance is not None else None
+            cov = self.input_calibration[n].covariance(action, own)
+            steps.append(Measurement(j - 1, j, est.transform, cov, n))
+            step_covs[n] = cov
+        spans = []
+        for k in range(2, min(self.span, len(self._frames)) + 1):
+            earlier = self._frames[-k]
+            for n in self.spanning:
+                covs = [h[1].get(n) for h in list(self._history)[-(k - 1):]]
+                if any(c is None for c in covs) or n not in step_covs:
+                    continue  # a span factor is weighted by the input's own consecutive steps
+                elapsed = time.perf_counter() - started
+                est = self._answer(self.inputs[n], earlier, cur, None)
+                started = time.perf_counter() - elapsed  # the inputs' time is not the graph's
+                if est is not None:
+                    spans.append(Measurement(j - k, j, est.transform, sum(covs) + step_covs[n], n))
+        valid = bool(steps or spans)
+        prior_T = planar_to_transform(*self.prior.motion(action))
+        measurements = steps + spans
+        if not valid:
+            prior_cov = self.prior_calibration.covariance(action, None)
+            measurements = [Measurement(j - 1, j, prior_T, prior_cov, PRIOR)]
+            step_covs = {PRIOR: prior_cov}
+        guess = steps[0].T_ij if steps else prior_T
+        T = self._graph.add_pose(measurements, guess)
+        info = sum(np.linalg.inv(c) for c in step_covs.values())
+        cov_left = left_covariance(T, np.linalg.inv(info))
+        self._frames.append(cur)
+        self._history.append((action, step_covs))
+        self.fusion_seconds += time.perf_counter() - started
+        self.fused_steps += 1
+        return Estimate(T, valid=valid, covariance=cov_left)
+

@@ -1,0 +1,188 @@
+"""Pose-graph fusion (odolab.fusion): the graph's arithmetic, the robust kernel, calibration, the
+fused odometer's fallback and its name in the registry."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where it is truly absent
+
+from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer  # noqa: E402
+from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, ellipsoid_share,  # noqa: E402
+                                       fit_input)
+from odolab.fusion.graph import (Measurement, OnlineGraph, left_covariance, residual, right_covariance,  # noqa: E402
+                                 smooth)
+from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer  # noqa: E402
+
+
+def _pose(dx, dz, dyaw):
+    return planar_to_transform(dx, dz, dyaw)
+
+
+def test_two_inputs_fuse_to_the_information_weighted_mean():
+    a, b = _pose(0.0, 0.20, 0.50), _pose(0.0, 0.30, 0.50)
+    ca, cb = np.diag([1e-4] * 3 + [1e-4] * 3), np.diag([1e-4] * 3 + [4e-4] * 3)
+    g = OnlineGraph(kernel="none")
+    g.add_pose([], np.eye(4))
+    T = g.add_pose([Measurement(0, 1, a, ca), Measurement(0, 1, b, cb)], a)
+    # translation weights 1/1e-4 : 1/4e-4 = 4 : 1 along the motion's own axis
+    assert np.allclose(T[:3, :3], a[:3, :3], atol=1e-6)
+    assert np.isclose(np.linalg.norm(T[:3, 3]), 0.8 * 0.20 + 0.2 * 0.30, atol=1e-4)
+
+
+def test_a_wild_input_is_down_weighted_by_the_robust_kernel():
+    good, wild = _pose(0.0, 0.25, 0.0), _pose(0.4, -0.3, 0.6)
+    cov = np.diag([1e-4] * 3 + [1e-4] * 3)
+    ms = [Measurement(0, 1, good, cov, "a"), Measurement(0, 1, good @ _pose(0.005, 0, 0), cov, "b"),
+          Measurement(0, 1, wild, cov, "c")]
+    out = {}
+    for kernel in ("none", "huber", "cauchy"):
+        g = OnlineGraph(kernel=kernel, iterations=5)
+        g.add_pose([], np.eye(4))
+        out[kernel] = g.add_pose(ms, good)
+    err = {k: np.linalg.norm(T[:3, 3] - good[:3, 3]) for k, T in out.items()}
+    assert err["none"] > 0.1  # least squares is pulled a third of the way
+    assert err["huber"] < 0.5 * err["none"] and err["cauchy"] < 0.02
+
+
+def test_isam2_and_the_batch_smoother_agree_on_a_chain():
+    rng = np.random.default_rng(0)
+    steps = [_pose(*rng.normal([0, 0.25, 0], [0.02, 0.02, 0.1])) for _ in range(12)]
+    ms = [Measurement(j, j + 1, T, np.diag(rng.uniform(1e-5, 1e-3, 6))) for j, T in enumerate(steps)]
+    ms += [Measurement(j, j + 1, T @ _pose(0.01, 0.0, 0.01), np.diag([1e-3] * 6)) for j, T in enumerate(steps)]
+    g = OnlineGraph(kernel="none")
+    g.add_pose([], np.eye(4))
+    online = [g.add_pose([m for m in ms if m.j == j], steps[j - 1]) for j in range(1, 13)]
+    batch = smooth(13, ms, kernel="none")
+    for j in range(1, 13):
+        assert np.allclose(np.linalg.inv(batch[j - 1]) @ batch[j], online[j - 1], atol=1e-5)
+    assert np.allclose(g.poses(), batch, atol=1e-4)
+    with pytest.raises(ValueError, match="outside poses"):
+        smooth(3, [Measurement(0, 5, steps[0], np.eye(6))])
+
+
+def test_a_loop_factor_revises_the_chain():
+    """A factor from pose 0 to pose 3 (the 'span' factors) pulls the chain it closes."""
+    step = _pose(0.0, 0.25, 0.0)
+    ms = [Measurement(j, j + 1, step, np.diag([1e-4] * 6)) for j in range(3)]
+    loop = Measurement(0, 3, _pose(0.0, 0.60, 0.0), np.diag([1e-6] * 6))
+    poses = smooth(4, ms + [loop], kernel="none")
+    assert np.isclose(poses[3][2, 3], 0.60, atol=0.01) and poses[3][2, 3] < 0.75
+
+
+def test_covariance_frames_and_residuals():
+    T = _pose(0.1, 0.3, 0.4)
+    cov = np.diag([1e-3, 2e-3, 3e-3, 4e-3, 5e-3, 6e-3])
+    assert np.allclose(left_covariance(T, right_covariance(T, cov)), cov)
+    assert np.allclose(residual(T, T), 0.0)
+    # a small left perturbation exp(delta) T shows up as xi = Ad(T^-1) delta
+    delta = np.array([0.0, 0.01, 0.0, 0.02, 0.0, -0.01])
+    perturbed = gtsam.Pose3.Expmap(delta).matrix() @ T
+    ad = gtsam.Pose3(T).inverse().AdjointMap()
+    assert np.allclose(residual(T, perturbed), ad @ delta, atol=1e-5)
+
+
+def test_calibration_puts_95_percent_inside_the_95_percent_ellipsoid(tmp_path):
+    rng = np.random.default_rng(1)
+    sigma = np.array([0.001, 0.02, 0.001, 0.03, 0.001, 0.02])
+    n = 4000
+    xi = rng.normal(0.0, sigma, (n, 6))
+    actions = np.full(n, Action.TURN_LEFT.value)
+    own = [np.diag((0.1 * sigma) ** 2)] * n  # an odometer ten times too sure of itself
+    cal = fit_input(xi, actions, own)
+    assert np.isclose(cal.own_scale["turn_left"], 100.0, rtol=0.15)  # 10^2
+    assert np.allclose(cal.fixed["turn_left"], sigma, rtol=0.15)
+    fresh = rng.normal(0.0, sigma, (n, 6))
+    share = ellipsoid_share(fresh, cal.covariance(Action.TURN_LEFT, own[0]))
+    assert 0.93 < share < 0.97
+    assert "move_forward" not in cal.fixed  # no forward steps: nothing claimed
+    path = tmp_path / "cal.json"
+    Calibration({"x": cal}, source="test").save(path)
+    back = Calibration.load(path).for_input("x")
+    assert back.fixed == cal.fixed and back.own_scale == cal.own_scale
+    with pytest.raises(KeyError, match="no calibration for odometer 'y'"):
+        Calibration.load(path).for_input("y")
+    assert CHI2_6_95 > 12
+
+
+def test_bad_calibration_files_are_named(tmp_path):
+    for text, words in [("{", "not a calibration file"), ('{"format": 9, "inputs": {}}', "format 1"),
+                        ('{"format": 1, "inputs": {"x": {"fixed": {"turn_left": [1, 2]}, "own_scale": {}, "steps": {}}}}',
+                         "6 positive numbers")]:
+        p = tmp_path / "c.json"
+        p.write_text(text)
+        with pytest.raises(ValueError, match=words):
+            Calibration.load(p)
+    with pytest.raises(ValueError, match="no such calibration file"):
+        Calibration.load(tmp_path / "missing.json")
+
+
+# --- the fused odometer --------------------------------------------------------------------------
+
+class _Never(Odometer):
+    def step(self, prev, cur, action):
+        return Estimate.invalid()
+
+
+class _Fixed(Odometer):
+    def __init__(self, dz: float = 0.25) -> None:
+        self.dz = dz
+
+    def step(self, prev, cur, action):
+        return Estimate.from_planar(0.0, self.dz, 0.0)
+
+
+@pytest.fixture()
+def calibration(tmp_path):
+    fixed = {a: [0.01, 0.01, 0.01, 0.02, 0.02, 0.02] for a in ("move_forward", "turn_left", "turn_right")}
+    one = InputCalibration(fixed, {a: None for a in fixed}, {a: 100 for a in fixed})
+    path = tmp_path / "cal.json"
+    Calibration({"action-prior": one, "test-never": one, "test-fixed": one, "test-far": one}).save(path)
+    register_odometer("test-never", _Never)
+    register_odometer("test-fixed", _Fixed)
+    register_odometer("test-far", lambda: _Fixed(0.29))
+    return str(path)
+
+
+def _frames():
+    from odolab.api import Frame
+
+    f = Frame(rgb=np.zeros((4, 4, 3), np.uint8), depth=np.ones((4, 4), np.float32), timestamp=0.0)
+    return f, f
+
+
+def test_when_every_input_fails_the_step_is_the_action_prior_and_invalid(calibration):
+    from odolab.action_prior import ActionPrior
+    from odolab.api import Intrinsics
+
+    odo = REGISTRY.load("fused(test-never)", calibration=calibration)
+    odo.reset(Intrinsics.from_hfov(4, 4, 79.0))
+    est = odo.step(*_frames(), Action.TURN_LEFT)
+    assert not est.valid
+    assert np.allclose(est.transform, planar_to_transform(*ActionPrior.shipped().motion(Action.TURN_LEFT)))
+
+
+def test_fused_inputs_that_answer_are_averaged_and_the_failures_ignored(calibration):
+    from odolab.api import Intrinsics
+
+    odo = REGISTRY.load("fused(test-never,test-fixed,test-far)", calibration=calibration, kernel="none")
+    odo.reset(Intrinsics.from_hfov(4, 4, 79.0))
+    for _ in range(3):
+        est = odo.step(*_frames(), Action.MOVE_FORWARD)
+        assert est.valid and np.isclose(est.transform[2, 3], 0.27, atol=1e-4)  # equal weights
+        assert est.covariance.shape == (6, 6) and est.covariance[5, 5] < 0.02**2  # two answers beat one
+    assert odo.fused_steps == 3 and odo.fusion_seconds > 0
+
+
+def test_fused_names_and_bad_options(calibration):
+    assert split_odometer_names("icp, fused(icp,open3d-rgbd) ,robust-vo") == ["icp", "fused(icp,open3d-rgbd)", "robust-vo"]
+    with pytest.raises(ValueError, match="unbalanced"):
+        split_odometer_names("fused(icp")
+    assert unknown_odometer("fused(icp,nope)") == "nope" and unknown_odometer("fused(icp)") is None
+    assert unknown_odometer("fused()") == "fused()" and "fused" not in standalone_odometers()
+    with pytest.raises(ValueError, match="needs its inputs"):
+        REGISTRY.load("fused", calibration=calibration)
+    with pytest.raises(ValueError, match="span_inputs"):
+        REGISTRY.load("fused(test-fixed)", calibration=calibration, span=2, span_inputs="icp")
+    with pytest.raises(KeyError, match="no calibration for odometer 'icp'"):
+        REGISTRY.load("fused(icp)", calibration=calibration)
