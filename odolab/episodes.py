@@ -25,7 +25,8 @@ import numpy as np
 from odolab.geometry import camera_pose_from_agent
 from odolab.io.atomic import atomic_open
 from odolab.types import Action, Frame, Intrinsics
-from odolab.sim.agent import AgentState, step_agent
+from odolab.environment import PointNavEnv, Sensors
+from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
 from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import SPLITS, generate_scene, scene_seed
@@ -138,31 +139,54 @@ def sample_start_goal(spec: EpisodeSpec, scene, rng: np.random.Generator, max_tr
                        f"{spec.min_goal_distance}-{spec.max_goal_distance} m in {max_tries} tries")
 
 
+@dataclass(frozen=True)
+class EpisodeStart:
+    """Where an episode begins: its scene, the agent's start state, the goal (world x, y m) and
+    the geodesic and straight-line distances between them (m)."""
+
+    scene_seed: int
+    start: AgentState
+    goal: tuple[float, float]
+    start_distance: float
+    euclidean_distance: float
+
+
+def start_environment(spec: EpisodeSpec, sensors: bool = True) -> tuple[PointNavEnv, EpisodeStart]:
+    """The environment of an episode at its start: scene, start and goal sampled from the spec's
+    first stream, actuation noise from the second, sensors (if ``sensors``) from the third and
+    fourth. Driven as :func:`rollout` drives it (its follower's look-ahead draws from the actuation
+    stream too), it sees the stored episode's frames exactly; another policy gets other noise draws
+    from the same laws."""
+    rng, act_rng, rgb_rng, depth_rng = spec.streams()
+    seed = scene_seed(spec.split, int(rng.integers(1 << 31)))
+    scene = generate_scene(seed)
+    (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
+    start = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
+    seeing = Sensors(scene, spec.camera, spec.noise.rgb, spec.noise.depth, rgb_rng, depth_rng) if sensors else None
+    env = PointNavEnv(scene, start, ActuationNoise(spec.noise.controller, spec.noise.actuation), act_rng, seeing,
+                      spec.stop_at_contact)
+    return env, EpisodeStart(seed, start, (gx, gy), geo, float(np.hypot(gx - sx, gy - sy)))
+
+
 def rollout(spec: EpisodeSpec) -> Rollout:
     """Sample scene, start and goal, and follow the shortest path under actuation noise."""
     from odolab.sim.planner import ShortestPathFollower, geodesic_field
 
-    rng, act_rng = spec.streams()[:2]
-    seed = scene_seed(spec.split, int(rng.integers(1 << 31)))
-    scene = generate_scene(seed)
-    (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
-    noise = ActuationNoise(spec.noise.controller, spec.noise.actuation)
-    follower = ShortestPathFollower(geodesic_field(scene, gx, gy), goal_radius=spec.goal_radius, noise=noise,
-                                    rng=act_rng, stop_at_contact=spec.stop_at_contact)
-
-    state = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
-    states, actions, collisions = [state], [], []
+    env, begin = start_environment(spec, sensors=False)
+    follower = ShortestPathFollower(geodesic_field(env.scene, *begin.goal), goal_radius=spec.goal_radius,
+                                    noise=env.actuation, rng=env.act_rng, stop_at_contact=spec.stop_at_contact)
+    states, actions, collisions = [env.state], [], []
     reached = False
     for _ in range(spec.max_steps):
-        action = follower.next_action(state)
+        action = follower.next_action(env.state)
         if action == Action.STOP:
             reached = True
             break
-        state, collided = step_agent(scene, state, action, noise, act_rng, spec.stop_at_contact)
-        states.append(state)
+        collisions.append(env.step(action))
+        states.append(env.state)
         actions.append(action)
-        collisions.append(collided)
-    return Rollout(seed, (gx, gy), geo, float(np.hypot(gx - sx, gy - sy)), states, actions, collisions, reached)
+    return Rollout(begin.scene_seed, begin.goal, begin.start_distance, begin.euclidean_distance, states, actions,
+                   collisions, reached)
 
 
 @dataclass(frozen=True)
@@ -206,17 +230,12 @@ class Episode:
 def render_frames(spec: EpisodeSpec, motion: Rollout) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """``(clean rgb, clean depth, noisy rgb, noisy depth)`` of each state of ``motion``, in order,
     with the sensor noise of ``spec`` drawn from its own streams (so any consumer sees the same frames)."""
-    from odolab.sim.camera import Renderer
-    from odolab.sim.noise import RedwoodDepthNoise, RGBNoise
-
     _, _, rgb_rng, depth_rng = spec.streams()
     cam = spec.camera
-    renderer = Renderer(generate_scene(motion.scene_seed), cam)
-    rgb_noise = RGBNoise(multiplier=spec.noise.rgb)
-    depth_noise = RedwoodDepthNoise(multiplier=spec.noise.depth, min_depth=cam.min_depth, max_depth=cam.max_depth)
+    sensors = Sensors(generate_scene(motion.scene_seed), cam, spec.noise.rgb, spec.noise.depth, rgb_rng, depth_rng)
     for pose in motion.camera_poses(cam.mount_height):
-        clean_rgb, clean_depth = renderer.render(pose)
-        yield clean_rgb, clean_depth, rgb_noise.apply(clean_rgb, rgb_rng), depth_noise.apply(clean_depth, depth_rng)
+        r = sensors.read(pose)
+        yield r.clean_rgb, r.clean_depth, r.rgb, r.depth
 
 
 def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:

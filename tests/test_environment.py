@@ -1,0 +1,36 @@
+"""The step-wise environment sees what the episode generator stored (both go through it)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from odolab.api import Action
+from odolab.episodes import EpisodeSpec, render_episode, start_environment
+from odolab.sim.camera import CameraSpec
+
+
+def test_driving_the_environment_as_the_generator_does_sees_the_episodes_frames():
+    """The follower's look-ahead draws from the actuation stream too, so it drives here as well."""
+    from odolab.sim.planner import ShortestPathFollower, geodesic_field
+
+    spec = EpisodeSpec(split="test", index=1, seed=0, max_steps=15, camera=CameraSpec(width=64, height=36))
+    ep = render_episode(spec)
+    env, begin = start_environment(spec)
+    follower = ShortestPathFollower(geodesic_field(env.scene, *begin.goal), goal_radius=spec.goal_radius,
+                                    noise=env.actuation, rng=env.act_rng, stop_at_contact=spec.stop_at_contact)
+    assert np.allclose(env.camera_pose(), ep.poses[0]) and begin.goal == tuple(ep.info["goal"])
+    first = env.observe()
+    assert np.array_equal(first.rgb, ep.rgb[0]) and np.array_equal(first.depth, ep.depth[0])
+    for t, a in enumerate(ep.actions):
+        assert follower.next_action(env.state) is Action(int(a))
+        collided = env.step(Action(int(a)))
+        frame = env.observe(timestamp=t + 1.0)
+        assert collided == bool(ep.collisions[t])
+        assert np.array_equal(frame.rgb, ep.rgb[t + 1]) and np.array_equal(frame.depth, ep.depth[t + 1])
+        assert np.array_equal(frame.gt_pose, ep.poses[t + 1])
+    assert env.steps == len(ep.actions) and env.collisions == int(ep.collisions.sum())
+    with pytest.raises(ValueError, match="motion action"):
+        env.step(Action.STOP)
+    blind, _ = start_environment(spec, sensors=False)
+    with pytest.raises(RuntimeError, match="no sensors"):
+        blind.observe()
