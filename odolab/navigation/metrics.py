@@ -1,0 +1,87 @@
+"""PointNav metrics exactly as habitat-lab defines them (``habitat/tasks/nav/nav.py``; facts in
+``docs/reference-facts.md`` section 9), and their means with 95 % confidence intervals.
+
+With d_0 the geodesic distance from start to goal, d_T the geodesic distance at the end, p the
+agent's path length (the summed straight-line lengths of its actual steps, true positions):
+
+* success S = 1 if the agent called STOP with d_T < ``SUCCESS_DISTANCE`` (0.36 m), else 0;
+* SPL = S * d_0 / max(d_0, p);
+* SoftSPL = max(0, 1 - d_T / d_0) * d_0 / max(d_0, p) (no STOP needed).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+#: Habitat PointNav Challenge 2020: stop within this geodesic distance (m) of the goal.
+SUCCESS_DISTANCE = 0.36
+
+
+def path_length(positions: np.ndarray) -> float:
+    """Summed straight-line lengths (m) between consecutive positions (N, 2) or (N, 3)."""
+    p = np.asarray(positions, np.float64)
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
+
+
+@dataclass(frozen=True)
+class EpisodeOutcome:
+    """One navigation episode: start geodesic distance ``d0`` m, final geodesic distance ``d_end``
+    m, path length ``path`` m, whether STOP was called, steps taken and collisions."""
+
+    d0: float
+    d_end: float
+    path: float
+    stopped: bool
+    steps: int = 0
+    collisions: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.d0 > 0:
+            raise ValueError(f"the start distance d0 must be > 0 m, got {self.d0}")
+
+    @property
+    def success(self) -> float:
+        return float(self.stopped and self.d_end < SUCCESS_DISTANCE)
+
+    @property
+    def efficiency(self) -> float:
+        return self.d0 / max(self.d0, self.path)
+
+    @property
+    def spl(self) -> float:
+        return self.success * self.efficiency
+
+    @property
+    def soft_spl(self) -> float:
+        return max(0.0, 1.0 - self.d_end / self.d0) * self.efficiency
+
+
+@dataclass(frozen=True)
+class MeanCI:
+    """A mean and its 95 % confidence interval (Student t; for 0/1 values, Wilson's score interval)."""
+
+    mean: float
+    low: float
+    high: float
+    n: int
+
+
+def mean_ci(values: np.ndarray, confidence: float = 0.95) -> MeanCI:
+    """Mean and interval of ``values``; 0/1 values (success) get Wilson's interval, which stays
+    inside [0, 1] and is not degenerate at 0 or 100 %."""
+    v = np.asarray(values, np.float64)
+    n = len(v)
+    if n == 0:
+        return MeanCI(float("nan"), float("nan"), float("nan"), 0)
+    m = float(v.mean())
+    z = float(stats.norm.ppf(0.5 + confidence / 2))
+    if np.isin(v, (0.0, 1.0)).all():
+        centre = (m + z * z / (2 * n)) / (1 + z * z / n)
+        half = z * np.sqrt(m * (1 - m) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+        return MeanCI(m, float(centre - half), float(centre + half), n)
+    if n == 1:
+        return MeanCI(m, float("nan"), float("nan"), 1)
+    half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * v.std(ddof=1) / np.sqrt(n))
+    return MeanCI(m, m - half, m + half, n)
