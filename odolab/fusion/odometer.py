@@ -60,6 +60,9 @@ class FusedOdometer(Odometer):
         spanning = split_odometer_names(span_inputs)
         if [n for n in spanning if n not in names]:
             raise ValueError(f"span_inputs must be among the inputs {names}, got {spanning}")
+        if not calibration and not SHIPPED_CALIBRATION.exists():
+            raise ValueError("odolab ships no fusion calibration here; make one with python -m odolab.fusion.calibrate "
+                             "and pass it as the option calibration=FILE")
         self.calibration = Calibration.load(calibration or SHIPPED_CALIBRATION)
         self.input_calibration = {n: self.calibration.for_input(n) for n in names}
         self.prior_calibration = self.calibration.for_input(PRIOR)
