@@ -1,0 +1,173 @@
+"""The navigating agent: it never sees its true pose. It is told the goal relative to its start,
+integrates an odometer's motions into its own pose estimate, and maps and plans with that estimate.
+
+Frames: the agent's *belief frame* is the world as it believes it, with its start at the origin
+facing +X (its own x forward, y left, metres; yaw counter-clockwise). The goal arrives once, in the
+start frame (the Challenge's static point-goal sensor); each step the odometer's ``T_prev_cur``
+moves the believed camera pose, and the goal relative to the agent is recomputed from it (the
+paper's eq. 1): g_t = R(-yaw_t) (g_0 - p_t).
+
+Policy (classical map-and-plan, so that what is measured is the odometry; :class:`PolicyConfig`):
+depth pixels (every ``stride``-th) are back-projected with the believed pose; points whose height
+above the floor lies in [``min_height``, ``max_height``] m and whose depth is at most ``max_range``
+m vote for an obstacle cell (a cell is an obstacle after ``votes`` votes) in a grid of ``cell`` m
+cells; obstacles are inflated by the agent radius plus ``margin`` (unknown cells are traversable);
+fast marching from the believed goal gives a distance field; the agent heads for the lowest field
+value on a circle of 0.25 m around it: it moves forward when that heading is within
+``heading_tolerance`` of its own, else turns towards it; a forward step that moved the belief by
+less than ``stuck_distance`` marks the cell ahead as an obstacle. It calls STOP when the believed
+goal is nearer than ``stop_distance``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from odolab.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap_angle
+from odolab.types import FORWARD_STEP, Action, Intrinsics
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """The map-and-plan policy's parameters (module docstring); lengths in m, angles in degrees."""
+
+    cell: float = 0.05
+    stride: int = 4
+    min_height: float = 0.15
+    max_height: float = 1.2
+    max_range: float = 3.0
+    votes: int = 2
+    agent_radius: float = 0.18
+    margin: float = 0.05
+    heading_tolerance: float = 15.0
+    stop_distance: float = 0.2
+    stuck_distance: float = 0.05
+    extent: float = 8.0  # map margin beyond the box around start and goal
+
+    def __post_init__(self) -> None:
+        for name in ("cell", "max_range", "stop_distance", "extent"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not 0 <= self.min_height < self.max_height:
+            raise ValueError(f"need 0 <= min_height < max_height, got {self.min_height}, {self.max_height}")
+        if self.stride < 1 or self.votes < 1:
+            raise ValueError(f"stride and votes must be >= 1, got {self.stride}, {self.votes}")
+
+
+class OccupancyMap:
+    """Obstacle votes in a square grid of the belief frame covering ``[-half, half]^2`` m."""
+
+    def __init__(self, half: float, cell: float) -> None:
+        self.cell = cell
+        self.n = int(np.ceil(2 * half / cell))
+        self.half = self.n * cell / 2
+        self.votes = np.zeros((self.n, self.n), np.int32)
+
+    def to_cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(row, col, inside) of belief-frame points: row along y, col along x."""
+        c = np.floor((np.asarray(x) + self.half) / self.cell).astype(np.int64)
+        r = np.floor((np.asarray(y) + self.half) / self.cell).astype(np.int64)
+        inside = (r >= 0) & (r < self.n) & (c >= 0) & (c < self.n)
+        return r, c, inside
+
+    def to_world(self, r: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (np.asarray(c) + 0.5) * self.cell - self.half, (np.asarray(r) + 0.5) * self.cell - self.half
+
+    def vote(self, x: np.ndarray, y: np.ndarray, weight: int = 1) -> None:
+        r, c, inside = self.to_cell(x, y)
+        np.add.at(self.votes, (r[inside], c[inside]), weight)
+
+
+class MapPlanAgent:
+    """Chooses actions from depth frames and odometry alone (module docstring)."""
+
+    def __init__(self, goal_start: tuple[float, float], intrinsics: Intrinsics, mount_height: float,
+                 config: PolicyConfig | None = None) -> None:
+        self.cfg = config or PolicyConfig()
+        self.goal = np.asarray(goal_start, np.float64)
+        self.K, self.height = intrinsics, float(mount_height)
+        self.pose = camera_pose_from_agent(0.0, 0.0, 0.0, self.height)  # believed T_world_cam
+        half = max(abs(self.goal).max(), 1.0) + self.cfg.extent
+        self.map = OccupancyMap(half, self.cfg.cell)
+        self._last_action: Action | None = None
+        self._last_xy = np.zeros(2)
+
+    @property
+    def belief(self) -> tuple[float, float, float]:
+        """Believed (x m, y m, yaw rad) in the belief frame."""
+        return agent_from_camera_pose(self.pose)
+
+    def relative_goal(self) -> np.ndarray:
+        """The goal in the agent's believed frame (x forward, y left), m: the paper's eq. 1."""
+        x, y, yaw = self.belief
+        d = self.goal - (x, y)
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+
+    def update(self, T_prev_cur: np.ndarray) -> None:
+        """Move the belief by an odometer's motion (camera axes)."""
+        self.pose = self.pose @ np.asarray(T_prev_cur, np.float64)
+
+    def observe(self, depth: np.ndarray) -> None:
+        """Vote obstacle cells from a depth image (m, 0 = no reading) at the believed pose."""
+        cfg, K = self.cfg, self.K
+        d = depth[::cfg.stride, ::cfg.stride].astype(np.float64)
+        v, u = np.mgrid[0:depth.shape[0]:cfg.stride, 0:depth.shape[1]:cfg.stride]
+        ok = (d > 0) & (d <= cfg.max_range)
+        z = d[ok]
+        pts = np.stack([(u[ok] - K.cx) / K.fx * z, (v[ok] - K.cy) / K.fy * z, z, np.ones_like(z)])
+        world = self.pose @ pts
+        height = world[2] - (self.pose[2, 3] - self.height)  # above the believed floor
+        keep = (height >= cfg.min_height) & (height <= cfg.max_height)
+        self.map.vote(world[0, keep], world[1, keep])
+
+    def _field(self) -> np.ndarray:
+        import skfmm
+        from scipy.ndimage import binary_dilation
+
+        cfg, m = self.cfg, self.map
+        blocked = m.votes >= cfg.votes
+        radius = int(np.ceil((cfg.agent_radius + cfg.margin) / cfg.cell))
+        yy, xx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+        blocked = binary_dilation(blocked, structure=(xx**2 + yy**2) <= radius**2)
+        gr, gc, inside = m.to_cell(*self.goal)
+        if not inside:
+            return np.full(blocked.shape, np.nan)
+        blocked[max(gr - radius, 0):gr + radius + 1, max(gc - radius, 0):gc + radius + 1] = False
+        gx, gy = m.to_world(np.arange(m.n), np.arange(m.n))
+        phi = np.hypot(gx[None, :] - self.goal[0], gy[:, None] - self.goal[1]) - cfg.cell
+        d = skfmm.distance(np.ma.MaskedArray(phi, mask=blocked), dx=cfg.cell)
+        return np.ma.filled(d.astype(np.float64), np.inf)
+
+    def act(self, depth: np.ndarray) -> Action:
+        """The next action after seeing ``depth`` at the current believed pose."""
+        cfg = self.cfg
+        x, y, yaw = self.belief
+        if (self._last_action is Action.MOVE_FORWARD
+                and np.hypot(x - self._last_xy[0], y - self._last_xy[1]) < cfg.stuck_distance):
+            ahead = np.array([x, y]) + (cfg.agent_radius + cfg.cell) * np.array([np.cos(yaw), np.sin(yaw)])
+            self.map.vote(np.array([ahead[0]]), np.array([ahead[1]]), weight=cfg.votes)
+        self.observe(depth)
+        self._last_xy = np.array([x, y])
+        if np.hypot(*(self.goal - (x, y))) < cfg.stop_distance:
+            self._last_action = Action.STOP
+            return Action.STOP
+        field = self._field()
+        headings = yaw + np.radians(np.arange(-180, 180, 10.0))
+        px, py = x + FORWARD_STEP * np.cos(headings), y + FORWARD_STEP * np.sin(headings)
+        r, c, inside = self.map.to_cell(px, py)
+        cost = np.full(len(headings), np.inf)
+        cost[inside] = field[r[inside], c[inside]]
+        if not np.isfinite(cost).any():  # off the map or boxed in: head straight for the goal
+            target = np.arctan2(*(self.goal - (x, y))[::-1])
+        else:
+            turn = np.abs(np.radians(np.arange(-180, 180, 10.0)))  # ties go to the smaller turn
+            target = headings[int(np.argmin(cost + 1e-3 * turn))]
+        error = float(wrap_angle(target - yaw))
+        if abs(error) <= np.radians(cfg.heading_tolerance):
+            action = Action.MOVE_FORWARD
+        else:
+            action = Action.TURN_LEFT if error > 0 else Action.TURN_RIGHT
+        self._last_action = action
+        return action

@@ -1,0 +1,86 @@
+"""One PointGoal navigation episode, closed loop: the environment renders, the odometer estimates,
+the agent decides; the metrics use the true positions.
+
+The odometer sees each frame pair as the runner would show it (read-only copies, ground truth only
+for oracles); a failed step (invalid, raising or not a rigid motion) is replaced by the action
+prior's mean motion, as in ``compare``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from odolab.action_prior import ActionPrior
+from odolab.episodes import EpisodeSpec, start_environment
+from odolab.geometry import planar_to_transform
+from odolab.navigation.agent import MapPlanAgent, PolicyConfig
+from odolab.navigation.metrics import EpisodeOutcome, path_length
+from odolab.odometer import Odometer
+from odolab.runner import failure_reason, guarded_frame
+from odolab.sim.planner import geodesic_field
+from odolab.types import Action
+
+
+@dataclass(frozen=True)
+class NavigationRun:
+    """What happened: the metrics' inputs, the true and believed positions (world x, y m; the
+    belief mapped into the world through the true start pose), the goal (world) and the actions."""
+
+    spec: EpisodeSpec
+    outcome: EpisodeOutcome
+    true_xy: np.ndarray
+    believed_xy: np.ndarray
+    goal: tuple[float, float]
+    actions: np.ndarray
+    failed_steps: int
+
+
+def _start_frame_goal(start, goal) -> tuple[float, float]:
+    """The goal in the start frame (x forward, y left), m: the point-goal sensor's one reading."""
+    dx, dy = goal[0] - start.x, goal[1] - start.y
+    c, s = np.cos(start.yaw), np.sin(start.yaw)
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None = None,
+             prior: ActionPrior | None = None) -> NavigationRun:
+    """Run one episode of ``spec`` (its scene, start, goal, noise; at most ``spec.max_steps``
+    actions) with ``odometer`` as the agent's only sense of its own motion."""
+    prior = prior or ActionPrior.shipped()
+    env, begin = start_environment(spec)
+    field = geodesic_field(env.scene, *begin.goal)
+    cam = spec.camera
+    agent = MapPlanAgent(_start_frame_goal(begin.start, begin.goal), cam.intrinsics, cam.mount_height, policy)
+    odometer.reset(cam.intrinsics)
+    oracle = bool(getattr(odometer, "oracle", False))
+    frame = env.observe(0.0)
+    true_xy, believed_xy, actions = [(env.state.x, env.state.y)], [(0.0, 0.0)], []
+    stopped, failed = False, 0
+    for t in range(spec.max_steps):
+        action = agent.act(frame.depth)
+        if action is Action.STOP:
+            stopped = True
+            break
+        env.step(action)
+        new = env.observe(float(t + 1))
+        try:
+            est = odometer.step(guarded_frame(frame, oracle), guarded_frame(new, oracle), action)
+            T = est.transform if failure_reason(est) is None else None
+        except Exception:  # a failing odometer is a failed step, as in the runner
+            T = None
+        if T is None:
+            failed += 1
+            T = planar_to_transform(*prior.motion(action))
+        agent.update(T)
+        frame = new
+        actions.append(action.value)
+        true_xy.append((env.state.x, env.state.y))
+        believed_xy.append(agent.belief[:2])
+    true = np.array(true_xy)
+    c, s = np.cos(begin.start.yaw), np.sin(begin.start.yaw)
+    b = np.array(believed_xy)
+    believed = np.stack([begin.start.x + c * b[:, 0] - s * b[:, 1], begin.start.y + s * b[:, 0] + c * b[:, 1]], axis=1)
+    outcome = EpisodeOutcome(d0=begin.start_distance, d_end=field.at(env.state.x, env.state.y), path=path_length(true),
+                             stopped=stopped, steps=len(actions), collisions=env.collisions)
+    return NavigationRun(spec, outcome, true, believed, begin.goal, np.array(actions, np.int8), failed)
