@@ -36,3 +36,59 @@ def test_an_agent_with_true_odometry_stops_at_the_goal():
 def test_an_agent_with_the_action_prior_believes_a_different_path():
     run = navigate(EpisodeSpec(split="test", index=1, seed=0, max_steps=60), load_odometer("action-prior"))
     assert np.abs(run.true_xy - run.believed_xy).max() > 0.05
+
+
+def _navigate(argv):
+    from odolab.cli import run_cli
+    from odolab.navigate import main
+
+    return run_cli(main, "python -m odolab.navigate", argv)
+
+
+def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
+    args = ["--odometers", "ground-truth,action-prior", "--episodes", "2", "--max-steps", "12", "--serial", "--quiet"]
+    assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
+    assert _navigate(args + ["--out", str(tmp_path / "b")]) == 0
+    a = (tmp_path / "a" / "nav.csv").read_text()
+    assert a == (tmp_path / "b" / "nav.csv").read_text() and a.count("\n") == 3
+    assert (tmp_path / "a" / "metrics.png").stat().st_size > 10_000 and (tmp_path / "a" / "report.html").exists()
+    done = sorted((tmp_path / "a" / "episodes").rglob("*.json"))
+    assert len(done) == 4
+    done[0].unlink()  # an interrupted run: one episode missing
+    assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
+    assert (tmp_path / "a" / "nav.csv").read_text() == a
+    # other episodes into the same folder are refused, naming what differs
+    assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
+    assert "other settings (episodes)" in capsys.readouterr().err
+
+
+def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
+    for argv, words in [(["--odometers", "nope"], "unknown odometer 'nope'"),
+                        (["--odometers", "icp,icp"], "names one twice"),
+                        (["--episodes", "0"], "--episodes"),
+                        (["--split", "moon"], "not a split"),
+                        (["--odometers", "fused(icp"], "unbalanced")]:
+        assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2
+        err = capsys.readouterr().err
+        assert words in err and "Traceback" not in err
+
+
+def test_navigation_runs_unchanged_on_a_two_node_ray_cluster(tmp_path):
+    """A local two-node cluster (ray.cluster_utils): the same command through its address gives the
+    same table as a serial run."""
+    import pytest
+
+    cluster_utils = pytest.importorskip("ray.cluster_utils")
+    args = ["--odometers", "ground-truth", "--episodes", "2", "--max-steps", "8", "--quiet"]
+    assert _navigate(args + ["--serial", "--out", str(tmp_path / "serial")]) == 0
+    cluster = cluster_utils.Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        assert _navigate(args + ["--ray-address", cluster.address, "--out", str(tmp_path / "cluster")]) == 0
+    finally:
+        import ray
+
+        ray.shutdown()
+        cluster.shutdown()
+    assert (tmp_path / "cluster" / "nav.csv").read_text() == (tmp_path / "serial" / "nav.csv").read_text()

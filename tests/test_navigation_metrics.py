@@ -28,10 +28,14 @@ def test_spl_and_soft_spl_on_known_paths():
 
 
 def test_confidence_intervals():
-    ci = mean_ci(np.array([1.0] * 95 + [0.0] * 5))
+    ci = mean_ci(np.array([1.0] * 95 + [0.0] * 5), binary=True)
     assert ci.mean == 0.95 and 0.88 < ci.low < 0.90 and 0.97 < ci.high < 0.99  # Wilson
-    all_ok = mean_ci(np.ones(20))
+    all_ok = mean_ci(np.ones(20), binary=True)
     assert all_ok.high == pytest.approx(1.0) and all_ok.low < 0.9  # not degenerate at 100 %
     spl = mean_ci(np.array([0.5, 0.7, 0.9, 0.6]))
     assert spl.low < 0.675 < spl.high and spl.n == 4
     assert np.isnan(mean_ci(np.array([])).mean)
+    zeros = mean_ci(np.zeros(5))  # SPL of five failures: no spread, not a Bernoulli interval
+    assert zeros.low == zeros.high == 0.0
+    with pytest.raises(ValueError, match="0 or 1"):
+        mean_ci(np.array([0.5]), binary=True)

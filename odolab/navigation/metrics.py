@@ -68,16 +68,18 @@ class MeanCI:
     n: int
 
 
-def mean_ci(values: np.ndarray, confidence: float = 0.95) -> MeanCI:
-    """Mean and interval of ``values``; 0/1 values (success) get Wilson's interval, which stays
-    inside [0, 1] and is not degenerate at 0 or 100 %."""
+def mean_ci(values: np.ndarray, binary: bool = False, confidence: float = 0.95) -> MeanCI:
+    """Mean and interval of ``values``; ``binary`` (0/1 outcomes such as success) gets Wilson's score
+    interval, which stays inside [0, 1] and is not degenerate at 0 or 100 %; others Student's t."""
     v = np.asarray(values, np.float64)
     n = len(v)
     if n == 0:
         return MeanCI(float("nan"), float("nan"), float("nan"), 0)
     m = float(v.mean())
     z = float(stats.norm.ppf(0.5 + confidence / 2))
-    if np.isin(v, (0.0, 1.0)).all():
+    if binary:
+        if not np.isin(v, (0.0, 1.0)).all():
+            raise ValueError("binary=True needs values that are all 0 or 1")
         centre = (m + z * z / (2 * n)) / (1 + z * z / n)
         half = z * np.sqrt(m * (1 - m) / n + z * z / (4 * n * n)) / (1 + z * z / n)
         return MeanCI(m, float(centre - half), float(centre + half), n)

@@ -1,0 +1,91 @@
+"""``python -m odolab.navigate``: PointGoal navigation with each odometer as the agent's only sense of
+its own motion; success, SPL and SoftSPL per odometer with 95 % intervals.
+
+    python -m odolab.navigate --odometers ground-truth,action-prior,robust-vo --episodes 100 --out reports/navigation
+
+Every odometer drives the same episodes (same scenes, starts, goals and noise laws; --seed), one Ray
+task per (odometer, episode) on a local instance or the cluster at --ray-address. Each finished
+episode is saved at once; the same command resumes. Writes nav.csv, episodes.csv, metrics.png,
+paths-*.png and report.html under --out (see odolab.navigation.study).
+"""
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, path_arg, run_cli
+from odolab.sim.scenes import SPLITS
+
+MAX_STEPS = 500
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.comparison import ComparisonError, load_odometers
+    from odolab.episodes import EpisodeSpec, NoiseConfig
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.navigation.study import NavTask, config_doc, run_navigation, write_outputs
+    from odolab.odometer import split_odometer_names
+    from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
+
+    ap = ArgumentParser(prog="python -m odolab.navigate", description=__doc__.splitlines()[0])
+    ap.add_argument("--odometers", default="ground-truth,action-prior",
+                    help="comma-separated odometers, fused(a,b) included (default: %(default)s)")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=10, help="episodes (default 10)")
+    ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
+    ap.add_argument("--split", default="test", help=f"{' | '.join(SPLITS)} (default test)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_STEPS), default=MAX_STEPS,
+                    help=f"actions per episode at most, 1-{MAX_STEPS} (default {MAX_STEPS}, the Challenge's)")
+    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
+    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
+    ap.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
+    ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
+    ap.add_argument("--serial", action="store_true", help="run the episodes in this process, without Ray")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    if args.split not in SPLITS:
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    try:
+        names = split_odometer_names(args.odometers)
+        options = merge_options(read_options_file(args.config) if args.config else {},
+                                parse_assignments(args.odometer_option))
+    except (ValueError, OptionError) as exc:
+        raise UsageError(str(exc)) from None
+    if not names:
+        raise UsageError("--odometers is empty")
+    if len(set(names)) != len(names):
+        raise UsageError(f"--odometers names one twice: {args.odometers}")
+    check_output_dir(args.out, "--out")
+    if args.ray_address is not None and not args.serial:
+        from odolab.parallel import check_ray_address
+
+        try:
+            check_ray_address(args.ray_address)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    try:
+        load_odometers(names, options)  # every name and option checked here, before any episode runs
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
+    noise = NoiseConfig()
+    specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
+             for i in range(args.episodes)]
+    policy = PolicyConfig()
+    tasks = [NavTask(n, options.get(n, {}), s, policy) for n in names for s in specs]
+    try:
+        rows = run_navigation(args.out, tasks, config_doc(names, options, specs, policy), ray_address=args.ray_address,
+                              parallel=not args.serial, progress=not args.quiet)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    command = "python -m odolab.navigate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    table = write_outputs(args.out, rows, names, specs, command)
+    for r in table:
+        print(f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
+              f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  ({r['episodes']} episodes)")
+    print(f"wrote {args.out}/report.html")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(main, "python -m odolab.navigate"))

@@ -1,0 +1,224 @@
+"""Navigation over many episodes and odometers: one Ray task per (odometer, episode), each result
+saved as it finishes (a rerun does only what is missing), then the tables and figures.
+
+Files under the output folder: ``config.json`` (what the results were made with; another config is
+refused), ``episodes/<odometer>/<episode>.json`` (one run each, with its paths), ``episodes.csv``,
+``nav.csv`` (per odometer: success, SPL, SoftSPL, final geodesic distance, each with its 95 %
+interval), ``metrics.png`` (bars with intervals) and ``paths-<episode>.png`` (top-down: the scene,
+start, goal, each odometer's true path and, dashed, where it believed it was).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from odolab.episodes import EpisodeSpec
+from odolab.io.atomic import save_figure_atomic, write_text_atomic
+from odolab.navigation.agent import PolicyConfig
+from odolab.navigation.metrics import EpisodeOutcome, mean_ci
+
+METRICS = ("success", "spl", "soft_spl", "d_end")
+
+
+@dataclass(frozen=True)
+class NavTask:
+    """One closed-loop episode to run: odometer name and constructor options, episode, policy."""
+
+    odometer: str
+    options: dict
+    spec: EpisodeSpec
+    policy: PolicyConfig
+
+
+def run_task(task: NavTask) -> dict[str, Any]:
+    """Run one task (in a Ray worker or here): a plain-data row with the outcome and the paths."""
+    from odolab.navigation.episode import navigate
+    from odolab.odometer import load_odometer
+
+    run = navigate(task.spec, load_odometer(task.odometer, **task.options), task.policy)
+    o = run.outcome
+    return {"odometer": task.odometer, "episode": task.spec.index, "split": task.spec.split, "seed": task.spec.seed,
+            "d0": o.d0, "d_end": o.d_end, "path": o.path, "stopped": o.stopped, "steps": o.steps,
+            "collisions": o.collisions, "success": o.success, "spl": o.spl, "soft_spl": o.soft_spl,
+            "failed_steps": run.failed_steps, "goal": list(run.goal), "true_xy": run.true_xy.round(4).tolist(),
+            "believed_xy": run.believed_xy.round(4).tolist()}
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def result_path(out: Path, odometer: str, index: int) -> Path:
+    return out / "episodes" / _safe(odometer) / f"{index:04d}.json"
+
+
+def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address: str | None = None,
+                   parallel: bool = True, progress: bool = True) -> list[dict]:
+    """Run the tasks whose results ``out`` lacks; returns every task's row, in task order."""
+    from odolab.parallel import fan_out
+
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_path = out / "config.json"
+    if cfg_path.exists():
+        saved = json.loads(cfg_path.read_text())
+        changed = [k for k in ("episodes", "policy") if saved.get(k) != config.get(k)]
+        changed += [f"options of {n}" for n, o in config["options"].items() if n in saved.get("options", {})
+                    and saved["options"][n] != o]
+        if changed:
+            raise ValueError(f"{out} holds navigation results made with other settings ({', '.join(changed)}); "
+                             "choose another --out or delete it")
+        config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
+    write_text_atomic(cfg_path, json.dumps(config, indent=1) + "\n")
+    todo = [t for t in tasks if not result_path(out, t.odometer, t.spec.index).exists()]
+
+    def done(k: int, row: dict) -> None:
+        p = result_path(out, todo[k].odometer, todo[k].spec.index)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(p, json.dumps(row) + "\n")
+
+    fan_out(run_task, todo, on_result=done, parallel=parallel, ray_address=ray_address, progress=progress,
+            desc="navigation episodes")
+    return [json.loads(result_path(out, t.odometer, t.spec.index).read_text()) for t in tasks]
+
+
+def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
+    """Per odometer: each metric's mean and 95 % interval, steps, collisions and failed steps."""
+    table = []
+    for name in odometers:
+        mine = [r for r in rows if r["odometer"] == name]
+        entry: dict[str, Any] = {"odometer": name, "episodes": len(mine)}
+        for m in METRICS:
+            ci = mean_ci(np.array([r[m] for r in mine], np.float64), binary=m == "success")
+            entry.update({m: ci.mean, f"{m}_low": ci.low, f"{m}_high": ci.high})
+        entry["steps"] = float(np.mean([r["steps"] for r in mine])) if mine else float("nan")
+        entry["collisions"] = float(np.mean([r["collisions"] for r in mine])) if mine else float("nan")
+        entry["failed_steps"] = int(sum(r["failed_steps"] for r in mine))
+        table.append(entry)
+    return table
+
+
+def _csv(rows: list[dict], keys: list[str]) -> str:
+    def cell(v):
+        return f"{v:.4f}" if isinstance(v, float) else str(v)
+    return ",".join(keys) + "\n" + "".join(",".join(cell(r[k]) for k in keys) + "\n" for r in rows)
+
+
+def metrics_figure(table: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(max(5.5, 1.3 * len(table) + 2), 4.0))
+    width = 0.26
+    x = np.arange(len(table))
+    for k, (m, label) in enumerate((("success", "success"), ("spl", "SPL"), ("soft_spl", "SoftSPL"))):
+        mean = np.array([r[m] for r in table])
+        err = np.array([[r[m] - r[f"{m}_low"] for r in table], [r[f"{m}_high"] - r[m] for r in table]])
+        ax.bar(x + (k - 1) * width, mean, width, yerr=np.nan_to_num(err), capsize=3, label=label)
+    ax.set_xticks(x, [r["odometer"] for r in table], rotation=20, ha="right", fontsize=8)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("mean over episodes (95 % interval)")
+    ax.set_title(f"PointGoal navigation, {table[0]['episodes'] if table else 0} episodes per odometer", fontsize=10)
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncol=3, frameon=False)
+    fig.tight_layout()
+    save_figure_atomic(fig, path)
+    plt.close(fig)
+
+
+def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path: Path) -> None:
+    """Top-down view of one episode: free space, start, goal, true (solid) and believed (dashed) paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from odolab.episodes import start_environment
+
+    env, begin = start_environment(spec, sensors=False)
+    scene = env.scene
+    fig, ax = plt.subplots(figsize=(6.0, 6.4))
+    h, w = scene.navigable.shape
+    ax.imshow(np.where(scene.navigable, 1.0, 0.75), cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="nearest",
+              extent=(scene.origin[0], scene.origin[0] + w * scene.resolution, scene.origin[1],
+                      scene.origin[1] + h * scene.resolution))
+    cmap = plt.get_cmap("tab10")
+    pts = [np.array([[begin.start.x, begin.start.y], begin.goal])]
+    for k, name in enumerate(odometers):
+        row = next((r for r in rows if r["odometer"] == name and r["episode"] == spec.index), None)
+        if row is None:
+            continue
+        true, belief = np.array(row["true_xy"]), np.array(row["believed_xy"])
+        pts += [true, belief]
+        verdict = "success" if row["success"] else ("stopped" if row["stopped"] else "no stop")
+        ax.plot(true[:, 0], true[:, 1], "-", color=cmap(k % 10), lw=1.6, label=f"{name}: true path ({verdict})")
+        ax.plot(belief[:, 0], belief[:, 1], "--", color=cmap(k % 10), lw=1.0, label=f"{name}: believed")
+    ax.plot(begin.start.x, begin.start.y, "ko", ms=7, label="start")
+    ax.plot(*begin.goal, "r*", ms=13, label="goal")
+    allp = np.concatenate(pts)
+    centre, half = (allp.min(0) + allp.max(0)) / 2, np.ptp(allp, axis=0).max() / 2 + 1.0
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("world x (m)")
+    ax.set_ylabel("world y (m)")
+    ax.set_title(f"{spec.split} episode {spec.index}: geodesic start distance {begin.start_distance:.1f} m", fontsize=10)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
+    fig.tight_layout()
+    save_figure_atomic(fig, path)
+    plt.close(fig)
+
+
+def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list[EpisodeSpec], command: str,
+                  sample_episodes: int = 2) -> list[dict]:
+    """Tables, figures and ``report.html`` under ``out``; returns the per-odometer table."""
+    table = summarize(rows, odometers)
+    keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
+        "steps", "collisions", "failed_steps"]
+    write_text_atomic(out / "nav.csv", _csv(table, keys))
+    ep_keys = ["odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions",
+               "success", "spl", "soft_spl", "failed_steps"]
+    write_text_atomic(out / "episodes.csv", _csv(rows, ep_keys))
+    metrics_figure(table, out / "metrics.png")
+    figures = []
+    for spec in specs[:sample_episodes]:
+        name = f"paths-{spec.index:04d}.png"
+        paths_figure(rows, odometers, spec, out / name)
+        figures.append(name)
+    write_text_atomic(out / "report.html", _html(table, figures, command))
+    return table
+
+
+def _html(table: list[dict], figures: list[str], command: str) -> str:
+    def ci(r, m, scale=1.0, digits=2):
+        return (f"{scale * r[m]:.{digits}f} [{scale * r[m + '_low']:.{digits}f}, "
+                f"{scale * r[m + '_high']:.{digits}f}]")
+    head = "<tr>" + "".join(f"<th>{h}</th>" for h in ("odometer", "episodes", "success", "SPL", "SoftSPL",
+                                                     "final distance to goal (m)", "steps", "collisions",
+                                                     "failed odometer steps")) + "</tr>"
+    body = "".join(
+        "<tr>" + "".join(f"<td>{v}</td>" for v in (r["odometer"], r["episodes"], ci(r, "success"), ci(r, "spl"),
+                                                   ci(r, "soft_spl"), ci(r, "d_end"), f"{r['steps']:.0f}",
+                                                   f"{r['collisions']:.1f}", r["failed_steps"])) + "</tr>"
+        for r in table)
+    imgs = "".join(f'<p><img src="{f}" alt="{f}"></p>' for f in ["metrics.png", *figures])
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
+            "<style>body{font-family:sans-serif;max-width:960px;margin:2em auto}td,th{padding:3px 8px;"
+            "border-bottom:1px solid #ccc}</style></head><body><h1>PointGoal navigation with each odometer</h1>"
+            f"<p><code>{command}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
+            "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them.</p>"
+            f"<table>{head}{body}</table>{imgs}</body></html>\n")
+
+
+def config_doc(odometers: list[str], options: dict, specs: list[EpisodeSpec], policy: PolicyConfig) -> dict:
+    """What the results depend on (compared with a folder's ``config.json`` before reuse: the same
+    episodes and policy, and the same options for an odometer run before; new odometers may join)."""
+    return {"options": {n: options.get(n, {}) for n in odometers}, "episodes": [dataclasses.asdict(s) for s in specs],
+            "policy": dataclasses.asdict(policy)}
