@@ -12,7 +12,8 @@ depth pixels (every ``stride``-th) are back-projected with the believed pose; po
 above the floor lies in [``min_height``, ``max_height``] m and whose depth is at most ``max_range``
 m vote for an obstacle cell (a cell is an obstacle after ``votes`` votes) in a grid of ``cell`` m
 cells; obstacles are inflated by the agent radius plus ``margin`` (unknown cells are traversable);
-fast marching from the believed goal gives a distance field; the agent heads for the lowest field
+fast marching from the believed goal gives a distance field (over the box spanning the agent and
+the goal plus ``plan_margin``, or the whole map when that box holds no way); the agent heads for the lowest field
 value on a circle of 0.25 m around it: it moves forward when that heading is within
 ``heading_tolerance`` of its own, else turns towards it; a forward step that moved the belief by
 less than ``stuck_distance`` marks the cell ahead as an obstacle. It calls STOP when the believed
@@ -44,9 +45,10 @@ class PolicyConfig:
     stop_distance: float = 0.2
     stuck_distance: float = 0.05
     extent: float = 8.0  # map margin beyond the box around start and goal
+    plan_margin: float = 5.0  # planning window margin around the agent and the goal
 
     def __post_init__(self) -> None:
-        for name in ("cell", "max_range", "stop_distance", "extent"):
+        for name in ("cell", "max_range", "stop_distance", "extent", "plan_margin"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.min_height < self.max_height:
@@ -122,23 +124,32 @@ class MapPlanAgent:
         keep = (height >= cfg.min_height) & (height <= cfg.max_height)
         self.map.vote(world[0, keep], world[1, keep])
 
-    def _field(self) -> np.ndarray:
+    def _field(self, x: float, y: float, margin: float | None) -> np.ndarray:
+        """Fast-marching distance (m) to the believed goal over the traversable cells of the window
+        spanning the agent at (x, y) and the goal plus ``margin`` m (inf elsewhere; None: the whole map)."""
         import skfmm
         from scipy.ndimage import binary_dilation
 
         cfg, m = self.cfg, self.map
-        blocked = m.votes >= cfg.votes
+        out = np.full((m.n, m.n), np.inf)
+        gr, gc, inside = m.to_cell(*self.goal)
+        if not inside:
+            return out
+        ar, ac, _ = m.to_cell(x, y)
+        pad = m.n if margin is None else int(np.ceil(margin / cfg.cell))
+        r0, r1 = max(min(ar, gr) - pad, 0), min(max(ar, gr) + pad + 1, m.n)
+        c0, c1 = max(min(ac, gc) - pad, 0), min(max(ac, gc) + pad + 1, m.n)
+        blocked = m.votes[r0:r1, c0:c1] >= cfg.votes
         radius = int(np.ceil((cfg.agent_radius + cfg.margin) / cfg.cell))
         yy, xx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
         blocked = binary_dilation(blocked, structure=(xx**2 + yy**2) <= radius**2)
-        gr, gc, inside = m.to_cell(*self.goal)
-        if not inside:
-            return np.full(blocked.shape, np.nan)
-        blocked[max(gr - radius, 0):gr + radius + 1, max(gc - radius, 0):gc + radius + 1] = False
-        gx, gy = m.to_world(np.arange(m.n), np.arange(m.n))
-        phi = np.hypot(gx[None, :] - self.goal[0], gy[:, None] - self.goal[1]) - cfg.cell
+        lr, lc = gr - r0, gc - c0
+        blocked[max(lr - radius, 0):lr + radius + 1, max(lc - radius, 0):lc + radius + 1] = False
+        wx, wy = m.to_world(np.arange(r0, r1), np.arange(c0, c1))
+        phi = np.hypot(wx[None, :] - self.goal[0], wy[:, None] - self.goal[1]) - cfg.cell
         d = skfmm.distance(np.ma.MaskedArray(phi, mask=blocked), dx=cfg.cell)
-        return np.ma.filled(d.astype(np.float64), np.inf)
+        out[r0:r1, c0:c1] = np.ma.filled(d.astype(np.float64), np.inf)
+        return out
 
     def act(self, depth: np.ndarray) -> Action:
         """The next action after seeing ``depth`` at the current believed pose."""
@@ -153,12 +164,15 @@ class MapPlanAgent:
         if np.hypot(*(self.goal - (x, y))) < cfg.stop_distance:
             self._last_action = Action.STOP
             return Action.STOP
-        field = self._field()
         headings = yaw + np.radians(np.arange(-180, 180, 10.0))
         px, py = x + FORWARD_STEP * np.cos(headings), y + FORWARD_STEP * np.sin(headings)
         r, c, inside = self.map.to_cell(px, py)
         cost = np.full(len(headings), np.inf)
-        cost[inside] = field[r[inside], c[inside]]
+        for margin in (cfg.plan_margin, None):  # the window first; the whole map if no way out of it
+            field = self._field(x, y, margin)
+            cost[inside] = field[r[inside], c[inside]]
+            if np.isfinite(cost).any():
+                break
         if not np.isfinite(cost).any():  # off the map or boxed in: head straight for the goal
             target = np.arctan2(*(self.goal - (x, y))[::-1])
         else:
