@@ -73,8 +73,9 @@ def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
     return {"episodes": n, "frames": frames, "seconds": seconds, "frames_per_s": frames / seconds}
 
 
-def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) -> list[dict]:
-    """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192)."""
+def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, options: dict | None = None) -> list[dict]:
+    """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192); ``options``:
+    constructor options by odometer name."""
     from odolab import runner, summary
     from odolab.episodes import EpisodeSpec, load_episodes
     from odolab.odometer import load_odometer
@@ -83,7 +84,7 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60) ->
                         parallel=False, progress=False)
     out = []
     for name in names:
-        odo = load_odometer(name)
+        odo = load_odometer(name, **(options or {}).get(name, {}))
         res = runner.run({name: odo}, eps)
         row = summary.summarize(res)[0]
         out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
@@ -110,6 +111,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="run only these parts (repeatable; default all)")
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON here")
+    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value",
+                    help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'")
     args = ap.parse_args(argv)
     if args.json is not None:
         check_output_file(args.json, "--json")
@@ -121,6 +124,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = [u for u in map(unknown_odometer, names) if u]
     if unknown or not names:
         raise UsageError(f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}")
+    from odolab.comparison import ComparisonError, load_odometers
+    from odolab.options import OptionError, parse_assignments
+
+    try:
+        options = parse_assignments(args.odometer_option)
+        if "odometers" in parts:
+            load_odometers(names, options)  # every name and option checked before anything is timed
+    except (OptionError, ComparisonError) as exc:
+        raise UsageError(str(exc)) from None
 
     import os
 
@@ -135,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\n## Episode generation, end to end, one process\n")
         print(_table([report["episodes"]]))
     if "odometers" in parts:
-        report["odometers"] = bench_odometers(names)
+        report["odometers"] = bench_odometers(names, options=options)
         print("\n## Odometers (steps/s of step() on test-split episodes, 341x192)\n")
         print(_table(report["odometers"]))
     if "evaluate" in parts:

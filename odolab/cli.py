@@ -104,7 +104,7 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
         allowed = sorted(s.lower().lstrip(".") for s in suffixes)
         ext = path.suffix.lower().lstrip(".")
         if ext not in allowed:
-            raise UsageError(f"{option} {path}: unknown image type {path.suffix or '(no extension)'!r}; "
+            raise UsageError(f"{option} {path}: unknown file type {path.suffix or '(no extension)'!r}; "
                              f"use one of {', '.join('.' + s for s in allowed)}")
     folder = path.parent if str(path.parent) else Path(".")
     if folder.exists() and not folder.is_dir():

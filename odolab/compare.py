@@ -15,7 +15,7 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
                         run_cli, seed)
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
-from odolab.odometer import available_odometers, split_odometer_names
+from odolab.odometer import available_odometers, split_odometer_names, standalone_odometers
 from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 from odolab.sim.scenes import SPLITS
 
@@ -32,8 +32,8 @@ SIMULATOR_OPTIONS = ("--episodes", "--seed", "--split", "--max-steps", "--rgb-no
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
     ap.add_argument("--odometers", default=None,
-                    help="comma-separated names or module:Class (default: all available: %(choices)s)".replace(
-                        "%(choices)s", ", ".join(available_odometers())))
+                    help="comma-separated names or module:Class, or fused(a,b,...) of several (default: all of "
+                         "%(choices)s)".replace("%(choices)s", ", ".join(standalone_odometers())))
     ap.add_argument("--episodes", type=number("--episodes", int, 1, MAX_EPISODES), default=5,
                     help=f"number of episodes, 1-{MAX_EPISODES} (default 5)")
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")

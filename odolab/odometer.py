@@ -15,7 +15,6 @@ Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is impor
 """
 from __future__ import annotations
 
-import functools
 import importlib
 import inspect
 import re
@@ -95,6 +94,22 @@ def _registry() -> dict[str, Callable[..., Odometer] | str]:
     return reg
 
 
+def _with_inputs(factory: Callable[..., Odometer], name: str, inputs: str) -> Callable[..., Odometer]:
+    """``factory`` with its ``inputs`` option fixed to ``inputs`` (and no longer an option: the
+    name says it)."""
+    signature = inspect.signature(factory)
+    if "inputs" not in signature.parameters:
+        raise UnknownOdometerError(f"odometer {name.split('(')[0]!r} takes no inputs, so {name!r} means nothing")
+
+    def build(**options) -> Odometer:
+        if "inputs" in options:
+            raise ValueError(f"{name}: its inputs are in its name; the option 'inputs' cannot change them")
+        return factory(inputs=inputs, **options)
+
+    build.__signature__ = signature.replace(parameters=[p for k, p in signature.parameters.items() if k != "inputs"])
+    return build
+
+
 #: ``head(inputs)``: an odometer built on others, e.g. ``fused(icp,open3d-rgbd)``.
 COMPOSITE = re.compile(r"(?P<head>[A-Za-z0-9_.:-]+)\((?P<inputs>.*)\)")
 
@@ -137,10 +152,7 @@ class OdometerRegistry:
         ``head(a,b,...)`` is odometer ``head`` with its option ``inputs="a,b,..."`` (e.g. ``fused(icp,robust-vo)``)."""
         composite = COMPOSITE.fullmatch(name)
         if composite:
-            factory = self.resolve(composite["head"])
-            if "inputs" not in inspect.signature(factory).parameters:
-                raise UnknownOdometerError(f"odometer {composite['head']!r} takes no inputs, so {name!r} means nothing")
-            return functools.partial(factory, inputs=composite["inputs"])
+            return _with_inputs(self.resolve(composite["head"]), name, composite["inputs"])
         target = self._extra.get(name) or _registry().get(name)
         if target is None and ":" in name:  # "package.module:Class", imported on demand
             target = name
@@ -204,7 +216,7 @@ def unknown_odometer(name: str) -> str | None:
             parts = split_odometer_names(composite["inputs"])
         except ValueError:
             return name
-        return next((u for u in map(unknown_odometer, parts) if u), None) if parts else name
+        return next((u for u in map(unknown_odometer, parts) if u), None)  # no parts: the odometer says so
     return None if name in known or ":" in name else name
 
 

@@ -106,9 +106,16 @@ def test_calibration_puts_95_percent_inside_the_95_percent_ellipsoid(tmp_path):
 
 
 def test_bad_calibration_files_are_named(tmp_path):
+    def one(fixed, scale='{}'):
+        return '{"format": 1, "inputs": {"x": {"fixed": %s, "own_scale": %s, "steps": {}}}}' % (fixed, scale)
+
     for text, words in [("{", "not a calibration file"), ('{"format": 9, "inputs": {}}', "format 1"),
-                        ('{"format": 1, "inputs": {"x": {"fixed": {"turn_left": [1, 2]}, "own_scale": {}, "steps": {}}}}',
-                         "6 positive numbers")]:
+                        ('{"format": true, "inputs": {}}', "format 1"), ('{"format": 1, "inputs": {}}', "calibrates no"),
+                        (one('{"turn_left": [1, 2]}'), "6 numbers in"),
+                        (one('{"turn_left": [1e-300, 1, 1, 1, 1, 1]}'), "6 numbers in"),
+                        (one('{"fly": [1, 1, 1, 1, 1, 1]}'), "unknown action 'fly'"),
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{"turn_left": 0}'), "own_scale must be"),
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{"turn_left": -5}'), "own_scale must be")]:
         p = tmp_path / "c.json"
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
@@ -179,10 +186,62 @@ def test_fused_names_and_bad_options(calibration):
     with pytest.raises(ValueError, match="unbalanced"):
         split_odometer_names("fused(icp")
     assert unknown_odometer("fused(icp,nope)") == "nope" and unknown_odometer("fused(icp)") is None
-    assert unknown_odometer("fused()") == "fused()" and "fused" not in standalone_odometers()
+    assert unknown_odometer("fused()") is None and "fused" not in standalone_odometers()
+    with pytest.raises(ValueError, match="needs its inputs"):
+        REGISTRY.load("fused()", calibration=calibration)
+    with pytest.raises(ValueError, match="inputs are in its name"):
+        REGISTRY.load("fused(test-fixed)", calibration=calibration, inputs="test-never")
+    with pytest.raises(ValueError, match="span_inputs needs span >= 2"):
+        REGISTRY.load("fused(test-fixed)", calibration=calibration, span_inputs="test-fixed")
     with pytest.raises(ValueError, match="needs its inputs"):
         REGISTRY.load("fused", calibration=calibration)
     with pytest.raises(ValueError, match="span_inputs"):
         REGISTRY.load("fused(test-fixed)", calibration=calibration, span=2, span_inputs="icp")
     with pytest.raises(KeyError, match="no calibration for odometer 'icp'"):
         REGISTRY.load("fused(icp)", calibration=calibration)
+
+
+# --- the command lines ------------------------------------------------------------------------------
+
+def _calibrate(argv):
+    from odolab.cli import run_cli
+    from odolab.fusion.calibrate import main
+
+    return run_cli(main, "python -m odolab.fusion.calibrate", argv)
+
+
+def test_calibrate_writes_a_file_that_check_reads(tmp_path, capsys):
+    out = tmp_path / "sub" / "cal.json"
+    base = ["--episodes", "2", "--max-steps", "40", "--serial", "--cache", str(tmp_path / "cache")]
+    assert _calibrate(["--odometers", "action-prior", "--out", str(out)] + base) == 0
+    cal = Calibration.load(out)
+    assert "action-prior" in cal.inputs and "python -m odolab.fusion.calibrate" in cal.source
+    assert min(min(v) for v in cal.inputs["action-prior"].fixed.values()) >= 1e-3  # the floor holds
+    assert _calibrate(["--check", str(out), "--split", "test"] + base) == 0
+    said = capsys.readouterr().out
+    assert "inside the 95 % ellipsoid" in said and "move_forward" in said
+
+
+def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
+    from odolab.bench import main as bench_main
+    from odolab.cli import run_cli
+
+    (tmp_path / "file").write_text("x")
+    cases = [(["--odometers", ""], "--odometers is empty"), (["--odometers", "action-prior,icp,icp"], "twice"),
+             (["--odometers", "action-prior,fused(action-prior,icp)"], "not an input of fusion"),
+             (["--odometers", "icp"], "must include action-prior"),
+             (["--episodes", "1", "--max-steps", "5"], "too few to calibrate"),
+             (["--cache", str(tmp_path / "file")], "--cache"),
+             (["--out", str(tmp_path / "cal.txt")], "unknown file type '.txt'"),
+             (["--check", str(tmp_path / "missing.json")], "no such calibration file")]
+    for argv, words in cases:
+        assert _calibrate(argv + ["--serial"]) == 2, argv
+        err = capsys.readouterr().err
+        assert words in err and "Traceback" not in err, (argv, err)
+    for argv, words in [(["--odometers", "fused(action-prior,icp)", "--odometer-option",
+                          f"fused(action-prior,icp).calibration={tmp_path / 'missing.json'}"], "no such calibration file"),
+                        (["--odometers", "fused(icp,icp)"], "named twice"),
+                        (["--odometers", "icp", "--odometer-option", "icp.bogus=1"], "no option 'bogus'")]:
+        assert run_cli(bench_main, "python -m odolab.bench", ["--only", "odometers"] + argv) == 2
+        err = capsys.readouterr().err
+        assert words in err and "Traceback" not in err, (argv, err)

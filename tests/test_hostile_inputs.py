@@ -97,7 +97,7 @@ def test_evaluate_plot_path_is_checked_before_work(tmp_path):
     gt = tmp_path / "gt.txt"
     gt.write_text(TUM_OK)
     one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "fig.xyz",
-                   words="unknown image type '.xyz'")
+                   words="unknown file type '.xyz'")
     one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path,
                    words="is a folder, not a file")
     one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "no" / "f.png",

@@ -1,14 +1,15 @@
 """Calibrate the covariances of fusion inputs on held-out episodes, or check a calibration.
 
     python -m odolab.fusion.calibrate --odometers action-prior,icp,open3d-rgbd,robust-vo \
-        --split val --episodes 20 --max-steps 100 --out odolab/data/fusion/calibration.json
+        --split val --episodes 20 --max-steps 100 --out odolab/data/fusion/calibration.json   # the shipped one
     python -m odolab.fusion.calibrate --check odolab/data/fusion/calibration.json --split test --episodes 20
 
 Runs each odometer on the same episodes (generated as Ray tasks, cached like ``compare``'s),
 takes its valid raw steps against the true motions and fits :mod:`odolab.fusion.calibration`;
 ``--check`` instead prints, per input and action, the share of steps inside the calibrated 95 %
 ellipsoid (0.95 when the calibration carries over). ``action-prior`` must be calibrated: fusion
-falls back on it.
+falls back on it. An action with fewer than 10 valid steps is left out (fusion then uses the input's
+largest sigmas for it), and the summary says so. ``--out`` is replaced if it exists.
 """
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ from typing import Sequence
 import numpy as np
 
 from odolab.api import EpisodeSpec, load_episodes
-from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_file, number, run_cli
+from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_output_file, number, path_arg,
+                        run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers
 from odolab.episodes import EpisodeCache
 from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
@@ -51,12 +53,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--odometers", default="action-prior,icp,open3d-rgbd,robust-vo",
                     help="comma-separated inputs to calibrate (default: %(default)s)")
     ap.add_argument("--check", type=Path, default=None, help="check this calibration instead of fitting one")
-    ap.add_argument("--out", type=Path, default=Path("odolab/data/fusion/calibration.json"))
+    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/fusion/calibration.json"),
+                    help="calibration file to write (default %(default)s; its folder is created)")
     ap.add_argument("--split", default="val", choices=["train", "val", "test"])
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 100_000), default=100)
     ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
-    ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    ap.add_argument("--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
     ap.add_argument("--ray-address", default=None)
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
     args = ap.parse_args(argv)
@@ -64,6 +67,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         names = split_odometer_names(args.odometers)
     except ValueError as exc:
         raise UsageError(f"--odometers: {exc}") from None
+    if not names:
+        raise UsageError("--odometers is empty")
+    if len(set(names)) != len(names):
+        raise UsageError(f"--odometers names one twice: {args.odometers}")
+    if any(n.startswith("fused(") or n == "fused" for n in names):
+        raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
     calibration = None
     if args.check is not None:
         try:
@@ -76,10 +85,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         if missing:
             raise UsageError(f"{args.check}: no calibration for {missing[0]!r} (it has {', '.join(sorted(calibration.inputs))})")
     else:
-        check_output_file(args.out, "--out", suffixes=[".json"])
         if "action-prior" not in names:
             raise UsageError("--odometers must include action-prior: fusion falls back on it")
-    if args.ray_address:
+        if args.episodes * args.max_steps < 30:
+            raise UsageError(f"--episodes x --max-steps = {args.episodes * args.max_steps} steps: too few to calibrate "
+                             "(at least 10 valid steps of an action are needed; use hundreds)")
+        try:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"--out {args.out}: cannot make its folder ({exc.strerror or exc})") from None
+        check_output_file(args.out, "--out", suffixes=[".json"])
+    check_output_dir(args.cache, "--cache")
+    if args.ray_address and not args.serial:
         try:
             check_ray_address(args.ray_address)
         except ValueError as exc:
@@ -100,14 +117,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                 rows = np.flatnonzero(actions == a.value)
                 if len(rows):
                     covs = np.stack([cal.covariance(a, own[k]) for k in rows])
+                    note = "" if len(rows) >= 20 else "  (too few steps to judge)"
                     print(f"{name:>24} {a.label:>12}: {ellipsoid_share(xi[rows], covs):.3f} of {len(rows)} valid steps "
-                          "inside the 95 % ellipsoid")
+                          f"inside the 95 % ellipsoid{note}")
             continue
         try:
             fitted[name] = fit_input(xi, actions, own)
         except ValueError as exc:
             raise UsageError(f"{name}: {exc}; use more --episodes or --max-steps") from None
-        print(f"{name}: {fitted[name].steps} valid steps; own covariance scale {fitted[name].own_scale}")
+        cal = fitted[name]
+        said = ", ".join(f"{a} {n} steps" + (f" (own covariance x {cal.own_scale[a]:.3g})" if cal.own_scale.get(a) else "")
+                         for a, n in cal.steps.items())
+        left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]
+        print(f"{name}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else ""))
     if calibration is None:
         command = "python -m odolab.fusion.calibrate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
         Calibration(fitted, source=command).save(args.out)

@@ -26,6 +26,10 @@ import numpy as np
 from odolab.io.atomic import write_bytes_atomic
 from odolab.types import MOTION_ACTIONS, Action
 
+#: Sigmas outside this range (rad or m) are refused in a calibration file: their squares misbehave.
+SIGMA_RANGE = (1e-6, 1e3)
+#: Scales on an odometer's own covariance outside this range are refused likewise.
+SCALE_RANGE = (1e-12, 1e12)
 #: chi-square with 6 degrees of freedom: 95 % quantile.
 CHI2_6_95 = 12.591587243743977
 #: Smallest sigma per component (rad or m): planar odometers leave out-of-plane residuals near zero.
@@ -81,7 +85,7 @@ def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None])
             continue
         r = xi[rows]
         sigma = np.maximum(np.sqrt(np.mean(r**2, axis=0)), SIGMA_FLOOR)
-        sigma = sigma * np.sqrt(_scale(mahalanobis2(r, np.diag(sigma**2))))
+        sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, np.diag(sigma**2)))), SIGMA_FLOOR)
         fixed[a.label] = [float(s) for s in sigma]
         have = [k for k in rows if own[k] is not None and np.all(np.isfinite(own[k]))]
         if len(have) >= 10:
@@ -127,8 +131,12 @@ class Calibration:
             raise ValueError(f"{path}: no such calibration file") from None
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ValueError(f"{path}: not a calibration file ({exc})") from None
-        if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("inputs"), dict):
+        fmt = doc.get("format") if isinstance(doc, dict) else None
+        if not isinstance(doc, dict) or type(fmt) is not int or fmt != FORMAT or not isinstance(doc.get("inputs"), dict):
             raise ValueError(f"{path}: not a calibration file of format {FORMAT} (expected keys format, inputs)")
+        if not doc["inputs"]:
+            raise ValueError(f"{path}: calibrates no odometer (its 'inputs' is empty)")
+        labels = {a.label for a in MOTION_ACTIONS}
         inputs = {}
         for name, c in doc["inputs"].items():
             try:
@@ -138,9 +146,18 @@ class Calibration:
                                        {k: float(v) for k, v in c.get("inside95", {}).items()})
             except (KeyError, TypeError, ValueError, AttributeError) as exc:
                 raise ValueError(f"{path}: input {name!r}: expected fixed, own_scale, steps per action ({exc})") from None
-            bad = [k for k, v in cal.fixed.items() if len(v) != 6 or not all(np.isfinite(v)) or min(v) <= 0]
+            where = f"{path}: input {name!r}"
+            unknown = sorted((set(cal.fixed) | set(cal.own_scale)) - labels)
+            if unknown:
+                raise ValueError(f"{where}: unknown action {unknown[0]!r}; expected some of {', '.join(sorted(labels))}")
+            lo, hi = SIGMA_RANGE
+            bad = [k for k, v in cal.fixed.items() if len(v) != 6 or not all(lo <= x <= hi for x in v)]
             if bad or not cal.fixed:
-                raise ValueError(f"{path}: input {name!r}: fixed sigmas must be 6 positive numbers per action "
+                raise ValueError(f"{where}: fixed sigmas must be 6 numbers in [{lo:g}, {hi:g}] per action "
                                  f"(bad: {bad or 'none given'})")
+            lo, hi = SCALE_RANGE
+            bad = [k for k, v in cal.own_scale.items() if v is not None and not lo <= v <= hi]
+            if bad:
+                raise ValueError(f"{where}: own_scale must be null or in [{lo:g}, {hi:g}] (bad: {bad})")
             inputs[name] = cal
         return cls(inputs, str(doc.get("source", "")))

@@ -58,6 +58,8 @@ class FusedOdometer(Odometer):
         if not 1 <= int(span) <= 10:
             raise ValueError(f"span must be in [1, 10] steps, got {span}")
         spanning = split_odometer_names(span_inputs)
+        if spanning and int(span) < 2:
+            raise ValueError(f"span_inputs needs span >= 2 (factors over more than one step), got span {span}")
         if [n for n in spanning if n not in names]:
             raise ValueError(f"span_inputs must be among the inputs {names}, got {spanning}")
         if not calibration and not SHIPPED_CALIBRATION.exists():
@@ -73,7 +75,10 @@ class FusedOdometer(Odometer):
         self.inputs: dict[str, Odometer] = {}
         for n in names:
             opts = option_tables.get(n, {})
-            check_options(n, REGISTRY.resolve(n), opts)
+            try:
+                check_options(n, REGISTRY.resolve(n), opts)
+            except ValueError as exc:
+                raise ValueError(f"{options_file}: {exc}") from None
             self.inputs[n] = REGISTRY.load(n, **opts)
         self.spanning = spanning
         self.kernel, self.kernel_width, self.span = kernel, float(kernel_width), int(span)
