@@ -46,6 +46,7 @@ class PolicyConfig:
     stuck_distance: float = 0.05
     extent: float = 8.0  # map margin beyond the box around start and goal
     plan_margin: float = 5.0  # planning window margin around the agent and the goal
+    memory: int = 100  # steps an obstacle is remembered without being seen again
 
     def __post_init__(self) -> None:
         for name in ("cell", "max_range", "stop_distance", "extent", "plan_margin"):
@@ -58,13 +59,16 @@ class PolicyConfig:
 
 
 class OccupancyMap:
-    """Obstacle votes in a square grid of the belief frame covering ``[-half, half]^2`` m."""
+    """Obstacle votes in a square grid of the belief frame covering ``[-half, half]^2`` m, with the
+    step each cell was last voted for (so that old, possibly misregistered obstacles can be forgotten)."""
 
     def __init__(self, half: float, cell: float) -> None:
         self.cell = cell
         self.n = int(np.ceil(2 * half / cell))
         self.half = self.n * cell / 2
         self.votes = np.zeros((self.n, self.n), np.int32)
+        self.last = np.full((self.n, self.n), -(1 << 30), np.int64)
+        self.step = 0
 
     def to_cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(row, col, inside) of belief-frame points: row along y, col along x."""
@@ -79,6 +83,11 @@ class OccupancyMap:
     def vote(self, x: np.ndarray, y: np.ndarray, weight: int = 1) -> None:
         r, c, inside = self.to_cell(x, y)
         np.add.at(self.votes, (r[inside], c[inside]), weight)
+        self.last[r[inside], c[inside]] = self.step
+
+    def obstacles(self, votes: int, memory: int) -> np.ndarray:
+        """Cells with at least ``votes`` votes, last voted within ``memory`` steps."""
+        return (self.votes >= votes) & (self.step - self.last <= memory)
 
 
 class MapPlanAgent:
@@ -139,7 +148,7 @@ class MapPlanAgent:
         pad = m.n if margin is None else int(np.ceil(margin / cfg.cell))
         r0, r1 = max(min(ar, gr) - pad, 0), min(max(ar, gr) + pad + 1, m.n)
         c0, c1 = max(min(ac, gc) - pad, 0), min(max(ac, gc) + pad + 1, m.n)
-        blocked = m.votes[r0:r1, c0:c1] >= cfg.votes
+        blocked = m.obstacles(cfg.votes, cfg.memory)[r0:r1, c0:c1]
         radius = int(np.ceil((cfg.agent_radius + cfg.margin) / cfg.cell))
         yy, xx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
         blocked = binary_dilation(blocked, structure=(xx**2 + yy**2) <= radius**2)
@@ -159,6 +168,7 @@ class MapPlanAgent:
                 and np.hypot(x - self._last_xy[0], y - self._last_xy[1]) < cfg.stuck_distance):
             ahead = np.array([x, y]) + (cfg.agent_radius + cfg.cell) * np.array([np.cos(yaw), np.sin(yaw)])
             self.map.vote(np.array([ahead[0]]), np.array([ahead[1]]), weight=cfg.votes)
+        self.map.step += 1
         self.observe(depth)
         self._last_xy = np.array([x, y])
         if np.hypot(*(self.goal - (x, y))) < cfg.stop_distance:
