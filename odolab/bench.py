@@ -104,7 +104,7 @@ def _table(rows: list[dict]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.odometer import available_odometers, split_odometer_names, standalone_odometers, unknown_odometer
+    from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers, unknown_odometer
 
     ap = ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["simulator", "odometers", "evaluate"], action="append",
@@ -118,9 +118,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_output_file(args.json, "--json")
     parts = args.only or ["simulator", "odometers", "evaluate"]
     try:
-        names = standalone_odometers() if args.odometers is None else split_odometer_names(args.odometers)
+        names = standalone_odometers() if args.odometers is None else parse_odometer_list(args.odometers)
     except ValueError as exc:
-        raise UsageError(f"--odometers: {exc}") from None
+        raise UsageError(str(exc)) from None
     unknown = [u for u in map(unknown_odometer, names) if u]
     if unknown or not names:
         raise UsageError(f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}")

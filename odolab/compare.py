@@ -15,7 +15,7 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
                         run_cli, seed)
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
-from odolab.odometer import available_odometers, split_odometer_names, standalone_odometers
+from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers
 from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 from odolab.sim.scenes import SPLITS
 
@@ -82,13 +82,9 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
     else:
         if not args.no_cache:
             check_output_dir(args.cache, "--cache")
-        if args.ray_address is not None and not args.serial:
-            from odolab.parallel import check_ray_address
+        from odolab.parallel import check_ray_option
 
-            try:
-                check_ray_address(args.ray_address)
-            except ValueError as exc:
-                raise UsageError(str(exc)) from None
+        check_ray_option(args.ray_address, args.serial)
     check_report_dir(args.out, "--out")
 
 
@@ -103,11 +99,9 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
     names = None
     if args.odometers is not None:
         try:
-            names = split_odometer_names(args.odometers)
+            names = parse_odometer_list(args.odometers)
         except ValueError as exc:
-            raise UsageError(f"--odometers: {exc}") from None
-        if not names:
-            raise UsageError(f"--odometers is empty; available: {', '.join(available_odometers())}")
+            raise UsageError(f"{exc}; available: {', '.join(available_odometers())}") from None
     try:
         if names is not None:  # None: every available odometer (those needing actions left out on real data)
             names = odometer_names(names)

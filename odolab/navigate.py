@@ -26,7 +26,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.episodes import EpisodeSpec, NoiseConfig
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import NavTask, config_doc, run_navigation, write_outputs
-    from odolab.odometer import split_odometer_names
+    from odolab.odometer import parse_odometer_list
+    from odolab.parallel import check_ray_option
     from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=__doc__.splitlines()[0])
@@ -47,23 +48,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.split not in SPLITS:
         raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     try:
-        names = split_odometer_names(args.odometers)
+        names = parse_odometer_list(args.odometers)
         options = merge_options(read_options_file(args.config) if args.config else {},
                                 parse_assignments(args.odometer_option))
     except (ValueError, OptionError) as exc:
         raise UsageError(str(exc)) from None
-    if not names:
-        raise UsageError("--odometers is empty")
-    if len(set(names)) != len(names):
-        raise UsageError(f"--odometers names one twice: {args.odometers}")
     check_output_dir(args.out, "--out")
-    if args.ray_address is not None and not args.serial:
-        from odolab.parallel import check_ray_address
-
-        try:
-            check_ray_address(args.ray_address)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+    check_ray_option(args.ray_address, args.serial)
     try:
         load_odometers(names, options)  # every name and option checked here, before any episode runs
     except ComparisonError as exc:

@@ -133,6 +133,18 @@ def split_odometer_names(text: str) -> list[str]:
     return [n for n in names if n]
 
 
+def parse_odometer_list(text: str) -> list[str]:
+    """A command line's ``--odometers`` value: :func:`split_odometer_names`, refusing an empty list
+    and a name given twice (``ValueError`` naming the problem)."""
+    names = split_odometer_names(text)
+    if not names:
+        raise ValueError("--odometers is empty")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"--odometers names {twice[0]!r} twice")
+    return names
+
+
 class OdometerRegistry:
     """Names to odometer factories: entry points plus classes registered in code."""
 

@@ -34,6 +34,19 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
         raise ValueError(f"--ray-address {address}: no Ray cluster there ({reason})") from None
 
 
+def check_ray_option(address: str | None, serial: bool = False) -> None:
+    """A command line's ``--ray-address`` (ignored with ``--serial``), checked before any work:
+    :class:`odolab.cli.UsageError` with one line when it is malformed or unreachable."""
+    from odolab.cli import UsageError
+
+    if address is None or serial:
+        return
+    try:
+        check_ray_address(address)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
             on_result: Callable[[int, Any], None] | None = None, parallel: bool = True,
             ray_address: str | None = None, progress: bool = True, desc: str = "tasks") -> list[Any]:

@@ -64,7 +64,7 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
 
 def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
     for argv, words in [(["--odometers", "nope"], "unknown odometer 'nope'"),
-                        (["--odometers", "icp,icp"], "names one twice"),
+                        (["--odometers", "icp,icp"], "names 'icp' twice"),
                         (["--episodes", "0"], "--episodes"),
                         (["--split", "moon"], "not a split"),
                         (["--odometers", "fused(icp"], "unbalanced")]:

@@ -27,8 +27,8 @@ from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers
 from odolab.episodes import EpisodeCache
 from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
 from odolab.fusion.graph import residual, right_covariance
-from odolab.odometer import split_odometer_names
-from odolab.parallel import check_ray_address
+from odolab.odometer import parse_odometer_list
+from odolab.parallel import check_ray_option
 from odolab.runner import failure_reason, run
 from odolab.types import MOTION_ACTIONS
 
@@ -64,13 +64,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
     args = ap.parse_args(argv)
     try:
-        names = split_odometer_names(args.odometers)
+        names = parse_odometer_list(args.odometers)
     except ValueError as exc:
-        raise UsageError(f"--odometers: {exc}") from None
-    if not names:
-        raise UsageError("--odometers is empty")
-    if len(set(names)) != len(names):
-        raise UsageError(f"--odometers names one twice: {args.odometers}")
+        raise UsageError(str(exc)) from None
     if any(n.startswith("fused(") or n == "fused" for n in names):
         raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
     calibration = None
@@ -96,11 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"--out {args.out}: cannot make its folder ({exc.strerror or exc})") from None
         check_output_file(args.out, "--out", suffixes=[".json"])
     check_output_dir(args.cache, "--cache")
-    if args.ray_address and not args.serial:
-        try:
-            check_ray_address(args.ray_address)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+    check_ray_option(args.ray_address, args.serial)
     try:
         odometers = load_odometers(names)
     except ComparisonError as exc:
