@@ -179,6 +179,8 @@ def test_fused_inputs_that_answer_are_averaged_and_the_failures_ignored(calibrat
         assert est.valid and np.isclose(est.transform[2, 3], 0.27, atol=1e-4)  # equal weights
         assert est.covariance.shape == (6, 6) and est.covariance[5, 5] < 0.02**2  # two answers beat one
     assert odo.fused_steps == 3 and odo.fusion_seconds > 0
+    smoothed = odo.smoothed_trajectory()  # a chain: the batch solution is the online one
+    assert smoothed.shape == (4, 4, 4) and np.allclose(smoothed[-1][2, 3], 3 * 0.27, atol=1e-3)
 
 
 def test_fused_names_and_bad_options(calibration):

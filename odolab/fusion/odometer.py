@@ -9,7 +9,7 @@ robust kernel (``kernel``: huber, cauchy or none; ``kernel_width`` in whitened s
 wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
 that can register frames further apart, e.g. icp) also measure pose t-k+1..t-2 -> t without an
 action, which ties the graph across steps. iSAM2 solves it online: the answer for step t uses frames
-up to t only. When no input answered and no span factor constrains the step, the action prior's
+up to t only; :meth:`FusedOdometer.smoothed_trajectory` re-solves the whole sequence in one batch. When no input answered and no span factor constrains the step, the action prior's
 motion enters with its calibrated covariance and the step is reported invalid (the runner then uses
 that prior motion, as it would for any failed step). The answer's covariance is the inverse of the
 summed information of the step's factors (span factors left out), as of the previous camera.
@@ -27,7 +27,7 @@ import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.fusion.calibration import Calibration
-from odolab.fusion.graph import KERNELS, Measurement, OnlineGraph, left_covariance, right_covariance
+from odolab.fusion.graph import KERNELS, Measurement, OnlineGraph, left_covariance, right_covariance, smooth
 from odolab.geometry import planar_to_transform
 from odolab.odometer import REGISTRY, Odometer, split_odometer_names
 from odolab.options import check_options, read_options_file
@@ -87,6 +87,7 @@ class FusedOdometer(Odometer):
         #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
         self.fusion_seconds, self.fused_steps = 0.0, 0
         self._graph: OnlineGraph | None = None
+        self._measurements: list[Measurement] = []
         self._frames: deque[Frame] = deque(maxlen=self.span)
         self._history: deque[tuple[Action | None, dict[str, np.ndarray]]] = deque(maxlen=self.span)
 
@@ -98,6 +99,7 @@ class FusedOdometer(Odometer):
         self._graph.add_pose([], np.eye(4))
         self._frames.clear()
         self._history.clear()
+        self._measurements: list[Measurement] = []
 
     def _answer(self, odo: Odometer, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
         try:
@@ -143,6 +145,7 @@ class FusedOdometer(Odometer):
             step_covs = {PRIOR: prior_cov}
         guess = steps[0].T_ij if steps else prior_T
         T = self._graph.add_pose(measurements, guess)
+        self._measurements += measurements
         info = sum(np.linalg.inv(c) for c in step_covs.values())
         cov_left = left_covariance(T, np.linalg.inv(info))
         self._frames.append(cur)
@@ -151,3 +154,12 @@ class FusedOdometer(Odometer):
         self.fused_steps += 1
         return Estimate(T, valid=valid, covariance=cov_left)
 
+
+    def smoothed_trajectory(self) -> np.ndarray:
+        """The whole sequence so far re-solved in one batch (Levenberg-Marquardt over every factor
+        added since ``reset``): (n + 1, 4, 4) camera poses relative to the first, each using all
+        frames (not causal: for evaluating a finished trajectory, not for driving)."""
+        if self._graph is None:
+            raise RuntimeError("call reset(intrinsics) and step before smoothing")
+        return smooth(self._graph.n, self._measurements, guess=self._graph.poses(), kernel=self.kernel,
+                      k=self.kernel_width)
