@@ -475,3 +475,17 @@ def test_real_data_without_actions_is_refused_for_an_action_model_and_bad_seeds_
         run_comparison(ComparisonConfig(odometers=["robust-vo"], tum=__import__("pathlib").Path("tests/data/tum_fr1_xyz_10")))
     with pytest.raises(ValueError, match=r"seed must be in \[0, 4294967295\], got -1"):
         RobustVOOdometer(seed=-1)
+
+
+def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path):
+    tied = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, mirror_turns=True))
+    assert trainer.run(tied, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "m.pt",
+                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    cfg, nets, _ = load_model(tmp_path / "m.pt")
+    assert cfg.mirror_turns and set(nets) == {"move_forward", "turn_left"}
+    odo = RobustVOOdometer(checkpoint=str(tmp_path / "m.pt"))
+    pairs, ep = _pairs(recipe)
+    odo.reset(ep.intrinsics)
+    assert all(np.isfinite(odo.step(*p).transform).all() for p in pairs)
+    rows = (tmp_path / "r" / "curves.csv").read_text()
+    assert "turn_right" in rows  # right turns are still validated, through the mirrored network

@@ -120,3 +120,39 @@ def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path):
         differ = (x - batch.x[0]).abs() > 1e-3  # stored depth is rounded to 1 mm: a rare bin flips
         assert differ.float().mean() < 1e-3, i
     assert not odo.step(ep[0], ep[1], None).valid
+
+
+# --- mirror_turns: one turn network for both turns ----------------------------------------------
+
+def test_mirror_turns_answers_a_right_turn_with_the_mirrored_left_network():
+    from odolab.robust_vo.model import predict
+    from odolab.robust_vo.motion import mirror
+
+    cfg = dataclasses.replace(WARPED, mirror_turns=True, dropout=0.0)
+    assert cfg.model_names() == ("move_forward", "turn_left")
+    assert cfg.model_for(Action.TURN_RIGHT) == "turn_left" and cfg.mirrored(Action.TURN_RIGHT)
+    torch.manual_seed(0)
+    nets = build_networks(cfg).eval()
+    for p in nets.parameters():  # a network with non-zero outputs (the head starts at zero)
+        torch.nn.init.normal_(p, std=0.05)
+    x = torch.rand(3, 2 * cfg.channels_per_frame, H, W)
+    acts = np.array([Action.TURN_RIGHT.value, Action.TURN_LEFT.value, Action.MOVE_FORWARD.value])
+    with torch.no_grad():
+        out = predict(nets, cfg, x, acts)
+        left = nets["turn_left"](x.flip(-1)[:1], torch.tensor([2]))
+    assert torch.allclose(out[0], mirror(left)[0], atol=1e-6)
+    with torch.no_grad():
+        assert torch.allclose(out[1], nets["turn_left"](x[1:2], torch.tensor([1]))[0], atol=1e-6)
+    with pytest.raises(ValueError, match="mirror_turns needs kind"):
+        ModelConfig(kind="unified", mirror_turns=True)
+
+
+def test_mirror_turns_leaves_the_forward_stage_resumable():
+    from odolab.robust_vo.train import _identity
+
+    stages = (StageConfig("forward", ("move_forward",), 1), StageConfig("turns", ("turn_left", "turn_right"), 1))
+    data = DataConfig(split="train", episodes=1, width=W, height=H)
+    a = TrainConfig(model=WARPED, stages=stages, train_data=data, val_data=dataclasses.replace(data, split="val"))
+    b = dataclasses.replace(a, model=dataclasses.replace(WARPED, mirror_turns=True))
+    assert _identity(a, a.stages[0]) == _identity(b, b.stages[0])
+    assert _identity(a, a.stages[1]) != _identity(b, b.stages[1])

@@ -28,7 +28,10 @@ class ModelConfig:
     ``dropout``: before each of the two FC layers (``hidden`` units). ``warp`` (beyond the paper):
     ``nominal`` resamples each pair's current frame into the previous view by the action's commanded
     motion before psi (:mod:`odolab.robust_vo.warp`), so the network sees only the deviation from the
-    command; ``none`` is the paper's input.
+    command; ``none`` is the paper's input. ``mirror_turns`` (SepAct, beyond the paper): no network
+    of its own for turn_right; a right turn is the left-turn network's answer for the mirrored pair,
+    mirrored back (dx and dyaw negated), so one turn network learns from both turns (the world's
+    left-right symmetry that Partsey et al.'s mirror augmentation uses).
     """
 
     kind: Literal["sepact", "unified", "actembed"] = "sepact"
@@ -46,6 +49,7 @@ class ModelConfig:
     max_depth: float = 10.0
     sproj_rows: float = 100 / 192  # central share of image rows projected (the reference keeps 100 of 192)
     warp: Literal["none", "nominal"] = "none"
+    mirror_turns: bool = False
 
     def __post_init__(self) -> None:
         for name in ("groups", "compress_channels", "hidden", "embed_dim"):
@@ -61,6 +65,8 @@ class ModelConfig:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
         if not 0.0 < self.sproj_rows <= 1.0:
             raise ValueError(f"sproj_rows must be in (0, 1], got {self.sproj_rows}")
+        if self.mirror_turns and self.kind != "sepact":
+            raise ValueError(f"mirror_turns needs kind = 'sepact' (one network per action), got {self.kind!r}")
         if self.warp not in ("none", "nominal"):
             raise ValueError(f"warp must be 'none' or 'nominal', got {self.warp!r}")
         if not 0 < self.max_depth <= 100:
@@ -73,11 +79,21 @@ class ModelConfig:
         return rgb + depth + self.dd_bins + int(self.sproj)
 
     def model_names(self) -> tuple[str, ...]:
-        """The networks of this kind: one per action label for SepAct, else ``("all",)``."""
-        return tuple(a.label for a in MOTION_ACTIONS) if self.kind == "sepact" else ("all",)
+        """The networks of this kind: one per action label for SepAct (no turn_right with
+        ``mirror_turns``), else ``("all",)``."""
+        if self.kind != "sepact":
+            return ("all",)
+        return tuple(a.label for a in MOTION_ACTIONS if not self.mirrored(a))
 
     def model_for(self, action: Action) -> str:
-        return action.label if self.kind == "sepact" else "all"
+        """The network that answers for ``action``."""
+        if self.kind != "sepact":
+            return "all"
+        return Action.TURN_LEFT.label if self.mirrored(action) else action.label
+
+    def mirrored(self, action: Action) -> bool:
+        """Whether ``action``'s pairs go through their network mirrored (``mirror_turns``)."""
+        return self.mirror_turns and action is Action.TURN_RIGHT
 
 
 @dataclass(frozen=True)

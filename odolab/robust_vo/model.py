@@ -120,13 +120,20 @@ def build_networks(cfg: ModelConfig) -> nn.ModuleDict:
 
 def predict(nets: nn.ModuleDict, cfg: ModelConfig, x: torch.Tensor, actions) -> torch.Tensor:
     """(B, 3) planar motions of pairs ``x`` (B, 2C, H, W) taken with ``actions`` (B,) :class:`Action`
-    values: each pair goes through the network of its action (SepAct) or the one network."""
+    values: each pair goes through the network of its action (SepAct) or the one network; with
+    ``mirror_turns`` a right turn goes through the left-turn network mirrored (input flipped left to
+    right, dx and dyaw of the answer negated)."""
     from odolab.api import Action
 
     out = x.new_zeros((x.shape[0], 3))
     acts = [Action(int(a)) for a in actions]
     index = torch.tensor([a.value - 1 for a in acts], device=x.device)
+    flip = torch.tensor([cfg.mirrored(a) for a in acts], device=x.device)
+    if flip.any():
+        x = torch.where(flip[:, None, None, None], x.flip(-1), x)
     for name in dict.fromkeys(cfg.model_for(a) for a in acts):
         rows = torch.tensor([k for k, a in enumerate(acts) if cfg.model_for(a) == name], device=x.device)
         out[rows] = nets[name](x[rows], index[rows])
+    if flip.any():
+        out = torch.where(flip[:, None], out * out.new_tensor([-1.0, 1.0, -1.0]), out)
     return out

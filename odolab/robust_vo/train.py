@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from odolab.api import Action
 from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Samples, make_batch, stage_samples
@@ -70,9 +71,13 @@ class StageRunner:
     def init_bias(self) -> None:
         """Start each network's output at the mean target of its training pairs (a fresh network then
         begins at the action prior instead of at zero)."""
+        model = self.cfg.model
         for name in self.names:
-            acts = [a for a in self.stage.action_set if self.cfg.model.model_for(a) == name]
-            mean = self.train.pair_planar[self.train.select(acts)].mean(axis=0)
+            acts = [a for a in self.stage.action_set if model.model_for(a) == name]
+            # the targets as the network sees them: a mirrored action's are mirrored
+            seen = [self.train.pair_planar[self.train.select([a])] * ((-1.0, 1.0, -1.0) if model.mirrored(a) else 1.0)
+                    for a in acts]
+            mean = np.concatenate(seen).mean(axis=0)
             with torch.no_grad():
                 self.nets[name].head[-1].bias.copy_(torch.from_numpy(mean).to(torch.float32))
 
@@ -122,8 +127,11 @@ class StageRunner:
 
 def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
     """What a saved stage state must match to be resumed: everything but this stage's number of
-    epochs, the earlier stages included (a stage trained on top of other weights is another run)."""
+    epochs, the earlier stages included (a stage trained on top of other weights is another run);
+    a stage without turns leaves out ``mirror_turns``, which only decides the turn networks."""
     doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    if not {Action.TURN_LEFT, Action.TURN_RIGHT} & set(stage.action_set):
+        del doc["model"]["mirror_turns"]  # which network answers right turns cannot change this stage
     k = cfg.stages.index(stage)
     stage_doc = {key: v for key, v in doc["stages"][k].items() if key != "epochs"}
     return {"model": doc["model"], "stage": stage_doc, "before": doc["stages"][:k], "train_data": doc["train_data"],
