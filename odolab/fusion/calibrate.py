@@ -29,6 +29,7 @@ from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
 from odolab.fusion.graph import residual, right_covariance
 from odolab.odometer import parse_odometer_list
 from odolab.parallel import check_ray_option
+from odolab.progress import StepProgressBar
 from odolab.runner import failure_reason, run
 from odolab.types import MOTION_ACTIONS
 
@@ -99,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError(str(exc)) from None
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)]
     episodes = load_episodes(specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial)
-    results = run(odometers, episodes)
+    results = run(odometers, episodes, observer=StepProgressBar())
     fitted = {}
     for name in names:
         xi, actions, own, _ = steps_of([r for r in results if r.odometer == name])
