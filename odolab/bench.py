@@ -98,9 +98,9 @@ def _table(rows: list[dict]) -> str:
         return ""
     from odolab.summary import text_table
 
-    keys = list(rows[0])
-    return text_table(keys, [[f"{r[k]:.2f}" if isinstance(r[k], float) else str(r[k]) for k in keys] for r in rows],
-                      markdown=True)
+    keys = list(dict.fromkeys(k for r in rows for k in r))  # every row's columns ('-' where one has none)
+    return text_table(keys, [[f"{r[k]:.2f}" if isinstance(r.get(k), float) else str(r.get(k, "-")) for k in keys]
+                             for r in rows], markdown=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
