@@ -30,7 +30,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.parallel import check_ray_option
     from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 
-    ap = ArgumentParser(prog="python -m odolab.navigate", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--odometers", default="ground-truth,action-prior",
                     help="comma-separated odometers, fused(a,b) included (default: %(default)s)")
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=10, help="episodes (default 10)")

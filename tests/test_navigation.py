@@ -55,11 +55,21 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     done = sorted((tmp_path / "a" / "episodes").rglob("*.json"))
     assert len(done) == 4
     done[0].unlink()  # an interrupted run: one episode missing
+    done[1].write_text('{"odometer": "act')  # and one file damaged
     assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
     assert (tmp_path / "a" / "nav.csv").read_text() == a
+    assert "is damaged" in capsys.readouterr().err
     # other episodes into the same folder are refused, naming what differs
     assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
     assert "other settings (episodes)" in capsys.readouterr().err
+
+
+def test_navigate_keeps_out_of_folders_it_did_not_make(tmp_path, capsys):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "report.html").write_text("precious")
+    assert _navigate(["--odometers", "ground-truth", "--episodes", "1", "--max-steps", "5", "--serial", "--quiet",
+                      "--out", str(tmp_path / "mine")]) == 2
+    assert "did not write" in capsys.readouterr().err and (tmp_path / "mine" / "report.html").read_text() == "precious"
 
 
 def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):

@@ -83,7 +83,8 @@ class FusedOdometer(Odometer):
         self.spanning = spanning
         self.kernel, self.kernel_width, self.span = kernel, float(kernel_width), int(span)
         self.prior = ActionPrior.shipped()
-        self.needs_action = all(o.needs_action for o in self.inputs.values())
+        # an input that needs actions would answer nothing without them: say so, as that input would
+        self.needs_action = any(o.needs_action for o in self.inputs.values())
         #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
         self.fusion_seconds, self.fused_steps = 0.0, 0
         self._graph: OnlineGraph | None = None

@@ -10,8 +10,10 @@ start, goal, each odometer's true path and, dashed, where it believed it was).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import re
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,7 +53,32 @@ def run_task(task: NavTask) -> dict[str, Any]:
 
 
 def _safe(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+    """A folder name for an odometer name; names that differ only in other characters (a space in
+    ``fused(a, b)``) still get different folders (a short hash of the exact name is appended)."""
+    clean = re.sub(r"[^A-Za-z0-9_.-]", "_", name)
+    return clean if clean == name else f"{clean}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
+
+
+ROW_KEYS = ("odometer", "episode", "d0", "d_end", "path", "stopped", "steps", "collisions", "success", "spl", "soft_spl",
+            "failed_steps", "goal", "true_xy", "believed_xy")
+
+
+def read_row(path: Path, task: NavTask) -> dict | None:
+    """A saved result if it is whole and belongs to ``task``; None (with a note naming the file) if
+    it is missing or damaged, so that the episode is run again."""
+    if not path.exists():
+        return None
+    try:
+        row = json.loads(path.read_text(encoding="utf-8"))
+        ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
+              and row["episode"] == task.spec.index
+              and all(isinstance(row[k], (int, float)) and not isinstance(row[k], bool) for k in METRICS))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        ok = False
+    if not ok:
+        print(f"note: {path} is damaged or belongs to another run; running that episode again", file=sys.stderr)
+        return None
+    return row
 
 
 def result_path(out: Path, odometer: str, index: int) -> Path:
@@ -65,8 +92,16 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
 
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "config.json"
+    if not cfg_path.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} holds files that odolab navigate did not write (no config.json); choose an empty "
+                         "or new --out")
     if cfg_path.exists():
-        saved = json.loads(cfg_path.read_text())
+        try:
+            saved = json.loads(cfg_path.read_text(encoding="utf-8"))
+            if not isinstance(saved, dict):
+                raise ValueError("not a JSON object")
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise ValueError(f"{cfg_path}: not a navigation config ({exc}); delete the folder or choose another --out") from None
         changed = [k for k in ("episodes", "policy") if saved.get(k) != config.get(k)]
         changed += [f"options of {n}" for n, o in config["options"].items() if n in saved.get("options", {})
                     and saved["options"][n] != o]
@@ -75,7 +110,7 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
                              "choose another --out or delete it")
         config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
     write_text_atomic(cfg_path, json.dumps(config, indent=1) + "\n")
-    todo = [t for t in tasks if not result_path(out, t.odometer, t.spec.index).exists()]
+    todo = [t for t in tasks if read_row(result_path(out, t.odometer, t.spec.index), t) is None]
 
     def done(k: int, row: dict) -> None:
         p = result_path(out, todo[k].odometer, todo[k].spec.index)
@@ -84,7 +119,7 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
 
     fan_out(run_task, todo, on_result=done, parallel=parallel, ray_address=ray_address, progress=progress,
             desc="navigation episodes")
-    return [json.loads(result_path(out, t.odometer, t.spec.index).read_text()) for t in tasks]
+    return [json.loads(result_path(out, t.odometer, t.spec.index).read_text(encoding="utf-8")) for t in tasks]
 
 
 def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
@@ -95,7 +130,9 @@ def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
         entry: dict[str, Any] = {"odometer": name, "episodes": len(mine)}
         for m in METRICS:
             ci = mean_ci(np.array([r[m] for r in mine], np.float64), binary=m == "success")
-            entry.update({m: ci.mean, f"{m}_low": ci.low, f"{m}_high": ci.high})
+            top = np.inf if m == "d_end" else 1.0  # the interval stays where the metric can be
+            entry.update({m: ci.mean, f"{m}_low": float(np.clip(ci.low, 0.0, top)),
+                          f"{m}_high": float(np.clip(ci.high, 0.0, top))})
         entry["steps"] = float(np.mean([r["steps"] for r in mine])) if mine else float("nan")
         entry["collisions"] = float(np.mean([r["collisions"] for r in mine])) if mine else float("nan")
         entry["failed_steps"] = int(sum(r["failed_steps"] for r in mine))
