@@ -18,6 +18,7 @@ from odolab.navigation.agent import MapPlanAgent, PolicyConfig
 from odolab.navigation.metrics import EpisodeOutcome, path_length
 from odolab.odometer import Odometer
 from odolab.runner import failure_reason, guarded_frame
+from odolab.threads import odometer_threads
 from odolab.sim.planner import geodesic_field
 from odolab.types import Action
 
@@ -65,7 +66,8 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
         env.step(action)
         new = env.observe(float(t + 1))
         try:
-            est = odometer.step(guarded_frame(frame, oracle), guarded_frame(new, oracle), action)
+            with odometer_threads(odometer):  # its own torch thread setting, as in the runner
+                est = odometer.step(guarded_frame(frame, oracle), guarded_frame(new, oracle), action)
             T = est.transform if failure_reason(est) is None else None
         except Exception:  # a failing odometer is a failed step, as in the runner
             T = None
