@@ -183,6 +183,21 @@ def test_fused_inputs_that_answer_are_averaged_and_the_failures_ignored(calibrat
     assert smoothed.shape == (4, 4, 4) and np.allclose(smoothed[-1][2, 3], 3 * 0.27, atol=1e-3)
 
 
+def test_span_factors_tie_steps_across_the_graph(calibration):
+    from odolab.api import Intrinsics
+
+    odo = REGISTRY.load("fused(test-fixed,test-far)", calibration=calibration, kernel="none", span=3,
+                        span_inputs="test-fixed")
+    odo.reset(Intrinsics.from_hfov(4, 4, 79.0))
+    for _ in range(4):
+        est = odo.step(*_frames(), Action.MOVE_FORWARD)
+    # besides the two consecutive factors per step: spans of 2 and 3 steps from the spanning input
+    spans = [m for m in odo._measurements if m.j - m.i > 1]
+    assert spans and all(m.source == "test-fixed" and m.j - m.i <= 3 for m in spans)
+    # a span that says 0.25 m over several steps pulls the fused step below the plain mean of 0.27
+    assert est.valid and est.transform[2, 3] < 0.27
+
+
 def test_fused_names_and_bad_options(calibration):
     assert split_odometer_names("icp, fused(icp,open3d-rgbd) ,robust-vo") == ["icp", "fused(icp,open3d-rgbd)", "robust-vo"]
     with pytest.raises(ValueError, match="unbalanced"):

@@ -6,7 +6,8 @@ import numpy as np
 from odolab.api import Action, invert, load_odometer
 from odolab.episodes import EpisodeSpec, render_episode, rollout
 from odolab.navigation.agent import MapPlanAgent
-from odolab.navigation.episode import _start_frame_goal, navigate
+from odolab.navigation.agent import in_agent_frame
+from odolab.navigation.episode import navigate
 
 
 def test_the_goal_follows_the_true_relative_goal_when_the_odometry_is_true():
@@ -14,7 +15,7 @@ def test_the_goal_follows_the_true_relative_goal_when_the_odometry_is_true():
     motion = rollout(spec)
     ep = render_episode(spec, motion)
     start = motion.states[0]
-    agent = MapPlanAgent(_start_frame_goal(start, motion.goal), ep.intrinsics, spec.camera.mount_height)
+    agent = MapPlanAgent(tuple(in_agent_frame(motion.goal, start.x, start.y, start.yaw)), ep.intrinsics, spec.camera.mount_height)
     for t in range(len(ep.actions)):
         agent.update(invert(ep.poses[t]) @ ep.poses[t + 1])
         s = motion.states[t + 1]

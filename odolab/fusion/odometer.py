@@ -90,7 +90,7 @@ class FusedOdometer(Odometer):
         self._graph: OnlineGraph | None = None
         self._measurements: list[Measurement] = []
         self._frames: deque[Frame] = deque(maxlen=self.span)
-        self._history: deque[tuple[Action | None, dict[str, np.ndarray]]] = deque(maxlen=self.span)
+        self._step_covs: deque[dict[str, np.ndarray]] = deque(maxlen=self.span)  # per step: input -> covariance
 
     def reset(self, intrinsics: Intrinsics) -> None:
         super().reset(intrinsics)
@@ -99,8 +99,8 @@ class FusedOdometer(Odometer):
         self._graph = OnlineGraph(self.kernel, self.kernel_width)
         self._graph.add_pose([], np.eye(4))
         self._frames.clear()
-        self._history.clear()
-        self._measurements: list[Measurement] = []
+        self._step_covs.clear()
+        self._measurements = []
 
     def _answer(self, odo: Odometer, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
         try:
@@ -116,7 +116,13 @@ class FusedOdometer(Odometer):
         if not self._frames:
             self._frames.append(prev)
         answers = {n: self._answer(o, prev, cur, action) for n, o in self.inputs.items()}
-        started = time.perf_counter()
+        # span answers (t-k -> t) from inputs that answered this step and each step in between
+        span_answers = {}
+        for k in range(2, min(self.span, len(self._frames)) + 1):
+            for n in self.spanning:
+                if answers[n] is not None and all(n in covs for covs in list(self._step_covs)[-(k - 1):]):
+                    span_answers[k, n] = self._answer(self.inputs[n], self._frames[-k], cur, None)
+        started = time.perf_counter()  # from here on: the graph's own time, not the inputs'
         steps, step_covs = [], {}
         for n, est in answers.items():
             if est is None:
@@ -126,17 +132,10 @@ class FusedOdometer(Odometer):
             steps.append(Measurement(j - 1, j, est.transform, cov, n))
             step_covs[n] = cov
         spans = []
-        for k in range(2, min(self.span, len(self._frames)) + 1):
-            earlier = self._frames[-k]
-            for n in self.spanning:
-                covs = [h[1].get(n) for h in list(self._history)[-(k - 1):]]
-                if any(c is None for c in covs) or n not in step_covs:
-                    continue  # a span factor is weighted by the input's own consecutive steps
-                elapsed = time.perf_counter() - started
-                est = self._answer(self.inputs[n], earlier, cur, None)
-                started = time.perf_counter() - elapsed  # the inputs' time is not the graph's
-                if est is not None:
-                    spans.append(Measurement(j - k, j, est.transform, sum(covs) + step_covs[n], n))
+        for (k, n), est in span_answers.items():
+            if est is not None:  # weighted as the input's consecutive steps it spans, summed
+                cov = sum(covs[n] for covs in list(self._step_covs)[-(k - 1):]) + step_covs[n]
+                spans.append(Measurement(j - k, j, est.transform, cov, n))
         valid = bool(steps or spans)
         prior_T = planar_to_transform(*self.prior.motion(action))
         measurements = steps + spans
@@ -150,11 +149,10 @@ class FusedOdometer(Odometer):
         info = sum(np.linalg.inv(c) for c in step_covs.values())
         cov_left = left_covariance(T, np.linalg.inv(info))
         self._frames.append(cur)
-        self._history.append((action, step_covs))
+        self._step_covs.append(step_covs)
         self.fusion_seconds += time.perf_counter() - started
         self.fused_steps += 1
         return Estimate(T, valid=valid, covariance=cov_left)
-
 
     def smoothed_trajectory(self) -> np.ndarray:
         """The whole sequence so far re-solved in one batch (Levenberg-Marquardt over every factor

@@ -58,6 +58,13 @@ class PolicyConfig:
             raise ValueError(f"stride and votes must be >= 1, got {self.stride}, {self.votes}")
 
 
+def in_agent_frame(point: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
+    """A point (world x, y, m) seen from an agent at (x, y) with heading ``yaw`` (rad): (forward, left) m."""
+    d = np.asarray(point, np.float64) - (x, y)
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+
+
 class OccupancyMap:
     """Obstacle votes in a square grid of the belief frame covering ``[-half, half]^2`` m, with the
     step each cell was last voted for (so that old, possibly misregistered obstacles can be forgotten)."""
@@ -111,10 +118,7 @@ class MapPlanAgent:
 
     def relative_goal(self) -> np.ndarray:
         """The goal in the agent's believed frame (x forward, y left), m: the paper's eq. 1."""
-        x, y, yaw = self.belief
-        d = self.goal - (x, y)
-        c, s = np.cos(yaw), np.sin(yaw)
-        return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+        return in_agent_frame(self.goal, *self.belief)
 
     def update(self, T_prev_cur: np.ndarray) -> None:
         """Move the belief by an odometer's motion (camera axes)."""

@@ -14,7 +14,7 @@ import numpy as np
 from odolab.action_prior import ActionPrior
 from odolab.episodes import EpisodeSpec, start_environment
 from odolab.geometry import planar_to_transform
-from odolab.navigation.agent import MapPlanAgent, PolicyConfig
+from odolab.navigation.agent import MapPlanAgent, PolicyConfig, in_agent_frame
 from odolab.navigation.metrics import EpisodeOutcome, path_length
 from odolab.odometer import Odometer
 from odolab.runner import failure_reason, guarded_frame
@@ -37,13 +37,6 @@ class NavigationRun:
     failed_steps: int
 
 
-def _start_frame_goal(start, goal) -> tuple[float, float]:
-    """The goal in the start frame (x forward, y left), m: the point-goal sensor's one reading."""
-    dx, dy = goal[0] - start.x, goal[1] - start.y
-    c, s = np.cos(start.yaw), np.sin(start.yaw)
-    return c * dx + s * dy, -s * dx + c * dy
-
-
 def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None = None,
              prior: ActionPrior | None = None) -> NavigationRun:
     """Run one episode of ``spec`` (its scene, start, goal, noise; at most ``spec.max_steps``
@@ -52,7 +45,8 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
     env, begin = start_environment(spec)
     field = geodesic_field(env.scene, *begin.goal)
     cam = spec.camera
-    agent = MapPlanAgent(_start_frame_goal(begin.start, begin.goal), cam.intrinsics, cam.mount_height, policy)
+    goal = in_agent_frame(begin.goal, begin.start.x, begin.start.y, begin.start.yaw)  # the point-goal sensor's reading
+    agent = MapPlanAgent(tuple(goal), cam.intrinsics, cam.mount_height, policy)
     odometer.reset(cam.intrinsics)
     oracle = bool(getattr(odometer, "oracle", False))
     frame = env.observe(0.0)
