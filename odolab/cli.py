@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -25,6 +26,10 @@ class ArgumentParser(argparse.ArgumentParser):
     """argparse whose mistakes raise :class:`UsageError` (so :func:`run_cli` prints one line)."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
+        # argparse says "argument --x: <type's message>"; ours already start with the option's name
+        match = re.fullmatch(r"argument ([^:]+): (\S+) (.*)", message, flags=re.S)
+        if match and match.group(2) in match.group(1).split("/"):
+            message = f"{match.group(2)} {match.group(3)}"
         raise UsageError(message)
 
 

@@ -17,12 +17,12 @@ from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError,
                                run_comparison)
 from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers
 from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
+from odolab.episodes import MAX_EPISODE_STEPS
 from odolab.sim.scenes import SPLITS
 
 
 #: Documented ranges of the numeric options (enforced with one line by odolab.cli.number).
 MAX_EPISODES = 1000
-MAX_STEPS = 500
 MAX_NOISE = 10.0
 #: Options that choose simulator episodes; with --tum they would be silently meaningless.
 SIMULATOR_OPTIONS = ("--episodes", "--seed", "--split", "--max-steps", "--rgb-noise", "--depth-noise",
@@ -38,8 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"number of episodes, 1-{MAX_EPISODES} (default 5)")
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
     ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_STEPS), default=60,
-                    help=f"steps per episode, 1-{MAX_STEPS} (default 60)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=60,
+                    help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 60)")
     for kind, default, what in (("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"), ("depth", 1.0, "Redwood depth"),
                                 ("actuation", 0.5, "PyRobot actuation")):
         ap.add_argument(f"--{kind}-noise", type=number(f"--{kind}-noise", float, 0, MAX_NOISE), default=default,

@@ -36,6 +36,8 @@ FORMAT_VERSION = 1  # the .npz layout
 #: Bump whenever the simulator's output for a given spec changes (scenes, rendering, noise, motion,
 #: follower): it is part of every cache key, so stale cached episodes are never reused.
 SIMULATOR_VERSION = 4
+#: Actions per episode at most: the PointNav Challenge 2020's limit, and the command lines'.
+MAX_EPISODE_STEPS = 500
 #: What reading a damaged cache file raises (truncated zip, bad CRC, bad header, short read).
 _DAMAGE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
 

@@ -18,12 +18,11 @@ from typing import Sequence
 from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, path_arg, run_cli
 from odolab.sim.scenes import SPLITS
 
-MAX_STEPS = 500
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.comparison import ComparisonError, load_odometers
-    from odolab.episodes import EpisodeSpec, NoiseConfig
+    from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import NavTask, config_doc, run_navigation, write_outputs
     from odolab.odometer import parse_odometer_list
@@ -36,8 +35,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=10, help="episodes (default 10)")
     ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
     ap.add_argument("--split", default="test", help=f"{' | '.join(SPLITS)} (default test)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_STEPS), default=MAX_STEPS,
-                    help=f"actions per episode at most, 1-{MAX_STEPS} (default {MAX_STEPS}, the Challenge's)")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=MAX_EPISODE_STEPS,
+                    help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {MAX_EPISODE_STEPS}, the Challenge's)")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
     ap.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
@@ -56,14 +55,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_output_dir(args.out, "--out")
     check_ray_option(args.ray_address, args.serial)
     try:
-        load_odometers(names, options)  # every name and option checked here, before any episode runs
+        loaded = load_odometers(names, options)  # every name and option checked here, before any episode runs
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
     noise = NoiseConfig()
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
              for i in range(args.episodes)]
     policy = PolicyConfig()
-    tasks = [NavTask(n, options.get(n, {}), s, policy) for n in names for s in specs]
+    tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].weights) for n in names for s in specs]
     try:
         rows = run_navigation(args.out, tasks, config_doc(names, options, specs, policy), ray_address=args.ray_address,
                               parallel=not args.serial, progress=not args.quiet)

@@ -39,7 +39,9 @@ class Odometer:
     runner hands to :meth:`step_batch` at once; 1 = one :meth:`step` per pair), ``threads``
     (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`),
     ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
-    network per action: it is refused on real data, which has no actions).
+    network per action: it is refused on real data, which has no actions), ``weights`` (a learned
+    odometer's digest of the model file it loaded, or None: studies that keep results per odometer
+    redo them when it changes).
     """
 
     name: str = "odometer"
@@ -47,6 +49,7 @@ class Odometer:
     needs_action: bool = False
     batch_size: int = 1
     threads: int | None = None
+    weights: str | None = None
     _intrinsics: Intrinsics | None = None
 
     @property

@@ -4,6 +4,7 @@ single items), so results never depend on where they were computed.
 """
 from __future__ import annotations
 
+import logging
 import re
 import socket
 from typing import Any, Callable, Sequence
@@ -79,8 +80,16 @@ def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
         if started and ray_address is not None:
             check_ray_address(ray_address)
         if started:
-            ray.init(address=ray_address, include_dashboard=False, log_to_driver=False,
-                     configure_logging=False)
+            # Ray's notice about its token authentication is a warning log line: silent when asked to be
+            notice = logging.getLogger("ray._private.authentication.authentication_token_setup")
+            level = notice.level
+            if not progress:
+                notice.setLevel(logging.ERROR)
+            try:
+                ray.init(address=ray_address, include_dashboard=False, log_to_driver=False,
+                         configure_logging=False)
+            finally:
+                notice.setLevel(level)
         try:
             task = ray.remote(fn)
             pending = {task.remote(item): k for k, item in enumerate(items)}

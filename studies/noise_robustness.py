@@ -11,7 +11,7 @@ share, and the growth factor error(level) / error(1).
     python -m studies.noise_robustness --out reports/noise-robustness            # 20 x 100 steps
 
 Resumable: each (level, odometer) result is written to ``results.json`` as it finishes and not run
-again; the table (``table.md``) and figure (``growth.png``) are redrawn from it at the end.
+again (unless a learned odometer's model file changed: each row records its digest); the table (``table.md``) and figure (``growth.png``) are redrawn from it at the end.
 """
 from __future__ import annotations
 
@@ -22,10 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from odolab.api import ComparisonConfig, NoiseConfig, run_comparison, write_bytes_atomic
+from odolab.api import ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic
 
 COMPONENTS = ("dx", "dz", "dyaw")
 DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo"
+
+
+def _weights(odometers: list[str], options: dict) -> dict[str, str | None]:
+    """Name -> digest of the model file a learned odometer loaded (``Odometer.weights``), else None."""
+    loaded = {n: load_odometer(n, **options.get(n, {})) for n in odometers}
+    return {n: o.weights for n, o in loaded.items()}
 
 
 def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
@@ -36,11 +42,12 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
     doc = json.loads(path.read_text()) if path.exists() else {"config": config, "results": {}}
     if doc.get("config") != config:
         raise ValueError(f"{path} was made with {doc.get('config')}, not {config}; choose another --out")
+    weights = _weights(odometers, options or {})
     for level in sorted(set([1.0, *levels])):
         for name in odometers:
             key = f"{level:g}/{name}"
-            if key in doc["results"]:
-                continue
+            if key in doc["results"] and doc["results"][key].get("weights") == weights[name]:
+                continue  # done with these weights (a retrained model's rows are run again)
             result = run_comparison(ComparisonConfig(
                 odometers=[name], options={name: (options or {}).get(name, {})}, episodes=episodes,
                 max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level), parallel=parallel))
@@ -48,7 +55,7 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
             doc["results"][key] = {"level": level, "odometer": name, "steps": row.steps,
                                    **{c: getattr(row, c) for c in COMPONENTS},
                                    **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
-                                   "failure_share": row.failure_share, "ate_m": row.ate_m}
+                                   "failure_share": row.failure_share, "ate_m": row.ate_m, "weights": weights[name]}
             write_bytes_atomic(path, json.dumps(doc, indent=1).encode())
             print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS), flush=True)
     return doc

@@ -46,6 +46,7 @@ class DeepVOOdometer(Odometer):
         if int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
+        self.weights = self.info["sha256"]
         self.device = pick_device(device or "cpu")
         self.net.to(self.device)
         self.threads = int(threads)

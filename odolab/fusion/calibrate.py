@@ -24,7 +24,7 @@ from odolab.api import EpisodeSpec, load_episodes
 from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_output_file, number, path_arg,
                         run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers
-from odolab.episodes import EpisodeCache
+from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
 from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
 from odolab.fusion.graph import residual, right_covariance
 from odolab.odometer import parse_odometer_list
@@ -58,11 +58,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="calibration file to write (default %(default)s; its folder is created)")
     ap.add_argument("--split", default="val", choices=["train", "val", "test"])
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 100_000), default=100)
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=100,
+                    help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 100)")
     ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
     ap.add_argument("--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
     ap.add_argument("--ray-address", default=None)
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
     try:
         names = parse_odometer_list(args.odometers)
@@ -99,8 +101,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)]
-    episodes = load_episodes(specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial)
-    results = run(odometers, episodes, observer=StepProgressBar())
+    episodes = load_episodes(specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial,
+                             progress=not args.quiet)
+    results = run(odometers, episodes, observer=StepProgressBar(disable=args.quiet))
     fitted = {}
     for name in names:
         xi, actions, own, _ = steps_of([r for r in results if r.odometer == name])

@@ -19,6 +19,7 @@ tables, as ``python -m odolab.compare --options-file``).
 """
 from __future__ import annotations
 
+import hashlib
 import time
 from collections import deque
 from pathlib import Path
@@ -85,6 +86,8 @@ class FusedOdometer(Odometer):
         self.prior = ActionPrior.shipped()
         # an input that needs actions would answer nothing without them: say so, as that input would
         self.needs_action = any(o.needs_action for o in self.inputs.values())
+        learned = [f"{n}={o.weights}" for n, o in self.inputs.items() if o.weights]
+        self.weights = hashlib.sha256(";".join(learned).encode()).hexdigest() if learned else None
         #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
         self.fusion_seconds, self.fused_steps = 0.0, 0
         self._graph: OnlineGraph | None = None

@@ -3,9 +3,11 @@ lists and dicts, written atomically and read with ``torch.load(weights_only=True
 is ever executed)."""
 from __future__ import annotations
 
+import hashlib
 import io
 import os
 import pickle
+from pathlib import Path
 from typing import Any, Callable
 
 import torch
@@ -67,7 +69,7 @@ def save_model(path: str | os.PathLike, kind: str, recipe: Any, networks: dict[s
 def load_model(path: str | os.PathLike, kind: str, model_cls: type,
                build: Callable[[Any], dict[str, torch.nn.Module]]) -> tuple[Any, dict[str, torch.nn.Module], dict]:
     """Read a model file of ``kind``: (``model_cls`` config, networks built by ``build(config)`` with
-    their weights, in eval mode, ``{"recipe": ..., "training": ...}``). :class:`CheckpointError`
+    their weights, in eval mode, ``{"recipe": ..., "training": ..., "sha256": file digest}``). :class:`CheckpointError`
     names the file when it is not such a file or its weights do not fit its config."""
     from odolab.learning.configs import dataclass_from_dict
 
@@ -86,4 +88,5 @@ def load_model(path: str | os.PathLike, kind: str, model_cls: type,
     except (KeyError, TypeError, RuntimeError, ValueError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise CheckpointError(f"{path}: the weights do not fit the {kind} config ({first})") from None
-    return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {})}
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()  # which weights, for results kept per model
+    return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {}), "sha256": digest}

@@ -11,9 +11,11 @@ Policy (classical map-and-plan, so that what is measured is the odometry; :class
 depth pixels (every ``stride``-th) are back-projected with the believed pose; points whose height
 above the floor lies in [``min_height``, ``max_height``] m and whose depth is at most ``max_range``
 m vote for an obstacle cell (a cell is an obstacle after ``votes`` votes) in a grid of ``cell`` m
-cells; obstacles are inflated by the agent radius plus ``margin`` (unknown cells are traversable);
-fast marching from the believed goal gives a distance field (over the box spanning the agent and
-the goal plus ``plan_margin``, or the whole map when that box holds no way); the agent heads for the lowest field
+cells; cells nearer than the agent radius to an obstacle are blocked, and those within a further
+``margin`` are passable at ``margin_speed`` times the speed (so a gap just wide enough is taken when
+going round would cost more; unknown cells are traversable); fast marching from the believed goal
+gives a travel-time field in metres at full speed (over the box spanning the agent and the goal plus
+``plan_margin``, or the whole map when that box holds no way); the agent heads for the lowest field
 value on a circle of 0.25 m around it: it moves forward when that heading is within
 ``heading_tolerance`` of its own, else turns towards it; a forward step that moved the belief by
 less than ``stuck_distance`` marks the cell ahead as an obstacle. It calls STOP when the believed
@@ -41,12 +43,13 @@ class PolicyConfig:
     votes: int = 2
     agent_radius: float = 0.18
     margin: float = 0.05
+    margin_speed: float = 0.5  # relative speed through the margin band round obstacles
     heading_tolerance: float = 15.0
     stop_distance: float = 0.2
     stuck_distance: float = 0.05
     extent: float = 8.0  # map margin beyond the box around start and goal
     plan_margin: float = 5.0  # planning window margin around the agent and the goal
-    memory: int = 100  # steps an obstacle is remembered without being seen again
+    memory: int = 1000  # steps an obstacle is remembered without being seen again
 
     def __post_init__(self) -> None:
         for name in ("cell", "max_range", "stop_distance", "extent", "plan_margin"):
@@ -54,6 +57,9 @@ class PolicyConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.min_height < self.max_height:
             raise ValueError(f"need 0 <= min_height < max_height, got {self.min_height}, {self.max_height}")
+        if not 0 < self.margin_speed <= 1 or self.margin < 0 or self.agent_radius < 0:
+            raise ValueError(f"need margin_speed in (0, 1], margin >= 0 and agent_radius >= 0, got "
+                             f"{self.margin_speed}, {self.margin}, {self.agent_radius}")
         if self.stride < 1 or self.votes < 1:
             raise ValueError(f"stride and votes must be >= 1, got {self.stride}, {self.votes}")
 
@@ -138,10 +144,11 @@ class MapPlanAgent:
         self.map.vote(world[0, keep], world[1, keep])
 
     def _field(self, x: float, y: float, margin: float | None) -> np.ndarray:
-        """Fast-marching distance (m) to the believed goal over the traversable cells of the window
-        spanning the agent at (x, y) and the goal plus ``margin`` m (inf elsewhere; None: the whole map)."""
+        """Fast-marching travel time (m at full speed) to the believed goal over the traversable cells
+        of the window spanning the agent at (x, y) and the goal plus ``margin`` m (inf elsewhere; None:
+        the whole map)."""
         import skfmm
-        from scipy.ndimage import binary_dilation
+        from scipy.ndimage import distance_transform_edt
 
         cfg, m = self.cfg, self.map
         out = np.full((m.n, m.n), np.inf)
@@ -152,15 +159,17 @@ class MapPlanAgent:
         pad = m.n if margin is None else int(np.ceil(margin / cfg.cell))
         r0, r1 = max(min(ar, gr) - pad, 0), min(max(ar, gr) + pad + 1, m.n)
         c0, c1 = max(min(ac, gc) - pad, 0), min(max(ac, gc) + pad + 1, m.n)
-        blocked = m.obstacles(cfg.votes, cfg.memory)[r0:r1, c0:c1]
+        obstacle = m.obstacles(cfg.votes, cfg.memory)[r0:r1, c0:c1]
+        clearance = distance_transform_edt(~obstacle) * cfg.cell if obstacle.any() else np.full(obstacle.shape, np.inf)
+        blocked = clearance < cfg.agent_radius
+        speed = np.where(clearance < cfg.agent_radius + cfg.margin, cfg.margin_speed, 1.0)
         radius = int(np.ceil((cfg.agent_radius + cfg.margin) / cfg.cell))
-        yy, xx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-        blocked = binary_dilation(blocked, structure=(xx**2 + yy**2) <= radius**2)
         lr, lc = gr - r0, gc - c0
-        blocked[max(lr - radius, 0):lr + radius + 1, max(lc - radius, 0):lc + radius + 1] = False
+        near_goal = (slice(max(lr - radius, 0), lr + radius + 1), slice(max(lc - radius, 0), lc + radius + 1))
+        blocked[near_goal], speed[near_goal] = False, 1.0  # the goal may sit beside a wall
         wx, wy = m.to_world(np.arange(r0, r1), np.arange(c0, c1))
         phi = np.hypot(wx[None, :] - self.goal[0], wy[:, None] - self.goal[1]) - cfg.cell
-        d = skfmm.distance(np.ma.MaskedArray(phi, mask=blocked), dx=cfg.cell)
+        d = skfmm.travel_time(np.ma.MaskedArray(phi, mask=blocked), speed, dx=cfg.cell)
         out[r0:r1, c0:c1] = np.ma.filled(d.astype(np.float64), np.inf)
         return out
 

@@ -36,6 +36,7 @@ class NavTask:
     options: dict
     spec: EpisodeSpec
     policy: PolicyConfig
+    weights: str | None = None  # digest of a learned odometer's model file: a retrained model's episodes rerun
 
 
 def run_task(task: NavTask) -> dict[str, Any]:
@@ -48,7 +49,7 @@ def run_task(task: NavTask) -> dict[str, Any]:
     return {"odometer": task.odometer, "episode": task.spec.index, "split": task.spec.split, "seed": task.spec.seed,
             "d0": o.d0, "d_end": o.d_end, "path": o.path, "stopped": o.stopped, "steps": o.steps,
             "collisions": o.collisions, "success": o.success, "spl": o.spl, "soft_spl": o.soft_spl,
-            "failed_steps": run.failed_steps, "goal": list(run.goal), "true_xy": run.true_xy.round(4).tolist(),
+            "failed_steps": run.failed_steps, "weights": task.weights, "goal": list(run.goal), "true_xy": run.true_xy.round(4).tolist(),
             "believed_xy": run.believed_xy.round(4).tolist()}
 
 
@@ -71,12 +72,13 @@ def read_row(path: Path, task: NavTask) -> dict | None:
     try:
         row = json.loads(path.read_text(encoding="utf-8"))
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
-              and row["episode"] == task.spec.index
+              and row["episode"] == task.spec.index and row.get("weights") == task.weights
               and all(isinstance(row[k], (int, float)) and not isinstance(row[k], bool) for k in METRICS))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         ok = False
     if not ok:
-        print(f"note: {path} is damaged or belongs to another run; running that episode again", file=sys.stderr)
+        print(f"note: {path} is damaged or belongs to another run or model file; running that episode again",
+              file=sys.stderr)
         return None
     return row
 
@@ -102,7 +104,8 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
                 raise ValueError("not a JSON object")
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             raise ValueError(f"{cfg_path}: not a navigation config ({exc}); delete the folder or choose another --out") from None
-        changed = [k for k in ("episodes", "policy") if saved.get(k) != config.get(k)]
+        said = {"episodes": "the episodes (--episodes, --seed, --split or --max-steps)", "policy": "the policy"}
+        changed = [said[k] for k in ("episodes", "policy") if saved.get(k) != config.get(k)]
         changed += [f"options of {n}" for n, o in config["options"].items() if n in saved.get("options", {})
                     and saved["options"][n] != o]
         if changed:

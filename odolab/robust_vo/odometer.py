@@ -54,6 +54,7 @@ class RobustVOOdometer(Odometer):
         if not 0 <= int(seed) <= 2**32 - 1:
             raise ValueError(f"seed must be in [0, 4294967295], got {seed}")
         self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
+        self.weights = self.info["sha256"]
         self.device = pick_device(device or "cpu")
         self.nets.to(self.device)
         self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
