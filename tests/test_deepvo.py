@@ -137,3 +137,14 @@ def test_bad_checkpoints_and_recipes_are_named(trained, tmp_path):
 def test_validation_windows_do_not_share_pairs():
     starts = np.array([0, 1, 2, 3, 4, 5, 9, 10, 20])
     assert trainer.disjoint(starts, 3).tolist() == [0, 3, 9, 20]
+
+
+def test_the_shipped_deepvo_is_registered_and_runs_in_a_comparison():
+    from odolab.api import ComparisonConfig, load_odometer, run_comparison
+
+    odo = load_odometer("deepvo")
+    assert odo.weights and odo.cfg.width == 170  # the shipped file, reduced resolution
+    result = run_comparison(ComparisonConfig(odometers=["deepvo"], episodes=1, max_steps=6, parallel=False))
+    row = [r for r in result.rows if r.odometer == "deepvo"][0]
+    assert row.steps == 6 and row.failure_share == 0.0
+    assert all(np.isfinite(getattr(row, c)) for c in ("dx", "dz", "dyaw"))

@@ -1,9 +1,9 @@
-"""The DeepVO baseline as an :class:`~odolab.api.Odometer` (to be registered as ``deepvo`` once its
-trained model ships; until then name the class and give a checkpoint)::
+"""The DeepVO baseline as an :class:`~odolab.api.Odometer`, registered as ``deepvo`` (the shipped
+model, ``baselines/deepvo/deepvo.pt``, made by the first command)::
 
     python -m baselines.deepvo.train --config studies/deepvo/shipped.toml
-    python -m odolab.compare --odometers action-prior,baselines.deepvo.odometer:DeepVOOdometer \
-        --odometer-option baselines.deepvo.odometer:DeepVOOdometer.checkpoint=runs/deepvo/shipped/model.pt
+    python -m odolab.compare --odometers action-prior,deepvo
+    python -m odolab.compare --odometers deepvo --odometer-option deepvo.checkpoint=runs/deepvo/shipped/model.pt
 
 Frames are resized to the model's input (:func:`odolab.learning.resize_frame`, as its training data
 was); the LSTM state carries from one ``step`` to the next within a sequence and ``reset`` clears
