@@ -25,7 +25,7 @@ import numpy as np
 from odolab.api import ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic
 
 COMPONENTS = ("dx", "dz", "dyaw")
-DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo"
+DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo,deepvo"
 
 
 def _weights(odometers: list[str], options: dict) -> dict[str, str | None]:
