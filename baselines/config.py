@@ -52,6 +52,12 @@ def configure(cls: type[_C], config: _C | None = None, **overrides: Any) -> _C:
         shallowest = [p for p in paths if len(p) == len(paths[0])]
         if len(shallowest) > 1:
             raise TypeError(f"{cls.__name__}: option {name!r} is ambiguous: {', '.join('.'.join(p) for p in shallowest)}")
+        current = config
+        for part in paths[0]:
+            current = getattr(current, part)
+        if _is_config(current) and value is not None and not isinstance(value, type(current)):
+            raise TypeError(f"{cls.__name__}: {name!r} is a group of options ({', '.join(option_names(current))}); "
+                            "set those instead")
         _check_type(cls.__name__, _field(config, paths[0]), value)
         node = changes
         for part in paths[0][:-1]:
@@ -77,6 +83,12 @@ def options_signature(config_cls: type) -> inspect.Signature:
         params.append(inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=value,
                                         annotation=_field(default, path).type))
     return inspect.Signature(params)
+
+
+def check_range(name: str, value: object, low: float, high: float) -> None:
+    """``ValueError`` unless ``value`` (of option ``name``) is a number in ``[low, high]`` (NaN fails)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+        raise ValueError(f"{name} must be in [{low:g}, {high:g}], got {value!r}")
 
 
 def check_choice(name: str, value: object, choices: Iterable[object]) -> None:

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, configure, options_signature
+from baselines.config import OdometerConfig, check_choice, check_range, configure, options_signature
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
@@ -92,9 +92,20 @@ class ICPConfig(OdometerConfig):
 
     def __post_init__(self) -> None:
         check_choice("variant", self.variant, _VARIANTS)
-        if self.voxel <= 0:
-            raise ValueError(f"voxel must be positive, got {self.voxel}")
-        object.__setattr__(self, "levels", tuple((float(a), float(b)) for a, b in self.levels))
+        for name, low, high in (("pixel_stride", 1, 64), ("voxel", 1e-4, 1.0), ("normal_radius", 0.1, 100.0),
+                                ("normal_neighbours", 3, 1000), ("max_iterations", 1, 10_000), ("tolerance", 0.0, 1.0),
+                                ("geometric_weight", 0.0, 1.0), ("max_starts", 1, 100), ("min_cloud_points", 3, 10**7),
+                                ("min_coarse_points", 3, 10**7), ("min_normal_constraint", 0.0, 1.0)):
+            check_range(name, getattr(self, name), low, high)
+        if self.tukey_k is not None:
+            check_range("tukey_k", self.tukey_k, 1e-4, 10.0)
+        try:
+            levels = tuple((float(a), float(b)) for a, b in self.levels)
+        except (TypeError, ValueError):
+            raise ValueError(f"levels must be (voxel multiple, reach multiple) pairs, got {self.levels!r}") from None
+        if not levels or not all(a > 0 and b > 0 for a, b in levels):
+            raise ValueError(f"levels must be one or more pairs of positive numbers, got {self.levels!r}")
+        object.__setattr__(self, "levels", levels)
 
     def reach(self, level: int) -> float:
         """Maximum correspondence distance (metres) at ``level`` (0 = coarsest, -1 = finest)."""

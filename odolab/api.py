@@ -21,6 +21,7 @@ from odolab.odometer import (
     load_odometer,
     register_odometer,
 )
+from odolab.threads import check_threads
 from odolab.types import (
     FORWARD_STEP,
     MOTION_ACTIONS,
@@ -36,7 +37,7 @@ from odolab.types import (
 
 __all__ = [
     "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Odometer",
-    "Sequence", "UnknownOdometerError", "available_odometers", "integrate", "invert", "load_odometer",
+    "Sequence", "UnknownOdometerError", "available_odometers", "check_threads", "integrate", "invert", "load_odometer",
     "nominal_motion", "nominal_planar", "planar_to_transform", "register_odometer", "transform_to_planar",
     "wrap_angle",
     # episodes and training data (loaded on first use)

@@ -23,7 +23,12 @@ class UsageError(Exception):
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse whose mistakes raise :class:`UsageError` (so :func:`run_cli` prints one line)."""
+    """argparse whose mistakes raise :class:`UsageError` (so :func:`run_cli` prints one line), and
+    which takes options only as spelled in full (``--ep`` is not ``--episodes``)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         # argparse says "argument --x: <type's message>"; ours already start with the option's name

@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar="M", help=f"{what} noise multiplier, 0-{MAX_NOISE:g}, 0 = none (default {default:g})")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/compare"),
                     help="output folder (default runs/compare); files a previous run wrote there are replaced")
-    ap.add_argument("--tum", type=Path, default=None,
+    ap.add_argument("--tum", type=path_arg("--tum"), default=None,
                     help="run on a TUM RGB-D folder instead of the simulator (simulator options are then refused)")
     ap.add_argument("--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
     ap.add_argument("--no-cache", action="store_true", help="do not read or write the episode cache")
@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value",
                     help="constructor option of one odometer, e.g. icp.max_depth=4.0 or "
                          "examples.tiny_learned:TinyLearnedOdometer.checkpoint=runs/tiny.pt (repeatable)")
-    ap.add_argument("--config", type=Path, default=None, metavar="FILE.toml",
+    ap.add_argument("--config", type=path_arg("--config"), default=None, metavar="FILE.toml",
                     help='odometer options from a TOML file: [odometers."NAME"] key = value '
                          "(--odometer-option overrides it)")
     return ap

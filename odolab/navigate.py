@@ -39,7 +39,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {MAX_EPISODE_STEPS}, the Challenge's)")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
-    ap.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
+    ap.add_argument("--config", type=path_arg("--config"), default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="run the episodes in this process, without Ray")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")

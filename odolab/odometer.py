@@ -145,6 +145,14 @@ def parse_odometer_list(text: str) -> list[str]:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ValueError(f"--odometers names {twice[0]!r} twice")
+    for name in names:
+        match = COMPOSITE.fullmatch(name)
+        if match:
+            parts = [part.strip() for part in match["inputs"].split(",")]
+            if any(not part for part in parts):
+                raise ValueError(f"--odometers: {name!r} has an empty input; list its inputs as {match['head']}(a,b)")
+            if len(set(parts)) < len(parts):
+                raise ValueError(f"--odometers: {name!r}: an input is named twice")
     return names
 
 

@@ -36,12 +36,14 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
 
 
 def check_ray_option(address: str | None, serial: bool = False) -> None:
-    """A command line's ``--ray-address`` (ignored with ``--serial``), checked before any work:
-    :class:`odolab.cli.UsageError` with one line when it is malformed or unreachable."""
+    """A command line's ``--ray-address``, checked before any work: :class:`odolab.cli.UsageError`
+    with one line when it is malformed or unreachable, or given with ``--serial`` (no Ray then)."""
     from odolab.cli import UsageError
 
-    if address is None or serial:
+    if address is None:
         return
+    if serial:
+        raise UsageError("--ray-address and --serial exclude each other (--serial runs without Ray); drop one")
     try:
         check_ray_address(address)
     except ValueError as exc:

@@ -18,7 +18,22 @@ from typing import Iterator
 
 from odolab.odometer import Odometer
 
-__all__ = ["odometer_threads"]
+__all__ = ["MAX_THREADS", "check_threads", "odometer_threads"]
+
+#: The most torch threads an odometer may ask for (far above any core count here; torch itself
+#: crashes the process on absurd values such as 100000).
+MAX_THREADS = 256
+
+
+def check_threads(value: object) -> int:
+    """An odometer's ``threads`` option as an int in [1, MAX_THREADS]; ``ValueError`` naming it otherwise."""
+    try:
+        n = int(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"threads must be an integer, got {value!r}") from None
+    if not 1 <= n <= MAX_THREADS:
+        raise ValueError(f"threads must be in [1, {MAX_THREADS}], got {value}")
+    return n
 
 
 @contextlib.contextmanager
@@ -30,7 +45,7 @@ def odometer_threads(odometer: Odometer) -> Iterator[None]:
         yield
         return
     before = torch.get_num_threads()
-    torch.set_num_threads(max(1, int(threads)))
+    torch.set_num_threads(min(max(1, int(threads)), MAX_THREADS))
     try:
         yield
     finally:

@@ -34,6 +34,14 @@ def _weights(odometers: list[str], options: dict) -> dict[str, str | None]:
     return {n: o.weights for n, o in loaded.items()}
 
 
+ROW_KEYS = ("level", "odometer", "steps", *COMPONENTS, *(f"{c}_own" for c in COMPONENTS), "failure_share", "ate_m")
+
+
+def _whole(row: object) -> bool:
+    """A saved row with every number the table needs."""
+    return isinstance(row, dict) and all(isinstance(row.get(k), (int, float)) for k in ROW_KEYS if k != "odometer")
+
+
 def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
               options: dict | None = None, parallel: bool = True) -> dict:
     """Run what ``out/results.json`` lacks; returns ``{"config": ..., "results": {"<level>/<odometer>": row}}``."""
@@ -46,8 +54,9 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
     for level in sorted(set([1.0, *levels])):
         for name in odometers:
             key = f"{level:g}/{name}"
-            if key in doc["results"] and doc["results"][key].get("weights") == weights[name]:
-                continue  # done with these weights (a retrained model's rows are run again)
+            done = doc["results"].get(key)
+            if _whole(done) and done.get("weights") == weights[name]:
+                continue  # done with these weights (a retrained model's rows, or damaged ones, are run again)
             result = run_comparison(ComparisonConfig(
                 odometers=[name], options={name: (options or {}).get(name, {})}, episodes=episodes,
                 max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level), parallel=parallel))
@@ -114,8 +123,9 @@ def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from odolab.api import available_odometers
-    from odolab.cli import ArgumentParser, UsageError, check_output_dir, number, path_arg
+    from odolab.cli import ArgumentParser, UsageError, check_report_dir, number, path_arg
+    from odolab.comparison import ComparisonError, odometer_names
+    from odolab.odometer import parse_odometer_list
 
     ap = ArgumentParser(prog="python -m studies.noise_robustness", description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=path_arg("--out"), default=Path("reports/noise-robustness"),
@@ -131,13 +141,13 @@ def main(argv: list[str] | None = None) -> int:
         levels = [parse_level(v) for v in args.levels.split(",")]
     except argparse.ArgumentTypeError as exc:
         raise UsageError(str(exc)) from None
-    odometers = [n.strip() for n in args.odometers.split(",") if n.strip()]
-    if not odometers:
-        raise UsageError("--odometers is empty; give at least one name")
-    unknown = [n for n in odometers if ":" not in n and n not in available_odometers()]
-    if unknown:
-        raise UsageError(f"unknown odometer {unknown[0]!r}; available: {', '.join(available_odometers())}")
-    check_output_dir(args.out, "--out")
+    try:
+        odometers = odometer_names(parse_odometer_list(args.odometers))
+        for name in odometers:  # "module:Class" names and options load here, before any episode
+            load_odometer(name)
+    except (ValueError, KeyError, TypeError, ImportError, ComparisonError) as exc:
+        raise UsageError(f"--odometers: {exc.args[0] if isinstance(exc, KeyError) and exc.args else exc}") from None
+    check_report_dir(args.out, "--out", manifest="results.json")
     results = args.out / "results.json"
     if results.exists():
         try:

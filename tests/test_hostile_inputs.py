@@ -40,7 +40,7 @@ def test_a_bad_option_is_one_line_from_the_command_line():
     proc = subprocess.run([sys.executable, "-m", "odolab.compare", "--seed", "-1"], capture_output=True, text=True,
                           cwd=ROOT, timeout=60)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    assert proc.stderr.strip() == "odolab.compare: error: argument --seed: --seed must be in [0, 4294967295], got -1"
+    assert proc.stderr.strip() == "odolab.compare: error: --seed must be in [0, 4294967295], got -1"
 
 
 # ----------------------------------------------------------------------------- numeric options

@@ -62,7 +62,7 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert "is damaged" in capsys.readouterr().err
     # other episodes into the same folder are refused, naming what differs
     assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
-    assert "other settings (the episodes (--episodes, --seed, --split or --max-steps))" in capsys.readouterr().err
+    assert "other settings (--max-steps (12 there, 13 now))" in capsys.readouterr().err
 
 
 def test_navigate_keeps_out_of_folders_it_did_not_make(tmp_path, capsys):
@@ -112,12 +112,16 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     from odolab.navigation.study import ROW_KEYS, NavTask, read_row
 
     spec = EpisodeSpec(split="test", index=3, max_steps=5)
-    row = {k: 0 for k in ROW_KEYS} | {"odometer": "robust-vo", "episode": 3, "weights": "a" * 64}
+    row = {k: 0 for k in ROW_KEYS} | {"odometer": "robust-vo", "episode": 3, "weights": "a" * 64, "steps": 1,
+                                       "goal": [1.0, 2.0], "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))
     assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64)) == row
     assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "b" * 64)) is None  # retrained
     assert "another run or model file" in capsys.readouterr().err
+    for bad in ({"success": float("nan")}, {"spl": 7}, {"true_xy": "x"}, {"steps": 5}, {"d0": -1}):
+        path.write_text(json.dumps(row | bad))  # values no run can have: run again, no traceback
+        assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64)) is None
     # the odometers say which model file they loaded; a fused one through its inputs
     assert load_odometer("robust-vo").weights and load_odometer("icp").weights is None
     assert load_odometer("fused(icp,robust-vo)").weights not in (None, load_odometer("robust-vo").weights)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads
 from odolab.learning import checkpoints, pick_device, resize_frame
 
 from baselines.deepvo.config import DeepVOModel, DeepVOTraining
@@ -43,8 +43,7 @@ class DeepVOOdometer(Odometer):
     """DeepVO. Options: ``checkpoint`` (default: the shipped model), ``threads``, ``device``."""
 
     def __init__(self, checkpoint: str = "", threads: int = 1, device: str = "") -> None:
-        if int(threads) < 1:
-            raise ValueError(f"threads must be >= 1, got {threads}")
+        threads = check_threads(threads)
         self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
         self.weights = self.info["sha256"]
         self.device = pick_device(device or "cpu")

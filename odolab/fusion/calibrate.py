@@ -23,7 +23,7 @@ import numpy as np
 from odolab.api import EpisodeSpec, load_episodes
 from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_output_file, number, path_arg,
                         run_cli)
-from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers
+from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
 from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
 from odolab.fusion.graph import residual, right_covariance
@@ -53,10 +53,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = ArgumentParser(prog="python -m odolab.fusion.calibrate", description=__doc__.splitlines()[0])
     ap.add_argument("--odometers", default="action-prior,icp,open3d-rgbd,robust-vo",
                     help="comma-separated inputs to calibrate (default: %(default)s)")
-    ap.add_argument("--check", type=Path, default=None, help="check this calibration instead of fitting one")
+    ap.add_argument("--check", type=path_arg("--check"), default=None, help="check this calibration instead of fitting one")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/fusion/calibration.json"),
                     help="calibration file to write (default %(default)s; its folder is created)")
-    ap.add_argument("--split", default="val", choices=["train", "val", "test"])
+    ap.add_argument("--split", default="val", help="train | val | test (default val)")
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=100,
                     help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 100)")
@@ -66,9 +66,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
+    if args.split not in ("train", "val", "test"):
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of train, val, test")
     try:
         names = parse_odometer_list(args.odometers)
-    except ValueError as exc:
+        odometer_names(names)  # unknown names are named first
+    except (ValueError, ComparisonError) as exc:
         raise UsageError(str(exc)) from None
     if any(n.startswith("fused(") or n == "fused" for n in names):
         raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
@@ -89,6 +92,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.episodes * args.max_steps < 30:
             raise UsageError(f"--episodes x --max-steps = {args.episodes * args.max_steps} steps: too few to calibrate "
                              "(at least 10 valid steps of an action are needed; use hundreds)")
+        if args.out.suffix.lower() != ".json":  # before its folder is made
+            raise UsageError(f"--out {args.out}: unknown file type {args.out.suffix or '(no extension)'!r}; use .json")
         try:
             args.out.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:

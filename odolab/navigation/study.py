@@ -64,6 +64,30 @@ ROW_KEYS = ("odometer", "episode", "d0", "d_end", "path", "stopped", "steps", "c
             "failed_steps", "goal", "true_xy", "believed_xy")
 
 
+def _number(v: Any, low: float = -np.inf, high: float = np.inf) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and low <= v <= high  # NaN fails both
+
+
+def _path(v: Any) -> bool:
+    try:
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError):
+        return False
+    return a.ndim == 2 and a.shape[1] == 2 and len(a) >= 1 and bool(np.isfinite(a).all())
+
+
+def _sane(row: dict) -> bool:
+    """Values a real run can have: success 0/1, SPL and SoftSPL in [0, 1], distances >= 0 (d_end may be
+    inf off the navigable space), counts >= 0, paths as finite (x, y) rows, one more than the steps."""
+    return (row["success"] in (0, 1) and not isinstance(row["success"], bool)
+            and _number(row["spl"], 0, 1) and _number(row["soft_spl"], 0, 1)
+            and (_number(row["d_end"], 0) or row["d_end"] == np.inf) and _number(row["d0"], 0) and _number(row["path"], 0)
+            and all(isinstance(row[k], int) and not isinstance(row[k], bool) and row[k] >= 0
+                    for k in ("steps", "collisions", "failed_steps"))
+            and _path(row["true_xy"]) and _path(row["believed_xy"]) and len(row["true_xy"]) == row["steps"] + 1
+            and _path([row["goal"]]))
+
+
 def read_row(path: Path, task: NavTask) -> dict | None:
     """A saved result if it is whole and belongs to ``task``; None (with a note naming the file) if
     it is missing or damaged, so that the episode is run again."""
@@ -72,8 +96,7 @@ def read_row(path: Path, task: NavTask) -> dict | None:
     try:
         row = json.loads(path.read_text(encoding="utf-8"))
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
-              and row["episode"] == task.spec.index and row.get("weights") == task.weights
-              and all(isinstance(row[k], (int, float)) and not isinstance(row[k], bool) for k in METRICS))
+              and row["episode"] == task.spec.index and row.get("weights") == task.weights and _sane(row))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         ok = False
     if not ok:
@@ -81,6 +104,19 @@ def read_row(path: Path, task: NavTask) -> dict | None:
               file=sys.stderr)
         return None
     return row
+
+
+def _episode_changes(saved: Any, episodes: list[dict]) -> list[str]:
+    """Which command-line settings make ``episodes`` differ from a folder's saved ones."""
+    if saved == episodes:
+        return []
+    if not isinstance(saved, list) or not saved or not all(isinstance(e, dict) for e in saved):
+        return ["the episodes"]
+    said = [f"--episodes ({len(saved)} there, {len(episodes)} now)"] if len(saved) != len(episodes) else []
+    for key, option in (("seed", "--seed"), ("split", "--split"), ("max_steps", "--max-steps")):
+        if saved[0].get(key) != episodes[0].get(key):
+            said.append(f"{option} ({saved[0].get(key)} there, {episodes[0].get(key)} now)")
+    return said or ["the episodes' noise or camera"]
 
 
 def result_path(out: Path, odometer: str, index: int) -> Path:
@@ -103,9 +139,9 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
             if not isinstance(saved, dict):
                 raise ValueError("not a JSON object")
         except (OSError, UnicodeDecodeError, ValueError) as exc:
-            raise ValueError(f"{cfg_path}: not a navigation config ({exc}); delete the folder or choose another --out") from None
-        said = {"episodes": "the episodes (--episodes, --seed, --split or --max-steps)", "policy": "the policy"}
-        changed = [said[k] for k in ("episodes", "policy") if saved.get(k) != config.get(k)]
+            raise ValueError(f"{cfg_path}: not a navigation config ({exc}); choose another --out") from None
+        changed = _episode_changes(saved.get("episodes"), config["episodes"])
+        changed += ["the policy"] if saved.get("policy") != config.get("policy") else []
         changed += [f"options of {n}" for n, o in config["options"].items() if n in saved.get("options", {})
                     and saved["options"][n] != o]
         if changed:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads
 from odolab.learning import pick_device, resize_frame
 from odolab.robust_vo.checkpoint import SHIPPED, load_model
 from odolab.robust_vo.inputs import frame_channels
@@ -49,8 +49,9 @@ class RobustVOOdometer(Odometer):
                  batch_size: int = 1, device: str = "", seed: int = 0) -> None:
         if int(mc_samples) < 0 or int(mc_samples) == 1 or int(mc_samples) > 1000:
             raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {mc_samples}")
-        if int(threads) < 1 or int(batch_size) < 1:
-            raise ValueError(f"threads and batch_size must be >= 1, got {threads} and {batch_size}")
+        threads = check_threads(threads)
+        if not 1 <= int(batch_size) <= 4096:
+            raise ValueError(f"batch_size must be in [1, 4096], got {batch_size}")
         if not 0 <= int(seed) <= 2**32 - 1:
             raise ValueError(f"seed must be in [0, 4294967295], got {seed}")
         self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
