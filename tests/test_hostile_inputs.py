@@ -315,3 +315,13 @@ def test_action_prior_refuses_a_prior_of_nothing_and_odd_out_paths(tmp_path):
     afile = tmp_path / "afile"
     afile.write_text("")
     one_line_error("odolab.action_prior", "--out", afile / "x.json", words="is a file, not a folder")
+
+
+def test_absurd_thread_counts_are_refused_not_crashed_on():
+    import pytest
+
+    from odolab.api import load_odometer
+
+    for name in ("robust-vo", "deepvo"):
+        with pytest.raises(ValueError, match=r"threads must be in \[1, 256\], got 100000"):
+            load_odometer(name, threads=100000)
