@@ -61,6 +61,33 @@ def test_isam2_and_the_batch_smoother_agree_on_a_chain():
         smooth(3, [Measurement(0, 5, steps[0], np.eye(6))])
 
 
+def test_an_indeterminate_system_restarts_the_graph_at_the_previous_pose(monkeypatch):
+    """iSAM2 refused a step once on a long navigation episode; the graph restarts and goes on."""
+    step = _pose(0.0, 0.25, 0.1)
+    g = OnlineGraph(kernel="none")
+    g.add_pose([], np.eye(4))
+    calls = {"n": 0}
+    solve = OnlineGraph._solve
+
+    def flaky(self, graph, values):
+        calls["n"] += 1
+        if calls["n"] == 4:  # pose 3's first attempt
+            raise RuntimeError("Indeterminant linear system detected")
+        return solve(self, graph, values)
+
+    monkeypatch.setattr(OnlineGraph, "_solve", flaky)
+    out = []
+    for j in range(1, 7):
+        ms = [Measurement(j - 1, j, step, np.diag([1e-4] * 6))]
+        if j >= 3:  # a span factor, which after the restart reaches a pose no longer in the graph
+            ms.append(Measurement(j - 2, j, step @ step, np.diag([1e-4] * 6)))
+        out.append(g.add_pose(ms, np.eye(4)))
+    assert g.restarts == 1 and g.n == 7
+    assert all(np.allclose(T, step, atol=1e-6) for T in out)
+    poses = g.poses()
+    assert len(poses) == 7 and np.allclose(np.linalg.inv(poses[5]) @ poses[6], step, atol=1e-6)
+
+
 def test_a_loop_factor_revises_the_chain():
     """A factor from pose 0 to pose 3 (the 'span' factors) pulls the chain it closes."""
     step = _pose(0.0, 0.25, 0.0)

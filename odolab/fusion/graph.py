@@ -67,8 +67,8 @@ def _factor(m: Measurement, kernel: str, k: float) -> gtsam.BetweenFactorPose3:
     return gtsam.BetweenFactorPose3(m.i, m.j, gtsam.Pose3(np.asarray(m.T_ij, np.float64)), noise_model(m.cov, kernel, k))
 
 
-def _anchor() -> gtsam.PriorFactorPose3:
-    return gtsam.PriorFactorPose3(0, gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS))
+def _anchor(key: int = 0, pose: gtsam.Pose3 | None = None) -> gtsam.PriorFactorPose3:
+    return gtsam.PriorFactorPose3(key, pose or gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(ANCHOR_SIGMAS))
 
 
 class OnlineGraph:
@@ -77,17 +77,31 @@ class OnlineGraph:
     :meth:`add_pose` takes the factors that end at the new pose (from the previous pose and,
     optionally, from earlier ones) and returns the new estimate of ``inv(T_{j-1}) @ T_j`` given
     everything so far (the past is not revised in the returned steps: a robot uses them as they come).
+
+    Should iSAM2 find its linear system indeterminate (seen once in a few hundred steps on long
+    navigation episodes), the graph restarts from the previous pose's estimate, anchored there, and
+    the step is solved from the factors of the previous pose alone; the poses before it keep their
+    last estimates (:attr:`restarts` counts these).
     """
 
     def __init__(self, kernel: str = "huber", k: float = 1.345, iterations: int = 2) -> None:
         noise_model(np.eye(6), kernel, k)  # checks the kernel's name
         self.kernel, self.k, self.iterations = kernel, float(k), int(iterations)
+        self.isam = self._new_isam()
+        self.n = 0  # poses so far
+        self.estimate: gtsam.Values | None = None
+        self.frozen: dict[int, gtsam.Pose3] = {}  # estimates of poses left behind by a restart
+        self.restarts = 0
+
+    @staticmethod
+    def _new_isam() -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(0.01)  # rad or m of change before a pose is relinearised
         params.relinearizeSkip = 1
-        self.isam = gtsam.ISAM2(params)
-        self.n = 0  # poses so far
-        self.estimate: gtsam.Values | None = None
+        return gtsam.ISAM2(params)
+
+    def _pose(self, i: int) -> gtsam.Pose3:
+        return self.frozen[i] if i in self.frozen else self.estimate.atPose3(i)
 
     def add_pose(self, measurements: list[Measurement], guess: np.ndarray) -> np.ndarray:
         """Add pose ``n`` with ``measurements`` (each ``j == n``, ``i < n``); ``guess``: its initial
@@ -103,21 +117,46 @@ class OnlineGraph:
             if bad:
                 raise ValueError(f"measurements for pose {j} must end at it and start before it, got {bad[0].i}->{bad[0].j}")
             for m in measurements:
-                graph.add(_factor(m, self.kernel, self.k))
-            previous = self.estimate.atPose3(j - 1)
+                if m.i not in self.frozen:  # a span from before a restart has no pose to hold on to
+                    graph.add(_factor(m, self.kernel, self.k))
+            previous = self._pose(j - 1)
             values.insert(j, previous.compose(gtsam.Pose3(np.asarray(guess, np.float64))))
+        try:
+            self._solve(graph, values)
+        except RuntimeError:  # gtsam's IndeterminantLinearSystemException
+            if j == 0:
+                raise
+            self._restart(j, measurements, values)
+        self.n += 1
+        if j == 0:
+            return np.eye(4)
+        return self._pose(j - 1).between(self._pose(j)).matrix()
+
+    def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
         self.isam.update(graph, values)
         for _ in range(self.iterations - 1):
             self.isam.update()
         self.estimate = self.isam.calculateEstimate()
-        self.n += 1
-        if j == 0:
-            return np.eye(4)
-        return self.estimate.atPose3(j - 1).between(self.estimate.atPose3(j)).matrix()
+
+    def _restart(self, j: int, measurements: list[Measurement], values: gtsam.Values) -> None:
+        """A fresh iSAM2 anchored at pose ``j - 1``'s last estimate, given pose ``j``'s factors from it."""
+        for i in range(j):
+            self.frozen.setdefault(i, self._pose(i))
+        self.restarts += 1
+        self.isam = self._new_isam()
+        graph, start = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        graph.add(_anchor(j - 1, self.frozen[j - 1]))
+        start.insert(j - 1, self.frozen[j - 1])
+        start.insert(j, values.atPose3(j))
+        for m in measurements:
+            if m.i == j - 1:
+                graph.add(_factor(m, self.kernel, self.k))
+        self._solve(graph, start)
+        self.frozen.pop(j - 1)  # the new graph's anchor now holds it
 
     def poses(self) -> np.ndarray:
         """(n, 4, 4) current estimates of every pose (revised by later factors)."""
-        return np.stack([self.estimate.atPose3(i).matrix() for i in range(self.n)]) if self.n else np.zeros((0, 4, 4))
+        return np.stack([self._pose(i).matrix() for i in range(self.n)]) if self.n else np.zeros((0, 4, 4))
 
 
 def smooth(n_poses: int, measurements: list[Measurement], guess: np.ndarray | None = None, kernel: str = "huber",
