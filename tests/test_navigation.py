@@ -125,3 +125,13 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     # the odometers say which model file they loaded; a fused one through its inputs
     assert load_odometer("robust-vo").weights and load_odometer("icp").weights is None
     assert load_odometer("fused(icp,robust-vo)").weights not in (None, load_odometer("robust-vo").weights)
+
+
+def test_the_tables_quote_fused_names():
+    import csv
+    import io
+
+    from odolab.navigation.study import _csv
+
+    text = _csv([{"odometer": "fused(icp,robust-vo)", "success": 0.5}], ["odometer", "success"])
+    assert list(csv.DictReader(io.StringIO(text))) == [{"odometer": "fused(icp,robust-vo)", "success": "0.5000"}]

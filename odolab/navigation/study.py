@@ -180,9 +180,17 @@ def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
 
 
 def _csv(rows: list[dict], keys: list[str]) -> str:
+    """CSV text (names such as ``fused(a,b)`` quoted), floats to 4 decimals."""
+    import csv
+    import io
+
     def cell(v):
         return f"{v:.4f}" if isinstance(v, float) else str(v)
-    return ",".join(keys) + "\n" + "".join(",".join(cell(r[k]) for k in keys) + "\n" for r in rows)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(keys)
+    writer.writerows([cell(r[k]) for k in keys] for r in rows)
+    return buf.getvalue()
 
 
 def metrics_figure(table: list[dict], path: Path) -> None:
@@ -191,7 +199,7 @@ def metrics_figure(table: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(max(5.5, 1.3 * len(table) + 2), 4.0))
+    fig, ax = plt.subplots(figsize=(max(5.5, 1.3 * len(table) + 2), 4.4))
     width = 0.26
     x = np.arange(len(table))
     for k, (m, label) in enumerate((("success", "success"), ("spl", "SPL"), ("soft_spl", "SoftSPL"))):
@@ -203,7 +211,7 @@ def metrics_figure(table: list[dict], path: Path) -> None:
     ax.set_ylabel("mean over episodes (95 % interval)")
     ax.set_title(f"PointGoal navigation, {table[0]['episodes'] if table else 0} episodes per odometer", fontsize=10)
     ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncol=3, frameon=False)
+    ax.legend(fontsize=8, loc="upper right", ncol=3, frameon=True)
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
