@@ -11,7 +11,8 @@ share, and the growth factor error(level) / error(1).
     python -m studies.noise_robustness --out reports/noise-robustness            # 20 x 100 steps
 
 Resumable: each (level, odometer) result is written to ``results.json`` as it finishes and not run
-again (unless a learned odometer's model file changed: each row records its digest); the table (``table.md``) and figure (``growth.png``) are redrawn from it at the end.
+again (unless a learned odometer's model file changed: each row records its digest); the table
+(``table.md``) and figure (``growth.png``) are redrawn from it at the end.
 """
 from __future__ import annotations
 
@@ -43,14 +44,14 @@ def _whole(row: object) -> bool:
 
 
 def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
-              options: dict | None = None, parallel: bool = True) -> dict:
+              options: dict | None = None, parallel: bool = True, weights: dict[str, str | None] | None = None) -> dict:
     """Run what ``out/results.json`` lacks; returns ``{"config": ..., "results": {"<level>/<odometer>": row}}``."""
     path = out / "results.json"
     config = {"episodes": episodes, "max_steps": max_steps, "split": "test", "seed": 0}
     doc = json.loads(path.read_text()) if path.exists() else {"config": config, "results": {}}
     if doc.get("config") != config:
         raise ValueError(f"{path} was made with {doc.get('config')}, not {config}; choose another --out")
-    weights = _weights(odometers, options or {})
+    weights = weights if weights is not None else _weights(odometers, options or {})
     for level in sorted(set([1.0, *levels])):
         for name in odometers:
             key = f"{level:g}/{name}"
@@ -143,8 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(str(exc)) from None
     try:
         odometers = odometer_names(parse_odometer_list(args.odometers))
-        for name in odometers:  # "module:Class" names and options load here, before any episode
-            load_odometer(name)
+        weights = _weights(odometers, {})  # "module:Class" names load here too, before any episode
     except (ValueError, KeyError, TypeError, ImportError, ComparisonError) as exc:
         raise UsageError(f"--odometers: {exc.args[0] if isinstance(exc, KeyError) and exc.args else exc}") from None
     check_report_dir(args.out, "--out", manifest="results.json")
@@ -156,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
         except (ValueError, UnicodeDecodeError, AssertionError):
             raise UsageError(f"{results}: not a results file of this study; delete it or choose another --out") from None
     try:
-        doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps, parallel=not args.serial)
+        doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps, parallel=not args.serial,
+                        weights=weights)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     table = growth_table(doc, odometers, levels)

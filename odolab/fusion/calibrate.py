@@ -30,6 +30,7 @@ from odolab.fusion.graph import residual, right_covariance
 from odolab.odometer import parse_odometer_list
 from odolab.parallel import check_ray_option
 from odolab.progress import StepProgressBar
+from odolab.sim.scenes import SPLITS
 from odolab.runner import failure_reason, run
 from odolab.types import MOTION_ACTIONS
 
@@ -56,7 +57,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--check", type=path_arg("--check"), default=None, help="check this calibration instead of fitting one")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/fusion/calibration.json"),
                     help="calibration file to write (default %(default)s; its folder is created)")
-    ap.add_argument("--split", default="val", help="train | val | test (default val)")
+    ap.add_argument("--split", default="val", help=f"{' | '.join(SPLITS)} (default val)")
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=100,
                     help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 100)")
@@ -66,8 +67,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
-    if args.split not in ("train", "val", "test"):
-        raise UsageError(f"--split {args.split!r} is not a split; choose one of train, val, test")
+    if args.split not in SPLITS:
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     try:
         names = parse_odometer_list(args.odometers)
         odometer_names(names)  # unknown names are named first

@@ -9,8 +9,10 @@ start, goal, each odometer's true path and, dashed, where it believed it was).
 """
 from __future__ import annotations
 
+import csv
 import dataclasses
 import hashlib
+import io
 import json
 import re
 import sys
@@ -181,9 +183,6 @@ def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
 
 def _csv(rows: list[dict], keys: list[str]) -> str:
     """CSV text (names such as ``fused(a,b)`` quoted), floats to 4 decimals."""
-    import csv
-    import io
-
     def cell(v):
         return f"{v:.4f}" if isinstance(v, float) else str(v)
     buf = io.StringIO()
