@@ -18,47 +18,47 @@ from odolab.cli import ArgumentParser, UsageError, check_output_file, run_cli
 
 
 def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> list[dict]:
-    """Per test scene: bare cast_rays, clean render and noisy frame (median ms per frame) and the
-    median per-pose ratio noisy / bare."""
+    """Per test scene: bare cast_rays, clean render, and the noisy frame as episodes make it
+    (:class:`~odolab.environment.Sensors`, depth path in a second thread) and in one thread (median ms
+    per frame), with the median per-pose ratios noisy / bare."""
+    import open3d as o3d
+
+    from odolab.environment import Sensors
     from odolab.geometry import camera_pose_from_agent
-    from odolab.sim.camera import Renderer
-    from odolab.sim.noise import RedwoodDepthNoise, RGBNoise
+    from odolab.sim.camera import CameraSpec
     from odolab.sim.scenes import generate_scene, scene_seed
 
     rows = []
     rng = np.random.default_rng(0)
     for k in range(n_scenes):
         scene = generate_scene(scene_seed("test", k))
-        r = Renderer(scene)
+        sensors = {n: Sensors(scene, CameraSpec(), 1.0, 1.0, np.random.default_rng(1), np.random.default_rng(2),
+                              threads=n) for n in (1, 2)}
+        r = sensors[1].renderer
         cells = np.argwhere(scene.navigable)
         poses = []
         for i in rng.integers(len(cells), size=n_poses):
             x, y = scene.cell_to_world(*cells[i])
             poses.append(camera_pose_from_agent(float(x), float(y), float(rng.uniform(-np.pi, np.pi)), 0.88))
-        import open3d as o3d
-
-        rgb_noise, depth_noise = RGBNoise(), RedwoodDepthNoise()
-        noise_rng = np.random.default_rng(1)
-
-        def noisy(p):
-            c, d = r.render(p)
-            return rgb_noise.apply(c, noise_rng), depth_noise.apply(d, noise_rng)
-
-        # Interleaved per pose (bare, clean, noisy), so load changes hit all three alike.
-        times = np.empty((3, repeats, len(poses)))
+        # Interleaved per pose (bare, clean, noisy, noisy in one thread), so load changes hit all alike.
+        times = np.empty((4, repeats, len(poses)))
         for rep in range(repeats):
             for i, p in enumerate(poses):
                 rays = o3d.core.Tensor(r.rays(p))  # Open3D's own (aligned) copy
-                for j, call in enumerate((lambda: r.raycasting_scene.cast_rays(rays), lambda: r.render(p),
-                                          lambda: noisy(p))):
+                calls = (lambda: r.raycasting_scene.cast_rays(rays), lambda: r.render(p),
+                         lambda: sensors[2].read(p), lambda: sensors[1].read(p))
+                for j, call in enumerate(calls):
                     t0 = time.perf_counter()
                     call()
                     times[j, rep, i] = time.perf_counter() - t0
-        bare, clean, full = np.median(times, axis=(1, 2))
-        ratio = float(np.median(times[2] / times[0]))
+        for s in sensors.values():
+            s.close()
+        bare, clean, full, single = np.median(times, axis=(1, 2))
         rows.append({"scene": scene.seed, "triangles": int(len(scene.triangles)),
                      "cast_rays_ms": bare * 1e3, "clean_frame_ms": clean * 1e3, "noisy_frame_ms": full * 1e3,
-                     "noisy_fps": 1.0 / full, "ratio_to_cast_rays": ratio})
+                     "noisy_fps": 1.0 / full, "ratio_to_cast_rays": float(np.median(times[2] / times[0])),
+                     "noisy_1thread_ms": single * 1e3,
+                     "ratio_1thread": float(np.median(times[3] / times[0]))})
     return rows
 
 
@@ -91,6 +91,30 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, op
         if hasattr(odo, "fusion_seconds"):  # a fused odometer: the graph's own share, its inputs excluded
             out[-1]["graph_ms_per_step"] = 1000.0 * odo.fusion_seconds / max(odo.fused_steps, 1)
     return out
+
+
+def _cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``), or ``"unknown"``: ratios differ between CPUs."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+def _finite(value):
+    """``value`` with every non-finite float replaced by ``None`` (JSON has no NaN: a rate too fast to
+    time, such as the action prior's, is written as null)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
 
 
 def _table(rows: list[dict]) -> str:
@@ -137,11 +161,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     import os
 
     report: dict = {"machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                                "python": platform.python_version()}}
+                                "cpu_model": _cpu_model(), "python": platform.python_version()}}
     print(f"machine: {report['machine']}")
     if "simulator" in parts:
         report["simulator"] = bench_simulator()
-        print("\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays)\n")
+        print("\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path not in a second thread)\n")
         print(_table(report["simulator"]))
         report["episodes"] = bench_episodes()
         print("\n## Episode generation, end to end, one process\n")
@@ -159,7 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         from odolab.io.atomic import write_text_atomic
 
-        write_text_atomic(args.json, json.dumps(report, indent=2, default=float))
+        write_text_atomic(args.json, json.dumps(_finite(report), indent=2, default=float, allow_nan=False))
     return 0
 
 

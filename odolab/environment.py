@@ -33,11 +33,25 @@ class SensorReading:
 
 class Sensors:
     """Noisy RGB-D of a scene from any camera pose; ``rgb_rng`` and ``depth_rng`` are consumed in
-    call order (the same poses in the same order give the same frames)."""
+    call order (the same poses in the same order give the same frames).
+
+    After the ray cast, the colour path (texture, shading) and the depth path (range, Redwood noise,
+    and the RGB noise, which does not depend on the image) share nothing but the cast's read-only
+    result and draw from their own streams, so with ``threads=2`` the depth path runs in a second thread (numpy releases the GIL in its loops):
+    the same frames, bit for bit, in about half the post-cast time on two idle cores. ``threads=1``
+    runs both in the calling thread.
+    """
 
     def __init__(self, scene: Scene, camera: CameraSpec, rgb_noise: float, depth_noise: float,
-                 rgb_rng: np.random.Generator, depth_rng: np.random.Generator) -> None:
+                 rgb_rng: np.random.Generator, depth_rng: np.random.Generator, threads: int = 2) -> None:
+        if threads not in (1, 2):
+            raise ValueError(f"Sensors threads must be 1 or 2, got {threads!r}")
         self.camera = camera
+        self._pool = None
+        if threads == 2:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="odolab-depth")
         self.renderer = Renderer(scene, camera)
         self.rgb_noise = RGBNoise(multiplier=rgb_noise)
         self.depth_noise = RedwoodDepthNoise(multiplier=depth_noise, min_depth=camera.min_depth,
@@ -45,9 +59,34 @@ class Sensors:
         self.rgb_rng, self.depth_rng = rgb_rng, depth_rng
 
     def read(self, T_world_cam: np.ndarray) -> SensorReading:
-        clean_rgb, clean_depth = self.renderer.render(T_world_cam)
-        return SensorReading(clean_rgb, clean_depth, self.rgb_noise.apply(clean_rgb, self.rgb_rng),
-                             self.depth_noise.apply(clean_depth, self.depth_rng))
+        """The clean and noisy frame seen from ``T_world_cam`` (4x4, OpenCV camera axes, world Z up)."""
+        hit = self.renderer.cast(T_world_cam)
+        if self._pool is None:
+            clean_depth, depth, steps = self._depth_path(hit)
+        else:
+            pending = self._pool.submit(self._depth_path, hit)
+        clean_rgb = self.renderer.colour(hit)
+        if self._pool is not None:
+            clean_depth, depth, steps = pending.result()
+        return SensorReading(clean_rgb, clean_depth, self.rgb_noise.add(clean_rgb, steps), depth)
+
+    def _depth_path(self, hit) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Clean and noisy depth, and the RGB noise (image-independent) drawn meanwhile: the colour
+        path is the longer one."""
+        cam = self.camera
+        clean = self.renderer.depth(hit)
+        return clean, self.depth_noise.apply(clean, self.depth_rng), self.rgb_noise.draw((cam.height, cam.width, 3), self.rgb_rng)
+
+    def close(self) -> None:
+        """Stop the depth thread (also done when the object is collected)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def __del__(self) -> None:
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=False)
 
 
 class PointNavEnv:

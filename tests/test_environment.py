@@ -34,3 +34,26 @@ def test_driving_the_environment_as_the_generator_does_sees_the_episodes_frames(
     blind, _ = start_environment(spec, sensors=False)
     with pytest.raises(RuntimeError, match="no sensors"):
         blind.observe()
+
+
+def test_sensors_give_the_same_frames_with_the_depth_path_in_a_second_thread():
+    """The two-thread reading is an optimisation only: bit for bit the one-thread frames, in order."""
+    from odolab.environment import Sensors
+    from odolab.geometry import camera_pose_from_agent
+    from odolab.sim.scenes import generate_scene, scene_seed
+
+    scene = generate_scene(scene_seed("test", 0))
+    cam = CameraSpec(width=96, height=54)
+    cells = np.argwhere(scene.navigable)[::97][:6]
+    poses = [camera_pose_from_agent(*scene.cell_to_world(*c), 0.7 * k, cam.mount_height) for k, c in enumerate(cells)]
+    one, two = (Sensors(scene, cam, 1.0, 1.0, np.random.default_rng(3), np.random.default_rng(4), threads=n)
+                for n in (1, 2))
+    for p in poses:
+        a, b = one.read(p), two.read(p)
+        for field in ("clean_rgb", "clean_depth", "rgb", "depth"):
+            assert np.array_equal(getattr(a, field), getattr(b, field)), field
+    assert (a.depth > 0).any() and a.rgb.std() > 0  # real frames, not empty ones
+    two.close()
+    two.close()  # twice is harmless
+    with pytest.raises(ValueError, match="threads must be 1 or 2, got 3"):
+        Sensors(scene, cam, 1.0, 1.0, np.random.default_rng(3), np.random.default_rng(4), threads=3)

@@ -325,3 +325,16 @@ def test_absurd_thread_counts_are_refused_not_crashed_on():
     for name in ("robust-vo", "deepvo"):
         with pytest.raises(ValueError, match=r"threads must be in \[1, 256\], got 100000"):
             load_odometer(name, threads=100000)
+
+
+def test_bench_json_has_no_nan():
+    """JSON has no NaN: a rate too fast to time becomes null, so browsers and jq can read the file."""
+    import json
+
+    from odolab.bench import _finite
+
+    report = {"odometers": [{"odometer": "action-prior", "steps_per_s": float("nan")},
+                            {"odometer": "icp", "steps_per_s": 18.5, "fails": float("inf")}]}
+    text = json.dumps(_finite(report), allow_nan=False)
+    assert json.loads(text)["odometers"][0]["steps_per_s"] is None
+    assert json.loads(text)["odometers"][1] == {"odometer": "icp", "steps_per_s": 18.5, "fails": None}

@@ -26,6 +26,20 @@ _T_STEPS = 16  # mip lookup bins per metre of hit distance
 
 
 @dataclass(frozen=True)
+class Hits:
+    """One ray cast: ``t`` (H * W,) float32 hit distance along the z = 1 ray, i.e. z-depth (inf for a
+    miss); ``tri`` (H * W,) int32 triangle ids (-1 for a miss); the rays: ``origin`` (3,) float32 and
+    ``dirs`` (3, H * W) float32 (world, z-depth 1); ``keep``: the Open3D result whose memory ``t`` and
+    ``tri`` share."""
+
+    t: np.ndarray
+    tri: np.ndarray
+    origin: np.ndarray
+    dirs: np.ndarray
+    keep: object = None
+
+
+@dataclass(frozen=True)
 class CameraSpec:
     """Sensor geometry: image size (pixels), horizontal FOV (deg), mount height and depth range (m)."""
 
@@ -109,6 +123,7 @@ class Renderer:
         tilt = np.round(0.5 * np.log2(norm / np.maximum(np.abs(self._dirs_cam[:, 1]), 1e-3)) + np.log2(norm))
         self._floor_bias = (np.clip(tilt, 0, self._levels - 1) * self._level_stride).astype(np.int32)
         self._rays = _aligned_empty((self._dirs_cam.shape[0], 6))
+        self._dirs_world = np.empty((3, self._dirs_cam.shape[0]), np.float32)  # rays' directions, by axis
 
     @property
     def raycasting_scene(self):
@@ -122,13 +137,14 @@ class Renderer:
         to 64 bytes (Embree casts unaligned rays 30% slower). Copy it to keep it.
         """
         R = T_world_cam[:3, :3].astype(np.float32)
-        d, rays = self._dirs_cam_t, self._rays
+        d, rays, world = self._dirs_cam_t, self._rays, self._dirs_world
         for i in range(3):  # elementwise, not BLAS: BLAS threads fight Open3D's spinning OpenMP pool
-            col = rays[:, 3 + i]
-            np.multiply(d[0], R[i, 0], out=col)
+            row = world[i]  # contiguous: cheaper to build here and to read again in colour()
+            np.multiply(d[0], R[i, 0], out=row)
             if R[i, 1] != 0:  # zero for the vertical axis of a level camera
-                col += R[i, 1] * d[1]
-            col += R[i, 2]  # d[2] == 1
+                row += R[i, 1] * d[1]
+            row += R[i, 2]  # d[2] == 1
+            rays[:, 3 + i] = row
             rays[:, i] = T_world_cam[i, 3]
         return rays
 
@@ -143,17 +159,31 @@ class Renderer:
 
         ``T_world_cam``: 4x4 camera pose (OpenCV camera axes, world Z up).
         """
-        cam = self.camera
+        hit = self.cast(T_world_cam)
+        return self.colour(hit), self.depth(hit)
+
+    def cast(self, T_world_cam: np.ndarray) -> Hits:
+        """Cast every pixel's ray from ``T_world_cam``; :meth:`colour` and :meth:`depth` read the
+        result (independently: they may run in two threads) until the next cast, which reuses the
+        ray buffer."""
         hit = self._rc.cast_rays(self._rays_tensor(T_world_cam))
-        t = hit["t_hit"].numpy()  # inf for a miss
         # a miss carries the invalid id 2^32 - 1 = -1 as int32: with mode="wrap" it reads the last entry
-        # of each per-triangle table, a black "miss" triangle. np.take: 3x faster than [].
-        tri = hit["primitive_ids"].numpy().view(np.int32)
+        # of each per-triangle table, a black "miss" triangle.
+        return Hits(hit["t_hit"].numpy(), hit["primitive_ids"].numpy().view(np.int32),
+                    self._rays[0, :3].copy(), self._dirs_world, hit)
+
+    def depth(self, hit: Hits) -> np.ndarray:
+        """Clean z-depth (H, W) float32 metres of a :meth:`cast` (0 = no reading: a miss or out of range)."""
+        cam, t = self.camera, hit.t
+        return np.where((t >= cam.min_depth) & (t < cam.max_depth), t, np.float32(0.0)).reshape(cam.height, cam.width)
+
+    def colour(self, hit: Hits) -> np.ndarray:
+        """Clean RGB (H, W, 3) uint8 of a :meth:`cast`: albedo x shading x texture."""
+        cam, t, tri = self.camera, hit.t, hit.tri
         # Hit point coordinates, then the triangle's texture plane:
-        # normal along X -> (Y, Z), along Y -> (X, Z), along Z (floor, ceiling) -> (X, Y).
-        rays = self._rays
+        # normal along X -> (Y, Z), along Y -> (X, Z), along Z (floor, ceiling) -> (X, Y). np.take: 3x faster than [].
         with np.errstate(invalid="ignore"):  # misses: inf / nan coordinates, cast to any int, unseen
-            px, py, pz = (rays[:, i] + t * rays[:, 3 + i] for i in range(3))
+            px, py, pz = (hit.origin[i] + t * hit.dirs[i] for i in range(3))
             axis = np.take(self._tri_axis, tri, mode="wrap")
             pu = np.where(axis == 0, py, px)
             pv = np.where(axis == 2, py, pz)
@@ -168,5 +198,4 @@ class Renderer:
         rgb = np.empty((len(t), 3), np.uint8)
         for k in range(3):  # one 1-D gather per channel: 3x faster than gathering (N, 3) rows
             rgb[:, k] = np.minimum((np.take(self._tri_rgb_t[k], tri, mode="wrap") * tex) >> 7, 255)
-        depth = np.where((t >= cam.min_depth) & (t < cam.max_depth), t, np.float32(0.0))
-        return rgb.reshape(cam.height, cam.width, 3), depth.reshape(cam.height, cam.width)
+        return rgb.reshape(cam.height, cam.width, 3)

@@ -60,11 +60,20 @@ class RGBNoise:
 
     def apply(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Noisy copy of a (H, W, 3) uint8 image."""
-        if self.multiplier == 0:
+        return self.add(rgb, self.draw(rgb.shape, rng))
+
+    def draw(self, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray | None:
+        """The noise of one image of ``shape``, in integer grey levels (int16; None when off). It does
+        not depend on the image, so it may be drawn while the image is being rendered."""
+        return None if self.multiplier == 0 else np.take(self._steps, uniform_u16(rng, shape))
+
+    @staticmethod
+    def add(rgb: np.ndarray, steps: np.ndarray | None) -> np.ndarray:
+        """``rgb`` (uint8) plus the :meth:`draw` ``steps``, clipped to [0, 255]: a new uint8 image."""
+        if steps is None:
             return rgb.copy()
-        out = np.take(self._steps, uniform_u16(rng, rgb.shape))
-        out += rgb
-        return np.clip(out, 0, 255, out=out).astype(np.uint8)
+        steps += rgb
+        return np.clip(steps, 0, 255, out=steps).astype(np.uint8)
 
 
 @dataclass
