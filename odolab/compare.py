@@ -80,6 +80,8 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
                              "meaningless with --tum (a TUM folder is one real recording); drop "
                              f"{'them' if len(ignored) > 1 else 'it'}")
     else:
+        if args.no_cache and "--cache" in _given(argv, ["--cache"]):
+            raise UsageError("--cache and --no-cache contradict each other; give one of them")
         if not args.no_cache:
             check_output_dir(args.cache, "--cache")
         from odolab.parallel import check_ray_option

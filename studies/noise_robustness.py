@@ -43,14 +43,23 @@ def _whole(row: object) -> bool:
     return isinstance(row, dict) and all(isinstance(row.get(k), (int, float)) for k in ROW_KEYS if k != "odometer")
 
 
+def _settings(config: object) -> str:
+    """A results file's settings as the options that set them: "--episodes 20, --max-steps 100, ..."."""
+    if not isinstance(config, dict):
+        return "unknown settings"
+    return ", ".join(f"--{str(k).replace('_', '-')} {v}" for k, v in config.items())
+
+
 def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
-              options: dict | None = None, parallel: bool = True, weights: dict[str, str | None] | None = None) -> dict:
+              options: dict | None = None, parallel: bool = True, weights: dict[str, str | None] | None = None,
+              quiet: bool = False) -> dict:
     """Run what ``out/results.json`` lacks; returns ``{"config": ..., "results": {"<level>/<odometer>": row}}``."""
     path = out / "results.json"
     config = {"episodes": episodes, "max_steps": max_steps, "split": "test", "seed": 0}
     doc = json.loads(path.read_text()) if path.exists() else {"config": config, "results": {}}
     if doc.get("config") != config:
-        raise ValueError(f"{path} was made with {doc.get('config')}, not {config}; choose another --out")
+        raise ValueError(f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; "
+                         "choose another --out")
     weights = weights if weights is not None else _weights(odometers, options or {})
     for level in sorted(set([1.0, *levels])):
         for name in odometers:
@@ -60,14 +69,17 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
                 continue  # done with these weights (a retrained model's rows, or damaged ones, are run again)
             result = run_comparison(ComparisonConfig(
                 odometers=[name], options={name: (options or {}).get(name, {})}, episodes=episodes,
-                max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level), parallel=parallel))
+                max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level), parallel=parallel,
+                progress=not quiet))
             row = [r for r in result.rows if r.odometer == name][0]
             doc["results"][key] = {"level": level, "odometer": name, "steps": row.steps,
                                    **{c: getattr(row, c) for c in COMPONENTS},
                                    **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
                                    "failure_share": row.failure_share, "ate_m": row.ate_m, "weights": weights[name]}
             write_bytes_atomic(path, json.dumps(doc, indent=1).encode())
-            print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS), flush=True)
+            if not quiet:
+                print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS),
+                      flush=True)
     return doc
 
 
@@ -136,12 +148,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 1000), default=20, help="test episodes (default 20)")
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 500), default=100, help="steps each (default 100)")
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars or per-row lines (the table is still printed)")
     args = ap.parse_args(argv)
     parse_level = number("--levels", float, 0.0, 10.0)
     try:
-        levels = [parse_level(v) for v in args.levels.split(",")]
+        levels = list(dict.fromkeys(parse_level(v) for v in args.levels.split(",")))
     except argparse.ArgumentTypeError as exc:
         raise UsageError(str(exc)) from None
+    others = [v for v in levels if v != 1.0]
+    if not others:
+        raise UsageError(f"--levels {args.levels!r}: name at least one multiplier besides 1 (1 is the base "
+                         "every growth factor divides by, and is always run)")
     try:
         odometers = odometer_names(parse_odometer_list(args.odometers))
         weights = _weights(odometers, {})  # "module:Class" names load here too, before any episode
@@ -157,14 +174,13 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(f"{results}: not a results file of this study; delete it or choose another --out") from None
     try:
         doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps, parallel=not args.serial,
-                        weights=weights)
+                        weights=weights, quiet=args.quiet)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     table = growth_table(doc, odometers, levels)
     write_bytes_atomic(args.out / "table.md", table.encode())
-    for level in levels:
-        if level != 1.0:
-            growth_figure(doc, odometers, level, args.out / ("growth.png" if level == levels[-1] else f"growth-x{level:g}.png"))
+    for level in others:  # the last one named is growth.png, any others growth-x<level>.png
+        growth_figure(doc, odometers, level, args.out / ("growth.png" if level == others[-1] else f"growth-x{level:g}.png"))
     print(table)
     return 0
 

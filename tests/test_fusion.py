@@ -277,7 +277,10 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
              (["--episodes", "1", "--max-steps", "5"], "too few to calibrate"),
              (["--cache", str(tmp_path / "file")], "--cache"),
              (["--out", str(tmp_path / "cal.txt")], "unknown file type '.txt'"),
-             (["--check", str(tmp_path / "missing.json")], "no such calibration file")]
+             (["--check", str(tmp_path / "missing.json")], "no such calibration file"),
+             (["--check", str(tmp_path / "old.json"), "--out", str(tmp_path / "x.json")], "--check only prints"),
+             (["--check", str(tmp_path / "old.json")], "a calibration of format 0, this odolab reads format")]
+    (tmp_path / "old.json").write_text('{"format": 0, "inputs": {}}')
     for argv, words in cases:
         assert _calibrate(argv + ["--serial"]) == 2, argv
         err = capsys.readouterr().err

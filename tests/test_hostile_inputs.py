@@ -88,6 +88,8 @@ def test_compare_output_paths_are_checked_before_work(tmp_path):
     a_file.write_text("x")
     one_line_error("odolab.compare", "--cache", a_file, "--out", tmp_path / "o", words="--cache")
     one_line_error("odolab.compare", "--out", a_file, words="is a file, not a folder")
+    one_line_error("odolab.compare", "--no-cache", "--cache", tmp_path / "c", "--out", tmp_path / "o",
+                   words="--cache and --no-cache contradict")
     # /proc refuses new files even to root: a read-only location on every Linux machine
     one_line_error("odolab.compare", "--cache", "/proc/odolab-cache", "--out", tmp_path / "o",
                    words="--cache /proc/odolab-cache: not a writable folder")

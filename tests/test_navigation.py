@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from odolab.api import Action, invert, load_odometer
 from odolab.episodes import EpisodeSpec, render_episode, rollout
@@ -122,6 +123,10 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     for bad in ({"success": float("nan")}, {"spl": 7}, {"true_xy": "x"}, {"steps": 5}, {"d0": -1}):
         path.write_text(json.dumps(row | bad))  # values no run can have: run again, no traceback
         assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64)) is None
+    folder = tmp_path / "0004.json"
+    folder.mkdir()  # a folder where a result file belongs: refused by name (no "Is a directory" later)
+    with pytest.raises(ValueError, match="0004.json is a folder where an episode's result file belongs"):
+        read_row(folder, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64))
     # the odometers say which model file they loaded; a fused one through its inputs
     assert load_odometer("robust-vo").weights and load_odometer("icp").weights is None
     assert load_odometer("fused(icp,robust-vo)").weights not in (None, load_odometer("robust-vo").weights)

@@ -25,3 +25,26 @@ def test_noise_study_resumes_and_reruns_changed_weights(tmp_path, monkeypatch):
     again = study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, parallel=False)
     assert calls == [2.0]
     assert again["results"]["2/action-prior"]["weights"] is None
+
+
+def test_noise_study_command_line_levels_and_refusals(tmp_path, capsys):
+    """Only-base levels are refused in one line; a figure is named after its level; another run's
+    folder is refused naming the settings as options, not as a dict."""
+    from odolab.cli import run_cli
+
+    def cli(*args):
+        return run_cli(study.main, "python -m studies.noise_robustness", [str(a) for a in args])
+
+    assert cli("--levels", "1", "--out", tmp_path / "a") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "besides 1" in err[0]
+    out = tmp_path / "b"
+    assert cli("--levels", "0,1,0", "--odometers", "action-prior", "--episodes", 1, "--max-steps", 3,
+               "--serial", "--quiet", "--out", out) == 0
+    printed = capsys.readouterr().out
+    assert "level 0" not in printed and "| action-prior |" in printed  # quiet: the table only
+    assert sorted(p.name for p in out.glob("*.png")) == ["growth.png"]
+    assert cli("--levels", "2", "--odometers", "action-prior", "--episodes", 2, "--max-steps", 3,
+               "--serial", "--out", out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--episodes 1" in err[0] and "--episodes 2" in err[0] and "{" not in err[0]

@@ -78,6 +78,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
     calibration = None
     if args.check is not None:
+        if "--out" in {a.split("=", 1)[0] for a in (argv if argv is not None else sys.argv[1:])}:
+            raise UsageError("--out is for a new calibration; --check only prints (redirect it to keep it)")
         try:
             calibration = Calibration.load(args.check)
         except ValueError as exc:

@@ -132,6 +132,9 @@ class Calibration:
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ValueError(f"{path}: not a calibration file ({exc})") from None
         fmt = doc.get("format") if isinstance(doc, dict) else None
+        if type(fmt) is int and fmt != FORMAT and isinstance(doc.get("inputs"), dict):
+            raise ValueError(f"{path}: a calibration of format {fmt}, this odolab reads format {FORMAT}; "
+                             "calibrate again with python -m odolab.fusion.calibrate")
         if not isinstance(doc, dict) or type(fmt) is not int or fmt != FORMAT or not isinstance(doc.get("inputs"), dict):
             raise ValueError(f"{path}: not a calibration file of format {FORMAT} (expected keys format, inputs)")
         if not doc["inputs"]:

@@ -95,6 +95,8 @@ def read_row(path: Path, task: NavTask) -> dict | None:
     it is missing or damaged, so that the episode is run again."""
     if not path.exists():
         return None
+    if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
+        raise ValueError(f"{path} is a folder where an episode's result file belongs; delete it or choose another --out")
     try:
         row = json.loads(path.read_text(encoding="utf-8"))
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
