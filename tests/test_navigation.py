@@ -40,6 +40,27 @@ def test_an_agent_with_the_action_prior_believes_a_different_path():
     assert np.abs(run.true_xy - run.believed_xy).max() > 0.05
 
 
+def test_a_boxed_in_agent_backs_out_instead_of_pushing_into_the_wall():
+    """In a dead-end pocket (walls 0.15 m ahead and to both sides, the goal beyond the end wall)
+    every cell around the agent is inside the walls' inflated band, so the planner has no finite
+    cost; the agent must take an open heading (back out), not push on towards the goal for ever."""
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.sim.camera import CameraSpec
+
+    cam = CameraSpec(width=32, height=18)
+    agent = MapPlanAgent((2.0, 0.0), cam.intrinsics, cam.mount_height, PolicyConfig())
+    xs = np.arange(-1.0, 0.2, 0.02)
+    ys = np.arange(-0.17, 0.19, 0.02)
+    wall_x = np.concatenate([xs, xs, np.full(ys.shape, 0.17)])
+    wall_y = np.concatenate([np.full(xs.shape, 0.17), np.full(xs.shape, -0.17), ys])
+    agent.map.vote(wall_x, wall_y, weight=5)
+    blind = np.zeros((cam.height, cam.width), np.float32)  # no new readings
+    assert agent.act(blind) in (Action.TURN_LEFT, Action.TURN_RIGHT)
+    heads = np.radians(np.arange(-180, 180, 10.0))
+    open_way = agent._open_headings(0.0, 0.0, heads)
+    assert not open_way[heads == 0].any() and open_way[np.isclose(np.abs(heads), np.pi)].all()
+
+
 def _navigate(argv):
     from odolab.cli import run_cli
     from odolab.navigate import main

@@ -16,7 +16,10 @@ cells; cells nearer than the agent radius to an obstacle are blocked, and those 
 going round would cost more; unknown cells are traversable); fast marching from the believed goal
 gives a travel-time field in metres at full speed (over the box spanning the agent and the goal plus
 ``plan_margin``, or the whole map when that box holds no way); the agent heads for the lowest field
-value on a circle of 0.25 m around it: it moves forward when that heading is within
+value on a circle of 0.25 m around it, among the headings whose straight step passes no obstacle cell
+nearer than ``obstacle_gap`` (when none has a finite value, as inside a wall's inflated band, the open
+heading nearest the goal's direction; when none is open, it turns round): it moves forward when that
+heading is within
 ``heading_tolerance`` of its own, else turns towards it; a forward step that moved the belief by
 less than ``stuck_distance`` marks the cell ahead as an obstacle. It calls STOP when the believed
 goal is nearer than ``stop_distance``.
@@ -50,6 +53,7 @@ class PolicyConfig:
     extent: float = 8.0  # map margin beyond the box around start and goal
     plan_margin: float = 5.0  # planning window margin around the agent and the goal
     memory: int = 1000  # steps an obstacle is remembered without being seen again
+    obstacle_gap: float = 0.05  # a forward step's straight path keeps this far from obstacle cells
 
     def __post_init__(self) -> None:
         for name in ("cell", "max_range", "stop_distance", "extent", "plan_margin"):
@@ -57,9 +61,9 @@ class PolicyConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.min_height < self.max_height:
             raise ValueError(f"need 0 <= min_height < max_height, got {self.min_height}, {self.max_height}")
-        if not 0 < self.margin_speed <= 1 or self.margin < 0 or self.agent_radius < 0:
-            raise ValueError(f"need margin_speed in (0, 1], margin >= 0 and agent_radius >= 0, got "
-                             f"{self.margin_speed}, {self.margin}, {self.agent_radius}")
+        if not 0 < self.margin_speed <= 1 or self.margin < 0 or self.agent_radius < 0 or not self.obstacle_gap >= 0:
+            raise ValueError(f"need margin_speed in (0, 1], margin, agent_radius and obstacle_gap >= 0, got "
+                             f"{self.margin_speed}, {self.margin}, {self.agent_radius}, {self.obstacle_gap}")
         if self.stride < 1 or self.votes < 1:
             raise ValueError(f"stride and votes must be >= 1, got {self.stride}, {self.votes}")
 
@@ -173,6 +177,27 @@ class MapPlanAgent:
         out[r0:r1, c0:c1] = np.ma.filled(d.astype(np.float64), np.inf)
         return out
 
+    def _open_headings(self, x: float, y: float, headings: np.ndarray) -> np.ndarray:
+        """(len(headings),) bool: whether a forward step along each heading (rad, belief frame) from
+        (x, y) keeps ``obstacle_gap`` m from every obstacle cell (sampled every half cell). The field
+        is read 0.25 m ahead; without this check a wall seen as one cell thick, with unknown (free)
+        cells behind it, would be stepped over in the plan and bumped into for ever."""
+        cfg, m = self.cfg, self.map
+        obstacle = m.obstacles(cfg.votes, cfg.memory)
+        reach = int(np.ceil(cfg.obstacle_gap / cfg.cell))
+        dist = np.arange(cfg.cell / 2, FORWARD_STEP + 1e-9, cfg.cell / 2)
+        px = x + dist[None, :] * np.cos(headings)[:, None]
+        py = y + dist[None, :] * np.sin(headings)[:, None]
+        r, c, _ = m.to_cell(px, py)
+        blocked = np.zeros(r.shape, bool)
+        for dr in range(-reach, reach + 1):
+            for dc in range(-reach, reach + 1):
+                if dr * dr + dc * dc <= reach * reach:
+                    rr, cc = r + dr, c + dc
+                    ok = (rr >= 0) & (rr < m.n) & (cc >= 0) & (cc < m.n)
+                    blocked[ok] |= obstacle[rr[ok], cc[ok]]
+        return ~blocked.any(axis=1)
+
     def act(self, depth: np.ndarray) -> Action:
         """The next action after seeing ``depth`` at the current believed pose."""
         cfg = self.cfg
@@ -191,13 +216,20 @@ class MapPlanAgent:
         px, py = x + FORWARD_STEP * np.cos(headings), y + FORWARD_STEP * np.sin(headings)
         r, c, inside = self.map.to_cell(px, py)
         cost = np.full(len(headings), np.inf)
+        open_way = self._open_headings(x, y, headings)
         for margin in (cfg.plan_margin, None):  # the window first; the whole map if no way out of it
             field = self._field(x, y, margin)
             cost[inside] = field[r[inside], c[inside]]
+            cost[~open_way] = np.inf
             if np.isfinite(cost).any():
                 break
-        if not np.isfinite(cost).any():  # off the map or boxed in: head straight for the goal
-            target = np.arctan2(*(self.goal - (x, y))[::-1])
+        if not np.isfinite(cost).any():  # off the map or boxed in (e.g. in a wall's inflated band)
+            goal_dir = np.arctan2(*(self.goal - (x, y))[::-1])
+            if open_way.any():  # the open heading nearest the goal's direction: out of the band first
+                gap = np.abs(wrap_angle(headings - goal_dir))
+                target = headings[int(np.argmin(np.where(open_way, gap, np.inf)))]
+            else:  # every step would hit an obstacle cell: turn and look again
+                target = yaw + np.pi
         else:
             turn = np.abs(np.radians(np.arange(-180, 180, 10.0)))  # ties go to the smaller turn
             target = headings[int(np.argmin(cost + 1e-3 * turn))]
