@@ -11,6 +11,7 @@ Fitting needs only the motion (no images), so 400 episodes take a few seconds.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
@@ -53,6 +54,17 @@ class ActionPrior:
         if any(len(v) != 3 for v in means.values()):
             raise ValueError(f"{origin}: each mean must be [dx, dz, dyaw]")
         return cls(means, samples, str(data.get("source", "")))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "ActionPrior":
+        """Read a prior written by ``python -m odolab.action_prior``; errors name the file."""
+        try:
+            data = json.loads(Path(path).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            raise ValueError(f"{path}: not an action prior file ({exc})") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: not an action prior file (expected a JSON object)")
+        return cls.from_json(data, origin=str(path))
 
     @classmethod
     def shipped(cls) -> "ActionPrior":

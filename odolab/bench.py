@@ -141,6 +141,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json is not None:
         check_output_file(args.json, "--json")
     parts = args.only or ["simulator", "odometers", "evaluate"]
+    if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
+        raise UsageError(f"--odometers and --odometer-option choose what the odometer part times; "
+                         f"--only {' '.join(dict.fromkeys(parts))} does not run it")
     try:
         names = standalone_odometers() if args.odometers is None else parse_odometer_list(args.odometers)
     except ValueError as exc:

@@ -9,6 +9,7 @@ and the generator's policy driven step by step sees exactly the stored frames.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,14 +45,11 @@ class Sensors:
 
     def __init__(self, scene: Scene, camera: CameraSpec, rgb_noise: float, depth_noise: float,
                  rgb_rng: np.random.Generator, depth_rng: np.random.Generator, threads: int = 2) -> None:
-        if threads not in (1, 2):
-            raise ValueError(f"Sensors threads must be 1 or 2, got {threads!r}")
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
+            raise ValueError(f"Sensors threads must be the integer 1 or 2, got {threads!r}")
         self.camera = camera
-        self._pool = None
-        if threads == 2:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="odolab-depth")
+        self.threads = int(threads)
+        self._pool, self._pool_pid = None, None
         self.renderer = Renderer(scene, camera)
         self.rgb_noise = RGBNoise(multiplier=rgb_noise)
         self.depth_noise = RedwoodDepthNoise(multiplier=depth_noise, min_depth=camera.min_depth,
@@ -61,6 +59,11 @@ class Sensors:
     def read(self, T_world_cam: np.ndarray) -> SensorReading:
         """The clean and noisy frame seen from ``T_world_cam`` (4x4, OpenCV camera axes, world Z up)."""
         hit = self.renderer.cast(T_world_cam)
+        if self.threads == 2 and self._pool_pid != os.getpid():  # first read, or in a forked child
+            from concurrent.futures import ThreadPoolExecutor  # (a fork copies no threads)
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="odolab-depth")
+            self._pool_pid = os.getpid()
         if self._pool is None:
             clean_depth, depth, steps = self._depth_path(hit)
         else:
@@ -78,14 +81,15 @@ class Sensors:
         return clean, self.depth_noise.apply(clean, self.depth_rng), self.rgb_noise.draw((cam.height, cam.width, 3), self.rgb_rng)
 
     def close(self) -> None:
-        """Stop the depth thread (also done when the object is collected)."""
-        if self._pool is not None:
+        """Stop the depth thread (also done when the object is collected); a later read runs in one
+        thread."""
+        if self._pool is not None and self._pool_pid == os.getpid():
             self._pool.shutdown(wait=True)
-            self._pool = None
+        self._pool, self._pool_pid, self.threads = None, None, 1
 
     def __del__(self) -> None:
         pool = getattr(self, "_pool", None)
-        if pool is not None:
+        if pool is not None and getattr(self, "_pool_pid", None) == os.getpid():
             pool.shutdown(wait=False)
 
 

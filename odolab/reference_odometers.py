@@ -27,8 +27,14 @@ class GroundTruthOdometer(Odometer):
 class ActionPriorOdometer(Odometer):
     """Predicts the train-split mean motion of the action (see :mod:`odolab.action_prior`)."""
 
-    def __init__(self, prior: ActionPrior | None = None) -> None:
-        self.prior = prior or ActionPrior.shipped()
+    def __init__(self, prior: "ActionPrior | str | None" = None) -> None:
+        """``prior``: a table, the path of one written by ``python -m odolab.action_prior``, or None
+        (or "") for the shipped one."""
+        if isinstance(prior, str):
+            prior = ActionPrior.load(prior) if prior else None
+        elif prior is not None and not isinstance(prior, ActionPrior):
+            raise ValueError(f"prior must be the path of an action prior file, got {prior!r}")
+        self.prior = prior if prior is not None else ActionPrior.shipped()
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         return Estimate.from_planar(*self.prior.motion(action))

@@ -39,15 +39,27 @@ ROW_KEYS = ("level", "odometer", "steps", *COMPONENTS, *(f"{c}_own" for c in COM
 
 
 def _whole(row: object) -> bool:
-    """A saved row with every number the table needs."""
-    return isinstance(row, dict) and all(isinstance(row.get(k), (int, float)) for k in ROW_KEYS if k != "odometer")
+    """A saved row with every number the table needs (finite where a run always gives a number: an
+    odometer whose every step failed has no own error, NaN, and is written as null)."""
+    if not isinstance(row, dict):
+        return False
+    need = [k for k in ROW_KEYS if k != "odometer" and not k.endswith("_own")]
+    return (all(isinstance(row.get(k), (int, float)) and np.isfinite(row[k]) for k in need)
+            and all(row.get(k) is None or isinstance(row.get(k), (int, float)) for k in ROW_KEYS if k.endswith("_own")))
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 def _settings(config: object) -> str:
-    """A results file's settings as the options that set them: "--episodes 20, --max-steps 100, ..."."""
+    """A results file's settings as the options that set them: "--episodes 20 --max-steps 100"
+    (the split and seed are fixed by the study, named only when a file differs in them)."""
     if not isinstance(config, dict):
         return "unknown settings"
-    return ", ".join(f"--{str(k).replace('_', '-')} {v}" for k, v in config.items())
+    said = [f"--{k.replace('_', '-')} {config.get(k)}" for k in ("episodes", "max_steps")]
+    said += [f"{k} {config.get(k)}" for k in ("split", "seed") if config.get(k) != {"split": "test", "seed": 0}[k]]
+    return " ".join(said)
 
 
 def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
@@ -60,6 +72,10 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
     if doc.get("config") != config:
         raise ValueError(f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; "
                          "choose another --out")
+    for row in doc["results"].values():  # files from before rows were written without NaN
+        for k in (f"{c}_own" for c in COMPONENTS):
+            if isinstance(row, dict) and isinstance(row.get(k), float) and not np.isfinite(row[k]):
+                row[k] = None
     weights = weights if weights is not None else _weights(odometers, options or {})
     for level in sorted(set([1.0, *levels])):
         for name in odometers:
@@ -74,9 +90,9 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
             row = [r for r in result.rows if r.odometer == name][0]
             doc["results"][key] = {"level": level, "odometer": name, "steps": row.steps,
                                    **{c: getattr(row, c) for c in COMPONENTS},
-                                   **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
+                                   **{f"{c}_own": _finite_or_none(getattr(row, f"{c}_own")) for c in COMPONENTS},
                                    "failure_share": row.failure_share, "ate_m": row.ate_m, "weights": weights[name]}
-            write_bytes_atomic(path, json.dumps(doc, indent=1).encode())
+            write_bytes_atomic(path, json.dumps(doc, indent=1, allow_nan=False).encode())
             if not quiet:
                 print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS),
                       flush=True)
@@ -152,7 +168,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     parse_level = number("--levels", float, 0.0, 10.0)
     try:
-        levels = list(dict.fromkeys(parse_level(v) for v in args.levels.split(",")))
+        # one level per printed key ("2" and "2.0000001" are both "2/..."); -0 is 0
+        levels = {}
+        for value in (parse_level(v) + 0.0 for v in args.levels.split(",")):
+            levels.setdefault(f"{value:g}", value)
+        levels = list(levels.values())
     except argparse.ArgumentTypeError as exc:
         raise UsageError(str(exc)) from None
     others = [v for v in levels if v != 1.0]

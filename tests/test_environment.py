@@ -53,7 +53,17 @@ def test_sensors_give_the_same_frames_with_the_depth_path_in_a_second_thread():
         for field in ("clean_rgb", "clean_depth", "rgb", "depth"):
             assert np.array_equal(getattr(a, field), getattr(b, field)), field
     assert (a.depth > 0).any() and a.rgb.std() > 0  # real frames, not empty ones
+    import multiprocessing
+
+    child = multiprocessing.get_context("fork").Process(target=two.read, args=(poses[0],))
+    child.start()  # a forked child has no copy of the depth thread: it must make its own, not hang
+    child.join(60)
+    if child.is_alive():
+        child.kill()
+    assert child.exitcode == 0
     two.close()
     two.close()  # twice is harmless
-    with pytest.raises(ValueError, match="threads must be 1 or 2, got 3"):
-        Sensors(scene, cam, 1.0, 1.0, np.random.default_rng(3), np.random.default_rng(4), threads=3)
+    assert np.array_equal(two.read(poses[0]).depth, one.read(poses[0]).depth)  # after close: one thread
+    for bad in (3, True, 2.0):
+        with pytest.raises(ValueError, match="threads must be the integer 1 or 2"):
+            Sensors(scene, cam, 1.0, 1.0, np.random.default_rng(3), np.random.default_rng(4), threads=bad)

@@ -2,6 +2,8 @@
 fused odometer's fallback and its name in the registry."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -281,6 +283,13 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
              (["--check", str(tmp_path / "old.json"), "--out", str(tmp_path / "x.json")], "--check only prints"),
              (["--check", str(tmp_path / "old.json")], "a calibration of format 0, this odolab reads format")]
     (tmp_path / "old.json").write_text('{"format": 0, "inputs": {}}')
+    import json
+
+    shipped = json.loads((Path(__file__).parents[1] / "odolab/data/fusion/calibration.json").read_text())
+    shipped["inputs"] = {k: v for k, v in shipped["inputs"].items() if k in ("action-prior", "icp")}
+    (tmp_path / "two.json").write_text(json.dumps(shipped))
+    cases.append((["--check", str(tmp_path / "two.json"), "--odometers", "action-prior,icp,open3d-rgbd,robust-vo"],
+                  "no calibration for 'open3d-rgbd'"))  # the default list typed out is still a list given
     for argv, words in cases:
         assert _calibrate(argv + ["--serial"]) == 2, argv
         err = capsys.readouterr().err

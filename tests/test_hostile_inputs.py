@@ -329,6 +329,11 @@ def test_absurd_thread_counts_are_refused_not_crashed_on():
             load_odometer(name, threads=100000)
 
 
+def test_bench_refuses_odometer_options_it_would_ignore():
+    one_line_error("odolab.bench", "--only", "evaluate", "--odometers", "icp", words="does not run it")
+    one_line_error("odolab.bench", "--only", "simulator", "--odometer-option", "icp.x=1", words="does not run it")
+
+
 def test_bench_json_has_no_nan():
     """JSON has no NaN: a rate too fast to time becomes null, so browsers and jq can read the file."""
     import json

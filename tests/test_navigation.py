@@ -153,6 +153,31 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     assert load_odometer("fused(icp,robust-vo)").weights not in (None, load_odometer("robust-vo").weights)
 
 
+def test_navigate_refuses_a_file_where_its_result_folders_belong(tmp_path):
+    """Checked before any episode runs (not when the first result is written, losing the episode);
+    a config.json whose options are not an object is not a navigation config."""
+    import json
+
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.navigation.study import NavTask, config_doc, run_navigation
+
+    spec = EpisodeSpec(split="test", index=0, max_steps=5)
+    task = NavTask("ground-truth", {}, spec, PolicyConfig(), None)
+    config = config_doc(["ground-truth"], {}, [spec], PolicyConfig())
+    for where in ("episodes", "episodes/ground-truth"):
+        out = tmp_path / where.replace("/", "-")
+        (out / where).parent.mkdir(parents=True, exist_ok=True)
+        (out / where).write_text("x")
+        (out / "config.json").write_text(json.dumps(config))
+        with pytest.raises(ValueError, match=f"{where} is a file where navigate keeps a folder"):
+            run_navigation(out, [task], config, parallel=False, progress=False)
+    out = tmp_path / "cfg"
+    out.mkdir()
+    (out / "config.json").write_text(json.dumps({**config, "options": []}))
+    with pytest.raises(ValueError, match="not a navigation config"):
+        run_navigation(out, [task], config, parallel=False, progress=False)
+
+
 def test_the_tables_quote_fused_names():
     import csv
     import io

@@ -32,6 +32,9 @@ def test_confidence_intervals():
     assert ci.mean == 0.95 and 0.88 < ci.low < 0.90 and 0.97 < ci.high < 0.99  # Wilson
     all_ok = mean_ci(np.ones(20), binary=True)
     assert all_ok.high == pytest.approx(1.0) and all_ok.low < 0.9  # not degenerate at 100 %
+    for n in range(1, 301):  # 0 or n of n: the bounds contain the mean exactly (error bars >= 0)
+        none, every = mean_ci(np.zeros(n), binary=True), mean_ci(np.ones(n), binary=True)
+        assert none.low <= none.mean == 0.0 < none.high and every.low < every.mean == 1.0 <= every.high
     spl = mean_ci(np.array([0.5, 0.7, 0.9, 0.6]))
     assert spl.low < 0.675 < spl.high and spl.n == 4
     assert np.isnan(mean_ci(np.array([])).mean)

@@ -48,3 +48,19 @@ def test_noise_study_command_line_levels_and_refusals(tmp_path, capsys):
                "--serial", "--out", out) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--episodes 1" in err[0] and "--episodes 2" in err[0] and "{" not in err[0]
+
+
+def test_noise_study_levels_are_one_per_printed_key_and_nan_rows_run_again(tmp_path, capsys, monkeypatch):
+    from odolab.cli import run_cli
+
+    seen = []
+    monkeypatch.setattr(study, "run_study", lambda out, odometers, levels, *a, **k: seen.append(levels) or
+                        {"config": {}, "results": {}})
+    monkeypatch.setattr(study, "growth_table", lambda *a: "table")
+    monkeypatch.setattr(study, "growth_figure", lambda *a: None)
+    assert run_cli(study.main, "s", ["--levels", "2,2.0000001,-0,0", "--odometers", "action-prior",
+                                     "--out", str(tmp_path / "o")]) == 0
+    assert seen == [[2.0, 0.0]] and str(seen[0][1]) == "0.0"  # not -0.0
+    row = {"level": 1.0, "odometer": "x", "steps": 3, "dx": 1.0, "dz": 1.0, "dyaw": 1.0, "dx_own": None,
+           "dz_own": 1.0, "dyaw_own": 1.0, "failure_share": 0.0, "ate_m": 0.1}
+    assert study._whole(row) and not study._whole(row | {"dx": float("nan")})

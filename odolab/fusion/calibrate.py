@@ -78,13 +78,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
     calibration = None
     if args.check is not None:
-        if "--out" in {a.split("=", 1)[0] for a in (argv if argv is not None else sys.argv[1:])}:
+        given = {a.split("=", 1)[0] for a in (argv if argv is not None else sys.argv[1:])}
+        if "--out" in given:
             raise UsageError("--out is for a new calibration; --check only prints (redirect it to keep it)")
         try:
             calibration = Calibration.load(args.check)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
-        if args.odometers == ap.get_default("odometers"):
+        if "--odometers" not in given:  # all the file calibrates; named ones must all be in it
             names = sorted(calibration.inputs)
         missing = [n for n in names if n not in calibration.inputs]
         if missing:

@@ -129,7 +129,7 @@ class Calibration:
             doc = json.loads(open(path, encoding="utf-8").read())
         except FileNotFoundError:
             raise ValueError(f"{path}: no such calibration file") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
             raise ValueError(f"{path}: not a calibration file ({exc})") from None
         fmt = doc.get("format") if isinstance(doc, dict) else None
         if type(fmt) is int and fmt != FORMAT and isinstance(doc.get("inputs"), dict):
@@ -147,7 +147,7 @@ class Calibration:
                                        {k: (None if v is None else float(v)) for k, v in c["own_scale"].items()},
                                        {k: int(v) for k, v in c["steps"].items()},
                                        {k: float(v) for k, v in c.get("inside95", {}).items()})
-            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
                 raise ValueError(f"{path}: input {name!r}: expected fixed, own_scale, steps per action ({exc})") from None
             where = f"{path}: input {name!r}"
             unknown = sorted((set(cal.fixed) | set(cal.own_scale)) - labels)

@@ -82,7 +82,8 @@ def mean_ci(values: np.ndarray, binary: bool = False, confidence: float = 0.95) 
             raise ValueError("binary=True needs values that are all 0 or 1")
         centre = (m + z * z / (2 * n)) / (1 + z * z / n)
         half = z * np.sqrt(m * (1 - m) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-        return MeanCI(m, float(centre - half), float(centre + half), n)
+        # Wilson's bounds contain the mean exactly; rounding can put them 1e-18 beyond it at 0 or n of n
+        return MeanCI(m, float(min(centre - half, m)), float(max(centre + half, m)), n)
     if n == 1:
         return MeanCI(m, float("nan"), float("nan"), 1)
     half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * v.std(ddof=1) / np.sqrt(n))

@@ -101,7 +101,7 @@ def read_row(path: Path, task: NavTask) -> dict | None:
         row = json.loads(path.read_text(encoding="utf-8"))
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
               and row["episode"] == task.spec.index and row.get("weights") == task.weights and _sane(row))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
         ok = False
     if not ok:
         print(f"note: {path} is damaged or belongs to another run or model file; running that episode again",
@@ -142,7 +142,9 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
             saved = json.loads(cfg_path.read_text(encoding="utf-8"))
             if not isinstance(saved, dict):
                 raise ValueError("not a JSON object")
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            if not isinstance(saved.get("options", {}), dict):
+                raise ValueError("its 'options' is not a JSON object")
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
             raise ValueError(f"{cfg_path}: not a navigation config ({exc}); choose another --out") from None
         changed = _episode_changes(saved.get("episodes"), config["episodes"])
         changed += ["the policy"] if saved.get("policy") != config.get("policy") else []
@@ -152,6 +154,11 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
             raise ValueError(f"{out} holds navigation results made with other settings ({', '.join(changed)}); "
                              "choose another --out or delete it")
         config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
+    for folder in {result_path(out, t.odometer, t.spec.index).parent for t in tasks}:
+        for p in (folder.parent, folder):  # checked before any episode runs, not when its result is written
+            if p.exists() and not p.is_dir():
+                raise ValueError(f"{p} is a file where navigate keeps a folder of episode results; delete it or "
+                                 "choose another --out")
     write_text_atomic(cfg_path, json.dumps(config, indent=1) + "\n")
     todo = [t for t in tasks if read_row(result_path(out, t.odometer, t.spec.index), t) is None]
 
@@ -206,7 +213,7 @@ def metrics_figure(table: list[dict], path: Path) -> None:
     for k, (m, label) in enumerate((("success", "success"), ("spl", "SPL"), ("soft_spl", "SoftSPL"))):
         mean = np.array([r[m] for r in table])
         err = np.array([[r[m] - r[f"{m}_low"] for r in table], [r[f"{m}_high"] - r[m] for r in table]])
-        ax.bar(x + (k - 1) * width, mean, width, yerr=np.nan_to_num(err), capsize=3, label=label)
+        ax.bar(x + (k - 1) * width, mean, width, yerr=np.maximum(np.nan_to_num(err), 0.0), capsize=3, label=label)
     ax.set_xticks(x, [r["odometer"] for r in table], rotation=20, ha="right", fontsize=8)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("mean over episodes (95 % interval)")
