@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
             levels.setdefault(f"{value:g}", value)
         levels = list(levels.values())
     except argparse.ArgumentTypeError as exc:
-        raise UsageError(str(exc)) from None
+        raise UsageError(f"{exc} (in --levels {args.levels!r}: comma-separated numbers)") from None
     others = [v for v in levels if v != 1.0]
     if not others:
         raise UsageError(f"--levels {args.levels!r}: name at least one multiplier besides 1 (1 is the base "

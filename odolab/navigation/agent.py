@@ -18,7 +18,9 @@ gives a travel-time field in metres at full speed (over the box spanning the age
 ``plan_margin``, or the whole map when that box holds no way); the agent heads for the lowest field
 value on a circle of 0.25 m around it, among the headings whose straight step passes no obstacle cell
 nearer than ``obstacle_gap`` (when none has a finite value, as inside a wall's inflated band, the open
-heading nearest the goal's direction; when none is open, it turns round): it moves forward when that
+heading nearest the goal's direction; when none is open, the goal's direction; obstacle cells within
+``own_clearance`` of the believed position, where the agent itself stands, are misregistered and
+ignored by the check): it moves forward when that
 heading is within
 ``heading_tolerance`` of its own, else turns towards it; a forward step that moved the belief by
 less than ``stuck_distance`` marks the cell ahead as an obstacle. It calls STOP when the believed
@@ -54,6 +56,7 @@ class PolicyConfig:
     plan_margin: float = 5.0  # planning window margin around the agent and the goal
     memory: int = 1000  # steps an obstacle is remembered without being seen again
     obstacle_gap: float = 0.05  # a forward step's straight path keeps this far from obstacle cells
+    own_clearance: float = 0.1  # obstacle cells this near the believed position are ignored by that check
 
     def __post_init__(self) -> None:
         for name in ("cell", "max_range", "stop_distance", "extent", "plan_margin"):
@@ -61,9 +64,11 @@ class PolicyConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.min_height < self.max_height:
             raise ValueError(f"need 0 <= min_height < max_height, got {self.min_height}, {self.max_height}")
-        if not 0 < self.margin_speed <= 1 or self.margin < 0 or self.agent_radius < 0 or not self.obstacle_gap >= 0:
-            raise ValueError(f"need margin_speed in (0, 1], margin, agent_radius and obstacle_gap >= 0, got "
-                             f"{self.margin_speed}, {self.margin}, {self.agent_radius}, {self.obstacle_gap}")
+        if (not 0 < self.margin_speed <= 1 or self.margin < 0 or self.agent_radius < 0 or not self.obstacle_gap >= 0
+                or not self.own_clearance >= 0):
+            raise ValueError(f"need margin_speed in (0, 1], margin, agent_radius, obstacle_gap and own_clearance >= 0, "
+                             f"got {self.margin_speed}, {self.margin}, {self.agent_radius}, {self.obstacle_gap}, "
+                             f"{self.own_clearance}")
         if self.stride < 1 or self.votes < 1:
             raise ValueError(f"stride and votes must be >= 1, got {self.stride}, {self.votes}")
 
@@ -189,12 +194,15 @@ class MapPlanAgent:
         px = x + dist[None, :] * np.cos(headings)[:, None]
         py = y + dist[None, :] * np.sin(headings)[:, None]
         r, c, _ = m.to_cell(px, py)
+        ar, ac, _ = m.to_cell(x, y)
+        own = int(np.floor(cfg.own_clearance / cfg.cell))  # cells the agent stands on: ghosts if marked
         blocked = np.zeros(r.shape, bool)
         for dr in range(-reach, reach + 1):
             for dc in range(-reach, reach + 1):
                 if dr * dr + dc * dc <= reach * reach:
                     rr, cc = r + dr, c + dc
                     ok = (rr >= 0) & (rr < m.n) & (cc >= 0) & (cc < m.n)
+                    ok &= (rr - ar) ** 2 + (cc - ac) ** 2 > own * own
                     blocked[ok] |= obstacle[rr[ok], cc[ok]]
         return ~blocked.any(axis=1)
 
@@ -228,8 +236,8 @@ class MapPlanAgent:
             if open_way.any():  # the open heading nearest the goal's direction: out of the band first
                 gap = np.abs(wrap_angle(headings - goal_dir))
                 target = headings[int(np.argmin(np.where(open_way, gap, np.inf)))]
-            else:  # every step would hit an obstacle cell: turn and look again
-                target = yaw + np.pi
+            else:  # obstacles all round in the belief (a drifted map): head for the goal
+                target = goal_dir
         else:
             turn = np.abs(np.radians(np.arange(-180, 180, 10.0)))  # ties go to the smaller turn
             target = headings[int(np.argmin(cost + 1e-3 * turn))]
