@@ -45,7 +45,7 @@ __all__ = [
     "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
     # running and comparing
     "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison",
-    "run_odometers", "load_tum_sequence", "write_bytes_atomic",
+    "run_odometers", "load_tum_sequence", "write_bytes_atomic", "write_json_atomic",
     # evaluating trajectories (the library behind python -m odolab.evaluate)
     "Evaluation", "Trajectory", "evaluate_trajectory", "pair_trajectories",
 ]
@@ -55,7 +55,7 @@ if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and
     from odolab.datasets import Pair, PairDataset, episode_specs, true_motions
     from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes, stream_episodes
     from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
-    from odolab.io.atomic import write_bytes_atomic
+    from odolab.io.atomic import write_bytes_atomic, write_json_atomic
     from odolab.io.tum_rgbd import load_tum_sequence
     from odolab.runner import SequenceResult
     from odolab.sim.scenes import SPLITS
@@ -71,6 +71,7 @@ _LAZY = {
     "ComparisonError": "odolab.comparison",
     "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner",
     "load_tum_sequence": "odolab.io.tum_rgbd", "write_bytes_atomic": "odolab.io.atomic",
+    "write_json_atomic": "odolab.io.atomic",
     "Evaluation": "odolab.evaluation", "evaluate_trajectory": "odolab.evaluation",
     "pair_trajectories": "odolab.evaluation", "Trajectory": "odolab.trajectory",
 }

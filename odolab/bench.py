@@ -6,7 +6,6 @@ textured frame should cost at most 2x that (aim 1.5x).
 """
 from __future__ import annotations
 
-import json
 import platform
 import time
 from pathlib import Path
@@ -105,18 +104,6 @@ def _cpu_model() -> str:
     return "unknown"
 
 
-def _finite(value):
-    """``value`` with every non-finite float replaced by ``None`` (JSON has no NaN: a rate too fast to
-    time, such as the action prior's, is written as null)."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
-
-
 def _table(rows: list[dict]) -> str:
     if not rows:
         return ""
@@ -184,9 +171,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\n## Trajectory evaluation on KITTI 00 (wall seconds per command)\n")
         print(_table([report["evaluate"]]))
     if args.json:
-        from odolab.io.atomic import write_text_atomic
+        from odolab.io.atomic import write_json_atomic
 
-        write_text_atomic(args.json, json.dumps(_finite(report), indent=2, default=float, allow_nan=False))
+        write_json_atomic(args.json, report, indent=2)
     return 0
 
 

@@ -68,6 +68,13 @@ def seed(name: str = "--seed") -> Callable[[str], int]:
     return number(name, int, 0, MAX_SEED)
 
 
+def given_options(argv: Sequence[str] | None, options: Iterable[str]) -> list[str]:
+    """The ``options`` that appear in ``argv`` (``--opt value`` or ``--opt=value``; None: the
+    process's own arguments): what the user typed, as opposed to a default equal to it."""
+    used = {a.split("=", 1)[0] for a in (sys.argv[1:] if argv is None else argv) if a.startswith("--")}
+    return [o for o in options if o in used]
+
+
 def _describe(exc: OSError) -> str:
     return (exc.strerror or str(exc)).lower()
 

@@ -11,8 +11,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_report_dir, number, path_arg,
-                        run_cli, seed)
+from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_report_dir, given_options,
+                        number, path_arg, run_cli, seed)
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
 from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers
@@ -63,24 +63,18 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _given(argv: Sequence[str], options: Sequence[str]) -> list[str]:
-    """The ``options`` that appear in ``argv`` (``--opt value`` or ``--opt=value``)."""
-    used = {a.split("=", 1)[0] for a in argv if a.startswith("--")}
-    return [o for o in options if o in used]
-
-
 def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
     """Every check that can fail on the user's input, done before any episode or odometer runs."""
     if args.split not in SPLITS:
         raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     if args.tum is not None:
-        ignored = _given(argv, SIMULATOR_OPTIONS)
+        ignored = given_options(argv, SIMULATOR_OPTIONS)
         if ignored:
             raise UsageError(f"{', '.join(ignored)}: simulator option{'s' if len(ignored) > 1 else ''}, "
                              "meaningless with --tum (a TUM folder is one real recording); drop "
                              f"{'them' if len(ignored) > 1 else 'it'}")
     else:
-        if args.no_cache and "--cache" in _given(argv, ["--cache"]):
+        if args.no_cache and given_options(argv, ["--cache"]):
             raise UsageError("--cache and --no-cache contradict each other; give one of them")
         if not args.no_cache:
             check_output_dir(args.cache, "--cache")

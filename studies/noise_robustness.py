@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from odolab.api import ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic
+from odolab.api import (ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic,
+                        write_json_atomic)
 
 COMPONENTS = ("dx", "dz", "dyaw")
 DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo,deepvo"
@@ -48,10 +49,6 @@ def _whole(row: object) -> bool:
             and all(row.get(k) is None or isinstance(row.get(k), (int, float)) for k in ROW_KEYS if k.endswith("_own")))
 
 
-def _finite_or_none(value: float) -> float | None:
-    return float(value) if np.isfinite(value) else None
-
-
 def _settings(config: object) -> str:
     """A results file's settings as the options that set them: "--episodes 20 --max-steps 100"
     (the split and seed are fixed by the study, named only when a file differs in them)."""
@@ -72,10 +69,6 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
     if doc.get("config") != config:
         raise ValueError(f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; "
                          "choose another --out")
-    for row in doc["results"].values():  # files from before rows were written without NaN
-        for k in (f"{c}_own" for c in COMPONENTS):
-            if isinstance(row, dict) and isinstance(row.get(k), float) and not np.isfinite(row[k]):
-                row[k] = None
     weights = weights if weights is not None else _weights(odometers, options or {})
     for level in sorted(set([1.0, *levels])):
         for name in odometers:
@@ -90,9 +83,9 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
             row = [r for r in result.rows if r.odometer == name][0]
             doc["results"][key] = {"level": level, "odometer": name, "steps": row.steps,
                                    **{c: getattr(row, c) for c in COMPONENTS},
-                                   **{f"{c}_own": _finite_or_none(getattr(row, f"{c}_own")) for c in COMPONENTS},
+                                   **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
                                    "failure_share": row.failure_share, "ate_m": row.ate_m, "weights": weights[name]}
-            write_bytes_atomic(path, json.dumps(doc, indent=1, allow_nan=False).encode())
+            write_json_atomic(path, doc)  # NaN (no own error) as null
             if not quiet:
                 print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS),
                       flush=True)

@@ -334,14 +334,17 @@ def test_bench_refuses_odometer_options_it_would_ignore():
     one_line_error("odolab.bench", "--only", "simulator", "--odometer-option", "icp.x=1", words="does not run it")
 
 
-def test_bench_json_has_no_nan():
-    """JSON has no NaN: a rate too fast to time becomes null, so browsers and jq can read the file."""
+def test_json_reports_have_no_nan(tmp_path):
+    """JSON has no NaN: a rate too fast to time (bench) or a missing own error (noise study) becomes
+    null, so browsers and jq can read the file."""
     import json
 
-    from odolab.bench import _finite
+    from odolab.io.atomic import write_json_atomic
 
     report = {"odometers": [{"odometer": "action-prior", "steps_per_s": float("nan")},
-                            {"odometer": "icp", "steps_per_s": 18.5, "fails": float("inf")}]}
-    text = json.dumps(_finite(report), allow_nan=False)
+                            {"odometer": "icp", "steps_per_s": 18.5, "fails": np.float64("inf")}]}
+    write_json_atomic(tmp_path / "r.json", report)
+    text = (tmp_path / "r.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
     assert json.loads(text)["odometers"][0]["steps_per_s"] is None
     assert json.loads(text)["odometers"][1] == {"odometer": "icp", "steps_per_s": 18.5, "fails": None}

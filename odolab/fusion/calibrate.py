@@ -21,8 +21,8 @@ from typing import Sequence
 import numpy as np
 
 from odolab.api import EpisodeSpec, load_episodes
-from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_output_file, number, path_arg,
-                        run_cli)
+from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_output_file, given_options,
+                        number, path_arg, run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
 from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
@@ -78,7 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
     calibration = None
     if args.check is not None:
-        given = {a.split("=", 1)[0] for a in (argv if argv is not None else sys.argv[1:])}
+        given = given_options(argv, ["--out", "--odometers"])
         if "--out" in given:
             raise UsageError("--out is for a new calibration; --check only prints (redirect it to keep it)")
         try:

@@ -6,9 +6,11 @@ process umask), not the ``0o600`` of a bare temporary file.
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import tempfile
-from typing import IO, Iterator
+from typing import IO, Any, Iterator
 
 
 def _umask() -> int:
@@ -75,3 +77,21 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` like :func:`write_text_atomic` (replaced whole, or not at all)."""
     with atomic_open(path, "wb") as f:
         f.write(data)
+
+
+def _json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float (Python or numpy) replaced by ``None``."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_json_atomic(path: str | os.PathLike, value: Any, indent: int = 1) -> None:
+    """``value`` as JSON, written like :func:`write_text_atomic`. JSON has no NaN or infinity: such
+    floats (a rate too fast to time, an error of an odometer with no valid step) are written as null,
+    so that browsers, jq and strict parsers read the file; numpy scalars are written as numbers."""
+    write_text_atomic(path, json.dumps(_json_safe(value), indent=indent, default=float, allow_nan=False))
