@@ -199,6 +199,23 @@ def test_stage_samples_follow_the_switches(data):
     assert len(geo) == n["turn_left"] + n["turn_right"] and not geo.swap.any()
 
 
+def test_blocked_forward_pairs_are_repeated_and_nothing_else():
+    from types import SimpleNamespace
+    acts = np.array([Action.MOVE_FORWARD.value] * 4 + [Action.TURN_LEFT.value, Action.TURN_RIGHT.value])
+    planar = np.array([[0, 0.25, 0], [0, 0.01, 0], [0, 0.2, 0], [0, 0.1, 0], [0, 0.0, 0.5], [0, 0.0, -0.5]])
+    fake = SimpleNamespace(pair_actions=acts, pair_planar=planar)
+    once = stage_samples(fake, StageConfig("f", ("move_forward",), 1))
+    thrice = stage_samples(fake, StageConfig("f", ("move_forward",), 1, blocked_repeat=3))
+    assert sorted(once.pair.tolist()) == [0, 1, 2, 3]
+    assert sorted(thrice.pair.tolist()) == [0, 1, 1, 1, 2, 3, 3, 3]  # 0.01 and 0.1 m: under half a step
+    mirrored = stage_samples(fake, StageConfig("m", ("move_forward",), 1, mirror=True, blocked_repeat=2))
+    assert sorted(zip(mirrored.pair.tolist(), mirrored.flip.tolist())).count((1, True)) == 2
+    turns = stage_samples(fake, StageConfig("t", ("turn_left", "turn_right"), 1, blocked_repeat=5))
+    assert sorted(turns.pair.tolist()) == [4, 5]  # turns never "blocked"
+    with pytest.raises(ValueError, match="blocked_repeat"):
+        StageConfig("f", ("move_forward",), 1, blocked_repeat=0)
+
+
 def test_a_batch_swaps_and_mirrors_frames_targets_and_actions_together(data):
     k = int(data.select([Action.TURN_LEFT])[0])
     plain = make_batch(data, Samples(np.array([k]), np.array([False]), np.array([False])), TINY, torch.device("cpu"))
@@ -457,6 +474,15 @@ def test_a_resumed_state_names_what_changed(trained, recipe):
     with pytest.raises(ValueError, match=r"model.dd_bins \(saved 10, now 5\)"):
         trainer.run(changed, work=trained / "work", reports=trained / "r3", export=trained / "y.pt",
                     device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+
+
+def test_blocked_repeat_of_one_keeps_the_identity_of_recipes_written_before_it(recipe):
+    stage = recipe.stages[-1]
+    identity = trainer._identity(recipe, stage)
+    assert "blocked_repeat" not in identity["stage"] and all("blocked_repeat" not in s for s in identity["before"])
+    more = dataclasses.replace(stage, blocked_repeat=4)
+    changed = dataclasses.replace(recipe, stages=(*recipe.stages[:-1], more))
+    assert trainer._identity(changed, more)["stage"]["blocked_repeat"] == 4
 
 
 def test_text_or_corrupt_checkpoints_are_refused_without_unsafe_advice(tmp_path):

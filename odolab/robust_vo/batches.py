@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from odolab.api import Action
+from odolab.api import FORWARD_STEP, Action
 from odolab.learning import TrainingData
 from odolab.robust_vo.config import ModelConfig, StageConfig
 from odolab.robust_vo.inputs import pair_channels
@@ -34,7 +34,8 @@ class Samples:
 def stage_samples(data: TrainingData, stage: StageConfig) -> Samples:
     """Every sample of a stage: its actions' pairs, plus (``data_aug``) swapped turn pairs whose new
     action is in the stage, plus (``mirror``) mirrored ones likewise. GeoInv stages swap inside the
-    batch instead, so their samples are only the (possibly mirrored) turn pairs."""
+    batch instead, so their samples are only the (possibly mirrored) turn pairs. With
+    ``blocked_repeat`` k > 1, each forward sample that moved less than half a step appears k times."""
     wanted = {a.value for a in stage.action_set}
     acts = data.pair_actions
     parts = [(np.flatnonzero(np.isin(acts, list(wanted))), False, False)]
@@ -50,7 +51,12 @@ def stage_samples(data: TrainingData, stage: StageConfig) -> Samples:
     pair = np.concatenate([p for p, _, _ in parts])
     swap = np.concatenate([np.full(len(p), s) for p, s, _ in parts])
     flip = np.concatenate([np.full(len(p), f) for p, _, f in parts])
-    return Samples(pair.astype(np.int64), swap.astype(bool), flip.astype(bool))
+    samples = Samples(pair.astype(np.int64), swap.astype(bool), flip.astype(bool))
+    if stage.blocked_repeat > 1 and len(samples):
+        blocked = (acts[samples.pair] == Action.MOVE_FORWARD.value) & (data.pair_planar[samples.pair, 1] < FORWARD_STEP / 2)
+        extra = np.repeat(np.flatnonzero(blocked), stage.blocked_repeat - 1)
+        samples = samples.take(np.concatenate([np.arange(len(samples)), extra]))
+    return samples
 
 
 @dataclass

@@ -116,6 +116,7 @@ class StageConfig:
     mirror: bool = False
     geoinv: bool = False
     pairs_per_epoch: int = 0
+    blocked_repeat: int = 1
 
     def __post_init__(self) -> None:
         if not STAGE_NAME.fullmatch(self.name):
@@ -124,7 +125,7 @@ class StageConfig:
         if bad or not self.actions:
             raise ValueError(f"stage {self.name!r}: actions must be some of {', '.join(ACTION_BY_LABEL)}, got {list(self.actions)}")
         check_ranges(f"stage {self.name!r}", self, epochs=(1, 100_000), batch=(1, 65_536), lr=(1e-12, 1.0),
-                     pairs_per_epoch=(0, 10**9))
+                     pairs_per_epoch=(0, 10**9), blocked_repeat=(1, 1000))
         if self.geoinv and not {"turn_left", "turn_right"} <= set(self.actions):
             raise ValueError(f"stage {self.name!r}: geoinv pairs turn_left with turn_right; list both actions")
 

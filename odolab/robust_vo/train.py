@@ -128,10 +128,14 @@ class StageRunner:
 def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
     """What a saved stage state must match to be resumed: everything but this stage's number of
     epochs, the earlier stages included (a stage trained on top of other weights is another run);
-    a stage without turns leaves out ``mirror_turns``, which only decides the turn networks."""
+    a stage without turns leaves out ``mirror_turns``, which only decides the turn networks, and a
+    ``blocked_repeat`` of 1 is left out (recipes written before it existed resume)."""
     doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
     if not {Action.TURN_LEFT, Action.TURN_RIGHT} & set(stage.action_set):
         del doc["model"]["mirror_turns"]  # which network answers right turns cannot change this stage
+    for stage_doc in doc["stages"]:
+        if stage_doc["blocked_repeat"] == 1:
+            del stage_doc["blocked_repeat"]
     k = cfg.stages.index(stage)
     stage_doc = {key: v for key, v in doc["stages"][k].items() if key != "epochs"}
     return {"model": doc["model"], "stage": stage_doc, "before": doc["stages"][:k], "train_data": doc["train_data"],
