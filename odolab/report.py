@@ -36,7 +36,8 @@ from odolab.runner import SequenceResult
 from odolab.summary import ActionRow, Row, fmt, text_table
 from odolab.trajectory import Trajectory
 
-_ACTION_COLORS = {"move_forward": "#4C72B0", "turn_left": "#DD8452", "turn_right": "#55A868"}
+_ACTION_COLORS = {"move_forward": "#4C72B0", "turn_left": "#DD8452", "turn_right": "#55A868",
+                  "move_forward, blocked": "#8C8C8C"}
 MANIFEST = "manifest.txt"
 #: Metres of floor plan shown around the trajectories in each top-down figure (with a plan).
 ZOOM_MARGIN = 1.5

@@ -31,7 +31,7 @@ import numpy as np
 
 from odolab.geometry import transform_to_planar
 from odolab.metrics import ate, per_step_abs_error, relative_motion_errors
-from odolab.types import MOTION_ACTIONS
+from odolab.types import MOTION_ACTIONS, Action
 from odolab.runner import SequenceResult
 
 #: Rows that bracket every real odometer: zero error (an oracle) and the paper's ``sys_error``.
@@ -142,18 +142,27 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
     return rows
 
 
+#: The label of the extra per-action row: forward steps whose translation a collision blocked.
+BLOCKED_FORWARD = "move_forward, blocked"
+
+
 def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
-    """Per-step error (x 1e-2) per odometer and motion action (reference rows first)."""
+    """Per-step error (x 1e-2) per odometer and motion action (reference rows first); when every
+    result knows its collisions and some forward step collided, also a row ``BLOCKED_FORWARD`` of
+    just those steps (a subset of the move_forward row: how an odometer sees a step that did not go)."""
     rows = []
     for name, mine in by_odometer(results).items():
         errs = np.concatenate([step_errors(r) for r in mine]) * 100.0
         acts = np.concatenate([r.actions for r in mine])
         valid = np.concatenate([r.valid for r in mine])
-        for a in MOTION_ACTIONS:
-            sel = acts == a.value
+        groups = [(a.label, acts == a.value) for a in MOTION_ACTIONS]
+        if all(r.collisions is not None for r in mine):
+            collided = np.concatenate([np.asarray(r.collisions, bool) for r in mine])
+            groups.append((BLOCKED_FORWARD, (acts == Action.MOVE_FORWARD.value) & collided))
+        for label, sel in groups:
             if sel.any():
                 e, own = errs[sel], errs[sel & valid]
-                rows.append(ActionRow(name, a.label, *(_mean(e[:, k]) for k in range(3)),
+                rows.append(ActionRow(name, label, *(_mean(e[:, k]) for k in range(3)),
                                       *(_mean(own[:, k]) for k in range(3)), int(sel.sum()), int((~valid[sel]).sum())))
     return rows
 

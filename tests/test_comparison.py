@@ -37,3 +37,21 @@ def test_each_configurable_odometers_settings_reach_the_result():
 
     configs = odometer_configs({"icp": load_odometer("icp", max_depth=3.0), "gt": load_odometer("ground-truth")})
     assert list(configs) == ["icp"] and "depth.max_depth=3.0" in configs["icp"]
+
+
+def test_blocked_forward_steps_get_their_own_row_with_what_each_odometer_saw():
+    import numpy as np
+
+    from odolab.summary import BLOCKED_FORWARD
+
+    config = api.ComparisonConfig(odometers=["ground-truth", "action-prior"], episodes=3, max_steps=60, seed=1,
+                                  cache=None, parallel=False, progress=False)
+    result = api.run_comparison(config)
+    prior = [r for r in result.results if r.odometer == "action-prior"]
+    blocked = sum(int(((r.actions == api.Action.MOVE_FORWARD.value) & r.collisions).sum()) for r in prior)
+    rows = {(r.odometer, r.action): r for r in result.action_rows}
+    assert blocked  # these seeded episodes collide
+    row, forward = rows[("action-prior", BLOCKED_FORWARD)], rows[("action-prior", "move_forward")]
+    assert row.steps == blocked < forward.steps
+    assert row.dz > forward.dz  # the prior claims a full step where the robot did not move
+    assert rows[("ground-truth", BLOCKED_FORWARD)].dz == 0 and np.isfinite(row.dx)
