@@ -153,6 +153,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     report: dict = {"machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
                                 "cpu_model": _cpu_model(), "python": platform.python_version()}}
     print(f"machine: {report['machine']}")
+
+    def save() -> None:  # after every part, so that a stop keeps the parts already timed
+        report["parts_pending"] = [p for p in parts if p not in report]
+        if args.json:
+            from odolab.io.atomic import write_json_atomic
+
+            write_json_atomic(args.json, report, indent=2)
+
     if "simulator" in parts:
         report["simulator"] = bench_simulator()
         print("\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path not in a second thread)\n")
@@ -160,20 +168,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         report["episodes"] = bench_episodes()
         print("\n## Episode generation, end to end, one process\n")
         print(_table([report["episodes"]]))
+        save()
     if "odometers" in parts:
         report["odometers"] = bench_odometers(names, options=options)
         print("\n## Odometers (steps/s of step() on test-split episodes, 341x192)\n")
         print(_table(report["odometers"]))
+        save()
     if "evaluate" in parts:
         from odolab.benchmarks.evaluate_speed import run as bench_evaluate
 
         report["evaluate"] = bench_evaluate()
         print("\n## Trajectory evaluation on KITTI 00 (wall seconds per command)\n")
         print(_table([report["evaluate"]]))
-    if args.json:
-        from odolab.io.atomic import write_json_atomic
-
-        write_json_atomic(args.json, report, indent=2)
+        save()
     return 0
 
 

@@ -290,6 +290,9 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
     (tmp_path / "two.json").write_text(json.dumps(shipped))
     cases.append((["--check", str(tmp_path / "two.json"), "--odometers", "action-prior,icp,open3d-rgbd,robust-vo"],
                   "no calibration for 'open3d-rgbd'"))  # the default list typed out is still a list given
+    shipped["inputs"]["bogus"] = shipped["inputs"]["icp"]
+    (tmp_path / "bogus.json").write_text(json.dumps(shipped))
+    cases.append((["--check", str(tmp_path / "bogus.json")], f"{tmp_path / 'bogus.json'}: unknown odometer 'bogus'"))
     for argv, words in cases:
         assert _calibrate(argv + ["--serial"]) == 2, argv
         err = capsys.readouterr().err

@@ -348,3 +348,21 @@ def test_json_reports_have_no_nan(tmp_path):
     assert "NaN" not in text and "Infinity" not in text
     assert json.loads(text)["odometers"][0]["steps_per_s"] is None
     assert json.loads(text)["odometers"][1] == {"odometer": "icp", "steps_per_s": 18.5, "fails": None}
+
+
+def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
+    import json
+
+    from odolab import bench
+
+    out = tmp_path / "b.json"
+
+    def stop(*_a, **_k):  # the evaluate part is interrupted after the odometer part finished
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("odolab.benchmarks.evaluate_speed.run", stop)
+    monkeypatch.setattr(bench, "bench_odometers", lambda names, options=None: [{"odometer": n, "steps_per_s": 1.0} for n in names])
+    with pytest.raises(KeyboardInterrupt):
+        bench.main(["--only", "odometers", "--only", "evaluate", "--odometers", "action-prior", "--json", str(out)])
+    saved = json.loads(out.read_text())
+    assert saved["odometers"][0]["odometer"] == "action-prior" and saved["parts_pending"] == ["evaluate"]

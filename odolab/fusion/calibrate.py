@@ -107,8 +107,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_ray_option(args.ray_address, args.serial)
     try:
         odometers = load_odometers(names)
-    except ComparisonError as exc:
-        raise UsageError(str(exc)) from None
+    except ComparisonError as exc:  # names read from a --check file are that file's
+        from_file = calibration is not None and "--odometers" not in given_options(argv, ["--odometers"])
+        raise UsageError(f"{args.check}: {exc}" if from_file else str(exc)) from None
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)]
     episodes = load_episodes(specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial,
                              progress=not args.quiet)
