@@ -3,7 +3,8 @@
 Layout of ``DIR``::
 
     table.csv              one row per odometer (columns: odolab.summary.Row)
-    table_per_action.csv   per-step error per odometer and action (simulator runs)
+    table_per_action.csv   per-step error per odometer and action (simulator runs), and on the
+                           forward steps a collision blocked ("move_forward, blocked")
     errors.png             per-step error bars per odometer and action (simulator runs)
     report.html            all of the above on one page, with the definitions and a gallery
     trajectories/<sequence>/top-down.png            true vs estimated trajectories, top-down
