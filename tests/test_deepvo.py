@@ -134,6 +134,27 @@ def test_bad_checkpoints_and_recipes_are_named(trained, tmp_path):
     assert load_training("studies/deepvo/shipped.toml").model.width_scale == 0.125
 
 
+def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_path):
+    first = trained / "model.pt"
+    _, first_net, info = load_model(first)
+    second = dataclasses.replace(recipe, init=str(first), rotation_weight=1.0, epochs=1, lr=1e-12)
+    assert trainer.run(second, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "m.pt",
+                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    _, net, _ = load_model(tmp_path / "m.pt")
+    for a, b in zip(first_net.parameters(), net.parameters()):  # lr 1e-12: barely moved (BatchNorm's
+        assert torch.allclose(a, b, atol=1e-6)                     # running statistics do move)
+    state = torch.load(tmp_path / "w" / "deepvo.pt", weights_only=True)
+    assert state["identity"]["init_sha256"] == info["sha256"]
+    with pytest.raises(ValueError, match="no such model file"):
+        trainer.run(dataclasses.replace(second, init=str(tmp_path / "none.pt")), work=tmp_path / "w2",
+                    reports=tmp_path / "r2", export=tmp_path / "m2.pt", device=torch.device("cpu"), hours=None,
+                    parallel_data=False, progress=False)
+    wider = dataclasses.replace(second, model=dataclasses.replace(recipe.model, hidden=8))
+    with pytest.raises(ValueError, match="differs from this recipe's in hidden"):
+        trainer.run(wider, work=tmp_path / "w3", reports=tmp_path / "r3", export=tmp_path / "m3.pt",
+                    device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+
+
 def test_validation_windows_do_not_share_pairs():
     starts = np.array([0, 1, 2, 3, 4, 5, 9, 10, 20])
     assert trainer.disjoint(starts, 3).tolist() == [0, 3, 9, 20]

@@ -43,7 +43,9 @@ class DeepVOModel:
 @dataclass(frozen=True)
 class DeepVOTraining:
     """The recipe: windows of ``window`` frames (``window - 1`` pairs) cut from the data, ``batch``
-    windows per step, Adam at ``lr``, loss MSE(dx, dz) + ``rotation_weight`` x MSE(dyaw)."""
+    windows per step, Adam at ``lr``, loss MSE(dx, dz) + ``rotation_weight`` x MSE(dyaw).
+    ``init``: start from the weights of this exported DeepVO model (same ``model``; a path from the
+    working directory), e.g. a first stage trained with another rotation weight; "" = fresh weights."""
 
     model: DeepVOModel = field(default_factory=DeepVOModel)
     train_data: DataConfig = field(default_factory=DataConfig)
@@ -57,6 +59,7 @@ class DeepVOTraining:
     windows_per_epoch: int = 0
     val_windows: int = 500
     seed: int = 0
+    init: str = ""
 
     def __post_init__(self) -> None:
         check_ranges("recipe", self, window=(2, 64), batch=(1, 65_536), epochs=(1, 100_000), lr=(1e-12, 1.0),

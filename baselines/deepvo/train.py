@@ -27,7 +27,7 @@ from odolab.learning.validation import error_rows, write_report
 
 from baselines.deepvo.config import DeepVOTraining, load_training
 from baselines.deepvo.model import DeepVONet, frame_tensor
-from baselines.deepvo.odometer import save_model
+from baselines.deepvo.odometer import load_model, save_model
 
 
 def window_batch(data: TrainingData, starts: np.ndarray, window: int, cfg) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
@@ -56,11 +56,24 @@ def loss_fn(pred: torch.Tensor, target: torch.Tensor, rotation_weight: float) ->
     return (pred[..., :2] - target[..., :2]).pow(2).mean() + rotation_weight * (pred[..., 2] - target[..., 2]).pow(2).mean()
 
 
+def start_from(net: DeepVONet, cfg: DeepVOTraining) -> str:
+    """Copy the weights of the exported model ``cfg.init`` into ``net``; returns its SHA-256 (part
+    of the run's identity: another first stage is another run). Its model must be ``cfg.model``."""
+    model, first, info = load_model(cfg.init)
+    if model != cfg.model:
+        changed = [f.name for f in dataclasses.fields(model) if getattr(model, f.name) != getattr(cfg.model, f.name)]
+        raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(changed)}")
+    net.load_state_dict(first.state_dict())
+    return info["sha256"]
+
+
 def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device: torch.device,
         hours: float | None, ray_address: str | None = None, parallel_data: bool = True, progress: bool = True,
         command: str = "") -> bool:
     """Train (or resume); export when every epoch is done. Returns True when finished."""
     deadline = time.monotonic() + hours * 3600 if hours else None
+    if cfg.init and not Path(cfg.init).is_file():  # before any data is made
+        raise ValueError(f"init = {cfg.init!r}: no such model file (train the first stage first, see the recipe)")
     data = []
     for dc in (cfg.train_data, cfg.val_data):
         make_training_data(dc, cfg.data_folder(dc), ray_address=ray_address, parallel=parallel_data, progress=progress)
@@ -75,12 +88,15 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
         val_starts = np.sort(rng.choice(val_starts, cfg.val_windows, replace=False))
     torch.manual_seed(cfg.seed)
     net = DeepVONet(cfg.model).to(device)
-    with torch.no_grad():  # start at the mean motion: the output bias is the mean target / scale
-        mean = train.pair_planar.mean(axis=0)
-        net.head.bias.copy_(torch.from_numpy(mean).to(torch.float32) / net.scale.cpu())
-    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    identity = {k: v for k, v in recipe.items() if k != "epochs"}
+    identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init")}
+    if cfg.init:
+        identity["init_sha256"] = start_from(net, cfg)
+    else:
+        with torch.no_grad():  # start at the mean motion: the output bias is the mean target / scale
+            mean = train.pair_planar.mean(axis=0)
+            net.head.bias.copy_(torch.from_numpy(mean).to(torch.float32) / net.scale.cpu())
+    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     loop = EpochLoop(work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity)
     loop.resume()
 
