@@ -149,6 +149,12 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
         trainer.run(dataclasses.replace(second, init=str(tmp_path / "none.pt")), work=tmp_path / "w2",
                     reports=tmp_path / "r2", export=tmp_path / "m2.pt", device=torch.device("cpu"), hours=None,
                     parallel_data=False, progress=False)
+    with pytest.raises(ValueError, match="is this run's --export, which would overwrite it"):
+        trainer.run(second, work=tmp_path / "w4", reports=tmp_path / "r4", export=first, device=torch.device("cpu"),
+                    hours=None, parallel_data=False, progress=False)
+    with pytest.raises(ValueError, match="is a folder"):
+        trainer.run(dataclasses.replace(second, init=str(tmp_path)), work=tmp_path / "w5", reports=tmp_path / "r5",
+                    export=tmp_path / "m5.pt", device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
     wider = dataclasses.replace(second, model=dataclasses.replace(recipe.model, hidden=8))
     with pytest.raises(ValueError, match="differs from this recipe's in hidden"):
         trainer.run(wider, work=tmp_path / "w3", reports=tmp_path / "r3", export=tmp_path / "m3.pt",

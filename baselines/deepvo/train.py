@@ -56,15 +56,29 @@ def loss_fn(pred: torch.Tensor, target: torch.Tensor, rotation_weight: float) ->
     return (pred[..., :2] - target[..., :2]).pow(2).mean() + rotation_weight * (pred[..., 2] - target[..., 2]).pow(2).mean()
 
 
-def start_from(net: DeepVONet, cfg: DeepVOTraining) -> str:
-    """Copy the weights of the exported model ``cfg.init`` into ``net``; returns its SHA-256 (part
-    of the run's identity: another first stage is another run). Its model must be ``cfg.model``."""
-    model, first, info = load_model(cfg.init)
+def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[DeepVONet, str] | None:
+    """The network of the exported model ``cfg.init`` and its SHA-256 (part of the run's identity:
+    another first stage is another run), or None without ``init``. Refused, before any data is made:
+    a missing file or folder, another kind of checkpoint, another model shape, and the run's own
+    ``export`` (which would overwrite the model it starts from)."""
+    if not cfg.init:
+        return None
+    path = Path(cfg.init)
+    if path.is_dir():
+        raise ValueError(f"init = {cfg.init!r} is a folder; give the exported model file (e.g. <work>/model.pt)")
+    if not path.is_file():
+        raise ValueError(f"init = {cfg.init!r}: no such model file (relative to {Path.cwd()}; "
+                         "train the first stage first, see the recipe)")
+    if path.resolve() == Path(export).resolve():
+        raise ValueError(f"init = {cfg.init!r} is this run's --export, which would overwrite it; export elsewhere")
+    try:
+        model, first, info = load_model(path)
+    except ValueError as exc:
+        raise ValueError(f"init = {cfg.init!r}: {exc}") from None
     if model != cfg.model:
         changed = [f.name for f in dataclasses.fields(model) if getattr(model, f.name) != getattr(cfg.model, f.name)]
         raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(changed)}")
-    net.load_state_dict(first.state_dict())
-    return info["sha256"]
+    return first, info["sha256"]
 
 
 def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device: torch.device,
@@ -72,8 +86,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
         command: str = "") -> bool:
     """Train (or resume); export when every epoch is done. Returns True when finished."""
     deadline = time.monotonic() + hours * 3600 if hours else None
-    if cfg.init and not Path(cfg.init).is_file():  # before any data is made
-        raise ValueError(f"init = {cfg.init!r}: no such model file (train the first stage first, see the recipe)")
+    start = first_stage(cfg, export)  # checked before any data is made
     data = []
     for dc in (cfg.train_data, cfg.val_data):
         make_training_data(dc, cfg.data_folder(dc), ray_address=ray_address, parallel=parallel_data, progress=progress)
@@ -90,8 +103,9 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
     net = DeepVONet(cfg.model).to(device)
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
     identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init")}
-    if cfg.init:
-        identity["init_sha256"] = start_from(net, cfg)
+    if start is not None:
+        net.load_state_dict(start[0].state_dict())
+        identity["init_sha256"] = start[1]
     else:
         with torch.no_grad():  # start at the mean motion: the output bias is the mean target / scale
             mean = train.pair_planar.mean(axis=0)
