@@ -9,7 +9,7 @@ from __future__ import annotations
 import platform
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -72,16 +72,18 @@ def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
     return {"episodes": n, "frames": frames, "seconds": seconds, "frames_per_s": frames / seconds}
 
 
-def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, options: dict | None = None) -> list[dict]:
+def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, options: dict | None = None,
+                    rows: list[dict] | None = None, after_each: Callable[[], None] | None = None) -> list[dict]:
     """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192); ``options``:
-    constructor options by odometer name."""
+    constructor options by odometer name. Each odometer's row is appended to ``rows`` (a new list
+    when None, returned) as soon as it is timed, then ``after_each()`` is called."""
     from odolab import runner, summary
     from odolab.episodes import EpisodeSpec, load_episodes
     from odolab.odometer import load_odometer
 
     eps = load_episodes([EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps) for i in range(episodes)],
                         parallel=False, progress=False)
-    out = []
+    out = [] if rows is None else rows
     for name in names:
         odo = load_odometer(name, **(options or {}).get(name, {}))
         res = runner.run({name: odo}, eps)
@@ -89,6 +91,8 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, op
         out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
         if hasattr(odo, "fusion_seconds"):  # a fused odometer: the graph's own share, its inputs excluded
             out[-1]["graph_ms_per_step"] = 1000.0 * odo.fusion_seconds / max(odo.fused_steps, 1)
+        if after_each is not None:
+            after_each()
     return out
 
 
@@ -154,13 +158,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 "cpu_model": _cpu_model(), "python": platform.python_version()}}
     print(f"machine: {report['machine']}")
 
+    running: set[str] = set()
+
     def save() -> None:  # after every part, so that a stop keeps the parts already timed
-        report["parts_pending"] = [p for p in parts if p not in report]
+        report["parts_pending"] = [p for p in parts if p not in report or p in running]
         if args.json:
             from odolab.io.atomic import write_json_atomic
 
             write_json_atomic(args.json, report, indent=2)
 
+    save()  # at once: a stop before the first part ends leaves no older, complete-looking file
     if "simulator" in parts:
         report["simulator"] = bench_simulator()
         print("\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path not in a second thread)\n")
@@ -170,7 +177,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(_table([report["episodes"]]))
         save()
     if "odometers" in parts:
-        report["odometers"] = bench_odometers(names, options=options)
+        running.add("odometers")  # saved odometer by odometer, pending until the last is timed
+        bench_odometers(names, options=options, rows=report.setdefault("odometers", []), after_each=save)
+        running.discard("odometers")
         print("\n## Odometers (steps/s of step() on test-split episodes, 341x192)\n")
         print(_table(report["odometers"]))
         save()

@@ -112,11 +112,13 @@ def check_output_dir(path: Path, option: str) -> None:
 
 def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = None) -> None:
     """Check that file ``path`` can be written (its folder exists and is writable, it is not a
-    folder) and, when ``suffixes`` is given, that its extension is one of them; else
+    folder, device, pipe or socket; a symbolic link is written through) and, when ``suffixes`` is given, that its extension is one of them; else
     :class:`UsageError` naming ``option``. Nothing is left behind."""
     path = Path(path)
     if path.is_dir():
         raise UsageError(f"{option} {path}: is a folder, not a file")
+    if path.exists() and not path.is_file():
+        raise UsageError(f"{option} {path}: is not a regular file (a device, pipe or socket)")
     if suffixes is not None:
         allowed = sorted(s.lower().lstrip(".") for s in suffixes)
         ext = path.suffix.lower().lstrip(".")

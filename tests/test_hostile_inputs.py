@@ -356,13 +356,39 @@ def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
     from odolab import bench
 
     out = tmp_path / "b.json"
+    out.write_text('{"old": "a complete earlier run", "parts_pending": []}')
+    seen = []
 
-    def stop(*_a, **_k):  # the evaluate part is interrupted after the odometer part finished
+    def odometers(names, options=None, rows=None, after_each=None):  # the 2nd odometer is interrupted
+        rows.append({"odometer": names[0], "steps_per_s": 1.0})
+        after_each()
+        seen.append(json.loads(out.read_text()))
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("odolab.benchmarks.evaluate_speed.run", stop)
-    monkeypatch.setattr(bench, "bench_odometers", lambda names, options=None: [{"odometer": n, "steps_per_s": 1.0} for n in names])
+    monkeypatch.setattr(bench, "bench_odometers", odometers)
     with pytest.raises(KeyboardInterrupt):
-        bench.main(["--only", "odometers", "--only", "evaluate", "--odometers", "action-prior", "--json", str(out)])
+        bench.main(["--only", "odometers", "--only", "evaluate", "--odometers", "action-prior,icp", "--json", str(out)])
     saved = json.loads(out.read_text())
-    assert saved["odometers"][0]["odometer"] == "action-prior" and saved["parts_pending"] == ["evaluate"]
+    assert "old" not in saved and saved == seen[0]
+    assert saved["odometers"] == [{"odometer": "action-prior", "steps_per_s": 1.0}]
+    assert saved["parts_pending"] == ["odometers", "evaluate"]
+
+
+def test_atomic_writes_go_through_links_and_never_replace_devices_or_pipes(tmp_path):
+    import os
+
+    from odolab.io.atomic import write_text_atomic
+
+    target = tmp_path / "target.json"
+    target.write_text("{}")
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    write_text_atomic(link, "new")
+    assert link.is_symlink() and target.read_text() == "new"
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match="not a regular file"):
+        write_text_atomic(fifo, "x")
+    assert not fifo.is_file() and fifo.exists()
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", fifo, words="is not a regular file")
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", "/dev/null", words="is not a regular file")

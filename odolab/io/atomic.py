@@ -30,8 +30,13 @@ def _umask() -> int:
 @contextlib.contextmanager
 def _temporary_beside(path: str, suffix: str) -> Iterator[str]:
     """A temporary file name in ``path``'s folder, moved onto ``path`` when the block succeeds
-    (with umask-honouring permissions) and removed when it fails."""
-    directory = os.path.dirname(os.path.abspath(path))
+    (with umask-honouring permissions) and removed when it fails. A symbolic link is written
+    through (its target is replaced, the link stays); a device, pipe or socket is refused
+    (``ValueError``), never replaced by a regular file."""
+    path = os.path.realpath(path)
+    if os.path.exists(path) and not os.path.isfile(path) and not os.path.isdir(path):
+        raise ValueError(f"{path}: not a regular file (a device, pipe or socket); refusing to replace it")
+    directory = os.path.dirname(path)
     fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=suffix)
     os.close(fd)
     try:
