@@ -292,7 +292,24 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
                   "no calibration for 'open3d-rgbd'"))  # the default list typed out is still a list given
     shipped["inputs"]["bogus"] = shipped["inputs"]["icp"]
     (tmp_path / "bogus.json").write_text(json.dumps(shipped))
-    cases.append((["--check", str(tmp_path / "bogus.json")], f"{tmp_path / 'bogus.json'}: unknown odometer 'bogus'"))
+    cases.append((["--check", str(tmp_path / "bogus.json")], f"{tmp_path / 'bogus.json'}: input 'bogus' is not a registered"))
+    icp = shipped["inputs"]["icp"]
+    for i, (where, value, words) in enumerate([("fixed", {"move_forward": ["0.06"] * 6}, "expected a number, got '0.06'"),
+                                               ("fixed", {"move_forward": "111111"}, "a list of 6 numbers"),
+                                               ("steps", {"move_forward": -5}, "whole number of steps >= 0, got -5"),
+                                               ("steps", {"move_forward": 3.7}, "got 3.7"),
+                                               ("steps", {"jump": 3}, "unknown action 'jump'"),
+                                               ("inside95", {"move_forward": 7.0}, "share in [0, 1], got 7.0")]):
+        loose = json.loads(json.dumps(icp))
+        loose[where] = {**loose.get(where, {}), **value}
+        (tmp_path / f"t{i}.json").write_text(json.dumps({**shipped, "inputs": {"icp": loose}}))
+        cases.append((["--check", str(tmp_path / f"t{i}.json")], words))
+    (tmp_path / "digits.json").write_text('{"format": ' + "9" * 5000 + "}")
+    cases.append((["--check", str(tmp_path / "digits.json")], f"{tmp_path / 'digits.json'}: not a calibration file"))
+    for i, stranger in enumerate(("this:Zen", "fused(action-prior,icp)")):  # never imported nor built from a file
+        shipped["inputs"] = {stranger: icp}
+        (tmp_path / f"s{i}.json").write_text(json.dumps(shipped))
+        cases.append((["--check", str(tmp_path / f"s{i}.json")], f"input {stranger!r} is not a registered odometer"))
     for argv, words in cases:
         assert _calibrate(argv + ["--serial"]) == 2, argv
         err = capsys.readouterr().err

@@ -25,6 +25,7 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
                         number, path_arg, run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
+from odolab.odometer import standalone_odometers
 from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
 from odolab.fusion.graph import residual, right_covariance
 from odolab.odometer import parse_odometer_list
@@ -87,6 +88,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(str(exc)) from None
         if "--odometers" not in given:  # all the file calibrates; named ones must all be in it
             names = sorted(calibration.inputs)
+            known = set(standalone_odometers())
+            stranger = next((n for n in names if n not in known), None)
+            if stranger is not None:  # a data file never makes odolab import a module or build a composite
+                raise UsageError(f"{args.check}: input {stranger!r} is not a registered odometer (known: "
+                                 f"{', '.join(sorted(known))}); to check it, name the inputs with --odometers")
         missing = [n for n in names if n not in calibration.inputs]
         if missing:
             raise UsageError(f"{args.check}: no calibration for {missing[0]!r} (it has {', '.join(sorted(calibration.inputs))})")
@@ -107,9 +113,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_ray_option(args.ray_address, args.serial)
     try:
         odometers = load_odometers(names)
-    except ComparisonError as exc:  # names read from a --check file are that file's
-        from_file = calibration is not None and "--odometers" not in given_options(argv, ["--odometers"])
-        raise UsageError(f"{args.check}: {exc}" if from_file else str(exc)) from None
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)]
     episodes = load_episodes(specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial,
                              progress=not args.quiet)

@@ -54,6 +54,28 @@ def _scale(m2: np.ndarray) -> float:
     return float(max(np.quantile(m2, 0.95) / CHI2_6_95, 1e-12))
 
 
+def _number(x) -> float:
+    """A JSON number (not a bool, not a string), as float."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"expected a number, got {x!r}")
+    return float(x)
+
+
+def _count(x) -> int:
+    """A JSON whole number >= 0."""
+    if isinstance(x, bool) or not isinstance(x, int) or x < 0:
+        raise TypeError(f"expected a whole number of steps >= 0, got {x!r}")
+    return x
+
+
+def _share(x) -> float:
+    """A JSON number in [0, 1]."""
+    v = _number(x)
+    if not 0.0 <= v <= 1.0:
+        raise ValueError(f"expected a share in [0, 1], got {x!r}")
+    return v
+
+
 @dataclass(frozen=True)
 class InputCalibration:
     """One input's calibration, per action label (see the module docstring)."""
@@ -129,7 +151,7 @@ class Calibration:
             doc = json.loads(open(path, encoding="utf-8").read())
         except FileNotFoundError:
             raise ValueError(f"{path}: no such calibration file") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:  # ValueError: bad JSON, numbers too long
             raise ValueError(f"{path}: not a calibration file ({exc})") from None
         fmt = doc.get("format") if isinstance(doc, dict) else None
         if type(fmt) is int and fmt != FORMAT and isinstance(doc.get("inputs"), dict):
@@ -143,14 +165,16 @@ class Calibration:
         inputs = {}
         for name, c in doc["inputs"].items():
             try:
-                cal = InputCalibration({k: [float(x) for x in v] for k, v in c["fixed"].items()},
-                                       {k: (None if v is None else float(v)) for k, v in c["own_scale"].items()},
-                                       {k: int(v) for k, v in c["steps"].items()},
-                                       {k: float(v) for k, v in c.get("inside95", {}).items()})
+                if not isinstance(c["fixed"], dict) or any(not isinstance(v, list) for v in c["fixed"].values()):
+                    raise TypeError("fixed: a list of 6 numbers per action")
+                cal = InputCalibration({k: [_number(x) for x in v] for k, v in c["fixed"].items()},
+                                       {k: (None if v is None else _number(v)) for k, v in c["own_scale"].items()},
+                                       {k: _count(v) for k, v in c["steps"].items()},
+                                       {k: _share(v) for k, v in c.get("inside95", {}).items()})
             except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
                 raise ValueError(f"{path}: input {name!r}: expected fixed, own_scale, steps per action ({exc})") from None
             where = f"{path}: input {name!r}"
-            unknown = sorted((set(cal.fixed) | set(cal.own_scale)) - labels)
+            unknown = sorted((set(cal.fixed) | set(cal.own_scale) | set(cal.steps) | set(cal.inside95)) - labels)
             if unknown:
                 raise ValueError(f"{where}: unknown action {unknown[0]!r}; expected some of {', '.join(sorted(labels))}")
             lo, hi = SIGMA_RANGE
