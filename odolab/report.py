@@ -4,7 +4,7 @@ Layout of ``DIR``::
 
     table.csv              one row per odometer (columns: odolab.summary.Row)
     table_per_action.csv   per-step error per odometer and action (simulator runs), and on the
-                           forward steps a collision blocked ("move_forward, blocked")
+                           forward steps a collision blocked ("move_forward_collided")
     errors.png             per-step error bars per odometer and action (simulator runs)
     report.html            all of the above on one page, with the definitions and a gallery
     trajectories/<sequence>/top-down.png            true vs estimated trajectories, top-down
@@ -38,7 +38,7 @@ from odolab.summary import ActionRow, Row, fmt, text_table
 from odolab.trajectory import Trajectory
 
 _ACTION_COLORS = {"move_forward": "#4C72B0", "turn_left": "#DD8452", "turn_right": "#55A868",
-                  "move_forward, blocked": "#8C8C8C"}
+                  "move_forward_collided": "#8C8C8C"}
 MANIFEST = "manifest.txt"
 #: Metres of floor plan shown around the trajectories in each top-down figure (with a plan).
 ZOOM_MARGIN = 1.5
@@ -331,7 +331,9 @@ def _action_table(action_rows: list[ActionRow]) -> str:
               "failed steps"]
     rows = [[r.odometer, r.action, *(fmt(v, ".2f") for v in (r.dx, r.dz, r.dyaw, r.dx_own, r.dz_own, r.dyaw_own)),
              str(r.steps), str(r.failures)] for r in action_rows]
-    return _html_table(header, rows, "Mean absolute error per step of each action (no alignment).")
+    return _html_table(header, rows, "Mean absolute error per step of each action (no alignment). "
+                       "move_forward_collided: the forward steps that collided (the agent stopped at contact, "
+                       "short of the commanded step), also counted in move_forward; shown when some did.")
 
 
 _STYLE = """body{font-family:system-ui,sans-serif;max-width:1280px;margin:2em auto;padding:0 1em;color:#222;

@@ -142,14 +142,16 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
     return rows
 
 
-#: The label of the extra per-action row: forward steps whose translation a collision blocked.
-BLOCKED_FORWARD = "move_forward, blocked"
+#: The label of the extra per-action row: the forward steps that collided (the simulator's flag: the
+#: agent stopped at contact, short of the commanded step; a subset of the move_forward row).
+COLLIDED_FORWARD = "move_forward_collided"
 
 
 def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
     """Per-step error (x 1e-2) per odometer and motion action (reference rows first); when every
-    result knows its collisions and some forward step collided, also a row ``BLOCKED_FORWARD`` of
-    just those steps (a subset of the move_forward row: how an odometer sees a step that did not go)."""
+    result knows its collisions and some forward step collided, also a row ``COLLIDED_FORWARD`` of
+    just those steps (a subset of the move_forward row: how an odometer sees a step that did not go
+    as commanded)."""
     rows = []
     for name, mine in by_odometer(results).items():
         errs = np.concatenate([step_errors(r) for r in mine]) * 100.0
@@ -158,7 +160,7 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
         groups = [(a.label, acts == a.value) for a in MOTION_ACTIONS]
         if all(r.collisions is not None for r in mine):
             collided = np.concatenate([np.asarray(r.collisions, bool) for r in mine])
-            groups.append((BLOCKED_FORWARD, (acts == Action.MOVE_FORWARD.value) & collided))
+            groups.append((COLLIDED_FORWARD, (acts == Action.MOVE_FORWARD.value) & collided))
         for label, sel in groups:
             if sel.any():
                 e, own = errs[sel], errs[sel & valid]

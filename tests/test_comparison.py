@@ -39,10 +39,10 @@ def test_each_configurable_odometers_settings_reach_the_result():
     assert list(configs) == ["icp"] and "depth.max_depth=3.0" in configs["icp"]
 
 
-def test_blocked_forward_steps_get_their_own_row_with_what_each_odometer_saw():
+def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
     import numpy as np
 
-    from odolab.summary import BLOCKED_FORWARD
+    from odolab.summary import COLLIDED_FORWARD
 
     config = api.ComparisonConfig(odometers=["ground-truth", "action-prior"], episodes=3, max_steps=60, seed=1,
                                   cache=None, parallel=False, progress=False)
@@ -51,7 +51,7 @@ def test_blocked_forward_steps_get_their_own_row_with_what_each_odometer_saw():
     blocked = sum(int(((r.actions == api.Action.MOVE_FORWARD.value) & r.collisions).sum()) for r in prior)
     rows = {(r.odometer, r.action): r for r in result.action_rows}
     assert blocked  # these seeded episodes collide
-    row, forward = rows[("action-prior", BLOCKED_FORWARD)], rows[("action-prior", "move_forward")]
+    row, forward = rows[("action-prior", COLLIDED_FORWARD)], rows[("action-prior", "move_forward")]
     assert row.steps == blocked < forward.steps
     assert row.dz > forward.dz  # the prior claims a full step where the robot did not move
-    assert rows[("ground-truth", BLOCKED_FORWARD)].dz == 0 and np.isfinite(row.dx)
+    assert rows[("ground-truth", COLLIDED_FORWARD)].dz == 0 and np.isfinite(row.dx)

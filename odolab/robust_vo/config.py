@@ -126,6 +126,8 @@ class StageConfig:
             raise ValueError(f"stage {self.name!r}: actions must be some of {', '.join(ACTION_BY_LABEL)}, got {list(self.actions)}")
         check_ranges(f"stage {self.name!r}", self, epochs=(1, 100_000), batch=(1, 65_536), lr=(1e-12, 1.0),
                      pairs_per_epoch=(0, 10**9), blocked_repeat=(1, 1000))
+        if self.blocked_repeat > 1 and "move_forward" not in self.actions:
+            raise ValueError(f"stage {self.name!r}: blocked_repeat repeats forward pairs; this stage has no move_forward")
         if self.geoinv and not {"turn_left", "turn_right"} <= set(self.actions):
             raise ValueError(f"stage {self.name!r}: geoinv pairs turn_left with turn_right; list both actions")
 
