@@ -470,6 +470,7 @@ def test_a_resumed_state_names_what_changed(trained, recipe):
     from odolab.learning.epochs import differences
 
     assert differences({"m": {"a": 1, "b": [1, 2]}}, {"m": {"a": 2, "b": [1, 2]}}) == ["m.a (saved 1, now 2)"]
+    assert differences({"s": {"blocked_repeat": 4}}, {"s": {}}) == ["s.blocked_repeat (saved 4, now unset)"]
     changed = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, dd_bins=5))
     with pytest.raises(ValueError, match=r"model.dd_bins \(saved 10, now 5\)"):
         trainer.run(changed, work=trained / "work", reports=trained / "r3", export=trained / "y.pt",

@@ -18,14 +18,22 @@ STATE_KIND = "odolab-training-state"
 STATE_FORMAT = 1
 
 
+_ABSENT = object()
+
+
 def differences(saved: Any, now: Any, where: str = "") -> list[str]:
-    """Dotted paths where two plain-data documents differ, as ``path (saved X, now Y)``."""
+    """Dotted paths where two plain-data documents differ, as ``path (saved X, now Y)``; a key one
+    side lacks shows as ``unset`` (a switch at its default is left out of identities)."""
     if isinstance(saved, dict) and isinstance(now, dict):
         return [d for k in sorted(set(saved) | set(now), key=str)
-                for d in differences(saved.get(k), now.get(k), f"{where}.{k}" if where else str(k))]
+                for d in differences(saved.get(k, _ABSENT), now.get(k, _ABSENT), f"{where}.{k}" if where else str(k))]
     if isinstance(saved, list) and isinstance(now, list) and len(saved) == len(now):
         return [d for i, (a, b) in enumerate(zip(saved, now)) for d in differences(a, b, f"{where}[{i}]")]
-    return [] if saved == now else [f"{where or 'all'} (saved {saved!r}, now {now!r})"]
+
+    def show(v: Any) -> str:
+        return "unset" if v is _ABSENT else repr(v)
+
+    return [] if saved == now else [f"{where or 'all'} (saved {show(saved)}, now {show(now)})"]
 
 
 def require_finite(loss: torch.Tensor, epoch: int) -> None:
