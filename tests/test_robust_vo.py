@@ -378,9 +378,11 @@ def test_the_shipped_recipe_is_the_papers_row_18_with_the_nominal_warp():
     m = cfg.model
     assert (m.kind, m.visual, m.dd_bins, m.sproj, m.warp) == ("sepact", "rgbd", 10, True, "nominal")
     assert load_train_config("studies/robust_vo/ablations/no-warp.toml").model == dataclasses.replace(m, warp="none")
-    assert [s.name for s in cfg.stages] == ["forward", "turns", "joint", "forward-decay"]
+    assert [s.name for s in cfg.stages] == ["forward", "turns", "joint", "forward-decay", "forward-long", "forward-final"]
     assert cfg.stages[1].data_aug and cfg.stages[2].geoinv and not cfg.stages[0].data_aug
-    assert cfg.stages[3].actions == ("move_forward",) and cfg.stages[3].lr < cfg.stages[0].lr  # a step decay
+    forward = [s for s in cfg.stages if s.actions == ("move_forward",)]
+    assert [s.lr for s in forward] == sorted((s.lr for s in forward), reverse=True)  # step decays
+    assert forward[-1].blocked_repeat > 1 and all(s.blocked_repeat == 1 for s in forward[:-1])
     assert all(not s.mirror for s in cfg.stages)
 
 
