@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 import tempfile
@@ -94,6 +95,13 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
     if path.is_dir() and not (path / manifest).is_file() and any(path.iterdir()):
         raise UsageError(f"{option} {path}: holds files odolab did not write (no {manifest}); "
                          "choose a new or empty folder")
+    if path.is_dir():  # found now, not when the report is written after the whole run
+        for entry in sorted(Path(root) / name for root, dirs, files in os.walk(path) for name in dirs + files):
+            if entry.is_symlink() and not entry.exists():
+                raise UsageError(f"{option} {path}: {entry.relative_to(path)} is a link to nothing; remove it")
+            if entry.exists() and not entry.is_file() and not entry.is_dir():
+                raise UsageError(f"{option} {path}: {entry.relative_to(path)} is not a regular file "
+                                 "(a device, pipe or socket); remove it")
     check_output_dir(path, option)
 
 

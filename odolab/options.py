@@ -42,7 +42,10 @@ def parse_assignments(assignments: Iterable[str]) -> Options:
         name, dot, key = target.strip().rpartition(".")
         if not eq or not dot or not name or not key.isidentifier():
             raise OptionError(f"--odometer-option {text!r}: expected NAME.key=value, e.g. icp.max_depth=4.0")
-        out.setdefault(name, {})[key] = _value(value.strip())
+        try:
+            out.setdefault(name, {})[key] = _value(value.strip())
+        except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
+            raise OptionError(f"--odometer-option {target.strip()}: a number too long to read (over 4300 digits)") from None
     return out
 
 
@@ -53,6 +56,8 @@ def read_options_file(path: str | os.PathLike) -> Options:
             doc = tomllib.load(f)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise OptionError(f"{path}: not valid TOML ({exc})") from None
+    except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
+        raise OptionError(f"{path}: holds a number too long to read (over 4300 digits)") from None
     except OSError as exc:
         raise OptionError(f"{path}: cannot read ({exc.strerror or exc})") from None
     extra = sorted(set(doc) - {"odometers"})

@@ -392,3 +392,35 @@ def test_atomic_writes_go_through_links_and_never_replace_devices_or_pipes(tmp_p
     assert not fifo.is_file() and fifo.exists()
     one_line_error("odolab.bench", "--only", "evaluate", "--json", fifo, words="is not a regular file")
     one_line_error("odolab.bench", "--only", "evaluate", "--json", "/dev/null", words="is not a regular file")
+
+
+def test_a_report_folder_holding_a_pipe_or_a_dead_link_is_refused_before_work(tmp_path):
+    import os
+
+    for kind in ("fifo", "dead"):
+        out = tmp_path / kind
+        out.mkdir()
+        (out / "manifest.txt").write_text("table.csv\n")
+        if kind == "fifo":
+            os.mkfifo(out / "table.csv")
+        else:
+            (out / "table.csv").symlink_to(tmp_path / "missing" / "t.csv")
+        words = "is not a regular file" if kind == "fifo" else "is a link to nothing"
+        one_line_error("odolab.compare", "--odometers", "action-prior", "--episodes", "1", "--max-steps", "5",
+                       "--no-cache", "--serial", "--out", out, words=words)
+
+
+def test_numbers_too_long_to_read_are_one_line_errors(tmp_path):
+    big = "9" * 5000
+    one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.x={big}",
+                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o",
+                   words="action-prior.x: a number too long to read")
+    cfg = tmp_path / "big.toml"
+    cfg.write_text(f'[odometers."action-prior"]\nx = {big}\n')
+    one_line_error("odolab.compare", "--config", cfg, "--episodes", "1", "--max-steps", "5", "--no-cache",
+                   "--out", tmp_path / "o2", words=f"{cfg}: holds a number too long to read")
+    from odolab.learning import ConfigError
+    from odolab.robust_vo.config import load_train_config
+
+    with pytest.raises(ConfigError, match="holds a number too long to read"):
+        load_train_config(str(cfg))

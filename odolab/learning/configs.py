@@ -52,6 +52,8 @@ def _read_toml_file(path: str | os.PathLike) -> dict[str, Any]:
         raise ConfigError(f"{path}: no such config file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
+        raise ConfigError(f"{path}: holds a number too long to read (over 4300 digits)") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
 
