@@ -18,6 +18,8 @@ import os
 import tomllib
 from typing import Any, Callable, Iterable, Mapping
 
+from odolab.io.tomlfile import read_toml
+
 __all__ = ["OptionError", "parse_assignments", "read_options_file", "merge_options", "check_options"]
 
 Options = dict[str, dict[str, Any]]
@@ -52,14 +54,9 @@ def parse_assignments(assignments: Iterable[str]) -> Options:
 def read_options_file(path: str | os.PathLike) -> Options:
     """The ``[odometers.NAME]`` tables of a TOML file (other top-level keys are an error)."""
     try:
-        with open(path, "rb") as f:
-            doc = tomllib.load(f)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise OptionError(f"{path}: not valid TOML ({exc})") from None
-    except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
-        raise OptionError(f"{path}: holds a number too long to read (over 4300 digits)") from None
-    except OSError as exc:
-        raise OptionError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        doc = read_toml(path, "options file")
+    except ValueError as exc:
+        raise OptionError(str(exc)) from None
     extra = sorted(set(doc) - {"odometers"})
     if extra:
         raise OptionError(f"{path}: unknown top-level key {extra[0]!r}; expected only [odometers.NAME] tables")

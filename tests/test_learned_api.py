@@ -153,7 +153,7 @@ def test_compare_passes_options_to_the_constructor(tmp_path):
     (["--odometers", "action-prior", "--odometer-option", "garbage"], "expected NAME.key=value"),
     (["--odometers", "examples.nominal_motion:NominalMotion", "--odometer-option",
       "examples.nominal_motion:NominalMotion.speed=2"], "has no option 'speed'"),
-    (["--config", "/nonexistent/o.toml"], "/nonexistent/o.toml: cannot read"),
+    (["--config", "/nonexistent/o.toml"], "/nonexistent/o.toml: no such options file"),
     (["--odometers", "icp", "--odometer-option", "icp.max_depth=abc"],
      "odometer 'icp' option max_depth: expected a number, got 'abc'"),
     (["--odometers", "icp", "--odometer-option", "icp.max_iterations=2.5"],

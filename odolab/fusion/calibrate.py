@@ -25,10 +25,9 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
                         number, path_arg, run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
-from odolab.odometer import standalone_odometers
 from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
 from odolab.fusion.graph import residual, right_covariance
-from odolab.odometer import parse_odometer_list
+from odolab.odometer import parse_odometer_list, standalone_odometers
 from odolab.parallel import check_ray_option
 from odolab.progress import StepProgressBar
 from odolab.sim.scenes import SPLITS

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tomllib
 import types
 import typing
 from typing import Any, TypeVar
+
+from odolab.io.tomlfile import read_toml as read_toml_document
 
 T = TypeVar("T")
 
@@ -46,16 +47,9 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 def _read_toml_file(path: str | os.PathLike) -> dict[str, Any]:
     try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such config file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
-        raise ConfigError(f"{path}: holds a number too long to read (over 4300 digits)") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        return read_toml_document(path, "config file")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def _check(value: Any, annotation: Any, where: str) -> Any:
