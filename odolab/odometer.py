@@ -40,8 +40,8 @@ class Odometer:
     (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`),
     ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
     network per action: it is refused on real data, which has no actions), ``weights`` (a learned
-    odometer's digest of the model file it loaded, or None: studies that keep results per odometer
-    redo them when it changes).
+    odometer's digest of the model file it loaded, a fused one's of its inputs' and its calibration,
+    or None: studies that keep results per odometer redo them when it changes).
     """
 
     name: str = "odometer"

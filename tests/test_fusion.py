@@ -10,8 +10,8 @@ import pytest
 gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where it is truly absent
 
 from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer  # noqa: E402
-from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, ellipsoid_share,  # noqa: E402
-                                       fit_input)
+from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, debiased,  # noqa: E402
+                                       ellipsoid_share, fit_input)
 from odolab.fusion.graph import (Measurement, OnlineGraph, left_covariance, residual, right_covariance,  # noqa: E402
                                  smooth)
 from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer  # noqa: E402
@@ -134,6 +134,48 @@ def test_calibration_puts_95_percent_inside_the_95_percent_ellipsoid(tmp_path):
     assert CHI2_6_95 > 12
 
 
+def test_calibration_finds_a_bias_and_a_correlation_and_fusion_removes_the_bias(tmp_path):
+    rng = np.random.default_rng(2)
+    n = 3000
+    bias = np.array([0.0, 0.01, 0.0, -0.02, 0.0, 0.005])  # a turn overestimated by 0.01 rad, slid 2 cm
+    yaw = rng.normal(0.0, 0.015, n)
+    noise = np.zeros((n, 6))
+    noise[:, 1], noise[:, 3] = yaw, -2.0 * yaw + rng.normal(0.0, 0.01, n)  # dx error = -2 m x yaw error + noise
+    noise[:, 5] = rng.normal(0.0, 0.01, n)
+    noise[:, [0, 2, 4]] = rng.normal(0.0, 1e-4, (n, 3))
+    xi = np.array([gtsam.Pose3.Logmap(gtsam.Pose3.Expmap(bias).compose(gtsam.Pose3.Expmap(e))) for e in noise])
+    xi[:60] += rng.normal(0.0, 1.0, (60, 6))  # 2 % wild steps must not set the bias
+    cal = fit_input(xi, np.full(n, Action.TURN_LEFT.value), [None] * n)
+    assert np.allclose(cal.bias["turn_left"], bias, atol=2e-3)
+    corr = np.array(cal.correlation["turn_left"])
+    assert corr[1, 3] < -0.8 and abs(corr[1, 5]) < 0.1 and corr[0, 3] == 0.0  # floored components stay uncorrelated
+    # a fresh step T_true = T @ exp(xi): the corrected measurement's residual is the debiased one
+    T_true = _pose(0.01, 0.02, 0.52)
+    T = T_true @ np.linalg.inv(gtsam.Pose3.Expmap(bias).matrix())
+    assert np.allclose(residual(cal.corrected(Action.TURN_LEFT, T), T_true), 0.0, atol=3e-3)
+    assert np.allclose(cal.corrected(Action.MOVE_FORWARD, T), T)  # no bias for an uncalibrated action
+    assert np.allclose(debiased(bias[None], bias), 0.0, atol=1e-12)
+    # fresh steps fall inside the 95 % ellipsoid 95 % of the time; the correlated covariance explains
+    # them better (higher likelihood) than the diagonal one with the same sigmas
+    fresh = noise[60:]
+    full = cal.covariance(Action.TURN_LEFT, None)
+    diag = np.diag(np.diag(full))
+    assert 0.92 < ellipsoid_share(fresh, full) < 0.98
+
+    def loglik(cov):
+        from odolab.fusion.calibration import mahalanobis2
+        return -0.5 * (mahalanobis2(fresh, cov).mean() + np.linalg.slogdet(cov)[1])
+
+    assert loglik(full) > loglik(diag) + 0.5
+    path = tmp_path / "cal.json"
+    Calibration({"x": cal}).save(path)
+    back = Calibration.load(path).for_input("x")
+    assert back.bias == cal.bias and back.correlation == cal.correlation
+    old = InputCalibration(cal.fixed, cal.own_scale, cal.steps)  # a file from before bias and correlation
+    assert np.allclose(old.covariance(Action.TURN_LEFT, None), np.diag(np.square(cal.fixed["turn_left"])))
+    assert np.allclose(old.corrected(Action.TURN_LEFT, T), T)
+
+
 def test_bad_calibration_files_are_named(tmp_path):
     def one(fixed, scale='{}'):
         return '{"format": 1, "inputs": {"x": {"fixed": %s, "own_scale": %s, "steps": {}}}}' % (fixed, scale)
@@ -144,7 +186,17 @@ def test_bad_calibration_files_are_named(tmp_path):
                         (one('{"turn_left": [1e-300, 1, 1, 1, 1, 1]}'), "6 numbers in"),
                         (one('{"fly": [1, 1, 1, 1, 1, 1]}'), "unknown action 'fly'"),
                         (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{"turn_left": 0}'), "own_scale must be"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{"turn_left": -5}'), "own_scale must be")]:
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{"turn_left": -5}'), "own_scale must be"),
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "bias": {"turn_left": [0, 0]}'), "bias must be"),
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "bias": {"turn_right": [0, 0, 0, 0, 0, 0]}'),
+                         "no fixed sigmas"),
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "bias": 3'), "expected fixed"),
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "correlation": {"turn_left": [[1]]}'),
+                         "correlation must be"),
+                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}',
+                             '{}, "correlation": {"turn_left": %s}' % [[1.0] * 6] * 6 if False else
+                             '{}, "correlation": {"turn_left": [%s]}' % ",".join(["[1, 1, 1, 1, 1, 1]"] * 6)),
+                         "correlation must be")]:
         p = tmp_path / "c.json"
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
@@ -210,6 +262,15 @@ def test_fused_inputs_that_answer_are_averaged_and_the_failures_ignored(calibrat
     assert odo.fused_steps == 3 and odo.fusion_seconds > 0
     smoothed = odo.smoothed_trajectory()  # a chain: the batch solution is the online one
     assert smoothed.shape == (4, 4, 4) and np.allclose(smoothed[-1][2, 3], 3 * 0.27, atol=1e-3)
+
+
+def test_a_fused_odometer_digest_changes_with_its_calibration(calibration, tmp_path):
+    first = REGISTRY.load("fused(test-fixed)", calibration=calibration).weights
+    assert first == REGISTRY.load("fused(test-fixed)", calibration=calibration).weights
+    cal = Calibration.load(calibration)
+    other = tmp_path / "other.json"
+    Calibration(cal.inputs, source="recalibrated").save(other)  # same numbers, another file: rerun to be sure
+    assert REGISTRY.load("fused(test-fixed)", calibration=str(other)).weights != first
 
 
 def test_span_factors_tie_steps_across_the_graph(calibration):

@@ -6,8 +6,8 @@
 
 Runs each odometer on the same episodes (generated as Ray tasks, cached like ``compare``'s),
 takes its valid raw steps against the true motions and fits :mod:`odolab.fusion.calibration`;
-``--check`` instead prints, per input and action, the share of steps inside the calibrated 95 %
-ellipsoid (0.95 when the calibration carries over). ``action-prior`` must be calibrated: fusion
+``--check`` instead prints, per input and action, the share of bias-corrected steps inside the
+calibrated 95 % ellipsoid (0.95 when the calibration carries over). ``action-prior`` must be calibrated: fusion
 falls back on it. An action with fewer than 10 valid steps is left out (fusion then uses the input's
 largest sigmas for it), and the summary says so. ``--out`` is replaced if it exists.
 """
@@ -25,7 +25,7 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
                         number, path_arg, run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
-from odolab.fusion.calibration import Calibration, ellipsoid_share, fit_input
+from odolab.fusion.calibration import Calibration, debiased, ellipsoid_share, fit_input
 from odolab.fusion.graph import residual, right_covariance
 from odolab.odometer import parse_odometer_list, standalone_odometers
 from odolab.parallel import check_ray_option
@@ -127,6 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 rows = np.flatnonzero(actions == a.value)
                 if len(rows):
                     covs = np.stack([cal.covariance(a, own[k]) for k in rows])
+                    xi[rows] = debiased(xi[rows], cal.bias_of(a))
                     note = "" if len(rows) >= 20 else "  (too few steps to judge)"
                     print(f"{name:>24} {a.label:>12}: {ellipsoid_share(xi[rows], covs):.3f} of {len(rows)} valid steps "
                           f"inside the 95 % ellipsoid{note}")

@@ -4,12 +4,24 @@ An odometer's own covariance (Gauss-Newton on dense correspondences, MC-dropout 
 correlated errors as independent and is usually far too small; many odometers give none. For each
 input and action, from its valid steps on the val split (raw estimates against the true motions):
 
-* ``fixed``: six sigmas (rx, ry, rz rad, tx, ty, tz m; right perturbation,
-  :mod:`odolab.fusion.graph`), the RMS residual of each component (floored at :data:`SIGMA_FLOOR`),
-  all scaled by one factor so that 95 % of the steps fall inside the 95 % ellipsoid of the
-  chi-square law with 6 degrees of freedom; used for steps without a covariance of their own;
+* ``bias``: the input's systematic error, six numbers (rx, ry, rz rad, tx, ty, tz m; right
+  perturbation, :mod:`odolab.fusion.graph`): the mean residual over the steps whose every component
+  lies within 3 robust sigmas (1.4826 x median absolute deviation) of the component's median, so
+  the few wild steps do not set it. Fusion corrects each answer by it, ``T @ exp(bias)``, before it
+  enters the graph. (Depth noise that varies across the image makes the classical odometers
+  overestimate every turn by about 0.6 degrees and slide it 1-2 cm sideways, the same way each time:
+  a bias, which adds up along a path where random errors partly cancel.)
+* ``fixed``: six sigmas, the RMS of each component of the residual less the bias over those same
+  steps (floored at :data:`SIGMA_FLOOR`), all scaled by one factor so that 95 % of all the steps
+  fall inside the 95 % ellipsoid of the chi-square law with 6 degrees of freedom; with
+  ``correlation`` (6 x 6, the correlation matrix of those steps' residuals; components at the floor
+  uncorrelated) the covariance ``D R D`` used for steps without a covariance of their own. (A learned odometer trades sideways
+  motion for yaw: its dx and dyaw errors correlate at about -0.7.)
 * ``own_scale``: the factor that does the same to the odometer's own covariances (None when it
   gives none).
+
+``bias`` and ``correlation`` may be absent (files written before they existed): no bias, no
+correlation.
 
 So "calibrated" means: the 95 % confidence ellipsoid holds 95 % of the val steps (a quantile fit,
 robust to the heavy tails that would make a variance fit meaningless). :func:`ellipsoid_share`
@@ -21,6 +33,7 @@ import json
 import os
 from dataclasses import asdict, dataclass, field
 
+import gtsam
 import numpy as np
 
 from odolab.io.atomic import write_bytes_atomic
@@ -30,6 +43,8 @@ from odolab.types import MOTION_ACTIONS, Action
 SIGMA_RANGE = (1e-6, 1e3)
 #: Scales on an odometer's own covariance outside this range are refused likewise.
 SCALE_RANGE = (1e-12, 1e12)
+#: Correlation matrices are shrunk this much towards the identity, so that they stay invertible.
+CORRELATION_SHRINK = 1e-3
 #: chi-square with 6 degrees of freedom: 95 % quantile.
 CHI2_6_95 = 12.591587243743977
 #: Smallest sigma per component (rad or m): planar odometers leave out-of-plane residuals near zero.
@@ -84,6 +99,8 @@ class InputCalibration:
     own_scale: dict[str, float | None]
     steps: dict[str, int]
     inside95: dict[str, float] = field(default_factory=dict)  # on the calibration steps themselves
+    bias: dict[str, list[float]] = field(default_factory=dict)
+    correlation: dict[str, list[list[float]]] = field(default_factory=dict)
 
     def covariance(self, action: Action | None, own: np.ndarray | None) -> np.ndarray:
         """Calibrated 6x6 (right perturbation) for a step of ``action``; ``own``: the step's own
@@ -94,37 +111,97 @@ class InputCalibration:
         scale = self.own_scale.get(label)
         if own is not None and scale is not None and np.all(np.isfinite(own)):
             return scale * np.asarray(own, np.float64)
-        return np.diag(np.square(self.fixed[label]))
+        d = np.diag(self.fixed[label])
+        return d @ np.asarray(self.correlation.get(label, np.eye(6)), np.float64) @ d
+
+    def bias_of(self, action: Action | None) -> np.ndarray:
+        """The bias (6,) of a step of ``action`` (zeros when none was calibrated for it)."""
+        label = action.label if action in MOTION_ACTIONS else None
+        return np.asarray(self.bias.get(label, np.zeros(6)) if label else np.zeros(6), np.float64)
+
+    def corrected(self, action: Action | None, T: np.ndarray) -> np.ndarray:
+        """A measured step ``T`` (4x4, previous camera -> current) corrected by the bias: ``T @ exp(bias)``."""
+        bias = self.bias_of(action)
+        if not np.any(bias):
+            return np.asarray(T, np.float64)
+        return np.asarray(T, np.float64) @ gtsam.Pose3.Expmap(bias).matrix()
+
+
+def inliers(xi: np.ndarray) -> np.ndarray:
+    """(N,) bool: the residuals ``xi`` (N, 6) whose every component lies within 3 robust sigmas
+    (1.4826 x median absolute deviation, at least 1e-9) of that component's median."""
+    med = np.median(xi, axis=0)
+    mad = 1.4826 * np.median(np.abs(xi - med), axis=0)
+    return np.all(np.abs(xi - med) <= 3.0 * np.maximum(mad, 1e-9), axis=1)
+
+
+def debiased(xi: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """Residuals (N, 6) of the bias-corrected measurements ``T @ exp(bias)`` from those of ``T``:
+    ``log(exp(-bias) exp(xi))`` per row (exact on SE(3), not a subtraction)."""
+    B = gtsam.Pose3.Expmap(np.asarray(bias, np.float64))
+    return np.array([gtsam.Pose3.Logmap(B.between(gtsam.Pose3.Expmap(np.asarray(x, np.float64)))) for x in xi]).reshape(-1, 6)
+
+
+def _correlation(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Correlation matrix (6, 6) of residuals ``r`` about zero; components whose sigma is at the floor
+    are left uncorrelated; shrunk by :data:`CORRELATION_SHRINK` towards the identity."""
+    live = sigma > SIGMA_FLOOR
+    rms = np.sqrt(np.mean(r**2, axis=0))
+    corr = np.eye(6)
+    if live.sum() >= 2:
+        sub = r[:, live] / rms[live]
+        corr[np.ix_(live, live)] = sub.T @ sub / len(r)
+    corr = (1.0 - CORRELATION_SHRINK) * corr + CORRELATION_SHRINK * np.eye(6)
+    np.fill_diagonal(corr, 1.0)
+    return corr
+
+
+def _is_correlation(m: list[list[float]]) -> bool:
+    """A 6 x 6 symmetric positive definite matrix with ones on its diagonal."""
+    if len(m) != 6 or any(len(row) != 6 for row in m):
+        return False
+    a = np.asarray(m, np.float64)
+    if not np.all(np.isfinite(a)) or not np.allclose(a, a.T, atol=1e-9) or not np.allclose(np.diag(a), 1.0, atol=1e-9):
+        return False
+    return bool(np.linalg.eigvalsh(a).min() > 1e-9)
 
 
 def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None]) -> InputCalibration:
     """Fit one input from its valid steps: residuals ``xi`` (N, 6), action values (N,), own
     covariances (right perturbation) or None per step."""
-    fixed, own_scale, steps, inside = {}, {}, {}, {}
+    fixed, own_scale, steps, inside, biases, corrs = {}, {}, {}, {}, {}, {}
     for a in MOTION_ACTIONS:
         rows = np.flatnonzero(actions == a.value)
         if len(rows) < 10:
             continue
-        r = xi[rows]
-        sigma = np.maximum(np.sqrt(np.mean(r**2, axis=0)), SIGMA_FLOOR)
-        sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, np.diag(sigma**2)))), SIGMA_FLOOR)
-        fixed[a.label] = [float(s) for s in sigma]
-        have = [k for k in rows if own[k] is not None and np.all(np.isfinite(own[k]))]
+        keep = inliers(xi[rows])
+        if keep.sum() < 10:
+            keep[:] = True
+        bias = xi[rows][keep].mean(axis=0)
+        r = debiased(xi[rows], bias)
+        sigma = np.maximum(np.sqrt(np.mean(r[keep] ** 2, axis=0)), SIGMA_FLOOR)  # the shape from the inliers,
+        corr = _correlation(r[keep], sigma)  # the size (below) from every step
+        shape = np.diag(sigma) @ corr @ np.diag(sigma)
+        sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, shape))), SIGMA_FLOOR)
+        fixed[a.label], biases[a.label] = [float(s) for s in sigma], [float(b) for b in bias]
+        corrs[a.label] = [[float(c) for c in row] for row in corr]
+        have = [i for i, k in enumerate(rows) if own[k] is not None and np.all(np.isfinite(own[k]))]
         if len(have) >= 10:
-            covs = np.stack([own[k] for k in have])
+            covs = np.stack([own[rows[i]] for i in have])
             try:
-                own_scale[a.label] = _scale(mahalanobis2(xi[have], covs))
+                own_scale[a.label] = _scale(mahalanobis2(r[have], covs))
             except np.linalg.LinAlgError:
                 own_scale[a.label] = None
         else:
             own_scale[a.label] = None
         steps[a.label] = int(len(rows))
-        cal = InputCalibration({a.label: fixed[a.label]}, {a.label: own_scale[a.label]}, {})
+        cal = InputCalibration({a.label: fixed[a.label]}, {a.label: own_scale[a.label]}, {},
+                               correlation={a.label: corrs[a.label]})
         covs = np.stack([cal.covariance(a, own[k]) for k in rows])
         inside[a.label] = ellipsoid_share(r, covs)
     if not fixed:
         raise ValueError("too few valid steps to calibrate (at least 10 of some action are needed)")
-    return InputCalibration(fixed, own_scale, steps, inside)
+    return InputCalibration(fixed, own_scale, steps, inside, biases, corrs)
 
 
 @dataclass(frozen=True)
@@ -170,7 +247,9 @@ class Calibration:
                 cal = InputCalibration({k: [_number(x) for x in v] for k, v in c["fixed"].items()},
                                        {k: (None if v is None else _number(v)) for k, v in c["own_scale"].items()},
                                        {k: _count(v) for k, v in c["steps"].items()},
-                                       {k: _share(v) for k, v in c.get("inside95", {}).items()})
+                                       {k: _share(v) for k, v in c.get("inside95", {}).items()},
+                                       {k: [_number(x) for x in v] for k, v in c.get("bias", {}).items()},
+                                       {k: [[_number(x) for x in row] for row in v] for k, v in c.get("correlation", {}).items()})
             except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
                 raise ValueError(f"{path}: input {name!r}: expected fixed, own_scale, steps per action ({exc})") from None
             where = f"{path}: input {name!r}"
@@ -182,6 +261,16 @@ class Calibration:
             if bad or not cal.fixed:
                 raise ValueError(f"{where}: fixed sigmas must be 6 numbers in [{lo:g}, {hi:g}] per action "
                                  f"(bad: {bad or 'none given'})")
+            unknown = sorted((set(cal.bias) | set(cal.correlation)) - set(cal.fixed))
+            if unknown:
+                raise ValueError(f"{where}: bias or correlation for {unknown[0]!r}, which has no fixed sigmas")
+            bad = [k for k, v in cal.bias.items() if len(v) != 6 or not all(abs(x) <= SIGMA_RANGE[1] for x in v)]
+            if bad:
+                raise ValueError(f"{where}: bias must be 6 numbers of at most {SIGMA_RANGE[1]:g} per action (bad: {bad})")
+            bad = [k for k, v in cal.correlation.items() if not _is_correlation(v)]
+            if bad:
+                raise ValueError(f"{where}: correlation must be a 6 x 6 symmetric positive definite matrix with a unit "
+                                 f"diagonal per action (bad: {bad})")
             lo, hi = SCALE_RANGE
             bad = [k for k, v in cal.own_scale.items() if v is not None and not lo <= v <= hi]
             if bad:

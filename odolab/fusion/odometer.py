@@ -2,8 +2,9 @@
 
     python -m odolab.compare --odometers 'icp,open3d-rgbd,robust-vo,fused(icp,open3d-rgbd,robust-vo)'
 
-Every step, each input odometer sees the same pair; each valid answer becomes a between-factor
-from the previous pose to the new one, with the input's calibrated covariance for the action
+Every step, each input odometer sees the same pair; each valid answer, corrected by the input's
+calibrated bias for the action, becomes a between-factor from the previous pose to the new one,
+with the input's calibrated covariance for the action
 (:mod:`odolab.fusion.calibration`; file: option ``calibration``, default the shipped one) inside a
 robust kernel (``kernel``: huber, cauchy or none; ``kernel_width`` in whitened sigmas), so one
 wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
@@ -86,8 +87,10 @@ class FusedOdometer(Odometer):
         self.prior = ActionPrior.shipped()
         # an input that needs actions would answer nothing without them: say so, as that input would
         self.needs_action = any(o.needs_action for o in self.inputs.values())
+        # what its answers depend on besides code: the learned inputs' model files and the calibration
         learned = [f"{n}={o.weights}" for n, o in self.inputs.items() if o.weights]
-        self.weights = hashlib.sha256(";".join(learned).encode()).hexdigest() if learned else None
+        calibrated = hashlib.sha256(Path(calibration or SHIPPED_CALIBRATION).read_bytes()).hexdigest()
+        self.weights = hashlib.sha256(";".join(learned + [f"calibration={calibrated}"]).encode()).hexdigest()
         #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
         self.fusion_seconds, self.fused_steps = 0.0, 0
         self._graph: OnlineGraph | None = None
@@ -131,8 +134,9 @@ class FusedOdometer(Odometer):
             if est is None:
                 continue
             own = right_covariance(est.transform, est.covariance) if est.covariance is not None else None
-            cov = self.input_calibration[n].covariance(action, own)
-            steps.append(Measurement(j - 1, j, est.transform, cov, n))
+            cal = self.input_calibration[n]
+            cov = cal.covariance(action, own)
+            steps.append(Measurement(j - 1, j, cal.corrected(action, est.transform), cov, n))
             step_covs[n] = cov
         spans = []
         for (k, n), est in span_answers.items():
