@@ -115,15 +115,21 @@ def test_calibration_puts_95_percent_inside_the_95_percent_ellipsoid(tmp_path):
     rng = np.random.default_rng(1)
     sigma = np.array([0.001, 0.02, 0.001, 0.03, 0.001, 0.02])
     n = 4000
-    xi = rng.normal(0.0, sigma, (n, 6))
+    spread = rng.uniform(0.3, 3.0, n)  # some steps are surer than others, and the odometer knows which
+    xi = rng.normal(0.0, sigma, (n, 6)) * spread[:, None]
     actions = np.full(n, Action.TURN_LEFT.value)
-    own = [np.diag((0.1 * sigma) ** 2)] * n  # an odometer ten times too sure of itself
+    own = [np.diag((0.1 * sigma * k) ** 2) for k in spread]  # but is ten times too sure of itself
     cal = fit_input(xi, actions, own)
     assert np.isclose(cal.own_scale["turn_left"], 100.0, rtol=0.15)  # 10^2
-    assert np.allclose(cal.fixed["turn_left"], sigma, rtol=0.15)
-    fresh = rng.normal(0.0, sigma, (n, 6))
-    share = ellipsoid_share(fresh, cal.covariance(Action.TURN_LEFT, own[0]))
+    fresh = rng.normal(0.0, sigma, (n, 6)) * spread[:, None]
+    share = ellipsoid_share(fresh, np.stack([cal.covariance(Action.TURN_LEFT, c) for c in own]))
     assert 0.93 < share < 0.97
+    # own covariances that say nothing about the step are not used: the fixed one fits better
+    blind = fit_input(xi, actions, [np.diag((0.1 * sigma * k) ** 2) for k in rng.permutation(spread)])
+    assert blind.own_scale["turn_left"] is None
+    plain = fit_input(xi / spread[:, None], actions, [None] * n)
+    assert np.allclose(plain.fixed["turn_left"], sigma, rtol=0.15)
+    assert 0.93 < ellipsoid_share(fresh / spread[:, None], plain.covariance(Action.TURN_LEFT, None)) < 0.97
     assert "move_forward" not in cal.fixed  # no forward steps: nothing claimed
     path = tmp_path / "cal.json"
     Calibration({"x": cal}, source="test").save(path)

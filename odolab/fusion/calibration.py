@@ -17,8 +17,11 @@ input and action, from its valid steps on the val split (raw estimates against t
   ``correlation`` (6 x 6, the correlation matrix of those steps' residuals; components at the floor
   uncorrelated) the covariance ``D R D`` used for steps without a covariance of their own. (A learned odometer trades sideways
   motion for yaw: its dx and dyaw errors correlate at about -0.7.)
-* ``own_scale``: the factor that does the same to the odometer's own covariances (None when it
-  gives none).
+* ``own_scale``: the factor that does the same to the odometer's own covariances; None when it
+  gives none, or when the scaled own covariances explain the residuals less well (higher mean
+  Gaussian negative log-likelihood) than the fixed covariance does. (On the shipped calibration
+  the Gauss-Newton covariances of icp and open3d-rgbd lose on every action: their shape misses the
+  trade between turn yaw and sideways motion that the fixed correlation captures.)
 
 ``bias`` and ``correlation`` may be absent (files written before they existed): no bias, no
 correlation.
@@ -142,6 +145,13 @@ def debiased(xi: np.ndarray, bias: np.ndarray) -> np.ndarray:
     return np.array([gtsam.Pose3.Logmap(B.between(gtsam.Pose3.Expmap(np.asarray(x, np.float64)))) for x in xi]).reshape(-1, 6)
 
 
+def nll(xi: np.ndarray, cov: np.ndarray) -> float:
+    """Mean Gaussian negative log-likelihood (nats, constant left out) of residuals ``xi`` (N, 6) under
+    covariances ``cov`` (N, 6, 6) or one (6, 6)."""
+    logdet = np.linalg.slogdet(np.broadcast_to(cov, (len(xi), 6, 6)))[1]
+    return float(np.mean(0.5 * (mahalanobis2(xi, cov) + logdet)))
+
+
 def _correlation(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """Correlation matrix (6, 6) of residuals ``r`` about zero; components whose sigma is at the floor
     are left uncorrelated; shrunk by :data:`CORRELATION_SHRINK` towards the identity."""
@@ -185,15 +195,17 @@ def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None])
         sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, shape))), SIGMA_FLOOR)
         fixed[a.label], biases[a.label] = [float(s) for s in sigma], [float(b) for b in bias]
         corrs[a.label] = [[float(c) for c in row] for row in corr]
+        fixed_cov = np.diag(sigma) @ corr @ np.diag(sigma)
         have = [i for i, k in enumerate(rows) if own[k] is not None and np.all(np.isfinite(own[k]))]
+        own_scale[a.label] = None
         if len(have) >= 10:
             covs = np.stack([own[rows[i]] for i in have])
             try:
-                own_scale[a.label] = _scale(mahalanobis2(r[have], covs))
+                scale = _scale(mahalanobis2(r[have], covs))
+                if nll(r[have], scale * covs) < nll(r[have], fixed_cov):  # own covariances must earn their place
+                    own_scale[a.label] = scale
             except np.linalg.LinAlgError:
-                own_scale[a.label] = None
-        else:
-            own_scale[a.label] = None
+                pass
         steps[a.label] = int(len(rows))
         cal = InputCalibration({a.label: fixed[a.label]}, {a.label: own_scale[a.label]}, {},
                                correlation={a.label: corrs[a.label]})
