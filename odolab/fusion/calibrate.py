@@ -137,8 +137,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ValueError as exc:
             raise UsageError(f"{name}: {exc}; use more --episodes or --max-steps") from None
         cal = fitted[name]
-        said = ", ".join(f"{a} {n} steps" + (f" (own covariance x {cal.own_scale[a]:.3g})" if cal.own_scale.get(a) else "")
-                         for a, n in cal.steps.items())
+        gives_own = any(c is not None for c in own)
+
+        def own_note(a: str) -> str:
+            if cal.own_scale.get(a):
+                return f" (own covariance x {cal.own_scale[a]:.3g})"
+            return " (own covariance fits worse than the fixed one: not used)" if gives_own else ""
+
+        said = ", ".join(f"{a} {n} steps{own_note(a)}" for a, n in cal.steps.items())
         left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]
         print(f"{name}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else ""))
     if calibration is None:
