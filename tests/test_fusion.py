@@ -2,6 +2,7 @@
 fused odometer's fallback and its name in the registry."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +128,8 @@ def test_calibration_puts_95_percent_inside_the_95_percent_ellipsoid(tmp_path):
     # own covariances that say nothing about the step are not used: the fixed one fits better
     blind = fit_input(xi, actions, [np.diag((0.1 * sigma * k) ** 2) for k in rng.permutation(spread)])
     assert blind.own_scale["turn_left"] is None
+    indefinite = np.diag([1e-4] * 5 + [-1e-4])  # not a covariance: never adopted
+    assert fit_input(xi, actions, [indefinite] * n).own_scale["turn_left"] is None
     plain = fit_input(xi / spread[:, None], actions, [None] * n)
     assert np.allclose(plain.fixed["turn_left"], sigma, rtol=0.15)
     assert 0.93 < ellipsoid_share(fresh / spread[:, None], plain.covariance(Action.TURN_LEFT, None)) < 0.97
@@ -183,32 +186,71 @@ def test_calibration_finds_a_bias_and_a_correlation_and_fusion_removes_the_bias(
 
 
 def test_bad_calibration_files_are_named(tmp_path):
-    def one(fixed, scale='{}'):
-        return '{"format": 1, "inputs": {"x": {"fixed": %s, "own_scale": %s, "steps": {}}}}' % (fixed, scale)
+    def one(fixed, scale="{}", more=""):
+        return '{"format": 1, "inputs": {"x": {"fixed": %s, "own_scale": %s, "steps": {}%s}}}' % (fixed, scale, more)
 
+    ok = '{"turn_left": [1, 1, 1, 1, 1, 1]}'
+    eye = [[float(i == j) for j in range(6)] for i in range(6)]
+
+    def corr(m):
+        return one(ok, more=', "correlation": {"turn_left": %s}' % m)
+
+    near_singular = [row[:] for row in eye]
+    near_singular[1][3] = near_singular[3][1] = 1 - 2e-9
+    lopsided = [row[:] for row in eye]
+    lopsided[0][1] = 0.5
     for text, words in [("{", "not a calibration file"), ('{"format": 9, "inputs": {}}', "format 1"),
                         ('{"format": true, "inputs": {}}', "format 1"), ('{"format": 1, "inputs": {}}', "calibrates no"),
-                        (one('{"turn_left": [1, 2]}'), "6 numbers in"),
-                        (one('{"turn_left": [1e-300, 1, 1, 1, 1, 1]}'), "6 numbers in"),
-                        (one('{"fly": [1, 1, 1, 1, 1, 1]}'), "unknown action 'fly'"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{"turn_left": 0}'), "own_scale must be"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{"turn_left": -5}'), "own_scale must be"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "bias": {"turn_left": [0, 0]}'), "bias must be"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "bias": {"turn_right": [0, 0, 0, 0, 0, 0]}'),
-                         "no fixed sigmas"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "bias": 3'), "expected fixed"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}', '{}, "correlation": {"turn_left": [[1]]}'),
-                         "correlation must be"),
-                        (one('{"turn_left": [1, 1, 1, 1, 1, 1]}',
-                             '{}, "correlation": {"turn_left": %s}' % [[1.0] * 6] * 6 if False else
-                             '{}, "correlation": {"turn_left": [%s]}' % ",".join(["[1, 1, 1, 1, 1, 1]"] * 6)),
-                         "correlation must be")]:
+                        ('{"format": 1, "inputs": {"x": 1}, "extra": 2}', "unknown key 'extra'"),
+                        ('{"format": 1, "source": 3, "inputs": {"x": 1}}', "source must be a string"),
+                        ('{"format": 1, "inputs": {"x": 1}}', "input 'x': expected an object"),
+                        ('{"format": 1, "inputs": {"x": {"fixed": {}, "steps": {}}}}', "no 'own_scale'"),
+                        (one(ok, more=', "biases": {}'), "unknown key 'biases'"),
+                        (one('{"turn_left": [1, 2]}'), r"fixed.turn_left: expected a list of 6 numbers, got \[1, 2\]"),
+                        (one('{"turn_left": [1e-300, 1, 1, 1, 1, 1]}'), "fixed.turn_left: expected 6 sigmas in"),
+                        (one('{"fly": [1, 1, 1, 1, 1, 1]}'), "fixed: unknown action 'fly'"),
+                        (one("{}"), "fixed gives no action"),
+                        (one(ok, '{"turn_left": 0}'), "own_scale.turn_left: expected null or a number"),
+                        (one(ok, '{"turn_left": -5}'), "own_scale.turn_left: expected null or a number"),
+                        (one(ok, more=', "bias": {"turn_left": [0, 0]}'), "bias.turn_left: expected a list of 6"),
+                        (one(ok, more=', "bias": {"turn_left": "abcdef"}'), "bias.turn_left: expected a list of 6"),
+                        (one(ok, more=', "bias": {"turn_left": [0, 3, 0, 0, 0, 0]}'), "bias.turn_left: expected rotations within"),
+                        (one(ok, more=', "bias": {"turn_left": [0, 0, 0, 99, 0, 0]}'), "translations within"),
+                        (one(ok, more=', "bias": {"turn_left": [0, 0, 0, 1%s, 0, 0]}' % ("0" * 400)), "bias.turn_left: int too large"),
+                        (one(ok, more=', "bias": {"turn_right": [0, 0, 0, 0, 0, 0]}'), "no fixed sigmas"),
+                        (one(ok, more=', "bias": {"stop": [0, 0, 0, 0, 0, 0]}'), "bias: unknown action 'stop'"),
+                        (one(ok, more=', "bias": null'), "bias must map actions"),
+                        (one(ok, more=', "bias": 3'), "bias must map actions"),
+                        (corr("[[1]]"), "correlation.turn_left: expected 6 rows of 6 numbers"),
+                        (corr(str([[1.0] * 6] * 6)), "correlation.turn_left: expected a positive definite"),
+                        (corr(str(near_singular)), "its smallest is"),
+                        (corr(str(lopsided)), "correlation.turn_left: expected a symmetric matrix"),
+                        (corr(str([[2.0 * v for v in row] for row in eye])), "expected ones on the diagonal")]:
         p = tmp_path / "c.json"
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
             Calibration.load(p)
     with pytest.raises(ValueError, match="no such calibration file"):
         Calibration.load(tmp_path / "missing.json")
+    with pytest.raises(ValueError, match="is a folder"):
+        Calibration.load(tmp_path)
+    fifo = tmp_path / "pipe.json"
+    os.mkfifo(fifo)  # would block a reader forever
+    with pytest.raises(ValueError, match="is a pipe, device or socket; the calibration file must be a regular file"):
+        Calibration.load(fifo)
+    # a fitted-looking file with an identity correlation and a small bias loads
+    p.write_text(one(ok, more=', "bias": {"turn_left": [0, 0.01, 0, -0.02, 0, 0]}, "correlation": {"turn_left": %s}' % eye))
+    assert Calibration.load(p).for_input("x").bias["turn_left"][1] == 0.01
+
+
+def test_a_fitted_calibration_is_never_refused_by_the_loader(tmp_path):
+    rng = np.random.default_rng(3)
+    xi = rng.normal(0.0, 0.01, (300, 6))
+    xi[:, 3] = -0.999 * xi[:, 1]  # all but perfectly correlated: the fit's shrink keeps it loadable
+    xi[:, [0, 2]] = 0.0  # and components exactly zero (at the floor)
+    cal = fit_input(xi, np.full(300, Action.MOVE_FORWARD.value), [None] * 300)
+    Calibration({"x": cal}).save(tmp_path / "c.json")
+    assert Calibration.load(tmp_path / "c.json").for_input("x").correlation == cal.correlation
 
 
 # --- the fused odometer --------------------------------------------------------------------------

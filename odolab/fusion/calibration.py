@@ -6,11 +6,12 @@ input and action, from its valid steps on the val split (raw estimates against t
 
 * ``bias``: the input's systematic error, six numbers (rx, ry, rz rad, tx, ty, tz m; right
   perturbation, :mod:`odolab.fusion.graph`): the mean residual over the steps whose every component
-  lies within 3 robust sigmas (1.4826 x median absolute deviation) of the component's median, so
-  the few wild steps do not set it. Fusion corrects each answer by it, ``T @ exp(bias)``, before it
-  enters the graph. (Depth noise that varies across the image makes the classical odometers
-  overestimate every turn by about 0.6 degrees and slide it 1-2 cm sideways, the same way each time:
-  a bias, which adds up along a path where random errors partly cancel.)
+  lies within 3 robust sigmas (1.4826 x median absolute deviation, at least the sigma floor) of the
+  component's median, so the few wild steps do not set it. Fusion corrects each answer by it,
+  ``T @ exp(bias)``, before it enters the graph. (Depth noise that varies across the image makes
+  the classical odometers overestimate every turn by 0.5-1.1 degrees and slide it 1.5-4 cm
+  sideways, the same way each time: a bias, which adds up along a path where random errors partly
+  cancel.)
 * ``fixed``: six sigmas, the RMS of each component of the residual less the bias over those same
   steps (floored at :data:`SIGMA_FLOOR`), all scaled by one factor so that 95 % of all the steps
   fall inside the 95 % ellipsoid of the chi-square law with 6 degrees of freedom; with
@@ -32,14 +33,17 @@ checks it on other data.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import asdict, dataclass, field
+from typing import Any, Callable
 
 import gtsam
 import numpy as np
 
 from odolab.io.atomic import write_bytes_atomic
+from odolab.io.inputs import read_input_bytes
 from odolab.types import MOTION_ACTIONS, Action
 
 #: Sigmas outside this range (rad or m) are refused in a calibration file: their squares misbehave.
@@ -48,6 +52,10 @@ SIGMA_RANGE = (1e-6, 1e3)
 SCALE_RANGE = (1e-12, 1e12)
 #: Correlation matrices are shrunk this much towards the identity, so that they stay invertible.
 CORRELATION_SHRINK = 1e-3
+#: Smallest eigenvalue a correlation matrix in a file may have (GTSAM fails on nearly singular ones).
+MIN_CORRELATION_EIGENVALUE = 5e-4
+#: Largest bias a file may give: rotations (rad), translations (m).
+BIAS_LIMITS = (0.5, 1.0)
 #: chi-square with 6 degrees of freedom: 95 % quantile.
 CHI2_6_95 = 12.591587243743977
 #: Smallest sigma per component (rad or m): planar odometers leave out-of-plane residuals near zero.
@@ -132,10 +140,10 @@ class InputCalibration:
 
 def inliers(xi: np.ndarray) -> np.ndarray:
     """(N,) bool: the residuals ``xi`` (N, 6) whose every component lies within 3 robust sigmas
-    (1.4826 x median absolute deviation, at least 1e-9) of that component's median."""
+    (1.4826 x median absolute deviation, at least :data:`SIGMA_FLOOR`) of that component's median."""
     med = np.median(xi, axis=0)
     mad = 1.4826 * np.median(np.abs(xi - med), axis=0)
-    return np.all(np.abs(xi - med) <= 3.0 * np.maximum(mad, 1e-9), axis=1)
+    return np.all(np.abs(xi - med) <= 3.0 * np.maximum(mad, SIGMA_FLOOR), axis=1)
 
 
 def debiased(xi: np.ndarray, bias: np.ndarray) -> np.ndarray:
@@ -148,7 +156,9 @@ def debiased(xi: np.ndarray, bias: np.ndarray) -> np.ndarray:
 def nll(xi: np.ndarray, cov: np.ndarray) -> float:
     """Mean Gaussian negative log-likelihood (nats, constant left out) of residuals ``xi`` (N, 6) under
     covariances ``cov`` (N, 6, 6) or one (6, 6)."""
-    logdet = np.linalg.slogdet(np.broadcast_to(cov, (len(xi), 6, 6)))[1]
+    sign, logdet = np.linalg.slogdet(np.broadcast_to(cov, (len(xi), 6, 6)))
+    if np.any(sign <= 0):  # not a covariance at all: explains nothing
+        return float("inf")
     return float(np.mean(0.5 * (mahalanobis2(xi, cov) + logdet)))
 
 
@@ -164,16 +174,6 @@ def _correlation(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     corr = (1.0 - CORRELATION_SHRINK) * corr + CORRELATION_SHRINK * np.eye(6)
     np.fill_diagonal(corr, 1.0)
     return corr
-
-
-def _is_correlation(m: list[list[float]]) -> bool:
-    """A 6 x 6 symmetric positive definite matrix with ones on its diagonal."""
-    if len(m) != 6 or any(len(row) != 6 for row in m):
-        return False
-    a = np.asarray(m, np.float64)
-    if not np.all(np.isfinite(a)) or not np.allclose(a, a.T, atol=1e-9) or not np.allclose(np.diag(a), 1.0, atol=1e-9):
-        return False
-    return bool(np.linalg.eigvalsh(a).min() > 1e-9)
 
 
 def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None]) -> InputCalibration:
@@ -222,6 +222,7 @@ class Calibration:
 
     inputs: dict[str, InputCalibration]
     source: str = ""
+    digest: str = field(default="", compare=False)  # sha256 of the file it was loaded from ("" if made here)
 
     def for_input(self, name: str) -> InputCalibration:
         if name not in self.inputs:
@@ -235,12 +236,12 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Calibration":
-        """Read a calibration file; errors name the file and what is wrong."""
+        """Read a calibration file; errors name the file, the input, the field and the action, and
+        say what was expected and what was found."""
+        data = read_input_bytes(path, "calibration file")
         try:
-            doc = json.loads(open(path, encoding="utf-8").read())
-        except FileNotFoundError:
-            raise ValueError(f"{path}: no such calibration file") from None
-        except (OSError, ValueError, RecursionError) as exc:  # ValueError: bad JSON, numbers too long
+            doc = json.loads(data.decode("utf-8"))
+        except (ValueError, RecursionError) as exc:  # ValueError: bad JSON or UTF-8, numbers too long
             raise ValueError(f"{path}: not a calibration file ({exc})") from None
         fmt = doc.get("format") if isinstance(doc, dict) else None
         if type(fmt) is int and fmt != FORMAT and isinstance(doc.get("inputs"), dict):
@@ -248,44 +249,107 @@ class Calibration:
                              "calibrate again with python -m odolab.fusion.calibrate")
         if not isinstance(doc, dict) or type(fmt) is not int or fmt != FORMAT or not isinstance(doc.get("inputs"), dict):
             raise ValueError(f"{path}: not a calibration file of format {FORMAT} (expected keys format, inputs)")
+        stray = sorted(set(doc) - {"format", "source", "inputs"})
+        if stray:
+            raise ValueError(f"{path}: unknown key {stray[0]!r}; a calibration file has format, source, inputs")
+        if not isinstance(doc.get("source", ""), str):
+            raise ValueError(f"{path}: source must be a string (the command that made the file), got {_shown(doc['source'])}")
         if not doc["inputs"]:
             raise ValueError(f"{path}: calibrates no odometer (its 'inputs' is empty)")
-        labels = {a.label for a in MOTION_ACTIONS}
-        inputs = {}
-        for name, c in doc["inputs"].items():
+        inputs = {name: _input(c, f"{path}: input {name!r}") for name, c in doc["inputs"].items()}
+        return cls(inputs, doc.get("source", ""), hashlib.sha256(data).hexdigest())
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)``, cut to 60 characters, for error messages."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _numbers(v: Any, n: int) -> list[float]:
+    if not isinstance(v, list) or len(v) != n:
+        raise ValueError(f"expected a list of {n} numbers, got {_shown(v)}")
+    out = [_number(x) for x in v]
+    if not all(np.isfinite(out)):
+        raise ValueError(f"expected finite numbers, got {_shown(v)}")
+    return out
+
+
+def _sigmas(v: Any) -> list[float]:
+    out, (lo, hi) = _numbers(v, 6), SIGMA_RANGE
+    if not all(lo <= x <= hi for x in out):
+        raise ValueError(f"expected 6 sigmas in [{lo:g}, {hi:g}], got {_shown(v)}")
+    return out
+
+
+def _bias(v: Any) -> list[float]:
+    out, (rot, trans) = _numbers(v, 6), BIAS_LIMITS
+    if not all(abs(x) <= rot for x in out[:3]) or not all(abs(x) <= trans for x in out[3:]):
+        raise ValueError(f"expected rotations within +-{rot:g} rad then translations within +-{trans:g} m "
+                         f"(a larger systematic error is a broken odometer, not one to correct), got {_shown(v)}")
+    return out
+
+
+def _correlation_matrix(v: Any) -> list[list[float]]:
+    if not isinstance(v, list) or len(v) != 6:
+        raise ValueError(f"expected 6 rows of 6 numbers, got {_shown(v)}")
+    rows = [_numbers(row, 6) for row in v]
+    a = np.asarray(rows)
+    if not np.allclose(a, a.T, atol=1e-9):
+        raise ValueError("expected a symmetric matrix")
+    if not np.allclose(np.diag(a), 1.0, atol=1e-9):
+        raise ValueError(f"expected ones on the diagonal, got {_shown(np.diag(a).tolist())}")
+    smallest = float(np.linalg.eigvalsh(a).min())
+    if smallest < MIN_CORRELATION_EIGENVALUE:
+        raise ValueError(f"expected a positive definite matrix with eigenvalues of at least "
+                         f"{MIN_CORRELATION_EIGENVALUE:g} (a fitted one has at least {CORRELATION_SHRINK:g}), "
+                         f"its smallest is {smallest:.3g}")
+    return rows
+
+
+def _own_scale(v: Any) -> float | None:
+    if v is None:
+        return None
+    x, (lo, hi) = _number(v), SCALE_RANGE
+    if not lo <= x <= hi:
+        raise ValueError(f"expected null or a number in [{lo:g}, {hi:g}], got {_shown(v)}")
+    return x
+
+
+#: What each key of an input holds per action, and how it is read.
+_FIELDS: dict[str, Callable[[Any], Any]] = {"fixed": _sigmas, "own_scale": _own_scale, "steps": _count,
+                                            "inside95": _share, "bias": _bias, "correlation": _correlation_matrix}
+_REQUIRED = ("fixed", "own_scale", "steps")
+
+
+def _input(c: Any, where: str) -> InputCalibration:
+    """One input's calibration from its JSON object; ``where`` starts every error message."""
+    if not isinstance(c, dict):
+        raise ValueError(f"{where}: expected an object with keys {', '.join(_FIELDS)}, got {_shown(c)}")
+    stray = sorted(set(c) - set(_FIELDS))
+    if stray:
+        raise ValueError(f"{where}: unknown key {stray[0]!r}; expected some of {', '.join(_FIELDS)}")
+    missing = [k for k in _REQUIRED if k not in c]
+    if missing:
+        raise ValueError(f"{where}: no {missing[0]!r}; expected {', '.join(_REQUIRED)} (and optionally "
+                         f"{', '.join(k for k in _FIELDS if k not in _REQUIRED)})")
+    labels = [a.label for a in MOTION_ACTIONS]
+    parsed = {}
+    for key, parse in _FIELDS.items():
+        table = c.get(key, {})
+        if not isinstance(table, dict):
+            raise ValueError(f"{where}: {key} must map actions ({', '.join(labels)}) to values, got {_shown(table)}")
+        parsed[key] = {}
+        for action, value in table.items():
+            if action not in labels:
+                raise ValueError(f"{where}: {key}: unknown action {action!r}; expected some of {', '.join(labels)}")
             try:
-                if not isinstance(c["fixed"], dict) or any(not isinstance(v, list) for v in c["fixed"].values()):
-                    raise TypeError("fixed: a list of 6 numbers per action")
-                cal = InputCalibration({k: [_number(x) for x in v] for k, v in c["fixed"].items()},
-                                       {k: (None if v is None else _number(v)) for k, v in c["own_scale"].items()},
-                                       {k: _count(v) for k, v in c["steps"].items()},
-                                       {k: _share(v) for k, v in c.get("inside95", {}).items()},
-                                       {k: [_number(x) for x in v] for k, v in c.get("bias", {}).items()},
-                                       {k: [[_number(x) for x in row] for row in v] for k, v in c.get("correlation", {}).items()})
-            except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
-                raise ValueError(f"{path}: input {name!r}: expected fixed, own_scale, steps per action ({exc})") from None
-            where = f"{path}: input {name!r}"
-            unknown = sorted((set(cal.fixed) | set(cal.own_scale) | set(cal.steps) | set(cal.inside95)) - labels)
-            if unknown:
-                raise ValueError(f"{where}: unknown action {unknown[0]!r}; expected some of {', '.join(sorted(labels))}")
-            lo, hi = SIGMA_RANGE
-            bad = [k for k, v in cal.fixed.items() if len(v) != 6 or not all(lo <= x <= hi for x in v)]
-            if bad or not cal.fixed:
-                raise ValueError(f"{where}: fixed sigmas must be 6 numbers in [{lo:g}, {hi:g}] per action "
-                                 f"(bad: {bad or 'none given'})")
-            unknown = sorted((set(cal.bias) | set(cal.correlation)) - set(cal.fixed))
-            if unknown:
-                raise ValueError(f"{where}: bias or correlation for {unknown[0]!r}, which has no fixed sigmas")
-            bad = [k for k, v in cal.bias.items() if len(v) != 6 or not all(abs(x) <= SIGMA_RANGE[1] for x in v)]
-            if bad:
-                raise ValueError(f"{where}: bias must be 6 numbers of at most {SIGMA_RANGE[1]:g} per action (bad: {bad})")
-            bad = [k for k, v in cal.correlation.items() if not _is_correlation(v)]
-            if bad:
-                raise ValueError(f"{where}: correlation must be a 6 x 6 symmetric positive definite matrix with a unit "
-                                 f"diagonal per action (bad: {bad})")
-            lo, hi = SCALE_RANGE
-            bad = [k for k, v in cal.own_scale.items() if v is not None and not lo <= v <= hi]
-            if bad:
-                raise ValueError(f"{where}: own_scale must be null or in [{lo:g}, {hi:g}] (bad: {bad})")
-            inputs[name] = cal
-        return cls(inputs, str(doc.get("source", "")))
+                parsed[key][action] = parse(value)
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise ValueError(f"{where}: {key}.{action}: {exc}") from None
+    if not parsed["fixed"]:
+        raise ValueError(f"{where}: fixed gives no action's sigmas")
+    unfixed = sorted((set(parsed["bias"]) | set(parsed["correlation"])) - set(parsed["fixed"]))
+    if unfixed:
+        raise ValueError(f"{where}: bias or correlation for {unfixed[0]!r}, which has no fixed sigmas")
+    return InputCalibration(**parsed)

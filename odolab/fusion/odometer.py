@@ -9,7 +9,8 @@ with the input's calibrated covariance for the action
 robust kernel (``kernel``: huber, cauchy or none; ``kernel_width`` in whitened sigmas), so one
 wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
 that can register frames further apart, e.g. icp) also measure pose t-k+1..t-2 -> t without an
-action, which ties the graph across steps. iSAM2 solves it online: the answer for step t uses frames
+action, which ties the graph across steps (span factors are not bias-corrected: a bias is
+calibrated per action, and a span has none). iSAM2 solves it online: the answer for step t uses frames
 up to t only; :meth:`FusedOdometer.smoothed_trajectory` re-solves the whole sequence in one batch. When no input answered and no span factor constrains the step, the action prior's
 motion enters with its calibrated covariance and the step is reported invalid (the runner then uses
 that prior motion, as it would for any failed step). The answer's covariance is the inverse of the
@@ -89,8 +90,7 @@ class FusedOdometer(Odometer):
         self.needs_action = any(o.needs_action for o in self.inputs.values())
         # what its answers depend on besides code: the learned inputs' model files and the calibration
         learned = [f"{n}={o.weights}" for n, o in self.inputs.items() if o.weights]
-        calibrated = hashlib.sha256(Path(calibration or SHIPPED_CALIBRATION).read_bytes()).hexdigest()
-        self.weights = hashlib.sha256(";".join(learned + [f"calibration={calibrated}"]).encode()).hexdigest()
+        self.weights = hashlib.sha256(";".join(learned + [f"calibration={self.calibration.digest}"]).encode()).hexdigest()
         #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
         self.fusion_seconds, self.fused_steps = 0.0, 0
         self._graph: OnlineGraph | None = None

@@ -6,18 +6,17 @@ import os
 import tomllib
 from typing import Any
 
+from odolab.io.inputs import read_input_bytes
+
 
 def read_toml(path: str | os.PathLike, what: str = "file") -> dict[str, Any]:
     """The document of TOML file ``path``; ``ValueError("<path>: ...")`` when it is missing
-    ("no such <what>"), unreadable, not TOML, or holds an integer too long for Python to read."""
+    ("no such <what>"), not a regular file, unreadable, not TOML, or holds an integer too long for
+    Python to read."""
+    data = read_input_bytes(path, what)
     try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such {what}") from None
+        return tomllib.loads(data.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
     except ValueError:  # Python refuses to read integers of over 4300 digits
         raise ValueError(f"{path}: holds a number too long to read (over 4300 digits)") from None
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None

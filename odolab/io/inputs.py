@@ -1,0 +1,33 @@
+"""Reading a user's input file whole: only regular files (a pipe or a device would block or never
+end), every failure one ``ValueError`` line naming the file."""
+from __future__ import annotations
+
+import os
+import stat
+
+
+def check_regular_file(path: str | os.PathLike, what: str = "file") -> None:
+    """Raise ``ValueError("<path>: ...")`` unless ``path`` is (a link to) a regular file: missing
+    ("no such <what>"), a folder, a pipe, a device or a socket."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such {what}") from None
+    except OSError as exc:  # a link loop, a name too long, no permission on a folder on the way
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(mode):
+        raise ValueError(f"{path}: is a folder; the {what} must be a regular file")
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{path}: is a pipe, device or socket; the {what} must be a regular file")
+
+
+def read_input_bytes(path: str | os.PathLike, what: str = "file") -> bytes:
+    """The bytes of regular file ``path`` (see :func:`check_regular_file`)."""
+    check_regular_file(path, what)
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except FileNotFoundError:  # removed since the check
+        raise ValueError(f"{path}: no such {what}") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
