@@ -39,6 +39,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {MAX_EPISODE_STEPS}, the Challenge's)")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
+    ap.add_argument("--policy", action="append", default=[], metavar="key=value",
+                    help="a parameter of the map-and-plan policy (odolab.navigation.agent.PolicyConfig), "
+                         "e.g. heading_tolerance=45 (repeatable; default: its defaults)")
     ap.add_argument("--config", type=path_arg("--config"), default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="run the episodes in this process, without Ray")
@@ -47,6 +50,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.split not in SPLITS:
         raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     try:
+        policy = PolicyConfig.from_assignments(args.policy)
         names = parse_odometer_list(args.odometers)
         options = merge_options(read_options_file(args.config) if args.config else {},
                                 parse_assignments(args.odometer_option))
@@ -61,7 +65,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     noise = NoiseConfig()
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
              for i in range(args.episodes)]
-    policy = PolicyConfig()
     tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].weights) for n in names for s in specs]
     try:
         rows = run_navigation(args.out, tasks, config_doc(names, options, specs, policy), ray_address=args.ray_address,

@@ -1,6 +1,8 @@
 """Closed-loop navigation: the goal update of eq. 1, and an agent with true odometry reaching the goal."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -82,9 +84,14 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
     assert (tmp_path / "a" / "nav.csv").read_text() == a
     assert "is damaged" in capsys.readouterr().err
-    # other episodes into the same folder are refused, naming what differs
+    # other episodes into the same folder are refused, naming what differs; so is another policy
     assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
     assert "other settings (--max-steps (12 there, 13 now))" in capsys.readouterr().err
+    assert _navigate(args + ["--policy", "heading_tolerance=45", "--out", str(tmp_path / "a")]) == 2
+    assert "other settings (the policy)" in capsys.readouterr().err
+    assert _navigate(args + ["--policy", "heading_tolerance=45", "--out", str(tmp_path / "c")]) == 0
+    config = json.loads((tmp_path / "c" / "config.json").read_text())
+    assert config["policy"]["heading_tolerance"] == 45.0
 
 
 def test_navigate_keeps_out_of_folders_it_did_not_make(tmp_path, capsys):
@@ -100,7 +107,13 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
                         (["--odometers", "icp,icp"], "names 'icp' twice"),
                         (["--episodes", "0"], "--episodes"),
                         (["--split", "moon"], "not a split"),
-                        (["--odometers", "fused(icp"], "unbalanced")]:
+                        (["--odometers", "fused(icp"], "unbalanced"),
+                        (["--policy", "nope=1"], "key one of cell, stride"),
+                        (["--policy", "heading_tolerance"], "expected key=value"),
+                        (["--policy", "stride=1.5"], "stride takes a whole number"),
+                        (["--policy", "stop_distance=nan"], "must be finite"),
+                        (["--policy", "cell=1e-6"], "cell must be in [0.01, 1]"),
+                        (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)")]:
         assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err

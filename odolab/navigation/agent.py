@@ -28,6 +28,7 @@ goal is nearer than ``stop_distance``.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +72,38 @@ class PolicyConfig:
                              f"{self.own_clearance}")
         if self.stride < 1 or self.votes < 1:
             raise ValueError(f"stride and votes must be >= 1, got {self.stride}, {self.votes}")
+        bounds = {"cell": (0.01, 1.0), "max_range": (0.1, 10.0), "extent": (0.5, 100.0), "plan_margin": (0.5, 100.0),
+                  "stop_distance": (0.01, 10.0), "stuck_distance": (0.0, 1.0), "memory": (1, 10**6), "stride": (1, 64)}
+        for name, (lo, hi) in bounds.items():  # a 1e-6 m cell or a 1e6 m map would not fit in memory
+            if not lo <= getattr(self, name) <= hi:
+                raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {getattr(self, name)}")
+        if not 0 <= self.heading_tolerance < 180:
+            raise ValueError(f"heading_tolerance must be in [0, 180) degrees, got {self.heading_tolerance}")
+
+    @classmethod
+    def from_assignments(cls, items: list[str]) -> "PolicyConfig":
+        """The default policy with ``key=value`` changes (``heading_tolerance=30``); ``ValueError``
+        naming the item for an unknown key, a value that is not a number of the field's kind, or a
+        value out of range."""
+        kinds = {f.name: f.type for f in dataclasses.fields(cls)}
+        changes: dict[str, float | int] = {}
+        for item in items:
+            key, sep, text = item.partition("=")
+            key = key.strip()
+            if not sep or key not in kinds:
+                raise ValueError(f"--policy {item!r}: expected key=value with key one of {', '.join(kinds)}")
+            try:
+                value = int(text) if kinds[key] in ("int", int) else float(text)
+            except ValueError:
+                raise ValueError(f"--policy {item!r}: {key} takes {'a whole number' if kinds[key] in ('int', int) else 'a number'}, "
+                                 f"got {text.strip()!r}") from None
+            if not np.isfinite(value):
+                raise ValueError(f"--policy {item!r}: {key} must be finite")
+            changes[key] = value
+        try:
+            return cls(**changes)
+        except ValueError as exc:
+            raise ValueError(f"--policy: {exc}") from None
 
 
 def in_agent_frame(point: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
