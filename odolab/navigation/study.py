@@ -104,7 +104,7 @@ def read_row(path: Path, task: NavTask) -> dict | None:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
         ok = False
     if not ok:
-        print(f"note: {path} is damaged or belongs to another run or model file; running that episode again",
+        print(f"note: {path} is damaged or belongs to another run, model file or calibration; running that episode again",
               file=sys.stderr)
         return None
     return row
