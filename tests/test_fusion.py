@@ -13,6 +13,7 @@ gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where i
 from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer  # noqa: E402
 from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, debiased,  # noqa: E402
                                        ellipsoid_share, fit_input)
+from odolab.io.inputs import MAX_INPUT_BYTES  # noqa: E402
 from odolab.fusion.graph import (Measurement, OnlineGraph, left_covariance, residual, right_covariance,  # noqa: E402
                                  smooth)
 from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer  # noqa: E402
@@ -138,7 +139,7 @@ def test_calibration_puts_95_percent_inside_the_95_percent_ellipsoid(tmp_path):
     Calibration({"x": cal}, source="test").save(path)
     back = Calibration.load(path).for_input("x")
     assert back.fixed == cal.fixed and back.own_scale == cal.own_scale
-    with pytest.raises(KeyError, match="no calibration for odometer 'y'"):
+    with pytest.raises(ValueError, match="no calibration for odometer 'y'"):
         Calibration.load(path).for_input("y")
     assert CHI2_6_95 > 12
 
@@ -234,6 +235,11 @@ def test_bad_calibration_files_are_named(tmp_path):
         Calibration.load(tmp_path / "missing.json")
     with pytest.raises(ValueError, match="is a folder"):
         Calibration.load(tmp_path)
+    huge = tmp_path / "huge.json"
+    with open(huge, "wb") as f:  # sparse: takes no room
+        f.truncate(MAX_INPUT_BYTES + 1)
+    with pytest.raises(ValueError, match="too large for a calibration file"):
+        Calibration.load(huge)
     fifo = tmp_path / "pipe.json"
     os.mkfifo(fifo)  # would block a reader forever
     with pytest.raises(ValueError, match="is a pipe, device or socket; the calibration file must be a regular file"):
@@ -352,7 +358,7 @@ def test_fused_names_and_bad_options(calibration):
         REGISTRY.load("fused", calibration=calibration)
     with pytest.raises(ValueError, match="span_inputs"):
         REGISTRY.load("fused(test-fixed)", calibration=calibration, span=2, span_inputs="icp")
-    with pytest.raises(KeyError, match="no calibration for odometer 'icp'"):
+    with pytest.raises(ValueError, match="no calibration for odometer 'icp'"):
         REGISTRY.load("fused(icp)", calibration=calibration)
 
 

@@ -88,7 +88,7 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
     assert "other settings (--max-steps (12 there, 13 now))" in capsys.readouterr().err
     assert _navigate(args + ["--policy", "heading_tolerance=45", "--out", str(tmp_path / "a")]) == 2
-    assert "other settings (the policy)" in capsys.readouterr().err
+    assert "other settings (--policy heading_tolerance (15.0 there, 45.0 now))" in capsys.readouterr().err
     assert _navigate(args + ["--policy", "heading_tolerance=45", "--out", str(tmp_path / "c")]) == 0
     config = json.loads((tmp_path / "c" / "config.json").read_text())
     assert config["policy"]["heading_tolerance"] == 45.0
@@ -111,8 +111,12 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
                         (["--policy", "nope=1"], "key one of cell, stride"),
                         (["--policy", "heading_tolerance"], "expected key=value"),
                         (["--policy", "stride=1.5"], "stride takes a whole number"),
-                        (["--policy", "stop_distance=nan"], "must be finite"),
-                        (["--policy", "cell=1e-6"], "cell must be in [0.01, 1]"),
+                        (["--policy", "stop_distance=nan"], "stop_distance must be in [0.01, 10]"),
+                        (["--policy", "cell=1e-6"], "cell must be in [0.02, 1]"),
+                        (["--policy", "votes=99999999999999999999999"], "votes must be in [1, 1000]"),
+                        (["--policy", "obstacle_gap=50"], "obstacle_gap must be in [0, 0.5]"),
+                        (["--policy", "stride=" + "1" * 5000], "stride must be in [1, 64]"),
+                        (["--policy", "cell=0.1", "--policy", "cell=0.2"], "cell is given twice"),
                         (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)")]:
         assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2
         err = capsys.readouterr().err

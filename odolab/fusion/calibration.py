@@ -226,7 +226,7 @@ class Calibration:
 
     def for_input(self, name: str) -> InputCalibration:
         if name not in self.inputs:
-            raise KeyError(f"no calibration for odometer {name!r} (calibrated: {', '.join(sorted(self.inputs))}); "
+            raise ValueError(f"no calibration for odometer {name!r} (calibrated: {', '.join(sorted(self.inputs))}); "
                            f"run python -m odolab.fusion.calibrate --odometers {name},...")
         return self.inputs[name]
 

@@ -1,9 +1,12 @@
 """Reading a user's input file whole: only regular files (a pipe or a device would block or never
-end), every failure one ``ValueError`` line naming the file."""
+end) of a sane size, every failure one ``ValueError`` line naming the file."""
 from __future__ import annotations
 
 import os
 import stat
+
+#: Largest input file read whole (options, recipes, calibrations are a few kB).
+MAX_INPUT_BYTES = 16 * 2**20
 
 
 def check_regular_file(path: str | os.PathLike, what: str = "file") -> None:
@@ -21,13 +24,17 @@ def check_regular_file(path: str | os.PathLike, what: str = "file") -> None:
         raise ValueError(f"{path}: is a pipe, device or socket; the {what} must be a regular file")
 
 
-def read_input_bytes(path: str | os.PathLike, what: str = "file") -> bytes:
-    """The bytes of regular file ``path`` (see :func:`check_regular_file`)."""
+def read_input_bytes(path: str | os.PathLike, what: str = "file", limit: int = MAX_INPUT_BYTES) -> bytes:
+    """The bytes of regular file ``path`` (see :func:`check_regular_file`); refused when larger than
+    ``limit`` bytes (a huge options file or calibration is a mistake, not something to read whole)."""
     check_regular_file(path, what)
     try:
         with open(path, "rb") as f:
-            return f.read()
+            data = f.read(limit + 1)
     except FileNotFoundError:  # removed since the check
         raise ValueError(f"{path}: no such {what}") from None
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(data) > limit:
+        raise ValueError(f"{path}: larger than {limit // 2**20} MiB, too large for a {what}")
+    return data

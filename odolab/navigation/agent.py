@@ -37,6 +37,18 @@ from odolab.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap
 from odolab.types import FORWARD_STEP, Action, Intrinsics
 
 
+#: The range of each policy parameter (m, degrees, counts); the map is a grid of up to
+#: (2 x (30 m + extent) / cell)^2 cells, so cell and extent are bounded together with the rest.
+POLICY_BOUNDS: dict[str, tuple[float, float]] = {
+    "cell": (0.02, 1.0), "stride": (1, 64), "min_height": (0.0, 3.0), "max_height": (0.0, 3.0),
+    "max_range": (0.1, 10.0), "votes": (1, 1000), "agent_radius": (0.0, 1.0), "margin": (0.0, 1.0),
+    "margin_speed": (0.0, 1.0), "heading_tolerance": (0.0, 180.0), "stop_distance": (0.01, 10.0),
+    "stuck_distance": (0.0, 1.0), "extent": (0.5, 20.0), "plan_margin": (0.5, 20.0), "memory": (1, 10**6),
+    "obstacle_gap": (0.0, 0.5), "own_clearance": (0.0, 0.5)}
+OPEN_BELOW = {"margin_speed", "max_height"}  # these must be above their lower bound
+OPEN_ABOVE = {"heading_tolerance"}  # and this below its upper one
+
+
 @dataclass(frozen=True)
 class PolicyConfig:
     """The map-and-plan policy's parameters (module docstring); lengths in m, angles in degrees."""
@@ -60,25 +72,13 @@ class PolicyConfig:
     own_clearance: float = 0.1  # obstacle cells this near the believed position are ignored by that check
 
     def __post_init__(self) -> None:
-        for name in ("cell", "max_range", "stop_distance", "extent", "plan_margin"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if not 0 <= self.min_height < self.max_height:
-            raise ValueError(f"need 0 <= min_height < max_height, got {self.min_height}, {self.max_height}")
-        if (not 0 < self.margin_speed <= 1 or self.margin < 0 or self.agent_radius < 0 or not self.obstacle_gap >= 0
-                or not self.own_clearance >= 0):
-            raise ValueError(f"need margin_speed in (0, 1], margin, agent_radius, obstacle_gap and own_clearance >= 0, "
-                             f"got {self.margin_speed}, {self.margin}, {self.agent_radius}, {self.obstacle_gap}, "
-                             f"{self.own_clearance}")
-        if self.stride < 1 or self.votes < 1:
-            raise ValueError(f"stride and votes must be >= 1, got {self.stride}, {self.votes}")
-        bounds = {"cell": (0.01, 1.0), "max_range": (0.1, 10.0), "extent": (0.5, 100.0), "plan_margin": (0.5, 100.0),
-                  "stop_distance": (0.01, 10.0), "stuck_distance": (0.0, 1.0), "memory": (1, 10**6), "stride": (1, 64)}
-        for name, (lo, hi) in bounds.items():  # a 1e-6 m cell or a 1e6 m map would not fit in memory
-            if not lo <= getattr(self, name) <= hi:
-                raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {getattr(self, name)}")
-        if not 0 <= self.heading_tolerance < 180:
-            raise ValueError(f"heading_tolerance must be in [0, 180) degrees, got {self.heading_tolerance}")
+        for name, (lo, hi) in POLICY_BOUNDS.items():  # a 1e-6 m cell or a 1e6 m map would not fit in memory
+            value = getattr(self, name)
+            if not lo <= value <= hi or (name in OPEN_BELOW and value == lo) or (name in OPEN_ABOVE and value == hi):
+                left, right = ("(" if name in OPEN_BELOW else "["), (")" if name in OPEN_ABOVE else "]")
+                raise ValueError(f"{name} must be in {left}{lo:g}, {hi:g}{right}, got {value:g}")
+        if not self.min_height < self.max_height:
+            raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
 
     @classmethod
     def from_assignments(cls, items: list[str]) -> "PolicyConfig":
@@ -89,16 +89,23 @@ class PolicyConfig:
         changes: dict[str, float | int] = {}
         for item in items:
             key, sep, text = item.partition("=")
-            key = key.strip()
+            key, shown = key.strip(), (item if len(item) <= 60 else item[:57] + "...")
             if not sep or key not in kinds:
-                raise ValueError(f"--policy {item!r}: expected key=value with key one of {', '.join(kinds)}")
+                raise ValueError(f"--policy {shown!r}: expected key=value with key one of {', '.join(kinds)}")
+            if key in changes:
+                raise ValueError(f"--policy {shown!r}: {key} is given twice")
+            whole = kinds[key] in ("int", int)
+            lo, hi = POLICY_BOUNDS[key]
             try:
-                value = int(text) if kinds[key] in ("int", int) else float(text)
+                if len(text.strip()) > 40:  # no parameter needs 40 digits; Python refuses 4300
+                    raise OverflowError
+                value = int(text) if whole else float(text)
+                if not np.isfinite(float(value)) or not lo <= value <= hi:
+                    raise OverflowError
             except ValueError:
-                raise ValueError(f"--policy {item!r}: {key} takes {'a whole number' if kinds[key] in ('int', int) else 'a number'}, "
-                                 f"got {text.strip()!r}") from None
-            if not np.isfinite(value):
-                raise ValueError(f"--policy {item!r}: {key} must be finite")
+                raise ValueError(f"--policy {shown!r}: {key} takes {'a whole number' if whole else 'a number'}") from None
+            except OverflowError:
+                raise ValueError(f"--policy {shown!r}: {key} must be in [{lo:g}, {hi:g}]") from None
             changes[key] = value
         try:
             return cls(**changes)

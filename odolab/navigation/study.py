@@ -123,6 +123,16 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[str]:
     return said or ["the episodes' noise or camera"]
 
 
+def _policy_changes(saved: Any, policy: dict) -> list[str]:
+    """Which ``--policy`` parameters make ``policy`` differ from a folder's saved one."""
+    if saved == policy:
+        return []
+    if not isinstance(saved, dict):
+        return ["the policy"]
+    return [f"--policy {k} ({saved.get(k, 'unset')} there, {policy.get(k, 'unset')} now)"
+            for k in sorted(set(saved) | set(policy)) if saved.get(k) != policy.get(k)] or ["the policy"]
+
+
 def result_path(out: Path, odometer: str, index: int) -> Path:
     return out / "episodes" / _safe(odometer) / f"{index:04d}.json"
 
@@ -147,7 +157,7 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
         except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
             raise ValueError(f"{cfg_path}: not a navigation config ({exc}); choose another --out") from None
         changed = _episode_changes(saved.get("episodes"), config["episodes"])
-        changed += ["the policy"] if saved.get("policy") != config.get("policy") else []
+        changed += _policy_changes(saved.get("policy"), config.get("policy"))
         changed += [f"options of {n}" for n, o in config["options"].items() if n in saved.get("options", {})
                     and saved["options"][n] != o]
         if changed:
