@@ -36,6 +36,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import reprlib
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable
 
@@ -122,8 +123,7 @@ class InputCalibration:
         scale = self.own_scale.get(label)
         if own is not None and scale is not None and np.all(np.isfinite(own)):
             return scale * np.asarray(own, np.float64)
-        d = np.diag(self.fixed[label])
-        return d @ np.asarray(self.correlation.get(label, np.eye(6)), np.float64) @ d
+        return _joint(np.asarray(self.fixed[label]), np.asarray(self.correlation.get(label, np.eye(6)), np.float64))
 
     def bias_of(self, action: Action | None) -> np.ndarray:
         """The bias (6,) of a step of ``action`` (zeros when none was calibrated for it)."""
@@ -136,6 +136,11 @@ class InputCalibration:
         if not np.any(bias):
             return np.asarray(T, np.float64)
         return np.asarray(T, np.float64) @ gtsam.Pose3.Expmap(bias).matrix()
+
+
+def _joint(sigma: np.ndarray, corr: np.ndarray) -> np.ndarray:
+    """The covariance (6, 6) ``D R D`` of sigmas ``sigma`` (6,) and correlation matrix ``corr``."""
+    return np.diag(sigma) @ corr @ np.diag(sigma)
 
 
 def inliers(xi: np.ndarray) -> np.ndarray:
@@ -191,18 +196,16 @@ def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None])
         r = debiased(xi[rows], bias)
         sigma = np.maximum(np.sqrt(np.mean(r[keep] ** 2, axis=0)), SIGMA_FLOOR)  # the shape from the inliers,
         corr = _correlation(r[keep], sigma)  # the size (below) from every step
-        shape = np.diag(sigma) @ corr @ np.diag(sigma)
-        sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, shape))), SIGMA_FLOOR)
+        sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, _joint(sigma, corr)))), SIGMA_FLOOR)
         fixed[a.label], biases[a.label] = [float(s) for s in sigma], [float(b) for b in bias]
         corrs[a.label] = [[float(c) for c in row] for row in corr]
-        fixed_cov = np.diag(sigma) @ corr @ np.diag(sigma)
         have = [i for i, k in enumerate(rows) if own[k] is not None and np.all(np.isfinite(own[k]))]
         own_scale[a.label] = None
         if len(have) >= 10:
             covs = np.stack([own[rows[i]] for i in have])
             try:
                 scale = _scale(mahalanobis2(r[have], covs))
-                if nll(r[have], scale * covs) < nll(r[have], fixed_cov):  # own covariances must earn their place
+                if nll(r[have], scale * covs) < nll(r[have], _joint(sigma, corr)):  # own covariances must earn their place
                     own_scale[a.label] = scale
             except np.linalg.LinAlgError:
                 pass
@@ -253,32 +256,26 @@ class Calibration:
         if stray:
             raise ValueError(f"{path}: unknown key {stray[0]!r}; a calibration file has format, source, inputs")
         if not isinstance(doc.get("source", ""), str):
-            raise ValueError(f"{path}: source must be a string (the command that made the file), got {_shown(doc['source'])}")
+            raise ValueError(f"{path}: source must be a string (the command that made the file), got {reprlib.repr(doc['source'])}")
         if not doc["inputs"]:
             raise ValueError(f"{path}: calibrates no odometer (its 'inputs' is empty)")
         inputs = {name: _input(c, f"{path}: input {name!r}") for name, c in doc["inputs"].items()}
         return cls(inputs, doc.get("source", ""), hashlib.sha256(data).hexdigest())
 
 
-def _shown(value: Any) -> str:
-    """``repr(value)``, cut to 60 characters, for error messages."""
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 def _numbers(v: Any, n: int) -> list[float]:
     if not isinstance(v, list) or len(v) != n:
-        raise ValueError(f"expected a list of {n} numbers, got {_shown(v)}")
+        raise ValueError(f"expected a list of {n} numbers, got {reprlib.repr(v)}")
     out = [_number(x) for x in v]
     if not all(np.isfinite(out)):
-        raise ValueError(f"expected finite numbers, got {_shown(v)}")
+        raise ValueError(f"expected finite numbers, got {reprlib.repr(v)}")
     return out
 
 
 def _sigmas(v: Any) -> list[float]:
     out, (lo, hi) = _numbers(v, 6), SIGMA_RANGE
     if not all(lo <= x <= hi for x in out):
-        raise ValueError(f"expected 6 sigmas in [{lo:g}, {hi:g}], got {_shown(v)}")
+        raise ValueError(f"expected 6 sigmas in [{lo:g}, {hi:g}], got {reprlib.repr(v)}")
     return out
 
 
@@ -286,19 +283,19 @@ def _bias(v: Any) -> list[float]:
     out, (rot, trans) = _numbers(v, 6), BIAS_LIMITS
     if not all(abs(x) <= rot for x in out[:3]) or not all(abs(x) <= trans for x in out[3:]):
         raise ValueError(f"expected rotations within +-{rot:g} rad then translations within +-{trans:g} m "
-                         f"(a larger systematic error is a broken odometer, not one to correct), got {_shown(v)}")
+                         f"(a larger systematic error is a broken odometer, not one to correct), got {reprlib.repr(v)}")
     return out
 
 
 def _correlation_matrix(v: Any) -> list[list[float]]:
     if not isinstance(v, list) or len(v) != 6:
-        raise ValueError(f"expected 6 rows of 6 numbers, got {_shown(v)}")
+        raise ValueError(f"expected 6 rows of 6 numbers, got {reprlib.repr(v)}")
     rows = [_numbers(row, 6) for row in v]
     a = np.asarray(rows)
     if not np.allclose(a, a.T, atol=1e-9):
         raise ValueError("expected a symmetric matrix")
     if not np.allclose(np.diag(a), 1.0, atol=1e-9):
-        raise ValueError(f"expected ones on the diagonal, got {_shown(np.diag(a).tolist())}")
+        raise ValueError(f"expected ones on the diagonal, got {reprlib.repr(np.diag(a).tolist())}")
     smallest = float(np.linalg.eigvalsh(a).min())
     if smallest < MIN_CORRELATION_EIGENVALUE:
         raise ValueError(f"expected a positive definite matrix with eigenvalues of at least "
@@ -312,7 +309,7 @@ def _own_scale(v: Any) -> float | None:
         return None
     x, (lo, hi) = _number(v), SCALE_RANGE
     if not lo <= x <= hi:
-        raise ValueError(f"expected null or a number in [{lo:g}, {hi:g}], got {_shown(v)}")
+        raise ValueError(f"expected null or a number in [{lo:g}, {hi:g}], got {reprlib.repr(v)}")
     return x
 
 
@@ -325,7 +322,7 @@ _REQUIRED = ("fixed", "own_scale", "steps")
 def _input(c: Any, where: str) -> InputCalibration:
     """One input's calibration from its JSON object; ``where`` starts every error message."""
     if not isinstance(c, dict):
-        raise ValueError(f"{where}: expected an object with keys {', '.join(_FIELDS)}, got {_shown(c)}")
+        raise ValueError(f"{where}: expected an object with keys {', '.join(_FIELDS)}, got {reprlib.repr(c)}")
     stray = sorted(set(c) - set(_FIELDS))
     if stray:
         raise ValueError(f"{where}: unknown key {stray[0]!r}; expected some of {', '.join(_FIELDS)}")
@@ -338,7 +335,7 @@ def _input(c: Any, where: str) -> InputCalibration:
     for key, parse in _FIELDS.items():
         table = c.get(key, {})
         if not isinstance(table, dict):
-            raise ValueError(f"{where}: {key} must map actions ({', '.join(labels)}) to values, got {_shown(table)}")
+            raise ValueError(f"{where}: {key} must map actions ({', '.join(labels)}) to values, got {reprlib.repr(table)}")
         parsed[key] = {}
         for action, value in table.items():
             if action not in labels:

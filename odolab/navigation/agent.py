@@ -29,6 +29,7 @@ goal is nearer than ``stop_distance``.
 from __future__ import annotations
 
 import dataclasses
+import reprlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,14 +87,16 @@ class PolicyConfig:
         naming the item for an unknown key, a value that is not a number of the field's kind, or a
         value out of range."""
         kinds = {f.name: f.type for f in dataclasses.fields(cls)}
+        short = reprlib.Repr()  # items are echoed cut short: a 5000-digit value is not printed whole
+        short.maxstring = 60
         changes: dict[str, float | int] = {}
         for item in items:
             key, sep, text = item.partition("=")
-            key, shown = key.strip(), (item if len(item) <= 60 else item[:57] + "...")
+            key, shown = key.strip(), short.repr(item)
             if not sep or key not in kinds:
-                raise ValueError(f"--policy {shown!r}: expected key=value with key one of {', '.join(kinds)}")
+                raise ValueError(f"--policy {shown}: expected key=value with key one of {', '.join(kinds)}")
             if key in changes:
-                raise ValueError(f"--policy {shown!r}: {key} is given twice")
+                raise ValueError(f"--policy {shown}: {key} is given twice")
             whole = kinds[key] in ("int", int)
             lo, hi = POLICY_BOUNDS[key]
             try:
@@ -103,9 +106,9 @@ class PolicyConfig:
                 if not np.isfinite(float(value)) or not lo <= value <= hi:
                     raise OverflowError
             except ValueError:
-                raise ValueError(f"--policy {shown!r}: {key} takes {'a whole number' if whole else 'a number'}") from None
+                raise ValueError(f"--policy {shown}: {key} takes {'a whole number' if whole else 'a number'}") from None
             except OverflowError:
-                raise ValueError(f"--policy {shown!r}: {key} must be in [{lo:g}, {hi:g}]") from None
+                raise ValueError(f"--policy {shown}: {key} must be in [{lo:g}, {hi:g}]") from None
             changes[key] = value
         try:
             return cls(**changes)
