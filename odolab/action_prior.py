@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from odolab.geometry import invert, transform_to_planar
+from odolab.io.inputs import read_input_json
 from odolab.types import MOTION_ACTIONS, Action
 
 _SHIPPED = "action_prior.json"
@@ -58,10 +59,7 @@ class ActionPrior:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "ActionPrior":
         """Read a prior written by ``python -m odolab.action_prior``; errors name the file."""
-        try:
-            data = json.loads(Path(path).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-            raise ValueError(f"{path}: not an action prior file ({exc})") from None
+        data = read_input_json(path, "action prior file")  # regular files only, no repeated keys
         if not isinstance(data, dict):
             raise ValueError(f"{path}: not an action prior file (expected a JSON object)")
         return cls.from_json(data, origin=str(path))

@@ -200,7 +200,9 @@ def test_bad_calibration_files_are_named(tmp_path):
     near_singular[1][3] = near_singular[3][1] = 1 - 2e-9
     lopsided = [row[:] for row in eye]
     lopsided[0][1] = 0.5
-    for text, words in [("{", "not a calibration file"), ('{"format": 9, "inputs": {}}', "format 1"),
+    for text, words in [("{", "not a valid calibration file"), ('{"format": 1, "format": 1, "inputs": {}}', "key 'format' appears twice"),
+                        (one(ok, '{"turn_left": 1, "turn_left": 2}'), "key 'turn_left' appears twice"),
+                        ('{"format": 9, "inputs": {}}', "format 1"),
                         ('{"format": true, "inputs": {}}', "format 1"), ('{"format": 1, "inputs": {}}', "calibrates no"),
                         ('{"format": 1, "inputs": {"x": 1}, "extra": 2}', "unknown key 'extra'"),
                         ('{"format": 1, "source": 3, "inputs": {"x": 1}}', "source must be a string"),
@@ -420,7 +422,7 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
         (tmp_path / f"t{i}.json").write_text(json.dumps({**shipped, "inputs": {"icp": loose}}))
         cases.append((["--check", str(tmp_path / f"t{i}.json")], words))
     (tmp_path / "digits.json").write_text('{"format": ' + "9" * 5000 + "}")
-    cases.append((["--check", str(tmp_path / "digits.json")], f"{tmp_path / 'digits.json'}: not a calibration file"))
+    cases.append((["--check", str(tmp_path / "digits.json")], f"{tmp_path / 'digits.json'}: not a valid calibration file"))
     for i, stranger in enumerate(("this:Zen", "fused(action-prior,icp)")):  # never imported nor built from a file
         shipped["inputs"] = {stranger: icp}
         (tmp_path / f"s{i}.json").write_text(json.dumps(shipped))

@@ -424,3 +424,14 @@ def test_numbers_too_long_to_read_are_one_line_errors(tmp_path):
 
     with pytest.raises(ConfigError, match="holds a number too long to read"):
         load_train_config(str(cfg))
+
+
+def test_an_action_prior_file_that_is_a_pipe_or_repeats_a_key_is_one_line(tmp_path):
+    """A pipe would block the reader for ever, and JSON keeps the last of two equal keys silently."""
+    fifo = tmp_path / "prior.fifo"
+    os.mkfifo(fifo)
+    twice = tmp_path / "twice.json"
+    twice.write_text('{"means": {"move_forward": [0, 0, 0]}, "means": {}, "samples": {}}')
+    for path, words in [(fifo, "is a pipe, device or socket"), (twice, "key 'means' appears twice")]:
+        one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.prior={path}",
+                       "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)

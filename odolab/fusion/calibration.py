@@ -44,7 +44,7 @@ import gtsam
 import numpy as np
 
 from odolab.io.atomic import write_bytes_atomic
-from odolab.io.inputs import read_input_bytes
+from odolab.io.inputs import parse_input_json, read_input_bytes
 from odolab.types import MOTION_ACTIONS, Action
 
 #: Sigmas outside this range (rad or m) are refused in a calibration file: their squares misbehave.
@@ -241,11 +241,8 @@ class Calibration:
     def load(cls, path: str | os.PathLike) -> "Calibration":
         """Read a calibration file; errors name the file, the input, the field and the action, and
         say what was expected and what was found."""
-        data = read_input_bytes(path, "calibration file")
-        try:
-            doc = json.loads(data.decode("utf-8"))
-        except (ValueError, RecursionError) as exc:  # ValueError: bad JSON or UTF-8, numbers too long
-            raise ValueError(f"{path}: not a calibration file ({exc})") from None
+        data = read_input_bytes(path, "calibration file")  # the digest is of these bytes
+        doc = parse_input_json(data, path, "calibration file")
         fmt = doc.get("format") if isinstance(doc, dict) else None
         if type(fmt) is int and fmt != FORMAT and isinstance(doc.get("inputs"), dict):
             raise ValueError(f"{path}: a calibration of format {fmt}, this odolab reads format {FORMAT}; "

@@ -1,9 +1,11 @@
 """Reading a user's input file whole: only regular files (a pipe or a device would block or never
-end) of a sane size, every failure one ``ValueError`` line naming the file."""
+end) of a sane size, JSON without repeated keys, every failure one ``ValueError`` line naming the file."""
 from __future__ import annotations
 
+import json
 import os
 import stat
+from typing import Any
 
 #: Largest input file read whole (options, recipes, calibrations are a few kB).
 MAX_INPUT_BYTES = 16 * 2**20
@@ -38,3 +40,26 @@ def read_input_bytes(path: str | os.PathLike, what: str = "file", limit: int = M
     if len(data) > limit:
         raise ValueError(f"{path}: larger than {limit // 2**20} MiB, too large for a {what}")
     return data
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    seen: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in seen:  # json would keep the last silently: which one the user meant is unknown
+            raise ValueError(f"key {key!r} appears twice in one object")
+        seen[key] = value
+    return seen
+
+
+def parse_input_json(data: bytes, path: str | os.PathLike, what: str = "file") -> Any:
+    """The JSON document in ``data``, read from ``path``; ``ValueError`` naming the file and the
+    ``what`` for bad UTF-8, bad JSON, nesting too deep or a key repeated in one object."""
+    try:
+        return json.loads(data.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except (ValueError, RecursionError) as exc:  # ValueError: bad JSON or UTF-8, numbers too long, a repeated key
+        raise ValueError(f"{path}: not a valid {what} ({exc})") from None
+
+
+def read_input_json(path: str | os.PathLike, what: str = "file") -> Any:
+    """The JSON document in regular file ``path`` (:func:`read_input_bytes`, :func:`parse_input_json`)."""
+    return parse_input_json(read_input_bytes(path, what), path, what)
