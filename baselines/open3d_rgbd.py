@@ -1,4 +1,4 @@
-"""Open3D's dense RGB-D odometry (``compute_rgbd_odometry``, Steinbruecker/Park hybrid term).
+"""Open3D's dense RGB-D odometry (``compute_rgbd_odometry``; Steinbruecker's photometric term by default).
 
 The peer a user would reach for (docs/reference-facts.md section 6: 4.43 mm / 0.241 deg on the TUM frames with
 default options and a 4 m depth cut). Called with the current frame as *source* and the previous
@@ -19,6 +19,22 @@ grey levels, ~3 ms, within 2 degrees of the true yaw on 84% of steps), then from
 and the blocked step (:func:`~baselines.motion_search.initial_guesses`), with four levels and
 Open3D's default 3 cm gate: 448/472 valid, valid-step error (0.36, 0.23, 0.21) x 1e-2 (m, m, rad);
 TUM frames 4.56 mm. (A 5 cm gate: 452 valid, (0.41, 0.26, 0.20), but worse on the test episodes.)
+
+Photometric term, two levels (val split, 12 episodes x 60 steps: ``python -m odolab.compare --split
+val --episodes 12 --max-steps 60 --odometers open3d-rgbd --odometer-option open3d-rgbd.term=T
+--odometer-option open3d-rgbd.iterations=[...]``): the hybrid term's geometric residual compares
+the two depth images, and the simulator's Redwood distortion (a depth scale that changes across the
+image) makes them disagree wherever the view shifts, most on turns; the photometric term uses depth
+only to warp, where a few percent of depth error moves a pixel by a fraction of a pixel. With four
+pyramid levels it diverged (more than 5 degrees off) on 77 of 141 steps started within 2 degrees
+(the coarsest level, 21 x 12 pixels, has too little texture); with two on 7. Per-step error as
+used (dx, dz, dyaw x 1e-2; failed steps take the prior), failed share: hybrid, 4 levels (1.68, 0.75,
+1.14), 7.1 %; hybrid, 2 levels (1.58, 0.72, 1.09), 6.4 %; photometric, 1 level (0.76, 0.42, 0.79),
+7.7 %; 3 levels (0.63, 0.37, 0.65), 7.9 %; 2 levels of 10 and 5 iterations (0.58, 0.34, 0.49), 5.1 %;
+of 20 and 5 (0.59, 0.34, 0.51), 5.1 %. The default is 20 and 5: started from no motion (no action,
+so no planar search; a real sequence), 10 coarse iterations left a synthetic 3-degree view of a TUM
+frame 2.3 cm off, 15 or more find it to 0.6 mm (``tests/test_baselines.py``). On the TUM frames:
+4.44 mm, 0.196 degrees (the hybrid set-up: 4.62 mm, 0.255 degrees).
 """
 from __future__ import annotations
 
@@ -49,10 +65,10 @@ class Open3DRGBDConfig(OdometerConfig):
     :class:`~baselines.config.OdometerConfig`; the 4 m depth cut is Open3D's own default and the
     value the reference figure used)."""
 
-    #: ``"hybrid"`` (photometric + geometric) or ``"color"``.
-    term: str = "hybrid"
+    #: ``"color"`` (photometric; depth only warps) or ``"hybrid"`` (photometric + geometric).
+    term: str = "color"
     #: Iterations per pyramid level, coarse to fine (the number of levels).
-    iterations: tuple[int, ...] = (10, 10, 5, 3)
+    iterations: tuple[int, ...] = (20, 5)
     #: Open3D's correspondence gate, metres of depth difference.
     depth_diff_max: float = 0.03
     #: Fewer usable depth pixels in a frame = invalid step.
@@ -72,7 +88,7 @@ class Open3DRGBDOdometer(Odometer):
     """``open3d.pipelines.odometry.compute_rgbd_odometry`` behind odolab's interface.
 
     Configured by :class:`Open3DRGBDConfig` (``config``, or keyword overrides of its fields, e.g.
-    ``Open3DRGBDOdometer(term="color", max_depth=3.0)``). Started from each of
+    ``Open3DRGBDOdometer(term="hybrid", max_depth=3.0)``). Started from each of
     :func:`~baselines.motion_search.initial_guesses` until one is accepted.
 
     Covariance: ``sigma^2 * inv(I)`` with ``I`` the information matrix Open3D returns (point-to-
