@@ -79,11 +79,13 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert (tmp_path / "a" / "metrics.png").stat().st_size > 10_000 and (tmp_path / "a" / "report.html").exists()
     done = sorted((tmp_path / "a" / "episodes").rglob("*.json"))
     assert len(done) == 4
-    done[0].unlink()  # an interrupted run: one episode missing
-    done[1].write_text('{"odometer": "act')  # and one file damaged
+    done[2].unlink()  # an interrupted run: one episode missing
+    done[0].write_text('{"odometer": "act')  # and two files of one odometer damaged
+    done[1].write_text('{}')
     assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
     assert (tmp_path / "a" / "nav.csv").read_text() == a
-    assert "is damaged" in capsys.readouterr().err
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1 and "2 saved episode(s)" in notes[0] and "are damaged" in notes[0]  # one line per odometer
     # other episodes into the same folder are refused, naming what differs; so is another policy
     assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
     assert "other settings (--max-steps (12 there, 13 now))" in capsys.readouterr().err

@@ -90,9 +90,10 @@ def _sane(row: dict) -> bool:
             and _path([row["goal"]]))
 
 
-def read_row(path: Path, task: NavTask) -> dict | None:
-    """A saved result if it is whole and belongs to ``task``; None (with a note naming the file) if
-    it is missing or damaged, so that the episode is run again."""
+def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> dict | None:
+    """A saved result if it is whole and belongs to ``task``; None if it is missing or damaged, so
+    that the episode is run again (a rejected file is appended to ``rejected``; without that list, a
+    note naming it is printed)."""
     if not path.exists():
         return None
     if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
@@ -104,8 +105,11 @@ def read_row(path: Path, task: NavTask) -> dict | None:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
         ok = False
     if not ok:
-        print(f"note: {path} is damaged or belongs to another run, model file or calibration; running that episode again",
-              file=sys.stderr)
+        if rejected is None:
+            print(f"note: {path} is damaged or belongs to another run, model file or calibration; running that episode "
+                  "again", file=sys.stderr)
+        else:
+            rejected.append(path)
         return None
     return row
 
@@ -170,7 +174,12 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
                 raise ValueError(f"{p} is a file where navigate keeps a folder of episode results; delete it or "
                                  "choose another --out")
     write_text_atomic(cfg_path, json.dumps(config, indent=1) + "\n")
-    todo = [t for t in tasks if read_row(result_path(out, t.odometer, t.spec.index), t) is None]
+    rejected: list[Path] = []
+    todo = [t for t in tasks if read_row(result_path(out, t.odometer, t.spec.index), t, rejected) is None]
+    for folder in sorted({p.parent for p in rejected}):  # one line per odometer, not one per episode
+        names = sorted(p.name for p in rejected if p.parent == folder)
+        print(f"note: {len(names)} saved episode(s) in {folder} ({names[0]}{' ...' if len(names) > 1 else ''}) are damaged "
+              "or belong to another run, model file or calibration; running them again", file=sys.stderr)
 
     def done(k: int, row: dict) -> None:
         p = result_path(out, todo[k].odometer, todo[k].spec.index)
