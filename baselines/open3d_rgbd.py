@@ -59,6 +59,11 @@ _JACOBIANS = {
 }
 
 
+#: Pyramid levels at most (each halves the image: a 341 x 192 frame is 11 x 6 pixels at the sixth)
+#: and iterations per level at most (a level converges in tens; a million would never end).
+MAX_LEVELS, MAX_ITERATIONS = 6, 1000
+
+
 @dataclass(frozen=True)
 class Open3DRGBDConfig(OdometerConfig):
     """Options of :class:`Open3DRGBDOdometer` (besides ``depth`` and ``verify``, see
@@ -81,7 +86,13 @@ class Open3DRGBDConfig(OdometerConfig):
 
     def __post_init__(self) -> None:
         check_choice("term", self.term, _JACOBIANS)
-        object.__setattr__(self, "iterations", tuple(int(n) for n in self.iterations))
+        its = self.iterations
+        if (isinstance(its, (str, bytes)) or not hasattr(its, "__len__") or not 1 <= len(its) <= MAX_LEVELS
+                or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= MAX_ITERATIONS
+                           for n in its)):
+            raise ValueError(f"iterations: expected a list of 1-{MAX_LEVELS} whole numbers (one per pyramid level, "
+                             f"coarse to fine) each in 1-{MAX_ITERATIONS}, got {its!r:.80}")
+        object.__setattr__(self, "iterations", tuple(int(n) for n in its))
 
 
 class Open3DRGBDOdometer(Odometer):

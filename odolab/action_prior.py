@@ -23,6 +23,8 @@ from odolab.io.inputs import read_input_json
 from odolab.types import MOTION_ACTIONS, Action
 
 _SHIPPED = "action_prior.json"
+#: A step's mean motion beyond this (m or rad) is no action's: one step is 0.25 m or 30 degrees.
+MEAN_LIMIT = 2.0
 
 
 @dataclass(frozen=True)
@@ -46,14 +48,35 @@ class ActionPrior:
 
     @classmethod
     def from_json(cls, data: dict, origin: str = "action prior") -> "ActionPrior":
-        """Parse :meth:`to_json` output; ``origin`` names the file in errors."""
-        try:
-            means = {Action[k.upper()]: tuple(float(x) for x in v) for k, v in data["means"].items()}
-            samples = {Action[k.upper()]: int(v) for k, v in data["samples"].items()}
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ValueError(f"{origin}: expected 'means' and 'samples' per action ({exc})") from None
-        if any(len(v) != 3 for v in means.values()):
-            raise ValueError(f"{origin}: each mean must be [dx, dz, dyaw]")
+        """Parse :meth:`to_json` output; ``ValueError`` naming ``origin`` (the file), the field and
+        the action for anything else: every motion action needs a mean of 3 finite numbers within
+        ``MEAN_LIMIT`` and a whole, non-negative sample count."""
+        labels = ", ".join(a.label for a in MOTION_ACTIONS)
+        fields = {}
+        for field in ("means", "samples"):
+            table = data.get(field) if isinstance(data, dict) else None
+            if not isinstance(table, dict):
+                raise ValueError(f"{origin}: '{field}' must be an object mapping each of {labels} to a value, "
+                                 f"got {type(table).__name__}")
+            unknown = sorted(set(table) - {a.label for a in MOTION_ACTIONS})
+            if unknown:
+                raise ValueError(f"{origin}: {field}: unknown action {unknown[0]!r}; expected {labels}")
+            missing = [a.label for a in MOTION_ACTIONS if a.label not in table]
+            if missing:
+                raise ValueError(f"{origin}: {field}: no value for {missing[0]!r}; expected {labels}")
+            fields[field] = {a: table[a.label] for a in MOTION_ACTIONS}
+        means, samples = {}, {}
+        for a, v in fields["means"].items():
+            if (not isinstance(v, list) or len(v) != 3
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+                    or not all(np.isfinite(x) and abs(x) <= MEAN_LIMIT for x in v)):
+                raise ValueError(f"{origin}: means.{a.label}: expected [dx m, dz m, dyaw rad], 3 numbers within "
+                                 f"+-{MEAN_LIMIT:g}, got {v!r:.80}")
+            means[a] = tuple(float(x) for x in v)
+        for a, n in fields["samples"].items():
+            if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+                raise ValueError(f"{origin}: samples.{a.label}: expected a whole number >= 0, got {n!r:.80}")
+            samples[a] = n
         return cls(means, samples, str(data.get("source", "")))
 
     @classmethod

@@ -44,6 +44,8 @@ def parse_assignments(assignments: Iterable[str]) -> Options:
         name, dot, key = target.strip().rpartition(".")
         if not eq or not dot or not name or not key.isidentifier():
             raise OptionError(f"--odometer-option {text!r}: expected NAME.key=value, e.g. icp.max_depth=4.0")
+        if key in out.get(name, {}):  # the last would win silently: which one was meant is unknown
+            raise OptionError(f"--odometer-option {target.strip()} is given twice")
         try:
             out.setdefault(name, {})[key] = _value(value.strip())
         except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits

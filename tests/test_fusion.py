@@ -240,7 +240,7 @@ def test_bad_calibration_files_are_named(tmp_path):
     huge = tmp_path / "huge.json"
     with open(huge, "wb") as f:  # sparse: takes no room
         f.truncate(MAX_INPUT_BYTES + 1)
-    with pytest.raises(ValueError, match="too large for a calibration file"):
+    with pytest.raises(ValueError, match="too large to be read as the calibration file"):
         Calibration.load(huge)
     fifo = tmp_path / "pipe.json"
     os.mkfifo(fifo)  # would block a reader forever

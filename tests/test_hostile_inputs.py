@@ -435,3 +435,47 @@ def test_an_action_prior_file_that_is_a_pipe_or_repeats_a_key_is_one_line(tmp_pa
     for path, words in [(fifo, "is a pipe, device or socket"), (twice, "key 'means' appears twice")]:
         one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.prior={path}",
                        "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)
+
+
+@pytest.mark.parametrize("value", ["[]", "[0]", "[1000000]", '"123"', "[1.5]", "[true]", "[2147483648]",
+                                   "[5,5,5,5,5,5,5,5]", "20", "[[20,5]]"])
+def test_open3d_iterations_out_of_range_are_one_line(tmp_path, value):
+    """0 iterations would quietly return the starting guess, a million would never end, 8 pyramid
+    levels leave a 2 x 1 pixel image, a string would be read digit by digit."""
+    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option", f"open3d-rgbd.iterations={value}",
+                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o",
+                   words="iterations: expected a list of 1-6 whole numbers")
+
+
+def test_an_option_given_twice_is_refused(tmp_path):
+    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option", "open3d-rgbd.term=hybrid",
+                   "--odometer-option", "open3d-rgbd.term=color", "--episodes", "1", "--max-steps", "5", "--no-cache",
+                   "--out", tmp_path / "o", words="open3d-rgbd.term is given twice")
+
+
+@pytest.mark.parametrize("change,words", [
+    ({"means": [[0, 0.25, 0]]}, "'means' must be an object mapping each of move_forward"),
+    ({"samples": "x"}, "'samples' must be an object"),
+    ({"means": {"move_forward": "123"}}, "means.move_forward: expected [dx m, dz m, dyaw rad]"),
+    ({"means": {"move_forward": [0, 1000, 0]}}, "means.move_forward: expected"),
+    ({"means": {"turn_left": None}}, "means.turn_left: expected"),
+    ({"means": {"move_forward": [0, 0.25, 0]}, "drop": "turn_left"}, "means: no value for 'turn_left'"),
+    ({"means": {"stop": [0, 0, 0]}}, "means: unknown action 'stop'"),
+    ({"samples": {"turn_left": -5}}, "samples.turn_left: expected a whole number >= 0"),
+    ({"samples": {"turn_left": True}}, "samples.turn_left: expected a whole number >= 0"),
+])
+def test_an_action_prior_file_with_bad_fields_names_the_field(tmp_path, change, words):
+    import json
+
+    from odolab.action_prior import ActionPrior
+
+    doc = ActionPrior.shipped().to_json()
+    for field in ("means", "samples"):
+        if field in change:
+            doc[field] = {**doc[field], **change[field]} if isinstance(change[field], dict) else change[field]
+    if "drop" in change:
+        del doc["means"][change["drop"]]
+    path = tmp_path / "prior.json"
+    path.write_text(json.dumps(doc))
+    one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.prior={path}",
+                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)

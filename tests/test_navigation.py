@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -195,6 +196,34 @@ def test_navigate_refuses_a_file_where_its_result_folders_belong(tmp_path):
     (out / "config.json").write_text(json.dumps({**config, "options": []}))
     with pytest.raises(ValueError, match="not a navigation config"):
         run_navigation(out, [task], config, parallel=False, progress=False)
+    (out / "config.json").unlink()
+    os.mkfifo(out / "config.json")  # read, it would block for ever
+    with pytest.raises(ValueError, match="config.json: is a pipe, device or socket"):
+        run_navigation(out, [task], config, parallel=False, progress=False)
+
+
+def test_a_saved_episode_that_is_a_pipe_or_holds_infinities_is_run_again(tmp_path, capsys):
+    import json
+
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.navigation.study import ROW_KEYS, NavTask, read_row
+
+    spec = EpisodeSpec(split="test", index=3, max_steps=5)
+    task = NavTask("icp", {}, spec, PolicyConfig(), None)
+    row = {k: 0 for k in ROW_KEYS} | {"odometer": "icp", "episode": 3, "steps": 1, "goal": [1.0, 2.0],
+                                       "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
+    path = tmp_path / "0003.json"
+    path.write_text(json.dumps(row))
+    assert read_row(path, task) == row
+    for bad in ('{"d0": 1e400}', '{"path": 1e400}', '{"steps": ' + "9" * 5000 + "}"):
+        path.write_text(json.dumps(row)[:-1] + ", " + bad[1:])  # the key again, last: the reader refuses both
+        assert read_row(path, task) is None
+        path.write_text(json.dumps(row | json.loads(bad)) if len(bad) < 100 else bad)
+        assert read_row(path, task) is None
+    path.unlink()
+    os.mkfifo(path)
+    rejected = []
+    assert read_row(path, task, rejected) is None and rejected == [path]  # not read: it would block
 
 
 def test_the_tables_quote_fused_names():

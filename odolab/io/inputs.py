@@ -38,7 +38,7 @@ def read_input_bytes(path: str | os.PathLike, what: str = "file", limit: int = M
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if len(data) > limit:
-        raise ValueError(f"{path}: larger than {limit // 2**20} MiB, too large for a {what}")
+        raise ValueError(f"{path}: larger than {limit // 2**20} MiB, too large to be read as the {what}")
     return data
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
+from odolab.io.inputs import read_input_json
 from odolab.navigation.agent import PolicyConfig
 from odolab.navigation.metrics import EpisodeOutcome, mean_ci
 
@@ -67,7 +68,8 @@ ROW_KEYS = ("odometer", "episode", "d0", "d_end", "path", "stopped", "steps", "c
 
 
 def _number(v: Any, low: float = -np.inf, high: float = np.inf) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and low <= v <= high  # NaN fails both
+    """A finite int or float in [low, high] (NaN and infinities fail)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v)) and low <= v <= high
 
 
 def _path(v: Any) -> bool:
@@ -99,10 +101,10 @@ def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> d
     if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
         raise ValueError(f"{path} is a folder where an episode's result file belongs; delete it or choose another --out")
     try:
-        row = json.loads(path.read_text(encoding="utf-8"))
+        row = read_input_json(path, "navigation result")  # a pipe or /dev/zero in its place is refused, not read
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
               and row["episode"] == task.spec.index and row.get("weights") == task.weights and _sane(row))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+    except ValueError:  # damaged, not a regular file, too large, or numbers too long to read
         ok = False
     if not ok:
         if rejected is None:
@@ -153,13 +155,13 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
                          "or new --out")
     if cfg_path.exists():
         try:
-            saved = json.loads(cfg_path.read_text(encoding="utf-8"))
-            if not isinstance(saved, dict):
-                raise ValueError("not a JSON object")
-            if not isinstance(saved.get("options", {}), dict):
-                raise ValueError("its 'options' is not a JSON object")
-        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-            raise ValueError(f"{cfg_path}: not a navigation config ({exc}); choose another --out") from None
+            saved = read_input_json(cfg_path, "navigation config")  # its errors name the file
+        except ValueError as exc:
+            raise ValueError(f"{exc}; choose another --out") from None
+        problem = ("not a JSON object" if not isinstance(saved, dict) else
+                   "its 'options' is not a JSON object" if not isinstance(saved.get("options", {}), dict) else None)
+        if problem:
+            raise ValueError(f"{cfg_path}: not a navigation config ({problem}); choose another --out")
         changed = _episode_changes(saved.get("episodes"), config["episodes"])
         changed += _policy_changes(saved.get("policy"), config.get("policy"))
         changed += [f"options of {n}" for n, o in config["options"].items() if n in saved.get("options", {})
