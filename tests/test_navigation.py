@@ -159,8 +159,9 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))
     assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64)) == row
-    assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "b" * 64)) is None  # retrained
-    assert "another run, model file or calibration" in capsys.readouterr().err
+    rejected = []
+    assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "b" * 64), rejected) is None  # retrained
+    assert rejected == [path]
     for bad in ({"success": float("nan")}, {"spl": 7}, {"true_xy": "x"}, {"steps": 5}, {"d0": -1}):
         path.write_text(json.dumps(row | bad))  # values no run can have: run again, no traceback
         assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64)) is None

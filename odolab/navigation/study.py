@@ -94,8 +94,7 @@ def _sane(row: dict) -> bool:
 
 def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> dict | None:
     """A saved result if it is whole and belongs to ``task``; None if it is missing or damaged, so
-    that the episode is run again (a rejected file is appended to ``rejected``; without that list, a
-    note naming it is printed)."""
+    that the episode is run again (a damaged file is appended to ``rejected``, for the caller's note)."""
     if not path.exists():
         return None
     if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
@@ -107,10 +106,7 @@ def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> d
     except ValueError:  # damaged, not a regular file, too large, or numbers too long to read
         ok = False
     if not ok:
-        if rejected is None:
-            print(f"note: {path} is damaged or belongs to another run, model file or calibration; running that episode "
-                  "again", file=sys.stderr)
-        else:
+        if rejected is not None:
             rejected.append(path)
         return None
     return row
