@@ -153,6 +153,27 @@ def test_convention_on_views_with_known_motion(name, action, T_true, tum, known_
     assert np.all(np.linalg.eigvalsh(est.covariance) > 0)
 
 
+def test_open3d_fallback_schedule_runs_only_when_the_first_finds_nothing(tum, known_views):
+    """One iteration from no motion cannot find a 3-degree view; the fallback schedule then does,
+    and an answer the first schedule finds is the fallback's business no longer."""
+    frames, intr = tum
+    T_true = KNOWN_MOTIONS[3].values[1]
+    view = known_views[id(T_true)]
+    results = {}
+    for fallback in [(), (20, 5)]:
+        odo = load_odometer("open3d-rgbd", iterations=[1], fallback_iterations=list(fallback))
+        odo.reset(intr)
+        results[fallback] = odo.step(frames[0], view, None)
+    assert not results[()].valid
+    assert results[(20, 5)].valid and relative_pose_error(results[(20, 5)].transform, T_true)[0] < 0.002
+    calls = []
+    odo = load_odometer("open3d-rgbd", fallback_iterations=[1])
+    align = odo._align
+    odo._align = lambda *a: calls.append(a[-1]) or align(*a)
+    odo.reset(intr)
+    assert odo.step(frames[0], view, None).valid and set(calls) == {(20, 5)}
+
+
 @pytest.mark.parametrize(
     "T_true,path",
     [
@@ -253,7 +274,7 @@ def test_config_is_a_frozen_dataclass_with_nested_keyword_overrides(name):
     assert written["depth"]["max_depth"] == 3.0 and written["verify"]["bounds"]["max_height"] == 0.05
     assert type(load_odometer(name, config=cfg).config) is type(cfg)
     options = inspect.signature(type(odo)).parameters  # what option checkers (and help) see
-    assert options["max_depth"].default == 4.0 and options["max_depth"].annotation == "float"
+    assert options["max_depth"].default == default.depth.max_depth and options["max_depth"].annotation == "float"
     assert set(options) == {"config", *(f.name for f in _all_fields(default))}
 
 

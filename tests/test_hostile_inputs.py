@@ -447,6 +447,14 @@ def test_open3d_iterations_out_of_range_are_one_line(tmp_path, value):
                    words="iterations: expected a list of 1-6 whole numbers")
 
 
+@pytest.mark.parametrize("value", ["[0]", "[1000000]", '"123"', "[5,5,5,5,5,5,5]"])
+def test_open3d_fallback_iterations_out_of_range_are_one_line(tmp_path, value):
+    """The fallback schedule is checked as the first one is (but may be empty: no fallback)."""
+    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option",
+                   f"open3d-rgbd.fallback_iterations={value}", "--episodes", "1", "--max-steps", "5", "--no-cache",
+                   "--out", tmp_path / "o", words="fallback_iterations: expected a list of 0-6 whole numbers")
+
+
 def test_an_option_given_twice_is_refused(tmp_path):
     one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option", "open3d-rgbd.term=hybrid",
                    "--odometer-option", "open3d-rgbd.term=color", "--episodes", "1", "--max-steps", "5", "--no-cache",

@@ -50,6 +50,7 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
     odometer.reset(cam.intrinsics)
     oracle = bool(getattr(odometer, "oracle", False))
     frame = env.observe(0.0)
+    seen = guarded_frame(frame, oracle)  # each frame guarded once: odometers reuse per-frame work by identity
     true_xy, believed_xy, actions = [(env.state.x, env.state.y)], [(0.0, 0.0)], []
     stopped, failed = False, 0
     for t in range(spec.max_steps):
@@ -59,9 +60,10 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
             break
         env.step(action)
         new = env.observe(float(t + 1))
+        new_seen = guarded_frame(new, oracle)
         try:
             with odometer_threads(odometer):  # its own torch thread setting, as in the runner
-                est = odometer.step(guarded_frame(frame, oracle), guarded_frame(new, oracle), action)
+                est = odometer.step(seen, new_seen, action)
             T = est.transform if failure_reason(est) is None else None
         except Exception:  # a failing odometer is a failed step, as in the runner
             T = None
@@ -69,7 +71,7 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
             failed += 1
             T = planar_to_transform(*prior.motion(action))
         agent.update(T)
-        frame = new
+        frame, seen = new, new_seen
         actions.append(action.value)
         true_xy.append((env.state.x, env.state.y))
         believed_xy.append(agent.belief[:2])
