@@ -8,9 +8,11 @@ fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` se
 """
 from __future__ import annotations
 
+import hashlib
 import inspect
+import json
 from collections.abc import Iterable
-from dataclasses import Field, dataclass, fields, is_dataclass, replace
+from dataclasses import Field, asdict, dataclass, fields, is_dataclass, replace
 from typing import Any, TypeVar
 
 from baselines.depth_geometry import DepthRange
@@ -83,6 +85,13 @@ def options_signature(config_cls: type) -> inspect.Signature:
         params.append(inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=value,
                                         annotation=_field(default, path).type))
     return inspect.Signature(params)
+
+
+def config_digest(config: object) -> str:
+    """SHA-256 of every field of ``config`` (nested ones too) as sorted JSON: what a baseline's
+    answers depend on besides its code. Baselines keep it as ``Odometer.weights``, so that studies
+    which keep results per odometer redo them when a default or an option changes."""
+    return hashlib.sha256(json.dumps(asdict(config), sort_keys=True, default=repr).encode()).hexdigest()
 
 
 def check_range(name: str, value: object, low: float, high: float) -> None:

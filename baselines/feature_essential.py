@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from baselines.config import OdometerConfig, configure, options_signature
+from baselines.config import OdometerConfig, config_digest, configure, options_signature
 from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import (
     FrameMemo,
@@ -193,6 +193,7 @@ class FeatureEssentialOdometer(Odometer):
 
     def __init__(self, config: FeatureEssentialConfig | None = None, **overrides) -> None:
         self.config = configure(FeatureEssentialConfig, config, **overrides)
+        self.weights = config_digest(self.config)  # results kept per odometer follow its settings
         self._features: FrameMemo[_Features] = FrameMemo()
         self.last_path: str | None = None
 

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, check_range, configure, options_signature
+from baselines.config import OdometerConfig, check_choice, check_range, config_digest, configure, options_signature
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
@@ -138,6 +138,7 @@ class ICPOdometer(Odometer):
 
     def __init__(self, config: ICPConfig | None = None, **overrides) -> None:
         self.config = configure(ICPConfig, config, **overrides)
+        self.weights = config_digest(self.config)  # results kept per odometer follow its settings
         self._clouds: FrameMemo[_Pyramid | None] = FrameMemo()
 
     def reset(self, intrinsics: Intrinsics) -> None:

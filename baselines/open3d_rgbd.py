@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, configure, options_signature
+from baselines.config import OdometerConfig, check_choice, config_digest, configure, options_signature
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import DepthRange, FrameMemo, depth_mask, image_texture, normal_constraint
 from baselines.motion_search import initial_guesses
@@ -130,6 +130,7 @@ class Open3DRGBDOdometer(Odometer):
 
     def __init__(self, config: Open3DRGBDConfig | None = None, **overrides) -> None:
         self.config = configure(Open3DRGBDConfig, config, **overrides)
+        self.weights = config_digest(self.config)  # results kept per odometer follow its settings
         self._images: FrameMemo[o3d.geometry.RGBDImage | None] = FrameMemo()
 
     def reset(self, intrinsics: Intrinsics) -> None:

@@ -39,9 +39,10 @@ class Odometer:
     runner hands to :meth:`step_batch` at once; 1 = one :meth:`step` per pair), ``threads``
     (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`),
     ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
-    network per action: it is refused on real data, which has no actions), ``weights`` (a learned
-    odometer's digest of the model file it loaded, a fused one's of its inputs' and its calibration,
-    or None: studies that keep results per odometer redo them when it changes).
+    network per action: it is refused on real data, which has no actions), ``weights`` (a digest of
+    what its answers depend on besides code: a learned odometer's model file, a baseline's
+    configuration, a fused one's inputs' digests and its calibration; or None: studies that keep
+    results per odometer redo them when it changes).
     """
 
     name: str = "odometer"

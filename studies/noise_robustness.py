@@ -31,7 +31,7 @@ DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo,de
 
 
 def _weights(odometers: list[str], options: dict) -> dict[str, str | None]:
-    """Name -> digest of the model file a learned odometer loaded (``Odometer.weights``), else None."""
+    """Name -> ``Odometer.weights``: the digest of its model file or settings, else None."""
     loaded = {n: load_odometer(n, **options.get(n, {})) for n in odometers}
     return {n: o.weights for n, o in loaded.items()}
 

@@ -169,9 +169,18 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     folder.mkdir()  # a folder where a result file belongs: refused by name (no "Is a directory" later)
     with pytest.raises(ValueError, match="0004.json is a folder where an episode's result file belongs"):
         read_row(folder, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64))
-    # the odometers say which model file they loaded; a fused one through its inputs
-    assert load_odometer("robust-vo").weights and load_odometer("icp").weights is None
+    # the odometers say which model file or settings they use; a fused one through its inputs
+    assert load_odometer("robust-vo").weights and load_odometer("action-prior").weights is None
+    assert load_odometer("icp").weights == load_odometer("icp").weights != load_odometer("icp", voxel=0.05).weights
     assert load_odometer("fused(icp,robust-vo)").weights not in (None, load_odometer("robust-vo").weights)
+    fused = load_odometer("fused(icp,robust-vo)").weights
+    assert load_odometer("fused(icp,robust-vo)", options_file=_icp_options(tmp_path)).weights != fused
+
+
+def _icp_options(folder) -> str:
+    path = folder / "icp.toml"
+    path.write_text('[odometers."icp"]\nvoxel = 0.05\n')
+    return str(path)
 
 
 def test_navigate_refuses_a_file_where_its_result_folders_belong(tmp_path):

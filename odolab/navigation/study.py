@@ -39,7 +39,7 @@ class NavTask:
     options: dict
     spec: EpisodeSpec
     policy: PolicyConfig
-    weights: str | None = None  # digest of a learned odometer's model file: a retrained model's episodes rerun
+    weights: str | None = None  # Odometer.weights: a retrained model's or changed setting's episodes rerun
 
 
 def run_task(task: NavTask) -> dict[str, Any]:
