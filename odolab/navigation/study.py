@@ -177,7 +177,7 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
     for folder in sorted({p.parent for p in rejected}):  # one line per odometer, not one per episode
         names = sorted(p.name for p in rejected if p.parent == folder)
         print(f"note: {len(names)} saved episode(s) in {folder} ({names[0]}{' ...' if len(names) > 1 else ''}) are damaged "
-              "or belong to another run, model file or calibration; running them again", file=sys.stderr)
+              "or belong to another run, model file, calibration or setting; running them again", file=sys.stderr)
 
     def done(k: int, row: dict) -> None:
         p = result_path(out, todo[k].odometer, todo[k].spec.index)
