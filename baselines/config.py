@@ -91,7 +91,17 @@ def config_digest(config: object) -> str:
     """SHA-256 of every field of ``config`` (nested ones too) as sorted JSON: what a baseline's
     answers depend on besides its code. Baselines keep it as ``Odometer.weights``, so that studies
     which keep results per odometer redo them when a default or an option changes."""
-    return hashlib.sha256(json.dumps(asdict(config), sort_keys=True, default=repr).encode()).hexdigest()
+    return hashlib.sha256(json.dumps(_as_floats(asdict(config)), sort_keys=True, default=repr).encode()).hexdigest()
+
+
+def _as_floats(value: Any) -> Any:
+    """Every number (not bool) as a float, in nested dicts, lists and tuples: ``6`` and ``6.0`` set
+    the same option and give the same digest."""
+    if isinstance(value, dict):
+        return {k: _as_floats(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_as_floats(v) for v in value]
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else value
 
 
 def check_range(name: str, value: object, low: float, high: float) -> None:

@@ -15,6 +15,10 @@ import numpy as np
 from odolab.api import Intrinsics
 
 
+#: The farthest depth cut a baseline accepts, metres (no sensor reads beyond; infinity is a typo).
+MAX_DEPTH_LIMIT = 1000.0
+
+
 @dataclass(frozen=True)
 class DepthRange:
     """The depth readings an odometer trusts, and how far two readings of one surface may differ.
@@ -32,10 +36,11 @@ class DepthRange:
     noise_growth: float = 0.01
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.min_depth < self.max_depth:
-            raise ValueError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
-        if not (self.noise_floor >= 0.0 and self.noise_growth >= 0.0):
-            raise ValueError(f"need noise_floor, noise_growth >= 0, got {self.noise_floor}, {self.noise_growth}")
+        if not 0.0 <= self.min_depth < self.max_depth <= MAX_DEPTH_LIMIT:
+            raise ValueError(f"need 0 <= min_depth < max_depth <= {MAX_DEPTH_LIMIT:g} m, got min_depth "
+                             f"{self.min_depth}, max_depth {self.max_depth}")
+        if not (0.0 <= self.noise_floor < np.inf and 0.0 <= self.noise_growth < np.inf):
+            raise ValueError(f"need finite noise_floor, noise_growth >= 0, got {self.noise_floor}, {self.noise_growth}")
 
     def tolerance(self, z: np.ndarray) -> np.ndarray:
         """Largest difference (metres) between two readings of one surface at depth ``z`` (metres)."""

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from baselines.depth_geometry import DepthRange
 from odolab.api import SequenceResult, UnknownOdometerError, invert, load_odometer, load_tum_sequence, run_odometers
 
 NO_MOTION = "no-motion"
@@ -90,9 +91,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("folder", help="TUM RGB-D sequence folder (rgb.txt, depth.txt, groundtruth.txt)")
     parser.add_argument("--odometers", nargs="+", default=list(DEFAULT_ODOMETERS), metavar="NAME",
                         help=f"registered odometer names, or {NO_MOTION!r} (default: %(default)s)")
-    parser.add_argument("--max-depth", type=_positive(float), default=4.0, help="depth cut, metres, (0, 1000] (4)")
+    parser.add_argument("--max-depth", type=_positive(float), default=4.0,
+                        help=f"depth cut for every odometer (open3d-rgbd's own default is 6), metres, "
+                             f"({DepthRange().min_depth:g}, 1000] (4)")
     parser.add_argument("--repeat", type=_positive(int), default=3, help="timed passes per odometer, 1-1000 (3)")
     args = parser.parse_args(argv)
+    if args.max_depth <= DepthRange().min_depth:
+        parser.error(f"--max-depth must be above the odometers' min_depth {DepthRange().min_depth:g} m, got {args.max_depth:g}")
     try:
         seq = load_tum_sequence(args.folder)
         if len(seq) < 2:

@@ -111,9 +111,15 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
         except (UnknownOdometerError, OptionError) as exc:
             raise ComparisonError(str(exc)) from None
         except Exception as exc:  # a broken plugin or a bad option value is reported, not a traceback
-            detail = f" with options {opts}" if opts else ""
+            detail = f" with options {_short(opts)}" if opts else ""
             raise ComparisonError(f"could not load odometer {name!r}{detail}: {type(exc).__name__}: {exc}") from None
     return out
+
+
+def _short(value: object) -> str:
+    """``repr(value)`` cut short: a 20,000-item option is not echoed whole."""
+    text = repr(value)
+    return text if len(text) <= 200 else text[:200] + "...}"
 
 
 def failure_reasons(results: list[SequenceResult]) -> dict[str, dict[str, int]]:

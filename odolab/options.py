@@ -34,6 +34,8 @@ def _value(text: str) -> Any:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except RecursionError:  # [[[[...]]]] thousands deep
+        raise OptionError("value nested too deeply") from None
 
 
 def parse_assignments(assignments: Iterable[str]) -> Options:
@@ -48,6 +50,8 @@ def parse_assignments(assignments: Iterable[str]) -> Options:
             raise OptionError(f"--odometer-option {target.strip()} is given twice")
         try:
             out.setdefault(name, {})[key] = _value(value.strip())
+        except OptionError as exc:
+            raise OptionError(f"--odometer-option {target.strip()}: {exc}") from None
         except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
             raise OptionError(f"--odometer-option {target.strip()}: a number too long to read (over 4300 digits)") from None
     return out

@@ -487,3 +487,35 @@ def test_an_action_prior_file_with_bad_fields_names_the_field(tmp_path, change, 
     path.write_text(json.dumps(doc))
     one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.prior={path}",
                    "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)
+
+
+@pytest.mark.parametrize("option,value,words", [
+    ("fallback_iterations", "[" * 3000 + "]" * 3000, "open3d-rgbd.fallback_iterations: value nested too deeply"),
+    ("max_depth", "inf", "max_depth <= 1000 m, got min_depth 0.1, max_depth inf"),
+    ("max_depth", "1e300", "max_depth <= 1000 m"),
+])
+def test_open3d_depth_and_nesting_are_one_line(tmp_path, option, value, words):
+    """A depth cut of infinity ran (and wrote Infinity into navigate's JSON); [[[...]]] 3000 deep
+    was a RecursionError traceback."""
+    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option", f"open3d-rgbd.{option}={value}",
+                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)
+
+
+def test_a_deeply_nested_options_file_and_a_huge_option_are_short_lines(tmp_path, capsys):
+    deep = tmp_path / "deep.toml"
+    deep.write_text('[odometers."open3d-rgbd"]\nfallback_iterations = ' + "[" * 3000 + "]" * 3000 + "\n")
+    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--config", deep, "--episodes", "1",
+                   "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words="holds a value nested too deeply")
+    huge = "[" + ",".join(["5"] * 20000) + "]"  # the odometer's message cuts the value; the loader's did not
+    from odolab.comparison import ComparisonError, load_odometers
+    with pytest.raises(ComparisonError) as info:
+        load_odometers(["open3d-rgbd"], {"open3d-rgbd": {"fallback_iterations": [5] * 20000}})
+    assert len(str(info.value)) < 500 and "fallback_iterations" in str(info.value)
+    assert len(huge) > 30000
+
+
+def test_equal_settings_give_equal_digests():
+    """6 and 6.0 set the same depth cut: a rerun with either reuses the other's episodes."""
+    from odolab.odometer import load_odometer
+    assert load_odometer("open3d-rgbd", max_depth=6).weights == load_odometer("open3d-rgbd").weights
+    assert load_odometer("open3d-rgbd", max_depth=5).weights != load_odometer("open3d-rgbd").weights

@@ -212,7 +212,7 @@ def test_navigate_refuses_a_file_where_its_result_folders_belong(tmp_path):
         run_navigation(out, [task], config, parallel=False, progress=False)
 
 
-def test_a_saved_episode_that_is_a_pipe_or_holds_infinities_is_run_again(tmp_path, capsys):
+def test_a_saved_episode_with_infinities_is_run_again_and_a_pipe_refused(tmp_path, capsys):
     import json
 
     from odolab.navigation.agent import PolicyConfig
@@ -231,9 +231,13 @@ def test_a_saved_episode_that_is_a_pipe_or_holds_infinities_is_run_again(tmp_pat
         path.write_text(json.dumps(row | json.loads(bad)) if len(bad) < 100 else bad)
         assert read_row(path, task) is None
     path.unlink()
-    os.mkfifo(path)
-    rejected = []
-    assert read_row(path, task, rejected) is None and rejected == [path]  # not read: it would block
+    os.mkfifo(path)  # not read (it would block), and refused before any episode runs: no result could replace it
+    with pytest.raises(ValueError, match="0003.json is not a regular file"):
+        read_row(path, task)
+    path.unlink()
+    path.symlink_to("/dev/zero")
+    with pytest.raises(ValueError, match="0003.json is not a regular file"):
+        read_row(path, task)
 
 
 def test_the_tables_quote_fused_names():
@@ -244,3 +248,11 @@ def test_the_tables_quote_fused_names():
 
     text = _csv([{"odometer": "fused(icp,robust-vo)", "success": 0.5}], ["odometer", "success"])
     assert list(csv.DictReader(io.StringIO(text))) == [{"odometer": "fused(icp,robust-vo)", "success": "0.5000"}]
+
+
+def test_a_refusal_for_changed_options_names_the_key_and_both_values():
+    from odolab.navigation.study import _option_changes
+    said = _option_changes("open3d-rgbd", {}, {"max_depth": 5.0})
+    assert said == "options of open3d-rgbd (max_depth: default there, 5.0 now)"
+    said = _option_changes("icp", {"voxel": 0.04, "x": "a" * 500}, {"voxel": 0.05})
+    assert "voxel: 0.04 there, 0.05 now" in said and "x: " in said and len(said) < 200

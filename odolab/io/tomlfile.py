@@ -20,3 +20,5 @@ def read_toml(path: str | os.PathLike, what: str = "file") -> dict[str, Any]:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
     except ValueError:  # Python refuses to read integers of over 4300 digits
         raise ValueError(f"{path}: holds a number too long to read (over 4300 digits)") from None
+    except RecursionError:  # [[[[...]]]] thousands deep
+        raise ValueError(f"{path}: holds a value nested too deeply") from None

@@ -15,6 +15,7 @@ import hashlib
 import io
 import json
 import re
+import reprlib
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,6 +100,9 @@ def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> d
         return None
     if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
         raise ValueError(f"{path} is a folder where an episode's result file belongs; delete it or choose another --out")
+    if not path.is_file():  # a pipe or device (or a link to one): the rerun's result could not replace it
+        raise ValueError(f"{path} is not a regular file (a pipe, device or link to one) where an episode's result "
+                         "file belongs; delete it or choose another --out")
     try:
         row = read_input_json(path, "navigation result")  # a pipe or /dev/zero in its place is refused, not read
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
@@ -135,6 +139,18 @@ def _policy_changes(saved: Any, policy: dict) -> list[str]:
             for k in sorted(set(saved) | set(policy)) if saved.get(k) != policy.get(k)] or ["the policy"]
 
 
+def _option_changes(odometer: str, saved: Any, options: dict) -> str:
+    """Which ``--odometer-option`` values of ``odometer`` differ from a folder's saved ones."""
+    if not isinstance(saved, dict):
+        return f"options of {odometer}"
+    short = reprlib.Repr()
+    short.maxstring, short.maxlist = 40, 6
+    keys = sorted(k for k in set(saved) | set(options) if saved.get(k) != options.get(k))
+    said = ", ".join(f"{k}: {short.repr(saved[k]) if k in saved else 'default'} there, "
+                     f"{short.repr(options[k]) if k in options else 'default'} now" for k in keys[:3])
+    return f"options of {odometer} ({said}{', ...' if len(keys) > 3 else ''})"
+
+
 def result_path(out: Path, odometer: str, index: int) -> Path:
     return out / "episodes" / _safe(odometer) / f"{index:04d}.json"
 
@@ -160,8 +176,8 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
             raise ValueError(f"{cfg_path}: not a navigation config ({problem}); choose another --out")
         changed = _episode_changes(saved.get("episodes"), config["episodes"])
         changed += _policy_changes(saved.get("policy"), config.get("policy"))
-        changed += [f"options of {n}" for n, o in config["options"].items() if n in saved.get("options", {})
-                    and saved["options"][n] != o]
+        changed += [_option_changes(n, saved["options"][n], o) for n, o in config["options"].items()
+                    if n in saved.get("options", {}) and saved["options"][n] != o]
         if changed:
             raise ValueError(f"{out} holds navigation results made with other settings ({', '.join(changed)}); "
                              "choose another --out or delete it")
