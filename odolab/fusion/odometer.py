@@ -89,8 +89,8 @@ class FusedOdometer(Odometer):
         # an input that needs actions would answer nothing without them: say so, as that input would
         self.needs_action = any(o.needs_action for o in self.inputs.values())
         # what its answers depend on besides code: its inputs' model files or settings and the calibration
-        learned = [f"{n}={o.weights}" for n, o in self.inputs.items() if o.weights]
-        self.weights = hashlib.sha256(";".join(learned + [f"calibration={self.calibration.digest}"]).encode()).hexdigest()
+        parts = [f"{n}={o.weights}" for n, o in self.inputs.items() if o.weights]
+        self.weights = hashlib.sha256(";".join(parts + [f"calibration={self.calibration.digest}"]).encode()).hexdigest()
         #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
         self.fusion_seconds, self.fused_steps = 0.0, 0
         self._graph: OnlineGraph | None = None

@@ -104,7 +104,7 @@ def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> d
         raise ValueError(f"{path} is not a regular file (a pipe, device or link to one) where an episode's result "
                          "file belongs; delete it or choose another --out")
     try:
-        row = read_input_json(path, "navigation result")  # a pipe or /dev/zero in its place is refused, not read
+        row = read_input_json(path, "navigation result")  # size-capped, duplicate keys refused
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
               and row["episode"] == task.spec.index and row.get("weights") == task.weights and _sane(row))
     except ValueError:  # damaged, not a regular file, too large, or numbers too long to read
