@@ -145,13 +145,25 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
         raise UsageError(f"{option} {path}: cannot write in {folder} ({_describe(exc)})") from None
 
 
+#: Longest error message printed whole; a 20,000-character name a user pasted is not echoed back.
+MAX_ERROR_CHARS = 400
+
+
+def _capped(text: str) -> str:
+    """``text`` on one line, cut to :data:`MAX_ERROR_CHARS` with the number of characters left out."""
+    text = " ".join(text.splitlines())
+    if len(text) <= MAX_ERROR_CHARS:
+        return text
+    return f"{text[:MAX_ERROR_CHARS]}... ({len(text) - MAX_ERROR_CHARS} more characters)"
+
+
 def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,
             argv: Sequence[str] | None = None) -> int:
     """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2."""
     try:
         return int(main(argv) or 0)
     except (UsageError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {_capped(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)

@@ -519,3 +519,20 @@ def test_equal_settings_give_equal_digests():
     from odolab.odometer import load_odometer
     assert load_odometer("open3d-rgbd", max_depth=6).weights == load_odometer("open3d-rgbd").weights
     assert load_odometer("open3d-rgbd", max_depth=5).weights != load_odometer("open3d-rgbd").weights
+
+
+def test_a_pasted_20000_character_name_is_not_echoed_whole(tmp_path):
+    import contextlib
+    import io
+
+    from odolab.cli import MAX_ERROR_CHARS
+    from odolab.compare import main
+    name = "k" * 20000
+    for args in (["--odometers", name], ["--odometers", "icp", "--odometer-option", f"icp.{name}=1"]):
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            code = run_cli(main, "odolab.compare", [*args, "--episodes", "1", "--max-steps", "3", "--no-cache",
+                                                    "--out", str(tmp_path / "o")])
+        line = err.getvalue().strip()
+        assert code == 2 and "\n" not in line and line.endswith("more characters)")
+        assert len(line) < MAX_ERROR_CHARS + 100

@@ -235,9 +235,14 @@ def test_a_saved_episode_with_infinities_is_run_again_and_a_pipe_refused(tmp_pat
     with pytest.raises(ValueError, match="0003.json is not a regular file"):
         read_row(path, task)
     path.unlink()
-    path.symlink_to("/dev/zero")
-    with pytest.raises(ValueError, match="0003.json is not a regular file"):
-        read_row(path, task)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    for target in ("/dev/zero", victim, tmp_path / "nowhere"):  # the rerun's result would be written through it
+        path.symlink_to(target)
+        with pytest.raises(ValueError, match="0003.json is a symbolic link"):
+            read_row(path, task)
+        path.unlink()
+    assert victim.read_text() == "precious"
 
 
 def test_the_tables_quote_fused_names():

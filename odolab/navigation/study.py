@@ -96,6 +96,9 @@ def _sane(row: dict) -> bool:
 def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> dict | None:
     """A saved result if it is whole and belongs to ``task``; None if it is missing or damaged, so
     that the episode is run again (a damaged file is appended to ``rejected``, for the caller's note)."""
+    if path.is_symlink():  # navigate writes no links; writing the rerun's result would go through it
+        raise ValueError(f"{path} is a symbolic link where an episode's result file belongs; delete it or choose "
+                         "another --out")
     if not path.exists():
         return None
     if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
