@@ -46,6 +46,18 @@ depth to 6 m answered 26 of the 81 (median yaw error 0.07 degrees), and a three-
 0.418 m, 5.1 % failed; 5 m (0.55, 0.32, 0.47), 0.276 m, 5.0 %; 6 m (0.53, 0.32, 0.45), 0.238 m,
 4.3 %; 8 m (0.55, 0.32, 0.51), 0.279 m, 5.8 %; 6 m with the fallback (0.54, 0.32, 0.42), 0.224 m,
 drift 0.345 m, 3.8 %: the default.
+
+Far views failed the image check, not the alignment (turns from random poses of 20 val scenes, 400
+pairs, ``runs/``-style script described in the README): with a median depth beyond 4 m, 45 % of
+turns failed, yet Open3D's answer was within 0.2 degrees of the truth; the depth agreement of even
+the true motion was 0.75-0.83, under the 0.8 required. The simulator's depth noise outgrows the
+shared tolerance 0.01 + 0.01 z^2 m beyond 3 m (the true motion's depth differences at 4.5-5 m:
+median 0.17 m, 90th percentile 0.31 m, against a 0.24 m tolerance). With 0.01 + 0.015 z^2 far
+turns fail 5 % of the time, all turns 5.8 % (11.3 %), at the same accuracy (0.18 degrees RMS far,
+0.61 all); on the val split (12 x 60, the command above): (0.51, 0.31, 0.35), ATE 0.152 m, drift
+0.238 m, 2.6 % failed (0.02 z^2: the same to 0.003 m). Near walls (median depth below 1 m) 15 % of
+turns still fail: there the grey levels of the true motion correlate at 0.25-0.6 (a blurred,
+magnified texture under 25 grey levels of noise) and the check cannot tell a slide along the wall.
 """
 from __future__ import annotations
 
@@ -80,9 +92,11 @@ class Open3DRGBDConfig(OdometerConfig):
     """Options of :class:`Open3DRGBDOdometer` (besides ``verify``, see
     :class:`~baselines.config.OdometerConfig`). Depth is trusted to 6 m, not the 4 m of Open3D's own
     default and of the other baselines: the photometric term uses depth only to warp (module
-    docstring); the TUM reference figure used 4 m."""
+    docstring); the TUM reference figure used 4 m. Two readings of a surface z m away agree within
+    0.01 + 0.015 z^2 m (the other baselines: 0.01 z^2), which the simulator's depth noise needs
+    beyond 3 m (module docstring)."""
 
-    depth: DepthRange = DepthRange(max_depth=6.0)
+    depth: DepthRange = DepthRange(max_depth=6.0, noise_growth=0.015)
 
     #: ``"color"`` (photometric; depth only warps) or ``"hybrid"`` (photometric + geometric).
     term: str = "color"

@@ -1,0 +1,185 @@
+"""Study: how often each odometer fails a turn, and how far off it is, by how far the view reaches.
+
+Navigation turns the agent in front of walls and in large rooms far more often than the episode
+generator's shortest-path follower does, and those turns decide where the agent believes it is.
+Here every odometer sees the same turn pairs: in each of ``--scenes`` scenes of ``--split`` (the
+scenes of its first episodes, seed ``--seed``), ``--per-scene`` random navigable poses with random
+headings, one noisy TURN_LEFT or TURN_RIGHT each (the challenge's actuation, RGB and depth noise).
+Pairs are binned by the median depth of the first frame (m). Per odometer and bin: pairs, failed
+share (invalid, raising, or not a rigid motion: what the runner would replace by the prior) and,
+over the answered pairs, the RMS yaw error and the share more than 2 degrees off.
+
+    python -m studies.turns_by_depth --out reports/turns-by-depth        # 20 scenes x 20 turns, ~1 min per odometer
+
+Writes ``results.json`` (every pair: bin depth, answered, yaw error), ``table.md`` and
+``turns.png``. Serial: a few minutes in one process.
+"""
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from odolab.api import invert, load_odometer, transform_to_planar, write_bytes_atomic, write_json_atomic
+
+#: Bins of the first frame's median depth, m.
+BINS = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, np.inf))
+
+
+def turn_pairs(split: str, seed: int, scenes: int, per_scene: int):
+    """Yield (scene index, median depth m, action, prev frame, cur frame, true yaw rad) for random
+    turns in the scenes of ``split``'s first ``scenes`` episodes."""
+    from odolab.episodes import EpisodeSpec, start_environment
+    from odolab.sim.agent import AgentState
+    from odolab.types import Action
+
+    for e in range(scenes):
+        env, _ = start_environment(EpisodeSpec(split=split, index=e, seed=seed, max_steps=1))
+        sc = env.scene
+        rng = np.random.default_rng([seed, e])
+        rows, cols = np.nonzero(sc.navigable)
+        for _ in range(per_scene):
+            i = int(rng.integers(len(rows)))
+            x, y = sc.origin[0] + (cols[i] + 0.5) * sc.resolution, sc.origin[1] + (rows[i] + 0.5) * sc.resolution
+            env.state = AgentState(float(x), float(y), float(rng.uniform(-np.pi, np.pi)))
+            prev = env.observe(0.0)
+            action = Action.TURN_LEFT if rng.random() < 0.5 else Action.TURN_RIGHT
+            env.step(action)
+            cur = env.observe(1.0)
+            true_yaw = transform_to_planar(invert(prev.gt_pose) @ cur.gt_pose)[2]
+            seen = prev.depth[prev.depth > 0]
+            yield e, float(np.median(seen)) if seen.size else 0.0, action, prev, cur, float(true_yaw)
+
+
+def run_study(odometers: list[str], options: dict, split: str, seed: int, scenes: int, per_scene: int,
+              quiet: bool = False) -> dict:
+    """Every odometer on the same turn pairs; returns {"config", "pairs": {name: [[depth, ok, err_deg]]}}."""
+    from tqdm.auto import tqdm
+
+    from odolab.episodes import EpisodeSpec
+    from odolab.runner import failure_reason, guarded_frame
+    from odolab.threads import odometer_threads
+
+    intrinsics = EpisodeSpec().camera.intrinsics  # turn_pairs' episodes use the default camera
+
+    loaded = {n: load_odometer(n, **options.get(n, {})) for n in odometers}
+    pairs: dict[str, list] = {n: [] for n in odometers}
+    scene = -1
+    bar = tqdm(total=scenes * per_scene, desc="turn pairs", unit="pair", disable=quiet)
+    for e, depth, action, prev, cur, true_yaw in turn_pairs(split, seed, scenes, per_scene):
+        if e != scene:  # a new scene: a new sequence for every odometer
+            for o in loaded.values():
+                o.reset(intrinsics)
+            scene = e
+        p, c = guarded_frame(prev, False), guarded_frame(cur, False)
+        for n, o in loaded.items():
+            try:
+                with odometer_threads(o):
+                    est = o.step(p, c, action)
+                ok = failure_reason(est) is None
+            except Exception:  # a raising odometer fails the pair, as in the runner
+                ok = False
+            err = float(np.degrees(abs(transform_to_planar(est.transform)[2] - true_yaw))) if ok else None
+            pairs[n].append([depth, ok, err])
+        bar.update(1)
+    bar.close()
+    return {"config": {"split": split, "seed": seed, "scenes": scenes, "per_scene": per_scene,
+                       "options": options, "weights": {n: o.weights for n, o in loaded.items()}}, "pairs": pairs}
+
+
+def stats(rows: list, label: str) -> dict:
+    """Pairs, failed share, RMS yaw error (deg) and share > 2 deg off of the answered, of ``rows``."""
+    errs = np.array([r[2] for r in rows if r[1]], float)
+    return {"bin": label, "pairs": len(rows), "failed": 1 - len(errs) / len(rows) if rows else float("nan"),
+            "rms_deg": float(np.sqrt(np.mean(errs**2))) if errs.size else float("nan"),
+            "over_2deg": float(np.mean(errs > 2.0)) if errs.size else float("nan")}
+
+
+def bin_stats(rows: list) -> list[dict]:
+    """:func:`stats` per depth bin of :data:`BINS`."""
+    return [stats([r for r in rows if lo <= r[0] < hi], f"{lo:g}-{hi:g} m" if np.isfinite(hi) else f"> {lo:g} m")
+            for lo, hi in BINS]
+
+
+def table(doc: dict) -> str:
+    lines = ["| odometer | median depth | pairs | failed | yaw RMS deg (answered) | > 2 deg off |", "|---|---|---|---|---|---|"]
+    for n, rows in doc["pairs"].items():
+        for s in bin_stats(rows) + [stats(rows, "all")]:
+            lines.append(f"| {n} | {s['bin']} | {s['pairs']} | {100 * s['failed']:.1f} % | {s['rms_deg']:.2f} | {100 * s['over_2deg']:.1f} % |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(doc: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    names = list(doc["pairs"])
+    width = 0.8 / max(len(names), 1)
+    for k, n in enumerate(names):
+        stats = bin_stats(doc["pairs"][n])
+        x = np.arange(len(stats)) + (k - (len(names) - 1) / 2) * width
+        a.bar(x, [100 * s["failed"] for s in stats], width, label=n)
+        b.bar(x, [s["rms_deg"] for s in stats], width, label=n)
+    labels = [f"{s['bin']}\n({s['pairs']} pairs)" for s in bin_stats(doc["pairs"][names[0]])]
+    for ax, title in ((a, "failed turns (%)"), (b, "yaw error of answered turns, RMS (deg)")):
+        ax.set_xticks(np.arange(len(labels)), labels, fontsize=8)
+        ax.set_xlabel("median depth of the first frame")
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=8)
+    cfg = doc["config"]
+    fig.suptitle(f"Turns from random poses: {cfg['scenes']} {cfg['split']} scenes x {cfg['per_scene']} turns", fontsize=10)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    write_bytes_atomic(path, buffer.getvalue())
+
+
+def main(argv: list[str] | None = None) -> int:
+    from odolab.cli import ArgumentParser, UsageError, check_output_dir, number, path_arg, seed
+    from odolab.comparison import ComparisonError, odometer_names
+    from odolab.odometer import parse_odometer_list
+    from odolab.options import OptionError, parse_assignments
+
+    ap = ArgumentParser(prog="python -m studies.turns_by_depth", description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=path_arg("--out"), default=Path("reports/turns-by-depth"),
+                    help="results.json, table.md, turns.png (default reports/turns-by-depth)")
+    ap.add_argument("--odometers", default="open3d-rgbd", help="comma-separated (default open3d-rgbd)")
+    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
+    ap.add_argument("--split", choices=("train", "val", "test"), default="val")
+    ap.add_argument("--seed", type=seed(), default=7)
+    ap.add_argument("--scenes", type=number("--scenes", int, 1, 1000), default=20)
+    ap.add_argument("--per-scene", type=number("--per-scene", int, 1, 1000), default=20)
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    try:
+        options = parse_assignments(args.odometer_option)
+        odometers = odometer_names(parse_odometer_list(args.odometers))
+        unknown = sorted(set(options) - set(odometers))
+        if unknown:
+            raise UsageError(f"--odometer-option names {', '.join(unknown)}, not in --odometers")
+        for n in odometers:
+            load_odometer(n, **options.get(n, {}))  # bad names and options fail here, before any pair
+    except OptionError as exc:
+        raise UsageError(str(exc)) from None
+    except (ValueError, KeyError, TypeError, ImportError, ComparisonError) as exc:
+        raise UsageError(f"--odometers: {exc.args[0] if isinstance(exc, KeyError) and exc.args else exc}") from None
+    check_output_dir(args.out, "--out")
+    doc = run_study(odometers, options, args.split, args.seed, args.scenes, args.per_scene, quiet=args.quiet)
+    write_json_atomic(args.out / "results.json", doc)
+    text = table(doc)
+    write_bytes_atomic(args.out / "table.md", text.encode())
+    figure(doc, args.out / "turns.png")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    from odolab.cli import run_cli
+
+    raise SystemExit(run_cli(main, "python -m studies.turns_by_depth"))
