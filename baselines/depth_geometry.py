@@ -5,6 +5,7 @@ Conventions are odolab's (:mod:`odolab.api`): camera axes x right, y down, z for
 """
 from __future__ import annotations
 
+import reprlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -17,6 +18,8 @@ from odolab.api import Intrinsics
 
 #: The farthest depth cut a baseline accepts, metres (no sensor reads beyond; infinity is a typo).
 MAX_DEPTH_LIMIT = 1000.0
+#: Largest noise_floor (m) and noise_growth (1/m): 1 m of tolerance at 1 m accepts any depth.
+MAX_NOISE = 1.0
 
 
 @dataclass(frozen=True)
@@ -39,8 +42,9 @@ class DepthRange:
         if not 0.0 <= self.min_depth < self.max_depth <= MAX_DEPTH_LIMIT:
             raise ValueError(f"need 0 <= min_depth < max_depth <= {MAX_DEPTH_LIMIT:g} m, got min_depth "
                              f"{self.min_depth}, max_depth {self.max_depth}")
-        if not (0.0 <= self.noise_floor < np.inf and 0.0 <= self.noise_growth < np.inf):
-            raise ValueError(f"need finite noise_floor, noise_growth >= 0, got {self.noise_floor}, {self.noise_growth}")
+        if not (0.0 <= self.noise_floor <= MAX_NOISE and 0.0 <= self.noise_growth <= MAX_NOISE):
+            raise ValueError(f"need 0 <= noise_floor <= {MAX_NOISE:g} m and 0 <= noise_growth <= {MAX_NOISE:g} 1/m, "
+                             f"got {reprlib.repr(self.noise_floor)}, {reprlib.repr(self.noise_growth)}")
 
     def tolerance(self, z: np.ndarray) -> np.ndarray:
         """Largest difference (metres) between two readings of one surface at depth ``z`` (metres)."""

@@ -47,17 +47,17 @@ depth to 6 m answered 26 of the 81 (median yaw error 0.07 degrees), and a three-
 4.3 %; 8 m (0.55, 0.32, 0.51), 0.279 m, 5.8 %; 6 m with the fallback (0.54, 0.32, 0.42), 0.224 m,
 drift 0.345 m, 3.8 %: the default.
 
-Far views failed the image check, not the alignment (turns from random poses of 20 val scenes, 400
-pairs, ``runs/``-style script described in the README): with a median depth beyond 4 m, 45 % of
-turns failed, yet Open3D's answer was within 0.2 degrees of the truth; the depth agreement of even
-the true motion was 0.75-0.83, under the 0.8 required. The simulator's depth noise outgrows the
-shared tolerance 0.01 + 0.01 z^2 m beyond 3 m (the true motion's depth differences at 4.5-5 m:
-median 0.17 m, 90th percentile 0.31 m, against a 0.24 m tolerance). With 0.01 + 0.015 z^2 far
-turns fail 5 % of the time, all turns 5.8 % (11.3 %), at the same accuracy (0.18 degrees RMS far,
-0.61 all); on the val split (12 x 60, the command above): (0.51, 0.31, 0.35), ATE 0.152 m, drift
-0.238 m, 2.6 % failed (0.02 z^2: the same to 0.003 m). Near walls (median depth below 1 m) 15 % of
-turns still fail: there the grey levels of the true motion correlate at 0.25-0.6 (a blurred,
-magnified texture under 25 grey levels of noise) and the check cannot tell a slide along the wall.
+Far views failed the image check, not the alignment (``python -m studies.turns_by_depth``: 400
+turns from random poses of 20 val scenes, binned by median depth): Open3D's answer was within 0.2
+degrees of the truth, and the image check refused it: the simulator's depth noise outgrows the
+shared tolerance 0.01 + 0.01 z^2 m beyond 3 m, so that fewer than the required 80 % of the points
+agree in depth even for the true motion (it failed the check in 6 of the first 8 views of that
+study reaching past 4.5 m: ``tests/test_turns_study.py``). With 0.01 + 0.015 z^2, turns beyond 4 m fail 14.6 % of the time (56.2 %), at
+2-4 m 0.9 % (5.3 %), all 5.5 % (12.7 %), at the same accuracy; on the val split (12 x 60, the
+command above): (0.51, 0.31, 0.35), ATE 0.152 m, drift 0.238 m, 2.6 % failed (0.02 z^2: the same to
+0.003 m). Near walls (median depth below 1 m) 11.6 % of turns still fail: there the grey
+levels of even the true motion correlate poorly (a blurred, magnified texture under 25 grey levels
+of noise), and the check cannot rule out a slide along the wall.
 """
 from __future__ import annotations
 

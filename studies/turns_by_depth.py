@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from odolab.api import invert, load_odometer, transform_to_planar, write_bytes_atomic, write_json_atomic
+from odolab.api import Odometer, invert, transform_to_planar, wrap_angle, write_bytes_atomic, write_json_atomic
 
 #: Bins of the first frame's median depth, m.
 BINS = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, np.inf))
@@ -53,40 +53,45 @@ def turn_pairs(split: str, seed: int, scenes: int, per_scene: int):
             yield e, float(np.median(seen)) if seen.size else 0.0, action, prev, cur, float(true_yaw)
 
 
-def run_study(odometers: list[str], options: dict, split: str, seed: int, scenes: int, per_scene: int,
+def run_study(loaded: dict[str, Odometer], options: dict, split: str, seed: int, scenes: int, per_scene: int,
               quiet: bool = False) -> dict:
-    """Every odometer on the same turn pairs; returns {"config", "pairs": {name: [[depth, ok, err_deg]]}}."""
+    """Every odometer (name -> loaded with ``options``) on the same turn pairs; returns {"config",
+    "pairs": {name: [[median depth m, answered, |yaw error| deg or None]]}}."""
     from tqdm.auto import tqdm
 
     from odolab.episodes import EpisodeSpec
+
+    intrinsics = EpisodeSpec().camera.intrinsics  # turn_pairs' episodes use the default camera
+    pairs: dict[str, list] = {n: [] for n in loaded}
+    scene = -1
+    with tqdm(total=scenes * per_scene, desc="turn pairs", unit="pair", disable=quiet) as bar:
+        for e, depth, action, prev, cur, true_yaw in turn_pairs(split, seed, scenes, per_scene):
+            if e != scene:  # a new scene: a new sequence for every odometer
+                for o in loaded.values():
+                    o.reset(intrinsics)
+                scene = e
+            for n, o in loaded.items():
+                pairs[n].append([depth, *_answer(o, prev, cur, action, true_yaw)])
+            bar.update(1)
+    return {"config": {"split": split, "seed": seed, "scenes": scenes, "per_scene": per_scene,
+                       "options": options, "weights": {n: o.weights for n, o in loaded.items()}}, "pairs": pairs}
+
+
+def _answer(odometer: Odometer, prev, cur, action, true_yaw: float) -> tuple[bool, float | None]:
+    """(answered, |yaw error| deg or None) of one turn; frames guarded as the runner guards them
+    (only oracles see the true poses), a raising odometer fails the pair."""
     from odolab.runner import failure_reason, guarded_frame
     from odolab.threads import odometer_threads
 
-    intrinsics = EpisodeSpec().camera.intrinsics  # turn_pairs' episodes use the default camera
-
-    loaded = {n: load_odometer(n, **options.get(n, {})) for n in odometers}
-    pairs: dict[str, list] = {n: [] for n in odometers}
-    scene = -1
-    bar = tqdm(total=scenes * per_scene, desc="turn pairs", unit="pair", disable=quiet)
-    for e, depth, action, prev, cur, true_yaw in turn_pairs(split, seed, scenes, per_scene):
-        if e != scene:  # a new scene: a new sequence for every odometer
-            for o in loaded.values():
-                o.reset(intrinsics)
-            scene = e
-        p, c = guarded_frame(prev, False), guarded_frame(cur, False)
-        for n, o in loaded.items():
-            try:
-                with odometer_threads(o):
-                    est = o.step(p, c, action)
-                ok = failure_reason(est) is None
-            except Exception:  # a raising odometer fails the pair, as in the runner
-                ok = False
-            err = float(np.degrees(abs(transform_to_planar(est.transform)[2] - true_yaw))) if ok else None
-            pairs[n].append([depth, ok, err])
-        bar.update(1)
-    bar.close()
-    return {"config": {"split": split, "seed": seed, "scenes": scenes, "per_scene": per_scene,
-                       "options": options, "weights": {n: o.weights for n, o in loaded.items()}}, "pairs": pairs}
+    oracle = bool(getattr(odometer, "oracle", False))
+    try:
+        with odometer_threads(odometer):
+            est = odometer.step(guarded_frame(prev, oracle), guarded_frame(cur, oracle), action)
+    except Exception:
+        return False, None
+    if failure_reason(est) is not None:
+        return False, None
+    return True, float(np.degrees(abs(wrap_angle(transform_to_planar(est.transform)[2] - true_yaw))))
 
 
 def stats(rows: list, label: str) -> dict:
@@ -107,7 +112,10 @@ def table(doc: dict) -> str:
     lines = ["| odometer | median depth | pairs | failed | yaw RMS deg (answered) | > 2 deg off |", "|---|---|---|---|---|---|"]
     for n, rows in doc["pairs"].items():
         for s in bin_stats(rows) + [stats(rows, "all")]:
-            lines.append(f"| {n} | {s['bin']} | {s['pairs']} | {100 * s['failed']:.1f} % | {s['rms_deg']:.2f} | {100 * s['over_2deg']:.1f} % |")
+            failed, rms, off = (("n/a" if np.isnan(v) else f) for v, f in (
+                (s["failed"], f"{100 * s['failed']:.1f} %"), (s["rms_deg"], f"{s['rms_deg']:.2f}"),
+                (s["over_2deg"], f"{100 * s['over_2deg']:.1f} %")))
+            lines.append(f"| {n} | {s['bin']} | {s['pairs']} | {failed} | {rms} | {off} |")
     return "\n".join(lines) + "\n"
 
 
@@ -125,15 +133,21 @@ def figure(doc: dict, path: Path) -> None:
         x = np.arange(len(stats)) + (k - (len(names) - 1) / 2) * width
         a.bar(x, [100 * s["failed"] for s in stats], width, label=n)
         b.bar(x, [s["rms_deg"] for s in stats], width, label=n)
-    labels = [f"{s['bin']}\n({s['pairs']} pairs)" for s in bin_stats(doc["pairs"][names[0]])]
+    def count(k: int, word: str) -> str:
+        return f"{k} {word}{'' if k == 1 else 's'}"
+
+    labels = [f"{s['bin']}\n({count(s['pairs'], 'pair')})" for s in bin_stats(doc["pairs"][names[0]])]
     for ax, title in ((a, "failed turns (%)"), (b, "yaw error of answered turns, RMS (deg)")):
         ax.set_xticks(np.arange(len(labels)), labels, fontsize=8)
-        ax.set_xlabel("median depth of the first frame")
+        ax.set_xlabel("median depth of the first frame (empty bins and bins with no answer: no bar)", fontsize=8)
         ax.set_title(title, fontsize=10)
-        ax.legend(fontsize=8)
+        ax.set_ylim(bottom=0)
+    rows = -(-len(names) // 4)  # at most four names per legend row
+    fig.legend(*a.get_legend_handles_labels(), loc="lower center", ncol=min(len(names), 4), fontsize=8, frameon=False)
     cfg = doc["config"]
-    fig.suptitle(f"Turns from random poses: {cfg['scenes']} {cfg['split']} scenes x {cfg['per_scene']} turns", fontsize=10)
-    fig.tight_layout()
+    fig.suptitle(f"Turns from random poses: {count(cfg['scenes'], cfg['split'] + ' scene')} x "
+                 f"{count(cfg['per_scene'], 'turn')}", fontsize=10)
+    fig.tight_layout(rect=(0, 0.05 + 0.04 * rows, 1, 1))
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
@@ -141,8 +155,8 @@ def figure(doc: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, check_output_dir, number, path_arg, seed
-    from odolab.comparison import ComparisonError, odometer_names
+    from odolab.cli import ArgumentParser, UsageError, check_report_dir, number, path_arg, seed
+    from odolab.comparison import ComparisonError, load_odometers, odometer_names
     from odolab.odometer import parse_odometer_list
     from odolab.options import OptionError, parse_assignments
 
@@ -159,18 +173,21 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         options = parse_assignments(args.odometer_option)
-        odometers = odometer_names(parse_odometer_list(args.odometers))
-        unknown = sorted(set(options) - set(odometers))
-        if unknown:
-            raise UsageError(f"--odometer-option names {', '.join(unknown)}, not in --odometers")
-        for n in odometers:
-            load_odometer(n, **options.get(n, {}))  # bad names and options fail here, before any pair
     except OptionError as exc:
         raise UsageError(str(exc)) from None
+    try:
+        odometers = odometer_names(parse_odometer_list(args.odometers))
     except (ValueError, KeyError, TypeError, ImportError, ComparisonError) as exc:
-        raise UsageError(f"--odometers: {exc.args[0] if isinstance(exc, KeyError) and exc.args else exc}") from None
-    check_output_dir(args.out, "--out")
-    doc = run_study(odometers, options, args.split, args.seed, args.scenes, args.per_scene, quiet=args.quiet)
+        raise UsageError(str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)) from None
+    try:  # bad names and option values fail here, before any pair
+        loaded = load_odometers(odometers, options)
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
+    check_report_dir(args.out, "--out", manifest="results.json")
+    for name in ("results.json", "table.md", "turns.png"):  # found now, not after the whole run
+        if (args.out / name).is_dir():
+            raise UsageError(f"--out {args.out}: {name} is a folder; remove it or choose another --out")
+    doc = run_study(loaded, options, args.split, args.seed, args.scenes, args.per_scene, quiet=args.quiet)
     write_json_atomic(args.out / "results.json", doc)
     text = table(doc)
     write_bytes_atomic(args.out / "table.md", text.encode())
