@@ -44,6 +44,7 @@ from baselines.config import OdometerConfig, check_choice, check_range, config_d
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
+from baselines.open3d_threads import one_thread
 from baselines.verification import first_verified
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 
@@ -178,7 +179,8 @@ class ICPOdometer(Odometer):
     def _covariance(self, source: _Pyramid, target: _Pyramid, T: np.ndarray, rmse: float) -> np.ndarray | None:
         """``sigma^2 inv(I)`` at the finest level (see the class docstring)."""
         dist = self.config.reach(-1)
-        info = _reg.get_information_matrix_from_point_clouds(source.clouds[-1], target.clouds[-1], dist, T)
+        with one_thread():
+            info = _reg.get_information_matrix_from_point_clouds(source.clouds[-1], target.clouds[-1], dist, T)
         return covariance_from_information(info, rmse**2 / 3.0)
 
     def _register(
@@ -190,10 +192,11 @@ class ICPOdometer(Odometer):
             relative_fitness=cfg.tolerance, relative_rmse=cfg.tolerance, max_iteration=cfg.max_iterations
         )
         kernel = () if cfg.tukey_k is None else (_reg.TukeyLoss(k=cfg.tukey_k),)
-        if cfg.variant == "colored":
-            estimation = _reg.TransformationEstimationForColoredICP(cfg.geometric_weight, *kernel)
-            return _reg.registration_colored_icp(src, tgt, dist, T, estimation, criteria)
-        return _reg.registration_icp(src, tgt, dist, T, _reg.TransformationEstimationPointToPlane(*kernel), criteria)
+        with one_thread():  # the same answer every run (baselines.open3d_threads)
+            if cfg.variant == "colored":
+                estimation = _reg.TransformationEstimationForColoredICP(cfg.geometric_weight, *kernel)
+                return _reg.registration_colored_icp(src, tgt, dist, T, estimation, criteria)
+            return _reg.registration_icp(src, tgt, dist, T, _reg.TransformationEstimationPointToPlane(*kernel), criteria)
 
     def _pyramid(self, frame: Frame) -> _Pyramid | None:
         """Clouds of ``frame`` at each level; None when it has too few depth readings."""

@@ -70,6 +70,7 @@ from baselines.config import OdometerConfig, check_choice, config_digest, config
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import DepthRange, FrameMemo, depth_mask, image_texture, normal_constraint
 from baselines.motion_search import initial_guesses
+from baselines.open3d_threads import one_thread
 from baselines.verification import first_verified
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
 
@@ -180,7 +181,8 @@ class Open3DRGBDOdometer(Odometer):
         option = _odo.OdometryOption(
             o3d.utility.IntVector(iterations), cfg.depth_diff_max, cfg.depth.min_depth, cfg.depth.max_depth
         )
-        ok, T, info = _odo.compute_rgbd_odometry(source, target, camera, guess, _JACOBIANS[cfg.term](), option)
+        with one_thread():  # the same answer every run (baselines.open3d_threads)
+            ok, T, info = _odo.compute_rgbd_odometry(source, target, camera, guess, _JACOBIANS[cfg.term](), option)
         T = np.asarray(T)
         return (T if ok and np.all(np.isfinite(T)) else None), np.asarray(info)
 
