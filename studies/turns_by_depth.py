@@ -16,13 +16,12 @@ Writes ``results.json`` (every pair: bin depth, answered, yaw error), ``table.md
 """
 from __future__ import annotations
 
-import io
-import json
 from pathlib import Path
 
 import numpy as np
 
 from odolab.api import Odometer, invert, transform_to_planar, wrap_angle, write_bytes_atomic, write_json_atomic
+from odolab.io.atomic import save_figure_atomic
 
 #: Bins of the first frame's median depth, m.
 BINS = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, np.inf))
@@ -145,13 +144,12 @@ def figure(doc: dict, path: Path) -> None:
     rows = -(-len(names) // 4)  # at most four names per legend row
     fig.legend(*a.get_legend_handles_labels(), loc="lower center", ncol=min(len(names), 4), fontsize=8, frameon=False)
     cfg = doc["config"]
+    given = "; ".join(f"{n} " + ", ".join(f"{k}={v}" for k, v in o.items()) for n, o in cfg.get("options", {}).items() if o)
     fig.suptitle(f"Turns from random poses: {count(cfg['scenes'], cfg['split'] + ' scene')} x "
-                 f"{count(cfg['per_scene'], 'turn')}", fontsize=10)
+                 f"{count(cfg['per_scene'], 'turn')}" + (f" (options: {given[:120]})" if given else ""), fontsize=10)
     fig.tight_layout(rect=(0, 0.05 + 0.04 * rows, 1, 1))
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    save_figure_atomic(fig, path)
     plt.close(fig)
-    write_bytes_atomic(path, buffer.getvalue())
 
 
 def main(argv: list[str] | None = None) -> int:
