@@ -52,12 +52,13 @@ turns from random poses of 20 val scenes, binned by median depth): Open3D's answ
 degrees of the truth, and the image check refused it: the simulator's depth noise outgrows the
 shared tolerance 0.01 + 0.01 z^2 m beyond 3 m, so that fewer than the required 80 % of the points
 agree in depth even for the true motion (it failed the check in 6 of the first 8 views of that
-study reaching past 4.5 m: ``tests/test_turns_study.py``). With 0.01 + 0.015 z^2, turns beyond 4 m fail 14.6 % of the time (56.2 %), at
-2-4 m 0.9 % (5.3 %), all 5.5 % (12.7 %), at the same accuracy; on the val split (12 x 60, the
-command above): (0.51, 0.31, 0.35), ATE 0.152 m, drift 0.238 m, 2.6 % failed (0.02 z^2: the same to
-0.003 m). Near walls (median depth below 1 m) 11.6 % of turns still fail: there the grey
-levels of even the true motion correlate poorly (a blurred, magnified texture under 25 grey levels
-of noise), and the check cannot rule out a slide along the wall.
+study reaching past 4.5 m: ``tests/test_turns_study.py``). With 0.01 + 0.015 z^2, turns beyond
+4 m fail 14.6 % of the time (56.2 %), at 2-4 m 0.9 % (5.3 %), all 5.5 % (12.7 %), at the same
+accuracy; on the val split (12 x 60, the command above): (0.51, 0.31, 0.35), ATE 0.152 m, drift
+0.238 m, 2.6 % failed (0.02 z^2: the same to 0.003 m). Near walls (median depth below 1 m) 11.6 %
+of turns still fail: there the grey levels of even the true motion correlate poorly (a blurred,
+magnified texture under 25 grey levels of noise), and the check cannot rule out a slide along
+the wall.
 """
 from __future__ import annotations
 
@@ -94,7 +95,7 @@ class Open3DRGBDConfig(OdometerConfig):
     :class:`~baselines.config.OdometerConfig`). Depth is trusted to 6 m, not the 4 m of Open3D's own
     default and of the other baselines: the photometric term uses depth only to warp (module
     docstring); the TUM reference figure used 4 m. Two readings of a surface z m away agree within
-    0.01 + 0.015 z^2 m (the other baselines: 0.01 z^2), which the simulator's depth noise needs
+    0.01 + 0.015 z^2 m (the other baselines: 0.01 + 0.01 z^2), which the simulator's depth noise needs
     beyond 3 m (module docstring)."""
 
     depth: DepthRange = DepthRange(max_depth=6.0, noise_growth=0.015)
