@@ -41,7 +41,7 @@ def turn_pairs(split: str, seed: int, scenes: int, per_scene: int):
         rows, cols = np.nonzero(sc.navigable)
         for _ in range(per_scene):
             i = int(rng.integers(len(rows)))
-            x, y = sc.origin[0] + (cols[i] + 0.5) * sc.resolution, sc.origin[1] + (rows[i] + 0.5) * sc.resolution
+            x, y = sc.cell_to_world(rows[i], cols[i])
             env.state = AgentState(float(x), float(y), float(rng.uniform(-np.pi, np.pi)))
             prev = env.observe(0.0)
             action = Action.TURN_LEFT if rng.random() < 0.5 else Action.TURN_RIGHT
@@ -128,10 +128,11 @@ def figure(doc: dict, path: Path) -> None:
     names = list(doc["pairs"])
     width = 0.8 / max(len(names), 1)
     for k, n in enumerate(names):
-        stats = bin_stats(doc["pairs"][n])
-        x = np.arange(len(stats)) + (k - (len(names) - 1) / 2) * width
-        a.bar(x, [100 * s["failed"] for s in stats], width, label=n)
-        b.bar(x, [s["rms_deg"] for s in stats], width, label=n)
+        per_bin = bin_stats(doc["pairs"][n])
+        x = np.arange(len(per_bin)) + (k - (len(names) - 1) / 2) * width
+        a.bar(x, [100 * s["failed"] for s in per_bin], width, label=n)
+        b.bar(x, [s["rms_deg"] for s in per_bin], width, label=n)
+
     def count(k: int, word: str) -> str:
         return f"{k} {word}{'' if k == 1 else 's'}"
 
@@ -154,7 +155,7 @@ def figure(doc: dict, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     from odolab.cli import ArgumentParser, UsageError, check_report_dir, number, path_arg, seed
-    from odolab.comparison import ComparisonError, load_odometers, odometer_names
+    from odolab.comparison import ComparisonError, load_odometers
     from odolab.odometer import parse_odometer_list
     from odolab.options import OptionError, parse_assignments
 
@@ -173,14 +174,10 @@ def main(argv: list[str] | None = None) -> int:
         options = parse_assignments(args.odometer_option)
     except OptionError as exc:
         raise UsageError(str(exc)) from None
-    try:
-        odometers = odometer_names(parse_odometer_list(args.odometers))
+    try:  # bad names and option values fail here, before any pair
+        loaded = load_odometers(parse_odometer_list(args.odometers), options)
     except (ValueError, KeyError, TypeError, ImportError, ComparisonError) as exc:
         raise UsageError(str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)) from None
-    try:  # bad names and option values fail here, before any pair
-        loaded = load_odometers(odometers, options)
-    except ComparisonError as exc:
-        raise UsageError(str(exc)) from None
     check_report_dir(args.out, "--out", manifest="results.json")
     for name in ("results.json", "table.md", "turns.png"):  # found now, not after the whole run
         if (args.out / name).is_dir():
