@@ -2,6 +2,7 @@
 fused odometer's fallback and its name in the registry."""
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -184,6 +185,41 @@ def test_calibration_finds_a_bias_and_a_correlation_and_fusion_removes_the_bias(
     old = InputCalibration(cal.fixed, cal.own_scale, cal.steps)  # a file from before bias and correlation
     assert np.allclose(old.covariance(Action.TURN_LEFT, None), np.diag(np.square(cal.fixed["turn_left"])))
     assert np.allclose(old.corrected(Action.TURN_LEFT, T), T)
+
+
+def test_near_views_get_their_own_entries_and_fusion_picks_them_by_depth(tmp_path):
+    from odolab.fusion.calibration import view_is_near
+
+    rng = np.random.default_rng(5)
+    n = 600
+    near = np.arange(n) < 200  # a third of the steps face a wall, where this input is 5x less precise
+    xi = rng.normal(0.0, 0.01, (n, 6)) * np.where(near, 5.0, 1.0)[:, None]
+    xi[near, 1] += 0.02  # and overestimates the turn there
+    actions = np.full(n, Action.TURN_LEFT.value)
+    cal = fit_input(xi, actions, [None] * n, near)
+    assert cal.steps == {"turn_left@near": 200, "turn_left": 400}
+    assert np.allclose(cal.fixed["turn_left@near"], 5 * np.asarray(cal.fixed["turn_left"]), rtol=0.25)
+    assert abs(cal.bias["turn_left@near"][1] - 0.02) < 0.01 and abs(cal.bias["turn_left"][1]) < 0.003
+    assert cal.label(Action.TURN_LEFT, True) == "turn_left@near" and cal.label(Action.TURN_LEFT, False) == "turn_left"
+    assert cal.label(Action.TURN_RIGHT, True) is None  # not calibrated at all
+    wide, narrow = cal.covariance(Action.TURN_LEFT, None, True), cal.covariance(Action.TURN_LEFT, None)
+    assert np.all(np.diag(wide) > 10 * np.diag(narrow))
+    # fewer than 10 near steps of an action: one entry for every step of it
+    few = fit_input(xi[195:], actions[195:], [None] * (n - 195), near[195:])
+    assert few.steps == {"turn_left": n - 195} and few.label(Action.TURN_LEFT, True) == "turn_left"
+    path = tmp_path / "near.json"
+    Calibration({"x": cal}, near_depth=1.0).save(path)
+    back = Calibration.load(path)
+    assert back.near_depth == 1.0 and back.for_input("x").fixed == cal.fixed
+    doc = json.loads(path.read_text())
+    for bad in (-1, "1", True, 1e9):
+        doc["near_depth"] = bad
+        path.write_text(json.dumps(doc))
+        with pytest.raises(ValueError, match=r"near_depth must be a number of metres in \[0, 100\]"):
+            Calibration.load(path)
+    wall = np.full((4, 4), 0.6, np.float32)
+    assert view_is_near(wall, 1.0) and not view_is_near(wall + 1.0, 1.0) and not view_is_near(wall, 0.0)
+    assert not view_is_near(np.zeros((4, 4)), 1.0)  # no reading: nothing to say it is near
 
 
 def test_bad_calibration_files_are_named(tmp_path):

@@ -7,7 +7,9 @@
 Runs each odometer on the same episodes (generated as Ray tasks, cached like ``compare``'s),
 takes its valid raw steps against the true motions and fits :mod:`odolab.fusion.calibration`;
 ``--check`` instead prints, per input and action, the share of bias-corrected steps inside the
-calibrated 95 % ellipsoid (0.95 when the calibration carries over). ``action-prior`` must be calibrated: fusion
+calibrated 95 % ellipsoid (0.95 when the calibration carries over). Steps whose previous view's
+median depth is below ``--near-depth`` (1 m) are fitted apart, as ``<action>@near`` entries
+(:mod:`odolab.fusion.calibration`). ``action-prior`` must be calibrated: fusion
 falls back on it. An action with fewer than 10 valid steps is left out (fusion then uses the input's
 largest sigmas for it), and the summary says so. ``--out`` is replaced if it exists.
 """
@@ -25,7 +27,8 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
                         number, path_arg, run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
-from odolab.fusion.calibration import Calibration, debiased, ellipsoid_share, fit_input
+from odolab.fusion.calibration import (MAX_NEAR_DEPTH, NEAR, Calibration, debiased, ellipsoid_share, fit_input,
+                                      view_is_near)
 from odolab.fusion.graph import residual, right_covariance
 from odolab.odometer import parse_odometer_list, standalone_odometers
 from odolab.parallel import check_ray_option
@@ -35,10 +38,18 @@ from odolab.runner import failure_reason, run
 from odolab.types import MOTION_ACTIONS
 
 
-def steps_of(results) -> tuple[np.ndarray, np.ndarray, list[np.ndarray | None], np.ndarray]:
+def near_views(episodes, near_depth: float) -> dict[str, np.ndarray]:
+    """Per episode name: (N,) bool, whether each step's previous view is near (:func:`view_is_near`)."""
+    return {ep.name: np.array([view_is_near(ep[k].depth, near_depth) for k in range(len(ep) - 1)], bool)
+            for ep in episodes}
+
+
+def steps_of(results, near: dict[str, np.ndarray] | None = None
+             ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray | None], np.ndarray, np.ndarray]:
     """From one odometer's :class:`~odolab.runner.SequenceResult` list: residuals (N, 6), action
-    values (N,), own covariances (right perturbation) and the raw transforms of its valid steps."""
-    xi, actions, own, Ts = [], [], [], []
+    values (N,), own covariances (right perturbation), the raw transforms of its valid steps and
+    whether each one's view was near (from ``near``, per sequence name; all False without it)."""
+    xi, actions, own, Ts, close = [], [], [], [], []
     for r in results:
         for k, est in enumerate(r.raw):
             if est is None or failure_reason(est) is not None or r.truth is None:
@@ -47,7 +58,9 @@ def steps_of(results) -> tuple[np.ndarray, np.ndarray, list[np.ndarray | None], 
             actions.append(int(r.actions[k]))
             own.append(right_covariance(est.transform, est.covariance) if est.covariance is not None else None)
             Ts.append(est.transform)
-    return np.array(xi).reshape(-1, 6), np.array(actions, np.int64), own, np.array(Ts).reshape(-1, 4, 4)
+            close.append(bool(near[r.sequence][k]) if near is not None else False)
+    return (np.array(xi).reshape(-1, 6), np.array(actions, np.int64), own, np.array(Ts).reshape(-1, 4, 4),
+            np.array(close, bool))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -57,6 +70,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--check", type=path_arg("--check"), default=None, help="check this calibration instead of fitting one")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/fusion/calibration.json"),
                     help="calibration file to write (default %(default)s; its folder is created)")
+    ap.add_argument("--near-depth", type=number("--near-depth", float, 0.0, MAX_NEAR_DEPTH), default=1.0,
+                    help="views whose median depth is below this many metres get their own entries (default "
+                         "%(default)s; 0: none)")
     ap.add_argument("--split", default="val", help=f"{' | '.join(SPLITS)} (default val)")
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=100,
@@ -78,9 +94,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
     calibration = None
     if args.check is not None:
-        given = given_options(argv, ["--out", "--odometers"])
-        if "--out" in given:
-            raise UsageError("--out is for a new calibration; --check only prints (redirect it to keep it)")
+        given = given_options(argv, ["--out", "--odometers", "--near-depth"])
+        if "--out" in given or "--near-depth" in given:
+            raise UsageError(f"{'--out' if '--out' in given else '--near-depth'} is for a new calibration; --check "
+                             "only prints (redirect it to keep it) and uses the file's near_depth")
         try:
             calibration = Calibration.load(args.check)
         except ValueError as exc:
@@ -118,22 +135,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     episodes = load_episodes(specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial,
                              progress=not args.quiet)
     results = run(odometers, episodes, observer=StepProgressBar(disable=args.quiet))
+    near_depth = calibration.near_depth if calibration is not None else args.near_depth
+    near = near_views(episodes, near_depth)
     fitted = {}
     for name in names:
-        xi, actions, own, _ = steps_of([r for r in results if r.odometer == name])
+        xi, actions, own, _, close = steps_of([r for r in results if r.odometer == name], near)
         if calibration is not None:
             cal = calibration.for_input(name)
             for a in MOTION_ACTIONS:
-                rows = np.flatnonzero(actions == a.value)
-                if len(rows):
-                    covs = np.stack([cal.covariance(a, own[k]) for k in rows])
-                    xi[rows] = debiased(xi[rows], cal.bias_of(a))
+                for is_near in (False, True):
+                    rows = np.flatnonzero((actions == a.value) & (close == is_near))
+                    if not len(rows):
+                        continue
+                    covs = np.stack([cal.covariance(a, own[k], is_near) for k in rows])
+                    xi[rows] = debiased(xi[rows], cal.bias_of(a, is_near))
                     note = "" if len(rows) >= 20 else "  (too few steps to judge)"
-                    print(f"{name:>24} {a.label:>12}: {ellipsoid_share(xi[rows], covs):.3f} of {len(rows)} valid steps "
-                          f"inside the 95 % ellipsoid{note}")
+                    label = a.label + (NEAR if is_near else "")
+                    print(f"{name:>24} {label:>17}: {ellipsoid_share(xi[rows], covs):.3f} of {len(rows)} valid steps "
+                          f"inside the 95 % ellipsoid (entry {cal.label(a, is_near)}){note}")
             continue
         try:
-            fitted[name] = fit_input(xi, actions, own)
+            fitted[name] = fit_input(xi, actions, own, close)
         except ValueError as exc:
             raise UsageError(f"{name}: {exc}; use more --episodes or --max-steps") from None
         cal = fitted[name]
@@ -145,11 +167,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return " (own covariance fits worse than the fixed one: not used)" if gives_own else ""
 
         said = ", ".join(f"{a} {n} steps{own_note(a)}" for a, n in cal.steps.items())
-        left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]
+        left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]  # a near entry needs a plain one
         print(f"{name}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else ""))
     if calibration is None:
         command = "python -m odolab.fusion.calibrate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
-        Calibration(fitted, source=command).save(args.out)
+        Calibration(fitted, source=command, near_depth=args.near_depth).save(args.out)
         print(f"wrote {args.out}")
     return 0
 

@@ -24,6 +24,15 @@ input and action, from its valid steps on the val split (raw estimates against t
   the Gauss-Newton covariances of icp and open3d-rgbd lose on every action: their shape misses the
   trade between turn yaw and sideways motion that the fixed correlation captures.)
 
+Near views get their own calibration. A view is *near* when the median of its depth readings is
+below ``near_depth`` (metres; a file-level number, absent or 0 = no near class): then the previous
+frame faces a wall, and the inputs behave differently there (``python -m studies.turns_by_depth``:
+robust-vo's turn yaw is 2.5 degrees RMS off below 1 m against 0.5-0.8 beyond 2 m; open3d-rgbd and
+icp fail far more often; planar-depth answers only such views). Each input and action with at least
+10 valid near steps gets a second entry, labelled ``"<action>@near"`` (e.g. ``turn_left@near``),
+fitted on those steps alone, and its plain entry is fitted on the other steps; with fewer, the plain
+entry covers every step. A step of a near view uses the ``@near`` entry when there is one.
+
 ``bias`` and ``correlation`` may be absent (files written before they existed): no bias, no
 correlation.
 
@@ -62,6 +71,26 @@ CHI2_6_95 = 12.591587243743977
 #: Smallest sigma per component (rad or m): planar odometers leave out-of-plane residuals near zero.
 SIGMA_FLOOR = 1e-3
 FORMAT = 1
+#: Suffix of the labels of near-view entries (``turn_left@near``).
+NEAR = "@near"
+#: Largest near_depth a file may give, metres.
+MAX_NEAR_DEPTH = 100.0
+#: Fewest valid steps an entry is fitted from.
+MIN_STEPS = 10
+
+
+def view_is_near(depth: np.ndarray, near_depth: float) -> bool:
+    """True when the median of the depth image's readings (metres, 0 = none) is below ``near_depth``
+    (never when ``near_depth`` is 0 or no pixel has a reading)."""
+    if near_depth <= 0:
+        return False
+    seen = np.asarray(depth)[np.asarray(depth) > 0]
+    return bool(seen.size) and float(np.median(seen)) < near_depth
+
+
+def context_labels() -> list[str]:
+    """Every label an entry may have: each motion action's, and its near-view one."""
+    return [a.label for a in MOTION_ACTIONS] + [a.label + NEAR for a in MOTION_ACTIONS]
 
 
 def mahalanobis2(xi: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -114,25 +143,34 @@ class InputCalibration:
     bias: dict[str, list[float]] = field(default_factory=dict)
     correlation: dict[str, list[list[float]]] = field(default_factory=dict)
 
-    def covariance(self, action: Action | None, own: np.ndarray | None) -> np.ndarray:
-        """Calibrated 6x6 (right perturbation) for a step of ``action``; ``own``: the step's own
-        covariance, already right-perturbation (or None). Unknown actions take the largest fixed one."""
-        label = action.label if action in MOTION_ACTIONS else None
-        if label is None or label not in self.fixed:
+    def label(self, action: Action | None, near: bool = False) -> str | None:
+        """The entry used for a step of ``action`` (near view or not); None for an action it lacks."""
+        if action not in MOTION_ACTIONS:
+            return None
+        if near and action.label + NEAR in self.fixed:
+            return action.label + NEAR
+        return action.label if action.label in self.fixed else None
+
+    def covariance(self, action: Action | None, own: np.ndarray | None, near: bool = False) -> np.ndarray:
+        """Calibrated 6x6 (right perturbation) for a step of ``action`` (from a near view or not);
+        ``own``: the step's own covariance, already right-perturbation (or None). Unknown actions take
+        the largest fixed one."""
+        label = self.label(action, near)
+        if label is None:
             return np.diag(np.max([np.square(v) for v in self.fixed.values()], axis=0))
         scale = self.own_scale.get(label)
         if own is not None and scale is not None and np.all(np.isfinite(own)):
             return scale * np.asarray(own, np.float64)
         return _joint(np.asarray(self.fixed[label]), np.asarray(self.correlation.get(label, np.eye(6)), np.float64))
 
-    def bias_of(self, action: Action | None) -> np.ndarray:
+    def bias_of(self, action: Action | None, near: bool = False) -> np.ndarray:
         """The bias (6,) of a step of ``action`` (zeros when none was calibrated for it)."""
-        label = action.label if action in MOTION_ACTIONS else None
+        label = self.label(action, near)
         return np.asarray(self.bias.get(label, np.zeros(6)) if label else np.zeros(6), np.float64)
 
-    def corrected(self, action: Action | None, T: np.ndarray) -> np.ndarray:
+    def corrected(self, action: Action | None, T: np.ndarray, near: bool = False) -> np.ndarray:
         """A measured step ``T`` (4x4, previous camera -> current) corrected by the bias: ``T @ exp(bias)``."""
-        bias = self.bias_of(action)
+        bias = self.bias_of(action, near)
         if not np.any(bias):
             return np.asarray(T, np.float64)
         return np.asarray(T, np.float64) @ gtsam.Pose3.Expmap(bias).matrix()
@@ -181,50 +219,65 @@ def _correlation(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return corr
 
 
-def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None]) -> InputCalibration:
+def _fit_entry(xi: np.ndarray, own: list[np.ndarray | None]) -> tuple[list[float], float | None, list[float], list[list[float]], float]:
+    """One entry from its steps' residuals ``xi`` (N, 6) and own covariances: (sigmas, own scale or
+    None, bias, correlation, share of the steps inside the 95 % ellipsoid)."""
+    keep = inliers(xi)
+    if keep.sum() < MIN_STEPS:
+        keep[:] = True
+    bias = xi[keep].mean(axis=0)
+    r = debiased(xi, bias)
+    sigma = np.maximum(np.sqrt(np.mean(r[keep] ** 2, axis=0)), SIGMA_FLOOR)  # the shape from the inliers,
+    corr = _correlation(r[keep], sigma)  # the size (below) from every step
+    sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, _joint(sigma, corr)))), SIGMA_FLOOR)
+    fixed = _joint(sigma, corr)
+    have = [i for i, c in enumerate(own) if c is not None and np.all(np.isfinite(c))]
+    scale = None
+    if len(have) >= MIN_STEPS:
+        covs = np.stack([own[i] for i in have])
+        try:
+            s = _scale(mahalanobis2(r[have], covs))
+            if nll(r[have], s * covs) < nll(r[have], fixed):  # own covariances must earn their place
+                scale = s
+        except np.linalg.LinAlgError:
+            pass
+    covs = np.stack([scale * own[i] if scale is not None and i in have else fixed for i in range(len(r))])
+    return ([float(v) for v in sigma], scale, [float(b) for b in bias], [[float(c) for c in row] for row in corr],
+            ellipsoid_share(r, covs))
+
+
+def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None],
+              near: np.ndarray | None = None) -> InputCalibration:
     """Fit one input from its valid steps: residuals ``xi`` (N, 6), action values (N,), own
-    covariances (right perturbation) or None per step."""
-    fixed, own_scale, steps, inside, biases, corrs = {}, {}, {}, {}, {}, {}
+    covariances (right perturbation) or None per step, and whether each step's view was near (N,
+    bool; None = no near class)."""
+    near = np.zeros(len(actions), bool) if near is None else np.asarray(near, bool)
+    tables: dict[str, dict] = {k: {} for k in ("fixed", "own_scale", "steps", "inside95", "bias", "correlation")}
     for a in MOTION_ACTIONS:
-        rows = np.flatnonzero(actions == a.value)
-        if len(rows) < 10:
-            continue
-        keep = inliers(xi[rows])
-        if keep.sum() < 10:
-            keep[:] = True
-        bias = xi[rows][keep].mean(axis=0)
-        r = debiased(xi[rows], bias)
-        sigma = np.maximum(np.sqrt(np.mean(r[keep] ** 2, axis=0)), SIGMA_FLOOR)  # the shape from the inliers,
-        corr = _correlation(r[keep], sigma)  # the size (below) from every step
-        sigma = np.maximum(sigma * np.sqrt(_scale(mahalanobis2(r, _joint(sigma, corr)))), SIGMA_FLOOR)
-        fixed[a.label], biases[a.label] = [float(s) for s in sigma], [float(b) for b in bias]
-        corrs[a.label] = [[float(c) for c in row] for row in corr]
-        have = [i for i, k in enumerate(rows) if own[k] is not None and np.all(np.isfinite(own[k]))]
-        own_scale[a.label] = None
-        if len(have) >= 10:
-            covs = np.stack([own[rows[i]] for i in have])
-            try:
-                scale = _scale(mahalanobis2(r[have], covs))
-                if nll(r[have], scale * covs) < nll(r[have], _joint(sigma, corr)):  # own covariances must earn their place
-                    own_scale[a.label] = scale
-            except np.linalg.LinAlgError:
-                pass
-        steps[a.label] = int(len(rows))
-        cal = InputCalibration({a.label: fixed[a.label]}, {a.label: own_scale[a.label]}, {},
-                               correlation={a.label: corrs[a.label]})
-        covs = np.stack([cal.covariance(a, own[k]) for k in rows])
-        inside[a.label] = ellipsoid_share(r, covs)
-    if not fixed:
-        raise ValueError("too few valid steps to calibrate (at least 10 of some action are needed)")
-    return InputCalibration(fixed, own_scale, steps, inside, biases, corrs)
+        mine = actions == a.value
+        near_rows, far_rows = np.flatnonzero(mine & near), np.flatnonzero(mine & ~near)
+        split = len(near_rows) >= MIN_STEPS and len(far_rows) >= MIN_STEPS
+        groups = [(a.label + NEAR, near_rows), (a.label, far_rows)] if split else [(a.label, np.flatnonzero(mine))]
+        for label, rows in groups:
+            if len(rows) < MIN_STEPS:
+                continue
+            entry = _fit_entry(xi[rows], [own[k] for k in rows])
+            for key, value in zip(("fixed", "own_scale", "bias", "correlation", "inside95"), entry):
+                tables[key][label] = value
+            tables["steps"][label] = int(len(rows))
+    if not tables["fixed"]:
+        raise ValueError(f"too few valid steps to calibrate (at least {MIN_STEPS} of some action are needed)")
+    return InputCalibration(**tables)
 
 
 @dataclass(frozen=True)
 class Calibration:
-    """Calibrations by odometer name, and the command that made them."""
+    """Calibrations by odometer name, the depth (m) below which a view is near (0 = no near class;
+    module docstring), and the command that made them."""
 
     inputs: dict[str, InputCalibration]
     source: str = ""
+    near_depth: float = 0.0
     digest: str = field(default="", compare=False)  # sha256 of the file it was loaded from ("" if made here)
 
     def for_input(self, name: str) -> InputCalibration:
@@ -234,7 +287,8 @@ class Calibration:
         return self.inputs[name]
 
     def save(self, path: str | os.PathLike) -> None:
-        doc = {"format": FORMAT, "source": self.source, "inputs": {n: asdict(c) for n, c in self.inputs.items()}}
+        doc = {"format": FORMAT, "source": self.source, "near_depth": self.near_depth,
+               "inputs": {n: asdict(c) for n, c in self.inputs.items()}}
         write_bytes_atomic(path, (json.dumps(doc, indent=1) + "\n").encode())
 
     @classmethod
@@ -249,15 +303,19 @@ class Calibration:
                              "calibrate again with python -m odolab.fusion.calibrate")
         if not isinstance(doc, dict) or type(fmt) is not int or fmt != FORMAT or not isinstance(doc.get("inputs"), dict):
             raise ValueError(f"{path}: not a calibration file of format {FORMAT} (expected keys format, inputs)")
-        stray = sorted(set(doc) - {"format", "source", "inputs"})
+        stray = sorted(set(doc) - {"format", "source", "near_depth", "inputs"})
         if stray:
-            raise ValueError(f"{path}: unknown key {stray[0]!r}; a calibration file has format, source, inputs")
+            raise ValueError(f"{path}: unknown key {stray[0]!r}; a calibration file has format, source, near_depth, inputs")
+        near_depth = doc.get("near_depth", 0.0)
+        if isinstance(near_depth, bool) or not isinstance(near_depth, (int, float)) or not 0.0 <= near_depth <= MAX_NEAR_DEPTH:
+            raise ValueError(f"{path}: near_depth must be a number of metres in [0, {MAX_NEAR_DEPTH:g}] (0: no near "
+                             f"class), got {reprlib.repr(near_depth)}")
         if not isinstance(doc.get("source", ""), str):
             raise ValueError(f"{path}: source must be a string (the command that made the file), got {reprlib.repr(doc['source'])}")
         if not doc["inputs"]:
             raise ValueError(f"{path}: calibrates no odometer (its 'inputs' is empty)")
         inputs = {name: _input(c, f"{path}: input {name!r}") for name, c in doc["inputs"].items()}
-        return cls(inputs, doc.get("source", ""), hashlib.sha256(data).hexdigest())
+        return cls(inputs, doc.get("source", ""), float(near_depth), hashlib.sha256(data).hexdigest())
 
 
 def _numbers(v: Any, n: int) -> list[float]:
@@ -327,7 +385,7 @@ def _input(c: Any, where: str) -> InputCalibration:
     if missing:
         raise ValueError(f"{where}: no {missing[0]!r}; expected {', '.join(_REQUIRED)} (and optionally "
                          f"{', '.join(k for k in _FIELDS if k not in _REQUIRED)})")
-    labels = [a.label for a in MOTION_ACTIONS]
+    labels = context_labels()
     parsed = {}
     for key, parse in _FIELDS.items():
         table = c.get(key, {})

@@ -4,7 +4,8 @@
 
 Every step, each input odometer sees the same pair; each valid answer, corrected by the input's
 calibrated bias for the action, becomes a between-factor from the previous pose to the new one,
-with the input's calibrated covariance for the action
+with the input's calibrated covariance for the action (the near-view entry when the previous
+frame's median depth is below the calibration's ``near_depth``: a wall ahead)
 (:mod:`odolab.fusion.calibration`; file: option ``calibration``, default the shipped one) inside a
 robust kernel (``kernel``: huber, cauchy or none; ``kernel_width`` in whitened sigmas), so one
 wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from odolab.action_prior import ActionPrior
-from odolab.fusion.calibration import Calibration
+from odolab.fusion.calibration import Calibration, view_is_near
 from odolab.fusion.graph import KERNELS, Measurement, OnlineGraph, left_covariance, right_covariance, smooth
 from odolab.geometry import planar_to_transform
 from odolab.odometer import REGISTRY, Odometer, split_odometer_names
@@ -130,13 +131,14 @@ class FusedOdometer(Odometer):
                     span_answers[k, n] = self._answer(self.inputs[n], self._frames[-k], cur, None)
         started = time.perf_counter()  # from here on: the graph's own time, not the inputs'
         steps, step_covs = [], {}
+        near = view_is_near(prev.depth, self.calibration.near_depth)  # a wall ahead: the near-view entries
         for n, est in answers.items():
             if est is None:
                 continue
             own = right_covariance(est.transform, est.covariance) if est.covariance is not None else None
             cal = self.input_calibration[n]
-            cov = cal.covariance(action, own)
-            steps.append(Measurement(j - 1, j, cal.corrected(action, est.transform), cov, n))
+            cov = cal.covariance(action, own, near)
+            steps.append(Measurement(j - 1, j, cal.corrected(action, est.transform, near), cov, n))
             step_covs[n] = cov
         spans = []
         for (k, n), est in span_answers.items():
@@ -147,7 +149,7 @@ class FusedOdometer(Odometer):
         prior_T = planar_to_transform(*self.prior.motion(action))
         measurements = steps + spans
         if not valid:
-            prior_cov = self.prior_calibration.covariance(action, None)
+            prior_cov = self.prior_calibration.covariance(action, None, near)
             measurements = [Measurement(j - 1, j, prior_T, prior_cov, PRIOR)]
             step_covs = {PRIOR: prior_cov}
         guess = steps[0].T_ij if steps else prior_T

@@ -1,0 +1,215 @@
+"""Planar depth alignment: a ground robot's motion (dx, dz, dyaw) fitted to the depth images alone.
+
+A 3-degree-of-freedom projective point-to-plane ICP: every ``pixel_stride``-th current depth pixel
+is moved by the candidate motion into the previous camera, projected, and compared with the
+previous depth surface there (its point and normal, from the organised depth image) along that
+normal. Gauss-Newton on (yaw, lateral, forward) with a Tukey kernel, from each of
+:func:`~baselines.motion_search.initial_guesses`; the start that ends with the lowest robust cost
+wins, and :func:`~baselines.verification.verify` checks it (motion bounds, depth agreement; no
+grey-level test by default: this odometer does not use the grey levels).
+
+Why: the robot moves in the plane, and near walls (median depth below 1 m) the views of a turn
+show one or two planes. Their normals fix the yaw and the distance to each wall exactly, while a
+slide along a single wall leaves depth unchanged; the photometric and coloured solvers diverge
+there or are refused (``python -m studies.turns_by_depth``: open3d-rgbd fails 11.6 % of near-wall
+turns, icp 61 %). So the fit carries a weak prior on the translation, centred on the action's
+nominal motion (``prior_sigma``, metres), which decides only the directions the depth leaves free,
+and the covariance says so: ``inv(H)`` of the Gauss-Newton system, each residual weighted by the
+depth noise model (:class:`~baselines.depth_geometry.DepthRange`), so a slide along a wall keeps
+the prior's sigma while the yaw is pinned. Fusion takes each direction from the input that knows it.
+
+Conventions: :mod:`odolab.api` (``T_prev_cur``; covariance over (rx, ry, rz, tx, ty, tz), a small
+motion applied on the left in the previous camera frame). The out-of-plane components are held
+at zero and get ``out_of_plane_sigma``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from baselines.config import OdometerConfig, check_range, config_digest, configure, options_signature
+from baselines.depth_geometry import DepthRange, FrameMemo, backproject, backproject_pixels, depth_mask
+from baselines.motion_search import initial_guesses
+from baselines.verification import VerifyConfig, verify
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, nominal_motion
+
+__all__ = ["PlanarDepthConfig", "PlanarDepthOdometer"]
+
+
+@dataclass(frozen=True)
+class PlanarDepthConfig(OdometerConfig):
+    """Options of :class:`PlanarDepthOdometer` (besides ``depth`` and ``verify``, see
+    :class:`~baselines.config.OdometerConfig`)."""
+
+    depth: DepthRange = DepthRange(max_depth=6.0, noise_growth=0.015)
+    #: No grey-level test: only the bounds and the depth agreement (NCC >= -1 always holds).
+    verify: VerifyConfig = field(default_factory=lambda: VerifyConfig(min_ncc=-1.0))
+    #: Fit every n-th current pixel row and column.
+    pixel_stride: int = 4
+    #: Normals of the previous surface from neighbours this many pixels away on each side.
+    normal_step: int = 2
+    #: Gauss-Newton iterations per start at most.
+    iterations: int = 20
+    #: Tukey kernel width as a multiple of the depth noise tolerance at each point's depth.
+    tukey: float = 3.0
+    #: Sigma (metres) of the prior on the translation around the action's nominal motion.
+    prior_sigma: float = 0.1
+    #: Sigma (rad, m) given to the components held at zero (roll, pitch, height).
+    out_of_plane_sigma: float = 1e-3
+    #: Fewer fitted points than this = invalid step.
+    min_points: int = 200
+    #: A previous view whose median usable depth (metres) is beyond this = invalid step: far views
+    #: bend under the depth distortion (see the module docstring).
+    max_median_depth: float = 2.0
+
+    def __post_init__(self) -> None:
+        check_range("pixel_stride", self.pixel_stride, 1, 64)
+        check_range("normal_step", self.normal_step, 1, 16)
+        check_range("iterations", self.iterations, 1, 1000)
+        check_range("tukey", self.tukey, 0.5, 100.0)
+        check_range("prior_sigma", self.prior_sigma, 1e-3, 10.0)
+        check_range("out_of_plane_sigma", self.out_of_plane_sigma, 1e-6, 1.0)
+        check_range("min_points", self.min_points, 3, 10**7)
+        check_range("max_median_depth", self.max_median_depth, 0.0, 1000.0)
+
+
+@dataclass(frozen=True)
+class _Surface:
+    """A frame's organised depth surface: points (H, W, 3) and unit normals facing the camera
+    (H, W, 3), previous camera frame; ``ok`` (H, W) where both exist."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    ok: np.ndarray
+
+
+def _surface(depth: np.ndarray, intr: Intrinsics, rng: DepthRange, k: int) -> _Surface:
+    """Points and normals (cross product of the horizontal and vertical differences over ``k``
+    pixels) of a depth image; a normal exists where all five depths are usable and the
+    neighbours lie within 5 % of the centre's depth (no depth edge)."""
+    h, w = depth.shape
+    v, u = np.mgrid[0:h, 0:w]
+    P = backproject_pixels(u, v, depth, intr)
+    usable = depth_mask(depth, rng)
+    z = np.where(usable, depth, np.nan).astype(np.float64)
+    ok = np.zeros((h, w), dtype=bool)
+    n = np.zeros((h, w, 3))
+    c = (slice(k, h - k), slice(k, w - k))
+    du = P[k:h - k, 2 * k:] - P[k:h - k, :w - 2 * k]
+    dv = P[2 * k:, k:w - k] - P[:h - 2 * k, k:w - k]
+    m = np.cross(du, dv)
+    norm = np.linalg.norm(m, axis=-1)
+    near = [z[k:h - k, 2 * k:], z[k:h - k, :w - 2 * k], z[2 * k:, k:w - k], z[:h - 2 * k, k:w - k]]
+    with np.errstate(invalid="ignore"):
+        smooth = np.all([np.abs(zz - z[c]) < 0.05 * z[c] for zz in near], axis=0)
+    ok[c] = usable[c] & smooth & (norm > 0)
+    m = m / np.where(norm > 0, norm, 1.0)[..., None]
+    m *= -np.sign(np.sum(m * P[c], axis=-1, keepdims=True) + 1e-300)  # face the camera
+    n[c] = m
+    return _Surface(P, n, ok)
+
+
+def _exp_planar(omega: float, v: tuple[float, float]) -> np.ndarray:
+    """4x4 rotation ``omega`` (rad) about the camera's y axis with translation (v_x, 0, v_z)."""
+    c, s = np.cos(omega), np.sin(omega)
+    E = np.eye(4)
+    E[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+    E[0, 3], E[2, 3] = v
+    return E
+
+
+@dataclass(frozen=True)
+class _Fit:
+    T_prev_cur: np.ndarray
+    cost: float  # mean Tukey cost per point (0 = perfect, 1 = every point an outlier)
+    information: np.ndarray  # 3x3 over (omega_y, v_x, v_z)
+
+
+class PlanarDepthOdometer(Odometer):
+    """Planar point-to-plane alignment of the depth images (module docstring), with a covariance."""
+
+    __signature__ = options_signature(PlanarDepthConfig)
+
+    def __init__(self, config: PlanarDepthConfig | None = None, **overrides) -> None:
+        self.config = configure(PlanarDepthConfig, config, **overrides)
+        self.weights = config_digest(self.config)
+        self._surfaces: FrameMemo[_Surface] = FrameMemo()
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        self._surfaces.clear()
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        """``T_prev_cur`` of the best start after Gauss-Newton, if the depth confirms it."""
+        cfg, intr = self.config, self.intrinsics
+        surface = self._surfaces.get(prev, lambda: _surface(prev.depth, intr, cfg.depth, cfg.normal_step))
+        X, _ = backproject(cur.depth, intr, cfg.depth, cfg.pixel_stride)
+        if len(X) < cfg.min_points or surface.ok.sum() < cfg.min_points:
+            return Estimate.invalid()
+        if np.median(surface.points[..., 2][surface.ok]) > cfg.max_median_depth:
+            return Estimate.invalid()
+        prior = nominal_motion(action)[[0, 2], 3] if action is not None else None
+        fits = [self._fit(X, surface, start, prior) for start in initial_guesses(action, prev, cur, intr, cfg.depth)]
+        fits = [f for f in fits if f is not None]
+        if not fits:
+            return Estimate.invalid()
+        best = min(fits, key=lambda f: f.cost)
+        if verify(prev, cur, best.T_prev_cur, action, intr, cfg.depth, cfg.verify) is None:
+            return Estimate.invalid()
+        return Estimate(best.T_prev_cur, covariance=self._covariance(best.information))
+
+    def _fit(self, X: np.ndarray, surf: _Surface, start: np.ndarray, prior: np.ndarray | None) -> _Fit | None:
+        """Gauss-Newton from ``start`` (4x4, made planar); None when too few points take part."""
+        cfg, intr = self.config, self.intrinsics
+        T = np.eye(4)
+        yaw = np.arctan2(-start[0, 2], start[2, 2])
+        T[:3, :3] = _exp_planar(-yaw, (0.0, 0.0))[:3, :3]
+        T[0, 3], T[2, 3] = start[0, 3], start[2, 3]
+        h, w = surf.ok.shape
+        H = np.zeros((3, 3))
+        cost = 1.0
+        for _ in range(cfg.iterations):
+            Y = X @ T[:3, :3].T + T[:3, 3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                pu = np.rint(intr.fx * Y[:, 0] / Y[:, 2] + intr.cx)
+                pv = np.rint(intr.fy * Y[:, 1] / Y[:, 2] + intr.cy)
+            inside = (Y[:, 2] > cfg.depth.min_depth) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
+            idx = np.where(inside, pv * w + pu, 0).astype(np.int64)
+            hit = inside & surf.ok.reshape(-1)[idx]
+            if hit.sum() < cfg.min_points:
+                return None
+            Yh, P, n = Y[hit], surf.points.reshape(-1, 3)[idx[hit]], surf.normals.reshape(-1, 3)[idx[hit]]
+            r = np.sum(n * (Yh - P), axis=1)
+            c = cfg.tukey * cfg.depth.tolerance(P[:, 2])
+            u2 = np.minimum((r / c) ** 2, 1.0)
+            wgt = (1.0 - u2) ** 2 / c**2  # Tukey weight over the residual's scale squared
+            # d(exp(delta) Y)/d(omega_y, v_x, v_z) = ((Y_z, 0, -Y_x), e_x, e_z)
+            J = np.stack([n[:, 0] * Yh[:, 2] - n[:, 2] * Yh[:, 0], n[:, 0], n[:, 2]], axis=1)
+            H = (J * wgt[:, None]).T @ J
+            g = (J * wgt[:, None]).T @ r
+            if prior is not None:
+                t = T[[0, 2], 3]
+                Jp = np.array([[T[2, 3], 1.0, 0.0], [-T[0, 3], 0.0, 1.0]]) / cfg.prior_sigma
+                H = H + Jp.T @ Jp
+                g = g + Jp.T @ ((t - prior) / cfg.prior_sigma)
+            cost = float(np.sum(1.0 - (1.0 - u2) ** 3) + (len(X) - hit.sum())) / len(X)
+            try:
+                delta = -np.linalg.solve(H, g)
+            except np.linalg.LinAlgError:
+                return None
+            T = _exp_planar(delta[0], (delta[1], delta[2])) @ T
+            if abs(delta[0]) < 1e-6 and np.hypot(delta[1], delta[2]) < 1e-5:
+                break
+        return _Fit(T, cost, H)
+
+    def _covariance(self, information: np.ndarray) -> np.ndarray | None:
+        """6x6 covariance (rx, ry, rz, tx, ty, tz) from the 3x3 information over (ry, tx, tz)."""
+        try:
+            planar = np.linalg.inv(information)
+        except np.linalg.LinAlgError:
+            return None
+        cov = np.eye(6) * self.config.out_of_plane_sigma**2
+        keep = [1, 3, 5]
+        cov[np.ix_(keep, keep)] = planar
+        return cov
