@@ -57,6 +57,9 @@ class PlanarDepthConfig(OdometerConfig):
     prior_sigma: float = 0.1
     #: Sigma (rad, m) given to the components held at zero (roll, pitch, height).
     out_of_plane_sigma: float = 1e-3
+    #: Sigma (m) added to each planar translation's: the depth's scale error (uncorrected
+    #: distortion) moves the walls by centimetres, which the fit's own statistics cannot see.
+    translation_floor: float = 0.015
     #: Fewer fitted points than this = invalid step.
     min_points: int = 200
     #: A previous view whose median usable depth (metres) is beyond this = invalid step: far views
@@ -70,6 +73,7 @@ class PlanarDepthConfig(OdometerConfig):
         check_range("tukey", self.tukey, 0.5, 100.0)
         check_range("prior_sigma", self.prior_sigma, 1e-3, 10.0)
         check_range("out_of_plane_sigma", self.out_of_plane_sigma, 1e-6, 1.0)
+        check_range("translation_floor", self.translation_floor, 0.0, 1.0)
         check_range("min_points", self.min_points, 3, 10**7)
         check_range("max_median_depth", self.max_median_depth, 0.0, 1000.0)
 
@@ -211,5 +215,5 @@ class PlanarDepthOdometer(Odometer):
             return None
         cov = np.eye(6) * self.config.out_of_plane_sigma**2
         keep = [1, 3, 5]
-        cov[np.ix_(keep, keep)] = planar
+        cov[np.ix_(keep, keep)] = planar + np.diag([0.0, 1.0, 1.0]) * self.config.translation_floor**2
         return cov
