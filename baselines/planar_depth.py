@@ -6,17 +6,27 @@ previous depth surface there (its point and normal, from the organised depth ima
 normal. Gauss-Newton on (yaw, lateral, forward) with a Tukey kernel, from each of
 :func:`~baselines.motion_search.initial_guesses`; the start that ends with the lowest robust cost
 wins, and :func:`~baselines.verification.verify` checks it (motion bounds, depth agreement; no
-grey-level test by default: this odometer does not use the grey levels).
+grey-level test by default: the fit itself uses depth only, though the planar search that gives
+its starts scores grey levels too, and in a direction the depth leaves free the start and the
+prior decide). It needs the action (``needs_action``): the prior and the starts come from it, and
+hand-held data need not move in the plane.
 
-Why: the robot moves in the plane, and near walls (median depth below 1 m) the views of a turn
+Why: the robot moves in the plane, and facing a wall (median depth below 1 m) the views of a turn
 show one or two planes. Their normals fix the yaw and the distance to each wall exactly, while a
 slide along a single wall leaves depth unchanged; the photometric and coloured solvers diverge
 there or are refused (``python -m studies.turns_by_depth``: open3d-rgbd fails 11.6 % of near-wall
 turns, icp 61 %). So the fit carries a weak prior on the translation, centred on the action's
 nominal motion (``prior_sigma``, metres), which decides only the directions the depth leaves free,
-and the covariance says so: ``inv(H)`` of the Gauss-Newton system, each residual weighted by the
-depth noise model (:class:`~baselines.depth_geometry.DepthRange`), so a slide along a wall keeps
-the prior's sigma while the yaw is pinned. Fusion takes each direction from the input that knows it.
+and the covariance says so: ``inv(H)`` of the Gauss-Newton system, each residual weighted by its
+Tukey weight over the kernel width squared (``tukey`` times the depth noise model's tolerance,
+:class:`~baselines.depth_geometry.DepthRange`; so the covariance scales with ``tukey`` squared, and
+the fusion calibration's factor holds for the ``tukey`` it was fitted with), so a slide along a wall
+keeps much of the prior's sigma while the yaw is pinned. Not all of it: on noisy depth the
+normals of one wall scatter, and their scatter gives the fit information along the wall that the
+geometry does not have (a synthetic wall 0.8 m ahead with 1 % depth noise: the slide's sigma
+1.7 cm instead of the prior's 10 cm, the answer 10 sigmas off a true 15 cm slide). The fusion
+calibration scales the covariance, it cannot reshape it; removing that direction's information
+when the normals' spread is that of one plane is the next step. Fusion takes each direction from the input that knows it.
 To that covariance ``translation_floor`` (1.5 cm) is added on each planar translation: the
 simulator's depth distortion (a depth scale that varies across the image) moves a wall by
 centimetres, which the fit's residuals cannot show. Without it, on the val split's near-view turns
@@ -25,7 +35,8 @@ while its yaw sigma was right (0.74-1.18), and the fusion calibration preferred 
 covariance on half the entries; with it, 0.74-1.18 on every component, and the calibration uses the
 odometer's own covariance (scaled by 0.37-2.5) on all six.
 
-Only near views: beyond ``max_median_depth`` (2 m of median depth) it refuses the step. The same
+Only views facing something near: when the median depth of the previous view's usable pixels with
+a normal (those within its trusted range) is beyond ``max_median_depth`` (2 m), it refuses the step. The same
 distortion makes it overestimate every turn, by 0.6 degrees at 0-1 m, 1.0 at 1-2 m and 1.6 at 2-4 m
 (400 turns of the turns study; the scatter about that grows from 0.4 to 1.7 degrees), and the fusion
 calibration removes one bias per action and view class.
@@ -74,8 +85,8 @@ class PlanarDepthConfig(OdometerConfig):
     translation_floor: float = 0.015
     #: Fewer fitted points than this = invalid step.
     min_points: int = 200
-    #: A previous view whose median usable depth (metres) is beyond this = invalid step: far views
-    #: bend under the depth distortion (see the module docstring).
+    #: A previous view whose median depth (metres; over its usable pixels with a normal) is beyond
+    #: this = invalid step: far views bend under the depth distortion (see the module docstring).
     max_median_depth: float = 2.0
 
     def __post_init__(self) -> None:
@@ -88,6 +99,12 @@ class PlanarDepthConfig(OdometerConfig):
         check_range("translation_floor", self.translation_floor, 0.0, 1.0)
         check_range("min_points", self.min_points, 3, 10**7)
         check_range("max_median_depth", self.max_median_depth, 0.0, 1000.0)
+        if self.max_median_depth <= self.depth.min_depth:
+            raise ValueError(f"max_median_depth ({self.max_median_depth:g} m) must exceed min_depth "
+                             f"({self.depth.min_depth:g} m): no view could be answered")
+        if self.depth.noise_floor <= 0:
+            raise ValueError(f"planar-depth needs noise_floor > 0 m (its Tukey kernel is tukey x the depth tolerance, "
+                             f"which is 0 at z = 0 without it), got {self.depth.noise_floor!r}")
 
 
 @dataclass(frozen=True)
@@ -146,6 +163,7 @@ class PlanarDepthOdometer(Odometer):
     """Planar point-to-plane alignment of the depth images (module docstring), with a covariance."""
 
     __signature__ = options_signature(PlanarDepthConfig)
+    needs_action = True  # the prior and the starts come from the action; hand-held data need not be planar
 
     def __init__(self, config: PlanarDepthConfig | None = None, **overrides) -> None:
         self.config = configure(PlanarDepthConfig, config, **overrides)
@@ -159,13 +177,15 @@ class PlanarDepthOdometer(Odometer):
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         """``T_prev_cur`` of the best start after Gauss-Newton, if the depth confirms it."""
         cfg, intr = self.config, self.intrinsics
+        if action is None:
+            return Estimate.invalid()
         surface = self._surfaces.get(prev, lambda: _surface(prev.depth, intr, cfg.depth, cfg.normal_step))
         X, _ = backproject(cur.depth, intr, cfg.depth, cfg.pixel_stride)
         if len(X) < cfg.min_points or surface.ok.sum() < cfg.min_points:
             return Estimate.invalid()
         if np.median(surface.points[..., 2][surface.ok]) > cfg.max_median_depth:
             return Estimate.invalid()
-        prior = nominal_motion(action)[[0, 2], 3] if action is not None else None
+        prior = nominal_motion(action)[[0, 2], 3]
         fits = [self._fit(X, surface, start, prior) for start in initial_guesses(action, prev, cur, intr, cfg.depth)]
         fits = [f for f in fits if f is not None]
         if not fits:

@@ -21,6 +21,12 @@ from odolab.api import Action, Frame, Intrinsics, transform_to_planar
 _IN_FRONT = 1e-6
 
 
+def _check_number(name: str, value: object, low: float, high: float) -> None:
+    """``ValueError`` unless ``value`` is a number (not a bool, not NaN) in ``[low, high]``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not low <= value <= high:
+        raise ValueError(f"{name} must be a number in [{low:g}, {high:g}], got {value!r:.80}")
+
+
 @dataclass(frozen=True)
 class DepthAgreement:
     """How well a motion explains the previous depth image (see :func:`alignment_check`).
@@ -140,6 +146,18 @@ class MotionBounds:
     forward_range: tuple[float, float] = (-0.05, 0.42)
     max_turn_translation: float = 0.15
 
+    def __post_init__(self) -> None:
+        for name in ("max_height", "max_tilt_deg", "max_yaw_error", "max_lateral", "max_turn_translation"):
+            _check_number(name, getattr(self, name), 0.0, np.inf)
+        r = self.forward_range
+        if isinstance(r, (str, bytes)) or not hasattr(r, "__len__") or len(r) != 2:
+            raise ValueError(f"forward_range: expected two numbers [lowest, highest] in metres, got {r!r:.80}")
+        for x in r:
+            _check_number("forward_range", x, -np.inf, np.inf)
+        if not r[0] < r[1]:
+            raise ValueError(f"forward_range: expected lowest < highest, got {list(r)!r:.80}")
+        object.__setattr__(self, "forward_range", (float(r[0]), float(r[1])))
+
     def contains(self, T_prev_cur: np.ndarray, action: Action | None) -> bool:
         """True when ``T_prev_cur`` (4x4) is a motion ``action`` can produce (always for None)."""
         if action is None:
@@ -181,6 +199,11 @@ class VerifyConfig:
     check_stride: int = 2
     ncc_blur_sigma: float = 1.5
     min_ncc_points: int = 100
+
+    def __post_init__(self) -> None:
+        for name, low, high in (("min_points_in_view", 0, np.inf), ("min_agreement", 0.0, 1.0), ("min_ncc", -1.0, 1.0),
+                                ("check_stride", 1, 64), ("ncc_blur_sigma", 0.0, 100.0), ("min_ncc_points", 0, np.inf)):
+            _check_number(name, getattr(self, name), low, high)
 
 
 def verify(

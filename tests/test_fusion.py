@@ -217,6 +217,17 @@ def test_near_views_get_their_own_entries_and_fusion_picks_them_by_depth(tmp_pat
         path.write_text(json.dumps(doc))
         with pytest.raises(ValueError, match=r"near_depth must be a number of metres in \[0, 100\]"):
             Calibration.load(path)
+    doc["near_depth"] = 1.0
+    lone = json.loads(json.dumps(doc))
+    for key in ("fixed", "own_scale", "steps", "inside95", "bias", "correlation"):
+        lone["inputs"]["x"][key].pop("turn_left", None)
+    path.write_text(json.dumps(lone))
+    with pytest.raises(ValueError, match="'turn_left@near' without 'turn_left'"):
+        Calibration.load(path)
+    doc.pop("near_depth")
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="near-view entries .* near_depth is 0 or absent"):
+        Calibration.load(path)
     wall = np.full((4, 4), 0.6, np.float32)
     assert view_is_near(wall, 1.0) and not view_is_near(wall + 1.0, 1.0) and not view_is_near(wall, 0.0)
     assert not view_is_near(np.zeros((4, 4)), 1.0)  # no reading: nothing to say it is near

@@ -81,6 +81,9 @@ def test_blank_depth_and_bad_options_are_refused(near_wall_turns):
     assert not odo.step(prev, dataclasses.replace(cur, depth=np.zeros_like(cur.depth)), action).valid
     assert not odo.step(dataclasses.replace(prev, depth=np.zeros_like(prev.depth)), cur, action).valid
     for key, value, said in (("pixel_stride", 0, r"pixel_stride must be in \[1, 64\], got 0"),
-                             ("prior_sigma", float("nan"), "prior_sigma"), ("tukey", True, "tukey")):
+                             ("prior_sigma", float("nan"), "prior_sigma"), ("tukey", True, "tukey"),
+                             ("max_median_depth", 0.05, "must exceed min_depth"), ("noise_floor", 0.0, "noise_floor > 0"),
+                             ("min_ncc", float("nan"), r"min_ncc must be a number in \[-1, 1\]"),
+                             ("forward_range", [0.0, "a"], "forward_range")):
         with pytest.raises((TypeError, ValueError), match=said):
             load_odometer("planar-depth", **{key: value})

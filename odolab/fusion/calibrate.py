@@ -95,9 +95,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     calibration = None
     if args.check is not None:
         given = given_options(argv, ["--out", "--odometers", "--near-depth"])
-        if "--out" in given or "--near-depth" in given:
-            raise UsageError(f"{'--out' if '--out' in given else '--near-depth'} is for a new calibration; --check "
-                             "only prints (redirect it to keep it) and uses the file's near_depth")
+        if "--out" in given:
+            raise UsageError("--out is for a new calibration; --check only prints (redirect it to keep it)")
+        if "--near-depth" in given:
+            raise UsageError("--near-depth is for a new calibration; --check uses the near_depth of the file it checks")
         try:
             calibration = Calibration.load(args.check)
         except ValueError as exc:
