@@ -1,9 +1,9 @@
 """Configuration of the baselines: what they all share, and keyword overrides of nested configs.
 
 Every odometer in ``baselines/`` takes one frozen config dataclass (``ICPConfig``,
-``Open3DRGBDConfig``, ``FeatureEssentialConfig``, ``PlanarDepthConfig``), derived from :class:`OdometerConfig`, and keeps
-it as ``odometer.config`` (``dataclasses.asdict`` writes it out). Keyword options override single
-fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` sets
+``Open3DRGBDConfig``, ``FeatureEssentialConfig``, ``PlanarDepthConfig``), derived from
+:class:`OdometerConfig`, and keeps it as ``odometer.config`` (``dataclasses.asdict`` writes it
+out). Keyword options override single fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` sets
 ``config.depth.max_depth`` and ``config.voxel``.
 """
 from __future__ import annotations

@@ -22,7 +22,9 @@ _IN_FRONT = 1e-6
 
 
 def _check_number(name: str, value: object, low: float, high: float) -> None:
-    """``ValueError`` unless ``value`` is a number (not a bool, not NaN) in ``[low, high]``."""
+    """``ValueError`` unless ``value`` is a number (not a bool, not NaN) in ``[low, high]``.
+    (:func:`baselines.config.check_range` does the same for the odometers' own options; this module
+    cannot import it: ``baselines.config`` imports this one.)"""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not low <= value <= high:
         raise ValueError(f"{name} must be a number in [{low:g}, {high:g}], got {value!r:.80}")
 
