@@ -200,7 +200,7 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
     if config.tum is not None:
         blind = [name for name, odo in odometers.items() if getattr(odo, "needs_action", False)]
         if blind and config.odometers is not None:
-            raise ComparisonError(f"{blind[0]} needs the action of every step (it picks its network by action), "
+            raise ComparisonError(f"{blind[0]} needs the action of every step, "
                                   "and real data has none; leave it out of a --tum comparison")
         odometers = {name: odo for name, odo in odometers.items() if name not in blind}  # all, by default
         sequences = _tum_sequences(config)
