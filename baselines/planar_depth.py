@@ -55,7 +55,8 @@ from baselines.config import OdometerConfig, check_range, config_digest, configu
 from baselines.depth_geometry import DepthRange, FrameMemo, backproject, backproject_pixels, depth_mask
 from baselines.motion_search import initial_guesses
 from baselines.verification import VerifyConfig, verify
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, nominal_motion
+from odolab.api import (Action, Estimate, Frame, Intrinsics, Odometer, nominal_motion, planar_to_transform,
+                        transform_to_planar)
 
 __all__ = ["PlanarDepthConfig", "PlanarDepthOdometer"]
 
@@ -180,10 +181,10 @@ class PlanarDepthOdometer(Odometer):
         if action is None:
             return Estimate.invalid()
         surface = self._surfaces.get(prev, lambda: _surface(prev.depth, intr, cfg.depth, cfg.normal_step))
-        X, _ = backproject(cur.depth, intr, cfg.depth, cfg.pixel_stride)
-        if len(X) < cfg.min_points or surface.ok.sum() < cfg.min_points:
+        if surface.ok.sum() < cfg.min_points or np.median(surface.points[..., 2][surface.ok]) > cfg.max_median_depth:
             return Estimate.invalid()
-        if np.median(surface.points[..., 2][surface.ok]) > cfg.max_median_depth:
+        X, _ = backproject(cur.depth, intr, cfg.depth, cfg.pixel_stride)
+        if len(X) < cfg.min_points:
             return Estimate.invalid()
         prior = nominal_motion(action)[[0, 2], 3]
         fits = [self._fit(X, surface, start, prior) for start in initial_guesses(action, prev, cur, intr, cfg.depth)]
@@ -195,17 +196,13 @@ class PlanarDepthOdometer(Odometer):
             return Estimate.invalid()
         return Estimate(best.T_prev_cur, covariance=self._covariance(best.information))
 
-    def _fit(self, X: np.ndarray, surf: _Surface, start: np.ndarray, prior: np.ndarray | None) -> _Fit | None:
-        """Gauss-Newton from ``start`` (4x4, made planar); None when too few points take part."""
+    def _fit(self, X: np.ndarray, surf: _Surface, start: np.ndarray, prior: np.ndarray) -> _Fit | None:
+        """Gauss-Newton from ``start`` (4x4, made planar) with the translation prior centred on
+        ``prior`` ((dx, dz) m); None when too few points take part."""
         cfg, intr = self.config, self.intrinsics
-        T = np.eye(4)
-        yaw = np.arctan2(-start[0, 2], start[2, 2])
-        T[:3, :3] = _exp_planar(-yaw, (0.0, 0.0))[:3, :3]
-        T[0, 3], T[2, 3] = start[0, 3], start[2, 3]
+        T = planar_to_transform(*transform_to_planar(start))
         h, w = surf.ok.shape
-        H = np.zeros((3, 3))
-        cost = 1.0
-        for _ in range(cfg.iterations):
+        for _ in range(cfg.iterations):  # at least one: H and cost are always set
             Y = X @ T[:3, :3].T + T[:3, 3]
             with np.errstate(divide="ignore", invalid="ignore"):
                 pu = np.rint(intr.fx * Y[:, 0] / Y[:, 2] + intr.cx)
@@ -224,11 +221,10 @@ class PlanarDepthOdometer(Odometer):
             J = np.stack([n[:, 0] * Yh[:, 2] - n[:, 2] * Yh[:, 0], n[:, 0], n[:, 2]], axis=1)
             H = (J * wgt[:, None]).T @ J
             g = (J * wgt[:, None]).T @ r
-            if prior is not None:
-                t = T[[0, 2], 3]
-                Jp = np.array([[T[2, 3], 1.0, 0.0], [-T[0, 3], 0.0, 1.0]]) / cfg.prior_sigma
-                H = H + Jp.T @ Jp
-                g = g + Jp.T @ ((t - prior) / cfg.prior_sigma)
+            t = T[[0, 2], 3]
+            Jp = np.array([[T[2, 3], 1.0, 0.0], [-T[0, 3], 0.0, 1.0]]) / cfg.prior_sigma
+            H = H + Jp.T @ Jp
+            g = g + Jp.T @ ((t - prior) / cfg.prior_sigma)
             cost = float(np.sum(1.0 - (1.0 - u2) ** 3) + (len(X) - hit.sum())) / len(X)
             try:
                 delta = -np.linalg.solve(H, g)

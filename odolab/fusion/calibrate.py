@@ -44,11 +44,11 @@ def near_views(episodes, near_depth: float) -> dict[str, np.ndarray]:
             for ep in episodes}
 
 
-def steps_of(results, near: dict[str, np.ndarray] | None = None
+def steps_of(results, near: dict[str, np.ndarray]
              ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray | None], np.ndarray, np.ndarray]:
     """From one odometer's :class:`~odolab.runner.SequenceResult` list: residuals (N, 6), action
     values (N,), own covariances (right perturbation), the raw transforms of its valid steps and
-    whether each one's view was near (from ``near``, per sequence name; all False without it)."""
+    whether each one's view was near (``near``: per sequence name, from :func:`near_views`)."""
     xi, actions, own, Ts, close = [], [], [], [], []
     for r in results:
         for k, est in enumerate(r.raw):
@@ -58,7 +58,7 @@ def steps_of(results, near: dict[str, np.ndarray] | None = None
             actions.append(int(r.actions[k]))
             own.append(right_covariance(est.transform, est.covariance) if est.covariance is not None else None)
             Ts.append(est.transform)
-            close.append(bool(near[r.sequence][k]) if near is not None else False)
+            close.append(bool(near[r.sequence][k]))
     return (np.array(xi).reshape(-1, 6), np.array(actions, np.int64), own, np.array(Ts).reshape(-1, 4, 4),
             np.array(close, bool))
 
@@ -168,7 +168,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return " (own covariance fits worse than the fixed one: not used)" if gives_own else ""
 
         said = ", ".join(f"{a} {n} steps{own_note(a)}" for a, n in cal.steps.items())
-        left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]  # a near entry needs a plain one
+        left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]  # no plain entry: no near one either
         print(f"{name}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else ""))
     if calibration is None:
         command = "python -m odolab.fusion.calibrate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
