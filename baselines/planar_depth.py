@@ -5,7 +5,7 @@ is moved by the candidate motion into the previous camera, projected, and compar
 previous depth surface there (its point and normal, from the organised depth image) along that
 normal. Gauss-Newton on (yaw, lateral, forward) with a Tukey kernel, from each of
 :func:`~baselines.motion_search.initial_guesses`; the start that ends with the lowest robust cost
-wins, and :func:`~baselines.verification.verify` checks it (motion bounds, depth agreement; no
+wins if :func:`~baselines.verification.verify` accepts it, else the next lowest (motion bounds, depth agreement; no
 grey-level test by default: the fit itself uses depth only, though the planar search that gives
 its starts scores grey levels too, and in a direction the depth leaves free the start and the
 prior decide). It needs the action (``needs_action``): the prior and the starts come from it, and
@@ -21,12 +21,17 @@ and the covariance says so: ``inv(H)`` of the Gauss-Newton system, each residual
 Tukey weight over the kernel width squared (``tukey`` times the depth noise model's tolerance,
 :class:`~baselines.depth_geometry.DepthRange`; so the covariance scales with ``tukey`` squared, and
 the fusion calibration's factor holds for the ``tukey`` it was fitted with), so a slide along a wall
-keeps much of the prior's sigma while the yaw is pinned. Not all of it: on noisy depth the
-normals of one wall scatter, and their scatter gives the fit information along the wall that the
-geometry does not have (a synthetic wall 0.8 m ahead with 1 % depth noise: the slide's sigma
-1.7 cm instead of the prior's 10 cm, the answer 10 sigmas off a true 15 cm slide). The fusion
-calibration scales the covariance, it cannot reshape it; removing that direction's information
-when the normals' spread is that of one plane is the next step. Fusion takes each direction from the input that knows it.
+keeps much of the prior's sigma while the yaw is pinned. On noisy depth the normals of one wall
+scatter, and their scatter alone would give the fit information along the wall that the geometry
+does not have (a synthetic wall 0.8 m ahead with 0.2 % depth noise: the slide's sigma 1.6 cm instead
+of the prior's 10 cm, the answer 9 sigmas off a true 15 cm slide). So when the weighted scatter
+of the fitted normals' floor-plane parts (x, z) is that of one plane (its smaller eigenvalue below
+``one_plane_ratio`` of the sum; facing one wall it is 0.003-0.03 in the val scenes, at corners
+0.15-0.48), the data's information along the wall is removed and the prior alone decides that
+direction (that wall: 10.1 cm). Independent pixel noise much above that scatters the normals
+past the test (0.3 % and more on that wall: 1.6 cm again); the simulator's depth noise, correlated
+across pixels, leaves one wall's normals well inside it. Fusion takes each direction from the
+input that knows it.
 To that covariance ``translation_floor`` (1.5 cm) is added on each planar translation: the
 simulator's depth distortion (a depth scale that varies across the image) moves a wall by
 centimetres, which the fit's residuals cannot show. Without it, on the val split's near-view turns
@@ -89,6 +94,9 @@ class PlanarDepthConfig(OdometerConfig):
     #: A previous view whose median depth (metres; over its usable pixels with a normal) is beyond
     #: this = invalid step: far views bend under the depth distortion (see the module docstring).
     max_median_depth: float = 2.0
+    #: The fitted normals are taken as one plane (a single wall) when the smaller eigenvalue of
+    #: their (x, z) scatter is below this fraction of the sum; the slide along it is then the prior's.
+    one_plane_ratio: float = 0.05
 
     def __post_init__(self) -> None:
         check_range("pixel_stride", self.pixel_stride, 1, 64)
@@ -100,6 +108,7 @@ class PlanarDepthConfig(OdometerConfig):
         check_range("translation_floor", self.translation_floor, 0.0, 1.0)
         check_range("min_points", self.min_points, 3, 10**7)
         check_range("max_median_depth", self.max_median_depth, 0.0, 1000.0)
+        check_range("one_plane_ratio", self.one_plane_ratio, 0.0, 0.5)
         if self.max_median_depth <= self.depth.min_depth:
             raise ValueError(f"max_median_depth ({self.max_median_depth:g} m) must exceed min_depth "
                              f"({self.depth.min_depth:g} m): no view could be answered")
@@ -153,6 +162,21 @@ def _exp_planar(omega: float, v: tuple[float, float]) -> np.ndarray:
     return E
 
 
+def _without_slide(H: np.ndarray, g: np.ndarray, normals: np.ndarray, weights: np.ndarray,
+                   ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """The data's Gauss-Newton system over (omega_y, v_x, v_z) with the information along a wall
+    removed when the weighted normals' (x, z) scatter is that of one plane (smaller eigenvalue
+    below ``ratio`` of the sum): the translation along the least-seen normal direction is then
+    projected out of ``H`` and ``g``. Otherwise unchanged."""
+    nt = normals[:, [0, 2]]
+    lam, vec = np.linalg.eigh((nt * weights[:, None]).T @ nt)
+    if not lam.sum() > 0 or lam[0] >= ratio * lam.sum():
+        return H, g
+    d = np.array([0.0, vec[0, 0], vec[1, 0]])  # the slide: along the wall, in the floor plane
+    P = np.eye(3) - np.outer(d, d)
+    return P @ H @ P, P @ g
+
+
 @dataclass(frozen=True)
 class _Fit:
     T_prev_cur: np.ndarray
@@ -188,13 +212,12 @@ class PlanarDepthOdometer(Odometer):
             return Estimate.invalid()
         prior = nominal_motion(action)[[0, 2], 3]
         fits = [self._fit(X, surface, start, prior) for start in initial_guesses(action, prev, cur, intr, cfg.depth)]
-        fits = [f for f in fits if f is not None]
-        if not fits:
-            return Estimate.invalid()
-        best = min(fits, key=lambda f: f.cost)
-        if verify(prev, cur, best.T_prev_cur, action, intr, cfg.depth, cfg.verify) is None:
-            return Estimate.invalid()
-        return Estimate(best.T_prev_cur, covariance=self._covariance(best.information))
+        # lowest cost first, the first the depth confirms: near a wall a start can slide to a cheaper
+        # motion out of the action's bounds while another start found the true one
+        for fit in sorted((f for f in fits if f is not None), key=lambda f: f.cost):
+            if verify(prev, cur, fit.T_prev_cur, action, intr, cfg.depth, cfg.verify) is not None:
+                return Estimate(fit.T_prev_cur, covariance=self._covariance(fit.information))
+        return Estimate.invalid()
 
     def _fit(self, X: np.ndarray, surf: _Surface, start: np.ndarray, prior: np.ndarray) -> _Fit | None:
         """Gauss-Newton from ``start`` (4x4, made planar) with the translation prior centred on
@@ -221,6 +244,7 @@ class PlanarDepthOdometer(Odometer):
             J = np.stack([n[:, 0] * Yh[:, 2] - n[:, 2] * Yh[:, 0], n[:, 0], n[:, 2]], axis=1)
             H = (J * wgt[:, None]).T @ J
             g = (J * wgt[:, None]).T @ r
+            H, g = _without_slide(H, g, n, wgt, cfg.one_plane_ratio)
             t = T[[0, 2], 3]
             Jp = np.array([[T[2, 3], 1.0, 0.0], [-T[0, 3], 0.0, 1.0]]) / cfg.prior_sigma
             H = H + Jp.T @ Jp

@@ -11,12 +11,13 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer  # noqa: E402
+from odolab.api import (Action, Estimate, Odometer, planar_to_transform, register_odometer,  # noqa: E402
+                        transform_to_planar)
 from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, debiased,  # noqa: E402
                                        ellipsoid_share, fit_input)
 from odolab.io.inputs import MAX_INPUT_BYTES  # noqa: E402
-from odolab.fusion.graph import (Measurement, OnlineGraph, left_covariance, residual, right_covariance,  # noqa: E402
-                                 smooth)
+from odolab.fusion.graph import (Measurement, OnlineGraph, consensus, left_covariance, residual,  # noqa: E402
+                                 right_covariance, smooth)
 from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer  # noqa: E402
 
 
@@ -64,6 +65,32 @@ def test_isam2_and_the_batch_smoother_agree_on_a_chain():
     assert np.allclose(g.poses(), batch, atol=1e-4)
     with pytest.raises(ValueError, match="outside poses"):
         smooth(3, [Measurement(0, 5, steps[0], np.eye(6))])
+
+
+def test_a_robust_step_settles_where_the_batch_optimum_is_whichever_input_starts_it():
+    """Robust weights are set where a pose is linearised: with a coarse relinearisation threshold
+    the step stayed weighted as at its start, so the input that gave the start kept full weight."""
+    a, b = _pose(0.0, 0.25, np.radians(30.0)), _pose(0.004, 0.25, np.radians(30.6))
+    ca, cb = np.diag([1e-6, 9e-6, 1e-6, 1e-4, 1e-4, 1e-4]), np.diag([1e-6, 4e-5, 1e-6, 1e-4, 1e-4, 1e-4])
+    ms = [Measurement(0, 1, a, ca), Measurement(0, 1, b, cb)]
+    best = np.linalg.inv(smooth(2, ms)[0]) @ smooth(2, ms)[1]  # Levenberg-Marquardt to convergence
+    for start in (a, b):
+        g = OnlineGraph()
+        g.add_pose([], np.eye(4))
+        T = g.add_pose(ms, start)
+        assert abs(np.degrees(residual(T, best)[1])) < 1e-3, start
+    yaw = np.degrees(transform_to_planar(best)[2])
+    assert 30.05 < yaw < 30.55  # between the two, neither one's
+
+
+def test_consensus_starts_from_the_answer_the_others_agree_with():
+    cov = np.diag([1e-4] * 3 + [1e-4] * 3)
+    good, near, wild = _pose(0.0, 0.25, 0.5), _pose(0.002, 0.25, 0.505), _pose(0.3, 0.0, 0.9)
+    ms = [Measurement(0, 1, wild, cov), Measurement(0, 1, good, cov), Measurement(0, 1, near, cov)]
+    assert consensus(ms) is ms[1].T_ij or consensus(ms) is ms[2].T_ij
+    assert consensus(ms[:1]) is wild and consensus([]) is None
+    # measurements of another step are not candidates
+    assert consensus([ms[1], Measurement(0, 2, wild, cov)]) is good
 
 
 def test_an_indeterminate_system_restarts_the_graph_at_the_previous_pose(monkeypatch):

@@ -87,3 +87,52 @@ def test_blank_depth_and_bad_options_are_refused(near_wall_turns):
                              ("forward_range", [0.0, "a"], "forward_range")):
         with pytest.raises((TypeError, ValueError), match=said):
             load_odometer("planar-depth", **{key: value})
+
+
+def _wall_frames(slide: float, noise: float, seed: int = 0):
+    """A fronto-parallel wall 0.8 m ahead, then after a 0.25 m step towards it with ``slide`` m to
+    the right (invisible: the wall looks the same), each depth with ``noise`` relative noise."""
+    from odolab.types import Frame
+    cam = EpisodeSpec().camera
+    rng = np.random.default_rng(seed)
+    rgb = rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8)
+    frames = [Frame(rgb=rgb, depth=(z * (1 + noise * rng.standard_normal((cam.height, cam.width)))).astype(np.float32),
+                    timestamp=float(i)) for i, z in enumerate((0.8, 0.55))]
+    return cam.intrinsics, frames
+
+
+def test_one_wall_leaves_the_slide_along_it_to_the_prior():
+    from odolab.types import Action
+    intr, (prev, cur) = _wall_frames(slide=0.15, noise=0.002)
+    sigmas = {}
+    for ratio in (0.05, 0.0):  # 0: the switch off, the normals' noise taken for information
+        odo = load_odometer("planar-depth", one_plane_ratio=ratio)
+        odo.reset(intr)
+        est = odo.step(prev, cur, Action.MOVE_FORWARD)
+        assert est.valid
+        dx, dz, dyaw = est.planar
+        assert abs(dz - 0.25) < 0.01 and abs(np.degrees(dyaw)) < 0.3  # the distance to the wall is seen
+        sigmas[ratio] = np.sqrt(est.covariance[3, 3])
+    # the slide (0.15 m true, 0 by the prior) keeps the prior's 0.1 m sigma; without the switch it did not
+    assert sigmas[0.05] > 0.095 and abs(0.15 - dx) < 2 * sigmas[0.05], sigmas
+    assert sigmas[0.0] < 0.5 * sigmas[0.05], sigmas
+
+
+def test_a_fit_the_depth_refuses_gives_way_to_the_next_cheapest(near_wall_turns, monkeypatch):
+    import baselines.planar_depth as module
+    _, _, action, prev, cur, _ = near_wall_turns[0]
+    odo = PlanarDepthOdometer()
+    odo.reset(EpisodeSpec().camera.intrinsics)
+    fits, checked = [], []
+    fit = odo._fit
+    monkeypatch.setattr(odo, "_fit", lambda *a: fits.append(fit(*a)) or fits[-1])
+    verify = module.verify
+
+    def refuse_the_first(prev, cur, T, *rest):
+        checked.append(T)
+        return None if len(checked) == 1 else verify(prev, cur, T, *rest)
+    monkeypatch.setattr(module, "verify", refuse_the_first)
+    est = odo.step(prev, cur, action)
+    ranked = sorted((f for f in fits if f is not None), key=lambda f: f.cost)
+    assert len(ranked) >= 2 and checked[0] is ranked[0].T_prev_cur
+    assert est.valid and (est.transform == ranked[1].T_prev_cur).all()

@@ -11,8 +11,11 @@ robust kernel (``kernel``: huber, cauchy or none; ``kernel_width`` in whitened s
 wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
 that can register frames further apart, e.g. icp) also measure pose t-k+1..t-2 -> t without an
 action, which ties the graph across steps (span factors are not bias-corrected: a bias is
-calibrated per action, and a span has none). iSAM2 solves it online: the answer for step t uses frames
-up to t only; :meth:`FusedOdometer.smoothed_trajectory` re-solves the whole sequence in one batch. When no input answered and no span factor constrains the step, the action prior's
+calibrated per action, and a span has none). iSAM2 solves it online, each step started from the
+input answer the others agree with best (:func:`~odolab.fusion.graph.consensus`) and re-weighted
+until it settles: the answer for step t uses frames up to t only;
+:meth:`FusedOdometer.smoothed_trajectory` re-solves the whole sequence in one batch. When no input
+answered and no span factor constrains the step, the action prior's
 motion enters with its calibrated covariance and the step is reported invalid (the runner then uses
 that prior motion, as it would for any failed step). The answer's covariance is the inverse of the
 summed information of the step's factors (span factors left out), as of the previous camera.
@@ -31,7 +34,8 @@ import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.fusion.calibration import Calibration, view_is_near
-from odolab.fusion.graph import KERNELS, Measurement, OnlineGraph, left_covariance, right_covariance, smooth
+from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, consensus, left_covariance, right_covariance,
+                                smooth)
 from odolab.geometry import planar_to_transform
 from odolab.odometer import REGISTRY, Odometer, split_odometer_names
 from odolab.options import check_options, read_options_file
@@ -152,7 +156,7 @@ class FusedOdometer(Odometer):
             prior_cov = self.prior_calibration.covariance(action, None, near)
             measurements = [Measurement(j - 1, j, prior_T, prior_cov, PRIOR)]
             step_covs = {PRIOR: prior_cov}
-        guess = steps[0].T_ij if steps else prior_T
+        guess = consensus(steps, self.kernel, self.kernel_width) if steps else prior_T
         T = self._graph.add_pose(measurements, guess)
         self._measurements += measurements
         info = sum(np.linalg.inv(c) for c in step_covs.values())
