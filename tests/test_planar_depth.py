@@ -105,7 +105,7 @@ def test_one_wall_leaves_the_slide_along_it_to_the_prior():
     from odolab.types import Action
     intr, (prev, cur) = _wall_frames(slide=0.15, noise=0.002)
     sigmas = {}
-    for ratio in (0.05, 0.0):  # 0: the switch off, the normals' noise taken for information
+    for ratio in (0.05, 0.0):  # 0 (the default): the switch off, the normals' noise taken for information
         odo = load_odometer("planar-depth", one_plane_ratio=ratio)
         odo.reset(intr)
         est = odo.step(prev, cur, Action.MOVE_FORWARD)
