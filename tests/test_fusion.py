@@ -394,6 +394,49 @@ def test_fused_inputs_that_answer_are_averaged_and_the_failures_ignored(calibrat
     assert smoothed.shape == (4, 4, 4) and np.allclose(smoothed[-1][2, 3], 3 * 0.27, atol=1e-3)
 
 
+class _BadCovariance(Odometer):
+    def step(self, prev, cur, action):
+        return Estimate(planar_to_transform(0.0, 0.40, 0.0), covariance=-np.eye(6))
+
+
+def test_an_answer_whose_covariance_is_not_one_is_no_answer(calibration, tmp_path):
+    """An input's own covariance that is not positive definite would break every step of the graph."""
+    from odolab.api import Intrinsics
+
+    cal = Calibration.load(calibration)
+    fixed = {a: [0.01, 0.01, 0.01, 0.02, 0.02, 0.02] for a in ("move_forward", "turn_left", "turn_right")}
+    own = InputCalibration(fixed, {a: 1.0 for a in fixed}, {a: 100 for a in fixed})  # its own covariance used
+    Calibration({**{n: cal.for_input(n) for n in ("action-prior", "test-fixed")}, "test-badcov": own}).save(tmp_path / "c.json")
+    register_odometer("test-badcov", _BadCovariance)
+    odo = REGISTRY.load("fused(test-badcov,test-fixed)", calibration=str(tmp_path / "c.json"))
+    odo.reset(Intrinsics.from_hfov(4, 4, 79.0))
+    est = odo.step(*_frames(), Action.MOVE_FORWARD)
+    assert est.valid and np.isclose(est.transform[2, 3], 0.25, atol=1e-6)  # test-fixed's answer alone
+
+
+def test_graph_inputs_that_are_not_poses_or_covariances_are_named():
+    good = Measurement(0, 1, _pose(0.0, 0.25, 0.0), np.eye(6) * 1e-4, "good")
+    nan = Measurement(0, 1, np.full((4, 4), np.nan), np.eye(6) * 1e-4, "nan")
+    with pytest.raises(ValueError, match=r"measurement 0 \(nan\): T_ij must be a finite 4x4"):
+        consensus([nan, good])
+    with pytest.raises(ValueError, match="not a rigid transform"):
+        consensus([Measurement(0, 1, 2 * np.eye(4), np.eye(6), "x")])
+    with pytest.raises(ValueError, match="symmetric positive definite"):
+        consensus([Measurement(0, 1, np.eye(4), np.zeros((6, 6)), "x")])
+    with pytest.raises(ValueError, match="finite 6x6"):
+        consensus([Measurement(0, 1, np.eye(4), np.eye(3), "x")])
+    for bad in ({"k": 0.0}, {"k": float("nan")}, {"iterations": 0}, {"iterations": 2.5}):
+        with pytest.raises(ValueError, match="k must be|iterations must be"):
+            OnlineGraph(**bad)
+    g = OnlineGraph()
+    g.add_pose([], np.eye(4))
+    with pytest.raises(ValueError, match="for pose 1"):
+        g.add_pose([nan], np.eye(4))
+    for key, value in (("kernel_width", "abc"), ("span", 2.7), ("span", True), ("calibration", 123)):
+        with pytest.raises(ValueError, match=key):
+            REGISTRY.load("fused(icp)", **{key: value})
+
+
 def test_a_fused_odometer_digest_changes_with_its_calibration(calibration, tmp_path):
     first = REGISTRY.load("fused(test-fixed)", calibration=calibration).weights
     assert first == REGISTRY.load("fused(test-fixed)", calibration=calibration).weights

@@ -21,7 +21,8 @@ KERNELS = ("huber", "cauchy", "none")
 #: linearisation. A robust kernel's weights are set at the linearisation point, so with GTSAM's
 #: usual 0.1 (or the 0.01 used before) a step stayed weighted as at its initial guess: the answers
 #: of fused inputs differ by less than that (0.3 degrees = 0.005 rad), and whichever input gave the
-#: guess kept its full weight. At 1e-5 each step is re-weighted until it settles.
+#: guess kept its full weight. At 1e-5 each step is re-weighted until it settles (README, "Fuse
+#: odometers": on 40 val episodes x 100 steps, yaw 0.258 degrees RMS per step against 0.275).
 RELINEARIZE_THRESHOLD = 1e-5
 
 
@@ -78,8 +79,11 @@ def consensus(measurements: list[Measurement], kernel: str = "huber", k: float =
     others agree with best: the least summed robust loss of all of them (``kernel``, ``k`` as
     :func:`noise_model`) with the step set to it. A solver started there begins in the majority's
     basin, not in one input's (None without measurements)."""
+    measurements = list(measurements)
     if not measurements:
         return None
+    for n, m in enumerate(measurements):
+        check_measurement(m, f"measurement {n}")
     ends = (measurements[0].i, measurements[0].j)
     same = [m for m in measurements if (m.i, m.j) == ends]
     factors = [gtsam.BetweenFactorPose3(0, 1, gtsam.Pose3(np.asarray(m.T_ij, np.float64)), noise_model(m.cov, kernel, k))
@@ -89,8 +93,25 @@ def consensus(measurements: list[Measurement], kernel: str = "huber", k: float =
         values = gtsam.Values()
         values.insert(0, gtsam.Pose3())
         values.insert(1, gtsam.Pose3(np.asarray(T, np.float64)))
-        return sum(f.error(values) for f in factors)
+        total = sum(f.error(values) for f in factors)
+        return total if np.isfinite(total) else np.inf  # a NaN loss must never win
     return min((m.T_ij for m in same), key=loss)
+
+
+def check_measurement(m: Measurement, what: str = "measurement") -> None:
+    """``ValueError`` naming ``what`` unless ``m.T_ij`` is a finite rigid 4x4 transform and
+    ``m.cov`` a finite, symmetric positive-definite 6x6 matrix."""
+    T, cov = np.asarray(m.T_ij, np.float64), np.asarray(m.cov, np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"{what} ({m.source or 'no source'}): T_ij must be a finite 4x4 transform, got shape {T.shape}")
+    R = T[:3, :3]
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.isclose(np.linalg.det(R), 1.0, atol=1e-6)
+            and np.allclose(T[3], [0, 0, 0, 1])):
+        raise ValueError(f"{what} ({m.source or 'no source'}): T_ij is not a rigid transform")
+    if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+        raise ValueError(f"{what} ({m.source or 'no source'}): cov must be a finite 6x6 matrix, got shape {cov.shape}")
+    if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-12) or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
+        raise ValueError(f"{what} ({m.source or 'no source'}): cov must be symmetric positive definite")
 
 
 def _anchor(key: int = 0, pose: gtsam.Pose3 | None = None) -> gtsam.PriorFactorPose3:
@@ -111,6 +132,10 @@ class OnlineGraph:
     """
 
     def __init__(self, kernel: str = "huber", k: float = 1.345, iterations: int = 5) -> None:
+        if isinstance(k, bool) or not isinstance(k, (int, float)) or not (np.isfinite(k) and k > 0):
+            raise ValueError(f"kernel width k must be a finite number > 0, got {k!r:.40}")
+        if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
+            raise ValueError(f"iterations must be a whole number >= 1, got {iterations!r:.40}")
         noise_model(np.eye(6), kernel, k)  # checks the kernel's name
         self.kernel, self.k, self.iterations = kernel, float(k), int(iterations)
         self.isam = self._new_isam()
@@ -142,6 +167,10 @@ class OnlineGraph:
             bad = [m for m in measurements if m.j != j or not 0 <= m.i < j]
             if bad:
                 raise ValueError(f"measurements for pose {j} must end at it and start before it, got {bad[0].i}->{bad[0].j}")
+            for n, m in enumerate(measurements):
+                check_measurement(m, f"measurement {n} for pose {j}")
+            if np.asarray(guess).shape != (4, 4) or not np.all(np.isfinite(guess)):
+                raise ValueError(f"guess for pose {j} must be a finite 4x4 transform")
             for m in measurements:
                 if m.i not in self.frozen:  # a span from before a restart has no pose to hold on to
                     graph.add(_factor(m, self.kernel, self.k))

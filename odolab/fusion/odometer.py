@@ -34,8 +34,8 @@ import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.fusion.calibration import Calibration, view_is_near
-from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, consensus, left_covariance, right_covariance,
-                                smooth)
+from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_measurement, consensus, left_covariance,
+                                right_covariance, smooth)
 from odolab.geometry import planar_to_transform
 from odolab.odometer import REGISTRY, Odometer, split_odometer_names
 from odolab.options import check_options, read_options_file
@@ -61,6 +61,12 @@ class FusedOdometer(Odometer):
             raise ValueError("fused: an input cannot itself be fused(...)")
         if kernel not in KERNELS:
             raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+        if isinstance(kernel_width, bool) or not isinstance(kernel_width, (int, float)):
+            raise ValueError(f"kernel_width must be a number of sigmas, got {kernel_width!r:.40}")
+        if isinstance(span, bool) or not isinstance(span, int):
+            raise ValueError(f"span must be a whole number of steps, got {span!r:.40}")
+        if not isinstance(calibration, (str, Path)):
+            raise ValueError(f"calibration must be a file path, got {calibration!r:.40}")
         if not 0.1 <= float(kernel_width) <= 100:
             raise ValueError(f"kernel_width must be in [0.1, 100] sigmas, got {kernel_width}")
         if not 1 <= int(span) <= 10:
@@ -139,11 +145,15 @@ class FusedOdometer(Odometer):
         for n, est in answers.items():
             if est is None:
                 continue
-            own = right_covariance(est.transform, est.covariance) if est.covariance is not None else None
             cal = self.input_calibration[n]
-            cov = cal.covariance(action, own, near)
-            steps.append(Measurement(j - 1, j, cal.corrected(action, est.transform, near), cov, n))
-            step_covs[n] = cov
+            try:  # an answer whose own covariance is not one (singular, 3x3, ...) is no answer
+                own = right_covariance(est.transform, est.covariance) if est.covariance is not None else None
+                m = Measurement(j - 1, j, cal.corrected(action, est.transform, near), cal.covariance(action, own, near), n)
+                check_measurement(m)
+            except ValueError:
+                continue
+            steps.append(m)
+            step_covs[n] = m.cov
         spans = []
         for (k, n), est in span_answers.items():
             if est is not None:  # weighted as the input's consecutive steps it spans, summed
