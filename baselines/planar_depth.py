@@ -5,7 +5,7 @@ is moved by the candidate motion into the previous camera, projected, and compar
 previous depth surface there (its point and normal, from the organised depth image) along that
 normal. Gauss-Newton on (yaw, lateral, forward) with a Tukey kernel, from each of
 :func:`~baselines.motion_search.initial_guesses`; the start that ends with the lowest robust cost
-wins if :func:`~baselines.verification.verify` accepts it, else the next lowest (motion bounds, depth agreement; no
+wins, and :func:`~baselines.verification.verify` checks it (motion bounds, depth agreement; no
 grey-level test by default: the fit itself uses depth only, though the planar search that gives
 its starts scores grey levels too, and in a direction the depth leaves free the start and the
 prior decide). It needs the action (``needs_action``): the prior and the starts come from it, and
@@ -216,12 +216,13 @@ class PlanarDepthOdometer(Odometer):
             return Estimate.invalid()
         prior = nominal_motion(action)[[0, 2], 3]
         fits = [self._fit(X, surface, start, prior) for start in initial_guesses(action, prev, cur, intr, cfg.depth)]
-        # lowest cost first, the first the depth confirms: near a wall a start can slide to a cheaper
-        # motion out of the action's bounds while another start found the true one
-        for fit in sorted((f for f in fits if f is not None), key=lambda f: f.cost):
-            if verify(prev, cur, fit.T_prev_cur, action, intr, cfg.depth, cfg.verify) is not None:
-                return Estimate(fit.T_prev_cur, covariance=self._covariance(fit.information))
-        return Estimate.invalid()
+        fits = [f for f in fits if f is not None]
+        if not fits:
+            return Estimate.invalid()
+        best = min(fits, key=lambda f: f.cost)
+        if verify(prev, cur, best.T_prev_cur, action, intr, cfg.depth, cfg.verify) is None:
+            return Estimate.invalid()
+        return Estimate(best.T_prev_cur, covariance=self._covariance(best.information))
 
     def _fit(self, X: np.ndarray, surf: _Surface, start: np.ndarray, prior: np.ndarray) -> _Fit | None:
         """Gauss-Newton from ``start`` (4x4, made planar) with the translation prior centred on

@@ -16,7 +16,7 @@ from odolab.api import (Action, Estimate, Odometer, planar_to_transform, registe
 from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, debiased,  # noqa: E402
                                        ellipsoid_share, fit_input)
 from odolab.io.inputs import MAX_INPUT_BYTES  # noqa: E402
-from odolab.fusion.graph import (Measurement, OnlineGraph, consensus, left_covariance, residual,  # noqa: E402
+from odolab.fusion.graph import (Measurement, OnlineGraph, check_measurement, left_covariance, residual,  # noqa: E402
                                  right_covariance, smooth)
 from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer  # noqa: E402
 
@@ -65,32 +65,6 @@ def test_isam2_and_the_batch_smoother_agree_on_a_chain():
     assert np.allclose(g.poses(), batch, atol=1e-4)
     with pytest.raises(ValueError, match="outside poses"):
         smooth(3, [Measurement(0, 5, steps[0], np.eye(6))])
-
-
-def test_a_robust_step_settles_where_the_batch_optimum_is_whichever_input_starts_it():
-    """Robust weights are set where a pose is linearised: with a coarse relinearisation threshold
-    the step stayed weighted as at its start, so the input that gave the start kept full weight."""
-    a, b = _pose(0.0, 0.25, np.radians(30.0)), _pose(0.004, 0.25, np.radians(30.6))
-    ca, cb = np.diag([1e-6, 9e-6, 1e-6, 1e-4, 1e-4, 1e-4]), np.diag([1e-6, 4e-5, 1e-6, 1e-4, 1e-4, 1e-4])
-    ms = [Measurement(0, 1, a, ca), Measurement(0, 1, b, cb)]
-    best = np.linalg.inv(smooth(2, ms)[0]) @ smooth(2, ms)[1]  # Levenberg-Marquardt to convergence
-    for start in (a, b):
-        g = OnlineGraph()
-        g.add_pose([], np.eye(4))
-        T = g.add_pose(ms, start)
-        assert abs(np.degrees(residual(T, best)[1])) < 1e-3, start
-    yaw = np.degrees(transform_to_planar(best)[2])
-    assert 30.05 < yaw < 30.55  # between the two, neither one's
-
-
-def test_consensus_starts_from_the_answer_the_others_agree_with():
-    cov = np.diag([1e-4] * 3 + [1e-4] * 3)
-    good, near, wild = _pose(0.0, 0.25, 0.5), _pose(0.002, 0.25, 0.505), _pose(0.3, 0.0, 0.9)
-    ms = [Measurement(0, 1, wild, cov), Measurement(0, 1, good, cov), Measurement(0, 1, near, cov)]
-    assert consensus(ms) is ms[1].T_ij or consensus(ms) is ms[2].T_ij
-    assert consensus(ms[:1]) is wild and consensus([]) is None
-    # measurements of another step are not candidates
-    assert consensus([ms[1], Measurement(0, 2, wild, cov)]) is good
 
 
 def test_an_indeterminate_system_restarts_the_graph_at_the_previous_pose(monkeypatch):
@@ -417,21 +391,23 @@ def test_an_answer_whose_covariance_is_not_one_is_no_answer(calibration, tmp_pat
 def test_graph_inputs_that_are_not_poses_or_covariances_are_named():
     good = Measurement(0, 1, _pose(0.0, 0.25, 0.0), np.eye(6) * 1e-4, "good")
     nan = Measurement(0, 1, np.full((4, 4), np.nan), np.eye(6) * 1e-4, "nan")
-    with pytest.raises(ValueError, match=r"measurement 0 \(nan\): T_ij must be a finite 4x4"):
-        consensus([nan, good])
+    check_measurement(good)
+    with pytest.raises(ValueError, match=r"measurement \(nan\): T_ij must be a finite 4x4"):
+        check_measurement(nan)
     with pytest.raises(ValueError, match="not a rigid transform"):
-        consensus([Measurement(0, 1, 2 * np.eye(4), np.eye(6), "x")])
+        check_measurement(Measurement(0, 1, 2 * np.eye(4), np.eye(6), "x"))
     with pytest.raises(ValueError, match="symmetric positive definite"):
-        consensus([Measurement(0, 1, np.eye(4), np.zeros((6, 6)), "x")])
+        check_measurement(Measurement(0, 1, np.eye(4), np.zeros((6, 6)), "x"))
     with pytest.raises(ValueError, match="finite 6x6"):
-        consensus([Measurement(0, 1, np.eye(4), np.eye(3), "x")])
+        check_measurement(Measurement(0, 1, np.eye(4), np.eye(3), "x"))
     for bad in ({"k": 0.0}, {"k": float("nan")}, {"iterations": 0}, {"iterations": 2.5}):
         with pytest.raises(ValueError, match="k must be|iterations must be"):
             OnlineGraph(**bad)
     g = OnlineGraph()
     g.add_pose([], np.eye(4))
-    with pytest.raises(ValueError, match="for pose 1"):
-        g.add_pose([nan], np.eye(4))
+    with pytest.raises(ValueError, match=r"measurement 1 for pose 1 \(nan\)"):
+        g.add_pose([good, nan], np.eye(4))
+    assert np.allclose(g.add_pose([good], np.eye(4)), good.T_ij, atol=1e-6)  # the graph goes on
     for key, value in (("kernel_width", "abc"), ("span", 2.7), ("span", True), ("calibration", 123)):
         with pytest.raises(ValueError, match=key):
             REGISTRY.load("fused(icp)", **{key: value})
@@ -555,3 +531,10 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
         assert run_cli(bench_main, "python -m odolab.bench", ["--only", "odometers"] + argv) == 2
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err, (argv, err)
+
+
+def test_an_options_file_value_its_input_refuses_names_the_file_and_the_input(tmp_path):
+    f = tmp_path / "o.toml"
+    f.write_text('[odometers."planar-depth"]\none_plane_ratio = nan\n')
+    with pytest.raises(ValueError, match=r'o.toml: \[odometers."planar-depth"\] one_plane_ratio must be in'):
+        REGISTRY.load("fused(planar-depth)", options_file=str(f))

@@ -116,23 +116,3 @@ def test_one_wall_leaves_the_slide_along_it_to_the_prior():
     # the slide (0.15 m true, 0 by the prior) keeps the prior's 0.1 m sigma; without the switch it did not
     assert sigmas[0.05] > 0.095 and abs(0.15 - dx) < 2 * sigmas[0.05], sigmas
     assert sigmas[0.0] < 0.5 * sigmas[0.05], sigmas
-
-
-def test_a_fit_the_depth_refuses_gives_way_to_the_next_cheapest(near_wall_turns, monkeypatch):
-    import baselines.planar_depth as module
-    _, _, action, prev, cur, _ = near_wall_turns[0]
-    odo = PlanarDepthOdometer()
-    odo.reset(EpisodeSpec().camera.intrinsics)
-    fits, checked = [], []
-    fit = odo._fit
-    monkeypatch.setattr(odo, "_fit", lambda *a: fits.append(fit(*a)) or fits[-1])
-    verify = module.verify
-
-    def refuse_the_first(prev, cur, T, *rest):
-        checked.append(T)
-        return None if len(checked) == 1 else verify(prev, cur, T, *rest)
-    monkeypatch.setattr(module, "verify", refuse_the_first)
-    est = odo.step(prev, cur, action)
-    ranked = sorted((f for f in fits if f is not None), key=lambda f: f.cost)
-    assert len(ranked) >= 2 and checked[0] is ranked[0].T_prev_cur
-    assert est.valid and (est.transform == ranked[1].T_prev_cur).all()

@@ -152,8 +152,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     xi[rows] = debiased(xi[rows], cal.bias_of(a, is_near))
                     note = "" if len(rows) >= 20 else "  (too few steps to judge)"
                     label = a.label + (NEAR if is_near else "")
+                    entry = cal.label(a, is_near)
+                    used = f"entry {entry}" if entry else "no entry: the input's largest sigmas"
                     print(f"{name:>24} {label:>17}: {ellipsoid_share(xi[rows], covs):.3f} of {len(rows)} valid steps "
-                          f"inside the 95 % ellipsoid (entry {cal.label(a, is_near)}){note}")
+                          f"inside the 95 % ellipsoid ({used}){note}")
             continue
         try:
             fitted[name] = fit_input(xi, actions, own, close)

@@ -12,8 +12,8 @@ wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``sp
 that can register frames further apart, e.g. icp) also measure pose t-k+1..t-2 -> t without an
 action, which ties the graph across steps (span factors are not bias-corrected: a bias is
 calibrated per action, and a span has none). iSAM2 solves it online, each step started from the
-input answer the others agree with best (:func:`~odolab.fusion.graph.consensus`) and re-weighted
-until it settles: the answer for step t uses frames up to t only;
+first input's answer (:data:`~odolab.fusion.graph.RELINEARIZE_THRESHOLD` says why it is not solved to
+convergence): the answer for step t uses frames up to t only;
 :meth:`FusedOdometer.smoothed_trajectory` re-solves the whole sequence in one batch. When no input
 answered and no span factor constrains the step, the action prior's
 motion enters with its calibrated covariance and the step is reported invalid (the runner then uses
@@ -34,7 +34,7 @@ import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.fusion.calibration import Calibration, view_is_near
-from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_measurement, consensus, left_covariance,
+from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_measurement, left_covariance,
                                 right_covariance, smooth)
 from odolab.geometry import planar_to_transform
 from odolab.odometer import REGISTRY, Odometer, split_odometer_names
@@ -93,7 +93,12 @@ class FusedOdometer(Odometer):
                 check_options(n, REGISTRY.resolve(n), opts)
             except ValueError as exc:
                 raise ValueError(f"{options_file}: {exc}") from None
-            self.inputs[n] = REGISTRY.load(n, **opts)
+            try:
+                self.inputs[n] = REGISTRY.load(n, **opts)
+            except ValueError as exc:  # a value its own checks refuse (a range, NaN): say where it came from
+                if not opts:
+                    raise
+                raise ValueError(f"{options_file}: [odometers.\"{n}\"] {exc}") from None
         self.spanning = spanning
         self.kernel, self.kernel_width, self.span = kernel, float(kernel_width), int(span)
         self.prior = ActionPrior.shipped()
@@ -166,7 +171,7 @@ class FusedOdometer(Odometer):
             prior_cov = self.prior_calibration.covariance(action, None, near)
             measurements = [Measurement(j - 1, j, prior_T, prior_cov, PRIOR)]
             step_covs = {PRIOR: prior_cov}
-        guess = consensus(steps, self.kernel, self.kernel_width) if steps else prior_T
+        guess = steps[0].T_ij if steps else prior_T
         T = self._graph.add_pose(measurements, guess)
         self._measurements += measurements
         info = sum(np.linalg.inv(c) for c in step_covs.values())
