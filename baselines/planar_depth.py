@@ -30,9 +30,9 @@ removes the data's information along the wall when the weighted scatter of the f
 floor-plane parts (x, z) is that of one plane (its smaller eigenvalue below that fraction of the
 sum; facing one wall it is 0.003-0.03 in the val scenes, at corners 0.15-0.48), so that the prior
 alone decides that direction (that synthetic wall: 10.1 cm at 0.05). It is off (0) by default: on
-the val split's steps (20 episodes x 100 from index 20) at 0.05 it changed 156 of 595 answers and
-made them worse, forward steps' yaw 0.38 degrees RMS instead of 0.22 and 25 instead of 20 answers
-more than 2 degrees off, as a view dominated by one wall still holds other structure whose
+the val split's steps (20 episodes x 100 from index 20) at 0.05 it moved 156 of the answers by more
+than 0.1 degrees, lost 12 of 595, and made them worse: forward steps' yaw 0.38 degrees RMS instead
+of 0.22, 25 instead of 20 answers more than 2 degrees off, as a view dominated by one wall still holds other structure whose
 information it threw away. Independent pixel noise much above 0.2 % scatters the normals past the
 test anyway.
 To that covariance ``translation_floor`` (1.5 cm) is added on each planar translation: the
