@@ -110,6 +110,18 @@ class Frame:
     timestamp: float = 0.0
     gt_pose: np.ndarray | None = field(default=None, repr=False)
 
+    def __post_init__(self) -> None:
+        """``ValueError`` naming the field for arrays that cannot be an RGB-D frame (an odometer
+        would otherwise fail deep inside OpenCV or Open3D, or answer for the wrong pixels)."""
+        rgb, depth = self.rgb, self.depth
+        if not isinstance(depth, np.ndarray) or depth.ndim != 2:
+            raise ValueError(f"Frame.depth: expected an (H, W) array of metres, got "
+                             f"{getattr(depth, 'shape', type(depth).__name__)}")
+        if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise ValueError(f"Frame.rgb: expected an (H, W, 3) array, got {getattr(rgb, 'shape', type(rgb).__name__)}")
+        if rgb.shape[:2] != depth.shape:
+            raise ValueError(f"Frame: rgb is {rgb.shape[0]}x{rgb.shape[1]} pixels but depth {depth.shape[0]}x{depth.shape[1]}")
+
 
 @dataclass(frozen=True)
 class Estimate:

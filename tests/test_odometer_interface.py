@@ -132,3 +132,18 @@ def test_runner_survives_a_malformed_estimate(episodes):
     res = runner.run_sequence(Malformed(), episodes[0], "malformed", ActionPrior.shipped())
     assert res.failures == len(episodes[0]) - 1
     assert res.failure_reasons == {"bad-shape": len(episodes[0]) - 1}
+
+
+def test_a_frame_that_cannot_be_rgbd_is_refused_naming_the_field():
+    import numpy as np
+    import pytest
+
+    from odolab.api import Frame
+
+    rgb, depth = np.zeros((6, 8, 3), np.uint8), np.ones((6, 8), np.float32)
+    Frame(rgb, depth)
+    for bad_rgb, bad_depth, said in ((rgb, depth[..., None], "Frame.depth"), (rgb, depth.tolist(), "Frame.depth"),
+                                     (rgb[..., 0], depth, "Frame.rgb"), (None, depth, "Frame.rgb"),
+                                     (rgb, depth.T, "rgb is 6x8 pixels but depth 8x6")):
+        with pytest.raises(ValueError, match=said):
+            Frame(bad_rgb, bad_depth)
