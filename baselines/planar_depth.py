@@ -21,20 +21,19 @@ and the covariance says so: ``inv(H)`` of the Gauss-Newton system, each residual
 Tukey weight over the kernel width squared (``tukey`` times the depth noise model's tolerance,
 :class:`~baselines.depth_geometry.DepthRange`; so the covariance scales with ``tukey`` squared, and
 the fusion calibration's factor holds for the ``tukey`` it was fitted with), so a slide along a wall
-keeps much of the prior's sigma while the yaw is pinned (fusion takes each direction from the
-input that knows it). On noisy depth the normals of one wall
-scatter, and their scatter alone would give the fit information along the wall that the geometry
-does not have (a synthetic wall 0.8 m ahead with 0.2 % depth noise: the slide's sigma 1.6 cm instead
-of the prior's 10 cm, the answer 9 sigmas off a true 15 cm slide). The switch ``one_plane_ratio``
-removes the data's information along the wall when the weighted scatter of the fitted normals'
-floor-plane parts (x, z) is that of one plane (its smaller eigenvalue below that fraction of the
-sum; facing one wall it is 0.003-0.03 in the val scenes, at corners 0.15-0.48), so that the prior
-alone decides that direction (that synthetic wall: 10.1 cm at 0.05). It is off (0) by default: on
-the val split's steps (20 episodes x 100 from index 20) at 0.05 it moved 156 of the answers by more
-than 0.1 degrees, lost 12 of 595, and made them worse: forward steps' yaw 0.38 degrees RMS instead
-of 0.22, 25 instead of 20 answers more than 2 degrees off, as a view dominated by one wall still holds other structure whose
-information it threw away. Independent pixel noise much above 0.2 % scatters the normals past the
-test anyway.
+keeps much of the prior's sigma while the yaw is pinned (fusion takes each direction from the input
+that knows it). On noisy depth the normals of one wall scatter, and their scatter alone would give
+the fit information along the wall that the geometry does not have (a synthetic wall 0.8 m ahead
+with 0.2 % depth noise: the slide's sigma 1.6 cm instead of the prior's 10 cm, the answer 9 sigmas
+off a true 15 cm slide). The switch ``one_plane_ratio`` removes the data's information along the
+wall when the weighted scatter of the fitted normals' floor-plane parts (x, z) is that of one plane
+(its smaller eigenvalue below that fraction of the sum; facing one wall it is 0.003-0.03 in the val
+scenes, at corners 0.15-0.48), so that the prior alone decides that direction (that synthetic wall:
+10.1 cm at 0.05). It is off (0) by default: on the val split's steps (20 episodes x 100 from index
+20) at 0.05 it moved 156 of the answers by more than 0.1 degrees, lost 12 of 595, and made them
+worse: forward steps' yaw 0.38 degrees RMS instead of 0.22, 25 instead of 20 answers more than 2
+degrees off, as a view dominated by one wall still holds other structure whose information it threw
+away. Independent pixel noise much above 0.2 % scatters the normals past the test anyway.
 To that covariance ``translation_floor`` (1.5 cm) is added on each planar translation: the
 simulator's depth distortion (a depth scale that varies across the image) moves a wall by
 centimetres, which the fit's residuals cannot show. Without it, on the val split's near-view turns

@@ -11,8 +11,7 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import (Action, Estimate, Odometer, planar_to_transform, register_odometer,  # noqa: E402
-                        transform_to_planar)
+from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer  # noqa: E402
 from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, debiased,  # noqa: E402
                                        ellipsoid_share, fit_input)
 from odolab.io.inputs import MAX_INPUT_BYTES  # noqa: E402

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from odolab.runner import ROTATION_TOLERANCE
+
 #: Sigmas of the prior that pins the first pose (rad, rad, rad, m, m, m).
 ANCHOR_SIGMAS = np.full(6, 1e-6)
 KERNELS = ("huber", "cauchy", "none")
@@ -78,17 +80,23 @@ def _factor(m: Measurement, kernel: str, k: float) -> gtsam.BetweenFactorPose3:
 def check_measurement(m: Measurement, what: str = "measurement") -> None:
     """``ValueError`` naming ``what`` unless ``m.T_ij`` is a finite rigid 4x4 transform and
     ``m.cov`` a finite, symmetric positive-definite 6x6 matrix."""
-    T, cov = np.asarray(m.T_ij, np.float64), np.asarray(m.cov, np.float64)
+    T = np.asarray(m.T_ij, np.float64)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"{what} ({m.source or 'no source'}): T_ij must be a finite 4x4 transform, got shape {T.shape}")
     R = T[:3, :3]
-    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.isclose(np.linalg.det(R), 1.0, atol=1e-6)
-            and np.allclose(T[3], [0, 0, 0, 1])):
+    if not (np.max(np.abs(R @ R.T - np.eye(3))) <= ROTATION_TOLERANCE and abs(np.linalg.det(R) - 1.0) <= ROTATION_TOLERANCE
+            and np.allclose(T[3], [0, 0, 0, 1])):  # the runner's own rigidity test
         raise ValueError(f"{what} ({m.source or 'no source'}): T_ij is not a rigid transform")
+    check_covariance(m.cov, f"{what} ({m.source or 'no source'})")
+
+
+def check_covariance(cov: np.ndarray, what: str = "covariance") -> None:
+    """``ValueError`` naming ``what`` unless ``cov`` is a finite, symmetric positive-definite 6x6 matrix."""
+    cov = np.asarray(cov, np.float64)
     if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
-        raise ValueError(f"{what} ({m.source or 'no source'}): cov must be a finite 6x6 matrix, got shape {cov.shape}")
+        raise ValueError(f"{what}: cov must be a finite 6x6 matrix, got shape {cov.shape}")
     if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-12) or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
-        raise ValueError(f"{what} ({m.source or 'no source'}): cov must be symmetric positive definite")
+        raise ValueError(f"{what}: cov must be symmetric positive definite")
 
 
 def _anchor(key: int = 0, pose: gtsam.Pose3 | None = None) -> gtsam.PriorFactorPose3:

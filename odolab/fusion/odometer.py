@@ -34,7 +34,7 @@ import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.fusion.calibration import Calibration, view_is_near
-from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_measurement, left_covariance,
+from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_covariance, left_covariance,
                                 right_covariance, smooth)
 from odolab.geometry import planar_to_transform
 from odolab.odometer import REGISTRY, Odometer, split_odometer_names
@@ -154,7 +154,7 @@ class FusedOdometer(Odometer):
             try:  # an answer whose own covariance is not one (singular, 3x3, ...) is no answer
                 own = right_covariance(est.transform, est.covariance) if est.covariance is not None else None
                 m = Measurement(j - 1, j, cal.corrected(action, est.transform, near), cal.covariance(action, own, near), n)
-                check_measurement(m)
+                check_covariance(m.cov)  # the motion itself passed the runner's rigidity check
             except ValueError:
                 continue
             steps.append(m)
