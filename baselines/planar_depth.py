@@ -171,6 +171,8 @@ def _without_slide(H: np.ndarray, g: np.ndarray, normals: np.ndarray, weights: n
     removed when the weighted normals' (x, z) scatter is that of one plane (smaller eigenvalue
     below ``ratio`` of the sum): the translation along the least-seen normal direction is then
     projected out of ``H`` and ``g``. Otherwise unchanged."""
+    if ratio <= 0:  # the switch off (the default): nothing to compute on every iteration
+        return H, g
     nt = normals[:, [0, 2]]
     lam, vec = np.linalg.eigh((nt * weights[:, None]).T @ nt)
     if not lam.sum() > 0 or lam[0] >= ratio * lam.sum():

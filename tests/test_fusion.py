@@ -391,7 +391,7 @@ def test_graph_inputs_that_are_not_poses_or_covariances_are_named():
     good = Measurement(0, 1, _pose(0.0, 0.25, 0.0), np.eye(6) * 1e-4, "good")
     nan = Measurement(0, 1, np.full((4, 4), np.nan), np.eye(6) * 1e-4, "nan")
     check_measurement(good)
-    with pytest.raises(ValueError, match=r"measurement \(nan\): T_ij must be a finite 4x4"):
+    with pytest.raises(ValueError, match=r"measurement \(nan\): T_ij is not a rigid transform: non-finite"):
         check_measurement(nan)
     with pytest.raises(ValueError, match="not a rigid transform"):
         check_measurement(Measurement(0, 1, 2 * np.eye(4), np.eye(6), "x"))

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from odolab.runner import ROTATION_TOLERANCE
+from odolab.runner import failure_reason
+from odolab.types import Estimate
 
 #: Sigmas of the prior that pins the first pose (rad, rad, rad, m, m, m).
 ANCHOR_SIGMAS = np.full(6, 1e-6)
@@ -78,15 +79,12 @@ def _factor(m: Measurement, kernel: str, k: float) -> gtsam.BetweenFactorPose3:
 
 
 def check_measurement(m: Measurement, what: str = "measurement") -> None:
-    """``ValueError`` naming ``what`` unless ``m.T_ij`` is a finite rigid 4x4 transform and
-    ``m.cov`` a finite, symmetric positive-definite 6x6 matrix."""
-    T = np.asarray(m.T_ij, np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"{what} ({m.source or 'no source'}): T_ij must be a finite 4x4 transform, got shape {T.shape}")
-    R = T[:3, :3]
-    if not (np.max(np.abs(R @ R.T - np.eye(3))) <= ROTATION_TOLERANCE and abs(np.linalg.det(R) - 1.0) <= ROTATION_TOLERANCE
-            and np.allclose(T[3], [0, 0, 0, 1])):  # the runner's own rigidity test
-        raise ValueError(f"{what} ({m.source or 'no source'}): T_ij is not a rigid transform")
+    """``ValueError`` naming ``what`` unless ``m.T_ij`` passes the runner's test of a usable motion
+    (:func:`~odolab.runner.failure_reason`: a finite rigid 4x4 transform) and
+    ``m.cov`` is a finite, symmetric positive-definite 6x6 matrix."""
+    reason = failure_reason(Estimate(np.asarray(m.T_ij)))  # the runner's own test of a usable motion
+    if reason is not None:
+        raise ValueError(f"{what} ({m.source or 'no source'}): T_ij is not a rigid transform: {reason}")
     check_covariance(m.cov, f"{what} ({m.source or 'no source'})")
 
 
