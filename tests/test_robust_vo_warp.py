@@ -102,12 +102,14 @@ def test_a_batch_warps_each_sample_by_the_action_it_now_stands_for(recipe):
     assert torch.equal(unswapped.x[:, :c], plain.x[:, :c]) and not torch.allclose(unswapped.x[:, c:], plain.x[:, c:])
 
 
-def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path):
+@pytest.mark.parametrize("depth_residual", [0.0, 0.1])
+def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path, depth_residual):
     """Frames of the data's own episode, given to the odometer at full size, become the same network
-    input as the training batch of that pair (resize, warp and psi alike; up to the data's depth
-    rounding)."""
+    input as the training batch of that pair (resize, warp and psi alike, the residual channel too;
+    up to the data's depth rounding)."""
     torch.manual_seed(0)
-    save_model(tmp_path / "m.pt", recipe, build_networks(WARPED), {})
+    model = dataclasses.replace(WARPED, depth_residual=depth_residual)
+    save_model(tmp_path / "m.pt", dataclasses.replace(recipe, model=model), build_networks(model), {})
     odo = load_odometer("odolab.robust_vo.odometer:RobustVOOdometer", checkpoint=str(tmp_path / "m.pt"))
     assert odo.needs_action
     data = TrainingData(recipe.data_folder(recipe.train_data))
@@ -115,11 +117,92 @@ def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path):
     odo.reset(ep.intrinsics)
     for i in range(len(ep) - 1):
         x = odo._pair_channels(ep[i], ep[i + 1], ep.action(i))
-        batch = make_batch(data, Samples(np.array([i]), np.array([False]), np.array([False])), WARPED,
+        batch = make_batch(data, Samples(np.array([i]), np.array([False]), np.array([False])), model,
                            torch.device("cpu"))
-        differ = (x - batch.x[0]).abs() > 1e-3  # stored depth is rounded to 1 mm: a rare bin flips
+        assert x.shape[0] == model.input_channels == 2 * WARPED.channels_per_frame + (depth_residual > 0)
+        c = 2 * WARPED.channels_per_frame
+        differ = (x[:c] - batch.x[0, :c]).abs() > 1e-3  # stored depth is rounded to 1 mm: a rare bin flips
         assert differ.float().mean() < 1e-3, i
+        if depth_residual:  # two depths rounded to 1 mm each: 2 mm / scale at most, but at a depth edge
+            assert ((x[c:] - batch.x[0, c:]).abs() > 0.002 / depth_residual + 1e-4).float().mean() < 2e-3, i
     assert not odo.step(ep[0], ep[1], None).valid
+
+
+# --- depth_residual: the warped depth change as a channel of its own ---------------------------
+
+def test_the_residual_channel_is_the_depth_change_scaled_clipped_and_zero_on_holes():
+    from odolab.robust_vo.inputs import residual_channel
+
+    prev = torch.tensor([[[2.0, 2.0, 0.0, 3.0]]])
+    cur = torch.tensor([[[1.99, 2.5, 1.0, 0.0]]])
+    r = residual_channel(prev, cur, 0.1)
+    assert r.shape == (1, 1, 1, 4)
+    assert torch.allclose(r[0, 0, 0], torch.tensor([-0.1, 1.0, 0.0, 0.0]), atol=1e-5)
+
+
+def test_the_residual_sees_a_longer_step_as_a_nearer_scene(episode):
+    """A forward step 2 cm longer than the true one, undone by warping with the true motion plus
+    2 cm: the residual channel's median is then +2 cm / scale (the warp expected the scene 2 cm
+    nearer than it is), and about 0 with the true motion."""
+    from odolab.robust_vo.inputs import residual_channel
+
+    ep = episode
+    t = next(i for i in range(len(ep) - 1) if Action(int(ep.actions[i])) is Action.MOVE_FORWARD)
+    T = invert(ep.poses[t]) @ ep.poses[t + 1]
+    longer = T.copy()
+    longer[:3, 3] += 0.02 * T[:3, 2]  # 2 cm further along the camera's forward axis
+    prev = torch.from_numpy(ep.depth[t][None].copy())
+    medians = []
+    for motion in (T, longer):
+        _, depth = _warp(ep, t, motion)
+        r = residual_channel(prev, depth, 0.1)[0, 0]
+        medians.append(float(r[(prev[0] > 0) & (depth[0] > 0)].median()))
+    assert abs(medians[0]) < 0.03 and 0.15 < medians[1] < 0.25
+
+
+def test_the_residual_needs_the_warp_and_a_sane_scale():
+    with pytest.raises(ValueError, match="depth_residual needs warp"):
+        ModelConfig(depth_residual=0.1)
+    for bad in (-0.1, 11.0):
+        with pytest.raises(ValueError, match="depth_residual must be"):
+            dataclasses.replace(WARPED, depth_residual=bad)
+
+
+def test_a_start_from_a_model_without_the_residual_answers_as_that_model(recipe, tmp_path):
+    """``init``: the exported model's weights, with a zero stem and an identity normaliser for the
+    channel it lacks, so the grown network answers exactly as the old one whatever the new channel
+    holds; another model (here, other widths) is refused by name."""
+    from odolab.robust_vo.checkpoint import apply_start, load_start
+    from odolab.robust_vo.model import predict
+
+    torch.manual_seed(0)
+    old_nets = build_networks(WARPED)
+    for p in old_nets.parameters():
+        torch.nn.init.normal_(p, std=0.05)
+    for net in old_nets.values():
+        net.norm.mean.normal_()
+        net.norm.var.uniform_(0.5, 2.0)
+    save_model(tmp_path / "old.pt", recipe, old_nets, {})
+    grown_cfg = dataclasses.replace(recipe, model=dataclasses.replace(WARPED, depth_residual=0.1),
+                                    init=str(tmp_path / "old.pt"))
+    start, digest = load_start(grown_cfg.init, grown_cfg, tmp_path / "new.pt")
+    assert len(digest) == 64
+    grown = build_networks(grown_cfg.model)
+    apply_start(grown, start)
+    x = torch.rand(2, WARPED.input_channels, H, W)
+    extra = torch.rand(2, 1, H, W) * 2 - 1
+    acts = np.array([Action.MOVE_FORWARD.value, Action.TURN_LEFT.value])
+    with torch.no_grad():
+        old_out = predict(old_nets.eval(), WARPED, x, acts)
+        new_out = predict(grown.eval(), grown_cfg.model, torch.cat([x, extra], dim=1), acts)
+    assert torch.allclose(old_out, new_out, atol=1e-5) and old_out.abs().max() > 1e-3
+    other = dataclasses.replace(grown_cfg, model=dataclasses.replace(grown_cfg.model, hidden=16))
+    with pytest.raises(ValueError, match="differs from this recipe's in hidden"):
+        load_start(other.init, other, tmp_path / "new.pt")
+    with pytest.raises(ValueError, match="would overwrite"):
+        load_start(grown_cfg.init, grown_cfg, tmp_path / "old.pt")
+    with pytest.raises(ValueError, match="no such model file"):
+        load_start(str(tmp_path / "none.pt"), grown_cfg, tmp_path / "new.pt")
 
 
 # --- mirror_turns: one turn network for both turns ----------------------------------------------

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
+from odolab.learning import EpochLoop, TrainingData, load_init, make_training_data, require_finite
 from odolab.learning.validation import error_rows, write_report
 
 from baselines.deepvo.config import DeepVOTraining, load_training
@@ -63,22 +63,11 @@ def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[DeepVONet, str] | No
     ``export`` (which would overwrite the model it starts from)."""
     if not cfg.init:
         return None
-    path = Path(cfg.init)
-    if path.is_dir():
-        raise ValueError(f"init = {cfg.init!r} is a folder; give the exported model file (e.g. <work>/model.pt)")
-    if not path.is_file():
-        raise ValueError(f"init = {cfg.init!r}: no such model file (relative to {Path.cwd()}; "
-                         "train the first stage first, see the recipe)")
-    if path.resolve() == Path(export).resolve():
-        raise ValueError(f"init = {cfg.init!r} is this run's --export, which would overwrite it; export elsewhere")
-    try:
-        model, first, info = load_model(path)
-    except ValueError as exc:
-        raise ValueError(f"init = {cfg.init!r}: {exc}") from None
+    model, first, digest = load_init(cfg.init, export, load_model)
     if model != cfg.model:
         changed = [f.name for f in dataclasses.fields(model) if getattr(model, f.name) != getattr(cfg.model, f.name)]
         raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(changed)}")
-    return first, info["sha256"]
+    return first, digest
 
 
 def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device: torch.device,

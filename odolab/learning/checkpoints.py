@@ -90,3 +90,23 @@ def load_model(path: str | os.PathLike, kind: str, model_cls: type,
         raise CheckpointError(f"{path}: the weights do not fit the {kind} config ({first})") from None
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()  # which weights, for results kept per model
     return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {}), "sha256": digest}
+
+
+def load_init(init: str, export: str | os.PathLike, load: Callable[[Path], tuple[Any, Any, dict]]) -> tuple[Any, Any, str]:
+    """The exported model a run starts from (a recipe's ``init``): ``load(path)``'s config and networks
+    and the file's SHA-256 (part of the run's identity: another start is another run). Refused with
+    a message naming ``init``: a missing file, a folder, the run's own ``export`` (which would
+    overwrite it) and whatever ``load`` refuses."""
+    path = Path(init)
+    if path.is_dir():
+        raise ValueError(f"init = {init!r} is a folder; give the exported model file (e.g. <work>/model.pt)")
+    if not path.is_file():
+        raise ValueError(f"init = {init!r}: no such model file (relative to {Path.cwd()}; "
+                         "train the first stage first, see the recipe)")
+    if path.resolve() == Path(export).resolve():
+        raise ValueError(f"init = {init!r} is this run's --export, which would overwrite it; export elsewhere")
+    try:
+        model, nets, info = load(path)
+    except ValueError as exc:
+        raise ValueError(f"init = {init!r}: {exc}") from None
+    return model, nets, info["sha256"]

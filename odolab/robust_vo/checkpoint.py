@@ -2,12 +2,14 @@
 were trained, read back with ``torch.load(weights_only=True)``."""
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
+import torch
 from torch import nn
 
-from odolab.learning import checkpoints
+from odolab.learning import checkpoints, load_init
 from odolab.robust_vo.config import ModelConfig, TrainConfig
 from odolab.robust_vo.model import build_networks
 
@@ -26,3 +28,42 @@ def load_model(path: str | os.PathLike) -> tuple[ModelConfig, nn.ModuleDict, dic
     :class:`~odolab.learning.CheckpointError` names the file and the problem."""
     cfg, nets, info = checkpoints.load_model(path, KIND, ModelConfig, lambda c: dict(build_networks(c).items()))
     return cfg, nn.ModuleDict(nets).eval(), info
+
+
+#: Fields in which a recipe's model may differ from the model it starts from (``init``): inputs only.
+INIT_MAY_DIFFER = ("depth_residual",)
+#: Entries that grow with the pair's input channels (dimension 1 of the stem, 0 of the normaliser).
+_INPUT_ENTRIES = {"encoder.stem.0.weight": 1, "norm.mean": 0, "norm.var": 0}
+
+
+def load_start(init: str, cfg: TrainConfig, export: str | os.PathLike) -> tuple[dict[str, dict], str]:
+    """The state dicts a recipe's networks start from (its ``init``), and the file's SHA-256.
+
+    The exported model must be the recipe's except in :data:`INIT_MAY_DIFFER`, and may have fewer
+    input channels; channels it lacks start with zero stem weights and an identity normaliser (mean
+    0, variance 1), so the network at the start answers exactly as the one it came from."""
+    model, nets, digest = load_init(init, export, load_model)
+    changed = [f.name for f in dataclasses.fields(model)
+               if f.name not in INIT_MAY_DIFFER and getattr(model, f.name) != getattr(cfg.model, f.name)]
+    if changed:
+        raise ValueError(f"init = {init!r}: its model differs from this recipe's in {', '.join(changed)}")
+    if model.input_channels > cfg.model.input_channels:
+        raise ValueError(f"init = {init!r}: it takes {model.input_channels} input channels, this recipe "
+                         f"{cfg.model.input_channels}; a start may only gain inputs")
+    return {name: net.state_dict() for name, net in nets.items()}, digest
+
+
+def apply_start(nets: nn.ModuleDict, start: dict[str, dict]) -> None:
+    """Copy :func:`load_start`'s weights into ``nets`` (grown input entries keep their new tail at
+    zero stem weights, mean 0 and variance 1)."""
+    with torch.no_grad():
+        for name, net in nets.items():
+            for key, value in net.state_dict().items():
+                old = start[name][key]
+                if old.shape == value.shape:
+                    value.copy_(old)
+                    continue
+                dim = _INPUT_ENTRIES[key]
+                fill = 1.0 if key == "norm.var" else 0.0
+                value.fill_(fill)
+                value.narrow(dim, 0, old.shape[dim]).copy_(old)

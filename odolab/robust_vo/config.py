@@ -31,7 +31,10 @@ class ModelConfig:
     command; ``none`` is the paper's input. ``mirror_turns`` (SepAct, beyond the paper): no network
     of its own for turn_right; a right turn is the left-turn network's answer for the mirrored pair,
     mirrored back (dx and dyaw negated), so one turn network learns from both turns (the world's
-    left-right symmetry that Partsey et al.'s mirror augmentation uses).
+    left-right symmetry that Partsey et al.'s mirror augmentation uses). ``depth_residual`` (beyond
+    the paper; needs the ``nominal`` warp): > 0 adds one channel per pair, the warped current depth
+    minus the previous depth over this many metres (:func:`odolab.robust_vo.inputs.residual_channel`);
+    0 is off.
     """
 
     kind: Literal["sepact", "unified", "actembed"] = "sepact"
@@ -50,6 +53,7 @@ class ModelConfig:
     sproj_rows: float = 100 / 192  # central share of image rows projected (the reference keeps 100 of 192)
     warp: Literal["none", "nominal"] = "none"
     mirror_turns: bool = False
+    depth_residual: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("groups", "compress_channels", "hidden", "embed_dim"):
@@ -69,6 +73,10 @@ class ModelConfig:
             raise ValueError(f"mirror_turns needs kind = 'sepact' (one network per action), got {self.kind!r}")
         if self.warp not in ("none", "nominal"):
             raise ValueError(f"warp must be 'none' or 'nominal', got {self.warp!r}")
+        if not (self.depth_residual == 0 or 0 < self.depth_residual <= 10):
+            raise ValueError(f"depth_residual must be 0 (off) or in (0, 10] m, got {self.depth_residual}")
+        if self.depth_residual and self.warp != "nominal":
+            raise ValueError("depth_residual needs warp = 'nominal' (the residual is the deviation from the command)")
         if not 0 < self.max_depth <= 100:
             raise ValueError(f"max_depth must be in (0, 100] m, got {self.max_depth}")
 
@@ -77,6 +85,11 @@ class ModelConfig:
         rgb = 3 if self.visual in ("rgb", "rgbd") else 0
         depth = 1 if self.visual in ("depth", "rgbd") else 0
         return rgb + depth + self.dd_bins + int(self.sproj)
+
+    @property
+    def input_channels(self) -> int:
+        """Channels of a pair's psi: both frames' and the residual channel when it is on."""
+        return 2 * self.channels_per_frame + int(self.depth_residual > 0)
 
     def model_names(self) -> tuple[str, ...]:
         """The networks of this kind: one per action label for SepAct (no turn_right with
@@ -138,7 +151,10 @@ class StageConfig:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """A whole recipe: data (made when missing), model, stages in order, validation size, seed."""
+    """A whole recipe: data (made when missing), model, stages in order, validation size, seed.
+    ``init``: start every network from this exported robust-VO model (a path from the working
+    directory; the same model but for added inputs, :func:`odolab.robust_vo.checkpoint.load_start`);
+    "" = fresh weights."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
     stages: tuple[StageConfig, ...] = ()
@@ -147,6 +163,7 @@ class TrainConfig:
     data_root: str = "data"
     val_pairs: int = 3000
     seed: int = 0
+    init: str = ""
 
     def __post_init__(self) -> None:
         check_ranges("recipe", self, val_pairs=(0, 10**7), seed=(0, 2**32 - 1))

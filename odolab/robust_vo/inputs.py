@@ -3,7 +3,12 @@
 Per frame, in this channel order: RGB / 255 (3, if the visual input has RGB), depth / max_depth
 clipped to [0, 1] (1, if it has depth), one-hot discretised depth over N equal bins of [0, 1]
 (N = ``dd_bins``, holes fall in the first bin), and the soft top-down projection (1, if ``sproj``).
-A pair stacks [prev, cur]; with RGB-D, 10 bins and S-proj that is 2 x 15 = 30 channels.
+A pair stacks [prev, cur]; with RGB-D, 10 bins and S-proj that is 2 x 15 = 30 channels. With
+``depth_residual`` (beyond the paper) one more channel follows: the current depth minus the previous
+one, per pixel, over that many metres and clipped to [-1, 1] (0 where either is a hole). After the
+nominal warp, the current depth is in the previous camera, so this is the depth change that the
+deviation from the command made, e.g. -1 cm where the robot went 1 cm further than commanded
+towards a wall it faces.
 """
 from __future__ import annotations
 
@@ -71,8 +76,20 @@ def frame_channels(rgb: torch.Tensor, depth: torch.Tensor, intrinsics: Intrinsic
     return torch.cat(parts, dim=1)
 
 
+def residual_channel(prev_depth: torch.Tensor, cur_depth: torch.Tensor, scale: float) -> torch.Tensor:
+    """(B, 1, H, W) depth change ``(cur - prev) / scale`` clipped to [-1, 1], 0 where either depth
+    (B, H, W, metres) is a hole (0)."""
+    prev, cur = prev_depth.to(torch.float32), cur_depth.to(torch.float32)
+    r = ((cur - prev) / scale).clamp(-1.0, 1.0)
+    return torch.where((prev > 0) & (cur > 0), r, torch.zeros_like(r))[:, None]
+
+
 def pair_channels(rgb: torch.Tensor, depth: torch.Tensor, intrinsics: Intrinsics, cfg: ModelConfig) -> torch.Tensor:
-    """psi of pairs: ``rgb`` (B, 2, H, W, 3) uint8, ``depth`` (B, 2, H, W) m -> (B, 2C, H, W), [prev, cur]."""
+    """psi of pairs: ``rgb`` (B, 2, H, W, 3) uint8, ``depth`` (B, 2, H, W) m -> (B, 2C [+ 1], H, W),
+    [prev, cur] and, with ``depth_residual``, the residual channel."""
     b = rgb.shape[0]
     x = frame_channels(rgb.flatten(0, 1), depth.flatten(0, 1), intrinsics, cfg)
-    return x.reshape(b, 2 * x.shape[1], *x.shape[2:])
+    x = x.reshape(b, 2 * x.shape[1], *x.shape[2:])
+    if cfg.depth_residual:
+        x = torch.cat([x, residual_channel(depth[:, 0], depth[:, 1], cfg.depth_residual)], dim=1)
+    return x

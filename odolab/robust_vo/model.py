@@ -86,7 +86,7 @@ class VONet(nn.Module):
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
-        cin = 2 * cfg.channels_per_frame
+        cin = cfg.input_channels
         self.norm = RunningNorm(cin)
         self.encoder = ResNet18GN(cin, cfg.base_planes, cfg.groups)
         self.compress = nn.Sequential(nn.Conv2d(self.encoder.out_channels, cfg.compress_channels, 3, 1, 1, bias=False),

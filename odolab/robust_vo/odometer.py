@@ -23,7 +23,7 @@ import torch
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads
 from odolab.learning import pick_device, resize_frame
 from odolab.robust_vo.checkpoint import SHIPPED, load_model
-from odolab.robust_vo.inputs import frame_channels
+from odolab.robust_vo.inputs import frame_channels, residual_channel
 from odolab.robust_vo.model import predict
 from odolab.robust_vo.motion import mirror, swap_action
 from odolab.robust_vo.warp import nominal_transforms, warp_current
@@ -90,15 +90,17 @@ class RobustVOOdometer(Odometer):
         return x
 
     def _pair_channels(self, prev: Frame, cur: Frame, action: Action) -> torch.Tensor:
-        """psi of a pair (2C, h, w); with the ``nominal`` warp the current frame is first resampled
-        into the previous view by the action's commanded motion."""
+        """psi of a pair (2C [+ 1], h, w); with the ``nominal`` warp the current frame is first
+        resampled into the previous view by the action's commanded motion."""
         if self.cfg.warp == "none":
             return torch.cat([self._frame_channels(prev), self._frame_channels(cur)])
         (_, prev_depth), (rgb, depth) = self._resized(prev), self._resized(cur)
         rgb, depth = warp_current(rgb, depth, prev_depth, nominal_transforms(np.array([action.value])),
                                   self._input_intrinsics)
-        return torch.cat([self._frame_channels(prev),
-                          frame_channels(rgb, depth, self._input_intrinsics, self.cfg)[0]])
+        parts = [self._frame_channels(prev), frame_channels(rgb, depth, self._input_intrinsics, self.cfg)[0]]
+        if self.cfg.depth_residual:
+            parts.append(residual_channel(prev_depth, depth, self.cfg.depth_residual)[0])
+        return torch.cat(parts)
 
     def _predict(self, x: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
         """(B, 3) motions of pair inputs ``x`` (B, 2C, h, w); with ``mirror_tta`` averaged with the

@@ -24,7 +24,7 @@ from odolab.api import Action
 from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Samples, make_batch, stage_samples
-from odolab.robust_vo.checkpoint import save_model
+from odolab.robust_vo.checkpoint import apply_start, load_start, save_model
 from odolab.robust_vo.config import StageConfig, TrainConfig, load_train_config
 from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
@@ -125,12 +125,15 @@ class StageRunner:
                           np.concatenate(actions), stage=self.stage.name)
 
 
-def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
+def _identity(cfg: TrainConfig, stage: StageConfig, init_sha256: str = "") -> dict:
     """What a saved stage state must match to be resumed: everything but this stage's number of
     epochs, the earlier stages included (a stage trained on top of other weights is another run);
     a stage without turns leaves out ``mirror_turns``, which only decides the turn networks, and a
-    ``blocked_repeat`` of 1 is left out (recipes written before it existed resume)."""
+    ``blocked_repeat`` of 1, a ``depth_residual`` of 0 and an empty ``init`` are left out (recipes
+    written before they existed resume); a start from ``init`` is identified by its file's digest."""
     doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    if not doc["model"]["depth_residual"]:
+        del doc["model"]["depth_residual"]
     if not {Action.TURN_LEFT, Action.TURN_RIGHT} & set(stage.action_set):
         del doc["model"]["mirror_turns"]  # which network answers right turns cannot change this stage
     for stage_doc in doc["stages"]:
@@ -138,8 +141,11 @@ def _identity(cfg: TrainConfig, stage: StageConfig) -> dict:
             del stage_doc["blocked_repeat"]
     k = cfg.stages.index(stage)
     stage_doc = {key: v for key, v in doc["stages"][k].items() if key != "epochs"}
-    return {"model": doc["model"], "stage": stage_doc, "before": doc["stages"][:k], "train_data": doc["train_data"],
-            "val_data": doc["val_data"], "seed": cfg.seed, "val_pairs": cfg.val_pairs}
+    out = {"model": doc["model"], "stage": stage_doc, "before": doc["stages"][:k], "train_data": doc["train_data"],
+           "val_data": doc["val_data"], "seed": cfg.seed, "val_pairs": cfg.val_pairs}
+    if init_sha256:
+        out["init_sha256"] = init_sha256
+    return out
 
 
 def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None:
@@ -161,17 +167,22 @@ def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: to
         command: str = "") -> bool:
     """Run (or resume) every stage; export when all are done. Returns True when finished."""
     deadline = time.monotonic() + hours * 3600 if hours else None
+    start, init_sha256 = load_start(cfg.init, cfg, export) if cfg.init else (None, "")  # before any data is made
     train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data, progress=progress)
     torch.manual_seed(cfg.seed)
-    nets = build_networks(cfg.model).to(device)
+    nets = build_networks(cfg.model)
     last_trained: dict[str, str] = {}  # network -> last stage that trained it
+    if start is not None:
+        apply_start(nets, start)
+        last_trained = {name: "init" for name in nets}
+    nets = nets.to(device)
     all_rows: list[dict] = []
     status = {"command": command, "train_pairs": train.counts(), "val_pairs": val.counts(), "stages": {}}
     finished = True
     for stage in cfg.stages:
         runner = StageRunner(cfg, stage, train, val, nets, device, progress)
         loop = EpochLoop(work / f"{stage.name}.pt", {n: nets[n] for n in runner.names}, runner.optimizer,
-                         stage.epochs, cfg.seed, _identity(cfg, stage))
+                         stage.epochs, cfg.seed, _identity(cfg, stage, init_sha256))
         if loop.resume() == 0:
             fresh = [n for n in runner.names if n not in last_trained]
             if fresh:
