@@ -161,6 +161,30 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
                     device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
 
 
+def test_a_model_without_depth_starts_one_with_depth_that_answers_alike(trained, recipe, tmp_path):
+    """``init`` may gain the depth input (zero weights on the depth channels of both frames: same
+    answers whatever the depth), never lose it."""
+    first = trained / "model.pt"
+    _, first_net, _ = load_model(first)
+    deeper = dataclasses.replace(recipe, init=str(first), model=dataclasses.replace(recipe.model, depth=True))
+    state, _ = trainer.first_stage(deeper, tmp_path / "m.pt")
+    net = DeepVONet(deeper.model)
+    net.load_state_dict(state)
+    first_net.eval(), net.eval()
+    torch.manual_seed(1)
+    rgb = torch.rand(2, 4, 3, H, W) - 0.5
+    depth = torch.rand(2, 4, 1, H, W) - 0.5
+    with torch.no_grad():
+        a, _ = first_net(rgb)
+        b, _ = net(torch.cat([rgb, depth], dim=2))
+    assert torch.allclose(a, b, atol=1e-6) and a.abs().max() > 1e-3
+    trainer.run(dataclasses.replace(deeper, epochs=1), work=tmp_path / "w", reports=tmp_path / "r",
+                export=tmp_path / "deep.pt", device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    back = dataclasses.replace(recipe, init=str(tmp_path / "deep.pt"))
+    with pytest.raises(ValueError, match="may gain depth, not lose it"):
+        trainer.first_stage(back, tmp_path / "m2.pt")
+
+
 def test_validation_windows_do_not_share_pairs():
     starts = np.array([0, 1, 2, 3, 4, 5, 9, 10, 20])
     assert trainer.disjoint(starts, 3).tolist() == [0, 3, 9, 20]

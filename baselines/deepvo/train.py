@@ -56,18 +56,28 @@ def loss_fn(pred: torch.Tensor, target: torch.Tensor, rotation_weight: float) ->
     return (pred[..., :2] - target[..., :2]).pow(2).mean() + rotation_weight * (pred[..., 2] - target[..., 2]).pow(2).mean()
 
 
-def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[DeepVONet, str] | None:
-    """The network of the exported model ``cfg.init`` and its SHA-256 (part of the run's identity:
-    another first stage is another run), or None without ``init``. Refused, before any data is made:
-    a missing file or folder, another kind of checkpoint, another model shape, and the run's own
-    ``export`` (which would overwrite the model it starts from)."""
+def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
+    """The weights (a state dict for ``cfg.model``) of the exported model ``cfg.init`` and its
+    SHA-256 (part of the run's identity: another first stage is another run), or None without
+    ``init``. Refused, before any data is made: a missing file or folder, another kind of checkpoint,
+    another model shape, and the run's own ``export`` (which would overwrite the model it starts
+    from). One change is allowed: a model without ``depth`` may start a model with it; the depth
+    channels start with zero weights, so the network answers as before until it learns to use them."""
     if not cfg.init:
         return None
     model, first, digest = load_init(cfg.init, export, load_model)
-    if model != cfg.model:
-        changed = [f.name for f in dataclasses.fields(model) if getattr(model, f.name) != getattr(cfg.model, f.name)]
-        raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(changed)}")
-    return first, digest
+    changed = [f.name for f in dataclasses.fields(model) if getattr(model, f.name) != getattr(cfg.model, f.name)]
+    if changed and (changed != ["depth"] or model.depth):
+        raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(changed)}"
+                         + (" (a start may gain depth, not lose it)" if changed == ["depth"] else ""))
+    state = first.state_dict()
+    if changed:
+        key = "encoder.0.0.weight"  # (out, 2 x 3, k, k) -> (out, 2 x 4, k, k): [rgb, depth] per frame
+        old = state[key]
+        grown = old.new_zeros((old.shape[0], 8, *old.shape[2:]))
+        grown[:, [0, 1, 2, 4, 5, 6]] = old
+        state = {**state, key: grown}
+    return state, digest
 
 
 def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device: torch.device,
@@ -93,7 +103,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
     identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init")}
     if start is not None:
-        net.load_state_dict(start[0].state_dict())
+        net.load_state_dict(start[0])
         identity["init_sha256"] = start[1]
     else:
         with torch.no_grad():  # start at the mean motion: the output bias is the mean target / scale
