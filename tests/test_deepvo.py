@@ -161,28 +161,53 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
                     device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
 
 
-def test_a_model_without_depth_starts_one_with_depth_that_answers_alike(trained, recipe, tmp_path):
-    """``init`` may gain the depth input (zero weights on the depth channels of both frames: same
-    answers whatever the depth), never lose it."""
+@pytest.mark.parametrize("gain", ["depth", "actions"])
+def test_a_model_gains_an_input_and_answers_alike(trained, recipe, tmp_path, gain):
+    """``init`` may gain the depth input or the action input (zero weights on the new inputs: the
+    same answers whatever they hold), never lose one."""
     first = trained / "model.pt"
     _, first_net, _ = load_model(first)
-    deeper = dataclasses.replace(recipe, init=str(first), model=dataclasses.replace(recipe.model, depth=True))
-    state, _ = trainer.first_stage(deeper, tmp_path / "m.pt")
-    net = DeepVONet(deeper.model)
+    grown = dataclasses.replace(recipe, init=str(first), model=dataclasses.replace(recipe.model, **{gain: True}))
+    state, _ = trainer.first_stage(grown, tmp_path / "m.pt")
+    net = DeepVONet(grown.model)
     net.load_state_dict(state)
     first_net.eval(), net.eval()
     torch.manual_seed(1)
     rgb = torch.rand(2, 4, 3, H, W) - 0.5
     depth = torch.rand(2, 4, 1, H, W) - 0.5
+    actions = torch.tensor([[1, 2, 3], [3, 1, 1]])
     with torch.no_grad():
         a, _ = first_net(rgb)
-        b, _ = net(torch.cat([rgb, depth], dim=2))
+        b, _ = net(torch.cat([rgb, depth], dim=2) if gain == "depth" else rgb, actions=actions)
     assert torch.allclose(a, b, atol=1e-6) and a.abs().max() > 1e-3
-    trainer.run(dataclasses.replace(deeper, epochs=1), work=tmp_path / "w", reports=tmp_path / "r",
-                export=tmp_path / "deep.pt", device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
-    back = dataclasses.replace(recipe, init=str(tmp_path / "deep.pt"))
-    with pytest.raises(ValueError, match="may gain depth, not lose it"):
+    trainer.run(dataclasses.replace(grown, epochs=1), work=tmp_path / "w", reports=tmp_path / "r",
+                export=tmp_path / "grown.pt", device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    back = dataclasses.replace(recipe, init=str(tmp_path / "grown.pt"))
+    with pytest.raises(ValueError, match="not lose it"):
         trainer.first_stage(back, tmp_path / "m2.pt")
+
+
+def test_a_deepvo_with_actions_needs_them(trained, recipe, tmp_path):
+    """A model trained with ``actions`` answers each step by the action given (another action,
+    another answer), refuses a step without one, and its network names a missing action input."""
+    from odolab.api import load_odometer
+    from odolab.episodes import EpisodeSpec, render_episode
+
+    first = trained / "model.pt"
+    grown = dataclasses.replace(recipe, init=str(first), model=dataclasses.replace(recipe.model, actions=True), epochs=1)
+    trainer.run(grown, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "a.pt",
+                device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    _, net, _ = load_model(tmp_path / "a.pt")
+    with pytest.raises(ValueError, match="takes the action of each pair"):
+        net(torch.zeros(1, 2, 3, H, W))
+    ep = render_episode(EpisodeSpec(split="test", index=0, seed=0, max_steps=4))
+    answers = {}
+    for action in (Action.MOVE_FORWARD, Action.TURN_LEFT):
+        odo = load_odometer(NAME, checkpoint=str(tmp_path / "a.pt"))
+        odo.reset(ep.intrinsics)
+        answers[action] = odo.step(ep[0], ep[1], action).planar
+    assert odo.needs_action and not odo.step(ep[0], ep[1], None).valid
+    assert not np.allclose(answers[Action.MOVE_FORWARD], answers[Action.TURN_LEFT])
 
 
 def test_validation_windows_do_not_share_pairs():

@@ -16,7 +16,10 @@ class DeepVOModel:
     """Network shape. ``width_scale`` multiplies FlowNetSimple's channel widths (1.0: the original
     64 ... 1024; the shipped model uses 1/8); ``depth``: add each frame's depth / ``max_depth`` as a
     fourth channel (the original sees RGB only); ``hidden``: LSTM units per layer (the original
-    1000); frames are resized to ``width`` x ``height`` px."""
+    1000); frames are resized to ``width`` x ``height`` px. ``actions`` (beyond the original, which
+    sees images only): the action taken (forward, left, right as a one-hot) enters the LSTM beside
+    each pair's image features, as the robot knows what it commanded (the robust VO picks its
+    network by it)."""
 
     width: int = 170
     height: int = 96
@@ -26,6 +29,7 @@ class DeepVOModel:
     layers: int = 2
     dropout: float = 0.2
     max_depth: float = 10.0
+    actions: bool = False
 
     def __post_init__(self) -> None:
         check_ranges("", self, width=(8, 2048), height=(8, 2048), width_scale=(1e-3, 4.0), hidden=(1, 8192),

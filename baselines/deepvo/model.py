@@ -27,9 +27,14 @@ def _conv(cin: int, cout: int, kernel: int, stride: int, dropout: float) -> nn.S
                          nn.LeakyReLU(0.1, inplace=True), nn.Dropout(dropout))
 
 
+#: Actions a model with ``actions`` takes (their one-hot index is ``value - 1``).
+ACTION_INPUTS = 3
+
+
 class DeepVONet(nn.Module):
-    """``forward(frames (B, T+1, C, H, W), state)`` -> (motions (B, T, 3), state): the motion of each
-    consecutive pair, the LSTM carrying ``state`` ((h, c), or None for zeros) across calls."""
+    """``forward(frames (B, T+1, C, H, W), state, actions)`` -> (motions (B, T, 3), state): the
+    motion of each consecutive pair, the LSTM carrying ``state`` ((h, c), or None for zeros) across
+    calls; ``actions`` (B, T) :class:`~odolab.api.Action` values, for a model with ``actions``."""
 
     def __init__(self, cfg: DeepVOModel) -> None:
         super().__init__()
@@ -42,17 +47,23 @@ class DeepVONet(nn.Module):
         with torch.no_grad():
             features = self.encoder(torch.zeros(1, 2 * cfg.frame_channels, cfg.height, cfg.width)).numel()
         self.encoder.train()
-        self.lstm = nn.LSTM(features, cfg.hidden, cfg.layers, batch_first=True,
+        self.actions = cfg.actions
+        self.lstm = nn.LSTM(features + (ACTION_INPUTS if cfg.actions else 0), cfg.hidden, cfg.layers, batch_first=True,
                             dropout=cfg.dropout if cfg.layers > 1 else 0.0)
         self.drop = nn.Dropout(cfg.dropout)
         self.head = nn.Linear(cfg.hidden, 3)
         nn.init.zeros_(self.head.weight)  # start at the mean motion (the bias); see odolab.robust_vo.model
         self.register_buffer("scale", torch.tensor(SCALE))
 
-    def forward(self, frames: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None = None
-                ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    def forward(self, frames: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None = None,
+                actions: torch.Tensor | None = None) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
         b, t1 = frames.shape[:2]
         pairs = torch.cat([frames[:, :-1], frames[:, 1:]], dim=2).flatten(0, 1)
         f = self.encoder(pairs).flatten(1).reshape(b, t1 - 1, -1)
+        if self.actions:
+            if actions is None or tuple(actions.shape) != (b, t1 - 1):
+                got = None if actions is None else tuple(actions.shape)
+                raise ValueError(f"this DeepVO takes the action of each pair: expected actions of shape {(b, t1 - 1)}, got {got}")
+            f = torch.cat([f, nn.functional.one_hot(actions.long() - 1, ACTION_INPUTS).to(f.dtype)], dim=2)
         out, state = self.lstm(f, state)
         return self.head(self.drop(out)) * self.scale, state

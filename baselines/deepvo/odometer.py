@@ -7,8 +7,9 @@ model, ``baselines/deepvo/deepvo.pt``, made by the first command)::
 
 Frames are resized to the model's input (:func:`odolab.learning.resize_frame`, as its training data
 was); the LSTM state carries from one ``step`` to the next within a sequence and ``reset`` clears
-it. DeepVO sees no action: it answers on real data too. A STOP step is answered with no motion
-(and leaves the state as it is), as the other odometers do.
+it. DeepVO sees no action (unless its model was trained with ``actions``): it answers on real data
+too. A STOP step is answered with no motion (and leaves the state as it is), as the other
+odometers do; a model with ``actions`` answers ``valid=False`` where no action is given.
 """
 from __future__ import annotations
 
@@ -51,6 +52,7 @@ class DeepVOOdometer(Odometer):
         self.threads = int(threads)
         self._state: tuple[torch.Tensor, torch.Tensor] | None = None
         self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its tensor)
+        self.needs_action = self.cfg.actions
 
     def reset(self, intrinsics: Intrinsics) -> None:
         super().reset(intrinsics)
@@ -67,8 +69,11 @@ class DeepVOOdometer(Odometer):
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         if action is Action.STOP:
             return Estimate(np.eye(4))
+        if action is None and self.needs_action:
+            return Estimate.invalid()
         frames = torch.stack([self._frame(prev), self._frame(cur)])[None].to(self.device)
+        actions = torch.tensor([[action.value]], device=self.device) if self.needs_action else None
         with torch.inference_mode():
-            out, self._state = self.net(frames, self._state)
+            out, self._state = self.net(frames, self._state, actions)
         dx, dz, dyaw = (float(v) for v in out[0, 0].cpu())
         return Estimate.from_planar(dx, dz, dyaw)

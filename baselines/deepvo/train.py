@@ -26,7 +26,7 @@ from odolab.learning import EpochLoop, TrainingData, load_init, make_training_da
 from odolab.learning.validation import error_rows, write_report
 
 from baselines.deepvo.config import DeepVOTraining, load_training
-from baselines.deepvo.model import DeepVONet, frame_tensor
+from baselines.deepvo.model import ACTION_INPUTS, DeepVONet, frame_tensor
 from baselines.deepvo.odometer import load_model, save_model
 
 
@@ -56,27 +56,37 @@ def loss_fn(pred: torch.Tensor, target: torch.Tensor, rotation_weight: float) ->
     return (pred[..., :2] - target[..., :2]).pow(2).mean() + rotation_weight * (pred[..., 2] - target[..., 2]).pow(2).mean()
 
 
+#: Inputs a recipe's model may add to the model it starts from (``init``).
+GAINABLE = ("depth", "actions")
+
+
 def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
     """The weights (a state dict for ``cfg.model``) of the exported model ``cfg.init`` and its
     SHA-256 (part of the run's identity: another first stage is another run), or None without
     ``init``. Refused, before any data is made: a missing file or folder, another kind of checkpoint,
     another model shape, and the run's own ``export`` (which would overwrite the model it starts
-    from). One change is allowed: a model without ``depth`` may start a model with it; the depth
-    channels start with zero weights, so the network answers as before until it learns to use them."""
+    from). Inputs may be gained: a model without ``depth`` or ``actions`` may start a model with
+    them; the new inputs start with zero weights, so the network answers as before until it learns
+    to use them."""
     if not cfg.init:
         return None
     model, first, digest = load_init(cfg.init, export, load_model)
     changed = [f.name for f in dataclasses.fields(model) if getattr(model, f.name) != getattr(cfg.model, f.name)]
-    if changed and (changed != ["depth"] or model.depth):
+    gained = [name for name in changed if name in GAINABLE and not getattr(model, name)]
+    if changed != gained:
+        lost = [name for name in changed if name in GAINABLE and name not in gained]
         raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(changed)}"
-                         + (" (a start may gain depth, not lose it)" if changed == ["depth"] else ""))
-    state = first.state_dict()
-    if changed:
+                         + (f" (a start may gain {' or '.join(GAINABLE)}, not lose it)" if lost else ""))
+    state = dict(first.state_dict())
+    if "depth" in gained:
         key = "encoder.0.0.weight"  # (out, 2 x 3, k, k) -> (out, 2 x 4, k, k): [rgb, depth] per frame
         old = state[key]
         grown = old.new_zeros((old.shape[0], 8, *old.shape[2:]))
         grown[:, [0, 1, 2, 4, 5, 6]] = old
-        state = {**state, key: grown}
+        state[key] = grown
+    if "actions" in gained:
+        key = "lstm.weight_ih_l0"  # (4 hidden, features) -> (4 hidden, features + 3): one-hot last
+        state[key] = torch.cat([state[key], state[key].new_zeros((state[key].shape[0], ACTION_INPUTS))], dim=1)
     return state, digest
 
 
@@ -102,6 +112,8 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
     net = DeepVONet(cfg.model).to(device)
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
     identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init")}
+    if not cfg.model.actions:  # recipes written before the switch existed resume
+        del identity["model"]["actions"]
     if start is not None:
         net.load_state_dict(start[0])
         identity["init_sha256"] = start[1]
@@ -120,8 +132,8 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
         total, seen, t0 = 0.0, 0, time.monotonic()
         bar = tqdm(total=len(order), desc=f"deepvo epoch {epoch}", unit="window", disable=not progress, leave=False)
         for k in range(0, len(order), cfg.batch):
-            x, target, _ = window_batch(train, np.sort(order[k:k + cfg.batch]), cfg.window, cfg.model)
-            pred, _ = net(x.to(device))
+            x, target, actions = window_batch(train, np.sort(order[k:k + cfg.batch]), cfg.window, cfg.model)
+            pred, _ = net(x.to(device), actions=torch.from_numpy(actions).to(device))
             loss = loss_fn(pred, torch.from_numpy(target).to(device, torch.float32), cfg.rotation_weight)
             require_finite(loss, epoch)
             optimizer.zero_grad(set_to_none=True)
@@ -137,7 +149,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
         preds, truths, acts = [], [], []
         for k in range(0, len(val_starts), 64):
             x, target, actions = window_batch(val, val_starts[k:k + 64], cfg.window, cfg.model)
-            preds.append(net(x.to(device))[0].cpu().numpy().reshape(-1, 3))
+            preds.append(net(x.to(device), actions=torch.from_numpy(actions).to(device))[0].cpu().numpy().reshape(-1, 3))
             truths.append(target.reshape(-1, 3))
             acts.append(actions.ravel())
         if not preds:
