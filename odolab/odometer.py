@@ -220,7 +220,7 @@ def available_odometers() -> list[str]:
 
 
 #: Odometers built on others: never part of "every odometer", named with their inputs.
-COMPOSITES = frozenset({"fused"})
+COMPOSITES = frozenset({"fused", "manhattan"})
 
 
 def standalone_odometers() -> list[str]:

@@ -1,0 +1,173 @@
+"""``manhattan(inner)``: another odometer's heading held to the walls of a Manhattan world.
+
+Most indoor walls meet at right angles, so the direction of the walls a depth image sees, modulo
+90 degrees, is an absolute heading cue that does not drift (the "Manhattan frame" of structured-scene
+VO, e.g. Kim et al., ICRA 2018, who decouple drift-free rotation from translation this way). This
+odometer runs ``inner`` unchanged and corrects only its yaw, with a one-state Kalman filter on the
+heading since the sequence start:
+
+- predict: the heading moves by the inner odometer's yaw (the action prior's, as the runner would
+  substitute it, when the inner step fails); its variance grows by ``step_sigma_deg`` squared, or
+  ``prior_sigma_deg`` squared after a failed step;
+- measure: :func:`wall_direction` of the current depth image (vertical surfaces within
+  ``max_depth``; ``min_support`` of them must agree within 10 degrees). The first ``anchor_steps``
+  views fix the world's wall direction (their mean, from the inner odometer's early headings, which
+  have not drifted yet); later views within 3 sigma of the prediction (the filter's and
+  ``wall_sigma_deg``) correct the heading by the Kalman gain;
+- the step's answer is the inner transform followed by the correction's rotation about the
+  vertical axis; a correction due on a failed step is added to the next answered one.
+
+The yaw is only corrected modulo 90 degrees, so an error beyond 45 degrees cannot be undone, and a
+view of a wall that is not at right angles to the others pulls the heading wrong (the gate limits
+how far). **odolab's procedural scenes are exactly Manhattan** (axis-aligned boxes): what this
+odometer gains here is an upper bound of what it would gain in a real building.
+
+    python -m odolab.compare --odometers 'open3d-rgbd,manhattan(open3d-rgbd)'
+    python -m odolab.navigate --odometers 'manhattan(fused(open3d-rgbd,robust-vo,planar-depth))' --episodes 100
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, load_odometer, planar_to_transform
+
+#: Vertical surfaces agree on a direction when within this of their mean (deg, modulo 90).
+INLIER_DEG = 10.0
+
+
+@dataclass(frozen=True)
+class WallDirection:
+    """The dominant direction of a view's vertical surfaces: ``angle`` (rad, in (-pi/4, pi/4]) of
+    their normals in the camera's x-z plane (``atan2(n_x, n_z)``, modulo 90 degrees), ``support``
+    (the share of vertical-surface samples within :data:`INLIER_DEG` of it) and ``samples``."""
+
+    angle: float
+    support: float
+    samples: int
+
+
+def wall_direction(depth: np.ndarray, intrinsics: Intrinsics, max_depth: float = 4.0, stride: int = 4,
+                   baseline: int = 2, max_vertical: float = 0.15, min_samples: int = 30) -> WallDirection | None:
+    """The walls' direction in a depth image (H, W, metres; 0 = no reading), or None when fewer than
+    ``min_samples`` vertical-surface samples agree.
+
+    Pixels on a ``stride`` grid are back-projected; each sample's normal is the cross product of the
+    steps to its neighbours ``baseline`` grid cells right and down (skipped across depth edges of
+    more than 10 %, and beyond ``max_depth``, where depth noise tilts the surfaces); samples whose
+    normal has a vertical (camera y) part above ``max_vertical`` are floor, ceiling or clutter. Their
+    horizontal angles, times 4, are averaged on the unit circle (so walls at right angles agree),
+    twice: the second time only over samples within :data:`INLIER_DEG` of the first mean.
+    """
+    K = intrinsics
+    d = np.asarray(depth, np.float64)[::stride, ::stride]
+    v, u = np.mgrid[0:depth.shape[0]:stride, 0:depth.shape[1]:stride].astype(np.float64)
+    points = np.stack([(u - K.cx) / K.fx * d, (v - K.cy) / K.fy * d, d], axis=-1)
+    b = baseline
+    here, right, down = d[:-b, :-b], d[:-b, b:], d[b:, :-b]
+    ok = (here > 0) & (right > 0) & (down > 0) & (here < max_depth)
+    ok &= (np.abs(right - here) < 0.1 * here) & (np.abs(down - here) < 0.1 * here)
+    normal = np.cross(points[:-b, b:] - points[:-b, :-b], points[b:, :-b] - points[:-b, :-b])
+    length = np.linalg.norm(normal, axis=-1)
+    ok &= length > 0
+    normal = normal[ok] / length[ok][:, None]
+    normal = normal[np.abs(normal[:, 1]) < max_vertical]
+    if len(normal) < min_samples:
+        return None
+    z = np.exp(4j * np.arctan2(normal[:, 0], normal[:, 2]))
+    first = np.mean(z)
+    if abs(first) == 0:
+        return None
+    inliers = np.abs(np.angle(z * np.conj(first))) < np.radians(4 * INLIER_DEG)
+    if inliers.sum() < min_samples:
+        return None
+    return WallDirection(float(np.angle(np.mean(z[inliers])) / 4), float(inliers.mean()), int(inliers.sum()))
+
+
+def wrap_quarter(a: float) -> float:
+    """An angle (rad) modulo 90 degrees, in (-pi/4, pi/4]."""
+    return float(np.angle(np.exp(4j * a)) / 4)
+
+
+class ManhattanOdometer(Odometer):
+    """``inner``'s answers with its heading held to the walls (module docstring). Options: the
+    filter's ``step_sigma_deg``, ``prior_sigma_deg``, ``wall_sigma_deg``, ``anchor_steps``,
+    ``min_support`` and ``max_depth`` (m, of the wall samples)."""
+
+    def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
+                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, min_support: float = 0.3,
+                 max_depth: float = 4.0) -> None:
+        if not inputs or not isinstance(inputs, str):
+            raise ValueError("manhattan needs one inner odometer, e.g. manhattan(open3d-rgbd)")
+        for key, value, lo, hi in (("step_sigma_deg", step_sigma_deg, 1e-3, 45.0),
+                                   ("prior_sigma_deg", prior_sigma_deg, 1e-3, 45.0),
+                                   ("wall_sigma_deg", wall_sigma_deg, 1e-3, 45.0),
+                                   ("min_support", min_support, 0.0, 1.0), ("max_depth", max_depth, 0.5, 20.0)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= float(value) <= hi:
+                raise ValueError(f"manhattan: {key} must be a number in [{lo:g}, {hi:g}], got {value!r}")
+        if isinstance(anchor_steps, bool) or not isinstance(anchor_steps, int) or not 1 <= anchor_steps <= 1000:
+            raise ValueError(f"manhattan: anchor_steps must be an integer in [1, 1000], got {anchor_steps!r}")
+        self.inner = load_odometer(inputs)
+        self.prior = load_odometer("action-prior")
+        self.step_var, self.prior_var = np.radians(step_sigma_deg) ** 2, np.radians(prior_sigma_deg) ** 2
+        self.wall_var = np.radians(wall_sigma_deg) ** 2
+        self.anchor_steps, self.min_support, self.max_depth = anchor_steps, float(min_support), float(max_depth)
+        self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
+        self.threads = self.inner.threads
+        settings = (f"{inputs}={self.inner.weights};{step_sigma_deg};{prior_sigma_deg};{wall_sigma_deg};"
+                    f"{anchor_steps};{min_support};{max_depth}")
+        self.weights = hashlib.sha256(settings.encode()).hexdigest()
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self.heading = 0.0  # rad since the sequence start, counter-clockwise (the planar dyaw's sign)
+        self.variance = 0.0
+        self.world: float | None = None  # the walls' direction in the start frame, modulo 90 degrees
+        self._anchor: list[complex] = []
+        self._pending = 0.0  # a correction made on a failed step, for the next answered one
+        self._steps = 0
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        self.inner.reset(intrinsics)
+        self.prior.reset(intrinsics)
+        self._reset_state()
+
+    def _observe(self, frame: Frame) -> float:
+        """Fold the view's wall direction into the heading; returns the correction (rad) made."""
+        wall = wall_direction(frame.depth, self.intrinsics, self.max_depth)
+        if wall is None or wall.support < self.min_support:
+            return 0.0
+        # a wall of world direction w appears at w + heading in the camera (camera x right, yaw left)
+        implied = wrap_quarter(wall.angle - self.heading)
+        if self.world is None or len(self._anchor) < self.anchor_steps:
+            self._anchor.append(np.exp(4j * implied))
+            self.world = float(np.angle(np.mean(self._anchor)) / 4)
+            return 0.0
+        innovation = wrap_quarter(implied - self.world)  # heading error, as the walls see it
+        if innovation ** 2 > 9.0 * (self.variance + self.wall_var):
+            return 0.0
+        gain = self.variance / (self.variance + self.wall_var)
+        correction = gain * innovation
+        self.heading += correction
+        self.variance *= 1.0 - gain
+        return correction
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        if self._steps == 0:
+            self._observe(prev)  # the start view anchors too
+        self._steps += 1
+        est = self.inner.step(prev, cur, action)
+        if action is Action.STOP:
+            return est
+        motion = est if est.valid else self.prior.step(prev, cur, action)
+        self.heading += float(motion.planar[2])
+        self.variance += self.step_var if est.valid else self.prior_var
+        self._pending += self._observe(cur)
+        if not est.valid:
+            return est
+        turn, self._pending = self._pending, 0.0
+        return Estimate(np.asarray(est.transform, np.float64) @ planar_to_transform(0.0, 0.0, turn),
+                        covariance=est.covariance)
