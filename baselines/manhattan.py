@@ -7,13 +7,18 @@ odometer runs ``inner`` unchanged and corrects only its yaw, with a one-state Ka
 heading since the sequence start:
 
 - predict: the heading moves by the inner odometer's yaw (the action prior's, as the runner would
-  substitute it, when the inner step fails); its variance grows by ``step_sigma_deg`` squared, or
+  substitute it, when the inner step fails: ``valid=False``, not a rigid motion, or an exception,
+  which is raised on after the heading is updated); its variance grows by ``step_sigma_deg`` squared, or
   ``prior_sigma_deg`` squared after a failed step;
 - measure: :func:`wall_direction` of the current depth image (vertical surfaces within
   ``max_depth``; ``min_support`` of them must agree within 10 degrees). The first ``anchor_steps``
   views fix the world's wall direction (their mean, from the inner odometer's early headings, which
   have not drifted yet); later views within 3 sigma of the prediction (the filter's and
-  ``wall_sigma_deg``) correct the heading by the Kalman gain;
+  ``wall_sigma_deg``) correct the heading by the Kalman gain. Views beyond that gate are set
+  aside; when ``relock_views`` of them in a row agree (within ``relock_spread_deg`` of each
+  other), the inner odometer, not the walls, is taken to have jumped (a single answer a few
+  degrees off, which the filter's step sigma does not expect): the heading's variance is raised to
+  their mean innovation squared and the latest view corrects it;
 - the step's answer is the inner transform followed by the correction's rotation about the
   vertical axis; a correction due on a failed step is added to the next answered one.
 
@@ -32,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, load_odometer, planar_to_transform
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, failure_reason, load_odometer, planar_to_transform
 
 #: Vertical surfaces agree on a direction when within this of their mean (deg, modulo 90).
 INLIER_DEG = 10.0
@@ -97,27 +102,30 @@ class ManhattanOdometer(Odometer):
     ``min_support`` and ``max_depth`` (m, of the wall samples)."""
 
     def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
-                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, min_support: float = 0.3,
-                 max_depth: float = 4.0) -> None:
+                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 3,
+                 relock_spread_deg: float = 2.0, min_support: float = 0.3, max_depth: float = 4.0) -> None:
         if not inputs or not isinstance(inputs, str):
             raise ValueError("manhattan needs one inner odometer, e.g. manhattan(open3d-rgbd)")
         for key, value, lo, hi in (("step_sigma_deg", step_sigma_deg, 1e-3, 45.0),
                                    ("prior_sigma_deg", prior_sigma_deg, 1e-3, 45.0),
                                    ("wall_sigma_deg", wall_sigma_deg, 1e-3, 45.0),
+                                   ("relock_spread_deg", relock_spread_deg, 0.0, 45.0),
                                    ("min_support", min_support, 0.0, 1.0), ("max_depth", max_depth, 0.5, 20.0)):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= float(value) <= hi:
                 raise ValueError(f"manhattan: {key} must be a number in [{lo:g}, {hi:g}], got {value!r}")
-        if isinstance(anchor_steps, bool) or not isinstance(anchor_steps, int) or not 1 <= anchor_steps <= 1000:
-            raise ValueError(f"manhattan: anchor_steps must be an integer in [1, 1000], got {anchor_steps!r}")
+        for key, value in (("anchor_steps", anchor_steps), ("relock_views", relock_views)):
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 1000:
+                raise ValueError(f"manhattan: {key} must be an integer in [1, 1000], got {value!r}")
         self.inner = load_odometer(inputs)
         self.prior = load_odometer("action-prior")
         self.step_var, self.prior_var = np.radians(step_sigma_deg) ** 2, np.radians(prior_sigma_deg) ** 2
         self.wall_var = np.radians(wall_sigma_deg) ** 2
         self.anchor_steps, self.min_support, self.max_depth = anchor_steps, float(min_support), float(max_depth)
+        self.relock_views, self.relock_spread = relock_views, np.radians(relock_spread_deg)
         self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
         self.threads = self.inner.threads
         settings = (f"{inputs}={self.inner.weights};{step_sigma_deg};{prior_sigma_deg};{wall_sigma_deg};"
-                    f"{anchor_steps};{min_support};{max_depth}")
+                    f"{anchor_steps};{relock_views};{relock_spread_deg};{min_support};{max_depth}")
         self.weights = hashlib.sha256(settings.encode()).hexdigest()
         self._reset_state()
 
@@ -126,6 +134,7 @@ class ManhattanOdometer(Odometer):
         self.variance = 0.0
         self.world: float | None = None  # the walls' direction in the start frame, modulo 90 degrees
         self._anchor: list[complex] = []
+        self._rejected: list[float] = []  # innovations (rad) of the views in a row beyond the gate
         self._pending = 0.0  # a correction made on a failed step, for the next answered one
         self._steps = 0
 
@@ -148,7 +157,12 @@ class ManhattanOdometer(Odometer):
             return 0.0
         innovation = wrap_quarter(implied - self.world)  # heading error, as the walls see it
         if innovation ** 2 > 9.0 * (self.variance + self.wall_var):
-            return 0.0
+            self._rejected.append(innovation)
+            recent = self._rejected[-self.relock_views:]
+            if len(recent) < self.relock_views or max(recent) - min(recent) > self.relock_spread:
+                return 0.0
+            self.variance = max(self.variance, float(np.mean(recent)) ** 2)  # the inner odometer jumped
+        self._rejected.clear()
         gain = self.variance / (self.variance + self.wall_var)
         correction = gain * innovation
         self.heading += correction
@@ -159,15 +173,26 @@ class ManhattanOdometer(Odometer):
         if self._steps == 0:
             self._observe(prev)  # the start view anchors too
         self._steps += 1
-        est = self.inner.step(prev, cur, action)
+        try:
+            est = self.inner.step(prev, cur, action)
+        except Exception:
+            if action is not Action.STOP:
+                self._advance(prev, cur, action, None)
+            raise  # the runner records it and uses the action prior, which the heading has followed
         if action is Action.STOP:
             return est
-        motion = est if est.valid else self.prior.step(prev, cur, action)
-        self.heading += float(motion.planar[2])
-        self.variance += self.step_var if est.valid else self.prior_var
-        self._pending += self._observe(cur)
-        if not est.valid:
+        answered = failure_reason(est) is None
+        self._advance(prev, cur, action, est if answered else None)
+        if not answered:
             return est
         turn, self._pending = self._pending, 0.0
         return Estimate(np.asarray(est.transform, np.float64) @ planar_to_transform(0.0, 0.0, turn),
                         covariance=est.covariance)
+
+    def _advance(self, prev: Frame, cur: Frame, action: Action | None, est: Estimate | None) -> None:
+        """Predict the heading by ``est`` (None: the step failed, the action prior's motion) and
+        observe the current view; a correction is kept for the next answered step."""
+        motion = est if est is not None else self.prior.step(prev, cur, action)
+        self.heading += float(motion.planar[2])
+        self.variance += self.step_var if est is not None else self.prior_var
+        self._pending += self._observe(cur)

@@ -45,7 +45,7 @@ __all__ = [
     "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
     # running and comparing
     "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison",
-    "run_odometers", "load_tum_sequence", "write_bytes_atomic", "write_json_atomic",
+    "run_odometers", "failure_reason", "load_tum_sequence", "write_bytes_atomic", "write_json_atomic",
     # evaluating trajectories (the library behind python -m odolab.evaluate)
     "Evaluation", "Trajectory", "evaluate_trajectory", "pair_trajectories",
 ]
@@ -57,7 +57,7 @@ if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and
     from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.io.atomic import write_bytes_atomic, write_json_atomic
     from odolab.io.tum_rgbd import load_tum_sequence
-    from odolab.runner import SequenceResult
+    from odolab.runner import SequenceResult, failure_reason
     from odolab.sim.scenes import SPLITS
     from odolab.trajectory import Trajectory
 
@@ -69,7 +69,7 @@ _LAZY = {
     "true_motions": "odolab.datasets",
     "ComparisonConfig": "odolab.comparison", "ComparisonResult": "odolab.comparison",
     "ComparisonError": "odolab.comparison",
-    "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner",
+    "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner", "failure_reason": "odolab.runner",
     "load_tum_sequence": "odolab.io.tum_rgbd", "write_bytes_atomic": "odolab.io.atomic",
     "write_json_atomic": "odolab.io.atomic",
     "Evaluation": "odolab.evaluation", "evaluate_trajectory": "odolab.evaluation",

@@ -106,3 +106,46 @@ def test_bad_options_are_named(options, field):
         ManhattanOdometer("ground-truth", **options)
     with pytest.raises(ValueError, match="one inner odometer"):
         ManhattanOdometer("")
+
+
+class Misbehaving(Odometer):
+    """The true motion, but step ``bad`` answers NaN (``mode="nan"``) or raises (``"raise"``)."""
+
+    oracle = True
+    bad, mode = 3, "nan"
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        self.t = 0
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        self.t += 1
+        if self.t == self.bad + 1:
+            if self.mode == "raise":
+                raise RuntimeError("inner odometer broke")
+            return Estimate(np.full((4, 4), np.nan))
+        return Estimate(invert(prev.gt_pose) @ cur.gt_pose)
+
+
+@pytest.mark.parametrize("mode", ["nan", "raise"])
+def test_a_failed_inner_step_moves_the_heading_as_the_runner_does(episode, mode):
+    """A non-finite answer or an exception is a failed step: the heading follows the action prior
+    there (as the runner's substitute does), stays finite, and the later answers stay usable."""
+    register_odometer("misbehaving", type("M", (Misbehaving,), {"mode": mode}))
+    odo = load_odometer("manhattan(misbehaving)")
+    odo.reset(episode.intrinsics)
+    prior = load_odometer("action-prior")
+    expected = 0.0
+    for i in range(8):
+        if i == Misbehaving.bad:
+            if mode == "raise":
+                with pytest.raises(RuntimeError):
+                    odo.step(episode[i], episode[i + 1], episode.action(i))
+            else:
+                assert not np.all(np.isfinite(odo.step(episode[i], episode[i + 1], episode.action(i)).transform))
+            expected += prior.step(episode[i], episode[i + 1], episode.action(i)).planar[2]
+        else:
+            est = odo.step(episode[i], episode[i + 1], episode.action(i))
+            assert np.all(np.isfinite(est.transform))
+            expected += est.planar[2]
+    assert np.isfinite(odo.heading) and odo.heading == pytest.approx(expected, abs=1e-9)
