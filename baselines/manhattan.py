@@ -24,7 +24,10 @@ heading since the sequence start:
 
 The yaw is only corrected modulo 90 degrees, so an error beyond 45 degrees cannot be undone, and a
 view of a wall that is not at right angles to the others pulls the heading wrong (the gate limits
-how far). **odolab's procedural scenes are exactly Manhattan** (axis-aligned boxes): what this
+how far). It assumes a level camera on a robot moving in the plane: on a hand-held recording
+(``--tum``) the camera's roll and pitch tilt the walls it sees, and it makes the heading worse
+(``manhattan(icp)`` on the TUM frames: 0.43 degrees of rotation error against icp's 0.34).
+**odolab's procedural scenes are exactly Manhattan** (axis-aligned boxes): what this
 odometer gains here is an upper bound of what it would gain in a real building.
 
     python -m odolab.compare --odometers 'open3d-rgbd,manhattan(open3d-rgbd)'
@@ -37,7 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, failure_reason, load_odometer, planar_to_transform
+from odolab.api import (Action, Estimate, Frame, Intrinsics, Odometer, failure_reason, load_inputs, load_odometer,
+                        planar_to_transform, split_odometer_names)
 
 #: Vertical surfaces agree on a direction when within this of their mean (deg, modulo 90).
 INLIER_DEG = 10.0
@@ -68,6 +72,7 @@ def wall_direction(depth: np.ndarray, intrinsics: Intrinsics, max_depth: float =
     """
     K = intrinsics
     d = np.asarray(depth, np.float64)[::stride, ::stride]
+    d = np.where(np.isfinite(d), d, 0.0)  # no reading
     v, u = np.mgrid[0:depth.shape[0]:stride, 0:depth.shape[1]:stride].astype(np.float64)
     points = np.stack([(u - K.cx) / K.fx * d, (v - K.cy) / K.fy * d, d], axis=-1)
     b = baseline
@@ -103,9 +108,14 @@ class ManhattanOdometer(Odometer):
 
     def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
                  wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 3,
-                 relock_spread_deg: float = 2.0, min_support: float = 0.3, max_depth: float = 4.0) -> None:
-        if not inputs or not isinstance(inputs, str):
-            raise ValueError("manhattan needs one inner odometer, e.g. manhattan(open3d-rgbd)")
+                 relock_spread_deg: float = 2.0, min_support: float = 0.3, max_depth: float = 4.0,
+                 options_file: str = "") -> None:
+        names = split_odometer_names(inputs) if isinstance(inputs, str) else []
+        if len(names) != 1:
+            raise ValueError(f"manhattan takes one inner odometer, e.g. manhattan(open3d-rgbd), got {len(names)}"
+                             + (f" ({', '.join(names)})" if names else ""))
+        if names[0].startswith("manhattan"):
+            raise ValueError(f"manhattan({names[0]}) would hold the heading to the walls twice; use one manhattan(...)")
         for key, value, lo, hi in (("step_sigma_deg", step_sigma_deg, 1e-3, 45.0),
                                    ("prior_sigma_deg", prior_sigma_deg, 1e-3, 45.0),
                                    ("wall_sigma_deg", wall_sigma_deg, 1e-3, 45.0),
@@ -116,7 +126,7 @@ class ManhattanOdometer(Odometer):
         for key, value in (("anchor_steps", anchor_steps), ("relock_views", relock_views)):
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 1000:
                 raise ValueError(f"manhattan: {key} must be an integer in [1, 1000], got {value!r}")
-        self.inner = load_odometer(inputs)
+        self.inner = load_inputs("manhattan", names, options_file)[names[0]]
         self.prior = load_odometer("action-prior")
         self.step_var, self.prior_var = np.radians(step_sigma_deg) ** 2, np.radians(prior_sigma_deg) ** 2
         self.wall_var = np.radians(wall_sigma_deg) ** 2
@@ -124,7 +134,7 @@ class ManhattanOdometer(Odometer):
         self.relock_views, self.relock_spread = relock_views, np.radians(relock_spread_deg)
         self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
         self.threads = self.inner.threads
-        settings = (f"{inputs}={self.inner.weights};{step_sigma_deg};{prior_sigma_deg};{wall_sigma_deg};"
+        settings = (f"{names[0]}={self.inner.weights};{step_sigma_deg};{prior_sigma_deg};{wall_sigma_deg};"
                     f"{anchor_steps};{relock_views};{relock_spread_deg};{min_support};{max_depth}")
         self.weights = hashlib.sha256(settings.encode()).hexdigest()
         self._reset_state()

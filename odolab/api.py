@@ -20,6 +20,7 @@ from odolab.odometer import (
     available_odometers,
     load_odometer,
     register_odometer,
+    split_odometer_names,
 )
 from odolab.threads import check_threads
 from odolab.types import (
@@ -38,14 +39,15 @@ from odolab.types import (
 __all__ = [
     "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Odometer",
     "Sequence", "UnknownOdometerError", "available_odometers", "check_threads", "integrate", "invert", "load_odometer",
-    "nominal_motion", "nominal_planar", "planar_to_transform", "register_odometer", "transform_to_planar",
+    "nominal_motion", "nominal_planar", "planar_to_transform", "register_odometer", "split_odometer_names",
+    "transform_to_planar",
     "wrap_angle",
     # episodes and training data (loaded on first use)
     "EpisodeCache", "EpisodeSpec", "NoiseConfig", "Pair", "PairDataset", "SPLITS", "episode_specs",
     "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
     # running and comparing
     "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison",
-    "run_odometers", "failure_reason", "load_tum_sequence", "write_bytes_atomic", "write_json_atomic",
+    "run_odometers", "failure_reason", "load_inputs", "load_tum_sequence", "write_bytes_atomic", "write_json_atomic",
     # evaluating trajectories (the library behind python -m odolab.evaluate)
     "Evaluation", "Trajectory", "evaluate_trajectory", "pair_trajectories",
 ]
@@ -57,6 +59,7 @@ if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and
     from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.io.atomic import write_bytes_atomic, write_json_atomic
     from odolab.io.tum_rgbd import load_tum_sequence
+    from odolab.composites import load_inputs
     from odolab.runner import SequenceResult, failure_reason
     from odolab.sim.scenes import SPLITS
     from odolab.trajectory import Trajectory
@@ -69,7 +72,7 @@ _LAZY = {
     "true_motions": "odolab.datasets",
     "ComparisonConfig": "odolab.comparison", "ComparisonResult": "odolab.comparison",
     "ComparisonError": "odolab.comparison",
-    "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner", "failure_reason": "odolab.runner",
+    "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner", "failure_reason": "odolab.runner", "load_inputs": "odolab.composites",
     "load_tum_sequence": "odolab.io.tum_rgbd", "write_bytes_atomic": "odolab.io.atomic",
     "write_json_atomic": "odolab.io.atomic",
     "Evaluation": "odolab.evaluation", "evaluate_trajectory": "odolab.evaluation",

@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
 from odolab import runner, summary
-from odolab.odometer import (REGISTRY, Odometer, UnknownOdometerError, available_odometers, standalone_odometers,
+from odolab.odometer import (REGISTRY, Odometer, UnknownOdometerError, available_odometers, inner_names,
+                             standalone_odometers,
                              unknown_odometer)
 from odolab.options import OptionError, check_options
 from odolab.report import FloorPlan
@@ -101,6 +102,13 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
     stray = [n for n in options if n not in chosen]
     if stray:
         raise ComparisonError(f"options given for {stray[0]!r}, which is not among the odometers: {', '.join(chosen)}")
+    for name in options:
+        holders = [c for c in chosen if name in inner_names(c)]
+        if options[name] and holders:
+            raise ComparisonError(
+                f"options given for {name!r} reach the {name!r} row only, not the {name} inside {holders[0]!r}, which "
+                f"would run with its defaults; give that one its options in a TOML file ([odometers.\"{name}\"]) as "
+                f"'{holders[0]}.options_file=FILE'")
     out: dict[str, Odometer] = {}
     for name in chosen:
         opts = options.get(name, {})

@@ -150,11 +150,27 @@ def parse_odometer_list(text: str) -> list[str]:
         match = COMPOSITE.fullmatch(name)
         if match:
             parts = [part.strip() for part in match["inputs"].split(",")]
+            if all(parts):  # inner composites keep their commas (fused(fused(a,b),c))
+                parts = split_odometer_names(match["inputs"])
             if any(not part for part in parts):
-                raise ValueError(f"--odometers: {name!r} has an empty input; list its inputs as {match['head']}(a,b)")
+                raise ValueError(f"--odometers: {name!r} has an empty input; name its inputs inside the parentheses, "
+                                 "e.g. fused(icp,open3d-rgbd) or manhattan(icp)")
             if len(set(parts)) < len(parts):
                 raise ValueError(f"--odometers: {name!r}: an input is named twice")
     return names
+
+
+def inner_names(name: str) -> set[str]:
+    """Every odometer named inside a composite ``name`` at any depth (``manhattan(fused(a,b))`` ->
+    ``{"fused(a,b)", "a", "b"}``); empty for a plain name or unbalanced parentheses."""
+    match = COMPOSITE.fullmatch(name)
+    if not match:
+        return set()
+    try:
+        parts = split_odometer_names(match["inputs"])
+    except ValueError:
+        return set()
+    return set(parts).union(*(inner_names(p) for p in parts))
 
 
 class OdometerRegistry:

@@ -149,3 +149,32 @@ def test_a_failed_inner_step_moves_the_heading_as_the_runner_does(episode, mode)
             assert np.all(np.isfinite(est.transform))
             expected += est.planar[2]
     assert np.isfinite(odo.heading) and odo.heading == pytest.approx(expected, abs=1e-9)
+
+
+def test_the_inner_odometer_gets_its_options_from_a_file_and_names_are_checked(tmp_path):
+    f = tmp_path / "o.toml"
+    f.write_text('[odometers."icp"]\nvoxel = 0.05\n')
+    odo = ManhattanOdometer("icp", options_file=str(f))
+    assert odo.inner.config.voxel == 0.05
+    assert odo.weights != ManhattanOdometer("icp").weights  # another inner configuration, another digest
+    f.write_text('[odometers."icp"]\nvoxel = -1.0\n')
+    with pytest.raises(ValueError, match="o.toml"):
+        ManhattanOdometer("icp", options_file=str(f))
+    with pytest.raises(ValueError, match="one inner odometer.*got 2"):
+        load_odometer("manhattan(icp,open3d-rgbd)")
+    with pytest.raises(ValueError, match="twice"):
+        load_odometer("manhattan(manhattan(icp))")
+    assert load_odometer("manhattan( icp )").inner.name == "icp"
+
+
+def test_options_for_a_row_that_is_also_an_inner_odometer_are_refused():
+    """``--odometer-option deepvo.x`` with both ``deepvo`` and ``manhattan(deepvo)`` listed would
+    leave the inner deepvo at its defaults without a word: refused, naming the way that works."""
+    from odolab.comparison import ComparisonError, load_odometers
+
+    with pytest.raises(ComparisonError, match="options_file"):
+        load_odometers(["icp", "manhattan(icp)"], {"icp": {"voxel": 0.05}})
+    with pytest.raises(ComparisonError, match="options_file"):
+        load_odometers(["icp", "fused(icp,open3d-rgbd)"], {"icp": {"voxel": 0.05}})
+    assert set(load_odometers(["icp", "manhattan(open3d-rgbd)"], {"icp": {"voxel": 0.05}})) == {
+        "icp", "manhattan(open3d-rgbd)"}

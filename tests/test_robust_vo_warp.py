@@ -203,6 +203,11 @@ def test_a_start_from_a_model_without_the_residual_answers_as_that_model(recipe,
         load_start(grown_cfg.init, grown_cfg, tmp_path / "old.pt")
     with pytest.raises(ValueError, match="no such model file"):
         load_start(str(tmp_path / "none.pt"), grown_cfg, tmp_path / "new.pt")
+    save_model(tmp_path / "grown.pt", grown_cfg, grown, {})  # a residual of 0.1 m cannot start one of 0.5 m
+    rescaled = dataclasses.replace(grown_cfg, model=dataclasses.replace(grown_cfg.model, depth_residual=0.5),
+                                   init=str(tmp_path / "grown.pt"))
+    with pytest.raises(ValueError, match="may only add the residual channel"):
+        load_start(rescaled.init, rescaled, tmp_path / "new.pt")
 
 
 # --- mirror_turns: one turn network for both turns ----------------------------------------------

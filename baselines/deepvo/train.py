@@ -73,9 +73,12 @@ def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
     model, first, digest = load_init(cfg.init, export, load_model)
     changed = [f.name for f in dataclasses.fields(model) if getattr(model, f.name) != getattr(cfg.model, f.name)]
     gained = [name for name in changed if name in GAINABLE and not getattr(model, name)]
-    if changed != gained:
-        lost = [name for name in changed if name in GAINABLE and name not in gained]
-        raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(changed)}"
+    if not model.depth and "max_depth" in changed:  # a model without depth never used it
+        changed.remove("max_depth")
+    refused = [name for name in changed if name not in gained]
+    if refused:
+        lost = [name for name in refused if name in GAINABLE]
+        raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(refused)}"
                          + (f" (a start may gain {' or '.join(GAINABLE)}, not lose it)" if lost else ""))
     state = dict(first.state_dict())
     if "depth" in gained:

@@ -33,12 +33,12 @@ from pathlib import Path
 import numpy as np
 
 from odolab.action_prior import ActionPrior
+from odolab.composites import load_inputs
 from odolab.fusion.calibration import Calibration, view_is_near
 from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_covariance, left_covariance,
                                 right_covariance, smooth)
 from odolab.geometry import planar_to_transform
 from odolab.odometer import REGISTRY, Odometer, split_odometer_names
-from odolab.options import check_options, read_options_file
 from odolab.runner import failure_reason
 from odolab.types import Action, Estimate, Frame, Intrinsics
 
@@ -82,23 +82,7 @@ class FusedOdometer(Odometer):
         self.calibration = Calibration.load(calibration or SHIPPED_CALIBRATION)
         self.input_calibration = {n: self.calibration.for_input(n) for n in names}
         self.prior_calibration = self.calibration.for_input(PRIOR)
-        option_tables = read_options_file(options_file) if options_file else {}
-        stray = [n for n in option_tables if n not in names]
-        if stray:
-            raise ValueError(f"{options_file}: options for {stray[0]!r}, which is not an input of fused ({', '.join(names)})")
-        self.inputs: dict[str, Odometer] = {}
-        for n in names:
-            opts = option_tables.get(n, {})
-            try:
-                check_options(n, REGISTRY.resolve(n), opts)
-            except ValueError as exc:
-                raise ValueError(f"{options_file}: {exc}") from None
-            try:
-                self.inputs[n] = REGISTRY.load(n, **opts)
-            except ValueError as exc:  # a value its own checks refuse (a range, NaN): say where it came from
-                if not opts:
-                    raise
-                raise ValueError(f"{options_file}: [odometers.\"{n}\"] {exc}") from None
+        self.inputs: dict[str, Odometer] = load_inputs("fused", names, options_file)
         self.spanning = spanning
         self.kernel, self.kernel_width, self.span = kernel, float(kernel_width), int(span)
         self.prior = ActionPrior.shipped()

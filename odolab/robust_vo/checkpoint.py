@@ -47,9 +47,9 @@ def load_start(init: str, cfg: TrainConfig, export: str | os.PathLike) -> tuple[
                if f.name not in INIT_MAY_DIFFER and getattr(model, f.name) != getattr(cfg.model, f.name)]
     if changed:
         raise ValueError(f"init = {init!r}: its model differs from this recipe's in {', '.join(changed)}")
-    if model.input_channels > cfg.model.input_channels:
-        raise ValueError(f"init = {init!r}: it takes {model.input_channels} input channels, this recipe "
-                         f"{cfg.model.input_channels}; a start may only gain inputs")
+    if model.depth_residual and model.depth_residual != cfg.model.depth_residual:
+        raise ValueError(f"init = {init!r}: it has depth_residual = {model.depth_residual}, this recipe "
+                         f"{cfg.model.depth_residual}; a start may only add the residual channel (from 0)")
     return {name: net.state_dict() for name, net in nets.items()}, digest
 
 

@@ -17,7 +17,6 @@ Mean and median absolute errors are in 1e-2 m and 1e-2 rad, as everywhere in the
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -83,13 +82,29 @@ def residual(data: TrainingData, idx: np.ndarray, sigma: float, seed: int = 0) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m studies.robust_vo.forward_dz_probe", description=__doc__.split("\n")[0])
-    ap.add_argument("--config", default="studies/robust_vo/shipped.toml", help="recipe whose val data is used")
-    ap.add_argument("--passes", type=int, default=2, help="passes of the shipped network (default 2)")
-    ap.add_argument("--out", default="", help="also write the report to this text file")
+    from odolab.cli import ArgumentParser, UsageError, check_output_dir, number, path_arg
+
+    ap = ArgumentParser(prog="python -m studies.robust_vo.forward_dz_probe", description=__doc__.split("\n")[0])
+    ap.add_argument("--config", type=path_arg("--config"), default=Path("studies/robust_vo/shipped.toml"),
+                    help="recipe whose val data is read (made by its training command; the network probed is "
+                         "always the shipped model, so the data must be of its size)")
+    ap.add_argument("--passes", type=number("--passes", int, 1, 10), default=2,
+                    help="passes of the shipped network, 1-10 (default 2)")
+    ap.add_argument("--out", type=path_arg("--out"), default=None, help="also write the report to this text file")
     args = ap.parse_args(argv)
-    cfg = load_train_config(args.config)
-    data = TrainingData(cfg.data_folder(cfg.val_data))
+    if args.out is not None:  # found now, not after the work
+        if args.out.is_dir():
+            raise UsageError(f"--out {args.out}: is a folder; give a file name")
+        check_output_dir(args.out.parent, "--out's folder")
+    try:
+        cfg = load_train_config(str(args.config))
+        data = TrainingData(cfg.data_folder(cfg.val_data))
+        shipped, _, _ = load_model(SHIPPED)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if (data.config.width, data.config.height) != (shipped.width, shipped.height):
+        raise UsageError(f"{args.config}: its val data is {data.config.width} x {data.config.height} px, the shipped "
+                         f"model takes {shipped.width} x {shipped.height}")
     idx = data.select([Action.MOVE_FORWARD])
     torch.set_num_threads(1)
     lines = [f"move_forward val pairs: {len(idx)} ({cfg.data_folder(cfg.val_data)})",
@@ -103,11 +118,12 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"median depth residual, dx and dyaw true + N(0, {sigma:g}): dz {np.nanmean(e):.2f} ({np.nanmedian(e):.2f})")
     text = "\n".join(lines) + "\n"
     print(text, end="")
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    if args.out is not None:
         write_text_atomic(args.out, text)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from odolab.cli import run_cli
+
+    sys.exit(run_cli(main, "python -m studies.robust_vo.forward_dz_probe"))
