@@ -15,10 +15,12 @@ heading since the sequence start:
   views fix the world's wall direction (their mean, from the inner odometer's early headings, which
   have not drifted yet); later views within 3 sigma of the prediction (the filter's and
   ``wall_sigma_deg``) correct the heading by the Kalman gain. Views beyond that gate are set
-  aside; when ``relock_views`` of them in a row agree (within ``relock_spread_deg`` of each
-  other), the inner odometer, not the walls, is taken to have jumped (a single answer a few
-  degrees off, which the filter's step sigma does not expect): the heading's variance is raised to
-  their mean innovation squared and the latest view corrects it;
+  aside. With ``relock_views`` > 0 (off by default), when that many of them in a row agree
+  (within ``relock_spread_deg`` of each other), the inner odometer, not the walls, is taken to
+  have jumped (a single answer a few degrees off, which the filter's step sigma does not expect):
+  the heading's variance is raised to their mean innovation squared and the latest view corrects
+  it. In navigation it did worse than without (README, "Navigate"): three views of furniture or of
+  a wall seen at a slant can agree, and a wrong re-lock of 13 degrees then lost an agent;
 - the step's answer is the inner transform followed by the correction's rotation about the
   vertical axis; a correction due on a failed step is added to the next answered one.
 
@@ -107,7 +109,7 @@ class ManhattanOdometer(Odometer):
     ``min_support`` and ``max_depth`` (m, of the wall samples)."""
 
     def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
-                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 3,
+                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 0,
                  relock_spread_deg: float = 2.0, min_support: float = 0.3, max_depth: float = 4.0,
                  options_file: str = "") -> None:
         names = split_odometer_names(inputs) if isinstance(inputs, str) else []
@@ -123,9 +125,9 @@ class ManhattanOdometer(Odometer):
                                    ("min_support", min_support, 0.0, 1.0), ("max_depth", max_depth, 0.5, 20.0)):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= float(value) <= hi:
                 raise ValueError(f"manhattan: {key} must be a number in [{lo:g}, {hi:g}], got {value!r}")
-        for key, value in (("anchor_steps", anchor_steps), ("relock_views", relock_views)):
-            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 1000:
-                raise ValueError(f"manhattan: {key} must be an integer in [1, 1000], got {value!r}")
+        for key, value, lo in (("anchor_steps", anchor_steps, 1), ("relock_views", relock_views, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= 1000:
+                raise ValueError(f"manhattan: {key} must be an integer in [{lo}, 1000], got {value!r}")
         self.inner = load_inputs("manhattan", names, options_file)[names[0]]
         self.prior = load_odometer("action-prior")
         self.step_var, self.prior_var = np.radians(step_sigma_deg) ** 2, np.radians(prior_sigma_deg) ** 2
@@ -168,8 +170,8 @@ class ManhattanOdometer(Odometer):
         innovation = wrap_quarter(implied - self.world)  # heading error, as the walls see it
         if innovation ** 2 > 9.0 * (self.variance + self.wall_var):
             self._rejected.append(innovation)
-            recent = self._rejected[-self.relock_views:]
-            if len(recent) < self.relock_views or max(recent) - min(recent) > self.relock_spread:
+            recent = self._rejected[-self.relock_views:] if self.relock_views else []
+            if not recent or len(recent) < self.relock_views or max(recent) - min(recent) > self.relock_spread:
                 return 0.0
             self.variance = max(self.variance, float(np.mean(recent)) ** 2)  # the inner odometer jumped
         self._rejected.clear()

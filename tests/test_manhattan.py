@@ -178,3 +178,27 @@ def test_options_for_a_row_that_is_also_an_inner_odometer_are_refused():
         load_odometers(["icp", "fused(icp,open3d-rgbd)"], {"icp": {"voxel": 0.05}})
     assert set(load_odometers(["icp", "manhattan(open3d-rgbd)"], {"icp": {"voxel": 0.05}})) == {
         "icp", "manhattan(open3d-rgbd)"}
+
+
+class JumpingTruth(Odometer):
+    """The true motion, with one answer 15 degrees off (step 20)."""
+
+    oracle = True
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        self.t = 0
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        self.t += 1
+        extra = np.radians(15.0) if self.t == 21 else 0.0
+        return Estimate(invert(prev.gt_pose) @ cur.gt_pose @ planar_to_transform(0.0, 0.0, extra))
+
+
+def test_a_jump_of_the_inner_odometer_is_undone_only_with_the_relock(episode):
+    """15 degrees in one step is beyond the filter's gate: without ``relock_views`` it stays (the
+    default, which navigated better), with it agreeing views undo it."""
+    register_odometer("jumping-truth", JumpingTruth)
+    stays = _final_heading_error(load_odometer("manhattan(jumping-truth)"), episode)
+    undone = _final_heading_error(ManhattanOdometer("jumping-truth", relock_views=3), episode)
+    assert stays > 10.0 and undone < 2.0
