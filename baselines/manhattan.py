@@ -106,7 +106,8 @@ def wrap_quarter(a: float) -> float:
 class ManhattanOdometer(Odometer):
     """``inner``'s answers with its heading held to the walls (module docstring). Options: the
     filter's ``step_sigma_deg``, ``prior_sigma_deg``, ``wall_sigma_deg``, ``anchor_steps``,
-    ``min_support`` and ``max_depth`` (m, of the wall samples)."""
+    ``relock_views`` (0: off) and ``relock_spread_deg``, ``min_support`` and ``max_depth`` (m, of
+    the wall samples); ``options_file``: the inner odometer's options (TOML, ``[odometers."icp"]``)."""
 
     def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
                  wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 0,
@@ -169,9 +170,11 @@ class ManhattanOdometer(Odometer):
             return 0.0
         innovation = wrap_quarter(implied - self.world)  # heading error, as the walls see it
         if innovation ** 2 > 9.0 * (self.variance + self.wall_var):
+            if not self.relock_views:
+                return 0.0
             self._rejected.append(innovation)
-            recent = self._rejected[-self.relock_views:] if self.relock_views else []
-            if not recent or len(recent) < self.relock_views or max(recent) - min(recent) > self.relock_spread:
+            recent = self._rejected[-self.relock_views:]
+            if len(recent) < self.relock_views or max(recent) - min(recent) > self.relock_spread:
                 return 0.0
             self.variance = max(self.variance, float(np.mean(recent)) ** 2)  # the inner odometer jumped
         self._rejected.clear()
