@@ -20,8 +20,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 from odolab import runner, summary
 from odolab.odometer import (REGISTRY, Odometer, UnknownOdometerError, available_odometers, inner_names,
-                             standalone_odometers,
-                             unknown_odometer)
+                             standalone_odometers, unknown_odometer)
 from odolab.options import OptionError, check_options
 from odolab.report import FloorPlan
 from odolab.runner import RunObserver, SequenceResult
