@@ -118,9 +118,10 @@ def _with_inputs(factory: Callable[..., Odometer], name: str, inputs: str) -> Ca
 COMPOSITE = re.compile(r"(?P<head>[A-Za-z0-9_.:-]+)\((?P<inputs>.*)\)")
 
 
-def split_odometer_names(text: str) -> list[str]:
+def split_odometer_names(text: str, keep_empty: bool = False) -> list[str]:
     """Comma-separated odometer names, commas inside parentheses kept: ``"icp,fused(icp,open3d-rgbd)"``
-    -> ``["icp", "fused(icp,open3d-rgbd)"]``. Raises ``ValueError`` on unbalanced parentheses."""
+    -> ``["icp", "fused(icp,open3d-rgbd)"]``; empty names dropped unless ``keep_empty``. Raises
+    ``ValueError`` on unbalanced parentheses."""
     names, depth, part = [], 0, ""
     for ch in text:
         depth += {"(": 1, ")": -1}.get(ch, 0)
@@ -134,7 +135,7 @@ def split_odometer_names(text: str) -> list[str]:
     if depth:
         raise ValueError(f"unbalanced '(' in odometer names {text!r}")
     names.append(part.strip())
-    return [n for n in names if n]
+    return names if keep_empty else [n for n in names if n]
 
 
 def parse_odometer_list(text: str) -> list[str]:
@@ -149,9 +150,7 @@ def parse_odometer_list(text: str) -> list[str]:
     for name in names:
         match = COMPOSITE.fullmatch(name)
         if match:
-            parts = [part.strip() for part in match["inputs"].split(",")]
-            if all(parts):  # inner composites keep their commas (fused(fused(a,b),c))
-                parts = split_odometer_names(match["inputs"])
+            parts = split_odometer_names(match["inputs"], keep_empty=True)  # fused(fused(a,b),c): 2 inputs
             if any(not part for part in parts):
                 raise ValueError(f"--odometers: {name!r} has an empty input; name its inputs inside the parentheses, "
                                  "e.g. fused(icp,open3d-rgbd) or manhattan(icp)")
