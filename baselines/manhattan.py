@@ -12,15 +12,18 @@ heading since the sequence start:
   ``prior_sigma_deg`` squared after a failed step;
 - measure: :func:`wall_direction` of the current depth image (vertical surfaces within
   ``max_depth``; ``min_support`` of them must agree within 10 degrees). The first ``anchor_steps``
-  views fix the world's wall direction (their mean, from the inner odometer's early headings, which
-  have not drifted yet); later views within 3 sigma of the prediction (the filter's and
-  ``wall_sigma_deg``) correct the heading by the Kalman gain. Views beyond that gate are set
-  aside. With ``relock_views`` > 0 (off by default), when that many of them in a row agree
-  (within ``relock_spread_deg`` of each other), the inner odometer, not the walls, is taken to
-  have jumped (a single answer a few degrees off, which the filter's step sigma does not expect):
-  the heading's variance is raised to their mean innovation squared and the latest view corrects
-  it. In navigation it did worse than without (README, "Navigate"): three views of furniture or of
-  a wall seen at a slant can agree, and a wrong re-lock of 13 degrees then lost an agent;
+  views fix the world's wall direction, from the inner odometer's early headings, which have not
+  drifted yet: the mean of the largest group of them that agree within :data:`ANCHOR_DEG`, each
+  weighted by its sample count (a plain mean let one view of clutter, 26 degrees off, set the
+  world 6 degrees wrong for a whole episode); later views within 3 sigma of the prediction (the
+  filter's and ``wall_sigma_deg``) correct the heading by the Kalman gain. Views beyond that gate
+  are set aside. When ``relock_views`` of them in a row agree (within ``relock_spread_deg`` of each
+  other), each with at least ``relock_support`` of its samples on the wall direction, the inner
+  odometer, not the walls, is taken to have jumped (a single answer several degrees off, which the
+  filter's step sigma does not expect): the heading's variance is raised to their mean innovation
+  squared and the latest view corrects it. Without the support threshold, a re-lock did worse in
+  navigation (README, "Navigate"): three views of furniture can agree, and a wrong re-lock of 13
+  degrees then lost an agent; ``relock_views = 0`` turns it off;
 - the step's answer is the inner transform followed by the correction's rotation about the
   vertical axis; a correction due on a failed step is added to the next answered one.
 
@@ -47,6 +50,8 @@ from odolab.api import (Action, Estimate, Frame, Intrinsics, Odometer, failure_r
 
 #: Vertical surfaces agree on a direction when within this of their mean (deg, modulo 90).
 INLIER_DEG = 10.0
+#: Anchor views agree on the world's wall direction when within this of each other (deg, modulo 90).
+ANCHOR_DEG = 3.0
 
 
 @dataclass(frozen=True)
@@ -103,15 +108,28 @@ def wrap_quarter(a: float) -> float:
     return float(np.angle(np.exp(4j * a)) / 4)
 
 
+def anchor_direction(views: list[tuple[float, int]]) -> float:
+    """The world's wall direction (rad, modulo 90 degrees) from anchor views' (implied direction
+    rad, sample count): the sample-weighted mean of the largest group within :data:`ANCHOR_DEG` of
+    one of them (ties: the group with more samples), so a stray view does not pull it."""
+    angles = np.array([a for a, _ in views])
+    weights = np.array([float(n) for _, n in views])
+    near = np.abs(np.angle(np.exp(4j * (angles[:, None] - angles[None, :])))) / 4 <= np.radians(ANCHOR_DEG)
+    score = [(int(row.sum()), float(weights[row].sum())) for row in near]
+    group = near[max(range(len(views)), key=lambda i: score[i])]
+    return float(np.angle(np.sum(weights[group] * np.exp(4j * angles[group]))) / 4)
+
+
 class ManhattanOdometer(Odometer):
     """``inner``'s answers with its heading held to the walls (module docstring). Options: the
     filter's ``step_sigma_deg``, ``prior_sigma_deg``, ``wall_sigma_deg``, ``anchor_steps``,
-    ``relock_views`` (0: off) and ``relock_spread_deg``, ``min_support`` and ``max_depth`` (m, of
+    ``relock_views`` (0: off), ``relock_spread_deg`` and ``relock_support``, ``min_support`` and ``max_depth`` (m, of
     the wall samples); ``options_file``: the inner odometer's options (TOML, ``[odometers."icp"]``)."""
 
     def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
-                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 0,
-                 relock_spread_deg: float = 2.0, min_support: float = 0.3, max_depth: float = 4.0,
+                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 5,
+                 relock_spread_deg: float = 2.0, relock_support: float = 0.9, min_support: float = 0.3,
+                 max_depth: float = 4.0,
                  options_file: str = "") -> None:
         names = split_odometer_names(inputs) if isinstance(inputs, str) else []
         if len(names) != 1:
@@ -123,6 +141,7 @@ class ManhattanOdometer(Odometer):
                                    ("prior_sigma_deg", prior_sigma_deg, 1e-3, 45.0),
                                    ("wall_sigma_deg", wall_sigma_deg, 1e-3, 45.0),
                                    ("relock_spread_deg", relock_spread_deg, 0.0, 45.0),
+                                   ("relock_support", relock_support, 0.0, 1.0),
                                    ("min_support", min_support, 0.0, 1.0), ("max_depth", max_depth, 0.5, 20.0)):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= float(value) <= hi:
                 raise ValueError(f"manhattan: {key} must be a number in [{lo:g}, {hi:g}], got {value!r}")
@@ -135,10 +154,12 @@ class ManhattanOdometer(Odometer):
         self.wall_var = np.radians(wall_sigma_deg) ** 2
         self.anchor_steps, self.min_support, self.max_depth = anchor_steps, float(min_support), float(max_depth)
         self.relock_views, self.relock_spread = relock_views, np.radians(relock_spread_deg)
+        self.relock_support = float(relock_support)
         self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
         self.threads = self.inner.threads
         settings = (f"{names[0]}={self.inner.weights};{step_sigma_deg};{prior_sigma_deg};{wall_sigma_deg};"
-                    f"{anchor_steps};{relock_views};{relock_spread_deg};{min_support};{max_depth}")
+                    f"{anchor_steps};{relock_views};{relock_spread_deg};{relock_support};{min_support};{max_depth};"
+                    f"anchor-consensus-{ANCHOR_DEG}")
         self.weights = hashlib.sha256(settings.encode()).hexdigest()
         self._reset_state()
 
@@ -146,7 +167,7 @@ class ManhattanOdometer(Odometer):
         self.heading = 0.0  # rad since the sequence start, counter-clockwise (the planar dyaw's sign)
         self.variance = 0.0
         self.world: float | None = None  # the walls' direction in the start frame, modulo 90 degrees
-        self._anchor: list[complex] = []
+        self._anchor: list[tuple[float, int]] = []  # (implied world direction rad, samples) of the first views
         self._rejected: list[float] = []  # innovations (rad) of the views in a row beyond the gate
         self._pending = 0.0  # a correction made on a failed step, for the next answered one
         self._steps = 0
@@ -165,12 +186,12 @@ class ManhattanOdometer(Odometer):
         # a wall of world direction w appears at w + heading in the camera (camera x right, yaw left)
         implied = wrap_quarter(wall.angle - self.heading)
         if self.world is None or len(self._anchor) < self.anchor_steps:
-            self._anchor.append(np.exp(4j * implied))
-            self.world = float(np.angle(np.mean(self._anchor)) / 4)
+            self._anchor.append((implied, wall.samples))
+            self.world = anchor_direction(self._anchor)
             return 0.0
         innovation = wrap_quarter(implied - self.world)  # heading error, as the walls see it
         if innovation ** 2 > 9.0 * (self.variance + self.wall_var):
-            if not self.relock_views:
+            if not self.relock_views or wall.support < self.relock_support:
                 return 0.0
             self._rejected.append(innovation)
             recent = self._rejected[-self.relock_views:]
