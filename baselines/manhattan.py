@@ -17,11 +17,12 @@ heading since the sequence start:
   weighted by its sample count (a plain mean let one view of clutter, 26 degrees off, set the
   world 6 degrees wrong for a whole episode); later views within 3 sigma of the prediction (the
   filter's and ``wall_sigma_deg``) correct the heading by the Kalman gain. Views beyond that gate
-  are set aside. When ``relock_views`` of them in a row agree (within ``relock_spread_deg`` of each
-  other), each with at least ``relock_support`` of its samples on the wall direction, the inner
-  odometer, not the walls, is taken to have jumped (a single answer several degrees off, which the
-  filter's step sigma does not expect): the heading's variance is raised to their mean innovation
-  squared and the latest view corrects it. Without the support threshold, a re-lock did worse in
+  are set aside. When the last ``relock_views`` set-aside views with at least ``relock_support`` of
+  their samples on the wall direction agree (within ``relock_spread_deg`` of each other), with no
+  view accepted in between (views of less support, or with no walls, neither count nor break the
+  run), the inner odometer, not the walls, is taken to have jumped (a single answer several
+  degrees off, which the filter's step sigma does not expect): the heading's variance is raised to
+  their mean innovation squared and the latest view corrects it. Without the support threshold, a re-lock did worse in
   navigation (README, "Navigate"): three views of furniture can agree, and a wrong re-lock of 13
   degrees then lost an agent; ``relock_views = 0`` turns it off;
 - the step's answer is the inner transform followed by the correction's rotation about the
@@ -112,8 +113,11 @@ def anchor_direction(views: list[tuple[float, int]]) -> float:
     """The world's wall direction (rad, modulo 90 degrees) from anchor views' (implied direction
     rad, sample count): the sample-weighted mean of the largest group within :data:`ANCHOR_DEG` of
     one of them (ties: the group with more samples), so a stray view does not pull it."""
-    angles = np.array([a for a, _ in views])
-    weights = np.array([float(n) for _, n in views])
+    views = list(views)
+    angles = np.array([a for a, _ in views], np.float64)
+    weights = np.array([n for _, n in views], np.float64)
+    if not len(views) or not np.isfinite(angles).all() or not (np.isfinite(weights) & (weights > 0)).all():
+        raise ValueError(f"anchor_direction needs views with finite angles and positive sample counts, got {views!r:.200}")
     near = np.abs(np.angle(np.exp(4j * (angles[:, None] - angles[None, :])))) / 4 <= np.radians(ANCHOR_DEG)
     score = [(int(row.sum()), float(weights[row].sum())) for row in near]
     group = near[max(range(len(views)), key=lambda i: score[i])]

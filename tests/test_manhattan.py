@@ -100,7 +100,8 @@ def test_the_walls_hold_a_random_walking_heading(episode):
 @pytest.mark.parametrize("options, field", [({"step_sigma_deg": 0}, "step_sigma_deg"),
                                             ({"wall_sigma_deg": float("nan")}, "wall_sigma_deg"),
                                             ({"anchor_steps": 2.5}, "anchor_steps"),
-                                            ({"min_support": "high"}, "min_support")])
+                                            ({"min_support": "high"}, "min_support"),
+                                            ({"relock_support": 1.5}, "relock_support")])
 def test_bad_options_are_named(options, field):
     with pytest.raises(ValueError, match=field):
         ManhattanOdometer("ground-truth", **options)
@@ -214,3 +215,9 @@ def test_the_anchor_is_the_largest_agreeing_group(views, expected):
     angles are compared modulo 90 degrees; the group's mean is weighted by samples."""
     got = np.degrees(anchor_direction([(np.radians(a), n) for a, n in views]))
     assert abs(wrap_quarter(np.radians(got - expected))) < np.radians(0.1)
+
+
+@pytest.mark.parametrize("views", [[], [(float("nan"), 100)], [(0.1, 0)], [(0.1, -5), (0.2, 50)]])
+def test_the_anchor_refuses_views_it_cannot_weigh(views):
+    with pytest.raises(ValueError, match="finite angles and positive sample counts"):
+        anchor_direction(views)
