@@ -100,7 +100,10 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
     chosen = odometer_names(names)
     stray = [n for n in options if n not in chosen]
     if stray:
-        raise ComparisonError(f"options given for {stray[0]!r}, which is not among the odometers: {', '.join(chosen)}")
+        holders = [c for c in chosen if stray[0] in inner_names(c)]
+        hint = (f"; it is an input of {holders[0]!r}: give it its options in a TOML file ([odometers.\"{stray[0]}\"]) "
+                f"as '{holders[0]}.options_file=FILE'") if holders else ""
+        raise ComparisonError(f"options given for {stray[0]!r}, which is not among the odometers: {', '.join(chosen)}{hint}")
     for name in options:
         holders = [c for c in chosen if name in inner_names(c)]
         if options[name] and holders:

@@ -12,6 +12,8 @@ def load_inputs(owner: str, names: list[str], options_file: str = "") -> dict[st
     """The odometers ``names`` (inputs of the composite ``owner``), each built with its table of
     ``options_file`` (``[odometers."icp"] key = value``). ``ValueError`` naming the file: a table for
     a name that is not an input, an option the input does not take, a value it refuses."""
+    if not isinstance(options_file, str):
+        raise ValueError(f"{owner}: options_file must be a path (a string), got {options_file!r:.80}")
     tables = read_options_file(options_file) if options_file else {}
     stray = [n for n in tables if n not in names]
     if stray:

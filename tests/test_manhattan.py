@@ -221,3 +221,16 @@ def test_the_anchor_is_the_largest_agreeing_group(views, expected):
 def test_the_anchor_refuses_views_it_cannot_weigh(views):
     with pytest.raises(ValueError, match="finite angles and positive sample counts"):
         anchor_direction(views)
+
+
+def test_an_options_file_that_is_not_a_path_is_named():
+    """``options_file=5`` from a TOML value would open file descriptor 5; it is refused instead."""
+    with pytest.raises(ValueError, match="options_file must be a path"):
+        ManhattanOdometer("ground-truth", options_file=5)
+
+
+def test_options_for_an_input_alone_point_to_the_options_file():
+    """Options for ``icp`` when only ``manhattan(icp)`` runs would be lost; the refusal says where they go."""
+    from odolab.comparison import ComparisonError, load_odometers
+    with pytest.raises(ComparisonError, match=r"input of 'manhattan\(icp\)'.*options_file=FILE"):
+        load_odometers(["manhattan(icp)"], {"icp": {"voxel": 0.05}})
