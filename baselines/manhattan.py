@@ -22,9 +22,9 @@ heading since the sequence start:
   view accepted in between (views of less support, or with no walls, neither count nor break the
   run), the inner odometer, not the walls, is taken to have jumped (a single answer several
   degrees off, which the filter's step sigma does not expect): the heading's variance is raised to
-  their mean innovation squared and the latest view corrects it. Without the support threshold, a re-lock did worse in
-  navigation (README, "Navigate"): three views of furniture can agree, and a wrong re-lock of 13
-  degrees then lost an agent; ``relock_views = 0`` turns it off;
+  their mean innovation squared and the latest view corrects it. Without the support threshold, a
+  re-lock did worse in navigation (README, "Navigate"): three views of furniture can agree, and a
+  wrong re-lock of 13 degrees then lost an agent; ``relock_views = 0`` turns it off;
 - the step's answer is the inner transform followed by the correction's rotation about the
   vertical axis; a correction due on a failed step is added to the next answered one.
 
@@ -117,7 +117,8 @@ def anchor_direction(views: list[tuple[float, int]]) -> float:
     angles = np.array([a for a, _ in views], np.float64)
     weights = np.array([n for _, n in views], np.float64)
     if not len(views) or not np.isfinite(angles).all() or not (np.isfinite(weights) & (weights > 0)).all():
-        raise ValueError(f"anchor_direction needs views with finite angles and positive sample counts, got {views!r:.200}")
+        raise ValueError("anchor_direction needs views with finite angles and positive sample counts, "
+                         f"got {views!r:.200}")
     near = np.abs(np.angle(np.exp(4j * (angles[:, None] - angles[None, :])))) / 4 <= np.radians(ANCHOR_DEG)
     score = [(int(row.sum()), float(weights[row].sum())) for row in near]
     group = near[max(range(len(views)), key=lambda i: score[i])]
@@ -127,14 +128,14 @@ def anchor_direction(views: list[tuple[float, int]]) -> float:
 class ManhattanOdometer(Odometer):
     """``inner``'s answers with its heading held to the walls (module docstring). Options: the
     filter's ``step_sigma_deg``, ``prior_sigma_deg``, ``wall_sigma_deg``, ``anchor_steps``,
-    ``relock_views`` (0: off), ``relock_spread_deg`` and ``relock_support``, ``min_support`` and ``max_depth`` (m, of
-    the wall samples); ``options_file``: the inner odometer's options (TOML, ``[odometers."icp"]``)."""
+    ``relock_views`` (0: off), ``relock_spread_deg`` and ``relock_support``, ``min_support`` and
+    ``max_depth`` (m, of the wall samples); ``options_file``: the inner odometer's options (TOML,
+    ``[odometers."icp"]``)."""
 
     def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
                  wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 5,
                  relock_spread_deg: float = 2.0, relock_support: float = 0.9, min_support: float = 0.3,
-                 max_depth: float = 4.0,
-                 options_file: str = "") -> None:
+                 max_depth: float = 4.0, options_file: str = "") -> None:
         names = split_odometer_names(inputs) if isinstance(inputs, str) else []
         if len(names) != 1:
             raise ValueError(f"manhattan takes one inner odometer, e.g. manhattan(open3d-rgbd), got {len(names)}"

@@ -98,19 +98,18 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
     """Instantiate odometers by name (None = all available) with their constructor options."""
     options = options or {}
     chosen = odometer_names(names)
+    holders = {n: [c for c in chosen if n in inner_names(c)] for n in options}  # composites that take n as an input
     stray = [n for n in options if n not in chosen]
     if stray:
-        holders = [c for c in chosen if stray[0] in inner_names(c)]
-        hint = (f"; it is an input of {holders[0]!r}: give it its options in a TOML file ([odometers.\"{stray[0]}\"]) "
-                f"as '{holders[0]}.options_file=FILE'") if holders else ""
-        raise ComparisonError(f"options given for {stray[0]!r}, which is not among the odometers: {', '.join(chosen)}{hint}")
+        name, holder = stray[0], (holders[stray[0]] or [""])[0]
+        hint = f"; it is an input of {holder!r}: {_options_file_advice(name, holder)}" if holder else ""
+        raise ComparisonError(f"options given for {name!r}, which is not among the odometers: "
+                              f"{', '.join(chosen)}{hint}")
     for name in options:
-        holders = [c for c in chosen if name in inner_names(c)]
-        if options[name] and holders:
+        if options[name] and holders[name]:
             raise ComparisonError(
-                f"options given for {name!r} reach the {name!r} row only, not the {name} inside {holders[0]!r}, which "
-                f"would run with its defaults; give that one its options in a TOML file ([odometers.\"{name}\"]) as "
-                f"'{holders[0]}.options_file=FILE'")
+                f"options given for {name!r} reach the {name!r} row only, not the {name} inside {holders[name][0]!r}, "
+                f"which would run with its defaults; {_options_file_advice(name, holders[name][0])}")
     out: dict[str, Odometer] = {}
     for name in chosen:
         opts = options.get(name, {})
@@ -124,6 +123,11 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
             detail = f" with options {_short(opts)}" if opts else ""
             raise ComparisonError(f"could not load odometer {name!r}{detail}: {type(exc).__name__}: {exc}") from None
     return out
+
+
+def _options_file_advice(name: str, holder: str) -> str:
+    """Where the options of ``name``, an input of the composite ``holder``, go instead."""
+    return f"give it its options in a TOML file ([odometers.\"{name}\"]) as '{holder}.options_file=FILE'"
 
 
 def _short(value: object) -> str:

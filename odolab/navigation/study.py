@@ -339,7 +339,8 @@ def _html(table: list[dict], figures: list[str], command: str) -> str:
     imgs = "".join(f'<p><img src="{f}" alt="{f}"></p>' for f in ["metrics.png", *figures])
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
             "<style>body{font-family:sans-serif;max-width:960px;margin:2em auto}td,th{padding:3px 8px;"
-            "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body><h1>PointGoal navigation with each odometer</h1>"
+            "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
+            "<h1>PointGoal navigation with each odometer</h1>"
             f"<p><code>{command}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
             "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them.</p>"
             f"<table>{head}{body}</table>{imgs}</body></html>\n")
