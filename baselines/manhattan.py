@@ -162,8 +162,10 @@ class ManhattanOdometer(Odometer):
         self.relock_support = float(relock_support)
         self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
         self.threads = self.inner.threads
-        settings = (f"{names[0]}={self.inner.weights};{step_sigma_deg};{prior_sigma_deg};{wall_sigma_deg};"
-                    f"{anchor_steps};{relock_views};{relock_spread_deg};{relock_support};{min_support};{max_depth};"
+        sigmas = ";".join(str(float(v)) for v in (step_sigma_deg, prior_sigma_deg, wall_sigma_deg))  # 1 and 1.0 alike
+        settings = (f"{names[0]}={self.inner.weights};{sigmas};"
+                    f"{anchor_steps};{relock_views};{float(relock_spread_deg)};{float(relock_support)};"
+                    f"{float(min_support)};{float(max_depth)};"
                     f"anchor-consensus-{ANCHOR_DEG}")
         self.weights = hashlib.sha256(settings.encode()).hexdigest()
         self._reset_state()

@@ -16,7 +16,7 @@ from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, 
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
 from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers
-from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
+from odolab.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
 from odolab.episodes import MAX_EPISODE_STEPS
 from odolab.sim.scenes import SPLITS
 
@@ -123,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         result = run_comparison(config, observer=StepProgressBar(disable=args.quiet))
     except ComparisonError as exc:
-        raise UsageError(str(exc)) from None
+        raise UsageError(naming_the_file(str(exc), args.config)) from None
     for warning in result.warnings:
         print(f"note: {warning}", file=sys.stderr)
     print(result.title)  # the table first: nothing that follows can lose it

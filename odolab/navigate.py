@@ -25,9 +25,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import NavTask, config_doc, run_navigation, write_outputs
-    from odolab.odometer import parse_odometer_list
+    from odolab.odometer import REGISTRY, parse_odometer_list
+    from odolab.options import OptionError, merge_options, parse_assignments, naming_the_file, read_options_file, without_defaults
     from odolab.parallel import check_ray_option
-    from odolab.options import OptionError, merge_options, parse_assignments, read_options_file
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--odometers", default="ground-truth,action-prior",
@@ -61,7 +61,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         loaded = load_odometers(names, options)  # every name and option checked here, before any episode runs
     except ComparisonError as exc:
-        raise UsageError(str(exc)) from None
+        raise UsageError(naming_the_file(str(exc), args.config)) from None
+    options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
     noise = NoiseConfig()
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
              for i in range(args.episodes)]

@@ -21,6 +21,8 @@ import re
 from importlib.metadata import entry_points
 from typing import Callable, Iterator
 
+import numpy as np
+
 from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence  # noqa: F401 (older imports)
 
 __all__ = [
@@ -211,7 +213,9 @@ class OdometerRegistry:
         return target
 
     def load(self, name: str, **options) -> Odometer:
-        """Instantiate odometer ``name`` with keyword ``options``."""
+        """Instantiate odometer ``name`` with keyword ``options`` (numpy scalars are passed on as the
+        Python numbers they hold, so ``np.float32(4.0)`` sets an option as ``4.0`` does)."""
+        options = {k: v.item() if isinstance(v, np.generic) else v for k, v in options.items()}
         odo = self.resolve(name)(**options)
         odo.name = name
         return odo

@@ -14,13 +14,17 @@ naming the option and what was expected.
 from __future__ import annotations
 
 import inspect
+import numbers
 import os
 import tomllib
 from typing import Any, Callable, Iterable, Mapping
 
+import numpy as np
+
 from odolab.io.tomlfile import read_toml
 
-__all__ = ["OptionError", "parse_assignments", "read_options_file", "merge_options", "check_options"]
+__all__ = ["OptionError", "parse_assignments", "read_options_file", "merge_options", "check_options", "without_defaults",
+           "naming_the_file"]
 
 Options = dict[str, dict[str, Any]]
 
@@ -104,13 +108,43 @@ def check_options(name: str, factory: Callable[..., Any], options: Mapping[str, 
             raise OptionError(f"odometer {name!r} option {key}: expected {want}, got {value!r}")
 
 
+def naming_the_file(message: str, config: str | os.PathLike | None) -> str:
+    """An odometer-loading error ``message``, with the options file named when one was read (the
+    value at fault may be there or on the command line)."""
+    if config is None or "option" not in message:
+        return message
+    return f"{message} (options read from --config {config} and --odometer-option)"
+
+
+def without_defaults(factory: Callable[..., Any], options: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` less those that equal ``factory``'s own default (``relock_views=5`` where 5 is the
+    default; ``1`` and ``1.0`` are equal, ``true`` and ``1`` are not): what a folder of results records,
+    so that naming a default is not a change of settings."""
+    try:
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        return dict(options)
+
+    def is_default(key: str, value: Any) -> bool:
+        p = params.get(key)
+        if p is None or p.default is inspect.Parameter.empty or isinstance(p.default, bool) != isinstance(value, bool):
+            return False
+        try:
+            return bool(p.default == value)
+        except Exception:  # an array's ambiguous truth value: not a default
+            return False
+
+    return {k: v for k, v in options.items() if not is_default(k, v)}
+
+
 #: Annotation -> (accepted Python types, words for the error). bool is never a number here.
-_SIMPLE = {"float": ((int, float), "a number"), "int": ((int,), "an integer"), "str": ((str,), "text"),
-           "bool": ((bool,), "true or false")}
+_SIMPLE = {"float": ((numbers.Real,), "a number"), "int": ((numbers.Integral,), "an integer"), "str": ((str,), "text"),
+           "bool": ((bool, np.bool_), "true or false")}
 
 
 def _fits(value: Any, part: str) -> bool:
-    return isinstance(value, _SIMPLE[part][0]) and (part == "bool" or not isinstance(value, bool))
+    """numpy's scalars count as the numbers they are (``np.float32(0.5)``, ``np.int64(3)``)."""
+    return isinstance(value, _SIMPLE[part][0]) and (part == "bool" or not isinstance(value, (bool, np.bool_)))
 
 
 def _simple_parts(annotation: Any) -> list[str]:

@@ -177,3 +177,36 @@ def test_every_public_name_of_the_api_resolves():
     assert [n for n in api.__all__ if getattr(api, n, None) is None] == []
     with pytest.raises(AttributeError):
         api.no_such_name
+
+
+def test_a_bad_value_from_an_options_file_names_the_file(tmp_path, capsys):
+    api.register_odometer("scaled", Scaled)
+    cfg = tmp_path / "opts.toml"
+    cfg.write_text("[odometers.scaled]\nstep = 7\n")
+    assert run_cli(main, "odolab.compare", ["--odometers", "scaled", "--config", str(cfg), *BASE,
+                                            "--out", str(tmp_path / "out")]) == 2
+    line = capsys.readouterr().err.strip()
+    assert "step must be in (0, 1) m, got 7" in line and f"options read from --config {cfg}" in line
+
+
+def test_numpy_scalars_set_options_as_the_numbers_they_hold():
+    import numpy as np
+
+    from odolab.options import check_options
+
+    check_options("scaled", Scaled, {"step": np.float32(0.5)})  # accepted, as 0.5 is
+    with pytest.raises(OptionError, match="expected a number"):
+        check_options("scaled", Scaled, {"step": np.bool_(True)})
+    odo = api.load_odometer("manhattan(action-prior)", anchor_steps=np.int64(3), min_support=np.float32(0.5))
+    assert odo.anchor_steps == 3 and type(odo.anchor_steps) is int
+    same = api.load_odometer("manhattan(action-prior)", anchor_steps=3, min_support=0.5)
+    assert odo.weights == same.weights
+
+
+def test_a_named_default_is_not_a_change_of_settings():
+    from odolab.options import without_defaults
+
+    assert without_defaults(Scaled, {"step": 0.25}) == {}
+    assert without_defaults(Scaled, {"step": 0.3}) == {"step": 0.3}
+    odo = api.load_odometer("manhattan(action-prior)")
+    assert api.load_odometer("manhattan(action-prior)", wall_sigma_deg=1).weights == odo.weights  # 1 as 1.0

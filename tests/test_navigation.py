@@ -113,7 +113,7 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
                         (["--odometers", "fused(icp"], "unbalanced"),
                         (["--policy", "nope=1"], "key one of cell, stride"),
                         (["--policy", "heading_tolerance"], "expected key=value"),
-                        (["--policy", "stride=1.5"], "stride takes a whole number"),
+                        (["--policy", "stride=1.5"], "stride takes a whole number in [1, 64]"),
                         (["--policy", "stop_distance=nan"], "stop_distance must be in [0.01, 10]"),
                         (["--policy", "cell=1e-6"], "cell must be in [0.02, 1]"),
                         (["--policy", "votes=99999999999999999999999"], "votes must be in [1, 1000]"),
@@ -261,3 +261,12 @@ def test_a_refusal_for_changed_options_names_the_key_and_both_values():
     assert said == "options of open3d-rgbd (max_depth: default there, 5.0 now)"
     said = _option_changes("icp", {"voxel": 0.04, "x": "a" * 500}, {"voxel": 0.05})
     assert "voxel: 0.04 there, 0.05 now" in said and "x: " in said and len(said) < 200
+
+
+def test_naming_a_default_option_resumes_a_folder_made_without_it(tmp_path, capsys):
+    args = ["--odometers", "manhattan(action-prior)", "--episodes", "1", "--max-steps", "4", "--serial", "--quiet",
+            "--out", str(tmp_path)]
+    assert _navigate(args) == 0
+    assert _navigate([*args, "--odometer-option", "manhattan(action-prior).relock_views=5"]) == 0
+    assert _navigate([*args, "--odometer-option", "manhattan(action-prior).relock_views=4"]) == 2
+    assert "relock_views: default there, 4 now" in capsys.readouterr().err

@@ -106,7 +106,8 @@ class PolicyConfig:
                 if not np.isfinite(float(value)) or not lo <= value <= hi:
                     raise OverflowError
             except ValueError:
-                raise ValueError(f"--policy {shown}: {key} takes {'a whole number' if whole else 'a number'}") from None
+                raise ValueError(f"--policy {shown}: {key} takes {'a whole number' if whole else 'a number'} "
+                                 f"in [{lo:g}, {hi:g}]") from None
             except OverflowError:
                 raise ValueError(f"--policy {shown}: {key} must be in [{lo:g}, {hi:g}]") from None
             changes[key] = value
