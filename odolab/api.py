@@ -32,13 +32,14 @@ from odolab.types import (
     Frame,
     Intrinsics,
     Sequence,
+    as_action,
     nominal_motion,
     nominal_planar,
 )
 
 __all__ = [
     "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Odometer",
-    "Sequence", "UnknownOdometerError", "available_odometers", "check_threads", "integrate", "invert", "load_odometer",
+    "Sequence", "as_action", "UnknownOdometerError", "available_odometers", "check_threads", "integrate", "invert", "load_odometer",
     "nominal_motion", "nominal_planar", "planar_to_transform", "register_odometer", "split_odometer_names",
     "transform_to_planar", "wrap_angle",
     # episodes and training data (loaded on first use)

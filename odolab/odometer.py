@@ -15,6 +15,7 @@ Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is impor
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import re
@@ -23,7 +24,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence  # noqa: F401 (older imports)
+from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence, as_action  # noqa: F401
 
 __all__ = [
     "ENTRY_POINT_GROUP", "REGISTRY", "Odometer", "OdometerRegistry", "UnknownOdometerError",
@@ -55,6 +56,16 @@ class Odometer:
     weights: str | None = None
     _intrinsics: Intrinsics | None = None
 
+    def __init_subclass__(cls, **kwargs) -> None:
+        """A subclass's own ``step`` and ``step_batch`` see actions as :class:`Action` or None: an
+        integer 0-3 is turned into its Action, anything else refused (:func:`~odolab.types.as_action`),
+        so that a caller's ``1`` is not silently read as "not MOVE_FORWARD"."""
+        super().__init_subclass__(**kwargs)
+        if "step" in cls.__dict__:
+            cls.step = _actions_checked_step(cls.__dict__["step"])
+        if "step_batch" in cls.__dict__:
+            cls.step_batch = _actions_checked_batch(cls.__dict__["step_batch"])
+
     @property
     def intrinsics(self) -> Intrinsics:
         """The camera of the current sequence (set by :meth:`reset`)."""
@@ -79,6 +90,30 @@ class Odometer:
         on each). Override it to batch the work (e.g. one network forward pass) and set
         ``batch_size``; it must return exactly one :class:`Estimate` per pair."""
         return [self.step(prev, cur, action) for prev, cur, action in pairs]
+
+
+def _actions_checked_step(step: Callable) -> Callable:
+    if getattr(step, "_actions_checked", False):
+        return step
+
+    @functools.wraps(step)
+    def checked(self, prev, cur, action=None, *args, **kwargs):
+        return step(self, prev, cur, as_action(action), *args, **kwargs)
+
+    checked._actions_checked = True  # type: ignore[attr-defined]
+    return checked
+
+
+def _actions_checked_batch(step_batch: Callable) -> Callable:
+    if getattr(step_batch, "_actions_checked", False):
+        return step_batch
+
+    @functools.wraps(step_batch)
+    def checked(self, pairs, *args, **kwargs):
+        return step_batch(self, [(p, c, as_action(a)) for p, c, a in pairs], *args, **kwargs)
+
+    checked._actions_checked = True  # type: ignore[attr-defined]
+    return checked
 
 
 class UnknownOdometerError(KeyError):

@@ -7,6 +7,7 @@ those of :mod:`odolab.geometry`. This module knows no odometer, no file format a
 from __future__ import annotations
 
 import enum
+import numbers
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -16,7 +17,7 @@ from odolab.geometry import planar_to_transform, transform_to_planar
 
 __all__ = [
     "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Sequence",
-    "nominal_motion", "nominal_planar",
+    "as_action", "nominal_motion", "nominal_planar",
 ]
 
 
@@ -35,6 +36,17 @@ class Action(enum.Enum):
 
 
 MOTION_ACTIONS = (Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT)
+
+
+def as_action(value: object) -> Action | None:
+    """``value`` as an :class:`Action`: an Action or None as it is, an integer 0-3 (numpy's too,
+    as a saved episode's ``actions`` hold them) as the Action of that value; ``TypeError`` naming
+    what was expected for anything else (a bool, a name, 7)."""
+    if value is None or isinstance(value, Action):
+        return value
+    if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)) and 0 <= int(value) <= 3:
+        return Action(int(value))
+    raise TypeError(f"action: expected an Action (or its value, 0-3) or None, got {value!r}")
 
 #: The commanded (noiseless) motions of the PointNav Challenge 2020 task (Habitat's
 #: ``challenge_pointnav2020.local.rgbd.yaml``: ``FORWARD_STEP_SIZE: 0.25``, ``TURN_ANGLE: 30``).

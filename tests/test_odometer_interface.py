@@ -147,3 +147,27 @@ def test_a_frame_that_cannot_be_rgbd_is_refused_naming_the_field():
                                      (rgb, depth.T, "rgb is 6x8 pixels but depth 8x6")):
         with pytest.raises(ValueError, match=said):
             Frame(bad_rgb, bad_depth)
+
+
+def test_an_integer_action_is_read_as_its_action_and_a_bad_one_refused():
+    import numpy as np
+    import pytest
+
+    from odolab.api import Action, Estimate, Odometer
+
+    seen = []
+
+    class Recorder(Odometer):
+        def step(self, prev, cur, action):
+            seen.append(action)
+            return Estimate(np.eye(4))
+
+    odo = Recorder()
+    odo.step(None, None, 1)
+    odo.step(None, None, np.int8(2))
+    odo.step(None, None, None)
+    odo.step_batch([(None, None, 3)])
+    assert seen == [Action.MOVE_FORWARD, Action.TURN_LEFT, None, Action.TURN_RIGHT]
+    for bad in (7, True, "forward", 1.0):
+        with pytest.raises(TypeError, match="expected an Action"):
+            odo.step(None, None, bad)
