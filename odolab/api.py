@@ -22,6 +22,7 @@ from odolab.odometer import (
     register_odometer,
     split_odometer_names,
 )
+from odolab.options import whole_number
 from odolab.threads import check_threads
 from odolab.types import (
     FORWARD_STEP,
@@ -41,7 +42,7 @@ __all__ = [
     "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Odometer",
     "Sequence", "as_action", "UnknownOdometerError", "available_odometers", "check_threads", "integrate", "invert", "load_odometer",
     "nominal_motion", "nominal_planar", "planar_to_transform", "register_odometer", "split_odometer_names",
-    "transform_to_planar", "wrap_angle",
+    "transform_to_planar", "whole_number", "wrap_angle",
     # episodes and training data (loaded on first use)
     "EpisodeCache", "EpisodeSpec", "NoiseConfig", "Pair", "PairDataset", "SPLITS", "episode_specs",
     "generate_episodes", "load_episodes", "stream_episodes", "true_motions",

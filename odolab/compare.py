@@ -123,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         result = run_comparison(config, observer=StepProgressBar(disable=args.quiet))
     except ComparisonError as exc:
-        raise UsageError(naming_the_file(str(exc), args.config)) from None
+        raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     for warning in result.warnings:
         print(f"note: {warning}", file=sys.stderr)
     print(result.title)  # the table first: nothing that follows can lose it

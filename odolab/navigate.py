@@ -26,7 +26,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import NavTask, config_doc, run_navigation, write_outputs
     from odolab.odometer import REGISTRY, parse_odometer_list
-    from odolab.options import OptionError, merge_options, parse_assignments, naming_the_file, read_options_file, without_defaults
+    from odolab.options import (OptionError, merge_options, naming_the_file, parse_assignments, read_options_file,
+                                without_defaults)
     from odolab.parallel import check_ray_option
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
@@ -61,7 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         loaded = load_odometers(names, options)  # every name and option checked here, before any episode runs
     except ComparisonError as exc:
-        raise UsageError(naming_the_file(str(exc), args.config)) from None
+        raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
     noise = NoiseConfig()
     specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)

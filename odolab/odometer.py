@@ -93,27 +93,49 @@ class Odometer:
 
 
 def _actions_checked_step(step: Callable) -> Callable:
-    if getattr(step, "_actions_checked", False):
+    """``step`` (a plain method ``step(self, prev, cur, action, ...)``) with its action argument, given
+    by position or by its own name, passed through :func:`as_action`; anything else (a staticmethod, a
+    ``step`` without an action argument) is left as it is."""
+    if not inspect.isfunction(step) or getattr(step, "_actions_checked", False):
         return step
+    params = list(inspect.signature(step).parameters.values())
+    if len(params) < 4 or params[3].kind not in (inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                                                 inspect.Parameter.POSITIONAL_ONLY):
+        return step
+    name = params[3].name
 
     @functools.wraps(step)
-    def checked(self, prev, cur, action=None, *args, **kwargs):
-        return step(self, prev, cur, as_action(action), *args, **kwargs)
+    def checked(self, *args, **kwargs):
+        if len(args) > 2:
+            args = (*args[:2], as_action(args[2]), *args[3:])
+        elif name in kwargs:
+            kwargs[name] = as_action(kwargs[name])
+        return step(self, *args, **kwargs)
 
     checked._actions_checked = True  # type: ignore[attr-defined]
     return checked
 
 
 def _actions_checked_batch(step_batch: Callable) -> Callable:
-    if getattr(step_batch, "_actions_checked", False):
+    """``step_batch`` (a plain method) with each pair's action passed through :func:`as_action`, and a
+    pair that is not ``(prev, cur, action)`` refused by name."""
+    if not inspect.isfunction(step_batch) or getattr(step_batch, "_actions_checked", False):
         return step_batch
 
     @functools.wraps(step_batch)
     def checked(self, pairs, *args, **kwargs):
+        pairs = list(pairs)
+        for k, pair in enumerate(pairs):
+            if not isinstance(pair, (tuple, list)) or len(pair) != 3:
+                raise ValueError(f"step_batch: pair {k} must be (prev, cur, action), got "
+                                 f"{f'{len(pair)} items' if isinstance(pair, (tuple, list)) else type(pair).__name__}")
         return step_batch(self, [(p, c, as_action(a)) for p, c, a in pairs], *args, **kwargs)
 
     checked._actions_checked = True  # type: ignore[attr-defined]
     return checked
+
+
+Odometer.step_batch = _actions_checked_batch(Odometer.step_batch)  # the default one checks its pairs too
 
 
 class UnknownOdometerError(KeyError):

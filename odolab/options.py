@@ -24,7 +24,7 @@ import numpy as np
 from odolab.io.tomlfile import read_toml
 
 __all__ = ["OptionError", "parse_assignments", "read_options_file", "merge_options", "check_options", "without_defaults",
-           "naming_the_file"]
+           "naming_the_file", "whole_number"]
 
 Options = dict[str, dict[str, Any]]
 
@@ -108,12 +108,21 @@ def check_options(name: str, factory: Callable[..., Any], options: Mapping[str, 
             raise OptionError(f"odometer {name!r} option {key}: expected {want}, got {value!r}")
 
 
-def naming_the_file(message: str, config: str | os.PathLike | None) -> str:
-    """An odometer-loading error ``message``, with the options file named when one was read (the
-    value at fault may be there or on the command line)."""
+def naming_the_file(message: str, config: str | os.PathLike | None, cli: bool) -> str:
+    """An odometer-loading error ``message`` led by where its options came from when a file was read
+    (``config``; ``cli``: whether ``--odometer-option`` gave some too), so that cutting a long message
+    short cannot drop the file's name."""
     if config is None or "option" not in message:
         return message
-    return f"{message} (options read from --config {config} and --odometer-option)"
+    return f"options from --config {config}{' and --odometer-option' if cli else ''}: {message}"
+
+
+def whole_number(name: str, value: Any, lo: int, hi: int) -> int:
+    """``value`` as an int in [lo, hi] (numpy integers too); ``ValueError`` naming ``name``, the range
+    and the value for anything else: a bool, 2.5, nan, "3"."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)) and lo <= int(value) <= hi:
+        return int(value)
+    raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
 
 
 def without_defaults(factory: Callable[..., Any], options: Mapping[str, Any]) -> dict[str, Any]:

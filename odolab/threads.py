@@ -17,6 +17,7 @@ import sys
 from typing import Iterator
 
 from odolab.odometer import Odometer
+from odolab.options import whole_number
 
 __all__ = ["MAX_THREADS", "check_threads", "odometer_threads"]
 
@@ -27,13 +28,7 @@ MAX_THREADS = 256
 
 def check_threads(value: object) -> int:
     """An odometer's ``threads`` option as an int in [1, MAX_THREADS]; ``ValueError`` naming it otherwise."""
-    try:
-        n = int(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"threads must be an integer, got {value!r}") from None
-    if not 1 <= n <= MAX_THREADS:
-        raise ValueError(f"threads must be in [1, {MAX_THREADS}], got {value}")
-    return n
+    return whole_number("threads", value, 1, MAX_THREADS)
 
 
 @contextlib.contextmanager

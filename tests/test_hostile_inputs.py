@@ -324,9 +324,17 @@ def test_absurd_thread_counts_are_refused_not_crashed_on():
 
     from odolab.api import load_odometer
 
+    import numpy as np
+
     for name in ("robust-vo", "deepvo"):
-        with pytest.raises(ValueError, match=r"threads must be in \[1, 256\], got 100000"):
-            load_odometer(name, threads=100000)
+        for bad in (100000, np.inf, np.nan, 2.5, True, "3"):
+            with pytest.raises(ValueError, match=r"threads must be an integer in \[1, 256\], got "):
+                load_odometer(name, threads=bad)
+    for key in ("mc_samples", "batch_size", "seed"):
+        with pytest.raises(ValueError, match=f"{key} must be an integer in"):
+            load_odometer("robust-vo", **{key: np.nan})
+    with pytest.raises(ValueError, match="mirror_tta must be true or false"):
+        load_odometer("robust-vo", mirror_tta="yes")
 
 
 def test_bench_refuses_odometer_options_it_would_ignore():

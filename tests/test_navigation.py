@@ -118,7 +118,10 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
                         (["--policy", "cell=1e-6"], "cell must be in [0.02, 1]"),
                         (["--policy", "votes=99999999999999999999999"], "votes must be in [1, 1000]"),
                         (["--policy", "obstacle_gap=50"], "obstacle_gap must be in [0, 0.5]"),
-                        (["--policy", "stride=" + "1" * 5000], "stride must be in [1, 64]"),
+                        (["--policy", "stride=" + "1" * 5000], "this value is too long to read"),
+                        (["--policy", "cell=0.05" + "0" * 40], "cell takes a number in [0.02, 1]; this value is too long"),
+                        (["--policy", "memory=x"], "memory takes a whole number in [1, 1000000]"),
+                        (["--policy", "margin_speed=abc"], "margin_speed takes a number in (0, 1]"),
                         (["--policy", "cell=0.1", "--policy", "cell=0.2"], "cell is given twice"),
                         (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)")]:
         assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2

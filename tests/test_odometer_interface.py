@@ -171,3 +171,36 @@ def test_an_integer_action_is_read_as_its_action_and_a_bad_one_refused():
     for bad in (7, True, "forward", 1.0):
         with pytest.raises(TypeError, match="expected an Action"):
             odo.step(None, None, bad)
+
+
+def test_the_action_check_keeps_each_step_signature():
+    import numpy as np
+    import pytest
+
+    from odolab.api import Action, Estimate, Odometer
+
+    class Renamed(Odometer):
+        def step(self, previous, current, act=None):
+            return act
+
+    class NoAction(Odometer):
+        def step(self, prev, cur):
+            return "ran"
+
+    class Static(Odometer):
+        @staticmethod
+        def step(prev, cur, action):
+            return action
+
+    class Plain(Odometer):
+        def step(self, prev, cur, action):
+            return Estimate(np.eye(4))
+
+    assert Renamed().step(previous=0, current=0, act=2) is Action.TURN_LEFT
+    assert Renamed().step(0, 0, act=3) is Action.TURN_RIGHT
+    assert NoAction().step(0, 0) == "ran"
+    assert Static().step(0, 0, 1) == 1  # left alone
+    with pytest.raises(TypeError, match="action"):  # a forgotten action is still an error
+        Plain().step(0, 0)
+    with pytest.raises(ValueError, match=r"pair 0 must be \(prev, cur, action\), got 2 items"):
+        Plain().step_batch([(0, 0)])

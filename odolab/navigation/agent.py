@@ -50,6 +50,18 @@ OPEN_BELOW = {"margin_speed", "max_height"}  # these must be above their lower b
 OPEN_ABOVE = {"heading_tolerance"}  # and this below its upper one
 
 
+def _in_range(name: str, value: float) -> bool:
+    lo, hi = POLICY_BOUNDS[name]
+    return lo <= value <= hi and not (name in OPEN_BELOW and value == lo) and not (name in OPEN_ABOVE and value == hi)
+
+
+def _range_text(name: str) -> str:
+    """``[1, 1000000]``, ``(0, 1]``: the range of a policy parameter as the user may type its ends."""
+    lo, hi = POLICY_BOUNDS[name]
+    left, right = ("(" if name in OPEN_BELOW else "["), (")" if name in OPEN_ABOVE else "]")
+    return f"{left}{lo if isinstance(lo, int) else f'{lo:g}'}, {hi if isinstance(hi, int) else f'{hi:g}'}{right}"
+
+
 @dataclass(frozen=True)
 class PolicyConfig:
     """The map-and-plan policy's parameters (module docstring); lengths in m, angles in degrees."""
@@ -73,11 +85,10 @@ class PolicyConfig:
     own_clearance: float = 0.1  # obstacle cells this near the believed position are ignored by that check
 
     def __post_init__(self) -> None:
-        for name, (lo, hi) in POLICY_BOUNDS.items():  # a 1e-6 m cell or a 1e6 m map would not fit in memory
+        for name in POLICY_BOUNDS:  # a 1e-6 m cell or a 1e6 m map would not fit in memory
             value = getattr(self, name)
-            if not lo <= value <= hi or (name in OPEN_BELOW and value == lo) or (name in OPEN_ABOVE and value == hi):
-                left, right = ("(" if name in OPEN_BELOW else "["), (")" if name in OPEN_ABOVE else "]")
-                raise ValueError(f"{name} must be in {left}{lo:g}, {hi:g}{right}, got {value:g}")
+            if not _in_range(name, value):
+                raise ValueError(f"{name} must be in {_range_text(name)}, got {value:g}")
         if not self.min_height < self.max_height:
             raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
 
@@ -98,18 +109,15 @@ class PolicyConfig:
             if key in changes:
                 raise ValueError(f"--policy {shown}: {key} is given twice")
             whole = kinds[key] in ("int", int)
-            lo, hi = POLICY_BOUNDS[key]
+            kind = f"{'a whole number' if whole else 'a number'} in {_range_text(key)}"
+            if len(text.strip()) > 40:  # no parameter needs 40 digits; Python refuses 4300
+                raise ValueError(f"--policy {shown}: {key} takes {kind}; this value is too long to read")
             try:
-                if len(text.strip()) > 40:  # no parameter needs 40 digits; Python refuses 4300
-                    raise OverflowError
                 value = int(text) if whole else float(text)
-                if not np.isfinite(float(value)) or not lo <= value <= hi:
-                    raise OverflowError
             except ValueError:
-                raise ValueError(f"--policy {shown}: {key} takes {'a whole number' if whole else 'a number'} "
-                                 f"in [{lo:g}, {hi:g}]") from None
-            except OverflowError:
-                raise ValueError(f"--policy {shown}: {key} must be in [{lo:g}, {hi:g}]") from None
+                raise ValueError(f"--policy {shown}: {key} takes {kind}") from None
+            if not np.isfinite(float(value)) or not _in_range(key, value):
+                raise ValueError(f"--policy {shown}: {key} must be in {_range_text(key)}")
             changes[key] = value
         try:
             return cls(**changes)

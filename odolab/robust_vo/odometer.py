@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads, whole_number
 from odolab.learning import pick_device, resize_frame
 from odolab.robust_vo.checkpoint import SHIPPED, load_model
 from odolab.robust_vo.inputs import frame_channels, residual_channel
@@ -47,13 +47,13 @@ class RobustVOOdometer(Odometer):
 
     def __init__(self, checkpoint: str = "", mirror_tta: bool = False, mc_samples: int = 0, threads: int = 1,
                  batch_size: int = 1, device: str = "", seed: int = 0) -> None:
-        if int(mc_samples) < 0 or int(mc_samples) == 1 or int(mc_samples) > 1000:
+        if whole_number("mc_samples", mc_samples, 0, 1000) == 1:
             raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {mc_samples}")
         threads = check_threads(threads)
-        if not 1 <= int(batch_size) <= 4096:
-            raise ValueError(f"batch_size must be in [1, 4096], got {batch_size}")
-        if not 0 <= int(seed) <= 2**32 - 1:
-            raise ValueError(f"seed must be in [0, 4294967295], got {seed}")
+        whole_number("batch_size", batch_size, 1, 4096)
+        whole_number("seed", seed, 0, 2**32 - 1)
+        if not isinstance(mirror_tta, (bool, np.bool_)):
+            raise ValueError(f"mirror_tta must be true or false, got {mirror_tta!r}")
         self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
         self.weights = self.info["sha256"]
         self.device = pick_device(device or "cpu")
