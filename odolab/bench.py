@@ -1,4 +1,4 @@
-"""``python -m odolab.bench``: speed of the simulator, the odometers and the evaluator.
+"""``python -m odolab.bench``: speed of the simulator, the odometers, closed-loop navigation and the evaluator.
 
 Simulator figures are ratios to the physical limit measured in the same run: bare Open3D
 ``cast_rays`` on precomputed rays of the same scene and poses (docs/reference-facts.md section 7). A noisy,
@@ -96,6 +96,30 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, op
     return out
 
 
+def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior"), episodes: int = 3,
+                     max_steps: int = 100) -> list[dict]:
+    """Closed-loop navigation in one process (:func:`odolab.navigation.episode.navigate`, default
+    policy) on the first test episodes: steps per second and milliseconds per step in the policy (of
+    which fast-marching planning), the sensors and the odometer. The action prior's agent believes a
+    wrong map and plans over the whole of it more often: the costly case."""
+    from odolab.episodes import EpisodeSpec
+    from odolab.navigation.episode import navigate
+    from odolab.odometer import load_odometer
+
+    rows = []
+    for name in odometers:
+        odo, parts = load_odometer(name), {}
+        started = time.perf_counter()
+        for i in range(episodes):
+            navigate(EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps), odo, timings=parts)
+        seconds, steps = time.perf_counter() - started, max(parts.get("steps", 0), 1)
+        rows.append({"odometer": name, "steps": int(parts.get("steps", 0)), "steps_per_s": steps / seconds,
+                     **{f"{k}_ms_per_step": 1e3 * parts.get(k, 0.0) / steps
+                        for k in ("policy", "planning", "sensors", "odometer")},
+                     "planning_share": parts.get("planning", 0.0) / seconds})
+    return rows
+
+
 def _cpu_model() -> str:
     """The CPU's model name (Linux ``/proc/cpuinfo``), or ``"unknown"``: ratios differ between CPUs."""
     try:
@@ -122,7 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers, unknown_odometer
 
     ap = ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["simulator", "odometers", "evaluate"], action="append",
+    ap.add_argument("--only", choices=["simulator", "odometers", "navigation", "evaluate"], action="append",
                     help="run only these parts (repeatable; default all)")
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON here")
@@ -131,7 +155,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.json is not None:
         check_output_file(args.json, "--json")
-    parts = args.only or ["simulator", "odometers", "evaluate"]
+    parts = args.only or ["simulator", "odometers", "navigation", "evaluate"]
     if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
         raise UsageError(f"--odometers and --odometer-option choose what the odometer part times; "
                          f"--only {' '.join(dict.fromkeys(parts))} does not run it")
@@ -182,6 +206,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         running.discard("odometers")
         print("\n## Odometers (steps/s of step() on test-split episodes, 341x192)\n")
         print(_table(report["odometers"]))
+        save()
+    if "navigation" in parts:
+        report["navigation"] = bench_navigation()
+        print("\n## Navigation, closed loop, one process (first 3 test episodes, at most 100 steps; ms per step; "
+              "planning is part of the policy; planning_share of the whole time)\n")
+        print(_table(report["navigation"]))
         save()
     if "evaluate" in parts:
         from odolab.benchmarks.evaluate_speed import run as bench_evaluate

@@ -273,3 +273,11 @@ def test_naming_a_default_option_resumes_a_folder_made_without_it(tmp_path, caps
     assert _navigate([*args, "--odometer-option", "manhattan(action-prior).relock_views=5"]) == 0
     assert _navigate([*args, "--odometer-option", "manhattan(action-prior).relock_views=4"]) == 2
     assert "relock_views: default there, 4 now" in capsys.readouterr().err
+
+
+def test_navigate_adds_each_part_of_its_time_to_the_given_timings():
+    parts = {"steps": 2.0}
+    run = navigate(EpisodeSpec(split="test", index=1, seed=0, max_steps=5), load_odometer("action-prior"), timings=parts)
+    assert parts["steps"] == 2 + run.outcome.steps
+    assert set(parts) == {"policy", "planning", "sensors", "odometer", "steps"}
+    assert 0 < parts["planning"] <= parts["policy"]

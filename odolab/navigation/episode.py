@@ -7,7 +7,10 @@ prior's mean motion, as in ``compare``.
 """
 from __future__ import annotations
 
+import contextlib
+import time
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -38,9 +41,12 @@ class NavigationRun:
 
 
 def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None = None,
-             prior: ActionPrior | None = None) -> NavigationRun:
+             prior: ActionPrior | None = None, timings: dict[str, float] | None = None) -> NavigationRun:
     """Run one episode of ``spec`` (its scene, start, goal, noise; at most ``spec.max_steps``
-    actions) with ``odometer`` as the agent's only sense of its own motion."""
+    actions) with ``odometer`` as the agent's only sense of its own motion. ``timings``, when given,
+    is added to: wall seconds in the ``policy`` (of which ``planning``, its fast marching), the
+    ``sensors`` (moving and rendering), the ``odometer``, and the ``steps`` taken."""
+    clock = _Clock(timings)
     prior = prior or ActionPrior.shipped()
     env, begin = start_environment(spec)
     field = geodesic_field(env.scene, *begin.goal)
@@ -54,15 +60,17 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
     true_xy, believed_xy, actions = [(env.state.x, env.state.y)], [(0.0, 0.0)], []
     stopped, failed = False, 0
     for t in range(spec.max_steps):
-        action = agent.act(frame.depth)
+        with clock("policy"):
+            action = agent.act(frame.depth)
         if action is Action.STOP:
             stopped = True
             break
-        env.step(action)
-        new = env.observe(float(t + 1))
+        with clock("sensors"):
+            env.step(action)
+            new = env.observe(float(t + 1))
         new_seen = guarded_frame(new, oracle)
         try:
-            with odometer_threads(odometer):  # its own torch thread setting, as in the runner
+            with odometer_threads(odometer), clock("odometer"):  # its own torch threads, as in the runner
                 est = odometer.step(seen, new_seen, action)
             T = est.transform if failure_reason(est) is None else None
         except Exception:  # a failing odometer is a failed step, as in the runner
@@ -75,6 +83,8 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
         actions.append(action.value)
         true_xy.append((env.state.x, env.state.y))
         believed_xy.append(agent.belief[:2])
+    clock.add("planning", agent.plan_seconds)
+    clock.add("steps", len(actions))
     true = np.array(true_xy)
     c, s = np.cos(begin.start.yaw), np.sin(begin.start.yaw)
     b = np.array(believed_xy)
@@ -82,3 +92,22 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
     outcome = EpisodeOutcome(d0=begin.start_distance, d_end=field.at(env.state.x, env.state.y), path=path_length(true),
                              stopped=stopped, steps=len(actions), collisions=env.collisions)
     return NavigationRun(spec, outcome, true, believed, begin.goal, np.array(actions, np.int8), failed)
+
+
+class _Clock:
+    """Adds wall seconds per part to a dict (or does nothing without one): ``with clock("policy"):``."""
+
+    def __init__(self, totals: dict[str, float] | None) -> None:
+        self.totals = totals
+
+    def add(self, part: str, amount: float) -> None:
+        if self.totals is not None:
+            self.totals[part] = self.totals.get(part, 0.0) + amount
+
+    @contextlib.contextmanager
+    def __call__(self, part: str) -> Iterator[None]:
+        started = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add(part, time.perf_counter() - started)
