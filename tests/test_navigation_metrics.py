@@ -42,3 +42,14 @@ def test_confidence_intervals():
     assert zeros.low == zeros.high == 0.0
     with pytest.raises(ValueError, match="0 or 1"):
         mean_ci(np.array([0.5]), binary=True)
+
+
+def test_the_final_belief_error_is_the_distance_between_the_last_true_and_believed_positions():
+    from odolab.navigation.study import belief_error, summarize
+
+    row = {"odometer": "x", "true_xy": [[0, 0], [1, 0], [2, 0]], "believed_xy": [[0, 0], [1, 0.5], [2, 3.0]],
+           "success": 1, "spl": 0.5, "soft_spl": 0.5, "d_end": 0.1, "steps": 2, "collisions": 0, "failed_steps": 0}
+    assert belief_error(row) == 3.0
+    other = {**row, "believed_xy": [[0, 0], [1, 0], [6, 3.0]]}  # 3-4-5
+    table = summarize([row, other], ["x"])
+    assert table[0]["belief_error"] == 4.0 and table[0]["belief_error_low"] >= 0.0

@@ -29,7 +29,8 @@ from odolab.io.inputs import read_input_json
 from odolab.navigation.agent import PolicyConfig
 from odolab.navigation.metrics import EpisodeOutcome, mean_ci
 
-METRICS = ("success", "spl", "soft_spl", "d_end")
+METRICS = ("success", "spl", "soft_spl", "d_end", "belief_error")
+UNBOUNDED = {"d_end", "belief_error"}  # metres: their intervals are clipped at 0 only
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,7 @@ def _sane(row: dict) -> bool:
             and all(isinstance(row[k], int) and not isinstance(row[k], bool) and row[k] >= 0
                     for k in ("steps", "collisions", "failed_steps"))
             and _path(row["true_xy"]) and _path(row["believed_xy"]) and len(row["true_xy"]) == row["steps"] + 1
+            and len(row["believed_xy"]) == len(row["true_xy"])
             and _path([row["goal"]]))
 
 
@@ -208,15 +210,24 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
     return [json.loads(result_path(out, t.odometer, t.spec.index).read_text(encoding="utf-8")) for t in tasks]
 
 
+def belief_error(row: dict) -> float:
+    """How far the agent's belief is from the truth when the episode ends: the distance (m, world
+    frame) between its true and its believed final position, the odometry's closed-loop drift (the
+    believed path starts on the true start, so this is the error the odometer accumulated)."""
+    return float(np.hypot(*(np.asarray(row["true_xy"][-1], np.float64) - np.asarray(row["believed_xy"][-1], np.float64))))
+
+
 def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
-    """Per odometer: each metric's mean and 95 % interval, steps, collisions and failed steps."""
+    """Per odometer: each metric's mean and 95 % interval (``belief_error`` included: rows without it
+    get it from their paths), steps, collisions and failed steps."""
+    rows = [r if "belief_error" in r else {**r, "belief_error": belief_error(r)} for r in rows]
     table = []
     for name in odometers:
         mine = [r for r in rows if r["odometer"] == name]
         entry: dict[str, Any] = {"odometer": name, "episodes": len(mine)}
         for m in METRICS:
             ci = mean_ci(np.array([r[m] for r in mine], np.float64), binary=m == "success")
-            top = np.inf if m == "d_end" else 1.0  # the interval stays where the metric can be
+            top = np.inf if m in UNBOUNDED else 1.0  # the interval stays where the metric can be
             entry.update({m: ci.mean, f"{m}_low": float(np.clip(ci.low, 0.0, top)),
                           f"{m}_high": float(np.clip(ci.high, 0.0, top))})
         entry["steps"] = float(np.mean([r["steps"] for r in mine])) if mine else float("nan")
@@ -256,6 +267,36 @@ def metrics_figure(table: list[dict], path: Path) -> None:
     ax.set_title(f"PointGoal navigation, {table[0]['episodes'] if table else 0} episodes per odometer", fontsize=10)
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=8, loc="upper right", ncol=3, frameon=True)
+    fig.tight_layout()
+    save_figure_atomic(fig, path)
+    plt.close(fig)
+
+
+def belief_figure(table: list[dict], path: Path) -> None:
+    """Success against the final belief error, one point per odometer with both 95 % intervals:
+    how much drift each success rate comes with."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    floor = 0.01  # m: ground truth's 0 is drawn here, on the log axis
+    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+    cmap = plt.get_cmap("tab10")
+    for k, r in enumerate(table):
+        if not r["episodes"]:
+            continue
+        x, y = max(r["belief_error"], floor), r["success"]
+        xerr = [[max(x - max(r["belief_error_low"], floor), 0.0)], [max(r["belief_error_high"] - x, 0.0)]]
+        yerr = [[y - r["success_low"]], [r["success_high"] - y]]
+        ax.errorbar(x, y, xerr=xerr, yerr=yerr, fmt="o", color=cmap(k % 10), capsize=3, label=r["odometer"])
+    ax.set_xscale("log")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("final belief error: |true - believed position| at the end\n(m, mean, log scale; below 0.01 m drawn at 0.01)")
+    ax.set_ylabel("success (share of episodes)")
+    ax.set_title("Navigation success against the odometry's closed-loop drift (95 % intervals)", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -307,14 +348,16 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
 def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list[EpisodeSpec], command: str,
                   sample_episodes: int = 2) -> list[dict]:
     """Tables, figures and ``report.html`` under ``out``; returns the per-odometer table."""
+    rows = [{**r, "belief_error": belief_error(r)} for r in rows]
     table = summarize(rows, odometers)
     keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
         "steps", "collisions", "failed_steps"]
     write_text_atomic(out / "nav.csv", _csv(table, keys))
     ep_keys = ["odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions",
-               "success", "spl", "soft_spl", "failed_steps"]
+               "success", "spl", "soft_spl", "failed_steps", "belief_error"]
     write_text_atomic(out / "episodes.csv", _csv(rows, ep_keys))
     metrics_figure(table, out / "metrics.png")
+    belief_figure(table, out / "belief.png")
     figures = []
     for spec in specs[:sample_episodes]:
         name = f"paths-{spec.index:04d}.png"
@@ -329,20 +372,23 @@ def _html(table: list[dict], figures: list[str], command: str) -> str:
         return (f"{scale * r[m]:.{digits}f} [{scale * r[m + '_low']:.{digits}f}, "
                 f"{scale * r[m + '_high']:.{digits}f}]")
     head = "<tr>" + "".join(f"<th>{h}</th>" for h in ("odometer", "episodes", "success", "SPL", "SoftSPL",
-                                                     "final distance to goal (m)", "steps", "collisions",
-                                                     "failed odometer steps")) + "</tr>"
+                                                     "final distance to goal (m)", "final belief error (m)",
+                                                     "steps", "collisions", "failed odometer steps")) + "</tr>"
     body = "".join(
         "<tr>" + "".join(f"<td>{v}</td>" for v in (r["odometer"], r["episodes"], ci(r, "success"), ci(r, "spl"),
-                                                   ci(r, "soft_spl"), ci(r, "d_end"), f"{r['steps']:.0f}",
+                                                   ci(r, "soft_spl"), ci(r, "d_end"), ci(r, "belief_error"),
+                                                   f"{r['steps']:.0f}",
                                                    f"{r['collisions']:.1f}", r["failed_steps"])) + "</tr>"
         for r in table)
-    imgs = "".join(f'<p><img src="{f}" alt="{f}"></p>' for f in ["metrics.png", *figures])
+    imgs = "".join(f'<p><img src="{f}" alt="{f}"></p>' for f in ["metrics.png", "belief.png", *figures])
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
             "<style>body{font-family:sans-serif;max-width:960px;margin:2em auto}td,th{padding:3px 8px;"
             "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
             "<h1>PointGoal navigation with each odometer</h1>"
             f"<p><code>{command}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
-            "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them.</p>"
+            "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
+            "Final belief error: the distance between the agent's true and believed positions when the episode "
+            "ends (the odometry's drift in the closed loop).</p>"
             f"<table>{head}{body}</table>{imgs}</body></html>\n")
 
 
