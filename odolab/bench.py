@@ -100,7 +100,7 @@ def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior")
                      max_steps: int = 100) -> list[dict]:
     """Closed-loop navigation in one process (:func:`odolab.navigation.episode.navigate`, default
     policy) on the first test episodes: steps per second and milliseconds per step in the policy (of
-    which fast-marching planning), the sensors and the odometer. The action prior's agent believes a
+    which fast-marching planning), the sensors, the odometer and the rest (episode set-up). The action prior's agent believes a
     wrong map and plans over the whole of it more often: the costly case."""
     from odolab.episodes import EpisodeSpec
     from odolab.navigation.episode import navigate
@@ -113,9 +113,12 @@ def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior")
         for i in range(episodes):
             navigate(EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps), odo, timings=parts)
         seconds, steps = time.perf_counter() - started, max(parts.get("steps", 0), 1)
-        rows.append({"odometer": name, "steps": int(parts.get("steps", 0)), "steps_per_s": steps / seconds,
+        timed = sum(parts.get(k, 0.0) for k in ("policy", "sensors", "odometer"))
+        rows.append({"odometer": name, "episodes": episodes, "max_steps": max_steps, "steps": int(parts.get("steps", 0)),
+                     "steps_per_s": steps / seconds,
                      **{f"{k}_ms_per_step": 1e3 * parts.get(k, 0.0) / steps
                         for k in ("policy", "planning", "sensors", "odometer")},
+                     "rest_ms_per_step": 1e3 * (seconds - timed) / steps,  # episode set-up (scene, renderer), bookkeeping
                      "planning_share": parts.get("planning", 0.0) / seconds})
     return rows
 

@@ -1,12 +1,12 @@
 """``python -m odolab.navigate``: PointGoal navigation with each odometer as the agent's only sense of
-its own motion; success, SPL and SoftSPL per odometer with 95 % intervals.
+its own motion; success, SPL, SoftSPL and the final belief error per odometer with 95 % intervals.
 
     python -m odolab.navigate --odometers ground-truth,action-prior,robust-vo --episodes 100 --out reports/navigation
 
 Every odometer drives the same episodes (same scenes, starts, goals and noise laws; --seed), one Ray
 task per (odometer, episode) on a local instance or the cluster at --ray-address. Each finished
 episode is saved at once; the same command resumes. Writes nav.csv, episodes.csv, metrics.png,
-paths-*.png and report.html under --out (see odolab.navigation.study).
+belief.png, paths-*.png and report.html under --out (see odolab.navigation.study).
 """
 from __future__ import annotations
 
@@ -77,7 +77,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     table = write_outputs(args.out, rows, names, specs, command)
     for r in table:
         print(f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
-              f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  ({r['episodes']} episodes)")
+              f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "
+              f"({r['episodes']} episodes)")
     print(f"wrote {args.out}/report.html")
     return 0
 

@@ -157,7 +157,8 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     from odolab.navigation.study import ROW_KEYS, NavTask, read_row
 
     spec = EpisodeSpec(split="test", index=3, max_steps=5)
-    row = {k: 0 for k in ROW_KEYS} | {"odometer": "robust-vo", "episode": 3, "weights": "a" * 64, "steps": 1,
+    row = {k: 0 for k in ROW_KEYS} | {"odometer": "robust-vo", "episode": 3, "split": "test", "stopped": False,
+                                       "weights": "a" * 64, "steps": 1,
                                        "goal": [1.0, 2.0], "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))
@@ -223,11 +224,19 @@ def test_a_saved_episode_with_infinities_is_run_again_and_a_pipe_refused(tmp_pat
 
     spec = EpisodeSpec(split="test", index=3, max_steps=5)
     task = NavTask("icp", {}, spec, PolicyConfig(), None)
-    row = {k: 0 for k in ROW_KEYS} | {"odometer": "icp", "episode": 3, "steps": 1, "goal": [1.0, 2.0],
-                                       "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
+    row = {k: 0 for k in ROW_KEYS} | {"odometer": "icp", "episode": 3, "split": "test", "stopped": False, "steps": 1,
+                                       "goal": [1.0, 2.0], "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))
     assert read_row(path, task) == row
+    for change in ({"believed_xy": [[0, 0], ["0.2", 0]]}, {"believed_xy": [[0, 0], [True, False]]},
+                   {"believed_xy": [[0, 0], [1e300, 0]]}, {"believed_xy": [[0.1, 0], [0.2, 0]]},
+                   {"stopped": "no"}, {"episode": True}, {"episode": 3.0}, {"split": "val"}, {"seed": 1}):
+        path.write_text(json.dumps(row | change))  # each a value no run of this task writes
+        assert read_row(path, task) is None, change
+    for key in ("split", "seed"):
+        path.write_text(json.dumps({k: v for k, v in row.items() if k != key}))
+        assert read_row(path, task) is None, key
     for bad in ('{"d0": 1e400}', '{"path": 1e400}', '{"steps": ' + "9" * 5000 + "}"):
         path.write_text(json.dumps(row)[:-1] + ", " + bad[1:])  # the key again, last: the reader refuses both
         assert read_row(path, task) is None
@@ -281,3 +290,22 @@ def test_navigate_adds_each_part_of_its_time_to_the_given_timings():
     assert parts["steps"] == 2 + run.outcome.steps
     assert set(parts) == {"policy", "planning", "sensors", "odometer", "steps"}
     assert 0 < parts["planning"] <= parts["policy"]
+
+
+def test_policy_values_and_reports_are_checked_and_escaped():
+    import numpy as np
+
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.navigation.study import _html, _policy_changes
+
+    for bad in ("0.1", True, None, float("nan")):
+        with pytest.raises(ValueError, match="cell must be a number in"):
+            PolicyConfig(cell=bad)
+    with pytest.raises(ValueError, match="stride must be a whole number in"):
+        PolicyConfig(stride=4.0)
+    cfg = PolicyConfig(cell=np.float32(0.25), margin=-0.0)
+    assert type(cfg.cell) is float and str(cfg.margin) == "0.0"
+    said = _policy_changes({"cell": 0.05}, {"cell": 0.05, "new_one": 0.1})
+    assert said == ["--policy new_one (not recorded there: that folder predates this parameter, 0.1 now)"]
+    page = _html([], [], "python -m odolab.navigate --out 'x<i>y&z'")
+    assert "x&lt;i&gt;y&amp;z" in page and "<i>" not in page

@@ -29,6 +29,7 @@ goal is nearer than ``stop_distance``.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import reprlib
 import time
 from dataclasses import dataclass
@@ -86,8 +87,15 @@ class PolicyConfig:
     own_clearance: float = 0.1  # obstacle cells this near the believed position are ignored by that check
 
     def __post_init__(self) -> None:
+        kinds = {f.name: f.type for f in dataclasses.fields(self)}
         for name in POLICY_BOUNDS:  # a 1e-6 m cell or a 1e6 m map would not fit in memory
-            value = getattr(self, name)
+            value, whole = getattr(self, name), kinds[name] in ("int", int)
+            if (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral if whole else numbers.Real)
+                    or not np.isfinite(float(value))):
+                raise ValueError(f"{name} must be {'a whole number' if whole else 'a number'} in {_range_text(name)}, "
+                                 f"got {value!r}")
+            value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
+            object.__setattr__(self, name, value)
             if not _in_range(name, value):
                 raise ValueError(f"{name} must be in {_range_text(name)}, got {value:g}")
         if not self.min_height < self.max_height:

@@ -3,15 +3,17 @@ saved as it finishes (a rerun does only what is missing), then the tables and fi
 
 Files under the output folder: ``config.json`` (what the results were made with; another config is
 refused), ``episodes/<odometer>/<episode>.json`` (one run each, with its paths), ``episodes.csv``,
-``nav.csv`` (per odometer: success, SPL, SoftSPL, final geodesic distance, each with its 95 %
-interval), ``metrics.png`` (bars with intervals) and ``paths-<episode>.png`` (top-down: the scene,
-start, goal, each odometer's true path and, dashed, where it believed it was).
+``nav.csv`` (per odometer: success, SPL, SoftSPL, final geodesic distance and final belief error,
+each with its 95 % interval), ``metrics.png`` (bars with intervals), ``belief.png`` (success against
+the final belief error) and ``paths-<episode>.png`` (top-down: the scene, start, goal, each
+odometer's true path and, dashed, where it believed it was).
 """
 from __future__ import annotations
 
 import csv
 import dataclasses
 import hashlib
+import html
 import io
 import json
 import re
@@ -65,8 +67,8 @@ def _safe(name: str) -> str:
     return clean if clean == name else f"{clean}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
 
-ROW_KEYS = ("odometer", "episode", "d0", "d_end", "path", "stopped", "steps", "collisions", "success", "spl", "soft_spl",
-            "failed_steps", "goal", "true_xy", "believed_xy")
+ROW_KEYS = ("odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions", "success",
+            "spl", "soft_spl", "failed_steps", "goal", "true_xy", "believed_xy")
 
 
 def _number(v: Any, low: float = -np.inf, high: float = np.inf) -> bool:
@@ -75,24 +77,34 @@ def _number(v: Any, low: float = -np.inf, high: float = np.inf) -> bool:
 
 
 def _path(v: Any) -> bool:
-    try:
-        a = np.asarray(v, np.float64)
-    except (TypeError, ValueError):
+    """(x, y) rows of finite JSON numbers (not text, not bools), no step longer than the runner's
+    bound on a step (:data:`odolab.runner.MAX_STEP_TRANSLATION`)."""
+    from odolab.runner import MAX_STEP_TRANSLATION
+
+    if not isinstance(v, list) or not v or not all(isinstance(p, list) and len(p) == 2 and all(map(_number, p))
+                                                   for p in v):
         return False
-    return a.ndim == 2 and a.shape[1] == 2 and len(a) >= 1 and bool(np.isfinite(a).all())
+    a = np.asarray(v, np.float64)
+    return bool(np.isfinite(a).all()) and (len(a) < 2 or float(np.abs(np.diff(a, axis=0)).max()) <= MAX_STEP_TRANSLATION)
 
 
 def _sane(row: dict) -> bool:
-    """Values a real run can have: success 0/1, SPL and SoftSPL in [0, 1], distances >= 0 (d_end may be
-    inf off the navigable space), counts >= 0, paths as finite (x, y) rows, one more than the steps."""
-    return (row["success"] in (0, 1) and not isinstance(row["success"], bool)
+    """Values a real run can have: success 0/1, stopped a bool, SPL and SoftSPL in [0, 1], distances >= 0
+    (d_end may be inf off the navigable space), counts >= 0, paths as finite (x, y) rows, one more than
+    the steps, the believed one starting on the true start."""
+    return (row["success"] in (0, 1) and not isinstance(row["success"], bool) and isinstance(row["stopped"], bool)
             and _number(row["spl"], 0, 1) and _number(row["soft_spl"], 0, 1)
             and (_number(row["d_end"], 0) or row["d_end"] == np.inf) and _number(row["d0"], 0) and _number(row["path"], 0)
             and all(isinstance(row[k], int) and not isinstance(row[k], bool) and row[k] >= 0
                     for k in ("steps", "collisions", "failed_steps"))
             and _path(row["true_xy"]) and _path(row["believed_xy"]) and len(row["true_xy"]) == row["steps"] + 1
-            and len(row["believed_xy"]) == len(row["true_xy"])
+            and len(row["believed_xy"]) == len(row["true_xy"]) and row["believed_xy"][0] == row["true_xy"][0]
             and _path([row["goal"]]))
+
+
+def _same(value: Any, want: int) -> bool:
+    """``value`` is the int ``want`` (not ``true`` for 1, not ``1.0``)."""
+    return type(value) is int and value == want
 
 
 def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> dict | None:
@@ -111,7 +123,8 @@ def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> d
     try:
         row = read_input_json(path, "navigation result")  # size-capped, duplicate keys refused
         ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
-              and row["episode"] == task.spec.index and row.get("weights") == task.weights and _sane(row))
+              and _same(row["episode"], task.spec.index) and row["split"] == task.spec.split
+              and _same(row["seed"], task.spec.seed) and row.get("weights") == task.weights and _sane(row))
     except ValueError:  # damaged, not a regular file, too large, or numbers too long to read
         ok = False
     if not ok:
@@ -140,8 +153,12 @@ def _policy_changes(saved: Any, policy: dict) -> list[str]:
         return []
     if not isinstance(saved, dict):
         return ["the policy"]
-    return [f"--policy {k} ({saved.get(k, 'unset')} there, {policy.get(k, 'unset')} now)"
-            for k in sorted(set(saved) | set(policy)) if saved.get(k) != policy.get(k)] or ["the policy"]
+    def said(k: str) -> str:
+        there = f"{saved[k]} there" if k in saved else "not recorded there: that folder predates this parameter"
+        now = f"{policy[k]} now" if k in policy else "no such parameter now"
+        return f"--policy {k} ({there}, {now})"
+
+    return [said(k) for k in sorted(set(saved) | set(policy)) if saved.get(k) != policy.get(k)] or ["the policy"]
 
 
 def _option_changes(odometer: str, saved: Any, options: dict) -> str:
@@ -296,7 +313,7 @@ def belief_figure(table: list[dict], path: Path) -> None:
     ax.set_ylabel("success (share of episodes)")
     ax.set_title("Navigation success against the odometry's closed-loop drift (95 % intervals)", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncol=2, frameon=False)
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -375,17 +392,17 @@ def _html(table: list[dict], figures: list[str], command: str) -> str:
                                                      "final distance to goal (m)", "final belief error (m)",
                                                      "steps", "collisions", "failed odometer steps")) + "</tr>"
     body = "".join(
-        "<tr>" + "".join(f"<td>{v}</td>" for v in (r["odometer"], r["episodes"], ci(r, "success"), ci(r, "spl"),
+        "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (r["odometer"], r["episodes"], ci(r, "success"), ci(r, "spl"),
                                                    ci(r, "soft_spl"), ci(r, "d_end"), ci(r, "belief_error"),
                                                    f"{r['steps']:.0f}",
                                                    f"{r['collisions']:.1f}", r["failed_steps"])) + "</tr>"
         for r in table)
-    imgs = "".join(f'<p><img src="{f}" alt="{f}"></p>' for f in ["metrics.png", "belief.png", *figures])
+    imgs = "".join(f'<p><img src="{html.escape(f)}" alt="{html.escape(f)}"></p>' for f in ["metrics.png", "belief.png", *figures])
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
             "<style>body{font-family:sans-serif;max-width:960px;margin:2em auto}td,th{padding:3px 8px;"
             "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
             "<h1>PointGoal navigation with each odometer</h1>"
-            f"<p><code>{command}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
+            f"<p><code>{html.escape(command)}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
             "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
             "Final belief error: the distance between the agent's true and believed positions when the episode "
             "ends (the odometry's drift in the closed loop).</p>"
