@@ -161,7 +161,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parts = args.only or ["simulator", "odometers", "navigation", "evaluate"]
     if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
         raise UsageError(f"--odometers and --odometer-option choose what the odometer part times; "
-                         f"--only {' '.join(dict.fromkeys(parts))} does not run it")
+                         f"--only {' '.join(dict.fromkeys(parts))} does not run it"
+                         + (" (navigation always times ground-truth and action-prior, with their defaults)"
+                            if "navigation" in parts else ""))
     try:
         names = standalone_odometers() if args.odometers is None else parse_odometer_list(args.odometers)
     except ValueError as exc:
