@@ -320,7 +320,9 @@ def belief_figure(table: list[dict], path: Path) -> None:
 
 
 def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path: Path) -> None:
-    """Top-down view of one episode: free space, start, goal, true (solid) and believed (dashed) paths."""
+    """Top-down views of one episode, one panel per odometer (the paper's qualitative figure): free
+    space, start, goal, the true path (solid) and where the agent believed it was (dashed), all
+    panels on the same axes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -330,34 +332,47 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
 
     env, begin = start_environment(spec, sensors=False)
     scene = env.scene
-    fig, ax = plt.subplots(figsize=(6.0, 6.4))
-    h, w = scene.navigable.shape
-    ax.imshow(np.where(scene.navigable, 1.0, 0.75), cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="nearest",
-              extent=(scene.origin[0], scene.origin[0] + w * scene.resolution, scene.origin[1],
-                      scene.origin[1] + h * scene.resolution))
-    cmap = plt.get_cmap("tab10")
+    runs = [(name, next((r for r in rows if r["odometer"] == name and r["episode"] == spec.index), None))
+            for name in odometers]
+    runs = [(name, r) for name, r in runs if r is not None] or [("no odometer", None)]
     pts = [np.array([[begin.start.x, begin.start.y], begin.goal])]
-    for k, name in enumerate(odometers):
-        row = next((r for r in rows if r["odometer"] == name and r["episode"] == spec.index), None)
-        if row is None:
-            continue
-        true, belief = np.array(row["true_xy"]), np.array(row["believed_xy"])
-        pts += [true, belief]
-        verdict = "success" if row["success"] else ("stopped" if row["stopped"] else "no stop")
-        ax.plot(true[:, 0], true[:, 1], "-", color=cmap(k % 10), lw=1.6, label=f"{name}: true path ({verdict})")
-        ax.plot(belief[:, 0], belief[:, 1], "--", color=cmap(k % 10), lw=1.0, label=f"{name}: believed")
-    ax.plot(begin.start.x, begin.start.y, "ko", ms=7, label="start")
-    ax.plot(*begin.goal, "r*", ms=13, label="goal")
+    pts += [np.array(r[k]) for _, r in runs if r is not None for k in ("true_xy", "believed_xy")]
     allp = np.concatenate(pts)
     centre, half = (allp.min(0) + allp.max(0)) / 2, np.ptp(allp, axis=0).max() / 2 + 1.0
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("world x (m)")
-    ax.set_ylabel("world y (m)")
-    ax.set_title(f"{spec.split} episode {spec.index}: geodesic start distance {begin.start_distance:.1f} m", fontsize=10)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
-    fig.tight_layout()
+    cols = min(3, len(runs))
+    rows_n = -(-len(runs) // cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(3.6 * cols, 3.6 * rows_n + 0.9), squeeze=False,
+                             sharex=True, sharey=True)
+    h, w = scene.navigable.shape
+    extent = (scene.origin[0], scene.origin[0] + w * scene.resolution, scene.origin[1],
+              scene.origin[1] + h * scene.resolution)
+    for ax, (name, row) in zip(axes.flat, runs):
+        ax.imshow(np.where(scene.navigable, 1.0, 0.75), cmap="gray", vmin=0, vmax=1, origin="lower",
+                  interpolation="nearest", extent=extent)
+        verdict = ""
+        if row is not None:
+            true, belief = np.array(row["true_xy"]), np.array(row["believed_xy"])
+            ax.plot(true[:, 0], true[:, 1], "-", color="tab:blue", lw=1.4, label="true path")
+            ax.plot(belief[:, 0], belief[:, 1], "--", color="tab:orange", lw=1.1, label="believed path")
+            verdict = ("success" if row["success"] else ("stopped" if row["stopped"] else "no stop")) + \
+                f", {row['steps']} steps"
+        ax.plot(begin.start.x, begin.start.y, "ko", ms=6, label="start")
+        ax.plot(*begin.goal, "r*", ms=11, label="goal")
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
+        ax.set_aspect("equal", adjustable="box")
+        label = name if len(name) <= 34 else name[:31] + "..."
+        ax.set_title(f"{label}\n{verdict}", fontsize=8)
+    for ax in axes.flat[len(runs):]:
+        ax.axis("off")
+    for ax in axes[-1]:
+        ax.set_xlabel("world x (m)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("world y (m)")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.suptitle(f"{spec.split} episode {spec.index}: geodesic start distance {begin.start_distance:.1f} m", fontsize=10)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     save_figure_atomic(fig, path)
     plt.close(fig)
 
