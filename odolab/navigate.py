@@ -24,7 +24,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.comparison import ComparisonError, load_odometers
     from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
     from odolab.navigation.agent import PolicyConfig
-    from odolab.navigation.study import NavTask, config_doc, run_navigation, write_outputs
+    from odolab.navigation.report import write_outputs
+    from odolab.navigation.study import NavTask, config_doc, run_navigation
     from odolab.odometer import REGISTRY, parse_odometer_list
     from odolab.options import (OptionError, merge_options, naming_the_file, parse_assignments, read_options_file,
                                 without_defaults)

@@ -261,7 +261,7 @@ def test_the_tables_quote_fused_names():
     import csv
     import io
 
-    from odolab.navigation.study import _csv
+    from odolab.navigation.report import _csv
 
     text = _csv([{"odometer": "fused(icp,robust-vo)", "success": 0.5}], ["odometer", "success"])
     assert list(csv.DictReader(io.StringIO(text))) == [{"odometer": "fused(icp,robust-vo)", "success": "0.5000"}]
@@ -296,7 +296,8 @@ def test_policy_values_and_reports_are_checked_and_escaped():
     import numpy as np
 
     from odolab.navigation.agent import PolicyConfig
-    from odolab.navigation.study import _html, _policy_changes
+    from odolab.navigation.report import _html
+    from odolab.navigation.study import _policy_changes
 
     for bad in ("0.1", True, None, float("nan")):
         with pytest.raises(ValueError, match="cell must be a number in"):

@@ -45,7 +45,8 @@ def test_confidence_intervals():
 
 
 def test_the_final_belief_error_is_the_distance_between_the_last_true_and_believed_positions():
-    from odolab.navigation.study import belief_error, summarize
+    from odolab.navigation.metrics import belief_error
+    from odolab.navigation.report import summarize
 
     row = {"odometer": "x", "true_xy": [[0, 0], [1, 0], [2, 0]], "believed_xy": [[0, 0], [1, 0.5], [2, 3.0]],
            "success": 1, "spl": 0.5, "soft_spl": 0.5, "d_end": 0.1, "steps": 2, "collisions": 0, "failed_steps": 0}

@@ -88,3 +88,10 @@ def mean_ci(values: np.ndarray, binary: bool = False, confidence: float = 0.95) 
         return MeanCI(m, float("nan"), float("nan"), 1)
     half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * v.std(ddof=1) / np.sqrt(n))
     return MeanCI(m, m - half, m + half, n)
+
+
+def belief_error(row: dict) -> float:
+    """How far the agent's belief is from the truth when the episode ends: the distance (m, world
+    frame) between its true and its believed final position, the odometry's closed-loop drift (the
+    believed path starts on the true start, so this is the error the odometer accumulated)."""
+    return float(np.hypot(*(np.asarray(row["true_xy"][-1], np.float64) - np.asarray(row["believed_xy"][-1], np.float64))))

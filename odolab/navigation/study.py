@@ -1,20 +1,15 @@
 """Navigation over many episodes and odometers: one Ray task per (odometer, episode), each result
-saved as it finishes (a rerun does only what is missing), then the tables and figures.
+saved as it finishes (a rerun does only what is missing); the tables and figures are
+:mod:`odolab.navigation.report`'s.
 
 Files under the output folder: ``config.json`` (what the results were made with; another config is
-refused), ``episodes/<odometer>/<episode>.json`` (one run each, with its paths), ``episodes.csv``,
-``nav.csv`` (per odometer: success, SPL, SoftSPL, final geodesic distance and final belief error,
-each with its 95 % interval), ``metrics.png`` (bars with intervals), ``belief.png`` (success against
-the final belief error) and ``paths-<episode>.png`` (top-down: the scene, start, goal, each
-odometer's true path and, dashed, where it believed it was).
+refused) and ``episodes/<odometer>/<episode>.json`` (one run each, with its paths; a damaged one, or
+one of another model file or setting, is run again).
 """
 from __future__ import annotations
 
-import csv
 import dataclasses
 import hashlib
-import html
-import io
 import json
 import re
 import reprlib
@@ -26,14 +21,9 @@ from typing import Any
 import numpy as np
 
 from odolab.episodes import EpisodeSpec
-from odolab.io.atomic import save_figure_atomic, write_text_atomic
+from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
 from odolab.navigation.agent import PolicyConfig
-from odolab.navigation.metrics import EpisodeOutcome, mean_ci
-
-METRICS = ("success", "spl", "soft_spl", "d_end", "belief_error")
-UNBOUNDED = {"d_end", "belief_error"}  # metres: their intervals are clipped at 0 only
-
 
 @dataclass(frozen=True)
 class NavTask:
@@ -225,203 +215,6 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
     fan_out(run_task, todo, on_result=done, parallel=parallel, ray_address=ray_address, progress=progress,
             desc="navigation episodes")
     return [json.loads(result_path(out, t.odometer, t.spec.index).read_text(encoding="utf-8")) for t in tasks]
-
-
-def belief_error(row: dict) -> float:
-    """How far the agent's belief is from the truth when the episode ends: the distance (m, world
-    frame) between its true and its believed final position, the odometry's closed-loop drift (the
-    believed path starts on the true start, so this is the error the odometer accumulated)."""
-    return float(np.hypot(*(np.asarray(row["true_xy"][-1], np.float64) - np.asarray(row["believed_xy"][-1], np.float64))))
-
-
-def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
-    """Per odometer: each metric's mean and 95 % interval (``belief_error`` included: rows without it
-    get it from their paths), steps, collisions and failed steps."""
-    rows = [r if "belief_error" in r else {**r, "belief_error": belief_error(r)} for r in rows]
-    table = []
-    for name in odometers:
-        mine = [r for r in rows if r["odometer"] == name]
-        entry: dict[str, Any] = {"odometer": name, "episodes": len(mine)}
-        for m in METRICS:
-            ci = mean_ci(np.array([r[m] for r in mine], np.float64), binary=m == "success")
-            top = np.inf if m in UNBOUNDED else 1.0  # the interval stays where the metric can be
-            entry.update({m: ci.mean, f"{m}_low": float(np.clip(ci.low, 0.0, top)),
-                          f"{m}_high": float(np.clip(ci.high, 0.0, top))})
-        entry["steps"] = float(np.mean([r["steps"] for r in mine])) if mine else float("nan")
-        entry["collisions"] = float(np.mean([r["collisions"] for r in mine])) if mine else float("nan")
-        entry["failed_steps"] = int(sum(r["failed_steps"] for r in mine))
-        table.append(entry)
-    return table
-
-
-def _csv(rows: list[dict], keys: list[str]) -> str:
-    """CSV text (names such as ``fused(a,b)`` quoted), floats to 4 decimals."""
-    def cell(v):
-        return f"{v:.4f}" if isinstance(v, float) else str(v)
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(keys)
-    writer.writerows([cell(r[k]) for k in keys] for r in rows)
-    return buf.getvalue()
-
-
-def metrics_figure(table: list[dict], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(max(5.5, 1.3 * len(table) + 2), 4.4))
-    width = 0.26
-    x = np.arange(len(table))
-    for k, (m, label) in enumerate((("success", "success"), ("spl", "SPL"), ("soft_spl", "SoftSPL"))):
-        mean = np.array([r[m] for r in table])
-        err = np.array([[r[m] - r[f"{m}_low"] for r in table], [r[f"{m}_high"] - r[m] for r in table]])
-        ax.bar(x + (k - 1) * width, mean, width, yerr=np.maximum(np.nan_to_num(err), 0.0), capsize=3, label=label)
-    ax.set_xticks(x, [r["odometer"] for r in table], rotation=20, ha="right", fontsize=8)
-    ax.set_ylim(0, 1.05)
-    ax.set_ylabel("mean over episodes (95 % interval)")
-    ax.set_title(f"PointGoal navigation, {table[0]['episodes'] if table else 0} episodes per odometer", fontsize=10)
-    ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right", ncol=3, frameon=True)
-    fig.tight_layout()
-    save_figure_atomic(fig, path)
-    plt.close(fig)
-
-
-def belief_figure(table: list[dict], path: Path) -> None:
-    """Success against the final belief error, one point per odometer with both 95 % intervals:
-    how much drift each success rate comes with."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    floor = 0.01  # m: ground truth's 0 is drawn here, on the log axis
-    fig, ax = plt.subplots(figsize=(6.4, 4.6))
-    cmap = plt.get_cmap("tab10")
-    for k, r in enumerate(table):
-        if not r["episodes"]:
-            continue
-        x, y = max(r["belief_error"], floor), r["success"]
-        xerr = [[max(x - max(r["belief_error_low"], floor), 0.0)], [max(r["belief_error_high"] - x, 0.0)]]
-        yerr = [[y - r["success_low"]], [r["success_high"] - y]]
-        ax.errorbar(x, y, xerr=xerr, yerr=yerr, fmt="o", color=cmap(k % 10), capsize=3, label=r["odometer"])
-    ax.set_xscale("log")
-    ax.set_ylim(-0.02, 1.02)
-    ax.set_xlabel("final belief error: |true - believed position| at the end\n(m, mean, log scale; below 0.01 m drawn at 0.01)")
-    ax.set_ylabel("success (share of episodes)")
-    ax.set_title("Navigation success against the odometry's closed-loop drift (95 % intervals)", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncol=2, frameon=False)
-    fig.tight_layout()
-    save_figure_atomic(fig, path)
-    plt.close(fig)
-
-
-def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path: Path) -> None:
-    """Top-down views of one episode, one panel per odometer (the paper's qualitative figure): free
-    space, start, goal, the true path (solid) and where the agent believed it was (dashed), all
-    panels on the same axes."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from odolab.episodes import start_environment
-
-    env, begin = start_environment(spec, sensors=False)
-    scene = env.scene
-    runs = [(name, next((r for r in rows if r["odometer"] == name and r["episode"] == spec.index), None))
-            for name in odometers]
-    runs = [(name, r) for name, r in runs if r is not None] or [("no odometer", None)]
-    pts = [np.array([[begin.start.x, begin.start.y], begin.goal])]
-    pts += [np.array(r[k]) for _, r in runs if r is not None for k in ("true_xy", "believed_xy")]
-    allp = np.concatenate(pts)
-    centre, half = (allp.min(0) + allp.max(0)) / 2, np.ptp(allp, axis=0).max() / 2 + 1.0
-    cols = min(3, len(runs))
-    rows_n = -(-len(runs) // cols)
-    fig, axes = plt.subplots(rows_n, cols, figsize=(3.6 * cols, 3.6 * rows_n + 0.9), squeeze=False,
-                             sharex=True, sharey=True)
-    h, w = scene.navigable.shape
-    extent = (scene.origin[0], scene.origin[0] + w * scene.resolution, scene.origin[1],
-              scene.origin[1] + h * scene.resolution)
-    for ax, (name, row) in zip(axes.flat, runs):
-        ax.imshow(np.where(scene.navigable, 1.0, 0.75), cmap="gray", vmin=0, vmax=1, origin="lower",
-                  interpolation="nearest", extent=extent)
-        verdict = ""
-        if row is not None:
-            true, belief = np.array(row["true_xy"]), np.array(row["believed_xy"])
-            ax.plot(true[:, 0], true[:, 1], "-", color="tab:blue", lw=1.4, label="true path")
-            ax.plot(belief[:, 0], belief[:, 1], "--", color="tab:orange", lw=1.1, label="believed path")
-            verdict = ("success" if row["success"] else ("stopped" if row["stopped"] else "no stop")) + \
-                f", {row['steps']} steps"
-        ax.plot(begin.start.x, begin.start.y, "ko", ms=6, label="start")
-        ax.plot(*begin.goal, "r*", ms=11, label="goal")
-        ax.set_xlim(centre[0] - half, centre[0] + half)
-        ax.set_ylim(centre[1] - half, centre[1] + half)
-        ax.set_aspect("equal", adjustable="box")
-        label = name if len(name) <= 34 else name[:31] + "..."
-        ax.set_title(f"{label}\n{verdict}", fontsize=8)
-    for ax in axes.flat[len(runs):]:
-        ax.axis("off")
-    for ax in axes[-1]:
-        ax.set_xlabel("world x (m)")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("world y (m)")
-    handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.suptitle(f"{spec.split} episode {spec.index}: geodesic start distance {begin.start_distance:.1f} m", fontsize=10)
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
-    save_figure_atomic(fig, path)
-    plt.close(fig)
-
-
-def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list[EpisodeSpec], command: str,
-                  sample_episodes: int = 2) -> list[dict]:
-    """Tables, figures and ``report.html`` under ``out``; returns the per-odometer table."""
-    rows = [{**r, "belief_error": belief_error(r)} for r in rows]
-    table = summarize(rows, odometers)
-    keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
-        "steps", "collisions", "failed_steps"]
-    write_text_atomic(out / "nav.csv", _csv(table, keys))
-    ep_keys = ["odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions",
-               "success", "spl", "soft_spl", "failed_steps", "belief_error"]
-    write_text_atomic(out / "episodes.csv", _csv(rows, ep_keys))
-    metrics_figure(table, out / "metrics.png")
-    belief_figure(table, out / "belief.png")
-    figures = []
-    for spec in specs[:sample_episodes]:
-        name = f"paths-{spec.index:04d}.png"
-        paths_figure(rows, odometers, spec, out / name)
-        figures.append(name)
-    write_text_atomic(out / "report.html", _html(table, figures, command))
-    return table
-
-
-def _html(table: list[dict], figures: list[str], command: str) -> str:
-    def ci(r, m, scale=1.0, digits=2):
-        return (f"{scale * r[m]:.{digits}f} [{scale * r[m + '_low']:.{digits}f}, "
-                f"{scale * r[m + '_high']:.{digits}f}]")
-    head = "<tr>" + "".join(f"<th>{h}</th>" for h in ("odometer", "episodes", "success", "SPL", "SoftSPL",
-                                                     "final distance to goal (m)", "final belief error (m)",
-                                                     "steps", "collisions", "failed odometer steps")) + "</tr>"
-    body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (r["odometer"], r["episodes"], ci(r, "success"), ci(r, "spl"),
-                                                   ci(r, "soft_spl"), ci(r, "d_end"), ci(r, "belief_error"),
-                                                   f"{r['steps']:.0f}",
-                                                   f"{r['collisions']:.1f}", r["failed_steps"])) + "</tr>"
-        for r in table)
-    imgs = "".join(f'<p><img src="{html.escape(f)}" alt="{html.escape(f)}"></p>' for f in ["metrics.png", "belief.png", *figures])
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
-            "<style>body{font-family:sans-serif;max-width:960px;margin:2em auto}td,th{padding:3px 8px;"
-            "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
-            "<h1>PointGoal navigation with each odometer</h1>"
-            f"<p><code>{html.escape(command)}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
-            "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
-            "Final belief error: the distance between the agent's true and believed positions when the episode "
-            "ends (the odometry's drift in the closed loop).</p>"
-            f"<table>{head}{body}</table>{imgs}</body></html>\n")
 
 
 def config_doc(odometers: list[str], options: dict, specs: list[EpisodeSpec], policy: PolicyConfig) -> dict:
