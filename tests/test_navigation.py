@@ -310,3 +310,14 @@ def test_policy_values_and_reports_are_checked_and_escaped():
     assert said == ["--policy new_one (not recorded there: that folder predates this parameter, 0.1 now)"]
     page = _html([], [], "python -m odolab.navigate --out 'x<i>y&z'")
     assert "x&lt;i&gt;y&amp;z" in page and "<i>" not in page
+
+
+def test_the_navigation_benchmark_accounts_for_its_time():
+    from odolab.bench import bench_navigation
+
+    rows = bench_navigation(("ground-truth",), episodes=1, max_steps=3)
+    r = rows[0]
+    assert r["odometer"] == "ground-truth" and r["episodes"] == 1 and r["max_steps"] == 3 and 1 <= r["steps"] <= 3
+    parts = r["policy_ms_per_step"] + r["sensors_ms_per_step"] + r["odometer_ms_per_step"] + r["rest_ms_per_step"]
+    assert abs(parts * r["steps_per_s"] / 1000 - 1) < 1e-6  # the parts add up to the whole time
+    assert 0 < r["planning_ms_per_step"] <= r["policy_ms_per_step"] and 0 < r["planning_share"] < 1
