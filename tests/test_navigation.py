@@ -1,6 +1,7 @@
 """Closed-loop navigation: the goal update of eq. 1, and an agent with true odometry reaching the goal."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -62,6 +63,38 @@ def test_a_boxed_in_agent_backs_out_instead_of_pushing_into_the_wall():
     heads = np.radians(np.arange(-180, 180, 10.0))
     open_way = agent._open_headings(0.0, 0.0, heads)
     assert not open_way[heads == 0].any() and open_way[np.isclose(np.abs(heads), np.pi)].all()
+
+
+def test_a_gap_the_map_narrowed_is_taken_by_the_fallback_plan():
+    """A wall across the whole map with one 0.3 m gap, narrower than the agent (0.36 m): the full
+    agent has no way to the goal and heads for the goal's direction, into the wall; with
+    ``fallback_radius`` it plans as a narrower agent and turns towards the gap."""
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.sim.camera import CameraSpec
+
+    cam = CameraSpec(width=32, height=18)
+    blind = np.zeros((cam.height, cam.width), np.float32)
+    ys = np.arange(-6.0, 6.0, 0.02)
+    ys = ys[(ys < 0.6) | (ys > 0.9)]
+    actions = {}
+    for fallback in (0.0, 0.1):
+        agent = MapPlanAgent((3.0, 0.0), cam.intrinsics, cam.mount_height,
+                             PolicyConfig(extent=2.0, fallback_radius=fallback))
+        agent.map.vote(np.full(ys.shape, 1.0), ys, weight=5)
+        actions[fallback] = agent.act(blind)
+    assert actions == {0.0: Action.MOVE_FORWARD, 0.1: Action.TURN_LEFT}
+    with pytest.raises(ValueError, match="need fallback_radius < agent_radius"):
+        PolicyConfig(fallback_radius=0.18)
+
+
+def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.navigation.study import _policy_changes
+
+    old = {k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k != "fallback_radius"}
+    assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.0))) == []
+    assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.1))) == [
+        "--policy fallback_radius (0.0 there, 0.1 now)"]
 
 
 def _navigate(argv):

@@ -15,7 +15,9 @@ cells; cells nearer than the agent radius to an obstacle are blocked, and those 
 ``margin`` are passable at ``margin_speed`` times the speed (so a gap just wide enough is taken when
 going round would cost more; unknown cells are traversable); fast marching from the believed goal
 gives a travel-time field in metres at full speed (over the box spanning the agent and the goal plus
-``plan_margin``, or the whole map when that box holds no way); the agent heads for the lowest field
+``plan_margin``, or the whole map when that box holds no way; when the whole map holds none either, as
+when a noisy map narrows a doorway below the agent's width, the whole map again for an agent of
+radius ``fallback_radius``, 0 = never); the agent heads for the lowest field
 value on a circle of 0.25 m around it, among the headings whose straight step passes no obstacle cell
 nearer than ``obstacle_gap`` (when none has a finite value, as inside a wall's inflated band, the open
 heading nearest the goal's direction; when none is open, the goal's direction; obstacle cells within
@@ -47,7 +49,10 @@ POLICY_BOUNDS: dict[str, tuple[float, float]] = {
     "max_range": (0.1, 10.0), "votes": (1, 1000), "agent_radius": (0.0, 1.0), "margin": (0.0, 1.0),
     "margin_speed": (0.0, 1.0), "heading_tolerance": (0.0, 180.0), "stop_distance": (0.01, 10.0),
     "stuck_distance": (0.0, 1.0), "extent": (0.5, 20.0), "plan_margin": (0.5, 20.0), "memory": (1, 10**6),
-    "obstacle_gap": (0.0, 0.5), "own_clearance": (0.0, 0.5)}
+    "obstacle_gap": (0.0, 0.5), "own_clearance": (0.0, 0.5), "fallback_radius": (0.0, 1.0)}
+#: The value of each parameter added after results were first saved that gives the behaviour from
+#: before it: a saved policy without the parameter was made with this value.
+POLICY_BEFORE: dict[str, float] = {"fallback_radius": 0.0}
 OPEN_BELOW = {"margin_speed", "max_height"}  # these must be above their lower bound
 OPEN_ABOVE = {"heading_tolerance"}  # and this below its upper one
 
@@ -85,6 +90,7 @@ class PolicyConfig:
     memory: int = 1000  # steps an obstacle is remembered without being seen again
     obstacle_gap: float = 0.05  # a forward step's straight path keeps this far from obstacle cells
     own_clearance: float = 0.1  # obstacle cells this near the believed position are ignored by that check
+    fallback_radius: float = 0.0  # the narrower agent planned for when no way fits the full one; 0: off
 
     def __post_init__(self) -> None:
         kinds = {f.name: f.type for f in dataclasses.fields(self)}
@@ -100,6 +106,9 @@ class PolicyConfig:
                 raise ValueError(f"{name} must be in {_range_text(name)}, got {value:g}")
         if not self.min_height < self.max_height:
             raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
+        if self.fallback_radius >= self.agent_radius and self.fallback_radius != 0:
+            raise ValueError(f"need fallback_radius < agent_radius (0 turns the fallback off), got "
+                             f"{self.fallback_radius:g}, {self.agent_radius:g}")
 
     @classmethod
     def from_assignments(cls, items: list[str]) -> "PolicyConfig":
@@ -214,10 +223,10 @@ class MapPlanAgent:
         keep = (height >= cfg.min_height) & (height <= cfg.max_height)
         self.map.vote(world[0, keep], world[1, keep])
 
-    def _field(self, x: float, y: float, margin: float | None) -> np.ndarray:
-        """Fast-marching travel time (m at full speed) to the believed goal over the traversable cells
-        of the window spanning the agent at (x, y) and the goal plus ``margin`` m (inf elsewhere; None:
-        the whole map)."""
+    def _field(self, x: float, y: float, margin: float | None, radius: float) -> np.ndarray:
+        """Fast-marching travel time (m at full speed) to the believed goal, for an agent of ``radius``
+        m, over the traversable cells of the window spanning the agent at (x, y) and the goal plus
+        ``margin`` m (inf elsewhere; None: the whole map)."""
         import skfmm
         from scipy.ndimage import distance_transform_edt
 
@@ -232,11 +241,11 @@ class MapPlanAgent:
         c0, c1 = max(min(ac, gc) - pad, 0), min(max(ac, gc) + pad + 1, m.n)
         obstacle = m.obstacles(cfg.votes, cfg.memory)[r0:r1, c0:c1]
         clearance = distance_transform_edt(~obstacle) * cfg.cell if obstacle.any() else np.full(obstacle.shape, np.inf)
-        blocked = clearance < cfg.agent_radius
-        speed = np.where(clearance < cfg.agent_radius + cfg.margin, cfg.margin_speed, 1.0)
-        radius = int(np.ceil((cfg.agent_radius + cfg.margin) / cfg.cell))
+        blocked = clearance < radius
+        speed = np.where(clearance < radius + cfg.margin, cfg.margin_speed, 1.0)
+        reach = int(np.ceil((radius + cfg.margin) / cfg.cell))
         lr, lc = gr - r0, gc - c0
-        near_goal = (slice(max(lr - radius, 0), lr + radius + 1), slice(max(lc - radius, 0), lc + radius + 1))
+        near_goal = (slice(max(lr - reach, 0), lr + reach + 1), slice(max(lc - reach, 0), lc + reach + 1))
         blocked[near_goal], speed[near_goal] = False, 1.0  # the goal may sit beside a wall
         wx, wy = m.to_world(np.arange(r0, r1), np.arange(c0, c1))
         phi = np.hypot(wx[None, :] - self.goal[0], wy[:, None] - self.goal[1]) - cfg.cell
@@ -288,8 +297,11 @@ class MapPlanAgent:
         cost = np.full(len(headings), np.inf)
         open_way = self._open_headings(x, y, headings)
         started = time.perf_counter()
-        for margin in (cfg.plan_margin, None):  # the window first; the whole map if no way out of it
-            field = self._field(x, y, margin)
+        plans = [(cfg.plan_margin, cfg.agent_radius), (None, cfg.agent_radius)]  # the window, then the whole map
+        if 0 < cfg.fallback_radius < cfg.agent_radius:
+            plans.append((None, cfg.fallback_radius))  # then a narrower agent through a gap the map narrowed
+        for margin, radius in plans:
+            field = self._field(x, y, margin, radius)
             cost[inside] = field[r[inside], c[inside]]
             cost[~open_way] = np.inf
             if np.isfinite(cost).any():

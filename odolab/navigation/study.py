@@ -23,7 +23,7 @@ import numpy as np
 from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
-from odolab.navigation.agent import PolicyConfig
+from odolab.navigation.agent import POLICY_BEFORE, PolicyConfig
 
 @dataclass(frozen=True)
 class NavTask:
@@ -139,6 +139,8 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[str]:
 
 def _policy_changes(saved: Any, policy: dict) -> list[str]:
     """Which ``--policy`` parameters make ``policy`` differ from a folder's saved one."""
+    if isinstance(saved, dict):  # a folder from before a parameter existed was made with its old behaviour
+        saved = {**{k: v for k, v in POLICY_BEFORE.items() if k in policy}, **saved}
     if saved == policy:
         return []
     if not isinstance(saved, dict):
