@@ -157,7 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'")
     args = ap.parse_args(argv)
     if args.json is not None:
-        check_output_file(args.json, "--json")
+        check_output_file(args.json, "--json", [".json"])
     parts = args.only or ["simulator", "odometers", "navigation", "evaluate"]
     if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
         raise UsageError(f"--odometers and --odometer-option choose what the odometer part times; "
@@ -229,4 +229,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "odolab.bench"))
+    raise SystemExit(run_cli(main, "python -m odolab.bench"))

@@ -140,4 +140,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "odolab.compare"))
+    raise SystemExit(run_cli(main, "python -m odolab.compare"))

@@ -163,4 +163,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, "odolab.evaluate"))
+    sys.exit(run_cli(main, "python -m odolab.evaluate"))

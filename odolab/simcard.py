@@ -347,4 +347,4 @@ def _render_part(job: tuple) -> tuple[ImageStats, list[tuple]]:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "odolab.simcard"))
+    raise SystemExit(run_cli(main, "python -m odolab.simcard"))

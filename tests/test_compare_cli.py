@@ -63,7 +63,7 @@ def test_bad_input_is_one_line_and_exit_2(args, words):
     proc = subprocess.run([sys.executable, "-m", "odolab.compare", *args], capture_output=True, text=True)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and words in lines[0] and lines[0].startswith("odolab.compare: error:")
+    assert len(lines) == 1 and words in lines[0] and lines[0].startswith("python -m odolab.compare: error:")
     assert "Traceback" not in proc.stderr
 
 

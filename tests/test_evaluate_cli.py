@@ -122,7 +122,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, case, fmt, text, bad, line, 
     assert len(lines) == 1, proc.stderr
     msg = lines[0]
     assert "Traceback" not in proc.stderr
-    assert msg.startswith("odolab.evaluate: error: ")
+    assert msg.startswith("python -m odolab.evaluate: error: ")
     assert str(gt if bad == "gt" else est) in msg
     if line is not None:
         assert f", line {line}: " in msg

@@ -40,7 +40,7 @@ def test_a_bad_option_is_one_line_from_the_command_line():
     proc = subprocess.run([sys.executable, "-m", "odolab.compare", "--seed", "-1"], capture_output=True, text=True,
                           cwd=ROOT, timeout=60)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    assert proc.stderr.strip() == "odolab.compare: error: --seed must be in [0, 4294967295], got -1"
+    assert proc.stderr.strip() == "python -m odolab.compare: error: --seed must be in [0, 4294967295], got -1"
 
 
 # ----------------------------------------------------------------------------- numeric options
@@ -109,6 +109,10 @@ def test_evaluate_plot_path_is_checked_before_work(tmp_path):
 
 def test_bench_json_path_is_checked_before_work(tmp_path):
     one_line_error("odolab.bench", "--only", "evaluate", "--json", tmp_path, words="is a folder, not a file")
+    notes = tmp_path / "notes.md"  # a slip of the tab key must not overwrite a document
+    notes.write_text("mine")
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", notes, words="unknown file type '.md'")
+    assert notes.read_text() == "mine"
 
 
 # ----------------------------------------------------------------------------- Ray addresses

@@ -161,9 +161,9 @@ def test_compare_passes_options_to_the_constructor(tmp_path):
     (["--odometers", "icp", "--odometer-option", "icp.max_depth=true"], "expected a number, got True"),
 ])
 def test_bad_options_are_one_line(args, words, tmp_path, capsys):
-    assert run_cli(main, "odolab.compare", [*args, *BASE, "--out", str(tmp_path)]) == 2
+    assert run_cli(main, "python -m odolab.compare", [*args, *BASE, "--out", str(tmp_path)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("odolab.compare: error: ") and words in lines[0], lines
+    assert len(lines) == 1 and lines[0].startswith("python -m odolab.compare: error: ") and words in lines[0], lines
 
 
 def test_a_bad_option_value_is_one_line(tmp_path):

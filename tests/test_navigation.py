@@ -156,7 +156,9 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
                         (["--policy", "memory=x"], "memory takes a whole number in [1, 1000000]"),
                         (["--policy", "margin_speed=abc"], "margin_speed takes a number in (0, 1]"),
                         (["--policy", "cell=0.1", "--policy", "cell=0.2"], "cell is given twice"),
-                        (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)")]:
+                        (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)"),
+                        (["--policy", "votes=\u0663"], "votes takes a whole number in [1, 1000]"),
+                        (["--policy", "fallback_radius=0.2"], "need fallback_radius < agent_radius")]:
         assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err

@@ -131,6 +131,8 @@ class PolicyConfig:
             if len(text.strip()) > 40:  # no parameter needs 40 digits; Python refuses 4300
                 raise ValueError(f"--policy {shown}: {key} takes {kind}; this value is too long to read")
             try:
+                if not text.isascii():  # Python reads other scripts' digits ("١") as numbers too
+                    raise ValueError(text)
                 value = int(text) if whole else float(text)
             except ValueError:
                 raise ValueError(f"--policy {shown}: {key} takes {kind}") from None
