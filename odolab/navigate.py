@@ -5,7 +5,7 @@ its own motion; success, SPL, SoftSPL and the final belief error per odometer wi
 
 Every odometer drives the same episodes (same scenes, starts, goals and noise laws; --seed), one Ray
 task per (odometer, episode) on a local instance or the cluster at --ray-address. Each finished
-episode is saved at once; the same command resumes. Writes nav.csv, episodes.csv, metrics.png,
+episode is saved at once; the same command resumes. Writes nav.csv, nav.md, episodes.csv, metrics.png,
 belief.png, paths-*.png and report.html under --out (see odolab.navigation.study).
 """
 from __future__ import annotations

@@ -302,6 +302,23 @@ def test_the_tables_quote_fused_names():
     assert list(csv.DictReader(io.StringIO(text))) == [{"odometer": "fused(icp,robust-vo)", "success": "0.5000"}]
 
 
+def test_the_markdown_table_bolds_the_best_non_oracle_row():
+    from odolab.navigation.report import markdown_table, summarize
+
+    def row(name, success, failed):
+        return {"odometer": name, "success": success, "spl": 0.5 * success, "soft_spl": 0.6, "d_end": 1.0,
+                "belief_error": 0.2, "steps": 100, "collisions": 3, "failed_steps": failed}
+
+    rows = [row("ground-truth", 1, 0), row("ground-truth", 1, 0), row("a|b", 1, 50), row("a|b", 0, 0),
+            row("c", 0, 0), row("c", 0, 0)]
+    lines = markdown_table(summarize(rows, ["ground-truth", "a|b", "c"])).splitlines()
+    assert lines[0].startswith("| odometer | success | SPL | SoftSPL |") and len(lines) == 5
+    oracle, ab, c = lines[2:]
+    assert "**" not in oracle.split(" | ")[1]  # the oracle is not a contender
+    assert ab.startswith("| a\\|b | **0.50 [") and ab.endswith("| 100 | 3.0 | 50 (25 %) |")
+    assert c.split(" | ")[1].startswith("0.00 [") and c.split(" | ")[3].startswith("**0.60")  # a tie is bold for both
+
+
 def test_a_refusal_for_changed_options_names_the_key_and_both_values():
     from odolab.navigation.study import _option_changes
     said = _option_changes("open3d-rgbd", {}, {"max_depth": 5.0})

@@ -2,7 +2,8 @@
 :func:`odolab.navigation.study.run_task` writes them).
 
 Files written under the output folder: ``nav.csv`` (per odometer: success, SPL, SoftSPL, final
-geodesic distance and final belief error, each with its 95 % interval), ``episodes.csv``,
+geodesic distance and final belief error, each with its 95 % interval), ``nav.md`` (the same as
+the README's Markdown table), ``episodes.csv``,
 ``metrics.png`` (bars with intervals), ``belief.png`` (success against the final belief error),
 ``paths-<episode>.png`` (one panel per odometer: the scene, start, goal, the true path and, dashed,
 where the agent believed it was) and ``report.html``.
@@ -176,6 +177,7 @@ def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list
     keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
         "steps", "collisions", "failed_steps"]
     write_text_atomic(out / "nav.csv", _csv(table, keys))
+    write_text_atomic(out / "nav.md", markdown_table(table))
     ep_keys = ["odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions",
                "success", "spl", "soft_spl", "failed_steps", "belief_error"]
     write_text_atomic(out / "episodes.csv", _csv(rows, ep_keys))
@@ -190,16 +192,41 @@ def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list
     return table
 
 
+def _ci(r: dict, m: str) -> str:
+    """``0.83 [0.74, 0.89]``: a metric's mean and 95 % interval, to 2 decimals."""
+    return f"{r[m]:.2f} [{r[m + '_low']:.2f}, {r[m + '_high']:.2f}]"
+
+
+def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
+    """The per-odometer table in Markdown, as the README shows it: success, SPL and SoftSPL with
+    their intervals, the best of each among the odometers other than ``oracle`` in bold; failed
+    steps (the odometer refused, and the action prior stood in) with their share of all steps."""
+    head = ("| odometer | success | SPL | SoftSPL | final distance to goal m | final belief error m | steps | "
+            "collisions | failed steps |\n|---|---|---|---|---|---|---|---|---|\n")
+    best = {m: max((r[m] for r in table if r["odometer"] != oracle and r["episodes"]), default=None)
+            for m in ("success", "spl", "soft_spl")}
+    lines = []
+    for r in table:
+        if not r["episodes"]:
+            continue
+        cells = [_ci(r, m) for m in METRICS]
+        for k, m in enumerate(("success", "spl", "soft_spl")):
+            if r["odometer"] != oracle and f"{r[m]:.2f}" == f"{best[m]:.2f}":
+                cells[k] = f"**{cells[k]}**"
+        total = r["steps"] * r["episodes"]
+        failed = f"{r['failed_steps']} ({100 * r['failed_steps'] / total:.0f} %)" if r["failed_steps"] else "0"
+        name = r["odometer"].replace("|", "\\|")
+        lines.append(f"| {name} | {' | '.join(cells)} | {r['steps']:.0f} | {r['collisions']:.1f} | {failed} |\n")
+    return head + "".join(lines)
+
+
 def _html(table: list[dict], figures: list[str], command: str) -> str:
-    def ci(r, m, scale=1.0, digits=2):
-        return (f"{scale * r[m]:.{digits}f} [{scale * r[m + '_low']:.{digits}f}, "
-                f"{scale * r[m + '_high']:.{digits}f}]")
     head = "<tr>" + "".join(f"<th>{h}</th>" for h in ("odometer", "episodes", "success", "SPL", "SoftSPL",
                                                      "final distance to goal (m)", "final belief error (m)",
                                                      "steps", "collisions", "failed odometer steps")) + "</tr>"
     body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (r["odometer"], r["episodes"], ci(r, "success"), ci(r, "spl"),
-                                                   ci(r, "soft_spl"), ci(r, "d_end"), ci(r, "belief_error"),
+        "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (r["odometer"], r["episodes"], _ci(r, "success"), _ci(r, "spl"),
+                                                   _ci(r, "soft_spl"), _ci(r, "d_end"), _ci(r, "belief_error"),
                                                    f"{r['steps']:.0f}",
                                                    f"{r['collisions']:.1f}", r["failed_steps"])) + "</tr>"
         for r in table)
