@@ -307,7 +307,8 @@ def test_the_markdown_table_bolds_the_best_non_oracle_row():
 
     def row(name, success, failed):
         return {"odometer": name, "success": success, "spl": 0.5 * success, "soft_spl": 0.6, "d_end": 1.0,
-                "belief_error": 0.2, "steps": 100, "collisions": 3, "failed_steps": failed}
+                "belief_error": 0.2, "steps": 100, "collisions": 3, "failed_steps": failed, "stopped": True,
+                "path": 2.0}
 
     rows = [row("ground-truth", 1, 0), row("ground-truth", 1, 0), row("a|b", 1, 50), row("a|b", 0, 0),
             row("c", 0, 0), row("c", 0, 0)]

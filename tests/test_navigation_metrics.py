@@ -49,8 +49,12 @@ def test_the_final_belief_error_is_the_distance_between_the_last_true_and_believ
     from odolab.navigation.report import summarize
 
     row = {"odometer": "x", "true_xy": [[0, 0], [1, 0], [2, 0]], "believed_xy": [[0, 0], [1, 0.5], [2, 3.0]],
-           "success": 1, "spl": 0.5, "soft_spl": 0.5, "d_end": 0.1, "steps": 2, "collisions": 0, "failed_steps": 0}
+           "success": 1, "spl": 0.5, "soft_spl": 0.5, "d_end": 0.1, "steps": 2, "collisions": 0, "failed_steps": 0,
+           "path": 2.0, "stopped": True}
     assert belief_error(row) == 3.0
     other = {**row, "believed_xy": [[0, 0], [1, 0], [6, 3.0]]}  # 3-4-5
-    table = summarize([row, other], ["x"])
-    assert table[0]["belief_error"] == 4.0 and table[0]["belief_error_low"] >= 0.0
+    short = {**row, "path": 0.5, "stopped": False, "success": 0}  # too short for the drift per metre
+    table = summarize([row, other, short], ["x"])
+    assert abs(table[0]["belief_error"] - 11 / 3) < 1e-12 and table[0]["belief_error_low"] >= 0.0
+    assert table[0]["drift_per_m"] == 2.0  # the median of 3 m / 2 m and 5 m / 2 m
+    assert (table[0]["stopped_elsewhere"], table[0]["ran_out"]) == (0, 1)

@@ -2,7 +2,8 @@
 :func:`odolab.navigation.study.run_task` writes them).
 
 Files written under the output folder: ``nav.csv`` (per odometer: success, SPL, SoftSPL, final
-geodesic distance and final belief error, each with its 95 % interval), ``nav.md`` (the same as
+geodesic distance and final belief error, each with its 95 % interval; the failures by kind; the
+drift per metre of path), ``nav.md`` (the same as
 the README's Markdown table), ``episodes.csv``,
 ``metrics.png`` (bars with intervals), ``belief.png`` (success against the final belief error),
 ``paths-<episode>.png`` (one panel per odometer: the scene, start, goal, the true path and, dashed,
@@ -24,11 +25,15 @@ from odolab.navigation.metrics import belief_error, mean_ci
 
 METRICS = ("success", "spl", "soft_spl", "d_end", "belief_error")
 UNBOUNDED = {"d_end", "belief_error"}  # metres: their intervals are clipped at 0 only
+DRIFT_MIN_PATH = 1.0  # m: drift per metre is taken over the episodes whose true path is longer
 
 
 def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
     """Per odometer: each metric's mean and 95 % interval (``belief_error`` included: rows without it
-    get it from their paths), steps, collisions and failed steps."""
+    get it from their paths), steps, collisions and failed steps (means and sums); the failures by
+    kind, ``stopped_elsewhere`` (STOP outside the success radius) and ``ran_out`` (no STOP before the
+    last action); and ``drift_per_m``, the median over the episodes whose true path is longer than
+    ``DRIFT_MIN_PATH`` of the final belief error over the path length (m per m)."""
     rows = [r if "belief_error" in r else {**r, "belief_error": belief_error(r)} for r in rows]
     table = []
     for name in odometers:
@@ -42,6 +47,10 @@ def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
         entry["steps"] = float(np.mean([r["steps"] for r in mine])) if mine else float("nan")
         entry["collisions"] = float(np.mean([r["collisions"] for r in mine])) if mine else float("nan")
         entry["failed_steps"] = int(sum(r["failed_steps"] for r in mine))
+        entry["stopped_elsewhere"] = sum(1 for r in mine if r["stopped"] and not r["success"])
+        entry["ran_out"] = sum(1 for r in mine if not r["stopped"])
+        long = [r["belief_error"] / r["path"] for r in mine if r["path"] > DRIFT_MIN_PATH]
+        entry["drift_per_m"] = float(np.median(long)) if long else float("nan")
         table.append(entry)
     return table
 
@@ -175,7 +184,7 @@ def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list
     rows = [{**r, "belief_error": belief_error(r)} for r in rows]
     table = summarize(rows, odometers)
     keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
-        "steps", "collisions", "failed_steps"]
+        "steps", "collisions", "failed_steps", "stopped_elsewhere", "ran_out", "drift_per_m"]
     write_text_atomic(out / "nav.csv", _csv(table, keys))
     write_text_atomic(out / "nav.md", markdown_table(table))
     ep_keys = ["odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions",
@@ -223,12 +232,16 @@ def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
 def _html(table: list[dict], figures: list[str], command: str) -> str:
     head = "<tr>" + "".join(f"<th>{h}</th>" for h in ("odometer", "episodes", "success", "SPL", "SoftSPL",
                                                      "final distance to goal (m)", "final belief error (m)",
-                                                     "steps", "collisions", "failed odometer steps")) + "</tr>"
+                                                     "steps", "collisions", "failed odometer steps",
+                                                     "failures: stopped elsewhere / ran out",
+                                                     "drift per metre of path (median)")) + "</tr>"
     body = "".join(
         "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (r["odometer"], r["episodes"], _ci(r, "success"), _ci(r, "spl"),
                                                    _ci(r, "soft_spl"), _ci(r, "d_end"), _ci(r, "belief_error"),
                                                    f"{r['steps']:.0f}",
-                                                   f"{r['collisions']:.1f}", r["failed_steps"])) + "</tr>"
+                                                   f"{r['collisions']:.1f}", r["failed_steps"],
+                                                   f"{r['stopped_elsewhere']} / {r['ran_out']}",
+                                                   f"{100 * r['drift_per_m']:.1f} %")) + "</tr>"
         for r in table)
     imgs = "".join(f'<p><img src="{html.escape(f)}" alt="{html.escape(f)}"></p>' for f in ["metrics.png", "belief.png", *figures])
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
