@@ -234,7 +234,7 @@ def _html(table: list[dict], figures: list[str], command: str) -> str:
                                                      "final distance to goal (m)", "final belief error (m)",
                                                      "steps", "collisions", "failed odometer steps",
                                                      "failures: stopped elsewhere / ran out",
-                                                     "drift per metre of path (median)")) + "</tr>"
+                                                     "drift per m of path (median)")) + "</tr>"
     body = "".join(
         "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (r["odometer"], r["episodes"], _ci(r, "success"), _ci(r, "spl"),
                                                    _ci(r, "soft_spl"), _ci(r, "d_end"), _ci(r, "belief_error"),
@@ -245,7 +245,7 @@ def _html(table: list[dict], figures: list[str], command: str) -> str:
         for r in table)
     imgs = "".join(f'<p><img src="{html.escape(f)}" alt="{html.escape(f)}"></p>' for f in ["metrics.png", "belief.png", *figures])
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
-            "<style>body{font-family:sans-serif;max-width:960px;margin:2em auto}td,th{padding:3px 8px;"
+            "<style>body{font-family:sans-serif;max-width:1280px;margin:2em auto}table{font-size:13px}td,th{padding:3px 6px;"
             "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
             "<h1>PointGoal navigation with each odometer</h1>"
             f"<p><code>{html.escape(command)}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
