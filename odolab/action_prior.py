@@ -116,7 +116,7 @@ def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
 
 
 def _main(argv=None) -> int:
-    from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_file, number, seed
+    from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_file, file_arg, number, seed
     from odolab.io.atomic import write_text_atomic
 
     ap = ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
@@ -125,7 +125,7 @@ def _main(argv=None) -> int:
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 2000), default=500,
                     help="steps each, 1-2000 (500)")
     ap.add_argument("--seed", type=seed(), default=0, help=f"seed, 0-{MAX_SEED} (0)")
-    ap.add_argument("--out", type=Path, default=None, help="write JSON here (atomic); default: print")
+    ap.add_argument("--out", type=file_arg("--out"), default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
     if args.out is not None:
         check_output_file(args.out, "--out")  # its folder must exist: nothing is created on a typo
@@ -146,4 +146,4 @@ def _main(argv=None) -> int:
 if __name__ == "__main__":
     from odolab.cli import run_cli
 
-    raise SystemExit(run_cli(_main, "odolab.action_prior"))
+    raise SystemExit(run_cli(_main, "python -m odolab.action_prior"))

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from odolab.cli import ArgumentParser, UsageError, check_output_file, run_cli
+from odolab.cli import ArgumentParser, UsageError, check_output_file, file_arg, run_cli
 
 
 def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> list[dict]:
@@ -152,7 +152,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--only", choices=["simulator", "odometers", "navigation", "evaluate"], action="append",
                     help="run only these parts (repeatable; default all)")
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON here")
+    ap.add_argument("--json", type=file_arg("--json"), default=None, metavar="FILE.json",
+                    help="also write the figures here (a .json file, replaced atomically)")
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value",
                     help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'")
     args = ap.parse_args(argv)

@@ -89,6 +89,17 @@ def path_arg(option: str) -> Callable[[str], Path]:
     return parse
 
 
+def file_arg(option: str) -> Callable[[str], Path]:
+    """An argparse ``type`` for an output file's path: :func:`path_arg`, and a path ending in a
+    slash (a folder's name, which ``Path`` would silently drop) is refused."""
+    def parse(text: str) -> Path:
+        path = path_arg(option)(text)
+        if text.endswith(("/", os.sep)):
+            raise argparse.ArgumentTypeError(f"{option} {text}: ends in '/', a folder's name; give a file name")
+        return path
+    return parse
+
+
 def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") -> None:
     """:func:`check_output_dir`, and refuse a folder holding files that no odolab run wrote there
     (no ``manifest`` file): a report must not overwrite a user's own files."""
@@ -129,10 +140,17 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
         raise UsageError(f"{option} {path}: is not a regular file (a device, pipe or socket)")
     if suffixes is not None:
         allowed = sorted(s.lower().lstrip(".") for s in suffixes)
-        ext = path.suffix.lower().lstrip(".")
-        if ext not in allowed:
-            raise UsageError(f"{option} {path}: unknown file type {path.suffix or '(no extension)'!r}; "
-                             f"use one of {', '.join('.' + s for s in allowed)}")
+        use = f"use one of {', '.join('.' + s for s in allowed)}"
+        targets = [(path, "")]
+        if path.is_symlink():  # through a link its target is what would be replaced
+            target = Path(os.path.realpath(path))
+            targets.append((target, f"links to {target}, "))
+        for named, shown in targets:
+            if not named.suffix:  # ".json" alone is a hidden file's name with no extension
+                raise UsageError(f"{option} {path}: {shown}{named.name!r} has no file extension; {use} "
+                                 f"after a name (e.g. out.{allowed[0]})")
+            if named.suffix.lower().lstrip(".") not in allowed:
+                raise UsageError(f"{option} {path}: {shown}unknown file type {named.suffix!r}; {use}")
     folder = path.parent if str(path.parent) else Path(".")
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"{option} {path}: {folder} is a file, not a folder")

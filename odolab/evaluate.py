@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Sequence
 
 from odolab import metrics
-from odolab.cli import ArgumentParser, UsageError, check_output_file, number, run_cli
+from odolab.cli import ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli
 from odolab.evaluation import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
 from odolab.io.errors import FileFormatError
 from odolab.trajectory import Trajectory
@@ -59,7 +59,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--t-max-diff", type=number("--t-max-diff", float, 0, MAX_TIME_DIFF), default=0.01,
                     help=f"TUM: largest timestamp gap (s) of an associated pair, 0-{MAX_TIME_DIFF:g} (default 0.01)")
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    ap.add_argument("--plot", metavar="FILE.png",
+    ap.add_argument("--plot", metavar="FILE.png", type=file_arg("--plot"),
                     help=f"draw trajectories and errors into this image ({', '.join(IMAGE_SUFFIXES)})")
     ap.add_argument("--min-coverage", type=number("--min-coverage", float, 0, 1), default=None, metavar="X",
                     help="fail (exit 2) if an estimate's coverage is below X, 0-1. Coverage: the share of "
@@ -117,7 +117,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; see the module docstring."""
     args = _parser().parse_args(argv)
     if args.plot:
-        check_output_file(Path(args.plot), "--plot", IMAGE_SUFFIXES)
+        check_output_file(args.plot, "--plot", IMAGE_SUFFIXES)
     if args.delta <= 0 or (args.delta_unit == "f" and args.delta != int(args.delta)):
         raise UsageError(f"--delta must be positive (a whole number of frames for -u f), got {args.delta:g}")
 

@@ -10,6 +10,8 @@ belief.png, paths-*.png and report.html under --out (see odolab.navigation.study
 """
 from __future__ import annotations
 
+import dataclasses
+
 import shlex
 import sys
 from pathlib import Path
@@ -23,7 +25,7 @@ from odolab.sim.scenes import SPLITS
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.comparison import ComparisonError, load_odometers
     from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
-    from odolab.navigation.agent import PolicyConfig
+    from odolab.navigation.agent import PolicyConfig, range_text
     from odolab.navigation.report import write_outputs
     from odolab.navigation.study import NavTask, config_doc, run_navigation
     from odolab.odometer import REGISTRY, parse_odometer_list
@@ -43,7 +45,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
     ap.add_argument("--policy", action="append", default=[], metavar="key=value",
                     help="a parameter of the map-and-plan policy (odolab.navigation.agent.PolicyConfig), "
-                         "e.g. heading_tolerance=45 (repeatable; default: its defaults)")
+                         "e.g. heading_tolerance=45 (repeatable). Keys, defaults and ranges: "
+                         + "; ".join(f"{f.name} {f.default} {range_text(f.name)}" for f in dataclasses.fields(PolicyConfig)))
     ap.add_argument("--config", type=path_arg("--config"), default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="run the episodes in this process, without Ray")

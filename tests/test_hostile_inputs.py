@@ -112,7 +112,14 @@ def test_bench_json_path_is_checked_before_work(tmp_path):
     notes = tmp_path / "notes.md"  # a slip of the tab key must not overwrite a document
     notes.write_text("mine")
     one_line_error("odolab.bench", "--only", "evaluate", "--json", notes, words="unknown file type '.md'")
+    (tmp_path / "link.json").symlink_to(notes)  # the link's name is not what would be replaced
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", tmp_path / "link.json",
+                   words=f"links to {notes}, unknown file type '.md'")
     assert notes.read_text() == "mine"
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", f"{tmp_path}/new.json/", words="ends in '/'")
+    assert not (tmp_path / "new.json").exists()
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", tmp_path / ".json", words="has no file extension")
+    one_line_error("odolab.action_prior", "--out", f"{tmp_path}/p.json/", words="ends in '/'")
 
 
 # ----------------------------------------------------------------------------- Ray addresses
@@ -548,3 +555,11 @@ def test_a_pasted_20000_character_name_is_not_echoed_whole(tmp_path):
         line = err.getvalue().strip()
         assert code == 2 and "\n" not in line and line.endswith("more characters)")
         assert len(line) < MAX_ERROR_CHARS + 100
+
+
+@pytest.mark.parametrize("module", ["odolab.compare", "odolab.bench", "odolab.simcard", "odolab.evaluate",
+                                    "odolab.navigate", "odolab.action_prior", "odolab.training_data",
+                                    "odolab.fusion.calibrate"])
+def test_every_command_names_itself_as_typed_in_its_errors(module):
+    proc = subprocess.run([sys.executable, "-m", module, "--bogus-option"], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.startswith(f"python -m {module}: error: "), proc.stderr

@@ -94,7 +94,10 @@ def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
     old = {k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k != "fallback_radius"}
     assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.0))) == []
     assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.1))) == [
-        "--policy fallback_radius (0.0 there, 0.1 now)"]
+        "--policy fallback_radius (not recorded there, so 0.0: that folder predates this parameter, 0.1 now)"]
+    for hand_edited, there in (("0.0", "'0.0' there"), (False, "False there"), ("x" * 99, "there")):
+        said = _policy_changes({**old, "fallback_radius": hand_edited}, dataclasses.asdict(PolicyConfig()))
+        assert len(said) == 1 and there in said[0] and said[0].endswith(", 0.0 now)") and len(said[0]) < 120
 
 
 def _navigate(argv):
@@ -158,6 +161,8 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
                         (["--policy", "cell=0.1", "--policy", "cell=0.2"], "cell is given twice"),
                         (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)"),
                         (["--policy", "votes=\u0663"], "votes takes a whole number in [1, 1000]"),
+                        (["--policy", "votes=1_0"], "votes takes a whole number in [1, 1000]"),
+                        (["--policy", "fallback_radius=1"], "fallback_radius must be in [0, 1)"),
                         (["--policy", "fallback_radius=0.2"], "need fallback_radius < agent_radius")]:
         assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2
         err = capsys.readouterr().err
@@ -311,13 +316,17 @@ def test_the_markdown_table_bolds_the_best_non_oracle_row():
                 "path": 2.0}
 
     rows = [row("ground-truth", 1, 0), row("ground-truth", 1, 0), row("a|b", 1, 50), row("a|b", 0, 0),
-            row("c", 0, 0), row("c", 0, 0)]
-    lines = markdown_table(summarize(rows, ["ground-truth", "a|b", "c"])).splitlines()
-    assert lines[0].startswith("| odometer | success | SPL | SoftSPL |") and len(lines) == 5
-    oracle, ab, c = lines[2:]
-    assert "**" not in oracle.split(" | ")[1]  # the oracle is not a contender
-    assert ab.startswith("| a\\|b | **0.50 [") and ab.endswith("| 100 | 3.0 | 50 (25 %) |")
-    assert c.split(" | ")[1].startswith("0.00 [") and c.split(" | ")[3].startswith("**0.60")  # a tie is bold for both
+            row("c", 0, 0), row("c", 0, 0), row("d", 0, 0)]
+    lines = markdown_table(summarize(rows, ["ground-truth", "a|b", "c", "d", "none"])).splitlines()
+    assert lines[0].startswith("| odometer | episodes | success | SPL | SoftSPL |") and len(lines) == 7
+    oracle, ab, c, d, none = lines[2:]
+    assert "**" not in oracle  # the oracle is not a contender
+    assert ab.startswith("| a\\|b | 2 | **0.50 [") and ab.endswith("| 100 | 3.0 | 50 (25 %) |")
+    assert c.split(" | ")[2].startswith("0.00 [") and "**" not in ab.split(" | ")[4]  # a tie of all is no best
+    assert d.startswith("| d | 1 | 0.00 [") and " | 0.00 | " in d  # one episode: no Student-t interval
+    assert none == "| none | 0 | - | - | - | - | - | - | - | 0 |"
+    alone = markdown_table(summarize(rows[:4], ["ground-truth", "a|b"]))
+    assert "**" not in alone  # one contender is no best
 
 
 def test_a_refusal_for_changed_options_names_the_key_and_both_values():

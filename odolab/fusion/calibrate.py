@@ -24,7 +24,7 @@ import numpy as np
 
 from odolab.api import EpisodeSpec, load_episodes
 from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_output_file, given_options,
-                        number, path_arg, run_cli)
+                        file_arg, number, path_arg, run_cli)
 from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
 from odolab.fusion.calibration import (MAX_NEAR_DEPTH, NEAR, Calibration, debiased, ellipsoid_share, fit_input,
@@ -68,7 +68,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--odometers", default="action-prior,icp,open3d-rgbd,robust-vo",
                     help="comma-separated inputs to calibrate (default: %(default)s)")
     ap.add_argument("--check", type=path_arg("--check"), default=None, help="check this calibration instead of fitting one")
-    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/fusion/calibration.json"),
+    ap.add_argument("--out", type=file_arg("--out"), default=Path("runs/fusion/calibration.json"),
                     help="calibration file to write (default %(default)s; its folder is created)")
     ap.add_argument("--near-depth", type=number("--near-depth", float, 0.0, MAX_NEAR_DEPTH), default=1.0,
                     help="views whose median depth is below this many metres get their own entries (default "

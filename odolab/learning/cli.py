@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from odolab.cli import ArgumentParser, UsageError, check_output_dir, check_output_file, number, path_arg, run_cli
+from odolab.cli import ArgumentParser, UsageError, check_output_dir, check_output_file, file_arg, number, path_arg, run_cli
 
 __all__ = ["TrainingJob", "parse_training_command", "run_training_cli", "training_main", "training_parser"]
 
@@ -40,7 +40,7 @@ def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
                     help=f"per-epoch training states (default runs/{family}/<recipe name>)")
     ap.add_argument("--reports", type=path_arg("--reports"), default=None,
                     help=f"validation curves and status (default reports/{family}/<recipe name>)")
-    ap.add_argument("--export", type=path_arg("--export"), default=None,
+    ap.add_argument("--export", type=file_arg("--export"), default=None,
                     help="the trained model, written when every epoch is done (default <work>/model.pt)")
     ap.add_argument("--hours", type=number("--hours", float, 0.001, 1000.0), default=None,
                     help="stop before an epoch that would start after this many hours (rerun to resume)")

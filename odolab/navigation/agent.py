@@ -54,7 +54,7 @@ POLICY_BOUNDS: dict[str, tuple[float, float]] = {
 #: before it: a saved policy without the parameter was made with this value.
 POLICY_BEFORE: dict[str, float] = {"fallback_radius": 0.0}
 OPEN_BELOW = {"margin_speed", "max_height"}  # these must be above their lower bound
-OPEN_ABOVE = {"heading_tolerance"}  # and this below its upper one
+OPEN_ABOVE = {"heading_tolerance", "fallback_radius"}  # and these below their upper one
 
 
 def _in_range(name: str, value: float) -> bool:
@@ -62,7 +62,7 @@ def _in_range(name: str, value: float) -> bool:
     return lo <= value <= hi and not (name in OPEN_BELOW and value == lo) and not (name in OPEN_ABOVE and value == hi)
 
 
-def _range_text(name: str) -> str:
+def range_text(name: str) -> str:
     """``[1, 1000000]``, ``(0, 1]``: the range of a policy parameter as the user may type its ends."""
     lo, hi = POLICY_BOUNDS[name]
     left, right = ("(" if name in OPEN_BELOW else "["), (")" if name in OPEN_ABOVE else "]")
@@ -98,12 +98,12 @@ class PolicyConfig:
             value, whole = getattr(self, name), kinds[name] in ("int", int)
             if (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral if whole else numbers.Real)
                     or not np.isfinite(float(value))):
-                raise ValueError(f"{name} must be {'a whole number' if whole else 'a number'} in {_range_text(name)}, "
+                raise ValueError(f"{name} must be {'a whole number' if whole else 'a number'} in {range_text(name)}, "
                                  f"got {value!r}")
             value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
             object.__setattr__(self, name, value)
             if not _in_range(name, value):
-                raise ValueError(f"{name} must be in {_range_text(name)}, got {value:g}")
+                raise ValueError(f"{name} must be in {range_text(name)}, got {value:g}")
         if not self.min_height < self.max_height:
             raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
         if self.fallback_radius >= self.agent_radius and self.fallback_radius != 0:
@@ -127,17 +127,17 @@ class PolicyConfig:
             if key in changes:
                 raise ValueError(f"--policy {shown}: {key} is given twice")
             whole = kinds[key] in ("int", int)
-            kind = f"{'a whole number' if whole else 'a number'} in {_range_text(key)}"
+            kind = f"{'a whole number' if whole else 'a number'} in {range_text(key)}"
             if len(text.strip()) > 40:  # no parameter needs 40 digits; Python refuses 4300
                 raise ValueError(f"--policy {shown}: {key} takes {kind}; this value is too long to read")
             try:
-                if not text.isascii():  # Python reads other scripts' digits ("١") as numbers too
+                if not text.isascii() or "_" in text:  # Python reads "١" and "1_0" as numbers too
                     raise ValueError(text)
                 value = int(text) if whole else float(text)
             except ValueError:
                 raise ValueError(f"--policy {shown}: {key} takes {kind}") from None
             if not np.isfinite(float(value)) or not _in_range(key, value):
-                raise ValueError(f"--policy {shown}: {key} must be in {_range_text(key)}")
+                raise ValueError(f"--policy {shown}: {key} must be in {range_text(key)}")
             changes[key] = value
         try:
             return cls(**changes)

@@ -202,30 +202,41 @@ def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list
 
 
 def _ci(r: dict, m: str) -> str:
-    """``0.83 [0.74, 0.89]``: a metric's mean and 95 % interval, to 2 decimals."""
+    """``0.83 [0.74, 0.89]``: a metric's mean and 95 % interval, to 2 decimals (the mean alone when
+    there is no interval, as over one episode; ``-`` without episodes)."""
+    if not np.isfinite(r[m]):
+        return "-"
+    if not (np.isfinite(r[m + "_low"]) and np.isfinite(r[m + "_high"])):
+        return f"{r[m]:.2f}"
     return f"{r[m]:.2f} [{r[m + '_low']:.2f}, {r[m + '_high']:.2f}]"
 
 
 def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
-    """The per-odometer table in Markdown, as the README shows it: success, SPL and SoftSPL with
-    their intervals, the best of each among the odometers other than ``oracle`` in bold; failed
-    steps (the odometer refused, and the action prior stood in) with their share of all steps."""
-    head = ("| odometer | success | SPL | SoftSPL | final distance to goal m | final belief error m | steps | "
-            "collisions | failed steps |\n|---|---|---|---|---|---|---|---|---|\n")
-    best = {m: max((r[m] for r in table if r["odometer"] != oracle and r["episodes"]), default=None)
-            for m in ("success", "spl", "soft_spl")}
+    """The per-odometer table in Markdown, as the README shows it: episodes; success, SPL and
+    SoftSPL with their intervals, in each of these columns the best value among the odometers other
+    than ``oracle`` in bold (when at least two compete and they differ); failed steps (the odometer
+    refused, and the action prior stood in) with their share of all steps."""
+    head = ("| odometer | episodes | success | SPL | SoftSPL | final distance to goal m | final belief error m | "
+            "steps | collisions | failed steps |\n|---|---|---|---|---|---|---|---|---|---|\n")
+    rivals = [r for r in table if r["odometer"] != oracle and r["episodes"]]
+    best = {}
+    for m in ("success", "spl", "soft_spl"):
+        shown = {f"{r[m]:.2f}" for r in rivals if np.isfinite(r[m])}
+        if len(shown) > 1:  # one contender, or a tie of all, is no "best"
+            best[m] = max(shown, key=float)
     lines = []
     for r in table:
-        if not r["episodes"]:
-            continue
         cells = [_ci(r, m) for m in METRICS]
         for k, m in enumerate(("success", "spl", "soft_spl")):
-            if r["odometer"] != oracle and f"{r[m]:.2f}" == f"{best[m]:.2f}":
+            if r in rivals and m in best and f"{r[m]:.2f}" == best[m]:
                 cells[k] = f"**{cells[k]}**"
-        total = r["steps"] * r["episodes"]
-        failed = f"{r['failed_steps']} ({100 * r['failed_steps'] / total:.0f} %)" if r["failed_steps"] else "0"
-        name = r["odometer"].replace("|", "\\|")
-        lines.append(f"| {name} | {' | '.join(cells)} | {r['steps']:.0f} | {r['collisions']:.1f} | {failed} |\n")
+        total = r["steps"] * r["episodes"] if r["episodes"] else 0
+        failed = (f"{r['failed_steps']} ({100 * r['failed_steps'] / total:.0f} %)" if r["failed_steps"] and total
+                  else str(r["failed_steps"]))
+        name = " ".join(r["odometer"].split()).replace("|", "\\|")
+        steps = f"{r['steps']:.0f}" if r["episodes"] else "-"
+        coll = f"{r['collisions']:.1f}" if r["episodes"] else "-"
+        lines.append(f"| {name} | {r['episodes']} | {' | '.join(cells)} | {steps} | {coll} | {failed} |\n")
     return head + "".join(lines)
 
 

@@ -139,18 +139,23 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[str]:
 
 def _policy_changes(saved: Any, policy: dict) -> list[str]:
     """Which ``--policy`` parameters make ``policy`` differ from a folder's saved one."""
-    if isinstance(saved, dict):  # a folder from before a parameter existed was made with its old behaviour
-        saved = {**{k: v for k, v in POLICY_BEFORE.items() if k in policy}, **saved}
-    if saved == policy:
-        return []
     if not isinstance(saved, dict):
-        return ["the policy"]
+        return ["the policy"] if saved != policy else []
+    before = {k: v for k, v in POLICY_BEFORE.items() if k in policy and k not in saved}
+    full = {**before, **saved}  # a folder from before a parameter existed was made with its old behaviour
+    if full == policy and all(type(full[k]) is type(policy[k]) for k in policy):
+        return []
+    short = reprlib.Repr()
+    short.maxstring, short.maxother = 30, 30
+
     def said(k: str) -> str:
-        there = f"{saved[k]} there" if k in saved else "not recorded there: that folder predates this parameter"
-        now = f"{policy[k]} now" if k in policy else "no such parameter now"
+        there = (f"not recorded there, so {before[k]!r}: that folder predates this parameter" if k in before else
+                 f"{short.repr(saved[k])} there" if k in saved else "not recorded there: that folder predates this parameter")
+        now = f"{policy[k]!r} now" if k in policy else "no such parameter now"
         return f"--policy {k} ({there}, {now})"
 
-    return [said(k) for k in sorted(set(saved) | set(policy)) if saved.get(k) != policy.get(k)] or ["the policy"]
+    return [said(k) for k in sorted(set(full) | set(policy))
+            if k not in full or k not in policy or full[k] != policy[k] or type(full[k]) is not type(policy[k])] or ["the policy"]
 
 
 def _option_changes(odometer: str, saved: Any, options: dict) -> str:
