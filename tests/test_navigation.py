@@ -87,13 +87,32 @@ def test_a_gap_the_map_narrowed_is_taken_by_the_fallback_plan():
         PolicyConfig(fallback_radius=0.18)
 
 
-def test_the_cut_short_march_gives_the_full_march_times_to_the_bit():
-    """``_costs`` skips unreachable cells and stops the march early; on a cluttered map (a wall
-    that cuts the map in two, random clutter, a maze-like detour) its times equal a plain full
-    fast march's exactly, including cells only the second, uncut march reaches."""
+def _full_march(agent, radius):
+    """The plain reference for ``_costs``: fast marching over the whole map, nothing cut short."""
     import skfmm
     from scipy.ndimage import distance_transform_edt
 
+    cfg, m = agent.cfg, agent.map
+    obstacle = m.obstacles(cfg.votes, cfg.memory)
+    clearance = distance_transform_edt(~obstacle) * cfg.cell
+    blocked = clearance < radius
+    speed = np.where(clearance < radius + cfg.margin, cfg.margin_speed, 1.0)
+    gr, gc, _ = m.to_cell(*agent.goal)
+    k = int(np.ceil((radius + cfg.margin) / cfg.cell))
+    blocked[max(gr - k, 0):gr + k + 1, max(gc - k, 0):gc + k + 1] = False
+    speed[max(gr - k, 0):gr + k + 1, max(gc - k, 0):gc + k + 1] = 1.0
+    wx, wy = m.to_world(np.arange(m.n), np.arange(m.n))
+    phi = np.hypot(wx[None, :] - agent.goal[0], wy[:, None] - agent.goal[1]) - cfg.cell
+    return np.ma.filled(skfmm.travel_time(np.ma.MaskedArray(phi, mask=blocked), speed, dx=cfg.cell)
+                        .astype(np.float64), np.inf)
+
+
+@pytest.mark.parametrize("clutter", [60, 0])
+def test_the_cut_short_march_gives_the_full_march_times_to_the_bit(clutter):
+    """``_costs`` skips unreachable cells, takes obstacle distances in a box round the obstacles
+    and stops the march early; on a map with a wall that cuts it in two, a long wall between the
+    agent and the goal, and random clutter (or none, so the box is small) its times equal a plain
+    full fast march's exactly, including cells only the second, uncut march reaches."""
     from odolab.navigation.agent import PolicyConfig
     from odolab.sim.camera import CameraSpec
 
@@ -102,7 +121,7 @@ def test_the_cut_short_march_gives_the_full_march_times_to_the_bit():
     agent = MapPlanAgent((2.0, 0.5), cam.intrinsics, cam.mount_height, cfg)
     rng = np.random.default_rng(3)
     m = agent.map
-    agent.map.vote(rng.uniform(-m.half, m.half, 60), rng.uniform(-m.half, m.half, 60), weight=5)
+    agent.map.vote(rng.uniform(-m.half, m.half, clutter), rng.uniform(-m.half, m.half, clutter), weight=5)
     ys = np.arange(-m.half, m.half, 0.02)
     agent.map.vote(np.full(ys.shape, -1.0), ys, weight=5)  # cells left of x = -1 have no way to the goal
     hook = np.arange(-3.3, 3.3, 0.02)
@@ -111,18 +130,7 @@ def test_the_cut_short_march_gives_the_full_march_times_to_the_bit():
     near_r, near_c, _ = m.to_cell(np.full(5, 0.9), np.linspace(0.0, 1.0, 5))  # 1.1 m from the goal, 8 m round
     r, c = np.concatenate([r.ravel(), near_r]), np.concatenate([c.ravel(), near_c])
     for radius in (cfg.agent_radius, 0.1):
-        obstacle = m.obstacles(cfg.votes, cfg.memory)
-        clearance = distance_transform_edt(~obstacle) * cfg.cell
-        blocked = clearance < radius
-        speed = np.where(clearance < radius + cfg.margin, cfg.margin_speed, 1.0)
-        gr, gc, _ = m.to_cell(*agent.goal)
-        k = int(np.ceil((radius + cfg.margin) / cfg.cell))
-        blocked[max(gr - k, 0):gr + k + 1, max(gc - k, 0):gc + k + 1] = False
-        speed[max(gr - k, 0):gr + k + 1, max(gc - k, 0):gc + k + 1] = 1.0
-        wx, wy = m.to_world(np.arange(m.n), np.arange(m.n))
-        phi = np.hypot(wx[None, :] - agent.goal[0], wy[:, None] - agent.goal[1]) - cfg.cell
-        full = np.ma.filled(skfmm.travel_time(np.ma.MaskedArray(phi, mask=blocked), speed, dx=cfg.cell)
-                            .astype(np.float64), np.inf)
+        full = _full_march(agent, radius)
         got = agent._costs(0.0, 0.0, None, radius, r, c)
         assert np.array_equal(got, full[r, c])
         finite = np.isfinite(got)

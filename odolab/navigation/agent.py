@@ -232,8 +232,10 @@ class MapPlanAgent:
         (x, y) and the goal plus ``margin`` m (None: the whole map); inf for cells off the window or
         with no way to the goal.
 
-        Only these cells' times are needed, so the march is cut short where that cannot change
-        them: cells with no 4-connected way to the goal (where fast marching never arrives) get
+        Only these cells' times are needed, so the work is cut short where that cannot change
+        them: distances to obstacles are taken in a box round them (beyond it they exceed the
+        radius plus the margin, all that matters of them); cells with no 4-connected way to the
+        goal (where fast marching never arrives) get
         inf without marching, and the march first stops at a travel time twice the farthest
         reachable cell's straight distance plus 2 m (fast marching fixes times in increasing order,
         so every time below the stop is the full march's, to the bit), marching on over the whole
@@ -251,7 +253,12 @@ class MapPlanAgent:
         r0, r1 = max(min(ar, gr) - pad, 0), min(max(ar, gr) + pad + 1, m.n)
         c0, c1 = max(min(ac, gc) - pad, 0), min(max(ac, gc) + pad + 1, m.n)
         obstacle = m.obstacles(cfg.votes, cfg.memory)[r0:r1, c0:c1]
-        clearance = distance_transform_edt(~obstacle) * cfg.cell if obstacle.any() else np.full(obstacle.shape, np.inf)
+        clearance = np.full(obstacle.shape, np.inf)  # m to the nearest obstacle cell; only < radius + margin counts
+        rows, cols = np.flatnonzero(obstacle.any(axis=1)), np.flatnonzero(obstacle.any(axis=0))
+        if len(rows):  # around the obstacles only: every obstacle is in the box, so its distances are exact
+            k = int(np.ceil((radius + cfg.margin) / cfg.cell)) + 1
+            box = (slice(max(rows[0] - k, 0), rows[-1] + k + 1), slice(max(cols[0] - k, 0), cols[-1] + k + 1))
+            clearance[box] = distance_transform_edt(~obstacle[box]) * cfg.cell
         blocked = clearance < radius
         speed = np.where(clearance < radius + cfg.margin, cfg.margin_speed, 1.0)
         reach = int(np.ceil((radius + cfg.margin) / cfg.cell))
