@@ -94,7 +94,7 @@ def _full_march(agent, radius):
 
     cfg, m = agent.cfg, agent.map
     obstacle = m.obstacles(cfg.votes, cfg.memory)
-    clearance = distance_transform_edt(~obstacle) * cfg.cell
+    clearance = distance_transform_edt(~obstacle) * cfg.cell if obstacle.any() else np.full(obstacle.shape, np.inf)
     blocked = clearance < radius
     speed = np.where(clearance < radius + cfg.margin, cfg.margin_speed, 1.0)
     gr, gc, _ = m.to_cell(*agent.goal)
