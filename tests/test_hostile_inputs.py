@@ -559,7 +559,7 @@ def test_a_pasted_20000_character_name_is_not_echoed_whole(tmp_path):
 
 @pytest.mark.parametrize("module", ["odolab.compare", "odolab.bench", "odolab.simcard", "odolab.evaluate",
                                     "odolab.navigate", "odolab.action_prior", "odolab.training_data",
-                                    "odolab.fusion.calibrate"])
+                                    "odolab.fusion.calibrate", "odolab.navigation.diff"])
 def test_every_command_names_itself_as_typed_in_its_errors(module):
     proc = subprocess.run([sys.executable, "-m", module, "--bogus-option"], capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.startswith(f"python -m {module}: error: "), proc.stderr
