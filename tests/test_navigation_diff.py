@@ -4,45 +4,81 @@ from __future__ import annotations
 import pytest
 
 from odolab.cli import run_cli
-from odolab.navigation.diff import diff_runs, main, markdown, read_episodes
+from odolab.navigation.diff import diff_runs, main, markdown, read_episodes, unpaired
 
 HEAD = "odometer,episode,split,seed,d0,d_end,path,stopped,steps,collisions,success,spl,soft_spl,failed_steps\n"
+
+
+def _row(o, e, s, steps, coll, split="test"):
+    return f'"{o}",{e},{split},0,5.0,0.1,6.0,True,{steps},{coll},{s}.0000,{0.8 * s},0.5,0\n'
 
 
 def _folder(tmp_path, name, rows):
     folder = tmp_path / name
     folder.mkdir()
-    (folder / "episodes.csv").write_text(HEAD + "".join(
-        f'"{o}",{e},test,0,5.0,0.1,6.0,True,{steps},{coll},{s},{0.8 * s},0.5,0\n' for o, e, s, steps, coll in rows))
+    (folder / "episodes.csv").write_text(HEAD + "".join(_row(*r) for r in rows))
     return folder
 
 
-def test_won_and_lost_episodes_are_paired_by_odometer_and_episode(tmp_path):
+def _diff(args, capsys):
+    code = run_cli(main, "python -m odolab.navigation.diff", [str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err.strip().splitlines()
+
+
+def test_won_and_lost_episodes_are_paired_by_odometer_and_episode(tmp_path, capsys):
     before = _folder(tmp_path, "a", [("x", 0, 1, 10, 2), ("x", 1, 0, 500, 40), ("x", 2, 1, 20, 0), ("y", 0, 1, 5, 0)])
     after = _folder(tmp_path, "b", [("x", 2, 0, 500, 90), ("x", 1, 1, 30, 4), ("x", 0, 1, 10, 2), ("x", 3, 1, 9, 9),
                                     ("fused(a,b)", 0, 1, 5, 5)])
-    (d,) = diff_runs(read_episodes(before), read_episodes(after))  # y and fused(a,b) are in one run only
-    assert (d.odometer, d.episodes, d.success, d.won, d.lost) == ("x", 3, (2, 2), (1,), (2,))
+    b, a = read_episodes(before), read_episodes(after)
+    (d,) = diff_runs(b, a)  # y and fused(a,b) are in one run only
+    assert (d.odometer, d.episodes, d.success, d.won, d.lost) == ("x", 3, (2, 2), ("1",), ("2",))
     assert d.collisions == (14.0, 32.0) and d.spl == pytest.approx((0.8 * 2 / 3, 0.8 * 2 / 3))
     assert "| x | 3 | 2 -> 2 | 1 | 2 | 0.53 -> 0.53 | 14.0 -> 32.0 | 177 -> 180 |" in markdown([d])
+    assert unpaired(b, a) == ["1 odometer(s) only in BEFORE: y", "1 odometer(s) only in AFTER: fused(a,b)",
+                              "episodes of the shared odometers left out: 0 only in BEFORE, 1 only in AFTER"]
+    code, out, err = _diff([before, after], capsys)
+    assert code == 0 and out.startswith("| odometer |") and len(err) == 3 and err[0].startswith("note: ")
+
+
+def test_episodes_of_other_splits_are_named_with_them_and_odd_names_stay_in_their_cell(tmp_path):
+    before = _folder(tmp_path, "a", [("x", 0, 0, 10, 2), ("x", 0, 0, 10, 2, "val"), ("a|b\\c\x1b", 0, 0, 1, 1)])
+    after = _folder(tmp_path, "b", [("x", 0, 1, 10, 2), ("x", 0, 1, 10, 2, "val"), ("a|b\\c\x1b", 0, 0, 1, 1)])
+    x, odd = diff_runs(read_episodes(before), read_episodes(after))
+    assert x.won == ("test/0/0", "val/0/0")
+    row = markdown([odd]).splitlines()[-1]
+    assert row.startswith("| a\\|b\\\\c? | 1 |") and row.count(" | ") == 7
 
 
 def test_bad_tables_are_refused_in_one_line_naming_file_and_line(tmp_path, capsys):
     good = _folder(tmp_path, "good", [("x", 0, 1, 10, 2)])
     bad = _folder(tmp_path, "bad", [("x", 0, 1, 10, 2)])
     text = (bad / "episodes.csv").read_text()
-    cases = [(text.replace(",10,2,", ",ten,2,"), "line 2: steps must be a whole number, got 'ten'"),
-             (text + text.splitlines()[1] + "\n", "line 3: episode 0 of x appears twice"),
-             (text.replace(",1,0.8,", ",nan,0.8,"), "line 2: success must be finite"),
+    cases = [(text.replace(",10,2,", ",ten,2,"), "line 2: steps must be a whole number in [0, 1000000], got 'ten'"),
+             (text.replace(",10,2,", ",10," + "9" * 400 + ","), "line 2: collisions must be a whole number"),
+             (text + text.splitlines()[1] + "\n", "line 3: episode 0 of 'x' (test, seed 0) appears twice"),
+             (text.replace(",1.0000,", ",0.5,"), "line 2: success must be 0 or 1, got '0.5'"),
+             (text.replace(",1.0000,0.8,", ",1.0000,nan,"), "line 2: spl must be a number in [0, 1]"),
+             (text.replace('"x",0,', '"x",0_0,'), "line 2: episode must be a whole number"),
+             (text.replace("\n", "\n\n\n", 1).replace(",10,2,", ",ten,2,"), "line 4: steps"),
              ("odometer,episode\nx,0\n", "no column split, seed, success"),
-             (b"\xff\xfe".decode("latin-1"), "episodes.csv")]
+             (HEAD.replace("spl,soft", "success,soft"), "column success appears twice"),
+             (HEAD, "holds no episodes"),
+             (HEAD + "x,0,test\n", "line 2: 3 fields, the header has 14"),
+             (HEAD + '"x,0,test,0\n', "not CSV"),
+             (HEAD + "L" * 200_000 + ",0\n", "not CSV"),
+             ("\ufeff" + text, None),
+             ("\xff\xfe", "not UTF-8 text")]
     for content, words in cases:
-        (bad / "episodes.csv").write_text(content, encoding="latin-1")
-        assert run_cli(main, "python -m odolab.navigation.diff", [str(good), str(bad)]) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and words in err[0] and str(bad / "episodes.csv") in err[0], err
-    assert run_cli(main, "python -m odolab.navigation.diff", [str(good), str(tmp_path / "none")]) == 2
-    assert "no such file" in capsys.readouterr().err
+        (bad / "episodes.csv").write_text(content, encoding="latin-1" if content == "\xff\xfe" else "utf-8")
+        code, _, err = _diff([good, bad], capsys)
+        if words is None:  # a byte-order mark is not part of the first column's name
+            assert code == 0, err
+            continue
+        assert code == 2 and len(err) == 1 and words in err[0] and str(bad / "episodes.csv") in err[0], (words, err)
+    for folder, words in ((tmp_path / "none", "no such episodes table"), (tmp_path / ("x" * 300), "cannot read")):
+        code, _, err = _diff([good, folder], capsys)
+        assert code == 2 and len(err) == 1 and words in err[0] and err[0].count(str(folder)) == 1, err
     other = _folder(tmp_path, "other", [("z", 0, 1, 10, 2)])
-    assert run_cli(main, "python -m odolab.navigation.diff", [str(good), str(other)]) == 2
-    assert "share no episode" in capsys.readouterr().err
+    code, _, err = _diff([good, other], capsys)
+    assert code == 2 and "share no episode" in err[-1]

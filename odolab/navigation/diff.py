@@ -13,16 +13,21 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 from odolab.cli import ArgumentParser, UsageError, path_arg, run_cli
 from odolab.io.inputs import read_input_bytes
+from odolab.navigation.report import markdown_cell
 
-#: The columns of ``episodes.csv`` this reads, and their kinds.
-COLUMNS = {"odometer": str, "episode": int, "split": str, "seed": int, "success": float, "spl": float,
-           "collisions": int, "steps": int}
+#: The columns of ``episodes.csv`` this reads: (kind, lowest, highest); ``bool``: 0 or 1.
+COLUMNS: dict[str, tuple[type, float, float]] = {
+    "odometer": (str, 0, 0), "split": (str, 0, 0), "seed": (int, 0, 2**32 - 1), "episode": (int, 0, 10**9),
+    "success": (bool, 0, 1), "spl": (float, 0.0, 1.0), "collisions": (int, 0, 10**6), "steps": (int, 0, 10**6)}
+_WHOLE = re.compile(r"-?[0-9]+")  # ASCII digits only: not "1_0", "1.0" or other scripts' digits
 
 
 @dataclass(frozen=True)
@@ -32,75 +37,138 @@ class RowDiff:
     odometer: str
     episodes: int
     success: tuple[int, int]  # successful episodes, before and after
-    won: tuple[int, ...]  # episode indices that failed before and succeeded after
-    lost: tuple[int, ...]
+    won: tuple[str, ...]  # episodes ("7", or "val/0/7" when the runs span splits or seeds) failed before, won after
+    lost: tuple[str, ...]
     spl: tuple[float, float]  # means over the paired episodes
     collisions: tuple[float, float]
     steps: tuple[float, float]
 
 
+def _value(text: str, kind: type, low: float, high: float) -> str | int | float:
+    """One cell as ``kind`` within [low, high] (``ValueError`` otherwise); ``bool``: 0 or 1, written
+    as any number (``1.0000``), read as an int."""
+    if kind is str:
+        return text
+    t = text.strip()
+    if not t.isascii() or "_" in t or len(t) > 40:  # Python reads "1_0" and other scripts' digits too
+        raise ValueError(text)
+    if kind is int:
+        if not _WHOLE.fullmatch(t):
+            raise ValueError(text)
+        value: float = int(t)
+    else:
+        value = float(t)
+        if kind is bool:
+            if value not in (0.0, 1.0):
+                raise ValueError(text)
+            return int(value)
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ValueError(text)
+    return value
+
+
 def read_episodes(folder: Path) -> dict[tuple[str, str, int, int], dict]:
     """``episodes.csv`` of a navigation folder keyed by (odometer, split, seed, episode); ``UsageError``
-    naming the file, line and column for a missing file, a missing column or a bad value."""
+    naming the file, line and column for a missing or unreadable file, a missing column, a short or
+    long row or a value out of its range (:data:`COLUMNS`)."""
     path = Path(folder) / "episodes.csv"
-    if not path.exists():
-        raise UsageError(f"{path}: no such file (is {folder} a folder written by python -m odolab.navigate?)")
     try:
-        text = read_input_bytes(path, "episodes table").decode("utf-8")
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise UsageError(f"{path}: {exc}") from None
-    reader = csv.DictReader(io.StringIO(text))
-    missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
-    if missing:
-        raise UsageError(f"{path}: no column {', '.join(missing)} (expected the episodes.csv of python -m odolab.navigate)")
+        text = read_input_bytes(path, "episodes table").decode("utf-8-sig")
+    except UnicodeDecodeError as exc:  # a ValueError too: before the next clause
+        raise UsageError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except ValueError as exc:  # it names the file
+        raise UsageError(f"{exc} (expected the episodes.csv of python -m odolab.navigate)") from None
+    reader = csv.reader(io.StringIO(text), strict=True)
     rows: dict[tuple[str, str, int, int], dict] = {}
-    for line, raw in enumerate(reader, start=2):
-        row = {}
-        for name, kind in COLUMNS.items():
-            try:
-                row[name] = kind(raw[name])
-            except (TypeError, ValueError):
-                raise UsageError(f"{path}, line {line}: {name} must be {'a whole number' if kind is int else 'a number' if kind is float else 'text'}, "
-                                 f"got {raw[name]!r}") from None
-            if kind is float and not math.isfinite(row[name]):
-                raise UsageError(f"{path}, line {line}: {name} must be finite, got {raw[name]!r}")
-        key = (row["odometer"], row["split"], row["seed"], row["episode"])
-        if key in rows:
-            raise UsageError(f"{path}, line {line}: episode {row['episode']} of {row['odometer']} appears twice")
-        rows[key] = row
+    try:
+        header = next(reader, None)
+        if header is None:
+            raise UsageError(f"{path}: empty; expected the episodes.csv of python -m odolab.navigate")
+        twice = sorted({h for h in header if header.count(h) > 1})
+        missing = [c for c in COLUMNS if c not in header]
+        if twice or missing:
+            raise UsageError(f"{path}: " + (f"column {', '.join(twice)} appears twice" if twice else
+                                            f"no column {', '.join(missing)}")
+                             + " (expected the episodes.csv of python -m odolab.navigate)")
+        where = {c: header.index(c) for c in COLUMNS}
+        for raw in reader:
+            line = reader.line_num
+            if not raw:
+                continue
+            if len(raw) != len(header):
+                raise UsageError(f"{path}, line {line}: {len(raw)} fields, the header has {len(header)}")
+            row = {}
+            for name, (kind, low, high) in COLUMNS.items():
+                try:
+                    row[name] = _value(raw[where[name]], kind, low, high)
+                except ValueError:
+                    what = ("0 or 1" if name == "success" else
+                            f"a whole number in [{low}, {high}]" if kind is int else f"a number in [{low:g}, {high:g}]")
+                    raise UsageError(f"{path}, line {line}: {name} must be {what}, "
+                                     f"got {raw[where[name]][:40]!r}") from None
+            key = (row["odometer"], row["split"], row["seed"], row["episode"])
+            if key in rows:
+                raise UsageError(f"{path}, line {line}: episode {row['episode']} of {row['odometer'][:60]!r} "
+                                 f"({row['split']}, seed {row['seed']}) appears twice")
+            rows[key] = row
+    except csv.Error as exc:  # an unclosed quote, a field over the csv module's limit
+        raise UsageError(f"{path}, line {reader.line_num}: not CSV ({exc})") from None
+    if not rows:
+        raise UsageError(f"{path}: holds no episodes")
     return rows
 
 
 def diff_runs(before: dict, after: dict) -> list[RowDiff]:
     """Per odometer (in ``after``'s order), the episodes both runs hold, compared."""
+    by_name: dict[str, list[tuple]] = {}
+    for k in after:
+        if k in before:
+            by_name.setdefault(k[0], []).append(k)
+    labelled = len({(k[1], k[2]) for k in (*before, *after)}) > 1  # several splits or seeds: say which
+
+    def label(k: tuple) -> str:
+        return f"{k[1]}/{k[2]}/{k[3]}" if labelled else str(k[3])
+
+    def mean(rows: list[dict], m: str) -> float:
+        return sum(float(r[m]) for r in rows) / len(rows)
+
     out = []
-    for name in dict.fromkeys(k[0] for k in after):
-        keys = sorted((k for k in after if k[0] == name and k in before), key=lambda k: (k[1], k[2], k[3]))
-        if not keys:
-            continue
+    for name, keys in by_name.items():
+        keys.sort(key=lambda k: (k[1], k[2], k[3]))
         b, a = [before[k] for k in keys], [after[k] for k in keys]
-
-        def mean(rows: list[dict], m: str) -> float:
-            return sum(r[m] for r in rows) / len(rows)
-
         out.append(RowDiff(
-            odometer=name, episodes=len(keys),
-            success=(sum(r["success"] > 0.5 for r in b), sum(r["success"] > 0.5 for r in a)),
-            won=tuple(k[3] for k, x, y in zip(keys, b, a) if x["success"] < 0.5 < y["success"]),
-            lost=tuple(k[3] for k, x, y in zip(keys, b, a) if y["success"] < 0.5 < x["success"]),
+            odometer=name, episodes=len(keys), success=(sum(r["success"] for r in b), sum(r["success"] for r in a)),
+            won=tuple(label(k) for k, x, y in zip(keys, b, a) if y["success"] > x["success"]),
+            lost=tuple(label(k) for k, x, y in zip(keys, b, a) if y["success"] < x["success"]),
             spl=(mean(b, "spl"), mean(a, "spl")), collisions=(mean(b, "collisions"), mean(a, "collisions")),
             steps=(mean(b, "steps"), mean(a, "steps"))))
     return out
 
 
+def unpaired(before: dict, after: dict) -> list[str]:
+    """Notes on what only one run holds: odometers, and episodes of odometers both hold."""
+    names_b, names_a = {k[0] for k in before}, {k[0] for k in after}
+    notes = []
+    for names, where in ((names_b - names_a, "BEFORE"), (names_a - names_b, "AFTER")):
+        if names:
+            shown = ", ".join(markdown_cell(n)[:60] for n in sorted(names)[:5]) + (" ..." if len(names) > 5 else "")
+            notes.append(f"{len(names)} odometer(s) only in {where}: {shown}")
+    both = names_b & names_a
+    only_b = sum(1 for k in before if k[0] in both and k not in after)
+    only_a = sum(1 for k in after if k[0] in both and k not in before)
+    if only_b or only_a:
+        notes.append(f"episodes of the shared odometers left out: {only_b} only in BEFORE, {only_a} only in AFTER")
+    return notes
+
+
 def markdown(diffs: list[RowDiff]) -> str:
     """The comparison as a Markdown table (before -> after)."""
-    def ids(v: tuple[int, ...]) -> str:
-        return ", ".join(map(str, v[:12])) + (f" ... ({len(v)})" if len(v) > 12 else "") if v else "-"
+    def ids(v: tuple[str, ...]) -> str:
+        return ", ".join(v[:12]) + (f" ... ({len(v)})" if len(v) > 12 else "") if v else "-"
     lines = ["| odometer | episodes | successes | won | lost | SPL | collisions per episode | steps |",
              "|---|---|---|---|---|---|---|---|"]
     for d in diffs:
-        lines.append(f"| {d.odometer.replace('|', chr(92) + '|')} | {d.episodes} | {d.success[0]} -> {d.success[1]} | "
+        lines.append(f"| {markdown_cell(d.odometer)} | {d.episodes} | {d.success[0]} -> {d.success[1]} | "
                      f"{ids(d.won)} | {ids(d.lost)} | {d.spl[0]:.2f} -> {d.spl[1]:.2f} | "
                      f"{d.collisions[0]:.1f} -> {d.collisions[1]:.1f} | {d.steps[0]:.0f} -> {d.steps[1]:.0f} |")
     return "\n".join(lines) + "\n"
@@ -111,7 +179,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("before", type=path_arg("before"), help="a navigation folder (python -m odolab.navigate --out)")
     ap.add_argument("after", type=path_arg("after"), help="another one, of the same episodes")
     args = ap.parse_args(argv)
-    diffs = diff_runs(read_episodes(args.before), read_episodes(args.after))
+    before, after = read_episodes(args.before), read_episodes(args.after)
+    diffs = diff_runs(before, after)
+    for note in unpaired(before, after):
+        print(f"note: {note}", file=sys.stderr)
     if not diffs:
         raise UsageError(f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "
                          "and odometer names are needed)")

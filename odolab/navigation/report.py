@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import html
 import io
+import unicodedata
 from pathlib import Path
 from typing import Any
 
@@ -211,6 +212,14 @@ def _ci(r: dict, m: str) -> str:
     return f"{r[m]:.2f} [{r[m + '_low']:.2f}, {r[m + '_high']:.2f}]"
 
 
+def markdown_cell(text: str) -> str:
+    """``text`` safe in one Markdown table cell: whitespace runs (newlines too) as one space, control
+    characters as ``?``, backslashes and pipes escaped; ``-`` when nothing is left."""
+    text = "".join("?" if unicodedata.category(ch) == "Cc" and not ch.isspace() else ch for ch in text)
+    text = " ".join(text.split()).replace("\\", "\\\\").replace("|", "\\|")
+    return text or "-"
+
+
 def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
     """The per-odometer table in Markdown, as the README shows it: episodes; success, SPL and
     SoftSPL with their intervals, in each of these columns the best value among the odometers other
@@ -233,7 +242,7 @@ def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
         total = r["steps"] * r["episodes"] if r["episodes"] else 0
         failed = (f"{r['failed_steps']} ({100 * r['failed_steps'] / total:.0f} %)" if r["failed_steps"] and total
                   else str(r["failed_steps"]))
-        name = " ".join(r["odometer"].split()).replace("|", "\\|")
+        name = markdown_cell(r["odometer"])
         steps = f"{r['steps']:.0f}" if r["episodes"] else "-"
         coll = f"{r['collisions']:.1f}" if r["episodes"] else "-"
         lines.append(f"| {name} | {r['episodes']} | {' | '.join(cells)} | {steps} | {coll} | {failed} |\n")
