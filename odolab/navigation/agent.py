@@ -235,8 +235,7 @@ class MapPlanAgent:
         Only these cells' times are needed, so the work is cut short where that cannot change
         them: distances to obstacles are taken in a box round them (beyond it they exceed the
         radius plus the margin, all that matters of them); cells with no 4-connected way to the
-        goal (where fast marching never arrives) get
-        inf without marching, and the march first stops at a travel time twice the farthest
+        goal (where fast marching never arrives) get inf without marching, and the march first stops at a travel time twice the farthest
         reachable cell's straight distance plus 2 m (fast marching fixes times in increasing order,
         so every time below the stop is the full march's, to the bit), marching on over the whole
         window only when a reachable cell lies beyond it."""
@@ -253,30 +252,30 @@ class MapPlanAgent:
         r0, r1 = max(min(ar, gr) - pad, 0), min(max(ar, gr) + pad + 1, m.n)
         c0, c1 = max(min(ac, gc) - pad, 0), min(max(ac, gc) + pad + 1, m.n)
         obstacle = m.obstacles(cfg.votes, cfg.memory)[r0:r1, c0:c1]
-        clearance = np.full(obstacle.shape, np.inf)  # m to the nearest obstacle cell; only < radius + margin counts
+        reach = int(np.ceil((radius + cfg.margin) / cfg.cell))  # cells within which an obstacle counts
+        clearance = np.full(obstacle.shape, np.inf)  # m to the nearest obstacle cell
         rows, cols = np.flatnonzero(obstacle.any(axis=1)), np.flatnonzero(obstacle.any(axis=0))
         if len(rows):  # around the obstacles only: every obstacle is in the box, so its distances are exact
-            k = int(np.ceil((radius + cfg.margin) / cfg.cell)) + 1
+            k = reach + 1
             box = (slice(max(rows[0] - k, 0), rows[-1] + k + 1), slice(max(cols[0] - k, 0), cols[-1] + k + 1))
             clearance[box] = distance_transform_edt(~obstacle[box]) * cfg.cell
         blocked = clearance < radius
         speed = np.where(clearance < radius + cfg.margin, cfg.margin_speed, 1.0)
-        reach = int(np.ceil((radius + cfg.margin) / cfg.cell))
         lr, lc = gr - r0, gc - c0
         near_goal = (slice(max(lr - reach, 0), lr + reach + 1), slice(max(lc - reach, 0), lc + reach + 1))
         blocked[near_goal], speed[near_goal] = False, 1.0  # the goal may sit beside a wall
         parts, _ = label(~blocked)  # 4-connected, as fast marching spreads
-        inside = (r >= r0) & (r < r1) & (c >= c0) & (c < c1)
-        inside[inside] = parts[r[inside] - r0, c[inside] - c0] == parts[lr, lc]
-        if not inside.any():
+        ok = (r >= r0) & (r < r1) & (c >= c0) & (c < c1)  # on the window, then joined to the goal
+        ok[ok] = parts[r[ok] - r0, c[ok] - c0] == parts[lr, lc]
+        if not ok.any():
             return out
         wx, wy = m.to_world(np.arange(r0, r1), np.arange(c0, c1))
         phi = np.hypot(wx[None, :] - self.goal[0], wy[:, None] - self.goal[1]) - cfg.cell
-        straight = float(np.hypot(wx[c[inside] - c0] - self.goal[0], wy[r[inside] - r0] - self.goal[1]).max())
+        straight = float(np.hypot(wx[c[ok] - c0] - self.goal[0], wy[r[ok] - r0] - self.goal[1]).max())
         for narrow in (2.0 * straight + 2.0, 0.0):  # 0: no stop
             d = skfmm.travel_time(np.ma.MaskedArray(phi, mask=blocked), speed, dx=cfg.cell, narrow=narrow)
-            out[inside] = np.ma.filled(d.astype(np.float64), np.inf)[r[inside] - r0, c[inside] - c0]
-            if np.isfinite(out[inside]).all():
+            out[ok] = np.ma.filled(d.astype(np.float64), np.inf)[r[ok] - r0, c[ok] - c0]
+            if np.isfinite(out[ok]).all():
                 break
         return out
 
