@@ -235,10 +235,11 @@ class MapPlanAgent:
         Only these cells' times are needed, so the work is cut short where that cannot change
         them: distances to obstacles are taken in a box round them (beyond it they exceed the
         radius plus the margin, all that matters of them); cells with no 4-connected way to the
-        goal (where fast marching never arrives) get inf without marching, and the march first stops at a travel time twice the farthest
-        reachable cell's straight distance plus 2 m (fast marching fixes times in increasing order,
-        so every time below the stop is the full march's, to the bit), marching on over the whole
-        window only when a reachable cell lies beyond it."""
+        goal (where fast marching never arrives) get inf without marching, and the march first
+        stops at a travel time twice the farthest reachable cell's straight distance plus 2 m
+        (fast marching fixes times in increasing order, so every time below the stop is the full
+        march's, to the bit), marching on over the whole window only when a reachable cell lies
+        beyond it."""
         import skfmm
         from scipy.ndimage import distance_transform_edt, label
 
