@@ -153,7 +153,7 @@ def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
         "--policy fallback_radius (not recorded there, so 0.0: that folder predates this parameter, 0.1 now)"]
     for hand_edited, there in (("0.0", "'0.0' there"), (False, "False there"), ("x" * 99, "there")):
         said = _policy_changes({**old, "fallback_radius": hand_edited}, dataclasses.asdict(PolicyConfig()))
-        assert len(said) == 1 and there in said[0] and said[0].endswith(", 0.0 now)") and len(said[0]) < 120
+        assert len(said) == 1 and there in said[0] and said[0].endswith(", 0.1 now)") and len(said[0]) < 120
 
 
 def _navigate(argv):

@@ -90,7 +90,7 @@ class PolicyConfig:
     memory: int = 1000  # steps an obstacle is remembered without being seen again
     obstacle_gap: float = 0.05  # a forward step's straight path keeps this far from obstacle cells
     own_clearance: float = 0.1  # obstacle cells this near the believed position are ignored by that check
-    fallback_radius: float = 0.0  # the narrower agent planned for when no way fits the full one; 0: off
+    fallback_radius: float = 0.1  # the narrower agent planned for when no way fits the full one; 0: off
 
     def __post_init__(self) -> None:
         kinds = {f.name: f.type for f in dataclasses.fields(self)}
