@@ -46,7 +46,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--policy", action="append", default=[], metavar="key=value",
                     help="a parameter of the map-and-plan policy (odolab.navigation.agent.PolicyConfig), "
                          "e.g. heading_tolerance=45 (repeatable). Keys, defaults and ranges: "
-                         + "; ".join(f"{f.name} {f.default} {range_text(f.name)}" for f in dataclasses.fields(PolicyConfig)))
+                         + "; ".join(f"{f.name} {f.default} {range_text(f.name)}" for f in dataclasses.fields(PolicyConfig))
+                         + " (fallback_radius below agent_radius; 0 turns the fallback off). Results made before "
+                           "fallback_radius existed were made with fallback_radius=0")
     ap.add_argument("--config", type=path_arg("--config"), default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="run the episodes in this process, without Ray")
@@ -78,7 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     command = "python -m odolab.navigate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
-    table = write_outputs(args.out, rows, names, specs, command)
+    table = write_outputs(args.out, rows, names, specs, command, policy=dataclasses.asdict(policy))
     for r in table:
         print(f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
               f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "

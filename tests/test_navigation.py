@@ -145,12 +145,16 @@ def test_the_cut_short_march_gives_the_full_march_times_to_the_bit(clutter):
 
 def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
     from odolab.navigation.agent import PolicyConfig
-    from odolab.navigation.study import _policy_changes
+    from odolab.navigation.study import _policy_changes, _policy_to_match
 
     old = {k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k != "fallback_radius"}
     assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.0))) == []
     assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.1))) == [
         "--policy fallback_radius (not recorded there, so 0.0: that folder predates this parameter, 0.1 now)"]
+    assert _policy_to_match(old, dataclasses.asdict(PolicyConfig())) == "--policy fallback_radius=0.0"
+    assert _policy_to_match({**old, "cell": 5.0}, dataclasses.asdict(PolicyConfig())) is None  # out of range
+    assert _policy_to_match({**old, "cell": "0.05"}, dataclasses.asdict(PolicyConfig())) is None  # not a number
+    assert _policy_to_match({**old, "nonsense": 1}, dataclasses.asdict(PolicyConfig())) is None
     for hand_edited, there in (("0.0", "'0.0' there"), (False, "False there"), ("x" * 99, "there")):
         said = _policy_changes({**old, "fallback_radius": hand_edited}, dataclasses.asdict(PolicyConfig()))
         assert len(said) == 1 and there in said[0] and said[0].endswith(", 0.1 now)") and len(said[0]) < 120
@@ -169,7 +173,8 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert _navigate(args + ["--out", str(tmp_path / "b")]) == 0
     a = (tmp_path / "a" / "nav.csv").read_text()
     assert a == (tmp_path / "b" / "nav.csv").read_text() and a.count("\n") == 3
-    assert (tmp_path / "a" / "metrics.png").stat().st_size > 10_000 and (tmp_path / "a" / "report.html").exists()
+    assert (tmp_path / "a" / "metrics.png").stat().st_size > 10_000
+    assert "fallback_radius=0.1</code>" in (tmp_path / "a" / "report.html").read_text()  # the policy, defaults included
     done = sorted((tmp_path / "a" / "episodes").rglob("*.json"))
     assert len(done) == 4
     done[2].unlink()  # an interrupted run: one episode missing
@@ -183,7 +188,9 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
     assert "other settings (--max-steps (12 there, 13 now))" in capsys.readouterr().err
     assert _navigate(args + ["--policy", "heading_tolerance=45", "--out", str(tmp_path / "a")]) == 2
-    assert "other settings (--policy heading_tolerance (15.0 there, 45.0 now))" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "other settings (--policy heading_tolerance (15.0 there, 45.0 now))" in err
+    assert "to add to it, pass --policy heading_tolerance=15.0;" in err  # the way to the folder's policy
     assert _navigate(args + ["--policy", "heading_tolerance=45", "--out", str(tmp_path / "c")]) == 0
     config = json.loads((tmp_path / "c" / "config.json").read_text())
     assert config["policy"]["heading_tolerance"] == 45.0
@@ -219,7 +226,9 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
                         (["--policy", "votes=\u0663"], "votes takes a whole number in [1, 1000]"),
                         (["--policy", "votes=1_0"], "votes takes a whole number in [1, 1000]"),
                         (["--policy", "fallback_radius=1"], "fallback_radius must be in [0, 1)"),
-                        (["--policy", "fallback_radius=0.2"], "need fallback_radius < agent_radius")]:
+                        (["--policy", "fallback_radius=0.2"], "need fallback_radius < agent_radius"),
+                        (["--policy", "agent_radius=0.1"], "fallback_radius 0.1 (its default) and agent_radius 0.1: "
+                                                           "set fallback_radius below 0.1, or to 0")]:
         assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err

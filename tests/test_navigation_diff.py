@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from odolab.cli import run_cli
-from odolab.navigation.diff import diff_runs, main, markdown, read_episodes, unpaired
+from odolab.navigation.diff import diff_runs, main, markdown, read_episodes, setting_notes, unpaired
 
 HEAD = "odometer,episode,split,seed,d0,d_end,path,stopped,steps,collisions,success,spl,soft_spl,failed_steps\n"
 
@@ -38,7 +38,26 @@ def test_won_and_lost_episodes_are_paired_by_odometer_and_episode(tmp_path, caps
     assert unpaired(b, a) == ["1 odometer(s) only in BEFORE: y", "1 odometer(s) only in AFTER: fused(a,b)",
                               "episodes of the shared odometers left out: 0 only in BEFORE, 1 only in AFTER"]
     code, out, err = _diff([before, after], capsys)
-    assert code == 0 and out.startswith("| odometer |") and len(err) == 3 and err[0].startswith("note: ")
+    assert code == 0 and out.startswith("| odometer |") and len(err) == 4 and err[0].startswith("note: ")
+    assert "no readable config.json" in err[3]  # these folders hold a table only
+
+
+def test_runs_made_with_other_settings_are_pointed_out(tmp_path):
+    import json
+
+    def config(folder, policy, max_steps=500):
+        (folder / "config.json").write_text(json.dumps({"options": {}, "policy": policy,
+                                                        "episodes": [{"max_steps": max_steps, "noise": {"rgb": 1.0}}]}))
+
+    before, after = _folder(tmp_path, "a", [("x", 0, 1, 10, 2)]), _folder(tmp_path, "b", [("x", 0, 1, 10, 2)])
+    config(before, {"cell": 0.05})  # from before fallback_radius existed: it counts as 0.0
+    config(after, {"cell": 0.05, "fallback_radius": 0.0})
+    assert setting_notes(before, after) == []
+    config(after, {"cell": 0.05, "fallback_radius": 0.1}, max_steps=12)
+    assert setting_notes(before, after) == ["the policies differ: fallback_radius 0.0 -> 0.1",
+                                            "the episodes' max_steps differ: 500 -> 12"]
+    (after / "config.json").write_text("{")
+    assert setting_notes(before, after) == [f"no readable config.json in {after}: the runs' settings were not compared"]
 
 
 def test_episodes_of_other_splits_are_named_with_them_and_odd_names_stay_in_their_cell(tmp_path):

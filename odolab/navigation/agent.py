@@ -107,8 +107,10 @@ class PolicyConfig:
         if not self.min_height < self.max_height:
             raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
         if self.fallback_radius >= self.agent_radius and self.fallback_radius != 0:
-            raise ValueError(f"need fallback_radius < agent_radius (0 turns the fallback off), got "
-                             f"{self.fallback_radius:g}, {self.agent_radius:g}")
+            default = " (its default)" if self.fallback_radius == PolicyConfig.fallback_radius else ""
+            raise ValueError(f"need fallback_radius < agent_radius, got fallback_radius {self.fallback_radius:g}"
+                             f"{default} and agent_radius {self.agent_radius:g}: set fallback_radius below "
+                             f"{self.agent_radius:g}, or to 0 to turn the fallback off")
 
     @classmethod
     def from_assignments(cls, items: list[str]) -> "PolicyConfig":

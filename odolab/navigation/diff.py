@@ -5,7 +5,8 @@
 reads each folder's ``episodes.csv`` (written by ``python -m odolab.navigate``), pairs the rows of
 the same odometer, split, seed and episode, and prints per odometer: the paired episodes, success
 before and after, the episodes won (failed before, succeeded after) and lost, and the mean SPL,
-collisions and steps before and after. A policy or odometer change is judged on the same episodes,
+collisions and steps before and after; notes on stderr say where the folders' policies (from
+their ``config.json``) or episode settings differ. A policy or odometer change is judged on the same episodes,
 so these counts, not two independent success rates, say what it did.
 """
 from __future__ import annotations
@@ -20,7 +21,8 @@ from pathlib import Path
 from typing import Sequence
 
 from odolab.cli import ArgumentParser, UsageError, path_arg, run_cli
-from odolab.io.inputs import read_input_bytes
+from odolab.io.inputs import read_input_bytes, read_input_json
+from odolab.navigation.agent import POLICY_BEFORE
 from odolab.navigation.report import markdown_cell
 
 #: The columns of ``episodes.csv`` this reads: (kind, lowest, highest); ``bool``: 0 or 1.
@@ -161,11 +163,35 @@ def unpaired(before: dict, after: dict) -> list[str]:
     return notes
 
 
+def setting_notes(before: Path, after: Path) -> list[str]:
+    """Notes on how the two folders' ``config.json`` settings differ: policy parameters (a folder
+    from before a parameter existed counts as its old value, :data:`POLICY_BEFORE`) and the episodes'
+    step limit and noise; or that a config could not be read, so settings were not compared."""
+    docs = []
+    for folder in (before, after):
+        try:
+            doc = read_input_json(Path(folder) / "config.json", "navigation config")
+        except ValueError:
+            return [f"no readable config.json in {folder}: the runs' settings were not compared"]
+        if not isinstance(doc, dict) or not isinstance(doc.get("policy"), dict) or not isinstance(doc.get("episodes"), list):
+            return [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
+        docs.append(doc)
+    policies = [{**{k: v for k, v in POLICY_BEFORE.items() if k not in d["policy"]}, **d["policy"]} for d in docs]
+    changed = [f"{k} {policies[0].get(k, '-')!r} -> {policies[1].get(k, '-')!r}"
+               for k in sorted(set(policies[0]) | set(policies[1])) if policies[0].get(k) != policies[1].get(k)]
+    notes = [f"the policies differ: {', '.join(changed)[:300]}"] if changed else []
+    first = [d["episodes"][0] if d["episodes"] and isinstance(d["episodes"][0], dict) else {} for d in docs]
+    for key in ("max_steps", "noise", "camera"):
+        if first[0].get(key) != first[1].get(key):
+            notes.append(f"the episodes' {key} differ: {str(first[0].get(key))[:100]} -> {str(first[1].get(key))[:100]}")
+    return notes
+
+
 def markdown(diffs: list[RowDiff]) -> str:
     """The comparison as a Markdown table (before -> after)."""
     def ids(v: tuple[str, ...]) -> str:
         return ", ".join(v[:12]) + (f" ... ({len(v)})" if len(v) > 12 else "") if v else "-"
-    lines = ["| odometer | episodes | successes | won | lost | SPL | collisions per episode | steps |",
+    lines = ["| odometer | episodes | successes | episodes won | episodes lost | SPL | collisions per episode | steps |",
              "|---|---|---|---|---|---|---|---|"]
     for d in diffs:
         lines.append(f"| {markdown_cell(d.odometer)} | {d.episodes} | {d.success[0]} -> {d.success[1]} | "
@@ -181,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     before, after = read_episodes(args.before), read_episodes(args.after)
     diffs = diff_runs(before, after)
-    for note in unpaired(before, after):
+    for note in unpaired(before, after) + setting_notes(args.before, args.after):
         print(f"note: {note}", file=sys.stderr)
     if not diffs:
         raise UsageError(f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "

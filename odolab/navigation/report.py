@@ -180,8 +180,10 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
 
 
 def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list[EpisodeSpec], command: str,
-                  sample_episodes: int = 2) -> list[dict]:
-    """Tables, figures and ``report.html`` under ``out``; returns the per-odometer table."""
+                  sample_episodes: int = 2, policy: dict | None = None) -> list[dict]:
+    """Tables, figures and ``report.html`` under ``out`` (``policy``: the policy's parameters, shown
+    in the report, since a command's defaults change between versions); returns the per-odometer
+    table."""
     rows = [{**r, "belief_error": belief_error(r)} for r in rows]
     table = summarize(rows, odometers)
     keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
@@ -198,7 +200,7 @@ def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list
         name = f"paths-{spec.index:04d}.png"
         paths_figure(rows, odometers, spec, out / name)
         figures.append(name)
-    write_text_atomic(out / "report.html", _html(table, figures, command))
+    write_text_atomic(out / "report.html", _html(table, figures, command, policy))
     return table
 
 
@@ -249,7 +251,7 @@ def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
     return head + "".join(lines)
 
 
-def _html(table: list[dict], figures: list[str], command: str) -> str:
+def _html(table: list[dict], figures: list[str], command: str, policy: dict | None = None) -> str:
     head = "<tr>" + "".join(f"<th>{h}</th>" for h in ("odometer", "episodes", "success", "SPL", "SoftSPL",
                                                      "final distance to goal (m)", "final belief error (m)",
                                                      "steps", "collisions", "failed odometer steps",
@@ -268,7 +270,10 @@ def _html(table: list[dict], figures: list[str], command: str) -> str:
             "<style>body{font-family:sans-serif;max-width:1280px;margin:2em auto}table{font-size:13px}td,th{padding:3px 6px;"
             "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
             "<h1>PointGoal navigation with each odometer</h1>"
-            f"<p><code>{html.escape(command)}</code></p><p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
+            f"<p><code>{html.escape(command)}</code></p>"
+            + (f"<p>Policy (<code>PolicyConfig</code>): <code>{html.escape(' '.join(f'{k}={v}' for k, v in policy.items()))}"
+               "</code></p>" if policy else "")
+            + "<p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
             "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
             "Final belief error: the distance between the agent's true and believed positions when the episode "
             "ends (the odometry's drift in the closed loop).</p>"

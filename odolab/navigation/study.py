@@ -158,6 +158,22 @@ def _policy_changes(saved: Any, policy: dict) -> list[str]:
             if k not in full or k not in policy or full[k] != policy[k] or type(full[k]) is not type(policy[k])] or ["the policy"]
 
 
+def _policy_to_match(saved: Any, policy: dict) -> str | None:
+    """The ``--policy key=value`` arguments that make ``policy`` the folder's saved one (``None``
+    when the saved policy is not a plain set of this version's numeric parameters)."""
+    if not isinstance(saved, dict) or not set(saved) <= set(policy):
+        return None
+    full = {**{k: v for k, v in POLICY_BEFORE.items() if k in policy and k not in saved}, **saved}
+    diff = sorted(k for k in full if full[k] != policy[k] or type(full[k]) is not type(policy[k]))
+    if not diff or not all(type(full[k]) is type(policy[k]) and type(full[k]) in (int, float) for k in diff):
+        return None
+    try:  # a hand-edited value out of range is not suggested
+        PolicyConfig(**{**policy, **{k: full[k] for k in diff}})
+    except (TypeError, ValueError):
+        return None
+    return " ".join(f"--policy {k}={full[k]!r}" for k in diff)
+
+
 def _option_changes(odometer: str, saved: Any, options: dict) -> str:
     """Which ``--odometer-option`` values of ``odometer`` differ from a folder's saved ones."""
     if not isinstance(saved, dict):
@@ -198,8 +214,11 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
         changed += [_option_changes(n, saved["options"][n], o) for n, o in config["options"].items()
                     if n in saved.get("options", {}) and saved["options"][n] != o]
         if changed:
+            match = _policy_to_match(saved.get("policy"), config.get("policy"))
+            only_policy = all(c.startswith("--policy ") for c in changed)
             raise ValueError(f"{out} holds navigation results made with other settings ({', '.join(changed)}); "
-                             "choose another --out or delete it")
+                             + (f"to add to it, pass {match}; or " if match and only_policy else "")
+                             + "choose another --out or delete it")
         config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
     for folder in {result_path(out, t.odometer, t.spec.index).parent for t in tasks}:
         for p in (folder.parent, folder):  # checked before any episode runs, not when its result is written
