@@ -53,6 +53,14 @@ POLICY_BOUNDS: dict[str, tuple[float, float]] = {
 #: The value of each parameter added after results were first saved that gives the behaviour from
 #: before it: a saved policy without the parameter was made with this value.
 POLICY_BEFORE: dict[str, float] = {"fallback_radius": 0.0}
+
+
+def with_old_behaviour(saved: dict) -> dict:
+    """A saved policy's parameters, each one it predates given the value of its old behaviour
+    (:data:`POLICY_BEFORE`)."""
+    return {**{k: v for k, v in POLICY_BEFORE.items() if k not in saved}, **saved}
+
+
 OPEN_BELOW = {"margin_speed", "max_height"}  # these must be above their lower bound
 OPEN_ABOVE = {"heading_tolerance", "fallback_radius"}  # and these below their upper one
 

@@ -22,7 +22,7 @@ from typing import Sequence
 
 from odolab.cli import ArgumentParser, UsageError, path_arg, run_cli
 from odolab.io.inputs import read_input_bytes, read_input_json
-from odolab.navigation.agent import POLICY_BEFORE
+from odolab.navigation.agent import with_old_behaviour
 from odolab.navigation.report import markdown_cell
 
 #: The columns of ``episodes.csv`` this reads: (kind, lowest, highest); ``bool``: 0 or 1.
@@ -165,7 +165,7 @@ def unpaired(before: dict, after: dict) -> list[str]:
 
 def setting_notes(before: Path, after: Path) -> list[str]:
     """Notes on how the two folders' ``config.json`` settings differ: policy parameters (a folder
-    from before a parameter existed counts as its old value, :data:`POLICY_BEFORE`) and the episodes'
+    from before a parameter existed counts as its old value, ``with_old_behaviour``) and the episodes'
     step limit and noise; or that a config could not be read, so settings were not compared."""
     docs = []
     for folder in (before, after):
@@ -176,7 +176,7 @@ def setting_notes(before: Path, after: Path) -> list[str]:
         if not isinstance(doc, dict) or not isinstance(doc.get("policy"), dict) or not isinstance(doc.get("episodes"), list):
             return [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
         docs.append(doc)
-    policies = [{**{k: v for k, v in POLICY_BEFORE.items() if k not in d["policy"]}, **d["policy"]} for d in docs]
+    policies = [with_old_behaviour(d["policy"]) for d in docs]
     changed = [f"{k} {policies[0].get(k, '-')!r} -> {policies[1].get(k, '-')!r}"
                for k in sorted(set(policies[0]) | set(policies[1])) if policies[0].get(k) != policies[1].get(k)]
     notes = [f"the policies differ: {', '.join(changed)[:300]}"] if changed else []

@@ -23,7 +23,7 @@ import numpy as np
 from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
-from odolab.navigation.agent import POLICY_BEFORE, PolicyConfig
+from odolab.navigation.agent import PolicyConfig, with_old_behaviour
 
 @dataclass(frozen=True)
 class NavTask:
@@ -141,8 +141,9 @@ def _policy_changes(saved: Any, policy: dict) -> list[str]:
     """Which ``--policy`` parameters make ``policy`` differ from a folder's saved one."""
     if not isinstance(saved, dict):
         return ["the policy"] if saved != policy else []
-    before = {k: v for k, v in POLICY_BEFORE.items() if k in policy and k not in saved}
-    full = {**before, **saved}  # a folder from before a parameter existed was made with its old behaviour
+    # a folder from before a parameter existed was made with its old behaviour (parameters of this version only)
+    full = {k: v for k, v in with_old_behaviour(saved).items() if k in saved or k in policy}
+    before = {k: v for k, v in full.items() if k not in saved}
     if full == policy and all(type(full[k]) is type(policy[k]) for k in policy):
         return []
     short = reprlib.Repr()
@@ -163,9 +164,10 @@ def _policy_to_match(saved: Any, policy: dict) -> str | None:
     when the saved policy is not a plain set of this version's numeric parameters)."""
     if not isinstance(saved, dict) or not set(saved) <= set(policy):
         return None
-    full = {**{k: v for k, v in POLICY_BEFORE.items() if k in policy and k not in saved}, **saved}
-    diff = sorted(k for k in full if full[k] != policy[k] or type(full[k]) is not type(policy[k]))
-    if not diff or not all(type(full[k]) is type(policy[k]) and type(full[k]) in (int, float) for k in diff):
+    full = with_old_behaviour(saved)
+    diff = sorted(k for k in full if k not in policy or full[k] != policy[k] or type(full[k]) is not type(policy[k]))
+    if not diff or not all(k in policy and type(full[k]) is type(policy[k]) and type(full[k]) in (int, float)
+                           for k in diff):
         return None
     try:  # a hand-edited value out of range is not suggested
         PolicyConfig(**{**policy, **{k: full[k] for k in diff}})
