@@ -137,15 +137,22 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[str]:
     return said or ["the episodes' noise or camera"]
 
 
+def _saved_policy(saved: dict, policy: dict) -> tuple[dict, list[str]]:
+    """A folder's saved policy as made (a parameter it predates at its old behaviour, where this
+    version has it), and the parameters, sorted, whose value or kind differ from ``policy``'s."""
+    full = {k: v for k, v in with_old_behaviour(saved).items() if k in saved or k in policy}
+    return full, [k for k in sorted(set(full) | set(policy)) if k not in full or k not in policy
+                  or full[k] != policy[k] or type(full[k]) is not type(policy[k])]
+
+
 def _policy_changes(saved: Any, policy: dict) -> list[str]:
     """Which ``--policy`` parameters make ``policy`` differ from a folder's saved one."""
     if not isinstance(saved, dict):
         return ["the policy"] if saved != policy else []
-    # a folder from before a parameter existed was made with its old behaviour (parameters of this version only)
-    full = {k: v for k, v in with_old_behaviour(saved).items() if k in saved or k in policy}
-    before = {k: v for k, v in full.items() if k not in saved}
-    if full == policy and all(type(full[k]) is type(policy[k]) for k in policy):
+    full, differ = _saved_policy(saved, policy)
+    if not differ:
         return []
+    before = {k: v for k, v in full.items() if k not in saved}
     short = reprlib.Repr()
     short.maxstring, short.maxother = 30, 30
 
@@ -155,19 +162,17 @@ def _policy_changes(saved: Any, policy: dict) -> list[str]:
         now = f"{policy[k]!r} now" if k in policy else "no such parameter now"
         return f"--policy {k} ({there}, {now})"
 
-    return [said(k) for k in sorted(set(full) | set(policy))
-            if k not in full or k not in policy or full[k] != policy[k] or type(full[k]) is not type(policy[k])] or ["the policy"]
+    return [said(k) for k in differ]
 
 
 def _policy_to_match(saved: Any, policy: dict) -> str | None:
     """The ``--policy key=value`` arguments that make ``policy`` the folder's saved one (``None``
     when the saved policy is not a plain set of this version's numeric parameters)."""
-    if not isinstance(saved, dict) or not set(saved) <= set(policy):
+    if not isinstance(saved, dict):
         return None
-    full = with_old_behaviour(saved)
-    diff = sorted(k for k in full if k not in policy or full[k] != policy[k] or type(full[k]) is not type(policy[k]))
-    if not diff or not all(k in policy and type(full[k]) is type(policy[k]) and type(full[k]) in (int, float)
-                           for k in diff):
+    full, diff = _saved_policy(saved, policy)
+    if not diff or not all(k in full and k in policy and type(full[k]) is type(policy[k])
+                           and type(full[k]) in (int, float) for k in diff):
         return None
     try:  # a hand-edited value out of range is not suggested
         PolicyConfig(**{**policy, **{k: full[k] for k in diff}})
@@ -211,15 +216,15 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
                    "its 'options' is not a JSON object" if not isinstance(saved.get("options", {}), dict) else None)
         if problem:
             raise ValueError(f"{cfg_path}: not a navigation config ({problem}); choose another --out")
-        changed = _episode_changes(saved.get("episodes"), config["episodes"])
-        changed += _policy_changes(saved.get("policy"), config.get("policy"))
-        changed += [_option_changes(n, saved["options"][n], o) for n, o in config["options"].items()
-                    if n in saved.get("options", {}) and saved["options"][n] != o]
-        if changed:
-            match = _policy_to_match(saved.get("policy"), config.get("policy"))
-            only_policy = all(c.startswith("--policy ") for c in changed)
-            raise ValueError(f"{out} holds navigation results made with other settings ({', '.join(changed)}); "
-                             + (f"to add to it, pass {match}; or " if match and only_policy else "")
+        episodes = _episode_changes(saved.get("episodes"), config["episodes"])
+        policy = _policy_changes(saved.get("policy"), config.get("policy"))
+        options = [_option_changes(n, saved["options"][n], o) for n, o in config["options"].items()
+                   if n in saved.get("options", {}) and saved["options"][n] != o]
+        if episodes or policy or options:
+            match = None if episodes or options else _policy_to_match(saved.get("policy"), config.get("policy"))
+            raise ValueError(f"{out} holds navigation results made with other settings "
+                             f"({', '.join(episodes + policy + options)}); "
+                             + (f"to add to it, pass {match}; or " if match else "")
                              + "choose another --out or delete it")
         config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
     for folder in {result_path(out, t.odometer, t.spec.index).parent for t in tasks}:
