@@ -32,8 +32,8 @@ SIMULATOR_OPTIONS = ("--episodes", "--seed", "--split", "--max-steps", "--rgb-no
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
     ap.add_argument("--odometers", default=None,
-                    help="comma-separated names or module:Class, or fused(a,b,...) of several (default: all of "
-                         "%(choices)s)".replace("%(choices)s", ", ".join(standalone_odometers())))
+                    help="comma-separated names, module:Class or path/to/file.py:Class, or fused(a,b,...) of "
+                         "several (default: all of %(choices)s)".replace("%(choices)s", ", ".join(standalone_odometers())))
     ap.add_argument("--episodes", type=number("--episodes", int, 1, MAX_EPISODES), default=5,
                     help=f"number of episodes, 1-{MAX_EPISODES} (default 5)")
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")

@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
 from odolab import runner, summary
-from odolab.odometer import (REGISTRY, Odometer, UnknownOdometerError, available_odometers, inner_names,
+from odolab.odometer import (REGISTRY, IncompleteOdometerError, Odometer, OracleInputError, UnknownOdometerError,
+                             available_odometers, inner_names,
                              standalone_odometers, unknown_odometer)
 from odolab.options import OptionError, check_options
 from odolab.report import FloorPlan
@@ -87,7 +88,10 @@ def odometer_names(names: list[str] | None) -> list[str]:
     chosen = standalone_odometers() if names is None else list(names)
     if not chosen:
         raise ComparisonError(f"no odometer chosen; available: {', '.join(known)}")
-    unknown = [u for u in map(unknown_odometer, chosen) if u]  # "module:Class" loads on demand
+    try:
+        unknown = [u for u in map(unknown_odometer, chosen) if u]  # "module:Class" loads on demand
+    except ValueError as exc:  # nested too deep
+        raise ComparisonError(str(exc)) from None
     if unknown:
         raise ComparisonError(f"unknown odometer {unknown[0]!r}; available: {', '.join(known)} "
                               "(and fused(a,b,...) of any of them)")
@@ -117,7 +121,7 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
             factory = REGISTRY.resolve(name)
             check_options(name, factory, opts)
             out[name] = REGISTRY.load(name, **opts)
-        except (UnknownOdometerError, OptionError) as exc:
+        except (UnknownOdometerError, OptionError, IncompleteOdometerError, OracleInputError) as exc:
             raise ComparisonError(str(exc)) from None
         except Exception as exc:  # a broken plugin or a bad option value is reported, not a traceback
             detail = f" with options {_short(opts)}" if opts else ""

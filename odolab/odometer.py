@@ -10,15 +10,21 @@ An odometer sees a sequence of :class:`Frame` pairs and answers, for each pair, 
 
 Odometers are found by name: built-ins and third-party packages declare an entry point in the
 group ``odolab.odometers``; a class can also be registered in code with :func:`register_odometer`,
-or named directly as ``"package.module:Class"``.
+or named directly as ``"package.module:Class"`` (an importable module) or ``"path/to/file.py:Class"``
+(a Python file anywhere, imported from its path). A composite ``head(a,b)`` nests at most
+:data:`MAX_NESTING` levels deep.
 Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is imported.
 """
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib
+import importlib.util
 import inspect
+import os
 import re
+import sys
 from importlib.metadata import entry_points
 from typing import Callable, Iterator
 
@@ -27,11 +33,13 @@ import numpy as np
 from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence, as_action  # noqa: F401
 
 __all__ = [
-    "ENTRY_POINT_GROUP", "REGISTRY", "Odometer", "OdometerRegistry", "UnknownOdometerError",
-    "available_odometers", "load_odometer", "register_odometer",
+    "ENTRY_POINT_GROUP", "MAX_NESTING", "REGISTRY", "IncompleteOdometerError", "Odometer", "OdometerRegistry",
+    "OracleInputError", "UnknownOdometerError", "available_odometers", "load_odometer", "register_odometer",
 ]
 
 ENTRY_POINT_GROUP = "odolab.odometers"
+#: Deepest nesting of composites in one name: ``manhattan(fused(icp,open3d-rgbd))`` is 2.
+MAX_NESTING = 8
 
 
 class Odometer:
@@ -145,6 +153,42 @@ class UnknownOdometerError(KeyError):
         return str(self.args[0])
 
 
+class IncompleteOdometerError(TypeError):
+    """Raised by :func:`load_odometer` for a class that overrides neither ``step`` nor
+    ``step_batch``: every step it was asked would fail."""
+
+
+class OracleInputError(ValueError):
+    """Raised by :func:`load_odometer` for a composite that takes an oracle input (one reading
+    ``Frame.gt_pose``) but is not itself marked ``oracle``: the runner would hide the ground truth
+    from it, and its input would never answer."""
+
+
+def _short_name(name: str) -> str:
+    """``name`` cut to 80 characters for a message."""
+    return name if len(name) <= 80 else name[:77] + "..."
+
+
+def nesting_depth(text: str) -> int:
+    """The deepest parenthesis level in ``text`` (``fused(icp,manhattan(icp))`` -> 2)."""
+    depth = deepest = 0
+    for ch in text:
+        if ch == "(":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch == ")":
+            depth -= 1
+    return deepest
+
+
+def check_nesting(text: str) -> None:
+    """``ValueError`` when odometer name(s) ``text`` nest composites more than :data:`MAX_NESTING` deep."""
+    deepest = nesting_depth(text)
+    if deepest > MAX_NESTING:
+        raise ValueError(f"odometer name {_short_name(text)!r} nests composites {deepest} deep; "
+                         f"at most {MAX_NESTING} (manhattan(fused(icp,open3d-rgbd)) is 2)")
+
+
 def _registry() -> dict[str, Callable[..., Odometer] | str]:
     """Name -> class or "module:attr" string, from entry points (installed built-ins included)."""
     reg: dict[str, Callable[..., Odometer] | str] = {
@@ -173,6 +217,39 @@ def _with_inputs(factory: Callable[..., Odometer], name: str, inputs: str) -> Ca
     return build
 
 
+def _names_a_file(module: str) -> bool:
+    """Whether the module part of ``module:Class`` is a Python file's path rather than a module name."""
+    return module.endswith(".py") or "/" in module or os.sep in module
+
+
+def _import_file(path: str):
+    """The module of Python file ``path`` (relative to the current folder), imported once per
+    file: it is kept in ``sys.modules`` under a name made from its absolute path, as an import
+    keeps a module, so a second load returns the same classes. ``ImportError`` naming the file
+    when it is missing or raises while it is imported."""
+    full = os.path.abspath(path)
+    if not os.path.isfile(full):
+        raise ImportError(f"no such file {path}" + (" (a file's path must end in .py)" if not full.endswith(".py") else ""))
+    stem = re.sub(r"\W", "_", os.path.splitext(os.path.basename(full))[0])
+    module_name = f"odolab_file_{stem}_{hashlib.sha256(full.encode()).hexdigest()[:12]}"
+    if module_name in sys.modules:
+        return sys.modules[module_name]
+    spec = importlib.util.spec_from_file_location(module_name, full)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"{path} is not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module  # dataclasses and pickling look their module up there
+    try:
+        spec.loader.exec_module(module)
+    except (Exception, SystemExit) as exc:  # a syntax error or any error of the file's own code
+        del sys.modules[module_name]
+        raise ImportError(f"{path} raised {type(exc).__name__} while imported: {exc}") from None
+    except BaseException:
+        del sys.modules[module_name]
+        raise
+    return module
+
+
 #: ``head(inputs)``: an odometer built on others, e.g. ``fused(icp,open3d-rgbd)``.
 COMPOSITE = re.compile(r"(?P<head>[A-Za-z0-9_.:-]+)\((?P<inputs>.*)\)")
 
@@ -181,6 +258,7 @@ def split_odometer_names(text: str, keep_empty: bool = False) -> list[str]:
     """Comma-separated odometer names, commas inside parentheses kept: ``"icp,fused(icp,open3d-rgbd)"``
     -> ``["icp", "fused(icp,open3d-rgbd)"]``; empty names dropped unless ``keep_empty``. Raises
     ``ValueError`` on unbalanced parentheses."""
+    check_nesting(text)
     names, depth, part = [], 0, ""
     for ch in text:
         depth += {"(": 1, ")": -1}.get(ch, 0)
@@ -220,7 +298,9 @@ def parse_odometer_list(text: str) -> list[str]:
 
 def inner_names(name: str) -> set[str]:
     """Every odometer named inside a composite ``name`` at any depth (``manhattan(fused(a,b))`` ->
-    ``{"fused(a,b)", "a", "b"}``); empty for a plain name or unbalanced parentheses."""
+    ``{"fused(a,b)", "a", "b"}``); empty for a plain name or unbalanced parentheses. ``ValueError``
+    for a name nested deeper than :data:`MAX_NESTING`."""
+    check_nesting(name)
     match = COMPOSITE.fullmatch(name)
     if not match:
         return set()
@@ -247,21 +327,24 @@ class OdometerRegistry:
 
     def resolve(self, name: str) -> Callable[..., Odometer]:
         """The factory for ``name``; :class:`UnknownOdometerError` lists the valid choices.
-        ``head(a,b,...)`` is odometer ``head`` with its option ``inputs="a,b,..."`` (e.g. ``fused(icp,robust-vo)``)."""
+        ``head(a,b,...)`` is odometer ``head`` with its option ``inputs="a,b,..."`` (e.g. ``fused(icp,robust-vo)``);
+        ``module:Class`` is imported, ``path/to/file.py:Class`` is imported from that file.
+        ``ValueError`` for a name nested deeper than :data:`MAX_NESTING`."""
+        check_nesting(name)
         composite = COMPOSITE.fullmatch(name)
         if composite:
             return _with_inputs(self.resolve(composite["head"]), name, composite["inputs"])
         target = self._extra.get(name) or _registry().get(name)
-        if target is None and ":" in name:  # "package.module:Class", imported on demand
+        if target is None and ":" in name:  # "package.module:Class" or "file.py:Class", imported on demand
             target = name
         if target is None:
             raise UnknownOdometerError(
                 f"unknown odometer {name!r}; available: {', '.join(self.names())}"
             )
         if isinstance(target, str):
-            module, _, attr = target.partition(":")
+            module, _, attr = target.rpartition(":")
             try:
-                obj = importlib.import_module(module)
+                obj = _import_file(module) if _names_a_file(module) else importlib.import_module(module)
                 for part in attr.split("."):
                     obj = getattr(obj, part)
             except (ImportError, AttributeError) as exc:
@@ -271,11 +354,43 @@ class OdometerRegistry:
 
     def load(self, name: str, **options) -> Odometer:
         """Instantiate odometer ``name`` with keyword ``options`` (numpy scalars are passed on as the
-        Python numbers they hold, so ``np.float32(4.0)`` sets an option as ``4.0`` does)."""
+        Python numbers they hold, so ``np.float32(4.0)`` sets an option as ``4.0`` does).
+        :class:`IncompleteOdometerError` for an :class:`Odometer` overriding neither ``step`` nor
+        ``step_batch``; :class:`OracleInputError` for a composite that does not pass on its
+        input's ``oracle``."""
         options = {k: v.item() if isinstance(v, np.generic) else v for k, v in options.items()}
         odo = self.resolve(name)(**options)
+        if isinstance(odo, Odometer) and type(odo).step is Odometer.step and type(odo).step_batch is Odometer.step_batch:
+            raise IncompleteOdometerError(
+                f"odometer {_short_name(name)!r}: class {type(odo).__name__} overrides neither step() nor "
+                "step_batch(), so every step would fail; implement step(prev, cur, action)")
+        oracle_input = self._oracle_input(name)
+        if oracle_input is not None and not getattr(odo, "oracle", False):
+            head = name.split("(")[0]
+            raise OracleInputError(
+                f"odometer {_short_name(name)!r}: its input {oracle_input!r} reads ground truth (an oracle), but "
+                f"{head} is not marked oracle, so the input would never see it; set {head}'s oracle attribute "
+                "from its inputs, or leave the oracle out")
         odo.name = name
         return odo
+
+    def _oracle_input(self, name: str) -> str | None:
+        """The first input of composite ``name`` (at any depth) whose class is marked ``oracle``,
+        or None (also for a plain name)."""
+        composite = COMPOSITE.fullmatch(name)
+        if not composite:
+            return None
+        for part in split_odometer_names(composite["inputs"]):
+            if COMPOSITE.fullmatch(part):
+                found = self._oracle_input(part)
+            else:
+                try:
+                    found = part if getattr(self.resolve(part), "oracle", False) is True else None
+                except UnknownOdometerError:
+                    found = None  # the composite has named it already, or will
+            if found is not None:
+                return found
+        return None
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names())
@@ -306,7 +421,9 @@ def standalone_odometers() -> list[str]:
 
 def unknown_odometer(name: str) -> str | None:
     """The first part of ``name`` that names no odometer (``name`` itself, or an input of a
-    composite ``head(a,b)``), or None when every part is known. ``module:Class`` counts as known."""
+    composite ``head(a,b)``), or None when every part is known. ``module:Class`` and
+    ``file.py:Class`` count as known. ``ValueError`` for a name nested deeper than :data:`MAX_NESTING`."""
+    check_nesting(name)
     known = set(REGISTRY.names())
     composite = COMPOSITE.fullmatch(name)
     if composite:

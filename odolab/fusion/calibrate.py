@@ -11,7 +11,9 @@ calibrated 95 % ellipsoid (0.95 when the calibration carries over). Steps whose 
 median depth is below ``--near-depth`` (1 m) are fitted apart, as ``<action>@near`` entries
 (:mod:`odolab.fusion.calibration`). ``action-prior`` must be calibrated: fusion
 falls back on it. An action with fewer than 10 valid steps is left out (fusion then uses the input's
-largest sigmas for it), and the summary says so. ``--out`` is replaced if it exists.
+largest sigmas for it), and the summary says so. An oracle input (one reading ground truth) is
+calibrated like any other, and named as one: a fused odometer using it is an oracle too.
+``--out`` is replaced if it exists.
 """
 from __future__ import annotations
 
@@ -171,7 +173,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         said = ", ".join(f"{a} {n} steps{own_note(a)}" for a, n in cal.steps.items())
         left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]  # no plain entry: no near one either
-        print(f"{name}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else ""))
+        oracle = " (an oracle: it reads ground truth, and a fused odometer using it is marked oracle)" \
+            if getattr(odometers[name], "oracle", False) else ""
+        print(f"{name}{oracle}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else ""))
     if calibration is None:
         command = "python -m odolab.fusion.calibrate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
         Calibration(fitted, source=command, near_depth=args.near_depth).save(args.out)

@@ -20,6 +20,9 @@ motion enters with its calibrated covariance and the step is reported invalid (t
 that prior motion, as it would for any failed step). The answer's covariance is the inverse of the
 summed information of the step's factors (span factors left out), as of the previous camera.
 
+When an input is an oracle (it reads ``Frame.gt_pose``), so is the fused odometer: it is given
+the ground truth to hand on, and reports mark its row oracle.
+
 Options of the inputs themselves come from ``options_file`` (TOML, ``[odometers."icp"] key = value``
 tables, as ``python -m odolab.compare --options-file``).
 """
@@ -88,6 +91,8 @@ class FusedOdometer(Odometer):
         self.prior = ActionPrior.shipped()
         # an input that needs actions would answer nothing without them: say so, as that input would
         self.needs_action = any(o.needs_action for o in self.inputs.values())
+        # an input that reads ground truth makes this an oracle: the runner then hands the frames' gt_pose on
+        self.oracle = any(o.oracle for o in self.inputs.values())
         # what its answers depend on besides code: its inputs' model files or settings and the calibration
         parts = [f"{n}={o.weights}" for n, o in self.inputs.items() if o.weights]
         self.weights = hashlib.sha256(";".join(parts + [f"calibration={self.calibration.digest}"]).encode()).hexdigest()
