@@ -179,8 +179,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=str(DEFAULT_CACHE), help=f"episode cache folder (default {DEFAULT_CACHE})")
     ap.add_argument("--out", default="runs/tiny.pt", help="checkpoint path (default runs/tiny.pt)")
     args = ap.parse_args(argv)
-    if min(args.episodes, args.max_steps, args.iterations) < 1:
-        ap.error("--episodes, --max-steps and --iterations must be >= 1")
+    for option, value, top in (("--episodes", args.episodes, 1000), ("--max-steps", args.max_steps, 500),
+                               ("--iterations", args.iterations, 1_000_000)):
+        if not 1 <= value <= top:
+            ap.error(f"{option} must be in [1, {top}], got {value}")
+    if not 0 <= args.seed <= 2**32 - 1:
+        ap.error(f"--seed must be in [0, 4294967295], got {args.seed}")
     torch.set_num_threads(1)
     specs = episode_specs("train", args.episodes, seed=args.seed, max_steps=args.max_steps)
     cache = EpisodeCache(args.cache)

@@ -32,7 +32,7 @@ from typing import Sequence as Seq
 import cv2
 import numpy as np
 
-from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
+from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_episode
 from odolab.geometry import invert, transform_to_planar
 from odolab.io.atomic import atomic_open, write_bytes_atomic
 from odolab.io.npz_mmap import mmap_npz_member
@@ -44,6 +44,11 @@ __all__ = ["DataConfig", "TrainingData", "make_training_data", "resize_frame"]
 
 FORMAT = 1
 MANIFEST = "dataset.json"
+#: Largest episode index a shard stores (its ``episode`` column is int32).
+MAX_EPISODE_INDEX = 2**31 - 1
+#: Documented ranges of the integer settings (a data set of more episodes is several folders).
+MAX_EPISODES = 1_000_000
+MAX_EPISODES_PER_SHARD = 1000
 _ARRAYS = ("rgb", "depth_mm", "poses", "actions", "collisions", "episode")
 
 
@@ -83,11 +88,18 @@ class DataConfig:
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
             raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r}")
-        for name in ("episodes", "max_steps", "width", "height", "episodes_per_shard"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not 0 <= self.seed <= 2**32 - 1 or self.first < 0:
-            raise ValueError(f"seed must be in [0, 2^32 - 1] and first >= 0, got seed {self.seed}, first {self.first}")
+        for name, top in (("episodes", MAX_EPISODES), ("max_steps", MAX_EPISODE_STEPS), ("width", None),
+                          ("height", None), ("episodes_per_shard", MAX_EPISODES_PER_SHARD)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or (
+                    top is not None and value > top):
+                most = f" and at most {top}" if top is not None else ""
+                raise ValueError(f"{name} must be >= 1{most} (an integer), got {value!r}")
+        if not 0 <= self.seed <= 2**32 - 1:
+            raise ValueError(f"seed must be in [0, 2^32 - 1], got {self.seed}")
+        if not 0 <= self.first <= MAX_EPISODE_INDEX - self.episodes + 1:
+            raise ValueError(f"first must be in [0, {MAX_EPISODE_INDEX - self.episodes + 1}] (the last episode's index "
+                             f"at most 2^31 - 1), got {self.first}")
         camera = CameraSpec()
         if self.width > camera.width or self.height > camera.height:
             raise ValueError(f"width x height must be at most the camera's {camera.width} x {camera.height}, "
@@ -334,20 +346,25 @@ def main(argv: list[str] | None = None) -> int:
                         description="Render simulator episodes into memory-mappable training shards (resumable).")
     d = DataConfig()
     ap.add_argument("--split", choices=SPLITS, default=d.split, help=f"scene pool (default {d.split})")
-    ap.add_argument("--episodes", type=number("--episodes", int, 1), default=d.episodes,
-                    help=f"episodes (default {d.episodes})")
-    ap.add_argument("--first", type=number("--first", int, 0), default=0, help="index of the first episode (default 0)")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, MAX_EPISODES), default=d.episodes,
+                    help=f"episodes, 1-{MAX_EPISODES} (default {d.episodes})")
+    ap.add_argument("--first", type=number("--first", int, 0, MAX_EPISODE_INDEX), default=0,
+                    help="index of the first episode; the last one's is at most 2^31 - 1 (default 0)")
     ap.add_argument("--seed", type=seed(), default=0, help="episode seed (default 0)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1), default=d.max_steps,
-                    help=f"actions per episode at most (default {d.max_steps})")
+    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=d.max_steps,
+                    help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {d.max_steps})")
     ap.add_argument("--width", type=number("--width", int, 8, 341), default=d.width, help=f"pixels (default {d.width})")
     ap.add_argument("--height", type=number("--height", int, 8, 192), default=d.height,
                     help=f"pixels (default {d.height})")
-    ap.add_argument("--episodes-per-shard", type=number("--episodes-per-shard", int, 1), default=d.episodes_per_shard)
+    ap.add_argument("--episodes-per-shard", type=number("--episodes-per-shard", int, 1, MAX_EPISODES_PER_SHARD),
+                    default=d.episodes_per_shard, help=f"1-{MAX_EPISODES_PER_SHARD} (default {d.episodes_per_shard})")
     ap.add_argument("--out", type=path_arg("--out"), required=True, help="folder (created; reused to resume)")
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="render in this process, without Ray")
     args = ap.parse_args(argv)
+    if args.first + args.episodes - 1 > MAX_EPISODE_INDEX:
+        ap.error(f"--first {args.first} + --episodes {args.episodes}: the last episode's index would be "
+                 f"{args.first + args.episodes - 1}, above 2^31 - 1; use a smaller --first")
     cfg = DataConfig(split=args.split, episodes=args.episodes, seed=args.seed, first=args.first,
                      max_steps=args.max_steps, width=args.width, height=args.height,
                      episodes_per_shard=args.episodes_per_shard)

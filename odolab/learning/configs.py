@@ -12,6 +12,11 @@ from odolab.io.tomlfile import read_toml as read_toml_document
 
 T = TypeVar("T")
 
+#: Longest chain of ``base =`` files one recipe may start from.
+MAX_BASE_CHAIN = 16
+#: Deepest nesting of tables that two documents of a ``base =`` chain are merged through.
+MAX_TABLE_DEPTH = 32
+
 
 class ConfigError(ValueError):
     """A config that cannot be used; the message names the file and field."""
@@ -22,8 +27,12 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
 
     A top-level ``base = "other.toml"`` (relative to this file) starts from that document: tables
     are merged key by key, anything else (numbers, strings, lists such as ``[[stages]]``) replaces
-    the base's value. So a variant of a recipe states only what it changes.
+    the base's value. So a variant of a recipe states only what it changes. A chain of more than
+    :data:`MAX_BASE_CHAIN` bases is refused.
     """
+    if len(_seen) >= MAX_BASE_CHAIN:
+        raise ConfigError(f"{path}: reached through a chain of {len(_seen)} base files (from {_seen[0]}); "
+                          f"at most {MAX_BASE_CHAIN}")
     doc = _read_toml_file(path)
     base = doc.pop("base", None)
     if base is None:
@@ -35,13 +44,23 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
         raise ConfigError(f"{path}: base {base!r} leads back to itself")
     if not os.path.isfile(base_path):
         raise ConfigError(f"{path}: its base {base!r} is not a file ({base_path})")
-    return _merge(read_toml(base_path, (*_seen, os.path.abspath(path))), doc)
+    merged = read_toml(base_path, (*_seen, os.path.abspath(path)))
+    try:
+        return _merge(merged, doc)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
 
 
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+def _merge(base: dict[str, Any], over: dict[str, Any], where: str = "", depth: int = 0) -> dict[str, Any]:
+    """``over`` merged into ``base`` table by table; :class:`ConfigError` past :data:`MAX_TABLE_DEPTH` levels."""
+    if depth > MAX_TABLE_DEPTH:
+        raise ConfigError(f"{where}: tables nested more than {MAX_TABLE_DEPTH} deep")
     out = dict(base)
     for key, value in over.items():
-        out[key] = _merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value, f"{where}.{key}" if where else key, depth + 1)
+        else:
+            out[key] = value
     return out
 
 
