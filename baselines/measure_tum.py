@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from baselines.depth_geometry import DepthRange
-from odolab.api import SequenceResult, UnknownOdometerError, invert, load_odometer, load_tum_sequence, run_odometers
+from odolab.api import (SequenceResult, UnknownCameraError, UnknownOdometerError, invert, load_odometer,
+                        load_tum_sequence, run_odometers)
 
 NO_MOTION = "no-motion"
 DEFAULT_ODOMETERS = (NO_MOTION, "feature-essential", "icp", "open3d-rgbd")
@@ -86,6 +87,18 @@ def _positive(kind):
     return parse
 
 
+def _pinhole(text: str) -> tuple[float, float, float, float]:
+    """``fx,fy,cx,cy`` (pixels) as four finite numbers, the focal lengths positive."""
+    try:
+        values = [float(p) for p in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 4 or not all(math.isfinite(v) for v in values) or min(values[:2]) <= 0:
+        raise argparse.ArgumentTypeError(f"expected four numbers fx,fy,cx,cy (pixels, fx and fy positive), got {text!r:.80}")
+    fx, fy, cx, cy = values
+    return fx, fy, cx, cy
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m baselines.measure_tum", description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", help="TUM RGB-D sequence folder (rgb.txt, depth.txt, groundtruth.txt)")
@@ -95,17 +108,29 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"depth cut for every odometer (open3d-rgbd's own default is 6), metres, "
                              f"({DepthRange().min_depth:g}, 1000] (4)")
     parser.add_argument("--repeat", type=_positive(int), default=3, help="timed passes per odometer, 1-1000 (3)")
+    parser.add_argument("--depth-scale", type=_positive(float), default=None, metavar="S",
+                        help="depth PNG values per metre (default TUM's 5000; millimetres: 1000)")
+    parser.add_argument("--intrinsics", type=_pinhole, default=None, metavar="FX,FY,CX,CY",
+                        help="the camera's pinhole in pixels (default: the TUM camera the folder's name says)")
     args = parser.parse_args(argv)
     if args.max_depth <= DepthRange().min_depth:
         parser.error(f"--max-depth must be above the odometers' min_depth {DepthRange().min_depth:g} m, got {args.max_depth:g}")
     try:
-        seq = load_tum_sequence(args.folder)
+        scale = {} if args.depth_scale is None else {"depth_scale": args.depth_scale}
+        try:
+            seq = load_tum_sequence(args.folder, args.intrinsics, **scale)
+        except UnknownCameraError:
+            raise ValueError(f"{args.folder}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
+                             "in it); give it with --intrinsics fx,fy,cx,cy (pixels)") from None
         if len(seq) < 2:
             raise ValueError(f"{args.folder}: needs at least 2 frames with depth and ground truth")
         odometers = {name: load(name, args.max_depth) for name in dict.fromkeys(args.odometers)}
     except (OSError, ValueError, UnknownOdometerError, TypeError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
+    warning = seq.depth_warning()
+    if warning:
+        print(f"{parser.prog}: warning: {warning} (--depth-scale)", file=sys.stderr)
     rows = []
     for name, odo in odometers.items():
         timed = name not in (NO_MOTION, "action-prior", "ground-truth")

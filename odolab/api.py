@@ -48,7 +48,8 @@ __all__ = [
     "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
     # running and comparing
     "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison",
-    "run_odometers", "failure_reason", "load_inputs", "load_tum_sequence", "write_bytes_atomic", "write_json_atomic",
+    "run_odometers", "failure_reason", "load_inputs", "load_tum_sequence", "UnknownCameraError", "write_bytes_atomic",
+    "write_json_atomic",
     # evaluating trajectories (the library behind python -m odolab.evaluate)
     "Evaluation", "Trajectory", "evaluate_trajectory", "pair_trajectories",
 ]
@@ -59,7 +60,7 @@ if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and
     from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes, stream_episodes
     from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.io.atomic import write_bytes_atomic, write_json_atomic
-    from odolab.io.tum_rgbd import load_tum_sequence
+    from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
     from odolab.composites import load_inputs
     from odolab.runner import SequenceResult, failure_reason
     from odolab.sim.scenes import SPLITS
@@ -75,7 +76,8 @@ _LAZY = {
     "ComparisonError": "odolab.comparison",
     "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner",
     "failure_reason": "odolab.runner", "load_inputs": "odolab.composites",
-    "load_tum_sequence": "odolab.io.tum_rgbd", "write_bytes_atomic": "odolab.io.atomic",
+    "load_tum_sequence": "odolab.io.tum_rgbd", "UnknownCameraError": "odolab.io.tum_rgbd",
+    "write_bytes_atomic": "odolab.io.atomic",
     "write_json_atomic": "odolab.io.atomic",
     "Evaluation": "odolab.evaluation", "evaluate_trajectory": "odolab.evaluation",
     "pair_trajectories": "odolab.evaluation", "Trajectory": "odolab.trajectory",

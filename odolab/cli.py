@@ -69,6 +69,24 @@ def seed(name: str = "--seed") -> Callable[[str], int]:
     return number(name, int, 0, MAX_SEED)
 
 
+def pinhole(name: str = "--intrinsics") -> Callable[[str], tuple[float, float, float, float]]:
+    """An argparse ``type`` for a camera's pinhole ``fx,fy,cx,cy`` (pixels): four finite numbers,
+    the focal lengths positive; the error names the option and what it got."""
+    def parse(text: str) -> tuple[float, float, float, float]:
+        parts = [p.strip() for p in text.split(",")]
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            values = []
+        if len(values) != 4 or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"{name} must be four numbers fx,fy,cx,cy (pixels), got {text!r:.80}")
+        if min(values[:2]) <= 0:
+            raise argparse.ArgumentTypeError(f"{name}: the focal lengths fx, fy must be positive, got {text!r:.80}")
+        fx, fy, cx, cy = values
+        return fx, fy, cx, cy
+    return parse
+
+
 def given_options(argv: Sequence[str] | None, options: Iterable[str]) -> list[str]:
     """The ``options`` that appear in ``argv`` (``--opt value`` or ``--opt=value``; None: the
     process's own arguments): what the user typed, as opposed to a default equal to it."""

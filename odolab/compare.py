@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Sequence
 
 from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_report_dir, given_options,
-                        number, path_arg, run_cli, seed)
+                        number, path_arg, pinhole, run_cli, seed)
 from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
                                run_comparison)
 from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers
@@ -23,6 +23,8 @@ from odolab.sim.scenes import SPLITS
 
 #: Documented ranges of the numeric options (enforced with one line by odolab.cli.number).
 MAX_EPISODES = 1000
+#: --depth-scale: PNG values per metre, from metres to micrometres (odolab.io.tum_rgbd.DEPTH_SCALE_RANGE).
+DEPTH_SCALE_RANGE = (1.0, 1e6)
 MAX_NOISE = 10.0
 #: Options that choose simulator episodes; with --tum they would be silently meaningless.
 SIMULATOR_OPTIONS = ("--episodes", "--seed", "--split", "--max-steps", "--rgb-noise", "--depth-noise",
@@ -48,6 +50,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="output folder (default runs/compare); files a previous run wrote there are replaced")
     ap.add_argument("--tum", type=path_arg("--tum"), default=None,
                     help="run on a TUM RGB-D folder instead of the simulator (simulator options are then refused)")
+    ap.add_argument("--depth-scale", type=number("--depth-scale", float, *DEPTH_SCALE_RANGE), default=None,
+                    metavar="S", help="--tum: depth PNG values per metre (default TUM's 5000; millimetres: 1000)")
+    ap.add_argument("--intrinsics", type=pinhole("--intrinsics"), default=None, metavar="FX,FY,CX,CY",
+                    help="--tum: the camera's pinhole in pixels (default: the TUM camera fr1/fr2/fr3 the "
+                         "folder's name says)")
     ap.add_argument("--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
     ap.add_argument("--no-cache", action="store_true", help="do not read or write the episode cache")
     ap.add_argument("--ray-address", default=None,
@@ -67,7 +74,15 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
     """Every check that can fail on the user's input, done before any episode or odometer runs."""
     if args.split not in SPLITS:
         raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    if args.tum is None:
+        for option in given_options(argv, ("--depth-scale", "--intrinsics")):
+            raise UsageError(f"{option} describes a TUM folder's images; it needs --tum")
     if args.tum is not None:
+        from odolab.io.tum_rgbd import tum_camera_for
+
+        if args.intrinsics is None and tum_camera_for(args.tum) is None:
+            raise UsageError(f"--tum {args.tum}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
+                             "in it); give it with --intrinsics fx,fy,cx,cy (pixels)")
         ignored = given_options(argv, SIMULATOR_OPTIONS)
         if ignored:
             raise UsageError(f"{', '.join(ignored)}: simulator option{'s' if len(ignored) > 1 else ''}, "
@@ -107,7 +122,8 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
         odometers=names, options=options, episodes=args.episodes, seed=args.seed, split=args.split,
         max_steps=args.max_steps,
         noise=NoiseConfig(rgb=args.rgb_noise, depth=args.depth_noise, actuation=args.actuation_noise),
-        tum=args.tum, cache=None if args.no_cache else args.cache, ray_address=args.ray_address,
+        tum=args.tum, tum_depth_scale=args.depth_scale, tum_intrinsics=args.intrinsics,
+        cache=None if args.no_cache else args.cache, ray_address=args.ray_address,
         parallel=not args.serial, progress=not args.quiet)
 
 

@@ -48,7 +48,9 @@ class ComparisonConfig:
     of ``split`` from ``seed``, at most ``max_steps`` steps, ``noise`` multipliers (None = the
     challenge's defaults, :class:`~odolab.episodes.NoiseConfig`); ``cache``: the
     episode cache folder, or None to keep episodes in memory only. ``tum``: a TUM RGB-D folder
-    instead of the simulator. ``ray_address`` / ``parallel``: how missing episodes are generated;
+    instead of the simulator, its depth PNG values per metre ``tum_depth_scale`` (None: TUM's 5000)
+    and its camera ``tum_intrinsics`` ``(fx, fy, cx, cy)`` (None: the TUM camera its name says).
+    ``ray_address`` / ``parallel``: how missing episodes are generated;
     ``progress``: show progress bars while generating."""
 
     odometers: list[str] | None = None
@@ -59,6 +61,8 @@ class ComparisonConfig:
     max_steps: int = 60
     noise: NoiseConfig | None = None
     tum: Path | None = None
+    tum_depth_scale: float | None = None
+    tum_intrinsics: tuple[float, float, float, float] | None = None
     cache: Path | None = DEFAULT_CACHE
     ray_address: str | None = None
     parallel: bool = True
@@ -151,19 +155,20 @@ def failure_reasons(results: list[SequenceResult]) -> dict[str, dict[str, int]]:
     return out
 
 
-def _floor_plan(scene_seed: int) -> FloorPlan:
+def _floor_plan(scene_seed: int, goal: tuple[float, float] | None = None) -> FloorPlan:
     from odolab.sim.scenes import generate_scene
 
     scene = generate_scene(scene_seed)
-    return FloorPlan(scene.free, scene.origin, scene.resolution)
+    return FloorPlan(scene.free, scene.origin, scene.resolution, goal)
 
 
 def _tum_sequences(config: ComparisonConfig):
     from odolab.io.errors import FileFormatError
-    from odolab.io.tum_rgbd import load_tum_sequence
+    from odolab.io.tum_rgbd import TUM_DEPTH_SCALE, load_tum_sequence
 
+    scale = TUM_DEPTH_SCALE if config.tum_depth_scale is None else config.tum_depth_scale
     try:
-        return [load_tum_sequence(config.tum)]
+        return [load_tum_sequence(config.tum, config.tum_intrinsics, depth_scale=scale)]
     except (FileFormatError, ValueError) as exc:
         raise ComparisonError(str(exc)) from None
 
@@ -222,16 +227,22 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
                                   "and real data has none; leave it out of a --tum comparison")
         odometers = {name: odo for name, odo in odometers.items() if name not in blind}  # all, by default
         sequences = _tum_sequences(config)
+        depth_warning = sequences[0].depth_warning()  # read before the run: a few frames
         results = _run(odometers, sequences, observer)
         title = f"odolab compare on TUM folder {config.tum}"
         dropped = sequences[0].dropped
         left_out = (f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
                     f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s.")
+        k = sequences[0].intrinsics
+        camera = (f"Camera fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g} ({k.width}x{k.height}); depth "
+                  f"{sequences[0].depth_scale:g} PNG values per metre.")
         notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
                  *([f"Left out, as they need actions: {', '.join(blind)}."] if blind else []),
-                 "Rows marked oracle read ground truth.", left_out, *_options_note(config)]
-        return ComparisonResult(results, summary.summarize(results), [], title, notes, None,
-                                [left_out] if any(dropped.values()) else [], odometer_configs(odometers))
+                 "Rows marked oracle read ground truth.", left_out, camera, *_options_note(config),
+                 *([depth_warning] if depth_warning else [])]
+        warnings = ([left_out] if any(dropped.values()) else []) + ([depth_warning] if depth_warning else [])
+        return ComparisonResult(results, summary.summarize(results), [], title, notes, None, warnings,
+                                odometer_configs(odometers))
 
     from odolab.datasets import episode_specs
     from odolab.episodes import NoiseConfig
@@ -245,10 +256,13 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
     specs = episode_specs(config.split, config.episodes, seed=config.seed, max_steps=config.max_steps, noise=noise)
     episodes, total = _episode_stream(config, specs)
     scenes: dict[str, int] = {}
+    goals: dict[str, tuple[float, float]] = {}
 
     def noted(stream):
         for ep in stream:
             scenes[ep.name] = ep.info["scene_seed"]
+            if ep.info.get("goal") is not None:
+                goals[ep.name] = (float(ep.info["goal"][0]), float(ep.info["goal"][1]))
             yield ep
 
     results = _run(odometers, noted(episodes), observer, total)
@@ -264,7 +278,7 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
              f"--split {config.split} --max-steps {config.max_steps} --rgb-noise {noise.rgb:g} "
              f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
     notes += _options_note(config)
-    plans = {name: _floor_plan(seed) for name, seed in scenes.items()}
+    plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
     return ComparisonResult(results, summary.summarize(results), summary.summarize_actions(results), title,
                             notes, plans, configs=odometer_configs(odometers))

@@ -3,6 +3,9 @@ odometer that implements nothing, depth read at the wrong scale, a damaged train
 trajectory whose KITTI drift cannot be computed; and odometers load from a file's path."""
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -10,6 +13,7 @@ from odolab import runner
 from odolab.action_prior import ActionPrior
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, planar_to_transform, register_odometer
 from odolab.odometer import REGISTRY, IncompleteOdometerError, OracleInputError, load_odometer
+from tests.test_hostile_inputs import one_line_error
 
 INTRINSICS = Intrinsics.from_hfov(8, 6, 79.0)
 
@@ -156,3 +160,71 @@ def test_an_odometer_file_that_is_missing_or_broken_is_named(tmp_path):
     (tmp_path / "fine.py").write_text(ODOMETER_FILE)
     with pytest.raises(ComparisonError, match="has no attribute 'Backward'"):
         load_odometers([f"{tmp_path / 'fine.py'}:Backward"])
+
+
+# ----------------------------------------------------------------------------- TUM folders at another depth scale
+
+TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
+FR1 = (517.3, 516.5, 318.6, 255.3)
+
+
+@pytest.fixture()
+def millimetre_folder(tmp_path) -> Path:
+    """The 10-frame TUM sequence with its depth rewritten in millimetres, in a folder whose name
+    names no TUM camera."""
+    import cv2
+
+    dst = tmp_path / "my_recording"
+    shutil.copytree(TUM, dst)
+    for png in (dst / "depth").glob("*.png"):
+        raw = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(png), np.round(raw / 5.0).astype(np.uint16))
+    return dst
+
+
+def test_millimetre_depth_is_read_at_the_scale_given_and_a_wrong_scale_is_warned_of(millimetre_folder):
+    from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
+
+    with pytest.raises(UnknownCameraError):
+        load_tum_sequence(millimetre_folder)
+    truth = load_tum_sequence(TUM)
+    seq = load_tum_sequence(millimetre_folder, FR1, depth_scale=1000)
+    assert seq.intrinsics == truth.intrinsics  # the size is the images'
+    assert np.allclose(seq[3].depth, truth[3].depth, atol=0.0011) and seq.depth_warning() is None
+    wrong = load_tum_sequence(millimetre_folder, FR1)  # TUM's 5000 per metre: a fifth of the truth
+    assert np.allclose(wrong[3].depth * 5, seq[3].depth, atol=1e-5)
+    warning = wrong.depth_warning()
+    assert "median is 0.22 m at a depth scale of 5000" in warning
+    assert "At 1000 per metre (millimetres) it would be 1.08 m" in warning
+    assert "At 5000 per metre it would be 1.08 m" in load_tum_sequence(TUM, depth_scale=1000).depth_warning()
+    assert truth.depth_warning() is None
+    with pytest.raises(ValueError, match=r"depth_scale must be a number of PNG values per metre in \[1, 1e\+06\]"):
+        load_tum_sequence(millimetre_folder, FR1, depth_scale=0)
+
+
+def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale(millimetre_folder):
+    from odolab.comparison import ComparisonConfig, run_comparison
+
+    def run(scale):
+        config = ComparisonConfig(odometers=["ground-truth"], tum=millimetre_folder, tum_depth_scale=scale,
+                                  tum_intrinsics=FR1, progress=False)
+        return run_comparison(config)
+
+    assert not any("median" in w for w in run(1000.0).warnings)
+    assert any("depth's median is 0.22 m" in w for w in run(None).warnings)
+
+
+@pytest.mark.parametrize("args,words", [
+    ([], "cannot tell the camera from the folder's name (no fr1, fr2 or fr3 in it); give it with --intrinsics"),
+    (["--intrinsics", "517,516,318"], "--intrinsics must be four numbers fx,fy,cx,cy"),
+    (["--intrinsics", "0,516,318,255"], "--intrinsics: the focal lengths fx, fy must be positive"),
+    (["--intrinsics", ",".join(map(str, FR1)), "--depth-scale", "0"], "--depth-scale must be in [1, 1e+06]"),
+])
+def test_compare_names_a_missing_or_bad_camera_and_scale_in_one_line(millimetre_folder, tmp_path, args, words):
+    one_line_error("odolab.compare", "--tum", millimetre_folder, "--odometers", "ground-truth", *args,
+                   "--out", tmp_path / "o", words=words)
+
+
+def test_the_tum_options_need_a_tum_folder(tmp_path):
+    one_line_error("odolab.compare", "--depth-scale", "1000", "--out", tmp_path / "o",
+                   words="--depth-scale describes a TUM folder's images; it needs --tum")

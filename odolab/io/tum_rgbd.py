@@ -13,9 +13,15 @@ image of a kept frame is decoded once and checked (readable, colour 8-bit, depth
 channel, the camera's size, inside the folder), so a bad file is found before any odometer runs;
 frames are decoded again when asked for. Every problem raises
 :class:`~odolab.io.errors.FileFormatError` naming the file, the line and what is wrong.
+
+Other recordings in the same layout may store depth at another scale (many store millimetres:
+``depth_scale=1000``) and come from another camera (``intrinsics``).
+:meth:`TumSequence.depth_warning` says when the depth's median is implausible for the scale
+(outside :data:`PLAUSIBLE_MEDIAN_DEPTH`), the sign of a wrong scale.
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -30,10 +36,24 @@ from odolab.io.tum import associate, read_tum_trajectory
 from odolab.types import Action, Frame, Intrinsics
 from odolab.trajectory import Trajectory
 
-__all__ = ["TUM_CAMERAS", "TUM_DEPTH_SCALE", "TumSequence", "load_tum_sequence", "tum_camera_for"]
+__all__ = ["PLAUSIBLE_MEDIAN_DEPTH", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "TumSequence", "UnknownCameraError",
+           "load_tum_sequence", "tum_camera_for"]
 
 #: Depth PNG value per metre.
 TUM_DEPTH_SCALE = 5000.0
+#: Accepted depth scales (PNG value per metre): from 1 (metres) to 10^6 (micrometres).
+DEPTH_SCALE_RANGE = (1.0, 1e6)
+#: Median depth (m) of an RGB-D recording indoors: beyond this the depth scale is likely wrong
+#: (a depth camera reads little nearer than 0.5 m, and its readings thin out beyond 4-5 m; TUM's
+#: sequences have medians of 1-3 m, so TUM depth read as millimetres is 5-15 m, millimetres read
+#: as TUM depth 0.2-0.6 m).
+PLAUSIBLE_MEDIAN_DEPTH = (0.5, 5.0)
+#: Frames whose depth the median is taken over (evenly spaced).
+MEDIAN_FRAMES = 10
+
+
+class UnknownCameraError(ValueError):
+    """The folder's name names no TUM camera and no intrinsics were given."""
 
 #: The benchmark's published pinhole intrinsics of its three Kinects (640x480, no undistortion).
 TUM_CAMERAS: dict[str, Intrinsics] = {
@@ -76,9 +96,11 @@ class TumSequence:
     collisions = None
 
     def __init__(self, root: Path, intrinsics: Intrinsics, frames: list[_FrameFiles],
-                 dropped: dict[str, int] | None = None) -> None:
+                 dropped: dict[str, int] | None = None, depth_scale: float = TUM_DEPTH_SCALE) -> None:
         self.root = root
         self.intrinsics = intrinsics
+        #: Depth PNG value per metre.
+        self.depth_scale = float(depth_scale)
         self._frames = frames
         #: Colour images left out, by reason: ``"no depth"`` (no depth image within the time
         #: limit) and ``"no ground truth"`` (no ground-truth sample within it).
@@ -93,6 +115,34 @@ class TumSequence:
 
     def __len__(self) -> int:
         return len(self._frames)
+
+    def median_depth(self) -> float | None:
+        """The median (m) of the valid depth readings of up to :data:`MEDIAN_FRAMES` evenly spaced
+        frames (the median of their medians), or None when none has a reading."""
+        picks = np.unique(np.linspace(0, len(self._frames) - 1, min(MEDIAN_FRAMES, len(self._frames))).astype(int))
+        medians = []
+        for k in picks:
+            depth = self._read_depth(self._frames[k].depth)
+            valid = depth[depth > 0]
+            if valid.size:
+                medians.append(float(np.median(valid)))
+        return float(np.median(medians)) if medians else None
+
+    def depth_warning(self) -> str | None:
+        """A sentence when :meth:`median_depth` is outside :data:`PLAUSIBLE_MEDIAN_DEPTH` (the depth
+        scale is likely wrong, e.g. millimetres read at TUM's 5000 per metre), else None."""
+        median = self.median_depth()
+        low, high = PLAUSIBLE_MEDIAN_DEPTH
+        if median is None or low <= median <= high:
+            return None
+        raw = median * self.depth_scale
+        guess = next((s for s in (1000.0, TUM_DEPTH_SCALE, 1.0) if low <= raw / s <= high and s != self.depth_scale),
+                     None)
+        hint = (f" At {guess:g} per metre{' (millimetres)' if guess == 1000.0 else ''} it would be "
+                f"{raw / guess:.2f} m." if guess is not None else "")
+        return (f"{self.root}: the depth's median is {median:.2f} m at a depth scale of {self.depth_scale:g} PNG "
+                f"values per metre, implausible for an RGB-D camera indoors (expected {low:g}-{high:g} m): "
+                f"is the scale right?{hint}")
 
     @property
     def name(self) -> str:
@@ -157,7 +207,7 @@ class TumSequence:
             kind = f"{raw.shape[2]}-channel " if raw.ndim == 3 else ""
             raise _image_error(listed, f"depth must be a 16-bit single-channel image, got {kind}{raw.dtype}")
         self._check_size(listed, raw.shape, "depth")
-        return raw.astype(np.float32) / np.float32(TUM_DEPTH_SCALE)
+        return raw.astype(np.float32) / np.float32(self.depth_scale)
 
 
 def tum_camera_for(folder: str | os.PathLike) -> Intrinsics | None:
@@ -167,27 +217,52 @@ def tum_camera_for(folder: str | os.PathLike) -> Intrinsics | None:
 
 
 def load_tum_sequence(
-    path: str | os.PathLike, intrinsics: Intrinsics | None = None, max_time_diff: float = 0.02,
-    check_images: bool = True,
+    path: str | os.PathLike, intrinsics: Intrinsics | tuple[float, float, float, float] | None = None,
+    max_time_diff: float = 0.02, check_images: bool = True, depth_scale: float = TUM_DEPTH_SCALE,
 ) -> TumSequence:
     """Read the TUM RGB-D folder ``path`` (see the module docstring) as a :class:`TumSequence`.
 
-    ``intrinsics``: the camera; by default the TUM camera named in the folder's name.
+    ``intrinsics``: the camera, or its pinhole ``(fx, fy, cx, cy)`` in pixels (the image size is
+    then the first colour image's); by default the TUM camera named in the folder's name
+    (:class:`UnknownCameraError` when it names none).
     ``max_time_diff``: seconds allowed between a colour image and its depth image and between a
     frame and its ground-truth sample (TUM's ``associate.py`` uses 0.02).
     ``check_images``: decode and check every image now (:meth:`TumSequence.check_images`).
+    ``depth_scale``: depth PNG value per metre (TUM: 5000; millimetres: 1000), in
+    :data:`DEPTH_SCALE_RANGE`.
     """
     root = Path(path)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such folder (expected a TUM RGB-D sequence)")
+    low, high = DEPTH_SCALE_RANGE
+    if isinstance(depth_scale, bool) or not isinstance(depth_scale, (int, float, np.number)) \
+            or not math.isfinite(depth_scale) or not low <= depth_scale <= high:
+        raise ValueError(f"depth_scale must be a number of PNG values per metre in [{low:g}, {high:g}], "
+                         f"got {depth_scale!r:.40}")
+    if intrinsics is not None and not isinstance(intrinsics, Intrinsics):
+        intrinsics = tuple(intrinsics)
+        if len(intrinsics) != 4 or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
+                                           and math.isfinite(v) for v in intrinsics):
+            raise ValueError(f"intrinsics must be an Intrinsics or four finite numbers (fx, fy, cx, cy), "
+                             f"got {intrinsics!r:.80}")
+        if min(intrinsics[:2]) <= 0:
+            raise ValueError(f"intrinsics: the focal lengths fx, fy must be positive, got {intrinsics[0]:g}, "
+                             f"{intrinsics[1]:g}")
     if intrinsics is None:
         intrinsics = tum_camera_for(root)
         if intrinsics is None:
-            raise ValueError(
+            raise UnknownCameraError(
                 f"{root}: cannot tell the camera from the folder name (no 'freiburg1/2/3' or "
-                f"'fr1/2/3' in it); pass intrinsics=..., e.g. odolab.io.tum_rgbd.TUM_CAMERAS['freiburg1']"
+                f"'fr1/2/3' in it); give its intrinsics=..., e.g. odolab.io.tum_rgbd.TUM_CAMERAS['freiburg1'] "
+                "or (fx, fy, cx, cy)"
             )
     rgb = _read_list(root / "rgb.txt")
+    if not isinstance(intrinsics, Intrinsics):  # the pinhole alone: the size is the images'
+        first = cv2.imread(str(rgb[0].path), cv2.IMREAD_COLOR)
+        if first is None:
+            raise _image_error(rgb[0], "cannot be read as an image")
+        fx, fy, cx, cy = (float(v) for v in intrinsics)
+        intrinsics = Intrinsics(fx, fy, cx, cy, int(first.shape[1]), int(first.shape[0]))
     depth = _read_list(root / "depth.txt")
     gt = read_tum_trajectory(root / "groundtruth.txt")
 
@@ -209,7 +284,7 @@ def load_tum_sequence(
         _FrameFiles(rgb[i_rgb[k]], depth[i_depth[k]], gt.poses[g]) for k, g in zip(i_pair, i_gt)
     ]
     dropped = {"no depth": len(rgb) - len(i_rgb), "no ground truth": len(i_rgb) - len(i_pair)}
-    seq = TumSequence(root, intrinsics, frames, dropped)
+    seq = TumSequence(root, intrinsics, frames, dropped, float(depth_scale))
     if check_images:
         seq.check_images()
     return seq
