@@ -2,10 +2,12 @@
 
 Command line::
 
-    python -m odolab.evaluate GT EST [EST ...] --format kitti|tum [--align none|se3|sim3]
+    python -m odolab.evaluate GT EST [EST ...] [--format kitti|tum] [--align none|se3|sim3]
         [--delta 1 --delta-unit f|m] [--t-max-diff 0.01] [--json] [--plot FILE.png]
         [--min-coverage X]
 
+Without ``--format`` the format is told from the files' column count (8: TUM, 12: KITTI; a file
+whose extension, ``.tum`` or ``.kitti``, says otherwise, or files of both formats, are refused).
 KITTI files pair line by line (unequal lengths are an error); TUM files pair by nearest timestamp
 exactly as ``evo`` does (:func:`odolab.io.tum.associate`). The estimate is aligned to the ground
 truth once (``--align``, default ``se3``: rigid Umeyama, as ``evo_ape -a``); ATE, RPE and the
@@ -50,7 +52,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("gt", help="ground-truth trajectory file")
     ap.add_argument("est", nargs="+", help="estimated trajectory file(s)")
-    ap.add_argument("--format", required=True, choices=FORMATS, help="file format of all files")
+    ap.add_argument("--format", default=None, choices=FORMATS,
+                    help="file format of all files (default: told from their column count, 8 TUM, 12 KITTI)")
     ap.add_argument("--align", default="se3", choices=metrics.ALIGNMENTS,
                     help="Umeyama alignment of each estimate to the ground truth (default se3)")
     ap.add_argument("--delta", type=number("--delta", float, 0, MAX_DELTA), default=1.0,
@@ -66,6 +69,34 @@ def _parser() -> argparse.ArgumentParser:
                          "ground-truth poses with an estimate within reach (half the estimate's median "
                          "interval, at least --t-max-diff), so a complete estimate at half the rate covers 1")
     return ap
+
+
+def _format(paths: list[str]) -> str:
+    """The one format of all ``paths``, told from their column counts; :class:`UsageError` naming
+    the file that cannot be told, or two files of different formats."""
+    from odolab.io.textfiles import infer_format
+
+    found: dict[str, str] = {}
+    for path in paths:
+        try:
+            found[path] = infer_format(path)
+        except FileFormatError as exc:
+            raise UsageError(f"{exc}; give --format kitti or tum") from None
+        first = paths[0]
+        if found[path] != found[first]:
+            raise UsageError(f"{path} is a {found[path].upper()} file but {first} a {found[first].upper()} file; "
+                             "give files of one format")
+    return found[paths[0]]
+
+
+def _kitti_note(path: str, ev: Evaluation) -> str | None:
+    """Why the KITTI errors of ``path`` are ``-`` (no segment), or None when there are some."""
+    if ev.kitti.n_segments:
+        return None
+    length = float(metrics.path_lengths(ev.gt_poses[:, :3, 3])[-1]) if len(ev.gt_poses) else 0.0
+    lo, hi = metrics.KITTI_LENGTHS[0], metrics.KITTI_LENGTHS[-1]
+    return (f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of {lo:g}-{hi:g} m of the "
+            f"ground truth, and its paired poses span a path of {length:.4g} m")
 
 
 def _read(path: str, fmt: str, duplicates: dict[str, int]) -> Trajectory:
@@ -121,6 +152,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.delta <= 0 or (args.delta_unit == "f" and args.delta != int(args.delta)):
         raise UsageError(f"--delta must be positive (a whole number of frames for -u f), got {args.delta:g}")
 
+    if args.format is None:
+        args.format = _format([args.gt, *args.est])
     args.duplicates = {}
     gt = _read(args.gt, args.format, args.duplicates)
     method = "index" if args.format == "kitti" else "timestamp"
@@ -151,6 +184,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stdout.write("\n")
     else:
         print(_table(args.gt, args.format, args, rows))
+        for path, ev in rows:
+            note = _kitti_note(path, ev)
+            if note:
+                print(note)
     if args.plot:  # after the table: a failing figure never loses it
         from odolab.trajectory_plot import plot_evaluations
 

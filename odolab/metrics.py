@@ -351,16 +351,30 @@ def rpe(
     gt, est = _paired(gt_poses, est_poses)
     pairs = rpe_pairs(gt if pairs_from_gt else est, delta, delta_unit, all_pairs, rel_delta_tol)
     if len(pairs) == 0:
-        raise ValueError(
-            f"RPE: delta = {delta:g} ({'frames' if delta_unit == 'f' else 'm'}) gives no pose pair "
-            f"among {len(gt)} poses; use a smaller delta"
-        )
+        raise ValueError(_no_rpe_pair(gt if pairs_from_gt else est, delta, delta_unit, rel_delta_tol))
     trans, rot = _relative_errors(gt, est, pairs[:, 0], pairs[:, 1])
     rot = np.degrees(rot)
     return RPEResult(
         trans=ErrorStats.of(trans), rot=ErrorStats.of(rot), trans_errors=trans, rot_errors=rot,
         pairs=pairs, delta=float(delta), delta_unit=delta_unit, all_pairs=all_pairs,
     )
+
+
+def _no_rpe_pair(poses: np.ndarray, delta: float, delta_unit: str, rel_tol: float) -> str:
+    """Why ``delta`` gives no RPE pair among ``poses``, in words that are true for the case."""
+    unit = "frames" if delta_unit == "f" else "m"
+    if len(poses) < 2:
+        return f"RPE needs at least 2 poses to compare, got {len(poses)}"
+    if delta_unit == "f":
+        return (f"RPE: delta = {delta:g} frames gives no pose pair among {len(poses)} poses; "
+                f"a delta of at most {len(poses) - 1} frames does")
+    length = float(path_lengths(poses[:, :3, 3])[-1])
+    if length == 0:
+        return f"RPE: delta = {delta:g} m gives no pose pair: the {len(poses)} poses do not move (a path of 0 m)"
+    if delta > length:
+        return (f"RPE: delta = {delta:g} {unit} gives no pose pair: the path is {length:.4g} m long; "
+                "a delta shorter than the path does")
+    return f"RPE: no two of the {len(poses)} poses are {delta:g} {unit} apart along the path (within {rel_tol:.0%})"
 
 
 def relative_motion_errors(gt_poses: np.ndarray, est_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -228,3 +228,64 @@ def test_compare_names_a_missing_or_bad_camera_and_scale_in_one_line(millimetre_
 def test_the_tum_options_need_a_tum_folder(tmp_path):
     one_line_error("odolab.compare", "--depth-scale", "1000", "--out", tmp_path / "o",
                    words="--depth-scale describes a TUM folder's images; it needs --tum")
+
+
+# ----------------------------------------------------------------------------- evaluate's frictions
+
+TUM_OK = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 1 1 0 0 0 0 1\n4.0 0 1 1 0 0 0 1\n"
+KITTI_OK = "".join(f"1 0 0 {x} 0 1 0 {y} 0 0 1 {z}\n" for x, y, z in [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 1)])
+
+
+def _evaluate(capsys, *args) -> tuple[int, str, str]:
+    from odolab.cli import run_cli
+    from odolab.evaluate import main
+
+    code = run_cli(main, "python -m odolab.evaluate", [str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize("text", [TUM_OK, KITTI_OK, "# a comment\n" + TUM_OK])
+def test_evaluate_reads_past_a_byte_order_mark_and_tells_the_format(tmp_path, capsys, text):
+    path = tmp_path / "traj.txt"
+    path.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    code, out, err = _evaluate(capsys, path, path)
+    assert code == 0, err
+    fmt = "kitti" if text is KITTI_OK else "tum"
+    assert f"({len(text.strip().splitlines()) - text.count('#')} poses, {fmt})" in out
+
+
+def test_evaluate_refuses_a_format_it_cannot_tell_in_one_line(tmp_path, capsys):
+    tum, kitti, odd, named = (tmp_path / n for n in ("a.txt", "b.txt", "c.txt", "d.tum"))
+    tum.write_text(TUM_OK)
+    kitti.write_text(KITTI_OK)
+    odd.write_text("1 2 3 4 5\n")
+    named.write_text(KITTI_OK)
+    for args, words in (([tum, kitti], f"{kitti} is a KITTI file but {tum} a TUM file"),
+                        ([odd, odd], "expected 8 columns (TUM) or 12 (KITTI), got 5"),
+                        ([named, named], "named .tum but its lines have 12 columns, as KITTI files do")):
+        code, _, err = _evaluate(capsys, *args)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+    assert _evaluate(capsys, named, named, "--format", "kitti")[0] == 0  # --format decides
+
+
+def test_evaluate_says_why_rpe_has_no_pair_truthfully(tmp_path, capsys):
+    one = tmp_path / "one.txt"
+    one.write_text(TUM_OK.splitlines(True)[0])
+    code, _, err = _evaluate(capsys, one, one, "--align", "none")
+    assert code == 2 and "RPE needs at least 2 poses to compare, got 1" in err and "smaller delta" not in err
+    four = tmp_path / "four.txt"
+    four.write_text(TUM_OK)
+    code, _, err = _evaluate(capsys, four, four, "--delta", "9")
+    assert code == 2 and "a delta of at most 3 frames does" in err
+    code, _, err = _evaluate(capsys, four, four, "--delta", "50", "--delta-unit", "m")
+    assert code == 2 and "the path is 3.414 m long" in err
+
+
+def test_evaluate_says_why_t_rel_is_a_dash(tmp_path, capsys):
+    path = tmp_path / "short.txt"
+    path.write_text(TUM_OK)
+    code, out, _ = _evaluate(capsys, path, path)
+    assert code == 0
+    assert (f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of 100-800 m of the ground "
+            "truth, and its paired poses span a path of 3.414 m") in out

@@ -10,9 +10,10 @@ from odolab.io.errors import FileFormatError
 
 
 def read_lines(path: str | os.PathLike) -> list[str]:
-    """All lines of a UTF-8 text file; OS and decoding problems become :class:`FileFormatError`."""
+    """All lines of a UTF-8 text file (a byte-order mark at its start is dropped); OS and decoding
+    problems become :class:`FileFormatError`."""
     try:
-        with open(path, encoding="utf-8") as f:
+        with open(path, encoding="utf-8-sig") as f:
             return f.read().splitlines()
     except FileNotFoundError:
         raise FileFormatError(path, None, "no such file") from None
@@ -56,6 +57,32 @@ def read_numeric_rows(path: str | os.PathLike, n_cols: int, layout: str) -> tupl
     if not rows:
         raise FileFormatError(path, None, "no poses (the file is empty or only has comments)")
     return np.array(rows, dtype=np.float64), np.array(line_nos, dtype=np.int64)
+
+
+#: Columns of a pose line, per format: TUM ``t tx ty tz qx qy qz qw``, KITTI a row-major 3x4 matrix.
+FORMAT_COLUMNS = {"tum": 8, "kitti": 12}
+
+
+def infer_format(path: str | os.PathLike) -> str:
+    """``"tum"`` or ``"kitti"``, from the column count of the first pose line of trajectory file
+    ``path`` (8 or 12; blank lines and ``#`` comments skipped). :class:`FileFormatError` naming the
+    file when it holds no pose line, or its first one has another count, or its extension names
+    the other format (``.tum``, ``.kitti``)."""
+    for no, line in enumerate(read_lines(path), start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        count = len(text.split())
+        fmt = next((f for f, n in FORMAT_COLUMNS.items() if n == count), None)
+        if fmt is None:
+            raise FileFormatError(path, no, f"cannot tell the trajectory format: expected 8 columns (TUM) or 12 "
+                                            f"(KITTI), got {count}")
+        named = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
+        if named in FORMAT_COLUMNS and named != fmt:
+            raise FileFormatError(path, no, f"named .{named} but its lines have {count} columns, "
+                                            f"as {fmt.upper()} files do")
+        return fmt
+    raise FileFormatError(path, None, "no poses (the file is empty or only has comments)")
 
 
 def _is_number(text: str) -> bool:
