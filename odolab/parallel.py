@@ -4,10 +4,12 @@ single items), so results never depend on where they were computed.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import re
 import socket
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from tqdm.auto import tqdm
 
@@ -50,6 +52,31 @@ def check_ray_option(address: str | None, serial: bool = False) -> None:
         raise UsageError(str(exc)) from None
 
 
+#: The logger of Ray's token-authentication notices (warnings printed as ``ray.init`` starts).
+_TOKEN_NOTICES = "ray._private.authentication.authentication_token_setup"
+
+
+def _errors_only(record: logging.LogRecord) -> bool:
+    """A logging filter that keeps only errors."""
+    return record.levelno >= logging.ERROR
+
+
+@contextlib.contextmanager
+def _token_notices_hidden(local: bool, quiet: bool) -> Iterator[None]:
+    """Hide Ray's token-authentication notices while a Ray instance starts, when it is a local
+    instance odolab starts for itself (the user started no cluster, so the notice is noise) or the
+    user asked for quiet; a user's own cluster keeps them. Errors always pass."""
+    if not (local or quiet):
+        yield
+        return
+    notices = logging.getLogger(_TOKEN_NOTICES)
+    notices.addFilter(_errors_only)
+    try:
+        yield
+    finally:
+        notices.removeFilter(_errors_only)
+
+
 def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
             on_result: Callable[[int, Any], None] | None = None, parallel: bool = True,
             ray_address: str | None = None, progress: bool = True, desc: str = "tasks") -> list[Any]:
@@ -82,16 +109,10 @@ def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
         if started and ray_address is not None:
             check_ray_address(ray_address)
         if started:
-            # Ray's notice about its token authentication is a warning log line: silent when asked to be
-            notice = logging.getLogger("ray._private.authentication.authentication_token_setup")
-            level = notice.level
-            if not progress:
-                notice.setLevel(logging.ERROR)
-            try:
+            with _token_notices_hidden(local=ray_address is None and not os.environ.get("RAY_ADDRESS"),
+                                       quiet=not progress):
                 ray.init(address=ray_address, include_dashboard=False, log_to_driver=False,
                          configure_logging=False)
-            finally:
-                notice.setLevel(level)
         try:
             task = ray.remote(fn)
             pending = {task.remote(item): k for k, item in enumerate(items)}

@@ -1,27 +1,73 @@
 """A progress bar over odometry steps (tqdm), as a :class:`odolab.runner.RunObserver`."""
 from __future__ import annotations
 
+import time
+from typing import IO, Callable
+
 from tqdm.auto import tqdm
 
-__all__ = ["StepProgressBar"]
+__all__ = ["NAME_WIDTH", "StepProgressBar", "fit_name"]
+
+#: Characters the odometer's name takes in the bar (longer names are cut, shorter ones padded).
+NAME_WIDTH = 24
+
+
+def fit_name(name: str, width: int = NAME_WIDTH) -> str:
+    """``name`` padded or cut (ending in "~") to exactly ``width`` characters."""
+    return name.ljust(width) if len(name) <= width else name[:width - 1] + "~"
 
 
 class StepProgressBar:
-    """One tqdm bar over all steps of all odometers; the postfix names the odometer running."""
+    """One tqdm bar over all steps of all odometers, laid out so that nothing moves when the
+    odometer changes: the description, the step counter and the odometer's name have fixed
+    widths, and the rate shown (after the name) is the running odometer's own, its steps over the
+    time spent on them. The remaining time comes from the average rate of the whole run."""
 
-    def __init__(self, desc: str = "odometry steps", disable: bool = False) -> None:
-        self.desc, self.disable = desc, disable
+    def __init__(self, desc: str = "odometry steps", disable: bool = False, file: IO[str] | None = None,
+                 clock: Callable[[], float] = time.perf_counter) -> None:
+        self.desc, self.disable, self.file, self.clock = desc, disable, file, clock
         self._bar: tqdm | None = None
+        self._last = 0.0
+        self._spent: dict[str, tuple[int, float]] = {}  # odometer -> (steps, seconds)
 
     def start(self, total_steps: int | None) -> None:
-        self._bar = tqdm(total=total_steps, desc=self.desc, unit="step", disable=self.disable)
+        """Open the bar; ``total_steps`` may be None (unknown)."""
+        if total_steps is None:  # no share or bar to show; the counter gets room for a million steps
+            bar_format = "{desc}: {n_fmt:>7} steps [{elapsed:>5}{postfix}]"
+        else:
+            bar_format = ("{desc}: {percentage:3.0f}%|{bar}| {n_fmt:>DIGITS}/{total_fmt} [{elapsed:>5}<{remaining:>5}"
+                          "{postfix}]").replace("DIGITS", str(len(str(total_steps))))
+        self._bar = tqdm(total=total_steps, desc=self.desc, unit="step", disable=self.disable, file=self.file,
+                         bar_format=bar_format, smoothing=0.0, dynamic_ncols=self.file is None,
+                         postfix=self.postfix(""))
+        self._last = self.clock()
+        self._spent = {}
+
+    def rate(self, odometer: str) -> float | None:
+        """Steps per second of ``odometer`` measured from its own steps, None before any."""
+        steps, seconds = self._spent.get(odometer, (0, 0.0))
+        return steps / seconds if steps and seconds > 0 else None
+
+    def postfix(self, odometer: str) -> str:
+        """The fixed-width text after the counters: the odometer's name and its own rate."""
+        rate = self.rate(odometer)
+        shown = tqdm.format_sizeof(rate) if rate is not None else "?"
+        return f"{fit_name(odometer)} {shown:>5} step/s"
 
     def advance(self, odometer: str, steps: int) -> None:
+        """``steps`` more steps of ``odometer`` are done, in the time since the previous call; 0
+        steps: ``odometer`` starts a sequence (the time before it, e.g. loading, is nobody's)."""
+        now = self.clock()
+        if steps:
+            done, seconds = self._spent.get(odometer, (0, 0.0))
+            self._spent[odometer] = (done + steps, seconds + max(now - self._last, 0.0))
+        self._last = now
         if self._bar is not None:
-            self._bar.set_postfix_str(odometer, refresh=False)
+            self._bar.set_postfix_str(self.postfix(odometer), refresh=False)
             self._bar.update(steps)
 
     def close(self) -> None:
+        """Close the bar (also after an exception)."""
         if self._bar is not None:
             self._bar.close()
             self._bar = None

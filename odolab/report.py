@@ -184,8 +184,44 @@ def format_table(rows: list[Row], real_data: bool = False) -> str:
     return table + "\n" + textwrap.fill(table_caption(rows, real_data, spread=False), 100)
 
 
+#: An error panel's axis ends at this multiple of its tallest bar among the actions that are not
+#: collisions; a collided bar above it is cut there and its value written on it.
+CLIP_HEADROOM = 1.3
+COLLIDED = "move_forward_collided"
+
+
+def _step_counts(action_rows: list[ActionRow], action: str) -> str:
+    """``n=...`` steps of ``action`` (one number when every odometer had the same, else a range)."""
+    counts = sorted({r.steps for r in action_rows if r.action == action})
+    return f"n={counts[0]}" if len(counts) == 1 else f"n={counts[0]}-{counts[-1]}" if counts else "n=0"
+
+
+def error_axis_top(values: dict[str, list[float]]) -> float | None:
+    """The top of an error panel's axis, given each action's bar heights: the tallest bar of the
+    actions that are not collisions, with :data:`CLIP_HEADROOM`, when a collided bar is taller than
+    that (the few collided steps would otherwise set the scale); None: no bar needs cutting."""
+    usual = [v for a, vals in values.items() if a != COLLIDED for v in vals if np.isfinite(v)]
+    collided = [v for v in values.get(COLLIDED, []) if np.isfinite(v)]
+    if not usual or not collided or max(usual) <= 0:
+        return None
+    top = CLIP_HEADROOM * max(usual)
+    return top if max(collided) > top else None
+
+
+def _bar_value(row: ActionRow | None, comp: str) -> float:
+    """One bar of :func:`plot_errors`: the row's error component, or its failed steps in % ("failed")."""
+    if row is None:
+        return float("nan")
+    if comp == "failed":
+        return 100.0 * row.failures / row.steps if row.steps else float("nan")
+    return float(getattr(row, comp))
+
+
 def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
-    """Grouped bars: per-step error (x 1e-2) of each odometer, one bar per action, one panel per axis."""
+    """Grouped bars: per-step error as used (x 1e-2) of each odometer, one bar per action (its step
+    count in the legend), one panel per axis, and the failed steps. Collided forward steps are few,
+    and their large dz error would squash every other bar: a panel's axis is cut above the other
+    actions' bars (see :func:`error_axis_top`) and a cut bar carries its value."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -193,27 +229,36 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
 
     names = list(dict.fromkeys(r.odometer for r in action_rows))
     actions = list(dict.fromkeys(r.action for r in action_rows))
-    fig, axes = plt.subplots(1, 4, figsize=(max(12, 2.6 * len(names)), 4.4))
+    fig, axes = plt.subplots(1, 4, figsize=(max(12, 2.6 * len(names)), 4.8))
     x = np.arange(len(names))
     width = 0.8 / max(len(actions), 1)
-    panels = [("dx", "mean |error| of dx (x1e-2 m)", "per-step error: dx"),
-              ("dz", "mean |error| of dz (x1e-2 m)", "per-step error: dz"),
-              ("dyaw", "mean |error| of dyaw (x1e-2 rad)", "per-step error: dyaw"),
+    panels = [("dx", "mean |error| of dx, as used (x1e-2 m)", "per-step error as used: dx"),
+              ("dz", "mean |error| of dz, as used (x1e-2 m)", "per-step error as used: dz"),
+              ("dyaw", "mean |error| of dyaw, as used (x1e-2 rad)", "per-step error as used: dyaw"),
               ("failed", "failed steps (% of the action's steps)", "failures (prior used instead)")]
     for ax, (comp, ylabel, title) in zip(axes, panels):
+        values: dict[str, list[float]] = {}
+        for a in actions:
+            rows = [next((r for r in action_rows if r.odometer == n and r.action == a), None) for n in names]
+            values[a] = [_bar_value(row, comp) for row in rows]
+        top = None if comp == "failed" else error_axis_top(values)
         for k, a in enumerate(actions):
-            vals = []
-            for n in names:
-                row = next((r for r in action_rows if r.odometer == n and r.action == a), None)
-                vals.append(np.nan if row is None else
-                            100.0 * row.failures / row.steps if comp == "failed" else getattr(row, comp))
-            ax.bar(x + (k - (len(actions) - 1) / 2) * width, vals, width, label=a,
-                   color=_ACTION_COLORS.get(a))
+            xs = x + (k - (len(actions) - 1) / 2) * width
+            ax.bar(xs, values[a], width, label=f"{a} ({_step_counts(action_rows, a)})", color=_ACTION_COLORS.get(a))
+            for xi, v in zip(xs, values[a]):
+                if top is not None and np.isfinite(v) and v > top:  # cut at the axis: write the value
+                    ax.text(xi, top * 0.98, f"{v:.1f}", rotation=90, ha="center", va="top", fontsize=7,
+                            color="white", fontweight="bold")
+        if top is not None:
+            ax.set_ylim(0, top)
+            title += f"\n(axis cut at {top:.1f}: taller bars carry their value)"
         ax.set_xticks(x, names, rotation=30, ha="right", fontsize=8)
         ax.set_ylabel(ylabel)
-        ax.set_title(title)
+        ax.set_title(title, fontsize=10)
         ax.grid(True, axis="y", alpha=0.3)
-    axes[0].legend(title="action", fontsize=8)
+    axes[0].legend(title="action (steps per odometer)", fontsize=7, title_fontsize=8)
+    fig.suptitle("Per-step error by odometer and action; as used: a failed step is scored with the action "
+                 "prior that replaced it", fontsize=10)
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -227,33 +272,54 @@ class FloorPlan:
     free: np.ndarray
     origin: tuple[float, float]
     resolution: float
+    goal: tuple[float, float] | None = None  # the episode's PointGoal (world x, y m), when known
+
+
+#: Grey level (0 black, 1 white) of obstacles in top-down figures; free floor is white.
+OBSTACLE_SHADE = 0.75
+#: Colours of the odometers' trajectories over a floor plan: saturated, none of them grey or black
+#: (obstacles are grey, ground truth black); after these, the colours repeat with another line style.
+TRAJECTORY_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22",
+                     "#17becf", "#393b79", "#7b4173", "#637939")
+_LINE_STYLES = ("-", "--", ":", "-.")
+
+
+def trajectory_style(index: int) -> tuple[str, str]:
+    """The colour and line style of the ``index``-th odometer in top-down figures."""
+    colors = len(TRAJECTORY_COLORS)
+    return TRAJECTORY_COLORS[index % colors], _LINE_STYLES[(index // colors) % len(_LINE_STYLES)]
 
 
 def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan: FloorPlan | None = None) -> None:
     """Top-down (world X, Y in metres) true vs integrated trajectories of one sequence, over its
-    floor plan when given (free = white, obstacles = grey); the legend sits below the axes so it
-    never hides the map. ``names`` fixes each odometer's colour across figures."""
+    floor plan when given (free = white, obstacles = grey), with the shared start (circle), each
+    trajectory's end (square, in its colour) and the plan's goal (star; an arrow at the edge when it
+    lies outside the view); the legend sits below the axes so it never hides the map. ``names``
+    fixes each odometer's colour (:func:`trajectory_style`) across figures."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
-    cmap = plt.get_cmap("tab10")
     gt = mine[0].gt_poses[:, :3, 3]
     fig, ax = plt.subplots(figsize=(5.6, 6.0))
     if plan is not None:
         h, w = plan.free.shape
         extent = (plan.origin[0], plan.origin[0] + w * plan.resolution,
                   plan.origin[1], plan.origin[1] + h * plan.resolution)
-        ax.imshow(np.where(plan.free, 1.0, 0.75), cmap="gray", vmin=0, vmax=1, origin="lower",
+        ax.imshow(np.where(plan.free, 1.0, OBSTACLE_SHADE), cmap="gray", vmin=0, vmax=1, origin="lower",
                   extent=extent, interpolation="nearest")
     ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2.5, label="ground truth")
-    ax.plot(gt[0, 0], gt[0, 1], "ko", ms=7)
+    ax.plot(gt[-1, 0], gt[-1, 1], "ks", ms=7, zorder=4)
     for r in mine:
         if r.odometer == "ground-truth":
             continue
         p = r.poses[:, :3, 3]
-        ax.plot(p[:, 0], p[:, 1], "-", lw=1.3, color=cmap(names.index(r.odometer) % 10), label=r.odometer)
+        color, style = trajectory_style(names.index(r.odometer))
+        ax.plot(p[:, 0], p[:, 1], style, lw=1.3, color=color, label=r.odometer)
+        ax.plot(p[-1, 0], p[-1, 1], "s", ms=6, color=color, markeredgecolor="k", markeredgewidth=0.6, zorder=4)
+    ax.plot(gt[0, 0], gt[0, 1], "o", ms=8, color="w", markeredgecolor="k", markeredgewidth=1.5, zorder=5)
     everything = np.concatenate([gt[:, :2]] + [r.poses[:, :2, 3] for r in mine])
     centre = (everything.min(axis=0) + everything.max(axis=0)) / 2
     extent = float(np.ptp(everything, axis=0).max())
@@ -261,15 +327,41 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     half = extent / 2 + margin  # a square view: equal axes, no warning
     ax.set_xlim(centre[0] - half, centre[0] + half)  # the trajectories, not the whole plan, fill it
     ax.set_ylim(centre[1] - half, centre[1] + half)
+    markers = [Line2D([], [], ls="none", marker="o", ms=7, color="w", markeredgecolor="k", label="start"),
+               Line2D([], [], ls="none", marker="s", ms=6, color="0.3", markeredgecolor="k",
+                      label="end (each trajectory's colour)")]
+    if plan is not None and plan.goal is not None:
+        markers.append(_draw_goal(ax, np.asarray(plan.goal, dtype=float), centre, half, gt[-1, :2]))
     ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("world x (m)")
     ax.set_ylabel("world y (m)")
-    ax.set_title(f"{mine[0].sequence}: {len(gt) - 1} steps (start = dot)", fontsize=10)
+    ax.set_title(f"{mine[0].sequence}: {len(gt) - 1} steps", fontsize=10)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False)
+    handles, _ = ax.get_legend_handles_labels()
+    ax.legend(handles=handles + markers, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2,
+              frameon=False)
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
+
+
+def _draw_goal(ax, goal: np.ndarray, centre: np.ndarray, half: float, end: np.ndarray):
+    """Draw the goal as a star inside the view ``centre`` +- ``half`` (m), or, outside it, as an arrow
+    near the view's edge pointing to it, labelled with its distance from the true ``end``; returns
+    the legend's handle for it."""
+    from matplotlib.lines import Line2D
+
+    style = dict(marker="*", ms=13, color="gold", markeredgecolor="k", markeredgewidth=0.8)
+    offset = goal - centre
+    if np.all(np.abs(offset) <= half):
+        ax.plot(goal[0], goal[1], ls="none", zorder=6, **style)
+        return Line2D([], [], ls="none", label="goal", **style)
+    edge = centre + offset * (0.88 * half / np.abs(offset).max())  # on the way to the goal, inside the view
+    tail = centre + offset * (0.62 * half / np.abs(offset).max())
+    ax.annotate(f"goal {np.linalg.norm(goal - end):.1f} m\nfrom the end", xy=edge, xytext=tail, fontsize=7, ha="center",
+                va="center", zorder=6, arrowprops=dict(arrowstyle="-|>", color="k", lw=1.2),
+                bbox=dict(boxstyle="round,pad=0.2", fc="gold", ec="k", lw=0.6))
+    return Line2D([], [], ls="none", label="goal (off view: arrow)", **style)
 
 
 def write_trajectories(results: list[SequenceResult], out: OutputFolder) -> None:

@@ -99,7 +99,8 @@ class RunObserver(Protocol):
         """``total_steps``: steps summed over odometers and sequences, or None when unknown."""
 
     def advance(self, odometer: str, steps: int) -> None:
-        """``steps`` more steps of ``odometer`` are done."""
+        """``steps`` more steps of ``odometer`` are done; 0 steps: ``odometer`` starts a sequence
+        (its time counts from here)."""
 
     def close(self) -> None:
         """The run ended (also after an exception)."""
@@ -219,6 +220,8 @@ def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrio
     actions = np.array([NO_ACTION if a is None else a.value for a in (seq.action(i) for i in range(n))], np.int8)
     oracle = bool(odometer.oracle)
     with odometer_threads(odometer):
+        if observer is not None:
+            observer.advance(name, 0)
         try:
             odometer.reset(seq.intrinsics)
         except (Exception, SystemExit) as exc:  # a broken odometer fails this sequence, not the comparison

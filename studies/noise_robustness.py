@@ -109,6 +109,17 @@ def growth_table(doc: dict, odometers: list[str], levels: list[float]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def growth_label(base: float, value: float) -> str:
+    """The change from ``base`` to ``value`` in percent: one decimal below 10 %, whole percent
+    above ("+4.6 %", "-2.0 %", "+35 %", "0.0 %"); empty when ``base`` is not positive."""
+    if not base > 0:
+        return ""
+    change = 100.0 * (value / base - 1.0)
+    if abs(change) < 0.05:
+        return "0.0 %"
+    return f"{change:+.1f} %" if abs(change) < 9.95 else f"{change:+.0f} %"
+
+
 def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> None:
     """Grouped bars: per component, each odometer's error at noise x1 (light) and x``level`` (dark)."""
     import io
@@ -129,10 +140,11 @@ def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> 
         ax.bar(x - width / 2, lo, width, color="C0", alpha=0.45, label="sensor noise x1")
         ax.bar(x + width / 2, hi, width, color="C0", label=f"sensor noise x{level:g}")
         for xi, a, b in zip(x, lo, hi):
-            ax.text(xi + width / 2, b, f"x{b / a:.1f}" if a > 0 else "", ha="center", va="bottom", fontsize=8)
+            ax.text(xi + width / 2, b, growth_label(a, b), ha="center", va="bottom", fontsize=8)
+        ax.set_ylim(0, 1.12 * max([*lo, *hi, 1e-9]))  # room for the labels
         ax.set_xticks(x, names, rotation=25, ha="right", fontsize=8)
         ax.set_ylabel(f"mean |error| x 1e-2 ({unit})")
-        ax.set_title(f"{comp}: per-step error as used (label: growth)", fontsize=10)
+        ax.set_title(f"{comp}: per-step error as used (label: change at x{level:g})", fontsize=10)
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(fontsize=8)
     n = doc["config"]["episodes"]

@@ -68,6 +68,8 @@ def _csv(rows: list[dict], keys: list[str]) -> str:
 
 
 def metrics_figure(table: list[dict], path: Path) -> None:
+    """Bars of success, SPL and SoftSPL per odometer with their 95 % intervals; the legend sits
+    outside the axes, right of them, so it hides no bar or interval."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -85,7 +87,8 @@ def metrics_figure(table: list[dict], path: Path) -> None:
     ax.set_ylabel("mean over episodes (95 % interval)")
     ax.set_title(f"PointGoal navigation, {table[0]['episodes'] if table else 0} episodes per odometer", fontsize=10)
     ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right", ncol=3, frameon=True)
+    ax.legend(title="metric", fontsize=8, title_fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              frameon=False)
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
