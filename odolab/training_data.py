@@ -16,6 +16,12 @@ A folder holds ``dataset.json`` (the config and, per shard, its file and counts)
 
 :class:`TrainingData` opens a folder and hands out batches of pairs (``frame f -> f + 1`` of one
 episode) or windows of consecutive frames, reading only the frames asked for. No torch here.
+
+Each shard's CRC-32 (of the whole file) is written in ``dataset.json`` when the shard is made, and
+checked the first time a :class:`TrainingData` object maps the shard's frames (once per shard and
+process: one read of the file, which the frames are read from anyway); a shard made before
+checksums were kept is checked against its zip archive's own CRC-32 of each array instead. A
+damaged shard raises :class:`DamagedShardError` naming it.
 """
 from __future__ import annotations
 
@@ -40,7 +46,8 @@ from odolab.sim.camera import CameraSpec
 from odolab.sim.scenes import SPLITS
 from odolab.types import MOTION_ACTIONS, Action, Intrinsics
 
-__all__ = ["DataConfig", "TrainingData", "make_training_data", "resize_frame"]
+__all__ = ["DamagedShardError", "DataConfig", "TrainingData", "file_crc32", "make_training_data", "resize_frame",
+           "verify_shard"]
 
 FORMAT = 1
 MANIFEST = "dataset.json"
@@ -50,6 +57,42 @@ MAX_EPISODE_INDEX = 2**31 - 1
 MAX_EPISODES = 1_000_000
 MAX_EPISODES_PER_SHARD = 1000
 _ARRAYS = ("rgb", "depth_mm", "poses", "actions", "collisions", "episode")
+
+
+class DamagedShardError(ValueError):
+    """A shard whose bytes are not those written when it was made (a flipped byte, a cut copy)."""
+
+
+def file_crc32(path: str | os.PathLike, chunk: int = 1 << 24) -> int:
+    """The CRC-32 (:func:`zlib.crc32`) of the file's bytes, read ``chunk`` bytes at a time."""
+    crc = 0
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            crc = zlib.crc32(block, crc)
+    return crc
+
+
+def verify_shard(path: Path, entry: dict) -> None:
+    """:class:`DamagedShardError` unless shard ``path`` holds the bytes its manifest ``entry``'s
+    ``crc32`` says; an entry without one (a shard made before checksums were kept) is checked
+    against the zip archive's CRC-32 of each member."""
+    advice = "delete it and run the python -m odolab.training_data command again"
+    expected = entry.get("crc32")
+    if expected is not None:
+        if isinstance(expected, bool) or not isinstance(expected, int):
+            raise DamagedShardError(f"{path}: its crc32 in {MANIFEST} must be an integer, got {expected!r:.40}; {advice}")
+        got = file_crc32(path)
+        if got != expected:
+            raise DamagedShardError(f"{path}: damaged: its CRC-32 is {got:08x}, but {expected:08x} was written with "
+                                    f"it in {MANIFEST}; {advice}")
+        return
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (OSError, zipfile.BadZipFile, zlib.error, EOFError) as exc:
+        raise DamagedShardError(f"{path}: damaged ({exc}); {advice}") from None
+    if bad is not None:
+        raise DamagedShardError(f"{path}: damaged: array {bad} does not match the CRC-32 stored with it; {advice}")
 
 
 def resize_frame(rgb: np.ndarray, depth: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -216,7 +259,7 @@ def make_training_data(cfg: DataConfig, root: str | os.PathLike, *, ray_address:
         with atomic_open(root / names[i], "wb") as f:
             np.savez(f, **arrays)
         doc["shards"][names[i]] = {"index": i, "episodes": len(groups[i]), "frames": int(len(arrays["actions"])),
-                                   "pairs": _action_counts(arrays["actions"])}
+                                   "pairs": _action_counts(arrays["actions"]), "crc32": file_crc32(root / names[i])}
         write_manifest()
 
     for orphan in root.glob(".shard-*.tmp"):  # a shard being written when a run was killed
@@ -253,6 +296,8 @@ class TrainingData:
             raise ValueError(f"{self.root}: {len(missing)} of {len(expected)} shards missing (e.g. {missing[0]}); "
                              "run the same python -m odolab.training_data command again to finish it")
         self.shards = expected
+        #: Per shard, its manifest entry (its CRC-32 among others), checked on first use.
+        self._entries = [doc["shards"][n] if isinstance(doc["shards"][n], dict) else {} for n in expected]
         small = []
         for name in self.shards:
             try:
@@ -292,8 +337,11 @@ class TrainingData:
         return np.flatnonzero(np.isin(self.pair_actions, [a.value for a in actions]))
 
     def _shard(self, s: int) -> dict[str, np.ndarray]:
+        """The frames of shard ``s``, mapped; the first time in this object (and process), after
+        :func:`verify_shard`."""
         if s not in self._maps:
             path = self.root / self.shards[s]
+            verify_shard(path, self._entries[s])
             self._maps[s] = {k: mmap_npz_member(path, k) for k in ("rgb", "depth_mm")}
         return self._maps[s]
 

@@ -289,3 +289,64 @@ def test_evaluate_says_why_t_rel_is_a_dash(tmp_path, capsys):
     assert code == 0
     assert (f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of 100-800 m of the ground "
             "truth, and its paired poses span a path of 3.414 m") in out
+
+
+# ----------------------------------------------------------------------------- damaged training shards
+
+@pytest.fixture(scope="module")
+def shards(tmp_path_factory) -> Path:
+    from odolab.training_data import DataConfig, make_training_data
+
+    root = tmp_path_factory.mktemp("data") / "train"
+    make_training_data(DataConfig(split="train", episodes=2, max_steps=4, width=24, height=16, episodes_per_shard=1),
+                       root, parallel=False, progress=False)
+    return root
+
+
+def _flip_a_frame_byte(shard: Path) -> None:
+    from odolab.io.npz_mmap import mmap_npz_member
+
+    offset = mmap_npz_member(shard, "rgb").offset + 5  # a pixel of the first frame: np.load never reads it
+    data = bytearray(shard.read_bytes())
+    data[offset] ^= 0x10
+    shard.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("old", [False, True], ids=["checksum in the manifest", "shard made before checksums"])
+def test_a_shard_with_a_flipped_byte_is_named_when_its_frames_are_first_read(shards, tmp_path, old):
+    import json
+
+    from odolab.training_data import MANIFEST, DamagedShardError, TrainingData
+
+    copy = tmp_path / "copy"
+    shutil.copytree(shards, copy)
+    doc = json.loads((copy / MANIFEST).read_text())
+    assert all(isinstance(e["crc32"], int) for e in doc["shards"].values())  # written with each shard
+    if old:
+        for entry in doc["shards"].values():
+            del entry["crc32"]
+        (copy / MANIFEST).write_text(json.dumps(doc))
+    data = TrainingData(copy)
+    data.frames(np.arange(len(data.poses)))  # intact: read without complaint
+    shard = copy / data.shards[0]
+    _flip_a_frame_byte(shard)
+    damaged = TrainingData(copy)  # the small arrays are intact: opening is not the check
+    with pytest.raises(DamagedShardError, match=f"{shard.name}: damaged: "):
+        damaged.frames(np.array([0]))
+
+
+def test_a_shard_is_checked_once_per_process(shards, monkeypatch):
+    from odolab import training_data as td
+
+    calls = []
+    real = td.file_crc32
+    monkeypatch.setattr(td, "file_crc32", lambda path, *a: calls.append(path) or real(path, *a))
+    data = td.TrainingData(shards)
+    for _ in range(3):
+        data.pair_batch(np.arange(len(data)))
+    assert sorted(calls) == sorted(shards / n for n in data.shards)  # each shard once, not once per batch
+    import pickle
+
+    worker = pickle.loads(pickle.dumps(data))  # a data-loader worker is another process: it checks again
+    worker.frames(np.array([0]))
+    assert len(calls) == len(data.shards) + 1
