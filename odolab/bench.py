@@ -123,6 +123,20 @@ def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior")
     return rows
 
 
+#: Recipes ``--only training`` times by default: the shipped one and its full-size variant.
+TRAINING_RECIPES = ("studies/robust_vo/shipped.toml", "studies/robust_vo/full-size.toml")
+
+
+def bench_training(recipes: Sequence[Path], device: str | None = None) -> list[dict]:
+    """Training throughput per robust-VO recipe (:mod:`odolab.robust_vo.speed`)."""
+    from odolab.learning import pick_device
+    from odolab.robust_vo.config import load_train_config
+    from odolab.robust_vo.speed import training_speed
+
+    dev = pick_device(device)
+    return [training_speed(load_train_config(str(p)), p.stem, dev) for p in recipes]
+
+
 def _cpu_model() -> str:
     """The CPU's model name (Linux ``/proc/cpuinfo``), or ``"unknown"``: ratios differ between CPUs."""
     try:
@@ -149,8 +163,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers, unknown_odometer
 
     ap = ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["simulator", "odometers", "navigation", "evaluate"], action="append",
+    ap.add_argument("--only", choices=["simulator", "odometers", "navigation", "evaluate", "training"], action="append",
                     help="run only these parts (repeatable; default all)")
+    ap.add_argument("--recipe", type=file_arg("--recipe"), action="append", default=None, metavar="FILE.toml",
+                    help="robust-VO recipe the training part times (repeatable; default: "
+                         + " and ".join(TRAINING_RECIPES) + ")")
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
     ap.add_argument("--json", type=file_arg("--json"), default=None, metavar="FILE.json",
                     help="also write the figures here (a .json file, replaced atomically)")
@@ -159,7 +176,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.json is not None:
         check_output_file(args.json, "--json", [".json"])
-    parts = args.only or ["simulator", "odometers", "navigation", "evaluate"]
+    parts = args.only or ["simulator", "odometers", "navigation", "evaluate", "training"]
+    root = Path(__file__).resolve().parents[1]
+    recipes = args.recipe or [root / r for r in TRAINING_RECIPES]
+    if "training" in parts:
+        from odolab.learning import ConfigError
+        from odolab.robust_vo.config import load_train_config
+
+        for r in recipes:
+            try:
+                load_train_config(str(r))
+            except ConfigError as exc:
+                raise UsageError(f"--recipe: {exc}") from None
+    elif args.recipe:
+        raise UsageError(f"--recipe chooses what the training part times; --only {' '.join(dict.fromkeys(parts))} does not run it")
     if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
         raise UsageError(f"--odometers and --odometer-option choose what the odometer part times; "
                          f"--only {' '.join(dict.fromkeys(parts))} does not run it"
@@ -225,6 +255,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         report["evaluate"] = bench_evaluate()
         print("\n## Trajectory evaluation on KITTI 00 (wall seconds per command)\n")
         print(_table([report["evaluate"]]))
+        save()
+    if "training" in parts:
+        report["training"] = bench_training(recipes)
+        print("\n## Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
+              "own epoch end to end; fp32 bare beside the chosen precision)\n")
+        print(_table(report["training"]))
         save()
     return 0
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from odolab.learning import DataConfig, dataclass_from_toml
+from odolab.learning import ComputeConfig, DataConfig, dataclass_from_toml
 from odolab.learning.configs import check_ranges
 
 #: The original encoder (FlowNetSimple's 9 convolutions): (output channels, kernel, stride).
@@ -49,7 +49,8 @@ class DeepVOTraining:
     """The recipe: windows of ``window`` frames (``window - 1`` pairs) cut from the data, ``batch``
     windows per step, Adam at ``lr``, loss MSE(dx, dz) + ``rotation_weight`` x MSE(dyaw).
     ``init``: start from the weights of this exported DeepVO model (same ``model``; a path from the
-    working directory), e.g. a first stage trained with another rotation weight; "" = fresh weights."""
+    working directory), e.g. a first stage trained with another rotation weight; "" = fresh weights.
+    ``compute``: precision, memory format and batch-making workers (not part of the run's identity)."""
 
     model: DeepVOModel = field(default_factory=DeepVOModel)
     train_data: DataConfig = field(default_factory=DataConfig)
@@ -64,6 +65,7 @@ class DeepVOTraining:
     val_windows: int = 500
     seed: int = 0
     init: str = ""
+    compute: ComputeConfig = field(default_factory=ComputeConfig)
 
     def __post_init__(self) -> None:
         check_ranges("recipe", self, window=(2, 64), batch=(1, 65_536), epochs=(1, 100_000), lr=(1e-12, 1.0),

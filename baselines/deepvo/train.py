@@ -22,7 +22,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from odolab.learning import EpochLoop, TrainingData, load_init, make_training_data, require_finite
+from odolab.learning import EpochLoop, TrainingData, load_init, make_training_data, prefetched, require_finite
+from odolab.learning.epochs import EpochTracker
 from odolab.learning.validation import error_rows, write_report
 
 from baselines.deepvo.config import DeepVOTraining, load_training
@@ -39,6 +40,16 @@ def window_batch(data: TrainingData, starts: np.ndarray, window: int, cfg) -> tu
     x = x.reshape(len(starts), window, *x.shape[1:])
     pairs = starts[:, None] + np.arange(window - 1)[None]
     return x, data.pair_planar[pairs], data.pair_actions[pairs]
+
+
+class WindowBatches:
+    """What one step reads, made on the CPU (in a loader worker): :func:`window_batch` of some starts."""
+
+    def __init__(self, data: TrainingData, window: int, cfg) -> None:
+        self.data, self.window, self.cfg = data, window, cfg
+
+    def __call__(self, starts: np.ndarray) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+        return window_batch(self.data, starts, self.window, self.cfg)
 
 
 def disjoint(starts: np.ndarray, pairs: int) -> np.ndarray:
@@ -111,10 +122,11 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
     rng = np.random.default_rng(cfg.seed)
     if len(val_starts) > cfg.val_windows:
         val_starts = np.sort(rng.choice(val_starts, cfg.val_windows, replace=False))
+    compute = cfg.compute.resolve(device)
     torch.manual_seed(cfg.seed)
-    net = DeepVONet(cfg.model).to(device)
+    net = compute.prepare(DeepVONet(cfg.model))
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init")}
+    identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init", "compute")}
     if not cfg.model.actions:  # recipes written before the switch existed resume
         del identity["model"]["actions"]
     if start is not None:
@@ -125,33 +137,33 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
             mean = train.pair_planar.mean(axis=0)
             net.head.bias.copy_(torch.from_numpy(mean).to(torch.float32) / net.scale.cpu())
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    loop = EpochLoop(work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity)
+    loop = EpochLoop(work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity, unit="windows")
     loop.resume()
 
-    def train_epoch(epoch: int, rng: np.random.Generator) -> dict:
+    def train_epoch(epoch: int, rng: np.random.Generator, tracker: EpochTracker) -> dict:
         order = rng.permutation(starts)
         if cfg.windows_per_epoch:
             order = order[:cfg.windows_per_epoch]
-        total, seen, t0 = 0.0, 0, time.monotonic()
-        bar = tqdm(total=len(order), desc=f"deepvo epoch {epoch}", unit="window", disable=not progress, leave=False)
-        for k in range(0, len(order), cfg.batch):
-            x, target, actions = window_batch(train, np.sort(order[k:k + cfg.batch]), cfg.window, cfg.model)
-            pred, _ = net(x.to(device), actions=torch.from_numpy(actions).to(device))
-            loss = loss_fn(pred, torch.from_numpy(target).to(device, torch.float32), cfg.rotation_weight)
+        parts = [np.sort(order[k:k + cfg.batch]) for k in range(0, len(order), cfg.batch)][tracker.start:]
+        bar = tqdm(total=len(order), initial=tracker.samples, desc=f"deepvo epoch {epoch}", unit="window",
+                   disable=not progress, leave=False)
+        for x, target, actions in prefetched(parts, WindowBatches(train, cfg.window, cfg.model), cfg.compute.loader_workers):
+            with compute.autocast():
+                pred, _ = net(x.to(device), actions=torch.from_numpy(actions).to(device))
+            loss = loss_fn(pred.float(), torch.from_numpy(target).to(device, torch.float32), cfg.rotation_weight)
             require_finite(loss, epoch)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            total += loss.item() * len(x)
-            seen += len(x)
             bar.update(len(x))
+            tracker.add(loss.item(), len(x))
         bar.close()
-        return {"loss": total / max(seen, 1), "windows": seen, "windows_per_s": seen / max(time.monotonic() - t0, 1e-9)}
+        return {}
 
     def validate(epoch: int) -> list[dict]:
         preds, truths, acts = [], [], []
-        for k in range(0, len(val_starts), 64):
-            x, target, actions = window_batch(val, val_starts[k:k + 64], cfg.window, cfg.model)
+        parts = [val_starts[k:k + 64] for k in range(0, len(val_starts), 64)]
+        for x, target, actions in prefetched(parts, WindowBatches(val, cfg.window, cfg.model), cfg.compute.loader_workers):
             preds.append(net(x.to(device), actions=torch.from_numpy(actions).to(device))[0].cpu().numpy().reshape(-1, 3))
             truths.append(target.reshape(-1, 3))
             acts.append(actions.ravel())
@@ -160,7 +172,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
         return error_rows(np.concatenate(preds), np.concatenate(truths), np.concatenate(acts))
 
     def status() -> dict:
-        return {"command": command, "train_pairs": train.counts(), "val_pairs": val.counts(),
+        return {"command": command, "compute": compute.describe(), "train_pairs": train.counts(), "val_pairs": val.counts(),
                 "epochs_done": loop.epoch, "epochs": loop.epochs, "hours": round(loop.seconds / 3600, 3),
                 "windows_seen": int(sum(r.get("windows", 0) for r in loop.curves.rows if r.get("split") == "train"))}
 
@@ -178,7 +190,12 @@ def main(argv: list[str] | None = None) -> int:
     from odolab.learning.cli import training_main
 
     return training_main(argv, prog="python -m baselines.deepvo.train", description=__doc__.split("\n")[0], family="deepvo",
-                         load_config=load_training, run=run)
+                         load_config=load_training, run=run, state_files=state_files)
+
+
+def state_files(cfg: DeepVOTraining, work: Path) -> dict[str, Path]:
+    """Where the training keeps its state (what ``--export`` must never replace): ``<work>/deepvo.pt``."""
+    return {"the DeepVO training": work / "deepvo.pt"}
 
 
 if __name__ == "__main__":

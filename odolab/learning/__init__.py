@@ -6,15 +6,17 @@ The public face for learned code beside :mod:`odolab.api` (which stays torch-fre
 """
 from __future__ import annotations
 
+from odolab.learning.compute import Compute, ComputeConfig, choose_compute
 from odolab.learning.checkpoints import CheckpointError, load_checkpoint, load_init, save_checkpoint
 from odolab.learning.configs import ConfigError, dataclass_from_toml, read_toml
 from odolab.learning.curves import Curves
 from odolab.learning.device import pick_device
 from odolab.learning.epochs import EpochLoop, StopRequested, require_finite
+from odolab.learning.loading import prefetched
 from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 __all__ = [
-    "CheckpointError", "ConfigError", "Curves", "DataConfig", "EpochLoop", "StopRequested", "TrainingData",
-    "dataclass_from_toml", "load_checkpoint", "load_init", "make_training_data", "pick_device", "read_toml", "require_finite", "resize_frame",
+    "CheckpointError", "Compute", "ComputeConfig", "ConfigError", "Curves", "DataConfig", "EpochLoop", "StopRequested", "TrainingData",
+    "dataclass_from_toml", "load_checkpoint", "load_init", "make_training_data", "pick_device", "prefetched", "choose_compute", "read_toml", "require_finite", "resize_frame",
     "save_checkpoint",
 ]

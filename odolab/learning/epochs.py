@@ -1,6 +1,8 @@
 """A resumable epoch loop: after every epoch the models, the optimiser, the epoch number and the
-curves are saved atomically, so a killed run loses at most the epoch in progress and a rerun goes on
-from the last saved epoch with the same numbers (each epoch's randomness is seeded by (seed, epoch))."""
+curves are saved atomically, and within an epoch every ``save_every`` seconds too (the batches done,
+the running sums and torch's random state), so a killed run loses at most that much and a rerun goes
+on from the last save with the same numbers on the same machine (each epoch's randomness is seeded by
+(seed, epoch); the batches of an epoch are made in a fixed order from that seed)."""
 from __future__ import annotations
 
 import os
@@ -45,23 +47,69 @@ def require_finite(loss: torch.Tensor, epoch: int) -> None:
 
 
 class StopRequested(Exception):
-    """Raised inside an epoch to stop training cleanly (the epoch in progress is not saved)."""
+    """Raised inside an epoch to stop training cleanly (what the last save holds is kept)."""
+
+
+class EpochTracker:
+    """The running numbers of the epoch in progress, handed to ``train_epoch``: ``start`` batches
+    are already done (skip them), call :meth:`add` after each batch; it saves the loop's state every
+    ``save_every`` seconds and stops (:class:`StopRequested`) at the deadline, after saving."""
+
+    def __init__(self, loop: "EpochLoop", unit: str, partial: dict[str, Any] | None, deadline: float | None) -> None:
+        self.loop, self.unit, self.deadline = loop, unit, deadline
+        partial = partial or {}
+        self.start = self.batches = int(partial.get("batches", 0))
+        self.loss_sum, self.samples = float(partial.get("loss_sum", 0.0)), int(partial.get("samples", 0))
+        self.seconds_before = float(partial.get("seconds", 0.0))
+        self.started = self.last_save = time.monotonic()
+
+    @property
+    def seconds(self) -> float:
+        """Training seconds of this epoch so far, over every chunk."""
+        return self.seconds_before + time.monotonic() - self.started
+
+    def add(self, loss: float, samples: int) -> None:
+        """One batch done: its mean ``loss`` over ``samples`` samples."""
+        self.batches += 1
+        self.loss_sum += float(loss) * samples
+        self.samples += samples
+        now = time.monotonic()
+        stop = self.deadline is not None and now >= self.deadline
+        if stop or now - self.last_save >= self.loop.save_every:
+            self.loop.save(partial=self.partial())
+            self.last_save = now
+        if stop:
+            raise StopRequested()
+
+    def partial(self) -> dict[str, Any]:
+        return {"batches": self.batches, "loss_sum": self.loss_sum, "samples": self.samples,
+                "seconds": self.seconds, "torch_rng": torch.get_rng_state()}
+
+    def row(self) -> dict[str, Any]:
+        """The epoch's training numbers: mean loss, samples and samples per second (``unit`` names them)."""
+        return {"loss": self.loss_sum / max(self.samples, 1), self.unit: self.samples,
+                f"{self.unit}_per_s": self.samples / max(self.seconds, 1e-9)}
 
 
 class EpochLoop:
     """Train ``modules`` with ``optimizer`` for ``epochs`` epochs, saving to ``path`` after each.
 
     ``identity``: plain data describing the run (config, data); a saved state made for another
-    identity is refused, so a changed config never silently continues an old run.
+    identity is refused, so a changed config never silently continues an old run. ``unit`` names
+    the samples in the curves (``pairs``, ``windows``); ``save_every``: seconds between saves within
+    an epoch.
     """
 
     def __init__(self, path: str | os.PathLike, modules: dict[str, nn.Module], optimizer: torch.optim.Optimizer,
-                 epochs: int, seed: int, identity: dict[str, Any]) -> None:
+                 epochs: int, seed: int, identity: dict[str, Any], unit: str = "pairs",
+                 save_every: float = 600.0) -> None:
         self.path, self.modules, self.optimizer = path, modules, optimizer
         self.epochs, self.seed, self.identity = int(epochs), int(seed), identity
+        self.unit, self.save_every = unit, float(save_every)
         self.curves = Curves()
         self.epoch = 0  # epochs done
         self.seconds = 0.0  # training time spent so far, over all chunks
+        self._partial: dict[str, Any] | None = None  # the epoch in progress at the last save
 
     def resume(self) -> int:
         """Load the saved state if there is one; returns the number of epochs already done."""
@@ -80,41 +128,57 @@ class EpochLoop:
         self.optimizer.load_state_dict(doc["optimizer"])
         self.epoch, self.seconds = int(doc["epoch"]), float(doc["seconds"])
         self.curves = Curves(doc["curves"])
+        self._partial = doc.get("partial")
         return self.epoch
 
-    def save(self) -> None:
-        save_checkpoint(self.path, STATE_KIND, STATE_FORMAT, {
-            "identity": self.identity, "epoch": self.epoch, "seconds": self.seconds, "curves": self.curves.rows,
-            "modules": {n: m.state_dict() for n, m in self.modules.items()}, "optimizer": self.optimizer.state_dict()})
+    def save(self, partial: dict[str, Any] | None = None) -> None:
+        """Write the state; ``partial``: the epoch in progress (:meth:`EpochTracker.partial`)."""
+        doc = {"identity": self.identity, "epoch": self.epoch, "seconds": self.seconds, "curves": self.curves.rows,
+               "modules": {n: m.state_dict() for n, m in self.modules.items()}, "optimizer": self.optimizer.state_dict()}
+        if partial is not None:
+            doc["partial"] = partial
+        save_checkpoint(self.path, STATE_KIND, STATE_FORMAT, doc)
+
+    @property
+    def started(self) -> bool:
+        """Whether any training was saved (a whole epoch or part of one)."""
+        return self.epoch > 0 or self._partial is not None
 
     @property
     def finished(self) -> bool:
         return self.epoch >= self.epochs
 
-    def run(self, train_epoch: Callable[[int, np.random.Generator], dict[str, Any]],
+    def run(self, train_epoch: Callable[[int, np.random.Generator, EpochTracker], dict[str, Any]],
             validate: Callable[[int], list[dict[str, Any]]], *, deadline: float | None = None,
             after_epoch: Callable[["EpochLoop"], None] | None = None) -> bool:
-        """Run the remaining epochs; ``train_epoch(epoch, rng)`` returns training numbers (one curve
-        row), ``validate(epoch)`` validation rows. Stops before an epoch that would start after
-        ``deadline`` (``time.monotonic()`` seconds). Returns True when all epochs are done."""
+        """Run the remaining epochs; ``train_epoch(epoch, rng, tracker)`` skips ``tracker.start``
+        batches, calls ``tracker.add`` after each batch and returns extra training numbers (with
+        ``tracker.row()`` they make one curve row); ``validate(epoch)`` returns validation rows. Stops at
+        ``deadline`` (``time.monotonic()`` seconds), within an epoch too, after saving. Returns True
+        when all epochs are done."""
         while not self.finished:
             if deadline is not None and time.monotonic() >= deadline:
                 return False
             epoch = self.epoch + 1
             torch.manual_seed(self.seed * 100_003 + epoch)
             rng = np.random.default_rng([self.seed, epoch])
-            started = time.monotonic()
+            partial, self._partial = self._partial, None
+            if partial is not None:
+                torch.set_rng_state(partial["torch_rng"])
+            tracker = EpochTracker(self, self.unit, partial, deadline)
             for m in self.modules.values():
                 m.train()
             try:
-                train_row = train_epoch(epoch, rng)
+                extra = train_epoch(epoch, rng, tracker)
             except StopRequested:
                 return False
+            train_row = {**extra, **tracker.row()}
             for m in self.modules.values():
                 m.eval()
+            started = time.monotonic()
             with torch.inference_mode():
                 val_rows = validate(epoch)
-            self.seconds += time.monotonic() - started
+            self.seconds += tracker.seconds + time.monotonic() - started
             self.curves.add([{"epoch": epoch, "split": "train", **train_row}] + [{"epoch": epoch, "split": "val", **r}
                                                                                   for r in val_rows])
             self.epoch = epoch

@@ -8,6 +8,7 @@ from typing import Literal
 
 from odolab.api import MOTION_ACTIONS, Action
 from odolab.learning import DataConfig, dataclass_from_toml
+from odolab.learning.compute import ComputeConfig
 from odolab.learning.configs import check_ranges
 
 ACTION_BY_LABEL = {a.label: a for a in MOTION_ACTIONS}
@@ -154,7 +155,8 @@ class TrainConfig:
     """A whole recipe: data (made when missing), model, stages in order, validation size, seed.
     ``init``: start every network from this exported robust-VO model (a path from the working
     directory; the same model but for added inputs, :func:`odolab.robust_vo.checkpoint.load_start`);
-    "" = fresh weights."""
+    "" = fresh weights. ``compute``: precision, memory format and batch-making workers (not part of
+    the run's identity)."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
     stages: tuple[StageConfig, ...] = ()
@@ -164,6 +166,7 @@ class TrainConfig:
     val_pairs: int = 3000
     seed: int = 0
     init: str = ""
+    compute: ComputeConfig = field(default_factory=ComputeConfig)
 
     def __post_init__(self) -> None:
         check_ranges("recipe", self, val_pairs=(0, 10**7), seed=(0, 2**32 - 1))

@@ -19,19 +19,6 @@ from odolab.api import Intrinsics
 from odolab.robust_vo.config import ModelConfig
 
 
-def box_filter3(x: torch.Tensor) -> torch.Tensor:
-    """3x3 mean of (B, C, H, W) with replicated borders (torch's pooling: 6x faster here than
-    kornia's ``box_blur``, which convolves)."""
-    return F.avg_pool2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
-
-
-def one_hot_bins(d: torch.Tensor, bins: int) -> torch.Tensor:
-    """(B, bins, H, W) float one-hot of (B, H, W) values in [0, 1] over ``bins`` equal bins, the last
-    one closed (1.0 falls in it)."""
-    index = torch.clamp((d * bins).long(), 0, bins - 1)
-    return torch.zeros((d.shape[0], bins, *d.shape[1:]), dtype=torch.float32, device=d.device).scatter_(1, index[:, None], 1.0)
-
-
 def top_down_projection(depth: torch.Tensor, intrinsics: Intrinsics, max_depth: float, rows: float = 100 / 192,
                         min_depth: float = 0.1) -> torch.Tensor:
     """Soft top-down projection (B, H, W) in [0, 1] of depth images (B, H, W) in metres.
@@ -40,15 +27,18 @@ def top_down_projection(depth: torch.Tensor, intrinsics: Intrinsics, max_depth: 
     ``rows`` share of image rows is unprojected with ``intrinsics`` (camera x right, z forward), and
     the points are counted in an H x W grid spanning x in [-x_max, x_max] (x_max: the image edge at
     ``max_depth``) left to right and z in [min_depth, max_depth] bottom (near) to top (far). Counts
-    are divided by each image's largest count.
+    are divided by each image's largest count. Only the central rows and their neighbours are
+    filtered (the same numbers as filtering the whole image).
     """
     b, h, w = depth.shape
-    valid = (depth > 0).to(depth.dtype)
-    smooth, share = box_filter3(torch.stack([depth * valid, valid], dim=1)).unbind(1)
-    z = torch.where(valid > 0, smooth / share.clamp_min(1e-6), torch.zeros_like(depth))
     keep = max(1, int(round(rows * h)))
     top = (h - keep) // 2
-    z = z[:, top:top + keep]
+    band = torch.arange(top - 1, top + keep + 1, device=depth.device).clamp(0, h - 1)  # replicated borders
+    d = depth.index_select(1, band)
+    valid = (d > 0).to(depth.dtype)
+    padded = F.pad(torch.stack([d * valid, valid], dim=1), (1, 1, 0, 0), mode="replicate")
+    smooth, share = F.avg_pool2d(padded, 3, stride=1).unbind(1)
+    z = torch.where(valid[:, 1:-1] > 0, smooth / share.clamp_min(1e-6), torch.zeros_like(smooth))
     u = torch.arange(w, dtype=depth.dtype, device=depth.device)
     x = (u - intrinsics.cx) / intrinsics.fx * z
     x_max = max_depth * (intrinsics.cx + 0.5) / intrinsics.fx
@@ -62,18 +52,25 @@ def top_down_projection(depth: torch.Tensor, intrinsics: Intrinsics, max_depth: 
 
 
 def frame_channels(rgb: torch.Tensor, depth: torch.Tensor, intrinsics: Intrinsics, cfg: ModelConfig) -> torch.Tensor:
-    """psi of single frames: ``rgb`` (B, H, W, 3) uint8 and ``depth`` (B, H, W) metres -> (B, C, H, W)."""
-    parts = []
+    """psi of single frames: ``rgb`` (B, H, W, 3) uint8 and ``depth`` (B, H, W) metres -> (B, C, H, W)
+    float32, written into one tensor (no concatenation)."""
+    n, h, w = depth.shape
+    out = torch.empty((n, cfg.channels_per_frame, h, w), dtype=torch.float32, device=depth.device)
+    k = 0
     if cfg.visual in ("rgb", "rgbd"):
-        parts.append(rgb.permute(0, 3, 1, 2).to(torch.float32) / 255.0)
+        out[:, 0:3].copy_(rgb.permute(0, 3, 1, 2)).div_(255.0)
+        k = 3
     d = (depth.to(torch.float32) / cfg.max_depth).clamp(0.0, 1.0)
     if cfg.visual in ("depth", "rgbd"):
-        parts.append(d[:, None])
+        out[:, k].copy_(d)
+        k += 1
     if cfg.dd_bins:
-        parts.append(one_hot_bins(d, cfg.dd_bins))
+        index = torch.clamp((d * cfg.dd_bins).long(), 0, cfg.dd_bins - 1)
+        out[:, k:k + cfg.dd_bins].zero_().scatter_(1, index[:, None], 1.0)
+        k += cfg.dd_bins
     if cfg.sproj:
-        parts.append(top_down_projection(depth.to(torch.float32), intrinsics, cfg.max_depth, cfg.sproj_rows)[:, None])
-    return torch.cat(parts, dim=1)
+        out[:, k].copy_(top_down_projection(depth.to(torch.float32), intrinsics, cfg.max_depth, cfg.sproj_rows))
+    return out
 
 
 def residual_channel(prev_depth: torch.Tensor, cur_depth: torch.Tensor, scale: float) -> torch.Tensor:

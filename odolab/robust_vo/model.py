@@ -133,7 +133,7 @@ def predict(nets: nn.ModuleDict, cfg: ModelConfig, x: torch.Tensor, actions) -> 
         x = torch.where(flip[:, None, None, None], x.flip(-1), x)
     for name in dict.fromkeys(cfg.model_for(a) for a in acts):
         rows = torch.tensor([k for k, a in enumerate(acts) if cfg.model_for(a) == name], device=x.device)
-        out[rows] = nets[name](x[rows], index[rows])
+        out[rows] = nets[name](x[rows], index[rows]).to(out.dtype)  # autocast answers in bf16
     if flip.any():
         out = torch.where(flip[:, None], out * out.new_tensor([-1.0, 1.0, -1.0]), out)
     return out

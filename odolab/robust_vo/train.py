@@ -22,10 +22,13 @@ from tqdm.auto import tqdm
 
 from odolab.api import Action
 from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
+from odolab.learning.epochs import EpochTracker
+from odolab.learning.compute import Compute
+from odolab.learning.loading import prefetched
 from odolab.learning.validation import error_rows, write_report
-from odolab.robust_vo.batches import Samples, make_batch, stage_samples
+from odolab.robust_vo.batches import Batch, Samples, make_batch, stage_samples
 from odolab.robust_vo.checkpoint import apply_start, load_start, save_model
-from odolab.robust_vo.config import StageConfig, TrainConfig, load_train_config
+from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config
 from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
 
@@ -46,15 +49,30 @@ def stage_networks(cfg: TrainConfig, stage: StageConfig) -> list[str]:
 
 
 def _mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    return (pred - target).pow(2).sum(dim=1).mean()
+    return (pred.float() - target).pow(2).sum(dim=1).mean()
+
+
+class StepBatches:
+    """What one training step reads, made on the CPU (in a loader worker): the batch of ``samples``
+    and, for GeoInv, the same pairs swapped. Picklable (the data's maps reopen in each worker)."""
+
+    def __init__(self, data: TrainingData, cfg: ModelConfig, geoinv: bool) -> None:
+        self.data, self.cfg, self.geoinv = data, cfg, geoinv
+
+    def __call__(self, samples: Samples) -> tuple[Batch, Batch | None]:
+        cpu = torch.device("cpu")
+        batch = make_batch(self.data, samples, self.cfg, cpu)
+        other = make_batch(self.data, samples, self.cfg, cpu, swap_all=True) if self.geoinv else None
+        return batch, other
 
 
 class StageRunner:
     """One stage: its samples, optimiser, epoch function and validation."""
 
     def __init__(self, cfg: TrainConfig, stage: StageConfig, train: TrainingData, val: TrainingData,
-                 nets: torch.nn.ModuleDict, device: torch.device, progress: bool = True) -> None:
-        self.cfg, self.stage, self.train, self.val, self.nets, self.device = cfg, stage, train, val, nets, device
+                 nets: torch.nn.ModuleDict, compute: Compute, progress: bool = True) -> None:
+        self.cfg, self.stage, self.train, self.val, self.nets = cfg, stage, train, val, nets
+        self.compute, self.device = compute, compute.device
         self.names = stage_networks(cfg, stage)
         self.samples = stage_samples(train, stage)
         if not len(self.samples):
@@ -81,42 +99,44 @@ class StageRunner:
             with torch.no_grad():
                 self.nets[name].head[-1].bias.copy_(torch.from_numpy(mean).to(torch.float32))
 
-    def train_epoch(self, epoch: int, rng: np.random.Generator) -> dict:
+    def train_epoch(self, epoch: int, rng: np.random.Generator, tracker: EpochTracker) -> dict:
+        """One epoch over the stage's samples in a random order, from batch ``tracker.start`` on."""
         stage = self.stage
         order = rng.permutation(len(self.samples))
         if stage.pairs_per_epoch:
             order = order[:stage.pairs_per_epoch]
-        total, seen, started = 0.0, 0, time.monotonic()
-        bar = tqdm(total=len(order), desc=f"{stage.name} epoch {epoch}", unit="pair", disable=not self.progress,
-                   leave=False)
-        for start in range(0, len(order), stage.batch):
-            part: Samples = self.samples.take(np.sort(order[start:start + stage.batch]))
-            batch = make_batch(self.train, part, self.cfg.model, self.device)
-            pred = predict(self.nets, self.cfg.model, batch.x, batch.action)
-            loss = _mse(pred, batch.target)
-            if stage.geoinv:
-                other = make_batch(self.train, part, self.cfg.model, self.device, swap_all=True)
-                pred_ba = predict(self.nets, self.cfg.model, other.x, other.action)
-                loss = loss + _mse(pred_ba, other.target) + geoinv_loss(pred, pred_ba)
+        parts = [self.samples.take(np.sort(order[start:start + stage.batch]))
+                 for start in range(0, len(order), stage.batch)][tracker.start:]
+        bar = tqdm(total=len(order), initial=tracker.samples, desc=f"{stage.name} epoch {epoch}", unit="pair",
+                   disable=not self.progress, leave=False)
+        c = self.compute
+        for batch, other in prefetched(parts, StepBatches(self.train, self.cfg.model, stage.geoinv),
+                                       self.cfg.compute.loader_workers):
+            with c.autocast():
+                pred = predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action)
+            loss = _mse(pred, batch.target.to(self.device))
+            if other is not None:
+                with c.autocast():
+                    pred_ba = predict(self.nets, self.cfg.model, c.inputs(other.x), other.action)
+                loss = loss + _mse(pred_ba, other.target.to(self.device)) + geoinv_loss(pred.float(), pred_ba.float())
             require_finite(loss, epoch)
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
-            total += loss.item() * len(part)
-            seen += len(part)
-            bar.update(len(part))
+            bar.update(len(batch.action))
+            tracker.add(loss.item(), len(batch.action))
         bar.close()
-        seconds = time.monotonic() - started
-        return {"stage": stage.name, "loss": total / max(seen, 1), "pairs": seen, "pairs_per_s": seen / max(seconds, 1e-9)}
+        return {"stage": stage.name}
 
     def validate(self, epoch: int) -> list[dict]:
-        """Mean absolute error per action and component on the val pairs, beside the action prior's."""
+        """Mean absolute error per action and component on the val pairs, beside the action prior's
+        (in fp32, as the odometer runs, whatever precision trains)."""
         preds, targets, actions = [], [], []
-        for start in range(0, len(self.val_pairs), 256):
-            idx = self.val_pairs[start:start + 256]
-            batch = make_batch(self.val, Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool)),
-                               self.cfg.model, self.device)
-            preds.append(predict(self.nets, self.cfg.model, batch.x, batch.action).cpu().numpy())
+        parts = [Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool))
+                 for idx in np.array_split(self.val_pairs, max(1, -(-len(self.val_pairs) // 64)))]
+        c = self.compute
+        for batch, _ in prefetched(parts, StepBatches(self.val, self.cfg.model, False), self.cfg.compute.loader_workers):
+            preds.append(predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action).cpu().numpy())
             targets.append(batch.target.cpu().numpy())
             actions.append(batch.action)
         if not preds:
@@ -169,21 +189,24 @@ def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: to
     deadline = time.monotonic() + hours * 3600 if hours else None
     start, init_sha256 = load_start(cfg.init, cfg, export) if cfg.init else (None, "")  # before any data is made
     train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data, progress=progress)
+    compute = cfg.compute.resolve(device)
     torch.manual_seed(cfg.seed)
     nets = build_networks(cfg.model)
     last_trained: dict[str, str] = {}  # network -> last stage that trained it
     if start is not None:
         apply_start(nets, start)
         last_trained = {name: "init" for name in nets}
-    nets = nets.to(device)
+    compute.prepare(nets)
     all_rows: list[dict] = []
-    status = {"command": command, "train_pairs": train.counts(), "val_pairs": val.counts(), "stages": {}}
+    status = {"command": command, "compute": compute.describe(), "train_pairs": train.counts(),
+              "val_pairs": val.counts(), "stages": {}}
     finished = True
     for stage in cfg.stages:
-        runner = StageRunner(cfg, stage, train, val, nets, device, progress)
+        runner = StageRunner(cfg, stage, train, val, nets, compute, progress)
         loop = EpochLoop(work / f"{stage.name}.pt", {n: nets[n] for n in runner.names}, runner.optimizer,
                          stage.epochs, cfg.seed, _identity(cfg, stage, init_sha256))
-        if loop.resume() == 0:
+        loop.resume()
+        if not loop.started:
             fresh = [n for n in runner.names if n not in last_trained]
             if fresh:
                 runner.init_bias()

@@ -1,0 +1,122 @@
+"""How a training step runs on its device: the numeric precision (fp32, or bf16 autocast) and the
+memory format of the network's inputs, chosen per machine.
+
+``auto`` picks bf16 autocast only where the hardware computes bf16 natively (x86 CPUs with
+``avx512_bf16`` or ``amx_bf16``, Arm CPUs with ``bf16``, CUDA GPUs that support it) and fp32
+elsewhere; emulated bf16 is slower than fp32. ``auto`` keeps the default contiguous memory layout:
+``channels_last`` was slower under bf16 and no faster under fp32 in
+``python -m odolab.bench --only training``, which measures both (docs/learned.md).
+"""
+from __future__ import annotations
+
+import contextlib
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import torch
+
+Precision = Literal["auto", "fp32", "bf16"]
+MemoryFormat = Literal["auto", "contiguous", "channels_last"]
+PRECISIONS = ("auto", "fp32", "bf16")
+MEMORY_FORMATS = ("auto", "contiguous", "channels_last")
+
+
+def cpu_flags(cpuinfo: str | None = None) -> set[str]:
+    """The CPU feature flags Linux reports (``flags`` on x86, ``Features`` on Arm); empty where
+    ``/proc/cpuinfo`` is not readable. ``cpuinfo``: its text, for tests."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            return set()
+    flags: set[str] = set()
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() in ("flags", "Features"):
+            flags.update(value.split())
+    return flags
+
+
+def native_bf16(device: torch.device, flags: set[str] | None = None) -> bool:
+    """Whether ``device`` computes bf16 natively (see the module docstring)."""
+    if device.type == "cuda":
+        return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
+    if device.type != "cpu":
+        return False
+    flags = cpu_flags() if flags is None else flags
+    return bool({"avx512_bf16", "amx_bf16", "bf16"} & flags)
+
+
+@dataclass(frozen=True)
+class Compute:
+    """The resolved choice: ``device``, ``precision`` (``fp32`` or ``bf16``) and ``memory_format``
+    (``contiguous`` or ``channels_last``)."""
+
+    device: torch.device
+    precision: str
+    memory_format: str
+
+    def autocast(self) -> contextlib.AbstractContextManager:
+        """The autocast context of a forward pass (a no-op in fp32)."""
+        if self.precision == "bf16":
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def inputs(self, x: torch.Tensor) -> torch.Tensor:
+        """``x`` (B, C, H, W) on the device in the chosen memory format."""
+        x = x.to(self.device, non_blocking=True)
+        return x.contiguous(memory_format=torch.channels_last) if self.memory_format == "channels_last" else x
+
+    def prepare(self, module: torch.nn.Module) -> torch.nn.Module:
+        """``module`` moved to the device in the chosen memory format (in place; returned)."""
+        module.to(self.device)
+        if self.memory_format == "channels_last":
+            module.to(memory_format=torch.channels_last)
+        return module
+
+    def describe(self) -> dict[str, str]:
+        """Plain data for reports."""
+        return {"device": str(self.device), "precision": self.precision, "memory_format": self.memory_format,
+                "machine": f"{platform.machine()} {platform.processor() or ''}".strip()}
+
+
+@dataclass(frozen=True)
+class ComputeConfig:
+    """A recipe's ``[compute]`` table: ``precision`` and ``memory_format`` (``auto``: the module
+    docstring's rule) and ``loader_workers``, processes that make batches ahead of the step (0: in
+    the training process). None of it is part of a run's identity: a run resumes on another machine
+    with that machine's choice."""
+
+    precision: Precision = "auto"
+    memory_format: MemoryFormat = "auto"
+    loader_workers: int = 1
+
+    def __post_init__(self) -> None:
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+        if self.memory_format not in MEMORY_FORMATS:
+            raise ValueError(f"memory_format must be one of {', '.join(MEMORY_FORMATS)}, got {self.memory_format!r}")
+        if isinstance(self.loader_workers, bool) or not 0 <= self.loader_workers <= 64:
+            raise ValueError(f"loader_workers must be in [0, 64], got {self.loader_workers!r}")
+
+    def resolve(self, device: torch.device) -> Compute:
+        """The :class:`Compute` of this config on ``device``."""
+        return choose_compute(device, self.precision, self.memory_format)
+
+
+def choose_compute(device: torch.device, precision: str = "auto", memory_format: str = "auto",
+                   flags: set[str] | None = None) -> Compute:
+    """Resolve ``auto`` choices for ``device`` (module docstring); an explicit ``bf16`` is honoured
+    even where it is emulated. ``ValueError`` for an unknown name."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if memory_format not in MEMORY_FORMATS:
+        raise ValueError(f"memory_format must be one of {', '.join(MEMORY_FORMATS)}, got {memory_format!r}")
+    if precision == "auto":
+        precision = "bf16" if native_bf16(device, flags) else "fp32"
+    if memory_format == "auto":
+        memory_format = "contiguous"
+    return Compute(device, precision, memory_format)
+

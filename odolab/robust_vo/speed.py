@@ -1,0 +1,91 @@
+"""Training throughput of a robust-VO recipe, against the bare network step from the same run.
+
+``bare``: one network (the forward one), a batch of the recipe's first stage of random inputs
+resident in memory, forward + MSE + backward + Adam, in the chosen precision and memory format and
+in fp32 beside it. ``end_to_end``: the trainer's own epoch (:meth:`StageRunner.train_epoch`: shard
+reads, swaps and mirrors, the nominal warp, psi, the batch made by the loader workers, the step) on a
+few real episodes, worker start-up included. The end-to-end rate over the bare one says how much the
+rest of training costs (at least 0.7 is wanted).
+"""
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from odolab.learning import Compute, EpochLoop, TrainingData, make_training_data
+from odolab.learning.epochs import EpochTracker
+from odolab.robust_vo.config import TrainConfig
+from odolab.robust_vo.model import VONet
+
+
+def bare_pairs_per_s(cfg: TrainConfig, compute: Compute, steps: int = 6) -> float:
+    """Pairs per second of the bare training step (module docstring); the median of ``steps``
+    timed steps after one warm-up step."""
+    model, batch = cfg.model, cfg.stages[0].batch
+    torch.manual_seed(0)
+    net = compute.prepare(VONet(model))
+    net.train()
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+    x = torch.rand(batch, model.input_channels, model.height, model.width)
+    y = torch.rand(batch, 3, device=compute.device)
+    times = []
+    for _ in range(steps + 1):
+        started = time.perf_counter()
+        with compute.autocast():
+            pred = net(compute.inputs(x))
+        loss = (pred.float() - y).pow(2).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if compute.device.type == "cuda":
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - started)
+    return batch / float(np.median(times[1:]))
+
+
+def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 6) -> TrainingData:
+    """A few val episodes at the recipe's size, made in ``folder`` (in this process)."""
+    small = dataclasses.replace(cfg.val_data, episodes=episodes)
+    make_training_data(small, folder, parallel=False, progress=False)
+    return TrainingData(folder)
+
+
+def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingData, steps: int = 8) -> float:
+    """Pairs per second of the trainer's own epoch over ``steps`` batches of the first stage."""
+    from odolab.robust_vo.model import build_networks
+    from odolab.robust_vo.train import StageRunner
+
+    stage = dataclasses.replace(cfg.stages[0], pairs_per_epoch=steps * cfg.stages[0].batch)
+    torch.manual_seed(0)
+    nets = compute.prepare(build_networks(cfg.model))
+    runner = StageRunner(cfg, stage, data, data, nets, compute, progress=False)
+    loop = EpochLoop(Path(tempfile.gettempdir()) / "unused.pt", dict(nets), runner.optimizer, 1, 0, {},
+                     save_every=float("inf"))
+    tracker = EpochTracker(loop, "pairs", None, None)
+    nets.train()
+    runner.train_epoch(1, np.random.default_rng(0), tracker)
+    return tracker.samples / tracker.seconds
+
+
+def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int = 8) -> dict:
+    """One row of ``python -m odolab.bench --only training`` for recipe ``cfg`` (called ``name``)."""
+    from odolab.learning import choose_compute
+
+    compute = cfg.compute.resolve(device)
+    fp32 = choose_compute(device, "fp32", compute.memory_format)
+    with tempfile.TemporaryDirectory(prefix="odolab-bench-") as tmp:
+        data = bench_data(cfg, Path(tmp))
+        fp32_bare = bare_pairs_per_s(cfg, fp32)
+        bare = fp32_bare if compute == fp32 else bare_pairs_per_s(cfg, compute)
+        end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
+    m = cfg.model
+    return {"config": name, "input": f"{m.width}x{m.height}", "base_planes": m.base_planes,
+            "batch": cfg.stages[0].batch, "device": str(device), "precision": compute.precision,
+            "memory_format": compute.memory_format, "loader_workers": cfg.compute.loader_workers,
+            "bare_pairs_per_s": bare, "end_to_end_pairs_per_s": end_to_end, "fp32_bare_pairs_per_s": fp32_bare,
+            "end_to_end_over_bare": end_to_end / bare}

@@ -1,0 +1,111 @@
+"""The training step's compute choices (device, precision, memory format), batch prefetching, and
+the epoch loop's saves within an epoch."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from odolab.learning import ComputeConfig, choose_compute, prefetched  # noqa: E402
+from odolab.learning.compute import cpu_flags, native_bf16  # noqa: E402
+from odolab.learning.epochs import EpochLoop, EpochTracker  # noqa: E402
+
+CPU = torch.device("cpu")
+X86_BF16 = "processor\t: 0\nflags\t\t: fpu sse avx512f avx512_bf16\n"
+X86_PLAIN = "processor\t: 0\nflags\t\t: fpu sse avx2\n"
+ARM_BF16 = "processor\t: 0\nFeatures\t: fp asimd bf16 i8mm\n"
+
+
+def test_auto_picks_bf16_only_where_the_cpu_has_it():
+    assert choose_compute(CPU, flags=cpu_flags(X86_BF16)).precision == "bf16"
+    assert choose_compute(CPU, flags=cpu_flags(ARM_BF16)).precision == "bf16"
+    plain = choose_compute(CPU, flags=cpu_flags(X86_PLAIN))
+    assert (plain.precision, plain.memory_format) == ("fp32", "contiguous")
+    assert not native_bf16(CPU, set())
+    # a recipe's explicit choice wins, even where bf16 is emulated
+    forced = choose_compute(CPU, "bf16", "channels_last", flags=set())
+    assert (forced.precision, forced.memory_format) == ("bf16", "channels_last")
+    assert choose_compute(CPU, "fp32", flags=cpu_flags(X86_BF16)).precision == "fp32"
+
+
+def test_the_device_is_a_gpu_when_present_else_the_cpu(monkeypatch):
+    from odolab.learning import pick_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert pick_device().type in ("cpu", "mps")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert pick_device().type == "cuda"
+    # on a CUDA device, auto is bf16 where the GPU supports it, else fp32
+    monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *a, **k: True)
+    assert choose_compute(torch.device("cuda"), flags=set()).precision == "bf16"
+    monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *a, **k: False)
+    assert choose_compute(torch.device("cuda"), flags=cpu_flags(X86_BF16)).precision == "fp32"
+
+
+def test_a_bad_compute_table_is_refused_in_one_line():
+    for bad in ({"precision": "fp16"}, {"memory_format": "nhwc"}, {"loader_workers": -1}, {"loader_workers": True}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            ComputeConfig(**bad)
+
+
+def test_bf16_autocast_runs_a_step_and_returns_fp32_losses():
+    c = choose_compute(CPU, "bf16")
+    net = c.prepare(torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.Flatten(), torch.nn.LazyLinear(3)))
+    with c.autocast():
+        out = net(c.inputs(torch.rand(2, 3, 8, 8)))
+    assert out.dtype == torch.bfloat16
+    loss = out.float().pow(2).mean()
+    loss.backward()
+    assert all(p.grad is not None and p.grad.dtype == torch.float32 for p in net.parameters())
+
+
+def _square(k: int) -> int:
+    return k * k
+
+
+@pytest.mark.parametrize("workers", [0, 1, 2])
+def test_prefetched_batches_come_in_order(workers):
+    assert list(prefetched(list(range(7)), _square, workers)) == [k * k for k in range(7)]
+
+
+def _toy_run(path, batches_before_kill: int | None, save_every: float) -> dict:
+    """One epoch of 6 batches of a toy regression; killed after ``batches_before_kill`` batches."""
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.Dropout(0.5), torch.nn.Linear(8, 1))
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
+    loop = EpochLoop(path, {"net": net}, opt, 1, 3, {"toy": 1}, save_every=save_every)
+    loop.resume()
+    x, y = torch.rand(48, 4, generator=torch.Generator().manual_seed(1)), torch.rand(48, 1)
+
+    class Killed(Exception):
+        pass
+
+    def train_epoch(epoch: int, rng: np.random.Generator, tracker: EpochTracker) -> dict:
+        order = rng.permutation(48)
+        for b in range(tracker.start, 6):
+            if batches_before_kill is not None and b == batches_before_kill:
+                raise Killed()
+            idx = torch.from_numpy(order[b * 8:(b + 1) * 8])
+            loss = (net(x[idx]) - y[idx]).pow(2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            tracker.add(loss.item(), len(idx))
+        return {}
+
+    try:
+        loop.run(train_epoch, lambda epoch: [])
+    except Killed:
+        return {}
+    return {"weights": [p.detach().clone() for p in net.parameters()], "row": loop.curves.rows[0]}
+
+
+def test_a_run_killed_within_an_epoch_resumes_to_the_same_numbers(tmp_path):
+    whole = _toy_run(tmp_path / "whole.pt", None, 600.0)
+    assert _toy_run(tmp_path / "split.pt", 4, 0.0) == {}  # killed after 4 of 6 batches, each saved
+    resumed = _toy_run(tmp_path / "split.pt", None, 0.0)
+    for a, b in zip(whole["weights"], resumed["weights"]):
+        assert torch.equal(a, b)
+    assert resumed["row"]["pairs"] == whole["row"]["pairs"] == 48
+    assert resumed["row"]["loss"] == pytest.approx(whole["row"]["loss"], rel=1e-12)
