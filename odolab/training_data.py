@@ -37,6 +37,7 @@ from typing import Sequence as Seq
 
 import cv2
 import numpy as np
+from tqdm.auto import tqdm
 
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_episode
 from odolab.geometry import invert, transform_to_planar
@@ -318,6 +319,7 @@ class TrainingData:
         self.pair_planar = np.stack([transform_to_planar(m) for m in self.pair_motion])
         self.pair_collisions = np.concatenate([s["collisions"] for s in small])[self.pairs]
         self._maps: dict[int, dict[str, np.ndarray]] = {}
+        self._verified: set[int] = set()  # shards checked; kept in copies (loader workers check nothing again)
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -336,12 +338,22 @@ class TrainingData:
             return np.arange(len(self.pairs))
         return np.flatnonzero(np.isin(self.pair_actions, [a.value for a in actions]))
 
+    def verify(self, progress: bool = False) -> None:
+        """Check every shard not yet checked (:func:`verify_shard`): one read of the whole data, so
+        that copies of this object (a trainer's loader workers) need not check again."""
+        for s in tqdm([s for s in range(len(self.shards)) if s not in self._verified], desc="checking shards",
+                      unit="shard", disable=not progress, leave=False):
+            verify_shard(self.root / self.shards[s], self._entries[s])
+            self._verified.add(s)
+
     def _shard(self, s: int) -> dict[str, np.ndarray]:
         """The frames of shard ``s``, mapped; the first time in this object (and process), after
         :func:`verify_shard`."""
         if s not in self._maps:
             path = self.root / self.shards[s]
-            verify_shard(path, self._entries[s])
+            if s not in self._verified:
+                verify_shard(path, self._entries[s])
+                self._verified.add(s)
             self._maps[s] = {k: mmap_npz_member(path, k) for k in ("rgb", "depth_mm")}
         return self._maps[s]
 

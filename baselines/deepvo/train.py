@@ -114,6 +114,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
     for dc in (cfg.train_data, cfg.val_data):
         make_training_data(dc, cfg.data_folder(dc), ray_address=ray_address, parallel=parallel_data, progress=progress)
         data.append(TrainingData(cfg.data_folder(dc)))
+        data[-1].verify(progress)
     train, val = data
     starts = train.windows(cfg.window)
     if not len(starts):

@@ -40,6 +40,7 @@ def open_data(cfg: TrainConfig, *, ray_address: str | None = None, parallel: boo
         folder = cfg.data_folder(data)
         make_training_data(data, folder, ray_address=ray_address, parallel=parallel, progress=progress)
         out.append(TrainingData(folder))
+        out[-1].verify(progress)
     return out[0], out[1]
 
 
