@@ -118,6 +118,26 @@ def test_a_comparison_names_an_odometer_without_step_in_one_line():
         load_odometers(["test-abstract"])
 
 
+class _Never(Odometer):
+    def step(self, prev, cur, action):
+        return Estimate.invalid()
+
+
+def test_an_odometer_failing_every_step_is_said_on_the_console(tmp_path, capsys):
+    from odolab.cli import run_cli
+    from odolab.compare import main as compare
+    from odolab.navigate import main as navigate
+
+    register_odometer("test-never", _Never)
+    common = ["--odometers", "test-never", "--episodes", "1", "--max-steps", "3", "--serial", "--quiet"]
+    assert run_cli(compare, "python -m odolab.compare", [*common, "--no-cache", "--out", str(tmp_path / "c")]) == 0
+    out = capsys.readouterr().out
+    assert "note: test-never: failed steps: every one of 3; its figures are the action prior's" in out
+    assert run_cli(navigate, "python -m odolab.navigate", [*common, "--out", str(tmp_path / "n")]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "test-never:" in ln)
+    assert "failed steps: every one of" in line
+
+
 # ----------------------------------------------------------------------------- odometers from a file
 
 ODOMETER_FILE = '''
@@ -347,6 +367,8 @@ def test_a_shard_is_checked_once_per_process(shards, monkeypatch):
     assert sorted(calls) == sorted(shards / n for n in data.shards)  # each shard once, not once per batch
     import pickle
 
-    worker = pickle.loads(pickle.dumps(data))  # a data-loader worker is another process: it checks again
+    worker = pickle.loads(pickle.dumps(data))  # a loader worker's copy keeps what was checked
     worker.frames(np.array([0]))
+    assert len(calls) == len(data.shards)
+    td.TrainingData(shards).frames(np.array([0]))  # a new opening checks again
     assert len(calls) == len(data.shards) + 1
