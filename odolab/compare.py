@@ -135,6 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _check_before_work(args, argv)
     from odolab.progress import StepProgressBar
     from odolab.report import format_table, write_report
+    from odolab.summary import every_step_failed
 
     try:
         result = run_comparison(config, observer=StepProgressBar(disable=args.quiet))
@@ -149,6 +150,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for r in result.results:
         for e in r.errors[:1]:
             print(f"note: {r.odometer} raised on {r.sequence}: {e}")
+    for line in every_step_failed(result.rows):
+        print(f"note: {line}")
     for name, reasons in failure_reasons(result.results).items():
         print(f"note: {name} failed steps by reason: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
     print(f"wrote {args.out / 'table.csv'} and {args.out / 'report.html'}")

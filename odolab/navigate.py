@@ -29,6 +29,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.navigation.report import write_outputs
     from odolab.navigation.study import NavTask, config_doc, run_navigation
     from odolab.odometer import REGISTRY, parse_odometer_list
+    from odolab.summary import failed_steps_text
     from odolab.options import (OptionError, merge_options, naming_the_file, parse_assignments, read_options_file,
                                 without_defaults)
     from odolab.parallel import check_ray_option
@@ -84,7 +85,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for r in table:
         print(f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
               f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "
-              f"({r['episodes']} episodes)")
+              f"{failed_steps_text(r['failed_steps'], r['steps'] * r['episodes'])}  ({r['episodes']} episodes)")
     print(f"wrote {args.out}/report.html")
     return 0
 

@@ -169,6 +169,24 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
     return rows
 
 
+def failed_steps_text(failed: int, steps: float) -> str:
+    """How many of ``steps`` steps failed, for a console line: ``"failed steps 3 of 40 (7.5 %)"``,
+    ``"failed steps: every one of 40"`` or ``"no failed steps"``."""
+    total = int(round(steps)) if np.isfinite(steps) else 0
+    if not failed:
+        return "no failed steps"
+    if total and failed >= total:
+        return f"failed steps: every one of {total}"
+    share = f" ({100 * failed / total:.1f} %)" if total else ""
+    return f"failed steps {failed} of {total}{share}" if total else f"failed steps {failed}"
+
+
+def every_step_failed(rows: Sequence[Row]) -> list[str]:
+    """One console line per row whose every step failed: its figures are the action prior's."""
+    return [f"{r.odometer}: {failed_steps_text(r.failures, r.steps)}; its figures are the action prior's, "
+            "which stood in for each" for r in rows if r.steps and r.failures >= r.steps]
+
+
 def fmt(value: float, spec: str, std: float | None = None) -> str:
     """``value`` formatted by ``spec``, ``"-"`` when it is NaN (does not apply), and `` +- std``
     when ``std`` is given and finite."""
