@@ -38,8 +38,9 @@ FORMAT_VERSION = 1  # the .npz layout
 SIMULATOR_VERSION = 4
 #: Actions per episode at most: the PointNav Challenge 2020's limit, and the command lines'.
 MAX_EPISODE_STEPS = 500
-#: What reading a damaged cache file raises (truncated zip, bad CRC, bad header, short read).
-_DAMAGE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
+#: What reading a damaged cache file raises (truncated zip, bad CRC, bad header, short read; an
+#: ``info`` that is not a JSON object, or is nested too deeply to read).
+_DAMAGE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, RecursionError, AttributeError)
 
 
 @dataclass(frozen=True)

@@ -222,7 +222,7 @@ def _read_manifest(root: Path) -> dict | None:
         return None
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"{path}: not a readable training-data manifest ({exc})") from None
     if (not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("shards"), dict)
             or not isinstance(doc.get("config"), dict)):

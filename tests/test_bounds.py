@@ -89,3 +89,22 @@ def test_the_example_trainer_checks_its_integers_first(args, words, capsys):
     with pytest.raises(SystemExit) as info:
         tiny_learned.main(args)
     assert info.value.code == 2 and words in capsys.readouterr().err
+
+
+def test_json_nested_too_deeply_in_a_manifest_or_a_cache_file_is_damage_not_a_traceback(tmp_path, small_spec):
+    import numpy as np
+
+    from odolab.episodes import EpisodeCache
+    from odolab.training_data import MANIFEST, TrainingData
+
+    deep = "[" * 100_000 + "]" * 100_000
+    (tmp_path / MANIFEST).write_text(deep)
+    with pytest.raises(ValueError, match="not a readable training-data manifest"):
+        TrainingData(tmp_path)
+    cache = EpisodeCache(tmp_path / "cache")
+    for info in (deep, "[1]"):  # too deep to read, and not an object
+        path = cache.path(small_spec)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as f:
+            np.savez(f, info=np.array(info))
+        assert not cache.has(small_spec) and not path.exists()  # discarded, to be made again
