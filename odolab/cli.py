@@ -120,7 +120,9 @@ def file_arg(option: str) -> Callable[[str], Path]:
 
 def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") -> None:
     """:func:`check_output_dir`, and refuse a folder holding files that no odolab run wrote there
-    (no ``manifest`` file): a report must not overwrite a user's own files."""
+    (no ``manifest`` file): a report must not overwrite a user's own files. A symbolic link
+    anywhere inside is refused too (odolab writes and deletes nothing through a link), as are
+    pipes and devices: found now, not when the results are written after the whole run."""
     if path.is_dir() and not (path / manifest).is_file() and any(path.iterdir()):
         raise UsageError(f"{option} {path}: holds files odolab did not write (no {manifest}); "
                          "choose a new or empty folder")
@@ -128,6 +130,10 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
         for entry in sorted(Path(root) / name for root, dirs, files in os.walk(path) for name in dirs + files):
             if entry.is_symlink() and not entry.exists():
                 raise UsageError(f"{option} {path}: {entry.relative_to(path)} is a link to nothing; remove it")
+            if entry.is_symlink():
+                raise UsageError(f"{option} {path}: {entry.relative_to(path)}: expected a file or folder of an "
+                                 f"odolab run, found a symbolic link to {os.readlink(entry)} (nothing is written "
+                                 f"through a link); remove the link or choose another {option}")
             if entry.exists() and not entry.is_file() and not entry.is_dir():
                 raise UsageError(f"{option} {path}: {entry.relative_to(path)} is not a regular file "
                                  "(a device, pipe or socket); remove it")

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, path_arg, run_cli
+from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_report_dir, number, path_arg, run_cli
 from odolab.sim.scenes import SPLITS
 
 
@@ -25,8 +25,9 @@ from odolab.sim.scenes import SPLITS
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.comparison import ComparisonError, load_odometers
     from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
+    from odolab.io.owned import UnsafeOutputError, check_owned_path
     from odolab.navigation.agent import PolicyConfig, range_text
-    from odolab.navigation.report import write_outputs
+    from odolab.navigation.report import output_files, write_outputs
     from odolab.navigation.study import NavTask, config_doc, run_navigation
     from odolab.odometer import REGISTRY, parse_odometer_list
     from odolab.summary import failed_steps_text
@@ -64,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 parse_assignments(args.odometer_option))
     except (ValueError, OptionError) as exc:
         raise UsageError(str(exc)) from None
-    check_output_dir(args.out, "--out")
+    check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
     check_ray_option(args.ray_address, args.serial)
     try:
         loaded = load_odometers(names, options)  # every name and option checked here, before any episode runs
@@ -76,8 +77,12 @@ def main(argv: Sequence[str] | None = None) -> int:
              for i in range(args.episodes)]
     tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].weights) for n in names for s in specs]
     try:
+        for name in output_files(specs):  # the report's files, found unusable now rather than after every episode
+            check_owned_path(args.out, name)
         rows = run_navigation(args.out, tasks, config_doc(names, options, specs, policy), ray_address=args.ray_address,
                               parallel=not args.serial, progress=not args.quiet)
+    except UnsafeOutputError as exc:
+        raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     command = "python -m odolab.navigate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))

@@ -21,6 +21,7 @@ from __future__ import annotations
 import csv
 import html
 import io
+import os
 import re
 import sys
 from dataclasses import asdict, dataclass, fields
@@ -32,6 +33,7 @@ import numpy as np
 from odolab.geometry import invert
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.kitti import write_kitti_poses
+from odolab.io.owned import UnsafeOutputError, check_owned_path, owned_path, remove_owned
 from odolab.io.tum import write_tum_trajectory
 from odolab.runner import SequenceResult
 from odolab.summary import ActionRow, Row, fmt, text_table
@@ -54,20 +56,40 @@ class OutputFolder:
     """The files one run writes under ``root``, listed in ``manifest.txt`` as they are written.
 
     On creation the files the previous run's manifest lists are removed (only those: never a file
-    the manifest does not name, nothing outside ``root``), so the folder never mixes two runs; each
-    :meth:`path` records its file in the manifest before the file is written, so an interrupted run
-    leaves a manifest naming everything it wrote and the next run cleans it up.
+    the manifest does not name, nothing outside ``root``, never through a symbolic link), so the
+    folder never mixes two runs; each :meth:`path` records its file in the manifest before the
+    file is written, so an interrupted run leaves a manifest naming everything it wrote and the
+    next run cleans it up. Every path is checked by :func:`odolab.io.owned.owned_path`: a link or a
+    file where a folder belongs raises :class:`~odolab.io.owned.UnsafeOutputError`, which
+    :meth:`check` finds before any work. A removal that cannot be done is listed in
+    :attr:`not_removed`, never raised: cleaning up never costs a computed result.
     """
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.written: list[str] = []
+        self.not_removed: list[str] = []
+        self.root.mkdir(parents=True, exist_ok=True)
         self.removed = self._remove_previous()
+
+    @staticmethod
+    def check(root: Path, files: tuple[str, ...] = (), folders: tuple[str, ...] = ()) -> None:
+        """Raise :class:`~odolab.io.owned.UnsafeOutputError` unless a run can write ``root``:
+        every path its manifest names, each of ``files`` (a regular file or nothing) and each of
+        ``folders`` (a folder or nothing) lie inside it, with no symbolic link on the way."""
+        root = Path(root)
+        if not root.exists():
+            return
+        if not root.is_dir():
+            raise UnsafeOutputError(root, "a folder", "a file")
+        for rel in _manifest_lines(root) + list(files):
+            check_owned_path(root, rel)
+        for rel in folders:
+            check_owned_path(root, f"{rel}/x")
 
     def path(self, relative: str) -> Path:
         """The path of ``relative`` (its folder created), recorded as written by this run."""
-        p = self.root / relative
-        p.parent.mkdir(parents=True, exist_ok=True)
+        p = owned_path(self.root, relative)
         if relative not in self.written:
             self.written.append(relative)
             self._write_manifest()
@@ -80,32 +102,34 @@ class OutputFolder:
             self._write_manifest()
 
     def _write_manifest(self) -> None:
-        write_text_atomic(self.root / MANIFEST, "".join(f"{rel}\n" for rel in sorted(self.written)))
+        write_text_atomic(owned_path(self.root, MANIFEST), "".join(f"{rel}\n" for rel in sorted(self.written)))
 
     def _remove_previous(self) -> list[str]:
-        try:
-            lines = (self.root / MANIFEST).read_text(encoding="utf-8").splitlines()
-        except (OSError, UnicodeDecodeError):
-            return []
         removed = []
-        # only plain relative paths inside the folder: a hostile manifest cannot delete elsewhere
-        for rel in lines:
-            if not rel or Path(rel).is_absolute() or ".." in Path(rel).parts or rel == MANIFEST:
-                continue
-            p = self.root / rel
-            if p.is_file() and not p.is_symlink():
-                p.unlink()
+        for rel in _manifest_lines(self.root):
+            if remove_owned(self.root, rel):
                 removed.append(rel)
-                for parent in p.parents:  # drop folders the removal emptied, up to the root
-                    if parent == self.root or any(parent.iterdir()):
-                        break
-                    parent.rmdir()
+            elif os.path.lexists(self.root / rel):  # through a link, or not removable: left, and said
+                self.not_removed.append(rel)
         return removed
 
     def finish(self) -> list[str]:
         """Write the final manifest; returns what the previous run had and this one removed."""
         self._write_manifest()
         return self.removed
+
+
+def _manifest_lines(root: Path) -> list[str]:
+    """The paths ``root``'s manifest names (none when it is missing or unreadable), without the
+    manifest itself and lines that are not plain relative paths."""
+    try:
+        if not Path(root, MANIFEST).is_file() or Path(root, MANIFEST).is_symlink():
+            return []
+        lines = Path(root, MANIFEST).read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError):
+        return []
+    return [rel for rel in lines if rel and rel != MANIFEST and not Path(rel).is_absolute()
+            and ".." not in Path(rel).parts and "\x00" not in rel]
 
 
 def _csv(rows: list, cls) -> str:
@@ -447,6 +471,9 @@ def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], resul
     from odolab.summary import __doc__ as summary_doc
 
     folder = OutputFolder(out)
+    for rel in folder.not_removed:
+        print(f"odolab: warning: {out / rel}: named by the previous run's {MANIFEST} but not removed (a symbolic "
+              "link on the way, or not a removable file); left as it is", file=sys.stderr)
     real_data = not action_rows
     write_text_atomic(folder.path("table.csv"), _csv(rows, Row))
     if action_rows:

@@ -26,12 +26,14 @@ from typing import Sequence
 
 import numpy as np
 
-from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_dir, number, path_arg, run_cli, seed
+from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_report_dir, number, path_arg, run_cli, seed
 
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
 PAPER_MIX = {"move_forward": 57.32, "turn_left": 21.34, "turn_right": 21.33}  # % of 1,000,000 steps
 DEPTH_BINS = np.arange(0.0, 10.5, 1.0)  # m, edges of the clean-depth bins
 OUTLIER = 0.2  # relative depth error counted as an outlier (a depth edge), not as spread
+#: The files a card is made of (under --out, with the manifest).
+CARD_FILES = ("card.json", "card.md", "motion.png", "depth.png", "frames.png")
 
 
 @dataclass(frozen=True)
@@ -201,7 +203,6 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     from odolab.io.atomic import save_figure_atomic, write_text_atomic
     from odolab.report import OutputFolder
 
-    out.mkdir(parents=True, exist_ok=True)
     folder = OutputFolder(out)  # a manifest: an interrupted run never leaves two runs' files mixed
     rows = card_table(motion, images)
     depth_rows = images.depth_rows()
@@ -311,7 +312,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.sim.redwood import default_table
 
     args = build_parser().parse_args(argv)
-    check_output_dir(args.out, "--out")
+    check_report_dir(args.out, "--out")  # a folder of the user's own files is refused, as compare refuses it
+    from odolab.io.owned import UnsafeOutputError
+    from odolab.report import MANIFEST, OutputFolder
+
+    try:
+        OutputFolder.check(args.out, files=(*CARD_FILES, MANIFEST))
+    except UnsafeOutputError as exc:
+        raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
     try:
         source = default_table().source  # a bad ODOLAB_REDWOOD_TABLE is one line, before any work
     except ValueError as exc:

@@ -12,7 +12,8 @@ share, and the growth factor error(level) / error(1).
 
 Resumable: each (level, odometer) result is written to ``results.json`` as it finishes and not run
 again (unless a learned odometer's model file changed: each row records its digest); the table
-(``table.md``) and figure (``growth.png``) are redrawn from it at the end.
+(``table.md``) and figure (``growth.png``) are redrawn from it at the end. ``--redraw`` (with the
+command's other options) redraws them from ``results.json`` alone, computing nothing.
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ import numpy as np
 
 from odolab.api import (ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic,
                         write_json_atomic)
+from odolab.io.owned import UnsafeOutputError, check_owned_path, owned_path
 
 COMPONENTS = ("dx", "dz", "dyaw")
 DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo,deepvo"
@@ -85,10 +87,27 @@ def run_study(out: Path, odometers: list[str], levels: list[float], episodes: in
                                    **{c: getattr(row, c) for c in COMPONENTS},
                                    **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
                                    "failure_share": row.failure_share, "ate_m": row.ate_m, "weights": weights[name]}
-            write_json_atomic(path, doc)  # NaN (no own error) as null
+            write_json_atomic(owned_path(out, "results.json"), doc)  # NaN (no own error) as null; never through a link
             if not quiet:
                 print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS),
                       flush=True)
+    return doc
+
+
+def redraw_results(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int) -> dict:
+    """``out/results.json`` for ``--redraw``: made with these settings, with a whole row of every
+    odometer at every level (else ``ValueError`` naming what is missing); nothing is computed."""
+    path = out / "results.json"
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    config = {"episodes": episodes, "max_steps": max_steps, "split": "test", "seed": 0}
+    if doc.get("config") != config:
+        raise ValueError(f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; "
+                         "give its settings with --redraw")
+    missing = [f"{level:g}/{name}" for level in sorted(set([1.0, *levels])) for name in odometers
+               if not _whole(doc["results"].get(f"{level:g}/{name}"))]
+    if missing:
+        raise ValueError(f"--redraw: {path} has no result for {', '.join(missing[:4])}"
+                         f"{' ...' if len(missing) > 4 else ''}; run without --redraw to compute them")
     return doc
 
 
@@ -170,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 500), default=100, help="steps each (default 100)")
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
     ap.add_argument("--quiet", action="store_true", help="no progress bars or per-row lines (the table is still printed)")
+    ap.add_argument("--redraw", action="store_true",
+                    help="rebuild table.md and the figures from --out's results.json of the same settings, computing nothing")
     args = ap.parse_args(argv)
     parse_level = number("--levels", float, 0.0, 10.0)
     try:
@@ -184,12 +205,20 @@ def main(argv: list[str] | None = None) -> int:
     if not others:
         raise UsageError(f"--levels {args.levels!r}: name at least one multiplier besides 1 (1 is the base "
                          "every growth factor divides by, and is always run)")
+    if args.redraw and not (args.out / "results.json").is_file():
+        raise UsageError(f"--redraw: {args.out / 'results.json'}: no such results file; run the study first")
     try:
         odometers = odometer_names(parse_odometer_list(args.odometers))
-        weights = _weights(odometers, {})  # "module:Class" names load here too, before any episode
+        weights = {} if args.redraw else _weights(odometers, {})  # "module:Class" names load here, before any episode
     except (ValueError, KeyError, TypeError, ImportError, ComparisonError) as exc:
         raise UsageError(f"--odometers: {exc.args[0] if isinstance(exc, KeyError) and exc.args else exc}") from None
     check_report_dir(args.out, "--out", manifest="results.json")
+    figures = {level: "growth.png" if level == others[-1] else f"growth-x{level:g}.png" for level in others}
+    try:  # found now, not after the whole run
+        for name in ("results.json", "table.md", *figures.values()):
+            check_owned_path(args.out, name)
+    except UnsafeOutputError as exc:
+        raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
     results = args.out / "results.json"
     if results.exists():
         try:
@@ -198,14 +227,17 @@ def main(argv: list[str] | None = None) -> int:
         except (ValueError, UnicodeDecodeError, AssertionError):
             raise UsageError(f"{results}: not a results file of this study; delete it or choose another --out") from None
     try:
-        doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps, parallel=not args.serial,
-                        weights=weights, quiet=args.quiet)
+        if args.redraw:
+            doc = redraw_results(args.out, odometers, levels, args.episodes, args.max_steps)
+        else:
+            doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps, parallel=not args.serial,
+                            weights=weights, quiet=args.quiet)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     table = growth_table(doc, odometers, levels)
-    write_bytes_atomic(args.out / "table.md", table.encode())
+    write_bytes_atomic(owned_path(args.out, "table.md"), table.encode())
     for level in others:  # the last one named is growth.png, any others growth-x<level>.png
-        growth_figure(doc, odometers, level, args.out / ("growth.png" if level == others[-1] else f"growth-x{level:g}.png"))
+        growth_figure(doc, odometers, level, owned_path(args.out, figures[level]))
     print(table)
     return 0
 

@@ -261,9 +261,9 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import ROW_KEYS, NavTask, read_row
 
-    spec = EpisodeSpec(split="test", index=3, max_steps=5)
+    spec = EpisodeSpec(split="test", index=3, max_steps=1)  # the one step ran out the episode: stopped false
     row = {k: 0 for k in ROW_KEYS} | {"odometer": "robust-vo", "episode": 3, "split": "test", "stopped": False,
-                                       "weights": "a" * 64, "steps": 1,
+                                       "weights": "a" * 64, "steps": 1, "d0": 1.0, "d_end": 1.0, "path": 0.25,
                                        "goal": [1.0, 2.0], "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))
@@ -327,9 +327,10 @@ def test_a_saved_episode_with_infinities_is_run_again_and_a_pipe_refused(tmp_pat
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import ROW_KEYS, NavTask, read_row
 
-    spec = EpisodeSpec(split="test", index=3, max_steps=5)
+    spec = EpisodeSpec(split="test", index=3, max_steps=1)
     task = NavTask("icp", {}, spec, PolicyConfig(), None)
     row = {k: 0 for k in ROW_KEYS} | {"odometer": "icp", "episode": 3, "split": "test", "stopped": False, "steps": 1,
+                                       "d0": 1.0, "d_end": 1.0, "path": 0.25,
                                        "goal": [1.0, 2.0], "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))

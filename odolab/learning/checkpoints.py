@@ -53,13 +53,66 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str
 MODEL_FORMAT = 1
 
 
+def what_file(path: str | os.PathLike) -> str | None:
+    """None when ``path`` is a model file odolab exported (any kind); else what it is, in words:
+    "a training state", "a checkpoint of kind 'x'", "a folder", or "a file that is not an
+    odolab model (a recipe, data or another program's file)"."""
+    if os.path.isdir(path):
+        return "a folder"
+    try:
+        doc = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001 - not a torch file, or unsafe content: not a model either way
+        return "a file that is not an odolab model (a recipe, data or another program's file)"
+    if isinstance(doc, dict) and doc.get("format") == MODEL_FORMAT and isinstance(doc.get("networks"), dict) \
+            and isinstance(doc.get("kind"), str) and "model" in doc:
+        return None
+    kind = doc.get("kind") if isinstance(doc, dict) else None
+    if kind == "odolab-training-state":
+        return "a training state"
+    return f"a checkpoint of kind {kind!r}" if isinstance(kind, str) else "a torch file that is not an odolab model"
+
+
+def check_export(export: Path, recipe: Path, states: dict[str, Path]) -> None:
+    """Refuse, with one ``ValueError`` line naming ``--export``, what it would find there and what
+    it expects, an export path that would replace what no export wrote: the recipe, a training
+    state the run keeps (``states``: what keeps it -> its path, e.g. ``"stage 'model'"``), or an
+    existing file that is not a model odolab exported (a state, data, a recipe). Checked before
+    any training."""
+    export = Path(export)
+    expected = "a new file or a model odolab exported"
+
+    def same(a: Path, b: Path) -> bool:
+        try:
+            return os.path.samefile(a, b)
+        except OSError:
+            return os.path.realpath(a) == os.path.realpath(b)
+
+    if same(export, recipe):
+        raise ValueError(f"--export {export}: expected {expected}, found the recipe (--config {recipe}), which the "
+                         "model would replace; give --export another path")
+    for what, state in states.items():
+        if same(export, state):
+            raise ValueError(f"--export {export}: expected {expected}, found the file where {what} keeps its "
+                             "training state, which the model would replace; give --export another path")
+    if os.path.lexists(export):
+        found = what_file(export)
+        if found is not None:
+            raise ValueError(f"--export {export}: expected {expected}, found {found}; odolab replaces only the "
+                             "models it exported: give --export another path")
+
+
 def save_model(path: str | os.PathLike, kind: str, recipe: Any, networks: dict[str, torch.nn.Module],
                training: dict[str, Any]) -> None:
     """A trained model file: the recipe (a dataclass with a ``model`` field; its ``model`` part is what
-    loading needs), each network's weights (on the CPU) and the training status, all plain data."""
+    loading needs), each network's weights (on the CPU) and the training status, all plain data.
+    An existing file at ``path`` that is not a model odolab exported is never replaced
+    (:class:`CheckpointError`, see :func:`what_file`)."""
     import dataclasses
     import json
 
+    if os.path.lexists(path) and (found := what_file(path)) is not None:
+        raise CheckpointError(f"{path}: expected a new file or a model odolab exported, found {found}; "
+                              "not replaced (export the model elsewhere)")
     doc = json.loads(json.dumps(dataclasses.asdict(recipe)))
     save_checkpoint(path, kind, MODEL_FORMAT, {
         "model": doc["model"], "recipe": doc, "training": json.loads(json.dumps(training)),

@@ -53,12 +53,25 @@ def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
     return ap
 
 
+#: What keeps a training state -> its file, given the recipe and ``--work``.
+StateFiles = Callable[[Any, Path], dict[str, Path]]
+
+
+def stage_states(config: Any, work: Path) -> dict[str, Path]:
+    """The training states of a recipe with ``stages`` (the robust VO): one per stage,
+    ``<work>/<stage name>.pt``; none for a recipe without stages."""
+    return {f"stage {s.name!r}": work / f"{s.name}.pt" for s in getattr(config, "stages", ())}
+
+
 def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
-                           load_config: Callable[[str], Any]) -> TrainingJob:
+                           load_config: Callable[[str], Any], state_files: StateFiles | None = None) -> TrainingJob:
     """Parse, read the recipe with ``load_config`` (its ``ValueError`` becomes a usage error), pick
-    the device, set the thread count and check every output path before any work."""
+    the device, set the thread count and check every output path before any work: ``--export``
+    must not be the recipe, a training state (``state_files``, default :func:`stage_states`) or a
+    file that is not a model odolab exported."""
     import torch
 
+    from odolab.learning.checkpoints import check_export
     from odolab.learning.device import pick_device
 
     args = ap.parse_args(argv)
@@ -81,6 +94,10 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
     check_output_dir(work, "--work")
     check_output_dir(reports, "--reports")
     check_output_file(export, "--export")
+    try:  # never the recipe, a training state or a file no export wrote
+        check_export(export, args.config, (state_files or stage_states)(config, work))
+    except ValueError as exc:
+        raise UsageError(str(exc) if args.export else f"{exc} (the default --export is <work>/model.pt)") from None
     if args.threads:
         torch.set_num_threads(args.threads)
     argv = list(argv) if argv is not None else sys.argv[1:]
@@ -95,12 +112,13 @@ def run_training_cli(main: Callable[[Sequence[str] | None], int | None], prog: s
 
 
 def training_main(argv: Sequence[str] | None, *, prog: str, description: str, family: str,
-                  load_config: Callable[[str], Any], run: Callable[..., bool]) -> int:
+                  load_config: Callable[[str], Any], run: Callable[..., bool],
+                  state_files: StateFiles | None = None) -> int:
     """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
     ``run(config, work=, reports=, export=, device=, hours=, ray_address=, progress=, command=)``
     (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
     ap = training_parser(prog, description, family)
-    job = parse_training_command(ap, argv, load_config)
+    job = parse_training_command(ap, argv, load_config, state_files)
     try:
         done = run(job.config, work=job.work, reports=job.reports, export=job.export, device=job.device,
                    hours=job.hours, ray_address=job.ray_address, progress=job.progress, command=job.command)

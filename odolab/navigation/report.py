@@ -22,6 +22,7 @@ import numpy as np
 
 from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
+from odolab.io.owned import owned_path
 from odolab.navigation.metrics import belief_error, mean_ci
 
 METRICS = ("success", "spl", "soft_spl", "d_end", "belief_error")
@@ -182,28 +183,42 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
     plt.close(fig)
 
 
+#: The tables and figures every navigation report has (and ``paths-<episode>.png`` of a few episodes).
+REPORT_FILES = ("nav.csv", "nav.md", "episodes.csv", "metrics.png", "belief.png", "report.html")
+
+
+def paths_file(spec: EpisodeSpec) -> str:
+    """The name of an episode's paths figure."""
+    return f"paths-{spec.index:04d}.png"
+
+
+def output_files(specs: list[EpisodeSpec], sample_episodes: int = 2) -> list[str]:
+    """Every file :func:`write_outputs` writes for ``specs`` (relative to its folder)."""
+    return [*REPORT_FILES, *(paths_file(s) for s in specs[:sample_episodes])]
+
+
 def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list[EpisodeSpec], command: str,
                   sample_episodes: int = 2, policy: dict | None = None) -> list[dict]:
     """Tables, figures and ``report.html`` under ``out`` (``policy``: the policy's parameters, shown
-    in the report, since a command's defaults change between versions); returns the per-odometer
-    table."""
+    in the report, since a command's defaults change between versions), each through
+    :func:`odolab.io.owned.owned_path` (never through a link); returns the per-odometer table."""
     rows = [{**r, "belief_error": belief_error(r)} for r in rows]
     table = summarize(rows, odometers)
     keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
         "steps", "collisions", "failed_steps", "stopped_elsewhere", "ran_out", "drift_per_m"]
-    write_text_atomic(out / "nav.csv", _csv(table, keys))
-    write_text_atomic(out / "nav.md", markdown_table(table))
+    write_text_atomic(owned_path(out, "nav.csv"), _csv(table, keys))
+    write_text_atomic(owned_path(out, "nav.md"), markdown_table(table))
     ep_keys = ["odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions",
                "success", "spl", "soft_spl", "failed_steps", "belief_error"]
-    write_text_atomic(out / "episodes.csv", _csv(rows, ep_keys))
-    metrics_figure(table, out / "metrics.png")
-    belief_figure(table, out / "belief.png")
+    write_text_atomic(owned_path(out, "episodes.csv"), _csv(rows, ep_keys))
+    metrics_figure(table, owned_path(out, "metrics.png"))
+    belief_figure(table, owned_path(out, "belief.png"))
     figures = []
     for spec in specs[:sample_episodes]:
-        name = f"paths-{spec.index:04d}.png"
-        paths_figure(rows, odometers, spec, out / name)
+        name = paths_file(spec)
+        paths_figure(rows, odometers, spec, owned_path(out, name))
         figures.append(name)
-    write_text_atomic(out / "report.html", _html(table, figures, command, policy))
+    write_text_atomic(owned_path(out, "report.html"), _html(table, figures, command, policy))
     return table
 
 

@@ -3,8 +3,12 @@ saved as it finishes (a rerun does only what is missing); the tables and figures
 :mod:`odolab.navigation.report`'s.
 
 Files under the output folder: ``config.json`` (what the results were made with; another config is
-refused) and ``episodes/<odometer>/<episode>.json`` (one run each, with its paths; a damaged one, or
-one of another model file or setting, is run again).
+refused) and ``episodes/<odometer>/<episode>.json`` (one run each, with its paths and its ``key``: a
+digest of everything the run depends on, :meth:`NavTask.key`). A saved run is reused only when its
+key is the task's (a file without one, from an older version, when its odometer, episode, split,
+seed and weights are the task's and its step count fits ``max_steps``) and its fields agree with
+each other (:func:`row_problem`); any other is run again, and named on the console. Every file is
+written through :func:`odolab.io.owned.owned_path`: never through a symbolic link.
 """
 from __future__ import annotations
 
@@ -23,6 +27,7 @@ import numpy as np
 from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
+from odolab.io.owned import check_owned_path, owned_path
 from odolab.navigation.agent import PolicyConfig, with_old_behaviour
 
 @dataclass(frozen=True)
@@ -34,6 +39,13 @@ class NavTask:
     spec: EpisodeSpec
     policy: PolicyConfig
     weights: str | None = None  # Odometer.weights: a retrained model's or changed setting's episodes rerun
+
+    def key(self) -> str:
+        """SHA-256 of everything the run's result depends on: odometer, its options and weights,
+        the whole episode spec (split, index, seed, max_steps, noise, camera) and the policy."""
+        doc = {"odometer": self.odometer, "options": self.options, "weights": self.weights,
+               "spec": dataclasses.asdict(self.spec), "policy": dataclasses.asdict(self.policy)}
+        return hashlib.sha256(json.dumps(doc, sort_keys=True, default=repr).encode()).hexdigest()
 
 
 def run_task(task: NavTask) -> dict[str, Any]:
@@ -47,7 +59,7 @@ def run_task(task: NavTask) -> dict[str, Any]:
             "d0": o.d0, "d_end": o.d_end, "path": o.path, "stopped": o.stopped, "steps": o.steps,
             "collisions": o.collisions, "success": o.success, "spl": o.spl, "soft_spl": o.soft_spl,
             "failed_steps": run.failed_steps, "weights": task.weights, "goal": list(run.goal), "true_xy": run.true_xy.round(4).tolist(),
-            "believed_xy": run.believed_xy.round(4).tolist()}
+            "believed_xy": run.believed_xy.round(4).tolist(), "max_steps": task.spec.max_steps, "key": task.key()}
 
 
 def _safe(name: str) -> str:
@@ -97,9 +109,62 @@ def _same(value: Any, want: int) -> bool:
     return type(value) is int and value == want
 
 
-def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> dict | None:
-    """A saved result if it is whole and belongs to ``task``; None if it is missing or damaged, so
-    that the episode is run again (a damaged file is appended to ``rejected``, for the caller's note)."""
+#: Metres a path length may differ from the one of its saved positions, per step (they are rounded
+#: to 0.1 mm: each step's length moves by at most sqrt(2) x 0.1 mm).
+PATH_ROUNDING = 1.5e-4
+
+
+def _close(a: float, b: float) -> bool:
+    return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
+
+
+def row_problem(row: dict, task: NavTask) -> str | None:
+    """Why a sane saved ``row`` (:func:`_sane`) is not ``task``'s result, or its fields contradict
+    each other; None when it is. Its odometer, episode, split, seed and weights must be the task's,
+    and its ``key``, when it has one (an older version's rows have none), the task's. The
+    step count must fit ``task``'s ``max_steps`` (an episode ends at STOP, before the limit, or at
+    the limit), success must follow from STOP and the final distance, SPL and SoftSPL from the
+    distances and the path, and the path from the positions."""
+    from odolab.navigation.metrics import SUCCESS_DISTANCE, path_length
+
+    spec = task.spec
+    if not (row["odometer"] == task.odometer and _same(row["episode"], spec.index) and row["split"] == spec.split
+            and _same(row["seed"], spec.seed) and row.get("weights") == task.weights):
+        return "made for another odometer, episode, split, seed, model file or setting"
+    if "max_steps" in row and row["max_steps"] != spec.max_steps:
+        return f"made with --max-steps {row['max_steps']!r}, not {spec.max_steps}"
+    if "key" in row and row["key"] != task.key():
+        return "made with other settings (its key differs: odometer options, episode noise or camera, or policy)"
+    steps, stopped = row["steps"], row["stopped"]
+    if steps > spec.max_steps:
+        return f"{steps} steps, above --max-steps {spec.max_steps}"
+    if not stopped and steps != spec.max_steps:
+        return f"not stopped after {steps} steps, below --max-steps {spec.max_steps}"
+    if stopped and steps == spec.max_steps:
+        return f"stopped after {steps} steps, where --max-steps {spec.max_steps} ends an episode without STOP"
+    success = float(stopped and row["d_end"] < SUCCESS_DISTANCE)
+    if row["success"] != success:
+        return (f"success {row['success']} with stopped {str(stopped).lower()} and {row['d_end']:.2f} m left "
+                f"(success needs STOP within {SUCCESS_DISTANCE} m)")
+    efficiency = row["d0"] / max(row["d0"], row["path"])
+    if not _close(row["spl"], success * efficiency):
+        return f"spl {row['spl']} where success and the distances give {success * efficiency}"
+    soft = max(0.0, 1.0 - row["d_end"] / row["d0"]) * efficiency
+    if not _close(row["soft_spl"], soft):
+        return f"soft_spl {row['soft_spl']} where the distances give {soft}"
+    walked = path_length(np.asarray(row["true_xy"], np.float64))
+    if abs(row["path"] - walked) > PATH_ROUNDING * max(steps, 1) + 1e-9:
+        return f"path {row['path']} m where its positions give {walked:.4f} m"
+    if row["failed_steps"] > steps or row["collisions"] > steps:
+        return f"more failed steps or collisions than its {steps} steps"
+    return None
+
+
+def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None,
+             reasons: dict[Path, str] | None = None) -> dict | None:
+    """A saved result if it is whole, consistent and belongs to ``task``; None if it is missing,
+    damaged or not ``task``'s (:func:`row_problem`), so that the episode is run again (such a file
+    is appended to ``rejected`` and its reason put in ``reasons``, for the caller's note)."""
     if path.is_symlink():  # navigate writes no links; writing the rerun's result would go through it
         raise ValueError(f"{path} is a symbolic link where an episode's result file belongs; delete it or choose "
                          "another --out")
@@ -112,14 +177,18 @@ def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None) -> d
                          "file belongs; delete it or choose another --out")
     try:
         row = read_input_json(path, "navigation result")  # size-capped, duplicate keys refused
-        ok = (isinstance(row, dict) and all(k in row for k in ROW_KEYS) and row["odometer"] == task.odometer
-              and _same(row["episode"], task.spec.index) and row["split"] == task.spec.split
-              and _same(row["seed"], task.spec.seed) and row.get("weights") == task.weights and _sane(row))
+        missing = [k for k in ROW_KEYS if k not in row] if isinstance(row, dict) else ["every field"]
+        problem = (f"missing {', '.join(missing[:3])}" if missing else
+                   "values no run can have" if not _sane(row) else row_problem(row, task))
     except ValueError:  # damaged, not a regular file, too large, or numbers too long to read
-        ok = False
-    if not ok:
+        problem = "not a readable result file"
+    except (TypeError, KeyError):  # a field of an unexpected type reached a comparison
+        problem = "values no run can have"
+    if problem is not None:
         if rejected is not None:
             rejected.append(path)
+        if reasons is not None:
+            reasons[path] = problem
         return None
     return row
 
@@ -229,21 +298,26 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
         config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
     for folder in {result_path(out, t.odometer, t.spec.index).parent for t in tasks}:
         for p in (folder.parent, folder):  # checked before any episode runs, not when its result is written
-            if p.exists() and not p.is_dir():
+            if p.exists() and not p.is_dir() and not p.is_symlink():
                 raise ValueError(f"{p} is a file where navigate keeps a folder of episode results; delete it or "
                                  "choose another --out")
-    write_text_atomic(cfg_path, json.dumps(config, indent=1) + "\n")
+    check_owned_path(out, "config.json")  # no link on the way to any file this run writes
+    for t in tasks:
+        check_owned_path(out, result_path(out, t.odometer, t.spec.index).relative_to(out))
+    write_text_atomic(owned_path(out, "config.json"), json.dumps(config, indent=1) + "\n")
     rejected: list[Path] = []
-    todo = [t for t in tasks if read_row(result_path(out, t.odometer, t.spec.index), t, rejected) is None]
+    reasons: dict[Path, str] = {}
+    todo = [t for t in tasks if read_row(result_path(out, t.odometer, t.spec.index), t, rejected, reasons) is None]
     for folder in sorted({p.parent for p in rejected}):  # one line per odometer, not one per episode
         names = sorted(p.name for p in rejected if p.parent == folder)
-        print(f"note: {len(names)} saved episode(s) in {folder} ({names[0]}{' ...' if len(names) > 1 else ''}) are damaged "
-              "or belong to another run, model file, calibration or setting; running them again", file=sys.stderr)
+        said = "; ".join(f"{n}: {reasons[folder / n]}" for n in names[:3]) + (f"; {len(names) - 3} more"
+                                                                               if len(names) > 3 else "")
+        print(f"note: {len(names)} saved episode(s) in {folder} are damaged, inconsistent or belong to another run, "
+              f"model file, calibration or setting; running them again ({said})", file=sys.stderr)
 
     def done(k: int, row: dict) -> None:
-        p = result_path(out, todo[k].odometer, todo[k].spec.index)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(p, json.dumps(row) + "\n")
+        write_text_atomic(owned_path(out, result_path(out, todo[k].odometer, todo[k].spec.index).relative_to(out)),
+                          json.dumps(row) + "\n")
 
     fan_out(run_task, todo, on_result=done, parallel=parallel, ray_address=ray_address, progress=progress,
             desc="navigation episodes")

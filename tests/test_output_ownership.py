@@ -1,0 +1,252 @@
+"""No command deletes or writes outside the folder it owns, whatever links that folder holds, and
+none overwrites a folder, a recipe, a state or data that odolab did not write (issue 42)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from odolab.cli import run_cli
+from odolab.io.owned import UnsafeOutputError, check_owned_path, owned_path, remove_owned
+
+
+def _outside(tmp_path: Path) -> Path:
+    """A folder beside the output folder, holding a file no run may touch."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim.tum").write_text("precious")
+    return outside
+
+
+def _one_line(capsys, *words: str) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+def test_owned_paths_never_pass_a_link_a_file_for_a_folder_or_leave_the_root(tmp_path):
+    outside = _outside(tmp_path)
+    root = tmp_path / "out"
+    root.mkdir()
+    (root / "sub").symlink_to(outside)
+    (root / "file").write_text("x")
+    (root / "link.tum").symlink_to(outside / "victim.tum")
+    for rel, expected, found in (("sub/victim.tum", "expected a folder", "found a symbolic link to"),
+                                 ("file/a.tum", "expected a folder", "found a file"),
+                                 ("link.tum", "expected a regular file or nothing", "found a symbolic link to")):
+        with pytest.raises(UnsafeOutputError, match=f"{expected}, {found}"):
+            owned_path(root, rel)
+        assert not remove_owned(root, rel)
+    for rel in ("../outside/victim.tum", "a/../../outside/victim.tum", str(outside / "victim.tum"), ""):
+        with pytest.raises(UnsafeOutputError):
+            check_owned_path(root, rel)
+    assert (outside / "victim.tum").read_text() == "precious" and sorted(p.name for p in outside.iterdir()) == ["victim.tum"]
+    assert owned_path(root, "new/deep/a.tum") == root / "new" / "deep" / "a.tum" and (root / "new" / "deep").is_dir()
+
+
+def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(tmp_path):
+    """A linked ``trajectories/<episode>`` and a crafted manifest line through a linked subfolder:
+    nothing outside is deleted, the cleanup never raises, and the folder is refused by check()."""
+    from odolab.report import MANIFEST, OutputFolder
+
+    outside = _outside(tmp_path)
+    (outside / "keep.txt").write_text("mine")
+    root = tmp_path / "out"
+    (root / "trajectories").mkdir(parents=True)
+    (root / "trajectories" / "ep").symlink_to(outside, target_is_directory=True)
+    (root / "sub").symlink_to(outside, target_is_directory=True)
+    (root / MANIFEST).write_text("trajectories/ep/victim.tum\nsub/keep.txt\ntable.csv\n")
+    (root / "table.csv").write_text("old")
+    with pytest.raises(UnsafeOutputError, match="ep: expected a folder, found a symbolic link to"):
+        OutputFolder.check(root)
+    folder = OutputFolder(root)
+    assert folder.removed == ["table.csv"] and folder.not_removed == ["trajectories/ep/victim.tum", "sub/keep.txt"]
+    assert (outside / "victim.tum").read_text() == "precious" and (outside / "keep.txt").read_text() == "mine"
+    folder.path("table.csv").write_text("new")  # a result is written and listed
+    with pytest.raises(UnsafeOutputError):
+        folder.path("trajectories/ep/icp.tum")
+    assert sorted(p.name for p in outside.iterdir()) == ["keep.txt", "victim.tum"]
+    assert (root / MANIFEST).read_text() == "table.csv\n"
+
+
+def _compare(argv) -> int:
+    from odolab.compare import main
+
+    return run_cli(main, "python -m odolab.compare", [str(a) for a in argv])
+
+
+COMPARE = ["--odometers", "action-prior", "--episodes", "1", "--max-steps", "3", "--no-cache", "--serial", "--quiet"]
+
+
+def test_compare_refuses_a_linked_or_misplaced_folder_before_any_work(tmp_path, capsys):
+    outside = _outside(tmp_path)
+    out = tmp_path / "run"
+    (out / "trajectories").mkdir(parents=True)
+    (out / "manifest.txt").write_text("trajectories/test-0000/victim.tum\n")
+    (out / "trajectories" / "test-0000").symlink_to(outside, target_is_directory=True)
+    assert _compare(COMPARE + ["--out", out]) == 2
+    _one_line(capsys, "trajectories/test-0000", "expected a file or folder", "found a symbolic link to")
+    assert (outside / "victim.tum").read_text() == "precious" and not (out / "table.csv").exists()
+    (out / "trajectories" / "test-0000").unlink()
+    (out / "trajectories").rmdir()
+    (out / "trajectories").write_text("a file where compare keeps a folder")
+    assert _compare(COMPARE + ["--out", out]) == 2
+    _one_line(capsys, "trajectories", "expected a folder, found a file")
+    assert not (out / "table.csv").exists()
+
+
+def test_simcard_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
+    from odolab.simcard import main
+
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "card.md").write_text("my own notes")
+    argv = ["--episodes", "1", "--rendered", "1", "--frames", "2", "--max-steps", "5", "--serial", "--quiet"]
+    assert run_cli(main, "python -m odolab.simcard", argv + ["--out", str(out)]) == 2
+    _one_line(capsys, "holds files odolab did not write")
+    assert (out / "card.md").read_text() == "my own notes"
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    (linked / "manifest.txt").write_text("card.md\n")
+    (linked / "card.md").symlink_to(_outside(tmp_path) / "victim.tum")
+    assert run_cli(main, "python -m odolab.simcard", argv + ["--out", str(linked)]) == 2
+    _one_line(capsys, "card.md", "found a symbolic link to")
+    assert (tmp_path / "outside" / "victim.tum").read_text() == "precious"
+
+
+def _navigate(argv) -> int:
+    from odolab.navigate import main
+
+    return run_cli(main, "python -m odolab.navigate", [str(a) for a in argv])
+
+
+def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
+    """One rule for every file navigate writes: nav.md, config.json and a linked episodes folder
+    are refused before any episode, as a linked episode file is."""
+    args = ["--odometers", "ground-truth", "--episodes", "1", "--max-steps", "3", "--serial", "--quiet"]
+    out = tmp_path / "nav"
+    assert _navigate(args + ["--out", out]) == 0
+    outside = _outside(tmp_path)
+    for rel, target in (("nav.md", outside / "victim.tum"), ("config.json", outside / "config.json"),
+                        ("episodes/ground-truth", outside / "episodes")):
+        original = out / rel
+        moved = tmp_path / "moved"
+        original.rename(moved)
+        if moved.is_dir():
+            import shutil
+
+            shutil.copytree(moved, target)
+        elif rel == "config.json":
+            target.write_text(moved.read_text())
+        original.symlink_to(target)
+        before = {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()}
+        assert _navigate(args + ["--out", out]) == 2, rel
+        _one_line(capsys, rel, "found a symbolic link to")
+        assert {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()} == before, rel
+        original.unlink()
+        moved.rename(original)
+    assert _navigate(args + ["--out", out]) == 0
+
+
+def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
+    import studies.turns_by_depth as study
+
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "results.json").write_text(json.dumps({"my": "own results"}))
+    (out / "table.md").write_text("my table")
+    argv = ["--odometers", "action-prior", "--scenes", "1", "--per-scene", "1", "--quiet", "--out", str(out)]
+    assert run_cli(study.main, "python -m studies.turns_by_depth", argv) == 2
+    _one_line(capsys, "results.json: not a results file of this study")
+    assert (out / "table.md").read_text() == "my table"
+    assert json.loads((out / "results.json").read_text()) == {"my": "own results"}
+
+
+# --- the trainers' --export ---------------------------------------------------------------------
+
+ROBUST_RECIPE = """
+[model]
+width = 48
+height = 32
+
+[train_data]
+width = 48
+height = 32
+
+[val_data]
+split = "val"
+width = 48
+height = 32
+
+[[stages]]
+name = "{stage}"
+actions = ["move_forward"]
+epochs = 1
+"""
+
+
+def _robust_job(tmp_path: Path, *argv: str, stage: str = "forward"):
+    from odolab.learning.cli import parse_training_command, training_parser
+    from odolab.robust_vo.config import load_train_config
+
+    recipe = tmp_path / "recipe.toml"
+    recipe.write_text(ROBUST_RECIPE.replace("{stage}", stage))  # parsed only: no data is made
+    ap = training_parser("python -m odolab.robust_vo.train", "train", "robust-vo")
+    return parse_training_command(ap, ["--config", str(recipe), "--work", str(tmp_path / "work"),
+                                       "--reports", str(tmp_path / "reports"), *argv], load_train_config)
+
+
+def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(tmp_path):
+    pytest.importorskip("torch")
+    from odolab.cli import UsageError
+    from odolab.learning import save_checkpoint
+
+    recipe = tmp_path / "recipe.toml"
+    with pytest.raises(UsageError, match="--export .*recipe.toml: expected a new file or a model odolab exported, "
+                                         "found the recipe"):
+        _robust_job(tmp_path, "--export", str(recipe))
+    assert "[[stages]]" in recipe.read_text()
+    with pytest.raises(UsageError, match="found the file where stage 'forward' keeps its training state"):
+        _robust_job(tmp_path, "--export", str(tmp_path / "work" / "forward.pt"))
+    # a stage named "model": its state is where the model goes by default
+    with pytest.raises(UsageError, match=r"stage 'model' keeps its training state.*default --export is <work>/model.pt"):
+        _robust_job(tmp_path, stage="model")
+    state = tmp_path / "elsewhere.pt"
+    save_checkpoint(state, "odolab-training-state", 1, {"epoch": 1})
+    data = tmp_path / "shard.npz"
+    data.write_bytes(b"PK\x03\x04 not a model")
+    for path, found in ((state, "found a training state"), (data, "found a file that is not an odolab model")):
+        before = path.read_bytes()
+        with pytest.raises(UsageError, match=found):
+            _robust_job(tmp_path, "--export", str(path))
+        assert path.read_bytes() == before
+    job = _robust_job(tmp_path, "--export", str(tmp_path / "new.pt"))  # a new file is fine
+    assert job.export == tmp_path / "new.pt"
+
+
+def test_the_deepvo_export_never_replaces_its_training_state_and_saving_never_replaces_a_recipe(tmp_path):
+    torch = pytest.importorskip("torch")
+    from baselines.deepvo.config import load_training
+    from baselines.deepvo.train import state_files
+    from odolab.cli import UsageError
+    from odolab.learning import CheckpointError
+    from odolab.learning.checkpoints import save_model
+    from odolab.learning.cli import parse_training_command, training_parser
+
+    recipe = tmp_path / "deepvo.toml"
+    recipe.write_text("epochs = 1\n")
+    ap = training_parser("python -m baselines.deepvo.train", "train", "deepvo")
+    with pytest.raises(UsageError, match="found the file where the DeepVO training keeps its training state"):
+        parse_training_command(ap, ["--config", str(recipe), "--work", str(tmp_path / "work"), "--reports",
+                                    str(tmp_path / "r"), "--export", str(tmp_path / "work" / "deepvo.pt")],
+                               load_training, state_files)
+    cfg = load_training(str(recipe))
+    with pytest.raises(CheckpointError, match="found a file that is not an odolab model"):
+        save_model(recipe, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})
+    assert recipe.read_text() == "epochs = 1\n"
+    model = tmp_path / "m.pt"
+    save_model(model, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})
+    save_model(model, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})  # a model it exported: replaced
