@@ -514,7 +514,8 @@ def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], resul
         sections.append(f"<h2>Trajectories, top-down ({len(cards)} sequence{'s' if len(cards) > 1 else ''})</h2>"
                         "<p>Ground truth (black) and "
                         "each odometer's integrated trajectory, world x/y in metres, over the floor plan where "
-                        "known (obstacles grey). Click a figure for full size.</p>"
+                        "known (obstacles grey); a circle marks the start, a square each trajectory's end, a "
+                        "star the goal (an arrow when it lies outside the view). Click a figure for full size.</p>"
                         f"<div class=\"gallery\">{''.join(cards)}</div>")
     definitions = summary_doc.split("\n\n", 1)[1] if summary_doc and "\n\n" in summary_doc else (summary_doc or "")
     sections.append("<h2>Definitions</h2>" + rst_to_html(definitions))
