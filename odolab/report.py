@@ -26,7 +26,7 @@ import re
 import sys
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -369,13 +369,13 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     plt.close(fig)
 
 
-def _draw_goal(ax, goal: np.ndarray, centre: np.ndarray, half: float, end: np.ndarray):
+def _draw_goal(ax: Any, goal: np.ndarray, centre: np.ndarray, half: float, end: np.ndarray) -> Any:
     """Draw the goal as a star inside the view ``centre`` +- ``half`` (m), or, outside it, as an arrow
     near the view's edge pointing to it, labelled with its distance from the true ``end``; returns
     the legend's handle for it."""
     from matplotlib.lines import Line2D
 
-    style = dict(marker="*", ms=13, color="gold", markeredgecolor="k", markeredgewidth=0.8)
+    style = {"marker": "*", "ms": 13, "color": "gold", "markeredgecolor": "k", "markeredgewidth": 0.8}
     offset = goal - centre
     if np.all(np.abs(offset) <= half):
         ax.plot(goal[0], goal[1], ls="none", zorder=6, **style)
@@ -383,8 +383,8 @@ def _draw_goal(ax, goal: np.ndarray, centre: np.ndarray, half: float, end: np.nd
     edge = centre + offset * (0.88 * half / np.abs(offset).max())  # on the way to the goal, inside the view
     tail = centre + offset * (0.62 * half / np.abs(offset).max())
     ax.annotate(f"goal {np.linalg.norm(goal - end):.1f} m\nfrom the end", xy=edge, xytext=tail, fontsize=7, ha="center",
-                va="center", zorder=6, arrowprops=dict(arrowstyle="-|>", color="k", lw=1.2),
-                bbox=dict(boxstyle="round,pad=0.2", fc="gold", ec="k", lw=0.6))
+                va="center", zorder=6, arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 1.2},
+                bbox={"boxstyle": "round,pad=0.2", "fc": "gold", "ec": "k", "lw": 0.6})
     return Line2D([], [], ls="none", label="goal (off view: arrow)", **style)
 
 
