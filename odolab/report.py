@@ -33,7 +33,7 @@ import numpy as np
 from odolab.geometry import invert
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.kitti import write_kitti_poses
-from odolab.io.owned import UnsafeOutputError, check_owned_path, owned_path, remove_owned
+from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
 from odolab.io.tum import write_tum_trajectory
 from odolab.runner import SequenceResult
 from odolab.summary import ActionRow, Row, fmt, text_table
@@ -74,18 +74,22 @@ class OutputFolder:
 
     @staticmethod
     def check(root: Path, files: tuple[str, ...] = (), folders: tuple[str, ...] = ()) -> None:
-        """Raise :class:`~odolab.io.owned.UnsafeOutputError` unless a run can write ``root``:
-        every path its manifest names, each of ``files`` (a regular file or nothing) and each of
-        ``folders`` (a folder or nothing) lie inside it, with no symbolic link on the way."""
+        """Raise :class:`~odolab.io.owned.UnsafeOutputError` unless a run can write ``root``: the
+        folders of every path its manifest names and each of ``folders`` are folders (or nothing),
+        each of ``files`` a regular file (or nothing), all inside ``root`` with no symbolic link on
+        the way. (A manifest line naming a folder or a link is only left alone by the cleanup.)"""
         root = Path(root)
         if not root.exists():
             return
         if not root.is_dir():
             raise UnsafeOutputError(root, "a folder", "a file")
-        for rel in _manifest_lines(root) + list(files):
+        for rel in _manifest_lines(root):
+            if len(Path(rel).parts) > 1:
+                check_owned_folder(root, Path(rel).parent)
+        for rel in files:
             check_owned_path(root, rel)
         for rel in folders:
-            check_owned_path(root, f"{rel}/x")
+            check_owned_folder(root, rel)
 
     def path(self, relative: str) -> Path:
         """The path of ``relative`` (its folder created), recorded as written by this run."""

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from odolab.cli import run_cli
-from odolab.io.owned import UnsafeOutputError, check_owned_path, owned_path, remove_owned
+from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
 
 
 def _outside(tmp_path: Path) -> Path:
@@ -45,6 +45,10 @@ def test_owned_paths_never_pass_a_link_a_file_for_a_folder_or_leave_the_root(tmp
             check_owned_path(root, rel)
     assert (outside / "victim.tum").read_text() == "precious" and sorted(p.name for p in outside.iterdir()) == ["victim.tum"]
     assert owned_path(root, "new/deep/a.tum") == root / "new" / "deep" / "a.tum" and (root / "new" / "deep").is_dir()
+    for rel, found in (("sub", "a symbolic link to"), ("file", "a file"), ("sub/x", "a symbolic link to")):
+        with pytest.raises(UnsafeOutputError, match=f"expected a folder, found {found}"):
+            check_owned_folder(root, rel)
+    assert check_owned_folder(root, "new/deep") == root / "new" / "deep"
 
 
 def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(tmp_path):

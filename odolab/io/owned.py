@@ -13,7 +13,7 @@ import os
 import stat
 from pathlib import Path, PurePath
 
-__all__ = ["UnsafeOutputError", "check_owned_path", "owned_path", "remove_owned"]
+__all__ = ["UnsafeOutputError", "check_owned_folder", "check_owned_path", "owned_path", "remove_owned"]
 
 
 class UnsafeOutputError(ValueError):
@@ -59,11 +59,8 @@ def _kind(mode: int, path: Path) -> str:
     return "a pipe, device or socket"
 
 
-def check_owned_path(root: str | os.PathLike, relative: str | os.PathLike, *, create: bool = False) -> Path:
-    """``root / relative`` if a run may write a regular file there without leaving ``root``; else
-    :class:`UnsafeOutputError` naming the first component that is a symbolic link, a file where
-    a folder belongs, or a folder, pipe or device where the file belongs. With ``create`` the
-    missing folders on the way are made (each checked as it is made)."""
+def _check(root: Path, relative: str | os.PathLike, create: bool, folder: bool) -> Path:
+    """:func:`check_owned_path` (``folder`` False) or :func:`check_owned_folder` (True)."""
     root = Path(root)
     parts = _parts(root, relative)
     here = root
@@ -71,28 +68,41 @@ def check_owned_path(root: str | os.PathLike, relative: str | os.PathLike, *, cr
     for k, part in enumerate(parts):
         here = here / part
         last = k == len(parts) - 1
+        wants_folder = folder or not last
         if missing:
-            if create and not last:
+            if create and wants_folder:
                 os.mkdir(here)
             continue
         try:
             mode = os.lstat(here).st_mode
         except FileNotFoundError:
-            if create and not last:
+            if create and wants_folder:
                 os.mkdir(here)
             else:
                 missing = True
             continue
-        if last and stat.S_ISREG(mode):
-            break
-        if not last and stat.S_ISDIR(mode):
+        if (stat.S_ISDIR(mode) if wants_folder else stat.S_ISREG(mode)):
             continue
-        raise UnsafeOutputError(here, "a regular file or nothing" if last else "a folder", _kind(mode, here))
+        raise UnsafeOutputError(here, "a folder" if wants_folder else "a regular file or nothing", _kind(mode, here))
     real_root = os.path.realpath(root)
-    real = os.path.realpath(here.parent)
+    real = os.path.realpath(here if folder else here.parent)
     if os.path.commonpath([real_root, real]) != real_root:  # belt and braces: no link was followed above
         raise UnsafeOutputError(here, f"a path inside {real_root}", f"one in {real}")
     return here
+
+
+def check_owned_path(root: str | os.PathLike, relative: str | os.PathLike, *, create: bool = False) -> Path:
+    """``root / relative`` if a run may write a regular file there without leaving ``root``; else
+    :class:`UnsafeOutputError` naming the first component that is a symbolic link, a file where
+    a folder belongs, or a folder, pipe or device where the file belongs. With ``create`` the
+    missing folders on the way are made (each checked as it is made)."""
+    return _check(Path(root), relative, create, folder=False)
+
+
+def check_owned_folder(root: str | os.PathLike, relative: str | os.PathLike) -> Path:
+    """``root / relative`` if it is a folder (or nothing yet) reached from ``root`` through folders
+    only; else :class:`UnsafeOutputError` naming the first component that is not."""
+    return _check(Path(root), relative, False, folder=True)
 
 
 def owned_path(root: str | os.PathLike, relative: str | os.PathLike) -> Path:
