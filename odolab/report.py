@@ -125,7 +125,7 @@ class OutputFolder:
 
 def _manifest_lines(root: Path) -> list[str]:
     """The paths ``root``'s manifest names (none when it is missing or unreadable), without the
-    manifest itself and lines that are not plain relative paths."""
+    manifest itself and lines that are not plain relative paths a file system can hold."""
     try:
         if not Path(root, MANIFEST).is_file() or Path(root, MANIFEST).is_symlink():
             return []
@@ -133,7 +133,8 @@ def _manifest_lines(root: Path) -> list[str]:
     except (OSError, UnicodeDecodeError):
         return []
     return [rel for rel in lines if rel and rel != MANIFEST and not Path(rel).is_absolute()
-            and ".." not in Path(rel).parts and "\x00" not in rel]
+            and ".." not in Path(rel).parts and "\x00" not in rel and len(rel.encode()) < 4096
+            and all(len(part.encode()) <= 255 for part in Path(rel).parts)]  # names no file system holds: none
 
 
 def _csv(rows: list, cls) -> str:

@@ -49,6 +49,8 @@ def test_owned_paths_never_pass_a_link_a_file_for_a_folder_or_leave_the_root(tmp
         with pytest.raises(UnsafeOutputError, match=f"expected a folder, found {found}"):
             check_owned_folder(root, rel)
     assert check_owned_folder(root, "new/deep") == root / "new" / "deep"
+    with pytest.raises(UnsafeOutputError, match=r"found a path that cannot be read \(file name too long\)"):
+        check_owned_path(root, "new/" + "x" * 300 + "/a.tum")  # an error line, not an OSError traceback
 
 
 def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(tmp_path):
@@ -62,8 +64,10 @@ def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(t
     (root / "trajectories").mkdir(parents=True)
     (root / "trajectories" / "ep").symlink_to(outside, target_is_directory=True)
     (root / "sub").symlink_to(outside, target_is_directory=True)
-    (root / MANIFEST).write_text("trajectories/ep/victim.tum\nsub/keep.txt\ntable.csv\n")
     (root / "table.csv").write_text("old")
+    (root / MANIFEST).write_text("table.csv\n" + "x" * 300 + "/a.tum\n")  # a name no file system holds: ignored
+    OutputFolder.check(root, files=("table.csv",), folders=("trajectories",))
+    (root / MANIFEST).write_text("trajectories/ep/victim.tum\nsub/keep.txt\ntable.csv\n")
     with pytest.raises(UnsafeOutputError, match="ep: expected a folder, found a symbolic link to"):
         OutputFolder.check(root)
     folder = OutputFolder(root)

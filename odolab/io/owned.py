@@ -81,6 +81,9 @@ def _check(root: Path, relative: str | os.PathLike, create: bool, folder: bool) 
             else:
                 missing = True
             continue
+        except OSError as exc:  # a name too long, a folder on the way not searchable
+            raise UnsafeOutputError(here, "a folder" if wants_folder else "a regular file or nothing",
+                                    f"a path that cannot be read ({(exc.strerror or str(exc)).lower()})") from None
         if (stat.S_ISDIR(mode) if wants_folder else stat.S_ISREG(mode)):
             continue
         raise UnsafeOutputError(here, "a folder" if wants_folder else "a regular file or nothing", _kind(mode, here))
