@@ -115,6 +115,7 @@ PATH_ROUNDING = 1.5e-4
 
 
 def _close(a: float, b: float) -> bool:
+    """``a`` and ``b`` equal but for float rounding (relative 1e-9)."""
     return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
 
 
