@@ -77,6 +77,21 @@ def _token_notices_hidden(local: bool, quiet: bool) -> Iterator[None]:
         notices.removeFilter(_errors_only)
 
 
+def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool = False) -> bool:
+    """Connect to the cluster at ``ray_address`` (checked first, :func:`check_ray_address`) or start
+    a local instance, unless Ray is already running in this process; returns whether it started
+    it (the caller then shuts it down)."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    if ray_address is not None:
+        check_ray_address(ray_address)
+    with _token_notices_hidden(local=ray_address is None and not os.environ.get("RAY_ADDRESS"), quiet=quiet):
+        ray.init(address=ray_address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
+    return True
+
+
 def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
             on_result: Callable[[int, Any], None] | None = None, parallel: bool = True,
             ray_address: str | None = None, progress: bool = True, desc: str = "tasks") -> list[Any]:
@@ -105,14 +120,7 @@ def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
             return results
         import ray
 
-        started = not ray.is_initialized()
-        if started and ray_address is not None:
-            check_ray_address(ray_address)
-        if started:
-            with _token_notices_hidden(local=ray_address is None and not os.environ.get("RAY_ADDRESS"),
-                                       quiet=not progress):
-                ray.init(address=ray_address, include_dashboard=False, log_to_driver=False,
-                         configure_logging=False)
+        started = start_ray(ray_address, quiet=not progress)
         try:
             task = ray.remote(fn)
             pending = {task.remote(item): k for k, item in enumerate(items)}

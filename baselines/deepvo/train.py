@@ -23,6 +23,7 @@ import torch
 from tqdm.auto import tqdm
 
 from odolab.learning import EpochLoop, TrainingData, load_init, make_training_data, prefetched, require_finite
+from odolab.learning.distributed import Team, run_on_ray
 from odolab.learning.epochs import EpochTracker
 from odolab.learning.validation import error_rows, write_report
 
@@ -106,16 +107,38 @@ def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
 
 def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device: torch.device,
         hours: float | None, ray_address: str | None = None, parallel_data: bool = True, progress: bool = True,
-        command: str = "") -> bool:
-    """Train (or resume); export when every epoch is done. Returns True when finished."""
-    deadline = time.monotonic() + hours * 3600 if hours else None
-    start = first_stage(cfg, export)  # checked before any data is made
-    data = []
+        command: str = "", workers: int = 1, gpus_per_worker: float = 0.0) -> bool:
+    """Train (or resume); export when every epoch is done. Returns True when finished. With
+    ``workers`` > 1, data-parallel on Ray Train (:mod:`odolab.learning.distributed`)."""
+    first_stage(cfg, export)  # checked before any data is made
     for dc in (cfg.train_data, cfg.val_data):
         make_training_data(dc, cfg.data_folder(dc), ray_address=ray_address, parallel=parallel_data, progress=progress)
-        data.append(TrainingData(cfg.data_folder(dc)))
-        data[-1].verify(progress)
-    train, val = data
+        TrainingData(cfg.data_folder(dc)).verify(progress)
+    job = {"cfg": cfg, "work": work, "reports": reports, "export": export, "hours": hours, "progress": progress,
+           "command": command, "device": device}
+    if workers == 1:
+        return bool(train_windows({**job, "team": Team()})["finished"])
+    return run_on_ray(_team_member, job, workers=workers, work=work, export=export, ray_address=ray_address,
+                      gpus_per_worker=gpus_per_worker)
+
+
+def _team_member(job: dict) -> dict:
+    """One Ray Train worker."""
+    device = torch.device("cpu")
+    if torch.cuda.is_available():
+        import ray.train.torch
+
+        device = ray.train.torch.get_device()
+    return train_windows({**job, "device": device})
+
+
+def train_windows(job: dict) -> dict:
+    """The training proper on the made data, as one worker of ``job["team"]``; ``{"finished": bool}``."""
+    cfg, work, reports, export, team = job["cfg"], job["work"], job["reports"], job["export"], job["team"]
+    device, progress, command = job["device"], job["progress"], job["command"]
+    deadline = time.monotonic() + job["hours"] * 3600 if job["hours"] else None
+    start = first_stage(cfg, export)
+    train, val = (TrainingData(cfg.data_folder(dc)) for dc in (cfg.train_data, cfg.val_data))
     starts = train.windows(cfg.window)
     if not len(starts):
         raise ValueError(f"no window of {cfg.window} frames in the training data; use a shorter window")
@@ -138,26 +161,32 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
             mean = train.pair_planar.mean(axis=0)
             net.head.bias.copy_(torch.from_numpy(mean).to(torch.float32) / net.scale.cpu())
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    loop = EpochLoop(work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity, unit="windows")
+    loop = EpochLoop(work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity, unit="windows",
+                     team=team)
     loop.resume()
 
     def train_epoch(epoch: int, rng: np.random.Generator, tracker: EpochTracker) -> dict:
         order = rng.permutation(starts)
         if cfg.windows_per_epoch:
             order = order[:cfg.windows_per_epoch]
-        parts = [np.sort(order[k:k + cfg.batch]) for k in range(0, len(order), cfg.batch)][tracker.start:]
+        batches = [b for b in (np.sort(order[k:k + cfg.batch]) for k in range(0, len(order), cfg.batch))
+                   if len(b) >= team.size][tracker.start:]
         bar = tqdm(total=len(order), initial=tracker.samples, desc=f"deepvo epoch {epoch}", unit="window",
-                   disable=not progress, leave=False)
-        for x, target, actions in prefetched(parts, WindowBatches(train, cfg.window, cfg.model), cfg.compute.loader_workers):
+                   disable=not (progress and team.leader), leave=False)
+        made = prefetched([team.share(b) for b in batches], WindowBatches(train, cfg.window, cfg.model),
+                          cfg.compute.loader_workers)
+        for (x, target, actions), whole in zip(made, batches):
             with compute.autocast():
                 pred, _ = net(x.to(device), actions=torch.from_numpy(actions).to(device))
             loss = loss_fn(pred.float(), torch.from_numpy(target).to(device, torch.float32), cfg.rotation_weight)
             require_finite(loss, epoch)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
+            team.average_gradients(net.parameters(), len(x))
             optimizer.step()
-            bar.update(len(x))
-            tracker.add(loss.item(), len(x))
+            team.average_buffers([net])
+            bar.update(len(whole))
+            tracker.add(loss.item(), len(whole))
         bar.close()
         return {}
 
@@ -173,7 +202,7 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
         return error_rows(np.concatenate(preds), np.concatenate(truths), np.concatenate(acts))
 
     def status() -> dict:
-        return {"command": command, "compute": compute.describe(), "train_pairs": train.counts(), "val_pairs": val.counts(),
+        return {"command": command, "compute": {**compute.describe(), "workers": team.size}, "train_pairs": train.counts(), "val_pairs": val.counts(),
                 "epochs_done": loop.epoch, "epochs": loop.epochs, "hours": round(loop.seconds / 3600, 3),
                 "windows_seen": int(sum(r.get("windows", 0) for r in loop.curves.rows if r.get("split") == "train"))}
 
@@ -181,10 +210,11 @@ def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device:
         write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
 
     finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
-    write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
-    if finished:
-        save_model(export, cfg, net, status())
-    return finished
+    if team.leader:
+        write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
+        if finished:
+            save_model(export, cfg, net, status())
+    return {"finished": finished}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,6 +29,8 @@ class TrainingJob:
     ray_address: str | None
     progress: bool
     command: str
+    workers: int = 1
+    gpus_per_worker: float = 0.0
 
 
 def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
@@ -47,7 +49,13 @@ def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
     ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
     ap.add_argument("--threads", type=number("--threads", int, 1, 1024), default=None,
                     help="torch CPU threads (default: torch's choice, all cores)")
-    ap.add_argument("--ray-address", default=None, help="Ray cluster for making the data (default: a local instance)")
+    ap.add_argument("--ray-address", default=None,
+                    help="Ray cluster for making the data and the training workers (default: a local instance)")
+    ap.add_argument("--workers", type=number("--workers", int, 1, 1024), default=1,
+                    help="data-parallel training workers on Ray Train, each taking a share of every batch "
+                         "(default 1: in this process, without Ray)")
+    ap.add_argument("--gpus-per-worker", type=number("--gpus-per-worker", float, 0.0, 64.0), default=0.0,
+                    help="GPUs per training worker with --workers (default 0: CPU workers, gloo)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     ap.set_defaults(family=family)
     return ap
@@ -101,8 +109,11 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
     if args.threads:
         torch.set_num_threads(args.threads)
     argv = list(argv) if argv is not None else sys.argv[1:]
+    if args.gpus_per_worker and args.workers == 1:
+        raise UsageError("--gpus-per-worker places Ray Train workers; with --workers 1 training runs here "
+                         "(use --device cuda for this machine's GPU)")
     return TrainingJob(config, device, work, reports, export, args.hours, args.ray_address, not args.quiet,
-                       " ".join([ap.prog, *argv]))
+                       " ".join([ap.prog, *argv]), args.workers, args.gpus_per_worker)
 
 
 def run_training_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,
@@ -121,7 +132,8 @@ def training_main(argv: Sequence[str] | None, *, prog: str, description: str, fa
     job = parse_training_command(ap, argv, load_config, state_files)
     try:
         done = run(job.config, work=job.work, reports=job.reports, export=job.export, device=job.device,
-                   hours=job.hours, ray_address=job.ray_address, progress=job.progress, command=job.command)
+                   hours=job.hours, ray_address=job.ray_address, progress=job.progress, command=job.command,
+                   workers=job.workers, gpus_per_worker=job.gpus_per_worker)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     said = f"finished; model written to {job.export}" if done else "stopped; run the same command to resume"

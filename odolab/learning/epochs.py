@@ -15,6 +15,7 @@ from torch import nn
 
 from odolab.learning.checkpoints import load_checkpoint, save_checkpoint
 from odolab.learning.curves import Curves
+from odolab.learning.distributed import Team
 
 STATE_KIND = "odolab-training-state"
 STATE_FORMAT = 1
@@ -74,7 +75,7 @@ class EpochTracker:
         self.loss_sum += float(loss) * samples
         self.samples += samples
         now = time.monotonic()
-        stop = self.deadline is not None and now >= self.deadline
+        stop = self.loop.team.any(self.deadline is not None and now >= self.deadline)
         if stop or now - self.last_save >= self.loop.save_every:
             self.loop.save(partial=self.partial())
             self.last_save = now
@@ -97,13 +98,14 @@ class EpochLoop:
     ``identity``: plain data describing the run (config, data); a saved state made for another
     identity is refused, so a changed config never silently continues an old run. ``unit`` names
     the samples in the curves (``pairs``, ``windows``); ``save_every``: seconds between saves within
-    an epoch.
+    an epoch. ``team``: data-parallel workers (:class:`odolab.learning.distributed.Team`): they stop
+    together, and only the leader saves and validates.
     """
 
     def __init__(self, path: str | os.PathLike, modules: dict[str, nn.Module], optimizer: torch.optim.Optimizer,
                  epochs: int, seed: int, identity: dict[str, Any], unit: str = "pairs",
-                 save_every: float = 600.0) -> None:
-        self.path, self.modules, self.optimizer = path, modules, optimizer
+                 save_every: float = 600.0, team: Team = Team()) -> None:
+        self.path, self.modules, self.optimizer, self.team = path, modules, optimizer, team
         self.epochs, self.seed, self.identity = int(epochs), int(seed), identity
         self.unit, self.save_every = unit, float(save_every)
         self.curves = Curves()
@@ -132,7 +134,9 @@ class EpochLoop:
         return self.epoch
 
     def save(self, partial: dict[str, Any] | None = None) -> None:
-        """Write the state; ``partial``: the epoch in progress (:meth:`EpochTracker.partial`)."""
+        """Write the state (the leader only); ``partial``: the epoch in progress (:meth:`EpochTracker.partial`)."""
+        if not self.team.leader:
+            return
         doc = {"identity": self.identity, "epoch": self.epoch, "seconds": self.seconds, "curves": self.curves.rows,
                "modules": {n: m.state_dict() for n, m in self.modules.items()}, "optimizer": self.optimizer.state_dict()}
         if partial is not None:
@@ -157,7 +161,7 @@ class EpochLoop:
         ``deadline`` (``time.monotonic()`` seconds), within an epoch too, after saving. Returns True
         when all epochs are done."""
         while not self.finished:
-            if deadline is not None and time.monotonic() >= deadline:
+            if self.team.any(deadline is not None and time.monotonic() >= deadline):
                 return False
             epoch = self.epoch + 1
             torch.manual_seed(self.seed * 100_003 + epoch)
@@ -177,12 +181,12 @@ class EpochLoop:
                 m.eval()
             started = time.monotonic()
             with torch.inference_mode():
-                val_rows = validate(epoch)
+                val_rows = validate(epoch) if self.team.leader else []
             self.seconds += tracker.seconds + time.monotonic() - started
             self.curves.add([{"epoch": epoch, "split": "train", **train_row}] + [{"epoch": epoch, "split": "val", **r}
                                                                                   for r in val_rows])
             self.epoch = epoch
             self.save()
-            if after_epoch is not None:
+            if after_epoch is not None and self.team.leader:
                 after_epoch(self)
         return True

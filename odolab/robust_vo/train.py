@@ -24,6 +24,7 @@ from odolab.api import Action
 from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
 from odolab.learning.epochs import EpochTracker
 from odolab.learning.compute import Compute
+from odolab.learning.distributed import Team
 from odolab.learning.loading import prefetched
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Batch, Samples, make_batch, stage_samples
@@ -71,15 +72,15 @@ class StageRunner:
     """One stage: its samples, optimiser, epoch function and validation."""
 
     def __init__(self, cfg: TrainConfig, stage: StageConfig, train: TrainingData, val: TrainingData,
-                 nets: torch.nn.ModuleDict, compute: Compute, progress: bool = True) -> None:
-        self.cfg, self.stage, self.train, self.val, self.nets = cfg, stage, train, val, nets
+                 nets: torch.nn.ModuleDict, compute: Compute, progress: bool = True, team: Team = Team()) -> None:
+        self.cfg, self.stage, self.train, self.val, self.nets, self.team = cfg, stage, train, val, nets, team
         self.compute, self.device = compute, compute.device
         self.names = stage_networks(cfg, stage)
         self.samples = stage_samples(train, stage)
         if not len(self.samples):
             raise ValueError(f"stage {stage.name!r}: no training pairs for {', '.join(stage.actions)}")
-        params = [p for n in self.names for p in nets[n].parameters()]
-        self.optimizer = torch.optim.Adam(params, lr=stage.lr)
+        self.params = [p for n in self.names for p in nets[n].parameters()]
+        self.optimizer = torch.optim.Adam(self.params, lr=stage.lr)
         self.progress = progress
         rng = np.random.default_rng(cfg.seed)
         chosen = val.select(stage.action_set)
@@ -101,18 +102,20 @@ class StageRunner:
                 self.nets[name].head[-1].bias.copy_(torch.from_numpy(mean).to(torch.float32))
 
     def train_epoch(self, epoch: int, rng: np.random.Generator, tracker: EpochTracker) -> dict:
-        """One epoch over the stage's samples in a random order, from batch ``tracker.start`` on."""
-        stage = self.stage
+        """One epoch over the stage's samples in a random order, from batch ``tracker.start`` on; in a
+        team, each worker takes its share of every batch (a last batch smaller than the team is dropped)."""
+        stage, team = self.stage, self.team
         order = rng.permutation(len(self.samples))
         if stage.pairs_per_epoch:
             order = order[:stage.pairs_per_epoch]
-        parts = [self.samples.take(np.sort(order[start:start + stage.batch]))
-                 for start in range(0, len(order), stage.batch)][tracker.start:]
-        bar = tqdm(total=len(order), initial=tracker.samples, desc=f"{stage.name} epoch {epoch}", unit="pair",
-                   disable=not self.progress, leave=False)
+        batches = [b for b in (np.sort(order[k:k + stage.batch]) for k in range(0, len(order), stage.batch))
+                   if len(b) >= team.size][tracker.start:]
+        parts = [self.samples.take(team.share(b)) for b in batches]
+        bar = tqdm(total=len(order), initial=tracker.samples, desc=f"{stage.name} epoch {epoch}",
+                   unit="pair", disable=not (self.progress and team.leader), leave=False)
         c = self.compute
-        for batch, other in prefetched(parts, StepBatches(self.train, self.cfg.model, stage.geoinv),
-                                       self.cfg.compute.loader_workers):
+        made = prefetched(parts, StepBatches(self.train, self.cfg.model, stage.geoinv), self.cfg.compute.loader_workers)
+        for (batch, other), whole in zip(made, batches):
             with c.autocast():
                 pred = predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action)
             loss = _mse(pred, batch.target.to(self.device))
@@ -123,9 +126,11 @@ class StageRunner:
             require_finite(loss, epoch)
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
+            team.average_gradients(self.params, len(batch.action))
             self.optimizer.step()
-            bar.update(len(batch.action))
-            tracker.add(loss.item(), len(batch.action))
+            team.average_buffers(self.nets[n] for n in self.names)
+            bar.update(len(whole))
+            tracker.add(loss.item(), len(whole))  # pairs of the whole batch (every worker's share)
         bar.close()
         return {"stage": stage.name}
 
@@ -185,12 +190,44 @@ def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None
 
 def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: torch.device, hours: float | None,
         ray_address: str | None = None, parallel_data: bool = True, progress: bool = True,
-        command: str = "") -> bool:
-    """Run (or resume) every stage; export when all are done. Returns True when finished."""
-    deadline = time.monotonic() + hours * 3600 if hours else None
-    start, init_sha256 = load_start(cfg.init, cfg, export) if cfg.init else (None, "")  # before any data is made
+        command: str = "", workers: int = 1, gpus_per_worker: float = 0.0) -> bool:
+    """Run (or resume) every stage; export when all are done. Returns True when finished. With
+    ``workers`` > 1, data-parallel on Ray Train (:mod:`odolab.learning.distributed`); the data are
+    made first, here."""
+    load_start(cfg.init, cfg, export) if cfg.init else None  # checked before any data is made
     train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data, progress=progress)
-    compute = cfg.compute.resolve(device)
+    job = {"cfg": cfg, "work": work, "reports": reports, "export": export, "hours": hours, "progress": progress,
+           "command": command}
+    if workers == 1:
+        return bool(train_stages({**job, "train": train, "val": val, "device": device, "team": Team()})["finished"])
+    from odolab.learning.distributed import run_on_ray
+
+    return run_on_ray(_team_member, job, workers=workers, work=work, export=export, ray_address=ray_address,
+                      gpus_per_worker=gpus_per_worker)
+
+
+def _team_member(job: dict) -> dict:
+    """One Ray Train worker: opens the data the driver made and trains its share."""
+    from odolab.learning import pick_device
+
+    cfg = job["cfg"]
+    train, val = (TrainingData(cfg.data_folder(d)) for d in (cfg.train_data, cfg.val_data))
+    device = pick_device("cuda" if torch.cuda.is_available() else "cpu")
+    if device.type == "cuda":
+        import ray.train.torch
+
+        device = ray.train.torch.get_device()
+    return train_stages({**job, "train": train, "val": val, "device": device})
+
+
+def train_stages(job: dict) -> dict:
+    """Every stage of ``job["cfg"]`` on opened data, as one worker of ``job["team"]``; returns
+    ``{"finished": bool}``."""
+    cfg, work, reports, export, team = job["cfg"], job["work"], job["reports"], job["export"], job["team"]
+    train, val, progress = job["train"], job["val"], job["progress"]
+    deadline = time.monotonic() + job["hours"] * 3600 if job["hours"] else None
+    start, init_sha256 = load_start(cfg.init, cfg, export) if cfg.init else (None, "")
+    compute = cfg.compute.resolve(job["device"])
     torch.manual_seed(cfg.seed)
     nets = build_networks(cfg.model)
     last_trained: dict[str, str] = {}  # network -> last stage that trained it
@@ -199,13 +236,13 @@ def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: to
         last_trained = {name: "init" for name in nets}
     compute.prepare(nets)
     all_rows: list[dict] = []
-    status = {"command": command, "compute": compute.describe(), "train_pairs": train.counts(),
-              "val_pairs": val.counts(), "stages": {}}
+    status = {"command": job["command"], "compute": {**compute.describe(), "workers": team.size},
+              "train_pairs": train.counts(), "val_pairs": val.counts(), "stages": {}}
     finished = True
     for stage in cfg.stages:
-        runner = StageRunner(cfg, stage, train, val, nets, compute, progress)
+        runner = StageRunner(cfg, stage, train, val, nets, compute, progress, team)
         loop = EpochLoop(work / f"{stage.name}.pt", {n: nets[n] for n in runner.names}, runner.optimizer,
-                         stage.epochs, cfg.seed, _identity(cfg, stage, init_sha256))
+                         stage.epochs, cfg.seed, _identity(cfg, stage, init_sha256), team=team)
         loop.resume()
         if not loop.started:
             fresh = [n for n in runner.names if n not in last_trained]
@@ -222,10 +259,11 @@ def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: to
             last_trained[n] = stage.name
         if not finished:
             break
-    _write_reports(reports, all_rows, status)
-    if finished:
-        save_model(export, cfg, nets, status)
-    return finished
+    if team.leader:
+        _write_reports(reports, all_rows, status)
+        if finished:
+            save_model(export, cfg, nets, status)
+    return {"finished": finished}
 
 
 def _stage_status(loop: EpochLoop) -> dict:
