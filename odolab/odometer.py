@@ -43,10 +43,12 @@ MAX_NESTING = 8
 
 
 class Odometer:
-    """Base class of all odometers. Subclass it and override :meth:`step` (and :meth:`reset`).
+    """Base class of all odometers. Subclass it and override :meth:`step` (and :meth:`reset`); a
+    class that overrides neither :meth:`step` nor :meth:`step_batch` is refused when loaded by name.
 
     Class attributes: ``name`` (registry key), ``oracle`` (True if it reads ground truth, e.g.
-    ``Frame.gt_pose``; reports mark such rows), ``batch_size`` (how many consecutive pairs the
+    ``Frame.gt_pose``; reports mark such rows; a composite with an oracle input must be one too),
+    ``batch_size`` (how many consecutive pairs the
     runner hands to :meth:`step_batch` at once; 1 = one :meth:`step` per pair), ``threads``
     (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`),
     ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
