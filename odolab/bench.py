@@ -124,7 +124,7 @@ def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior")
 
 
 #: Recipes ``--only training`` times by default: the shipped one and its full-size variant.
-TRAINING_RECIPES = ("studies/robust_vo/shipped.toml", "studies/robust_vo/full-size.toml")
+TRAINING_RECIPES = ("studies/robust_vo/shipped.toml", "studies/robust_vo/ablations/full-size.toml")
 
 
 def bench_training(recipes: Sequence[Path], device: str | None = None) -> list[dict]:
