@@ -109,3 +109,48 @@ def test_a_run_killed_within_an_epoch_resumes_to_the_same_numbers(tmp_path):
         assert torch.equal(a, b)
     assert resumed["row"]["pairs"] == whole["row"]["pairs"] == 48
     assert resumed["row"]["loss"] == pytest.approx(whole["row"]["loss"], rel=1e-12)
+
+
+def test_bench_training_prints_and_writes_one_row_per_recipe(tmp_path, capsys):
+    """``python -m odolab.bench --only training --recipe R --json F`` on a tiny recipe."""
+    import json
+
+    from odolab import bench
+
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(f"""data_root = "{tmp_path / 'data'}"
+val_pairs = 20
+[model]
+width = 64
+height = 36
+base_planes = 8
+groups = 4
+hidden = 32
+compress_channels = 8
+warp = "nominal"
+mirror_turns = true
+[train_data]
+episodes = 2
+max_steps = 16
+width = 64
+height = 36
+[val_data]
+split = "val"
+episodes = 1
+max_steps = 40
+width = 64
+height = 36
+[[stages]]
+name = "forward"
+actions = ["move_forward"]
+epochs = 1
+batch = 4
+""", encoding="utf-8")
+    out = tmp_path / "bench.json"
+    assert bench.main(["--only", "training", "--recipe", str(recipe), "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["training"]
+    assert len(rows) == 1 and rows[0]["config"] == "tiny"
+    for key in ("bare_pairs_per_s", "end_to_end_pairs_per_s", "fp32_bare_pairs_per_s"):
+        assert rows[0][key] > 0
+    assert rows[0]["precision"] in ("fp32", "bf16") and rows[0]["memory_format"] == "contiguous"
+    assert "end_to_end_pairs_per_s" in capsys.readouterr().out

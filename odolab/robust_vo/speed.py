@@ -5,7 +5,8 @@ resident in memory, forward + MSE + backward + Adam, in the chosen precision and
 in fp32 beside it. ``end_to_end``: the trainer's own epoch (:meth:`StageRunner.train_epoch`: shard
 reads, swaps and mirrors, the nominal warp, psi, the batch made by the loader workers, the step) on a
 few real episodes, worker start-up included. The end-to-end rate over the bare one says how much the
-rest of training costs (at least 0.7 is wanted).
+rest of training costs (at least 0.7 is wanted). Beside them, one network's forward pass at batch 1
+(what the odometer's speed is bound by) in fp32 and bf16.
 """
 from __future__ import annotations
 
@@ -48,6 +49,22 @@ def bare_pairs_per_s(cfg: TrainConfig, compute: Compute, steps: int = 6) -> floa
     return batch / float(np.median(times[1:]))
 
 
+def inference_steps_per_s(cfg: TrainConfig, compute: Compute, steps: int = 20) -> float:
+    """Pairs per second of one network's forward pass at batch 1 (the odometer's network alone,
+    without resizing, warp or psi), in ``compute``'s precision; median of ``steps`` calls."""
+    torch.manual_seed(0)
+    net = compute.prepare(VONet(cfg.model)).eval()
+    x = torch.rand(1, cfg.model.input_channels, cfg.model.height, cfg.model.width)
+    times = []
+    with torch.inference_mode():
+        for _ in range(steps + 2):
+            started = time.perf_counter()
+            with compute.autocast():
+                net(compute.inputs(x))
+            times.append(time.perf_counter() - started)
+    return 1.0 / float(np.median(times[2:]))
+
+
 def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 6) -> TrainingData:
     """A few val episodes at the recipe's size, made in ``folder`` (in this process)."""
     small = dataclasses.replace(cfg.val_data, episodes=episodes)
@@ -83,9 +100,11 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         fp32_bare = bare_pairs_per_s(cfg, fp32)
         bare = fp32_bare if compute == fp32 else bare_pairs_per_s(cfg, compute)
         end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
+        infer = {p: inference_steps_per_s(cfg, choose_compute(device, p)) for p in ("fp32", "bf16")}
     m = cfg.model
     return {"config": name, "input": f"{m.width}x{m.height}", "base_planes": m.base_planes,
             "batch": cfg.stages[0].batch, "device": str(device), "precision": compute.precision,
             "memory_format": compute.memory_format, "loader_workers": cfg.compute.loader_workers,
             "bare_pairs_per_s": bare, "end_to_end_pairs_per_s": end_to_end, "fp32_bare_pairs_per_s": fp32_bare,
-            "end_to_end_over_bare": end_to_end / bare}
+            "end_to_end_over_bare": end_to_end / bare, "params_per_network": sum(p.numel() for p in VONet(m).parameters()),
+            "net_batch1_fp32_steps_per_s": infer["fp32"], "net_batch1_bf16_steps_per_s": infer["bf16"]}
