@@ -1,0 +1,37 @@
+"""The ``odolab`` console command: its subcommands are the ``python -m`` commands."""
+from __future__ import annotations
+
+import importlib
+
+import pytest
+
+from odolab.commands import COMMANDS, main, usage
+
+
+def test_help_lists_every_subcommand(capsys):
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    for name, (module, _, _) in COMMANDS.items():
+        assert name in out and f"python -m {module}" in out
+    assert main([]) == 2  # no command: the list, and a usage error's exit code
+
+
+def test_every_subcommand_names_a_real_main():
+    for name, (module, function, _) in COMMANDS.items():
+        assert callable(getattr(importlib.import_module(module), function)), name
+
+
+def test_an_unknown_command_is_one_line(capsys):
+    assert main(["comapre"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown command 'comapre'" in err[0] and "compare" in err[0]
+
+
+def test_a_subcommand_runs_its_command(capsys, tmp_path):
+    # the same one-line usage error as python -m odolab.evaluate, under the odolab name
+    assert main(["evaluate", str(tmp_path / "missing.tum"), str(tmp_path / "missing.tum")]) == 2
+    assert capsys.readouterr().err.startswith("odolab evaluate: error:")
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", "--help"])
+    assert exit_.value.code == 0
+    assert "usage" in usage()
