@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from odolab.api import (ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic,
-                        write_json_atomic)
+from odolab.api import ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic, write_json_atomic
+from odolab.io.inputs import read_input_json
 from odolab.io.owned import UnsafeOutputError, check_owned_path, owned_path
 
 COMPONENTS = ("dx", "dz", "dyaw")
@@ -41,14 +42,25 @@ def _weights(odometers: list[str], options: dict) -> dict[str, str | None]:
 ROW_KEYS = ("level", "odometer", "steps", *COMPONENTS, *(f"{c}_own" for c in COMPONENTS), "failure_share", "ate_m")
 
 
+def _size(value: object) -> bool:
+    """A finite number >= 0 (not a bool, not an integer too large for a float)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value) and value >= 0
+    except OverflowError:  # an integer of hundreds of digits
+        return False
+
+
 def _whole(row: object) -> bool:
     """A saved row with every number the table needs (finite where a run always gives a number: an
-    odometer whose every step failed has no own error, NaN, and is written as null)."""
+    odometer whose every step failed has no own error, NaN, and is written as null); errors, counts
+    and shares are never negative, a share never above 1."""
     if not isinstance(row, dict):
         return False
     need = [k for k in ROW_KEYS if k != "odometer" and not k.endswith("_own")]
-    return (all(isinstance(row.get(k), (int, float)) and np.isfinite(row[k]) for k in need)
-            and all(row.get(k) is None or isinstance(row.get(k), (int, float)) for k in ROW_KEYS if k.endswith("_own")))
+    return (all(_size(row.get(k)) for k in need) and row["failure_share"] <= 1
+            and all(row.get(k) is None or _size(row.get(k)) for k in ROW_KEYS if k.endswith("_own")))
 
 
 def _settings(config: object) -> str:
@@ -221,11 +233,12 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
     results = args.out / "results.json"
     if results.exists():
-        try:
-            doc = json.loads(results.read_text(encoding="utf-8"))
-            assert isinstance(doc, dict) and isinstance(doc.get("results"), dict)
-        except (ValueError, UnicodeDecodeError, AssertionError):
-            raise UsageError(f"{results}: not a results file of this study; delete it or choose another --out") from None
+        try:  # a regular file of a sane size, JSON nested a sane depth: else one line, not a traceback
+            doc = read_input_json(results, "results file of this study")
+        except ValueError as exc:
+            raise UsageError(f"{exc}; delete it or choose another --out") from None
+        if not (isinstance(doc, dict) and isinstance(doc.get("results"), dict)):
+            raise UsageError(f"{results}: not a results file of this study; delete it or choose another --out")
     try:
         if args.redraw:
             doc = redraw_results(args.out, odometers, levels, args.episodes, args.max_steps)

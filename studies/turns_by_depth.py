@@ -20,6 +20,7 @@ folder are fixed (another value is refused). ``--redraw`` rebuilds the table and
 """
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -69,7 +70,10 @@ def turn_pairs(split: str, seed: int, scenes: int, per_scene: int, first: int = 
 def _row_ok(row: object) -> bool:
     """A saved pair: [median depth m, answered, |yaw error| deg or None when not answered]."""
     def number(v: object) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+        try:  # an integer of hundreds of digits is no float: not a number here
+            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        except OverflowError:
+            return False
 
     return (isinstance(row, list) and len(row) == 3 and number(row[0]) and row[0] >= 0 and isinstance(row[1], bool)
             and ((row[1] and number(row[2]) and 0 <= row[2] <= 180) or (not row[1] and row[2] is None)))
@@ -304,10 +308,13 @@ def main(argv: list[str] | None = None) -> int:
         total = args.scenes * args.per_scene
         for n in names:
             rows = saved["pairs"].get(n)
-            if not (isinstance(rows, list) and len(rows) == total and all(map(_row_ok, rows))) \
-                    or saved["config"].get("options", {}).get(n, {}) != options.get(n, {}):
-                have = len(rows) if isinstance(rows, list) else 0
-                raise UsageError(f"--redraw: {results}: {n} has {have} of {total} pairs with these options; "
+            if saved["config"].get("options", {}).get(n, {}) != options.get(n, {}):
+                raise UsageError(f"--redraw: {results}: {n}'s pairs were computed with other options "
+                                 f"({saved['config'].get('options', {}).get(n, {})!r}, not {options.get(n, {})!r}); "
+                                 "give those, or run without --redraw to compute them")
+            if not (isinstance(rows, list) and len(rows) == total and all(map(_row_ok, rows))):
+                have = sum(map(_row_ok, rows)) if isinstance(rows, list) else 0
+                raise UsageError(f"--redraw: {results}: {n} has {have} of {total} pairs; "
                                  "run without --redraw to compute them")
         doc = saved
     else:

@@ -4,6 +4,7 @@ budget, the device and thread count. Mistakes are one line and exit code 2, befo
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,7 +12,7 @@ from typing import Any, Callable, Sequence
 
 from odolab.cli import ArgumentParser, UsageError, check_output_dir, check_output_file, file_arg, number, path_arg, run_cli
 
-__all__ = ["TrainingJob", "parse_training_command", "run_training_cli", "training_main", "training_parser"]
+__all__ = ["TrainingJob", "check_workers", "parse_training_command", "run_training_cli", "training_main", "training_parser"]
 
 
 @dataclass(frozen=True)
@@ -92,16 +93,24 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
     work = args.work or Path("runs") / args.family / name
     reports = args.reports or Path("reports") / args.family / name
     export = args.export or work / "model.pt"
-    if args.ray_address is not None:
+    address = args.ray_address if args.ray_address is not None else os.environ.get("RAY_ADDRESS") or None
+    if address is not None:  # Ray's ray.init() heeds RAY_ADDRESS as it would --ray-address: checked alike
         from odolab.parallel import check_ray_address
 
         try:
-            check_ray_address(args.ray_address)
+            check_ray_address(address)
         except ValueError as exc:
-            raise UsageError(str(exc)) from None
+            said = str(exc) if args.ray_address is not None else \
+                str(exc).replace("--ray-address", "RAY_ADDRESS (environment)", 1) + "; unset it for a local instance"
+            raise UsageError(said) from None
+    check_workers(args.workers, args.gpus_per_worker, args.device, device, args.ray_address)
     check_output_dir(work, "--work")
     check_output_dir(reports, "--reports")
     check_output_file(export, "--export")
+    for kept in REPORT_FILES:  # the reports a run writes beside the model: found now, not after training
+        if _same_path(export, reports / kept):
+            raise UsageError(f"--export {export}: expected a file apart from the reports, found the path of "
+                             f"{kept} in --reports {reports}, which the run writes; give --export another path")
     try:  # never the recipe, a training state or a file no export wrote
         check_export(export, args.config, (state_files or stage_states)(config, work))
     except ValueError as exc:
@@ -109,11 +118,68 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
     if args.threads:
         torch.set_num_threads(args.threads)
     argv = list(argv) if argv is not None else sys.argv[1:]
-    if args.gpus_per_worker and args.workers == 1:
-        raise UsageError("--gpus-per-worker places Ray Train workers; with --workers 1 training runs here "
-                         "(use --device cuda for this machine's GPU)")
     return TrainingJob(config, device, work, reports, export, args.hours, args.ray_address, not args.quiet,
                        " ".join([ap.prog, *argv]), args.workers, args.gpus_per_worker)
+
+
+#: The files a training writes under ``--reports`` (odolab.learning.validation).
+REPORT_FILES = ("training.json", "curves.csv", "curves.png")
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file (links and ``..`` resolved; either may not exist yet)."""
+    try:
+        return os.path.realpath(a) == os.path.realpath(b)
+    except (OSError, ValueError):
+        return False
+
+
+def local_ray_resources() -> tuple[float, float]:
+    """The CPUs and GPUs a local Ray instance started here would have (Ray's own count of the
+    CPUs, which heeds a container's limit; torch's count of the CUDA GPUs)."""
+    import torch
+
+    try:
+        from ray._private.utils import get_num_cpus
+
+        cpus = float(get_num_cpus())
+    except Exception:  # noqa: BLE001 - a Ray without this helper: the machine's count
+        cpus = float(os.cpu_count() or 1)
+    return cpus, float(torch.cuda.device_count() if torch.cuda.is_available() else 0)
+
+
+def check_workers(workers: int, gpus_per_worker: float, device_name: str | None, device: Any,
+                  ray_address: str | None, resources: Callable[[], tuple[float, float]] | None = None) -> None:
+    """:class:`UsageError`, before any work, for ``--workers`` / ``--gpus-per-worker`` / ``--device``
+    that cannot run as asked: GPUs per worker without workers, a ``--device`` the workers would not
+    use (they train on a GPU exactly when ``--gpus-per-worker`` gives them one), or more than a
+    local Ray instance holds (Ray Train would wait for them forever). A cluster (``--ray-address``
+    or ``RAY_ADDRESS``) may grow, so its size is not checked here."""
+    if workers == 1:
+        if gpus_per_worker:
+            raise UsageError("--gpus-per-worker places Ray Train workers; with --workers 1 training runs here "
+                             "(use --device cuda for this machine's GPU)")
+        return
+    if device_name:
+        if device.type not in ("cpu", "cuda"):
+            raise UsageError(f"--device {device_name} with --workers {workers}: Ray Train workers train on "
+                             "CPUs, or on CUDA GPUs with --gpus-per-worker")
+        if device.type == "cuda" and not gpus_per_worker:
+            raise UsageError(f"--device {device_name} with --workers {workers}: a worker gets a GPU only with "
+                             "--gpus-per-worker (e.g. --gpus-per-worker 1); without it they train on CPUs")
+        if device.type == "cpu" and gpus_per_worker:
+            raise UsageError(f"--device {device_name} contradicts --gpus-per-worker {gpus_per_worker:g}: give one "
+                             "of them (workers with GPUs train on them)")
+    if ray_address is not None or os.environ.get("RAY_ADDRESS"):
+        return
+    cpus, gpus = (resources or local_ray_resources)()
+    if workers > cpus:
+        raise UsageError(f"--workers {workers}: a local Ray instance here has {cpus:g} CPUs and each worker "
+                         f"takes one; use --workers {max(1, int(cpus))} or fewer, or --ray-address for a cluster")
+    if gpus_per_worker * workers > gpus + 1e-9:
+        raise UsageError(f"--workers {workers} --gpus-per-worker {gpus_per_worker:g}: needs "
+                         f"{gpus_per_worker * workers:g} GPUs, this machine has {gpus:g}; use fewer, or "
+                         "--ray-address for a cluster")
 
 
 def run_training_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,

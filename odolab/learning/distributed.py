@@ -88,6 +88,14 @@ def run_on_ray(loop: Callable[[dict[str, Any]], Any], config: dict[str, Any], *,
 
     started = start_ray(ray_address, log_to_driver=True)
     use_gpu = gpus_per_worker > 0
+    if started and ray_address is None and not os.environ.get("RAY_ADDRESS"):  # a local instance cannot grow
+        have = ray.cluster_resources()
+        short = [f"{need:g} {kind}s, it has {have.get(kind, 0):g}" for kind, need in
+                 (("CPU", workers), ("GPU", workers * gpus_per_worker)) if need > have.get(kind, 0) + 1e-9]
+        if short:
+            ray.shutdown()
+            raise ValueError(f"{workers} training workers need {'; '.join(short)} on this machine's Ray instance "
+                             "(Ray Train would wait for them forever); use fewer workers or a cluster")
     resources = {"CPU": 1, **({"GPU": gpus_per_worker} if use_gpu else {})}
     trainer = TorchTrainer(
         _worker, train_loop_config={"loop": loop, "config": config},

@@ -1,0 +1,150 @@
+"""Cases a fresh hostile review found after issue 42 (fast: nothing trains, nothing is computed)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from odolab.cli import UsageError, run_cli
+
+RECIPE = """
+[model]
+width = 48
+height = 32
+
+[train_data]
+width = 48
+height = 32
+
+[val_data]
+split = "val"
+width = 48
+height = 32
+
+[[stages]]
+name = "forward"
+actions = ["move_forward"]
+epochs = 1
+"""
+
+
+def _job(tmp_path: Path, *argv: str):
+    pytest.importorskip("torch")
+    from odolab.learning.cli import parse_training_command, training_parser
+    from odolab.robust_vo.config import load_train_config
+
+    recipe = tmp_path / "recipe.toml"
+    recipe.write_text(RECIPE)
+    ap = training_parser("python -m odolab.robust_vo.train", "train", "robust-vo")
+    return parse_training_command(ap, ["--config", str(recipe), "--work", str(tmp_path / "work"),
+                                       "--reports", str(tmp_path / "reports"), *argv], load_train_config)
+
+
+def test_workers_a_local_ray_instance_cannot_hold_are_refused_before_any_work(tmp_path, monkeypatch):
+    """Ray Train waits forever for workers a fixed local instance lacks (8 workers on 2 CPUs, GPUs
+    on a machine without any): refused in one line, before the work and reports folders exist."""
+    torch = pytest.importorskip("torch")
+    from odolab.learning.cli import check_workers
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    cpu = torch.device("cpu")
+    two_cpus = lambda: (2.0, 0.0)
+    with pytest.raises(UsageError, match="--workers 8: a local Ray instance here has 2 CPUs.*--workers 2 or fewer"):
+        check_workers(8, 0.0, None, cpu, None, two_cpus)
+    with pytest.raises(UsageError, match="needs 1 GPUs, this machine has 0"):
+        check_workers(2, 0.5, None, cpu, None, two_cpus)
+    with pytest.raises(UsageError, match="--device cpu contradicts --gpus-per-worker 1"):
+        check_workers(2, 1.0, "cpu", cpu, None, two_cpus)
+    with pytest.raises(UsageError, match="--gpus-per-worker places Ray Train workers"):
+        check_workers(1, 1.0, None, cpu, None, two_cpus)
+    check_workers(2, 0.0, "cpu", cpu, None, two_cpus)  # fits
+    check_workers(2, 0.5, None, cpu, None, lambda: (2.0, 1.0))  # half a GPU each, one GPU
+    check_workers(64, 1.0, None, cpu, "127.0.0.1:6379", two_cpus)  # a cluster may grow: not checked
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:6379")
+    check_workers(64, 0.0, None, cpu, None, two_cpus)
+    monkeypatch.delenv("RAY_ADDRESS")
+    monkeypatch.setattr("odolab.learning.cli.local_ray_resources", two_cpus)
+    with pytest.raises(UsageError, match="--workers 3: a local Ray instance"):
+        _job(tmp_path, "--workers", "3")
+    assert not (tmp_path / "work").exists() and not (tmp_path / "reports").exists()
+
+
+def test_a_dead_ray_address_in_the_environment_is_one_line_not_a_hang(tmp_path, monkeypatch):
+    """ray.init() connects to RAY_ADDRESS as to --ray-address: checked alike, and named."""
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
+    with pytest.raises(UsageError, match=r"RAY_ADDRESS \(environment\) 127.0.0.1:1: no Ray cluster there.*unset it"):
+        _job(tmp_path)
+    monkeypatch.setenv("RAY_ADDRESS", "not an address")
+    with pytest.raises(UsageError, match="RAY_ADDRESS .*'not an address' is not an address"):
+        _job(tmp_path)
+
+
+def test_the_export_is_never_one_of_the_reports_the_run_writes(tmp_path, monkeypatch):
+    """--export reports/training.json: found before training, not after it."""
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    for name in ("training.json", "curves.csv", "curves.png"):
+        with pytest.raises(UsageError, match=f"found the path of {name} in --reports"):
+            _job(tmp_path, "--export", str(tmp_path / "reports" / ".." / "reports" / name))
+    assert _job(tmp_path, "--export", str(tmp_path / "reports" / "model.pt")).export.name == "model.pt"
+
+
+def _noise_doc() -> dict:
+    row = {"level": 1.0, "odometer": "icp", "steps": 10, "dx": 1.0, "dz": 1.0, "dyaw": 1.0, "dx_own": 1.0,
+           "dz_own": None, "dyaw_own": 1.0, "failure_share": 0.1, "ate_m": 0.2}
+    return {"config": {"episodes": 1, "max_steps": 3, "split": "test", "seed": 0},
+            "results": {"1/icp": row, "2/icp": {**row, "level": 2.0}}}
+
+
+def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, capsys):
+    """A row with an integer of 400 digits, a bool, a negative error or a share above 1 is damage (the
+    row is rerun, or --redraw names it), and JSON nested 100,000 deep is one line, not a traceback."""
+    import studies.noise_robustness as noise
+
+    assert noise._whole(_noise_doc()["results"]["1/icp"])
+    for key, value in (("dx", 10**400), ("dz", True), ("dyaw", -1.0), ("failure_share", 1.5), ("dx_own", 10**400),
+                       ("ate_m", float("nan"))):
+        assert not noise._whole({**_noise_doc()["results"]["1/icp"], key: value}), key
+
+    def cli(out: Path) -> int:
+        return run_cli(noise.main, "python -m studies.noise_robustness",
+                       ["--odometers", "icp", "--episodes", "1", "--max-steps", "3", "--redraw", "--quiet", "--out", str(out)])
+
+    ok = tmp_path / "ok"
+    ok.mkdir()
+    (ok / "results.json").write_text(json.dumps(_noise_doc()))
+    assert cli(ok) == 0
+    big = tmp_path / "big"
+    big.mkdir()
+    (big / "results.json").write_text(json.dumps(_noise_doc()).replace('"dx": 1.0', '"dx": 1' + "0" * 400, 1))
+    deep = tmp_path / "deep"
+    deep.mkdir()
+    (deep / "results.json").write_text('{"a":' * 100_000)
+    capsys.readouterr()
+    for out, said in ((big, "has no result for 1/icp"), (deep, "not a valid results file of this study")):
+        assert cli(out) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err and said in err, err
+
+
+def test_the_turns_study_names_damage_and_other_options_apart(tmp_path, capsys):
+    import studies.turns_by_depth as turns
+
+    assert turns._row_ok([1.5, True, 0.3]) and not turns._row_ok([10**400, True, 0.3])
+    assert not turns._row_ok([1.5, True, 10**400])
+    pairs = [[1.0, True, 0.5]] * 4
+    doc = {"config": {"split": "val", "seed": 7, "scenes": 2, "per_scene": 2, "options": {"icp": {"max_iter": 3}},
+                      "weights": {}}, "pairs": {"icp": pairs}}
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "results.json").write_text(json.dumps(doc))
+    argv = ["--odometers", "icp", "--scenes", "2", "--per-scene", "2", "--redraw", "--quiet", "--out", str(out)]
+    assert run_cli(turns.main, "python -m studies.turns_by_depth", argv) == 2
+    err = capsys.readouterr().err
+    assert "icp's pairs were computed with other options ({'max_iter': 3}, not {})" in err, err
+    doc["config"]["options"] = {}
+    doc["pairs"]["icp"] = pairs[:3] + [[10**400, True, 0.5]]
+    (out / "results.json").write_text(json.dumps(doc))
+    assert run_cli(turns.main, "python -m studies.turns_by_depth", argv) == 2
+    err = capsys.readouterr().err
+    assert "icp has 3 of 4 pairs" in err and "Traceback" not in err, err
