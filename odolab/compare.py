@@ -98,11 +98,13 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
         check_ray_option(args.ray_address, args.serial)
     check_report_dir(args.out, "--out")
     from odolab.io.owned import UnsafeOutputError
-    from odolab.report import MANIFEST, OutputFolder
+    from odolab.report import MANIFEST, ManifestError, OutputFolder
 
     try:  # what the previous run wrote, and this run's fixed files, can be replaced without leaving --out
         OutputFolder.check(args.out, files=("table.csv", "table_per_action.csv", "errors.png", "report.html", MANIFEST),
                            folders=("trajectories",))
+    except ManifestError as exc:
+        raise UsageError(f"--out {exc}") from None
     except UnsafeOutputError as exc:
         raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
 

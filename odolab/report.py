@@ -52,8 +52,21 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.+-]", "_", name)
 
 
+#: The names compare writes (and its cleanup may remove), relative to its folder.
+COMPARE_NAMES = re.compile(r"(table\.csv|table_per_action\.csv|errors\.png|report\.html"
+                           r"|trajectories/[^/]+/[^/]+\.(tum|kitti|png))")
+
+
+class ManifestError(ValueError):
+    """A folder whose manifest another command, or no odolab run, wrote (the message says which)."""
+
+
 class OutputFolder:
     """The files one run writes under ``root``, listed in ``manifest.txt`` as they are written.
+
+    The manifest's first line names the command that owns the folder (``# odolab compare``);
+    ``names`` matches every file that command writes: the cleanup removes nothing else, whatever a
+    manifest lists, and :meth:`check` refuses a folder another command (or no odolab run) wrote.
 
     On creation the files the previous run's manifest lists are removed (only those: never a file
     the manifest does not name, nothing outside ``root``, never through a symbolic link), so the
@@ -65,24 +78,31 @@ class OutputFolder:
     :attr:`not_removed`, never raised: cleaning up never costs a computed result.
     """
 
-    def __init__(self, root: Path) -> None:
-        self.root = Path(root)
+    def __init__(self, root: Path, owner: str = "compare", names: re.Pattern = COMPARE_NAMES) -> None:
+        self.root, self.owner, self.names = Path(root), owner, names
         self.written: list[str] = []
         self.not_removed: list[str] = []
         self.root.mkdir(parents=True, exist_ok=True)
         self.removed = self._remove_previous()
 
     @staticmethod
-    def check(root: Path, files: tuple[str, ...] = (), folders: tuple[str, ...] = ()) -> None:
+    def check(root: Path, files: tuple[str, ...] = (), folders: tuple[str, ...] = (), owner: str = "compare",
+              names: re.Pattern = COMPARE_NAMES) -> None:
         """Raise :class:`~odolab.io.owned.UnsafeOutputError` unless a run can write ``root``: the
         folders of every path its manifest names and each of ``folders`` are folders (or nothing),
         each of ``files`` a regular file (or nothing), all inside ``root`` with no symbolic link on
-        the way. (A manifest line naming a folder or a link is only left alone by the cleanup.)"""
+        the way (a manifest line naming a folder or a link is only left alone by the cleanup);
+        :class:`ManifestError` when the manifest is another command's, or names a file ``owner``
+        never writes (a manifest without an owner line is read as ``owner``'s)."""
         root = Path(root)
         if not root.exists():
             return
         if not root.is_dir():
             raise UnsafeOutputError(root, "a folder", "a file")
+        said = _manifest_owner(root)
+        if said is not None and said != owner:
+            raise ManifestError(f"{root}: holds the results of odolab {said} (its {MANIFEST} says so), not of "
+                                f"odolab {owner}; choose another folder")
         for rel in _manifest_lines(root):
             if len(Path(rel).parts) > 1:
                 check_owned_folder(root, Path(rel).parent)
@@ -90,6 +110,10 @@ class OutputFolder:
             check_owned_path(root, rel)
         for rel in folders:
             check_owned_folder(root, rel)
+        foreign = [rel for rel in _manifest_lines(root) if not names.fullmatch(rel)]
+        if foreign:
+            raise ManifestError(f"{root}: its {MANIFEST} lists {foreign[0]!r}, which odolab {owner} never writes "
+                                "(not a manifest of this command); choose another folder")
 
     def path(self, relative: str) -> Path:
         """The path of ``relative`` (its folder created), recorded as written by this run."""
@@ -106,12 +130,16 @@ class OutputFolder:
             self._write_manifest()
 
     def _write_manifest(self) -> None:
-        write_text_atomic(owned_path(self.root, MANIFEST), "".join(f"{rel}\n" for rel in sorted(self.written)))
+        write_text_atomic(owned_path(self.root, MANIFEST),
+                          f"{_OWNER_LINE}{self.owner}\n" + "".join(f"{rel}\n" for rel in sorted(self.written)))
 
     def _remove_previous(self) -> list[str]:
         removed = []
         for rel in _manifest_lines(self.root):
-            if remove_owned(self.root, rel):
+            if not self.names.fullmatch(rel):  # never this command's: left alone, and said
+                if os.path.lexists(self.root / rel):
+                    self.not_removed.append(rel)
+            elif remove_owned(self.root, rel):
                 removed.append(rel)
             elif os.path.lexists(self.root / rel):  # through a link, or not removable: left, and said
                 self.not_removed.append(rel)
@@ -123,6 +151,19 @@ class OutputFolder:
         return self.removed
 
 
+_OWNER_LINE = "# odolab "
+
+
+def _manifest_owner(root: Path) -> str | None:
+    """The command a manifest's first line names (``# odolab compare``), or None."""
+    try:
+        with open(Path(root, MANIFEST), encoding="utf-8") as f:
+            first = f.readline(200).strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return first[len(_OWNER_LINE):].strip() or None if first.startswith(_OWNER_LINE) else None
+
+
 def _manifest_lines(root: Path) -> list[str]:
     """The paths ``root``'s manifest names (none when it is missing or unreadable), without the
     manifest itself and lines that are not plain relative paths a file system can hold."""
@@ -132,7 +173,7 @@ def _manifest_lines(root: Path) -> list[str]:
         lines = Path(root, MANIFEST).read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError):
         return []
-    return [rel for rel in lines if rel and rel != MANIFEST and not Path(rel).is_absolute()
+    return [rel for rel in lines if rel and rel != MANIFEST and not rel.startswith("#") and not Path(rel).is_absolute()
             and ".." not in Path(rel).parts and "\x00" not in rel and len(rel.encode()) < 4096
             and all(len(part.encode()) <= 255 for part in Path(rel).parts)]  # names no file system holds: none
 

@@ -20,6 +20,7 @@ the TUM RGB-D fr1/xyz frames shipped in ``tests/data`` (grey spread median 93, m
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -34,6 +35,7 @@ DEPTH_BINS = np.arange(0.0, 10.5, 1.0)  # m, edges of the clean-depth bins
 OUTLIER = 0.2  # relative depth error counted as an outlier (a depth edge), not as spread
 #: The files a card is made of (under --out, with the manifest).
 CARD_FILES = ("card.json", "card.md", "motion.png", "depth.png", "frames.png")
+CARD_NAMES = re.compile("|".join(re.escape(name) for name in CARD_FILES))
 
 
 @dataclass(frozen=True)
@@ -203,7 +205,7 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     from odolab.io.atomic import save_figure_atomic, write_text_atomic
     from odolab.report import OutputFolder
 
-    folder = OutputFolder(out)  # a manifest: an interrupted run never leaves two runs' files mixed
+    folder = OutputFolder(out, "simcard", CARD_NAMES)  # a manifest: an interrupted run never leaves two runs' files mixed
     rows = card_table(motion, images)
     depth_rows = images.depth_rows()
     data = {"command": command, "redwood_table": source, "motion": motion,
@@ -314,10 +316,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     check_report_dir(args.out, "--out")  # a folder of the user's own files is refused, as compare refuses it
     from odolab.io.owned import UnsafeOutputError
-    from odolab.report import MANIFEST, OutputFolder
+    from odolab.report import MANIFEST, ManifestError, OutputFolder
 
     try:
-        OutputFolder.check(args.out, files=(*CARD_FILES, MANIFEST))
+        OutputFolder.check(args.out, files=(*CARD_FILES, MANIFEST), owner="simcard", names=CARD_NAMES)
+    except ManifestError as exc:
+        raise UsageError(f"--out {exc}") from None
     except UnsafeOutputError as exc:
         raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
     try:

@@ -148,3 +148,30 @@ def test_the_turns_study_names_damage_and_other_options_apart(tmp_path, capsys):
     assert run_cli(turns.main, "python -m studies.turns_by_depth", argv) == 2
     err = capsys.readouterr().err
     assert "icp has 3 of 4 pairs" in err and "Traceback" not in err, err
+
+
+def test_a_manifest_naming_a_users_file_never_deletes_it(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+
+    (tmp_path / "thesis.docx").write_text("years of work")
+    (tmp_path / "table.csv").write_text("old")
+    (tmp_path / "manifest.txt").write_text("thesis.docx\ntable.csv\n")
+    with pytest.raises(ManifestError, match="thesis.docx"):
+        OutputFolder.check(tmp_path)
+    folder = OutputFolder(tmp_path)  # even called without the check, the cleanup removes only compare's names
+    assert (tmp_path / "thesis.docx").read_text() == "years of work"
+    assert not (tmp_path / "table.csv").exists() and folder.not_removed == ["thesis.docx"]
+
+
+def test_one_command_never_takes_over_anothers_folder(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+    from odolab.simcard import CARD_NAMES
+
+    folder = OutputFolder(tmp_path)
+    folder.path("table.csv").write_text("compare's results")
+    folder.finish()
+    assert (tmp_path / "manifest.txt").read_text().splitlines()[0] == "# odolab compare"
+    with pytest.raises(ManifestError, match="odolab compare"):
+        OutputFolder.check(tmp_path, owner="simcard", names=CARD_NAMES)
+    OutputFolder.check(tmp_path)  # compare itself may write there again
+    assert (tmp_path / "table.csv").read_text() == "compare's results"

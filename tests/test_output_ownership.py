@@ -77,7 +77,7 @@ def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(t
     with pytest.raises(UnsafeOutputError):
         folder.path("trajectories/ep/icp.tum")
     assert sorted(p.name for p in outside.iterdir()) == ["keep.txt", "victim.tum"]
-    assert (root / MANIFEST).read_text() == "table.csv\n"
+    assert (root / MANIFEST).read_text() == "# odolab compare\ntable.csv\n"
 
 
 def _compare(argv) -> int:
