@@ -357,12 +357,16 @@ class OdometerRegistry:
     def load(self, name: str, **options) -> Odometer:
         """Instantiate odometer ``name`` with keyword ``options`` (numpy scalars are passed on as the
         Python numbers they hold, so ``np.float32(4.0)`` sets an option as ``4.0`` does).
-        :class:`IncompleteOdometerError` for an :class:`Odometer` overriding neither ``step`` nor
-        ``step_batch``; :class:`OracleInputError` for a composite that does not pass on its
+        :class:`IncompleteOdometerError` for an object that is not an :class:`Odometer`, or one
+        overriding neither ``step`` nor ``step_batch``; :class:`OracleInputError` for a composite that does not pass on its
         input's ``oracle``."""
         options = {k: v.item() if isinstance(v, np.generic) else v for k, v in options.items()}
         odo = self.resolve(name)(**options)
-        if isinstance(odo, Odometer) and type(odo).step is Odometer.step and type(odo).step_batch is Odometer.step_batch:
+        if not isinstance(odo, Odometer):
+            raise IncompleteOdometerError(
+                f"odometer {_short_name(name)!r}: made a {type(odo).__name__}, not an Odometer; subclass "
+                "odolab.api.Odometer (it gives the name, oracle and intrinsics every odometer has)")
+        if type(odo).step is Odometer.step and type(odo).step_batch is Odometer.step_batch:
             raise IncompleteOdometerError(
                 f"odometer {_short_name(name)!r}: class {type(odo).__name__} overrides neither step() nor "
                 "step_batch(), so every step would fail; implement step(prev, cur, action)")

@@ -175,3 +175,12 @@ def test_one_command_never_takes_over_anothers_folder(tmp_path):
         OutputFolder.check(tmp_path, owner="simcard", names=CARD_NAMES)
     OutputFolder.check(tmp_path)  # compare itself may write there again
     assert (tmp_path / "table.csv").read_text() == "compare's results"
+
+
+def test_a_class_that_is_not_an_odometer_is_refused_at_load(tmp_path):
+    from odolab.odometer import IncompleteOdometerError, load_odometer
+
+    source = tmp_path / "notodo.py"
+    source.write_text("class NotOdo:\n    def step(self, prev, cur, action):\n        return None\n")
+    with pytest.raises(IncompleteOdometerError, match="not an Odometer"):
+        load_odometer(f"{source}:NotOdo")
