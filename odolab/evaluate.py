@@ -152,6 +152,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.delta <= 0 or (args.delta_unit == "f" and args.delta != int(args.delta)):
         raise UsageError(f"--delta must be positive (a whole number of frames for -u f), got {args.delta:g}")
 
+    from odolab.io.inputs import check_regular_file
+
+    for path in [args.gt, *args.est]:  # a pipe or device (e.g. a link to /dev/zero) would never end
+        try:
+            check_regular_file(path, "trajectory file")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     if args.format is None:
         args.format = _format([args.gt, *args.est])
     args.duplicates = {}

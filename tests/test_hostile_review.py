@@ -184,3 +184,10 @@ def test_a_class_that_is_not_an_odometer_is_refused_at_load(tmp_path):
     source.write_text("class NotOdo:\n    def step(self, prev, cur, action):\n        return None\n")
     with pytest.raises(IncompleteOdometerError, match="not an Odometer"):
         load_odometer(f"{source}:NotOdo")
+
+
+def test_evaluate_refuses_a_device_at_once(tmp_path):
+    from odolab.evaluate import main
+
+    (tmp_path / "zero.tum").symlink_to("/dev/zero")
+    assert run_cli(main, "python -m odolab.evaluate", [str(tmp_path / "zero.tum"), str(tmp_path / "zero.tum")]) == 2
