@@ -156,7 +156,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     for path in [args.gt, *args.est]:  # a pipe or device (e.g. a link to /dev/zero) would never end
         try:
-            check_regular_file(path, "trajectory file")
+            check_regular_file(path)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     if args.format is None:
