@@ -191,3 +191,24 @@ def test_evaluate_refuses_a_device_at_once(tmp_path):
 
     (tmp_path / "zero.tum").symlink_to("/dev/zero")
     assert run_cli(main, "python -m odolab.evaluate", [str(tmp_path / "zero.tum"), str(tmp_path / "zero.tum")]) == 2
+
+
+def test_one_trainer_never_replaces_anothers_model(tmp_path):
+    torch = pytest.importorskip("torch")
+    from odolab.learning.checkpoints import CheckpointError, check_export, save_model
+
+
+    import dataclasses
+
+    @dataclasses.dataclass
+    class R:
+        model: dict = dataclasses.field(default_factory=dict)
+
+    model = tmp_path / "model.pt"
+    save_model(model, "odolab-robust-vo", R(), {"net": torch.nn.Linear(2, 2)}, {})
+    with pytest.raises(ValueError, match="another trainer's"):
+        check_export(model, tmp_path / "r.toml", {}, kind="odolab-deepvo")
+    with pytest.raises(CheckpointError, match="another trainer's"):
+        save_model(model, "odolab-deepvo", R(), {"net": torch.nn.Linear(2, 2)}, {})
+    check_export(model, tmp_path / "r.toml", {}, kind="odolab-robust-vo")  # its own trainer may
+    save_model(model, "odolab-robust-vo", R(), {"net": torch.nn.Linear(2, 2)}, {})

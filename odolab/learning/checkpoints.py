@@ -53,10 +53,11 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str
 MODEL_FORMAT = 1
 
 
-def what_file(path: str | os.PathLike) -> str | None:
-    """None when ``path`` is a model file odolab exported (any kind); else what it is, in words:
-    "a training state", "a checkpoint of kind 'x'", "a folder", or "a file that is not an
-    odolab model (a recipe, data or another program's file)"."""
+def what_file(path: str | os.PathLike, kind: str | None = None) -> str | None:
+    """None when ``path`` is a model file odolab exported (of ``kind``, when given); else what it
+    is, in words: "a training state", "a checkpoint of kind 'x'", "a model of kind 'x' (another
+    trainer's)", "a folder", or "a file that is not an odolab model (a recipe, data or another
+    program's file)"."""
     if os.path.isdir(path):
         return "a folder"
     try:
@@ -65,19 +66,19 @@ def what_file(path: str | os.PathLike) -> str | None:
         return "a file that is not an odolab model (a recipe, data or another program's file)"
     if isinstance(doc, dict) and doc.get("format") == MODEL_FORMAT and isinstance(doc.get("networks"), dict) \
             and isinstance(doc.get("kind"), str) and "model" in doc:
-        return None
+        return None if kind is None or doc["kind"] == kind else f"a model of kind {doc['kind']!r} (another trainer's)"
     kind = doc.get("kind") if isinstance(doc, dict) else None
     if kind == "odolab-training-state":
         return "a training state"
     return f"a checkpoint of kind {kind!r}" if isinstance(kind, str) else "a torch file that is not an odolab model"
 
 
-def check_export(export: Path, recipe: Path, states: dict[str, Path]) -> None:
+def check_export(export: Path, recipe: Path, states: dict[str, Path], kind: str | None = None) -> None:
     """Refuse, with one ``ValueError`` line naming ``--export``, what it would find there and what
     it expects, an export path that would replace what no export wrote: the recipe, a training
     state the run keeps (``states``: what keeps it -> its path, e.g. ``"stage 'model'"``), or an
-    existing file that is not a model odolab exported (a state, data, a recipe). Checked before
-    any training."""
+    existing file that is not a model odolab exported (a state, data, a recipe) or is another
+    trainer's model (``kind``: this trainer's). Checked before any training."""
     export = Path(export)
     expected = "a new file or a model odolab exported"
 
@@ -95,7 +96,7 @@ def check_export(export: Path, recipe: Path, states: dict[str, Path]) -> None:
             raise ValueError(f"--export {export}: expected {expected}, found the file where {what} keeps its "
                              "training state, which the model would replace; give --export another path")
     if os.path.lexists(export):
-        found = what_file(export)
+        found = what_file(export, kind)
         if found is not None:
             raise ValueError(f"--export {export}: expected {expected}, found {found}; odolab replaces only the "
                              "models it exported: give --export another path")
@@ -110,7 +111,7 @@ def save_model(path: str | os.PathLike, kind: str, recipe: Any, networks: dict[s
     import dataclasses
     import json
 
-    if os.path.lexists(path) and (found := what_file(path)) is not None:
+    if os.path.lexists(path) and (found := what_file(path, kind)) is not None:
         raise CheckpointError(f"{path}: expected a new file or a model odolab exported, found {found}; "
                               "not replaced (export the model elsewhere)")
     doc = json.loads(json.dumps(dataclasses.asdict(recipe)))

@@ -112,7 +112,7 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
             raise UsageError(f"--export {export}: expected a file apart from the reports, found the path of "
                              f"{kept} in --reports {reports}, which the run writes; give --export another path")
     try:  # never the recipe, a training state or a file no export wrote
-        check_export(export, args.config, (state_files or stage_states)(config, work))
+        check_export(export, args.config, (state_files or stage_states)(config, work), kind=f"odolab-{args.family}")
     except ValueError as exc:
         raise UsageError(str(exc) if args.export else f"{exc} (the default --export is <work>/model.pt)") from None
     if args.threads:
