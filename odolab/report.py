@@ -99,6 +99,13 @@ class OutputFolder:
             return
         if not root.is_dir():
             raise UnsafeOutputError(root, "a folder", "a file")
+        manifest = root / MANIFEST
+        if manifest.is_file() and not manifest.is_symlink():
+            try:
+                manifest.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                raise ManifestError(f"{root}: its {MANIFEST} cannot be read ({type(exc).__name__}), so what the last run "
+                                    "wrote is unknown; delete the folder's old results or choose another folder") from None
         said = _manifest_owner(root)
         if said is not None and said != owner:
             raise ManifestError(f"{root}: holds the results of odolab {said} (its {MANIFEST} says so), not of "

@@ -212,3 +212,11 @@ def test_one_trainer_never_replaces_anothers_model(tmp_path):
         save_model(model, "odolab-deepvo", R(), {"net": torch.nn.Linear(2, 2)}, {})
     check_export(model, tmp_path / "r.toml", {}, kind="odolab-robust-vo")  # its own trainer may
     save_model(model, "odolab-robust-vo", R(), {"net": torch.nn.Linear(2, 2)}, {})
+
+
+def test_an_unreadable_manifest_is_refused_not_ignored(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+
+    (tmp_path / "manifest.txt").write_bytes(b"table.csv\n\xff\xfe garbage\n")
+    with pytest.raises(ManifestError, match="cannot be read"):
+        OutputFolder.check(tmp_path)
