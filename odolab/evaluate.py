@@ -81,7 +81,7 @@ def _format(paths: list[str]) -> str:
         try:
             found[path] = infer_format(path)
         except FileFormatError as exc:
-            raise UsageError(f"{exc}; give --format kitti or tum") from None
+            raise UsageError(str(exc)) from None
         first = paths[0]
         if found[path] != found[first]:
             raise UsageError(f"{path} is a {found[path].upper()} file but {first} a {found[first].upper()} file; "
@@ -179,7 +179,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             ev = evaluate_trajectory(gt, est, pairing, args.align, args.delta, args.delta_unit)
         except ValueError as exc:
-            raise UsageError(f"{path}: {exc}") from None
+            hint = "; --align none evaluates without aligning" if args.align != "none" and "alignment" in str(exc) else ""
+            raise UsageError(f"{path}: {exc}{hint}") from None
         rows.append((path, ev))
 
     if args.json:
