@@ -220,3 +220,13 @@ def test_an_unreadable_manifest_is_refused_not_ignored(tmp_path):
     (tmp_path / "manifest.txt").write_bytes(b"table.csv\n\xff\xfe garbage\n")
     with pytest.raises(ManifestError, match="cannot be read"):
         OutputFolder.check(tmp_path)
+
+
+@pytest.mark.parametrize("pinhole, words", [((525.0, 525.0, 1e9, 1e9), "principal point"),
+                                            ((1e-9, 1e-9, 0.0, 0.0), "implausible")])
+def test_implausible_tum_intrinsics_are_refused(pinhole, words):
+    from odolab.io.tum_rgbd import load_tum_sequence
+
+    folder = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
+    with pytest.raises(ValueError, match=words):
+        load_tum_sequence(folder, intrinsics=pinhole)

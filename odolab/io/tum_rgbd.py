@@ -262,7 +262,14 @@ def load_tum_sequence(
         if first is None:
             raise _image_error(rgb[0], "cannot be read as an image")
         fx, fy, cx, cy = (float(v) for v in intrinsics)
-        intrinsics = Intrinsics(fx, fy, cx, cy, int(first.shape[1]), int(first.shape[0]))
+        w, h = int(first.shape[1]), int(first.shape[0])
+        if not (0 <= cx <= w and 0 <= cy <= h):
+            raise ValueError(f"intrinsics: the principal point (cx, cy) must lie in the {w} x {h} images, "
+                             f"got ({cx:g}, {cy:g})")
+        if not all(0.05 * size <= f <= 20 * size for f, size in ((fx, w), (fy, h))):
+            raise ValueError(f"intrinsics: focal lengths fx, fy of {fx:g}, {fy:g} pixels are implausible for "
+                             f"{w} x {h} images (expected 0.05 to 20 times the image width and height)")
+        intrinsics = Intrinsics(fx, fy, cx, cy, w, h)
     depth = _read_list(root / "depth.txt")
     gt = read_tum_trajectory(root / "groundtruth.txt")
 
