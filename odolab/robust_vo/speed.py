@@ -65,14 +65,14 @@ def inference_steps_per_s(cfg: TrainConfig, compute: Compute, steps: int = 20) -
     return 1.0 / float(np.median(times[2:]))
 
 
-def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 6) -> TrainingData:
+def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 12) -> TrainingData:
     """A few val episodes at the recipe's size, made in ``folder`` (in this process)."""
     small = dataclasses.replace(cfg.val_data, episodes=episodes)
     make_training_data(small, folder, parallel=False, progress=False)
     return TrainingData(folder)
 
 
-def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingData, steps: int = 8) -> float:
+def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingData, steps: int = 24) -> float:
     """Pairs per second of the trainer's own epoch over ``steps`` batches of the first stage."""
     from odolab.robust_vo.model import build_networks
     from odolab.robust_vo.train import StageRunner
@@ -89,7 +89,7 @@ def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingDat
     return tracker.samples / tracker.seconds
 
 
-def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int = 8) -> dict:
+def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int = 24) -> dict:
     """One row of ``python -m odolab.bench --only training`` for recipe ``cfg`` (called ``name``)."""
     from odolab.learning import choose_compute
 
