@@ -65,7 +65,7 @@ def inference_steps_per_s(cfg: TrainConfig, compute: Compute, steps: int = 20) -
     return 1.0 / float(np.median(times[2:]))
 
 
-def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 12) -> TrainingData:
+def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 20) -> TrainingData:
     """A few val episodes at the recipe's size, made in ``folder`` (in this process)."""
     small = dataclasses.replace(cfg.val_data, episodes=episodes)
     make_training_data(small, folder, parallel=False, progress=False)
