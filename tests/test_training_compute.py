@@ -44,9 +44,28 @@ def test_the_device_is_a_gpu_when_present_else_the_cpu(monkeypatch):
 
 
 def test_a_bad_compute_table_is_refused_in_one_line():
-    for bad in ({"precision": "fp16"}, {"memory_format": "nhwc"}, {"loader_workers": -1}, {"loader_workers": True}):
+    for bad in ({"precision": "fp16"}, {"memory_format": "nhwc"}, {"loader_workers": -1}, {"loader_workers": True}, {"loader_workers": "many"}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             ComputeConfig(**bad)
+
+
+def test_loader_workers_auto_is_none_on_two_cores_and_one_on_more():
+    assert ComputeConfig().resolve(CPU, cores=2).loader_workers == 0
+    assert ComputeConfig().resolve(CPU, cores=8).loader_workers == 1
+    assert ComputeConfig(loader_workers=3).resolve(CPU, cores=2).loader_workers == 3
+
+
+def test_a_compute_table_is_read_from_toml(tmp_path):
+    from odolab.learning import dataclass_from_toml
+
+    path = tmp_path / "c.toml"
+    path.write_text('precision = "fp32"\nloader_workers = "auto"\n')
+    assert dataclass_from_toml(ComputeConfig, path) == ComputeConfig(precision="fp32")
+    path.write_text("loader_workers = 2\n")
+    assert dataclass_from_toml(ComputeConfig, path).loader_workers == 2
+    path.write_text('loader_workers = "two"\n')
+    with pytest.raises(ValueError, match="loader_workers"):
+        dataclass_from_toml(ComputeConfig, path)
 
 
 def test_bf16_autocast_runs_a_step_and_returns_fp32_losses():

@@ -174,7 +174,7 @@ def train_windows(job: dict) -> dict:
         bar = tqdm(total=len(order), initial=tracker.samples, desc=f"deepvo epoch {epoch}", unit="window",
                    disable=not (progress and team.leader), leave=False)
         made = prefetched([team.share(b) for b in batches], WindowBatches(train, cfg.window, cfg.model),
-                          cfg.compute.loader_workers)
+                          compute.loader_workers)
         for (x, target, actions), whole in zip(made, batches):
             with compute.autocast():
                 pred, _ = net(x.to(device), actions=torch.from_numpy(actions).to(device))
@@ -193,7 +193,7 @@ def train_windows(job: dict) -> dict:
     def validate(epoch: int) -> list[dict]:
         preds, truths, acts = [], [], []
         parts = [val_starts[k:k + 64] for k in range(0, len(val_starts), 64)]
-        for x, target, actions in prefetched(parts, WindowBatches(val, cfg.window, cfg.model), cfg.compute.loader_workers):
+        for x, target, actions in prefetched(parts, WindowBatches(val, cfg.window, cfg.model), compute.loader_workers):
             preds.append(net(x.to(device), actions=torch.from_numpy(actions).to(device))[0].cpu().numpy().reshape(-1, 3))
             truths.append(target.reshape(-1, 3))
             acts.append(actions.ravel())

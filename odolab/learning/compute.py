@@ -5,11 +5,12 @@ memory format of the network's inputs, chosen per machine.
 ``avx512_bf16`` or ``amx_bf16``, Arm CPUs with ``bf16``, CUDA GPUs that support it) and fp32
 elsewhere; emulated bf16 is slower than fp32. ``auto`` keeps the default contiguous memory layout:
 ``channels_last`` was slower under bf16 and no faster under fp32 in
-``python -m odolab.bench --only training``, which measures both (docs/learned.md).
+``python -m odolab.bench --only training`` (docs/training.md).
 """
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import platform
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +58,7 @@ class Compute:
     device: torch.device
     precision: str
     memory_format: str
+    loader_workers: int = 0
 
     def autocast(self) -> contextlib.AbstractContextManager:
         """The autocast context of a forward pass (a no-op in fp32)."""
@@ -79,6 +81,7 @@ class Compute:
     def describe(self) -> dict[str, str]:
         """Plain data for reports."""
         return {"device": str(self.device), "precision": self.precision, "memory_format": self.memory_format,
+                "loader_workers": self.loader_workers,
                 "machine": f"{platform.machine()} {platform.processor() or ''}".strip()}
 
 
@@ -86,24 +89,32 @@ class Compute:
 class ComputeConfig:
     """A recipe's ``[compute]`` table: ``precision`` and ``memory_format`` (``auto``: the module
     docstring's rule) and ``loader_workers``, processes that make batches ahead of the step (0: in
-    the training process). None of it is part of a run's identity: a run resumes on another machine
-    with that machine's choice."""
+    the training process, between steps; ``auto``: 0 on a machine of at most 2 cores, where a worker
+    only competes with the network for them and costs a copy of every batch, else 1). None of it is
+    part of a run's identity: a run resumes on another machine with that machine's choice."""
 
     precision: Precision = "auto"
     memory_format: MemoryFormat = "auto"
-    loader_workers: int = 1
+    loader_workers: int | Literal["auto"] = "auto"
 
     def __post_init__(self) -> None:
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
         if self.memory_format not in MEMORY_FORMATS:
             raise ValueError(f"memory_format must be one of {', '.join(MEMORY_FORMATS)}, got {self.memory_format!r}")
-        if isinstance(self.loader_workers, bool) or not 0 <= self.loader_workers <= 64:
-            raise ValueError(f"loader_workers must be in [0, 64], got {self.loader_workers!r}")
+        if self.loader_workers != "auto" and (isinstance(self.loader_workers, bool) or not isinstance(self.loader_workers, int)
+                                              or not 0 <= self.loader_workers <= 64):
+            raise ValueError(f"loader_workers must be 'auto' or in [0, 64], got {self.loader_workers!r}")
 
-    def resolve(self, device: torch.device) -> Compute:
-        """The :class:`Compute` of this config on ``device``."""
-        return choose_compute(device, self.precision, self.memory_format)
+    def resolve(self, device: torch.device, cores: int | None = None) -> Compute:
+        """The :class:`Compute` of this config on ``device`` (``cores``: the machine's, by default
+        ``os.cpu_count()``)."""
+        import os
+
+        workers = self.loader_workers
+        if workers == "auto":
+            workers = 0 if (cores or os.cpu_count() or 1) <= 2 else 1
+        return dataclasses.replace(choose_compute(device, self.precision, self.memory_format), loader_workers=workers)
 
 
 def choose_compute(device: torch.device, precision: str = "auto", memory_format: str = "auto",

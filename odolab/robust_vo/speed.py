@@ -104,7 +104,7 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
     m = cfg.model
     return {"config": name, "input": f"{m.width}x{m.height}", "base_planes": m.base_planes,
             "batch": cfg.stages[0].batch, "device": str(device), "precision": compute.precision,
-            "memory_format": compute.memory_format, "loader_workers": cfg.compute.loader_workers,
+            "memory_format": compute.memory_format, "loader_workers": compute.loader_workers,
             "bare_pairs_per_s": bare, "end_to_end_pairs_per_s": end_to_end, "fp32_bare_pairs_per_s": fp32_bare,
             "end_to_end_over_bare": end_to_end / bare, "params_per_network": sum(p.numel() for p in VONet(m).parameters()),
             "net_batch1_fp32_steps_per_s": infer["fp32"], "net_batch1_bf16_steps_per_s": infer["bf16"]}

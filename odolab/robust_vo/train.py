@@ -114,7 +114,7 @@ class StageRunner:
         bar = tqdm(total=len(order), initial=tracker.samples, desc=f"{stage.name} epoch {epoch}",
                    unit="pair", disable=not (self.progress and team.leader), leave=False)
         c = self.compute
-        made = prefetched(parts, StepBatches(self.train, self.cfg.model, stage.geoinv), self.cfg.compute.loader_workers)
+        made = prefetched(parts, StepBatches(self.train, self.cfg.model, stage.geoinv), self.compute.loader_workers)
         for (batch, other), whole in zip(made, batches):
             with c.autocast():
                 pred = predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action)
@@ -141,7 +141,7 @@ class StageRunner:
         parts = [Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool))
                  for idx in np.array_split(self.val_pairs, max(1, -(-len(self.val_pairs) // 64)))]
         c = self.compute
-        for batch, _ in prefetched(parts, StepBatches(self.val, self.cfg.model, False), self.cfg.compute.loader_workers):
+        for batch, _ in prefetched(parts, StepBatches(self.val, self.cfg.model, False), self.compute.loader_workers):
             preds.append(predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action).cpu().numpy())
             targets.append(batch.target.cpu().numpy())
             actions.append(batch.action)
