@@ -123,8 +123,10 @@ def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior")
     return rows
 
 
-#: Recipes ``--only training`` times by default: the shipped one and its full-size variant.
-TRAINING_RECIPES = ("studies/robust_vo/shipped.toml", "studies/robust_vo/ablations/full-size.toml")
+#: Recipes ``--only training`` times by default: the shipped one, and at the paper's input size with
+#: 16 base planes (the next shipped recipe) and with the paper's 32.
+TRAINING_RECIPES = ("studies/robust_vo/shipped.toml", "studies/robust_vo/shipped-341.toml",
+                    "studies/robust_vo/ablations/full-size.toml")
 
 
 def bench_training(recipes: Sequence[Path], device: str | None = None) -> list[dict]:

@@ -173,3 +173,39 @@ batch = 4
         assert rows[0][key] > 0
     assert rows[0]["precision"] in ("fp32", "bf16") and rows[0]["memory_format"] == "contiguous"
     assert "end_to_end_pairs_per_s" in capsys.readouterr().out
+
+
+def test_the_projection_filters_only_its_band_with_the_same_numbers():
+    """psi's S-proj smooths the projected rows and their neighbours only: the same numbers, bit for
+    bit, as filtering the whole image first (the plain definition, written out here)."""
+    import torch.nn.functional as F
+
+    from odolab.api import Intrinsics
+    from odolab.robust_vo.inputs import top_down_projection
+
+    rng = np.random.default_rng(0)
+    depth = torch.from_numpy(rng.uniform(0.0, 8.0, (3, 48, 85)).astype(np.float32))
+    depth[:, ::7] = 0.0  # holes
+    K = Intrinsics(40.0, 40.0, 42.0, 23.5, 85, 48)
+
+    def reference(d: torch.Tensor, rows: float) -> torch.Tensor:
+        b, h, w = d.shape
+        valid = (d > 0).to(d.dtype)
+        padded = F.pad(torch.stack([d * valid, valid], dim=1), (1, 1, 1, 1), mode="replicate")
+        smooth, share = F.avg_pool2d(padded, 3, stride=1).unbind(1)
+        z = torch.where(valid > 0, smooth / share.clamp_min(1e-6), torch.zeros_like(d))
+        keep = max(1, int(round(rows * h)))
+        top = (h - keep) // 2
+        z = z[:, top:top + keep]
+        u = torch.arange(w, dtype=d.dtype)
+        x = (u - K.cx) / K.fx * z
+        x_max = 10.0 * (K.cx + 0.5) / K.fx
+        col = torch.floor((x + x_max) / (2 * x_max) * w).long()
+        row = (h - 1) - torch.floor((z - 0.1) / (10.0 - 0.1) * h).long()
+        ok = (z >= 0.1) & (z <= 10.0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        image = torch.arange(b)[:, None, None].expand_as(z)
+        counts = torch.bincount((image * h * w + row * w + col)[ok], minlength=b * h * w).reshape(b, h, w).to(d.dtype)
+        return counts / counts.flatten(1).amax(dim=1).clamp_min(1.0)[:, None, None]
+
+    for rows in (100 / 192, 1.0, 0.01):
+        assert torch.equal(top_down_projection(depth, K, 10.0, rows), reference(depth, rows))
