@@ -34,7 +34,7 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         # argparse says "argument --x: <type's message>"; ours already start with the option's name
         match = re.fullmatch(r"argument ([^:]+): (\S+) (.*)", message, flags=re.S)
-        if match and match.group(2) in match.group(1).split("/"):
+        if match and match.group(2).rstrip(":") in match.group(1).split("/"):
             message = f"{match.group(2)} {match.group(3)}"
         raise UsageError(message)
 

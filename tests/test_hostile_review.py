@@ -230,3 +230,13 @@ def test_implausible_tum_intrinsics_are_refused(pinhole, words):
     folder = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
     with pytest.raises(ValueError, match=words):
         load_tum_sequence(folder, intrinsics=pinhole)
+
+
+def test_an_option_is_named_once_in_its_error():
+    from odolab.cli import ArgumentParser, pinhole
+
+    ap = ArgumentParser(prog="x")
+    ap.add_argument("--intrinsics", type=pinhole("--intrinsics"))
+    with pytest.raises(UsageError) as err:
+        ap.parse_args(["--intrinsics", "0,1,2,3"])
+    assert str(err.value).count("--intrinsics") == 1
