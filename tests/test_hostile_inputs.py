@@ -290,7 +290,7 @@ def test_an_interrupted_rerun_never_mixes_two_runs(tmp_path):
     assert not (tmp_path / "report.html").exists() and not (tmp_path / "trajectories").exists()
     second.path("table.csv").write_text("new")
     # interrupted here: the manifest already names what this run wrote, and nothing else
-    assert (tmp_path / MANIFEST).read_text().split() == ["table.csv"]
+    assert (tmp_path / MANIFEST).read_text().splitlines() == ["# odolab compare", "table.csv"]
     OutputFolder(tmp_path)  # the next run cleans it up
     assert not (tmp_path / "table.csv").exists()
 

@@ -102,7 +102,7 @@ def test_rerun_removes_what_the_previous_run_owned(tmp_path):
     assert run_cli(main, "odolab.compare", [*base, "--episodes", "1"]) == 0
     assert len(list((out / "trajectories").iterdir())) == 1  # the older run's episodes are gone
     assert (out / "mine.txt").exists()  # what no run wrote stays
-    listed = set((out / "manifest.txt").read_text().split())
+    listed = {line for line in (out / "manifest.txt").read_text().splitlines() if not line.startswith("#")}
     on_disk = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()} - {"manifest.txt", "mine.txt"}
     assert listed == on_disk
 
