@@ -8,25 +8,9 @@ import pytest
 
 from odolab.cli import UsageError, run_cli
 
-RECIPE = """
-[model]
-width = 48
-height = 32
+from tests.test_output_ownership import ROBUST_RECIPE
 
-[train_data]
-width = 48
-height = 32
-
-[val_data]
-split = "val"
-width = 48
-height = 32
-
-[[stages]]
-name = "forward"
-actions = ["move_forward"]
-epochs = 1
-"""
+RECIPE = ROBUST_RECIPE.replace("{stage}", "forward")  # parsed only: no data is made
 
 
 def _job(tmp_path: Path, *argv: str):
