@@ -14,7 +14,6 @@ import json
 import os
 from dataclasses import dataclass
 from importlib.resources import files
-from pathlib import Path
 
 import numpy as np
 

@@ -197,7 +197,7 @@ def _run(odometers: dict[str, Odometer], sequences, observer: RunObserver | None
 
 
 def _options_note(config: ComparisonConfig) -> list[str]:
-    return [f"Odometer options: " + "; ".join(f"{name}: " + ", ".join(f"{k}={v!r}" for k, v in opts.items())
+    return ["Odometer options: " + "; ".join(f"{name}: " + ", ".join(f"{k}={v!r}" for k, v in opts.items())
                                               for name, opts in config.options.items())] if config.options else []
 
 

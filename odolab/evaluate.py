@@ -24,7 +24,6 @@ import json
 import math
 import os
 import sys
-from pathlib import Path
 from typing import Sequence
 
 from odolab import metrics

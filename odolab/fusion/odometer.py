@@ -41,7 +41,7 @@ from odolab.fusion.calibration import Calibration, view_is_near
 from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_covariance, left_covariance,
                                 right_covariance, smooth)
 from odolab.geometry import planar_to_transform
-from odolab.odometer import REGISTRY, Odometer, split_odometer_names
+from odolab.odometer import Odometer, split_odometer_names
 from odolab.runner import failure_reason
 from odolab.types import Action, Estimate, Frame, Intrinsics
 
