@@ -143,6 +143,9 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
 def check_output_dir(path: Path, option: str) -> None:
     """Create folder ``path`` if needed and prove it writable, or raise :class:`UsageError` naming
     ``option`` (e.g. a path that is a file, or a read-only location)."""
+    if path.is_symlink() and not path.exists():
+        raise UsageError(f"{option} {path}: is a link to nothing (or a loop of links), not a folder; "
+                         f"remove it or choose another {option}")
     if path.exists() and not path.is_dir():
         raise UsageError(f"{option} {path}: is a file, not a folder")
     try:

@@ -55,7 +55,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="file format of all files (default: told from their column count, 8 TUM, 12 KITTI)")
     ap.add_argument("--align", default="se3", choices=metrics.ALIGNMENTS,
                     help="Umeyama alignment of each estimate to the ground truth (default se3)")
-    ap.add_argument("--delta", type=number("--delta", float, 0, MAX_DELTA), default=1.0,
+    ap.add_argument("--delta", type=number("--delta", float, None, MAX_DELTA), default=1.0,
                     help=f"RPE pair distance, > 0 and <= {MAX_DELTA:g} (default 1)")
     ap.add_argument("--delta-unit", default="f", choices=("f", "m"), help="frames or metres (default f)")
     ap.add_argument("--t-max-diff", type=number("--t-max-diff", float, 0, MAX_TIME_DIFF), default=0.01,

@@ -224,3 +224,26 @@ def test_an_option_is_named_once_in_its_error():
     with pytest.raises(UsageError) as err:
         ap.parse_args(["--intrinsics", "0,1,2,3"])
     assert str(err.value).count("--intrinsics") == 1
+
+
+def test_an_export_mistake_leaves_no_folders_behind(tmp_path):
+    with pytest.raises(UsageError, match="found the recipe"):
+        _job(tmp_path, "--export", str(tmp_path / "recipe.toml"))
+    assert not (tmp_path / "work").exists() and not (tmp_path / "reports").exists()
+
+
+def test_a_dangling_output_folder_is_named_as_a_link(tmp_path):
+    from odolab.cli import check_output_dir
+
+    (tmp_path / "out").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(UsageError, match="link to nothing"):
+        check_output_dir(tmp_path / "out", "--out")
+
+
+def test_a_negative_delta_is_told_to_be_positive(tmp_path, capsys):
+    from odolab.evaluate import main
+
+    path = tmp_path / "a.tum"
+    path.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n")
+    assert run_cli(main, "python -m odolab.evaluate", [str(path), str(path), "--delta", "-1"]) == 2
+    assert "--delta must be positive" in capsys.readouterr().err

@@ -104,9 +104,6 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
                 str(exc).replace("--ray-address", "RAY_ADDRESS (environment)", 1) + "; unset it for a local instance"
             raise UsageError(said) from None
     check_workers(args.workers, args.gpus_per_worker, args.device, device, args.ray_address)
-    check_output_dir(work, "--work")
-    check_output_dir(reports, "--reports")
-    check_output_file(export, "--export")
     for kept in REPORT_FILES:  # the reports a run writes beside the model: found now, not after training
         if _same_path(export, reports / kept):
             raise UsageError(f"--export {export}: expected a file apart from the reports, found the path of "
@@ -115,6 +112,9 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
         check_export(export, args.config, (state_files or stage_states)(config, work), kind=f"odolab-{args.family}")
     except ValueError as exc:
         raise UsageError(str(exc) if args.export else f"{exc} (the default --export is <work>/model.pt)") from None
+    check_output_dir(work, "--work")  # made only once every check above has passed
+    check_output_dir(reports, "--reports")
+    check_output_file(export, "--export")
     if args.threads:
         torch.set_num_threads(args.threads)
     argv = list(argv) if argv is not None else sys.argv[1:]
