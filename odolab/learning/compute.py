@@ -3,9 +3,8 @@ memory format of the network's inputs, chosen per machine.
 
 ``auto`` picks bf16 autocast only where the hardware computes bf16 natively (x86 CPUs with
 ``avx512_bf16`` or ``amx_bf16``, Arm CPUs with ``bf16``, CUDA GPUs that support it) and fp32
-elsewhere; emulated bf16 is slower than fp32. ``auto`` keeps the default contiguous memory layout:
-``channels_last`` was slower under bf16 and no faster under fp32 in
-``python -m odolab.bench --only training`` (docs/training.md).
+elsewhere; emulated bf16 is slower than fp32. ``auto`` keeps the default contiguous memory layout
+(``channels_last`` is there to be asked for and timed: docs/training.md).
 """
 from __future__ import annotations
 
