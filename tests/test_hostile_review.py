@@ -247,3 +247,11 @@ def test_a_negative_delta_is_told_to_be_positive(tmp_path, capsys):
     path.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n")
     assert run_cli(main, "python -m odolab.evaluate", [str(path), str(path), "--delta", "-1"]) == 2
     assert "--delta must be positive" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["--samples", "-1"], ["--samples", str(2**63)], ["--seconds", "nan"]])
+def test_the_derotation_probe_bounds_its_options_before_work(argv, capsys):
+    from studies.robust_vo.derotation_probe import main
+
+    assert run_cli(main, "python -m studies.robust_vo.derotation_probe", argv) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

@@ -12,7 +12,6 @@ of the nominal 30 degree rotation, K R^T K^-1, so that the network sees only the
 """
 from __future__ import annotations
 
-import argparse
 import time
 
 import cv2
@@ -46,14 +45,21 @@ def batch(data: TrainingData, idx: np.ndarray, warp: np.ndarray | None, model) -
     return x, torch.from_numpy(b["planar"]).float()
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--config", default="studies/robust_vo/shipped.toml")
-    ap.add_argument("--seconds", type=float, default=300.0, help="training budget (wall clock)")
-    ap.add_argument("--samples", type=int, default=0, help="training budget in samples instead (0: use --seconds)")
+def main(argv: list[str] | None = None) -> int:
+    from odolab.cli import ArgumentParser, UsageError, number, path_arg
+
+    ap = ArgumentParser(prog="python -m studies.robust_vo.derotation_probe", description=__doc__.split("\n")[0])
+    ap.add_argument("--config", type=path_arg("--config"), default="studies/robust_vo/shipped.toml")
+    ap.add_argument("--seconds", type=number("--seconds", float, 1.0, 86_400.0), default=300.0,
+                    help="training budget (wall clock)")
+    ap.add_argument("--samples", type=number("--samples", int, 0, 10**8), default=0,
+                    help="training budget in samples instead (0: use --seconds)")
     ap.add_argument("--derotate", action="store_true", help="warp the current frame by the commanded turn")
-    args = ap.parse_args()
-    cfg = load_train_config(args.config)
+    args = ap.parse_args(argv)
+    try:
+        cfg = load_train_config(str(args.config))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     model = cfg.model
     train, val = (TrainingData(cfg.data_folder(d)) for d in (cfg.train_data, cfg.val_data))
     warp = derotation(train, TURN_ANGLE) if args.derotate else None
@@ -88,4 +94,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from odolab.cli import run_cli
+
+    raise SystemExit(run_cli(main, "python -m studies.robust_vo.derotation_probe"))
