@@ -399,7 +399,7 @@ class TrainingData:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, check_output_dir, number, path_arg, seed
+    from odolab.cli import ArgumentParser, check_report_dir, number, path_arg, seed
     from odolab.parallel import check_ray_address
 
     ap = ArgumentParser(prog="python -m odolab.training_data",
@@ -428,7 +428,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = DataConfig(split=args.split, episodes=args.episodes, seed=args.seed, first=args.first,
                      max_steps=args.max_steps, width=args.width, height=args.height,
                      episodes_per_shard=args.episodes_per_shard)
-    check_output_dir(args.out, "--out")
+    check_report_dir(args.out, "--out", manifest=MANIFEST)  # a folder of the user's own files is refused
     try:
         if args.ray_address is not None and not args.serial:
             check_ray_address(args.ray_address)

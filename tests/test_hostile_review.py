@@ -255,3 +255,15 @@ def test_the_derotation_probe_bounds_its_options_before_work(argv, capsys):
 
     assert run_cli(main, "python -m studies.robust_vo.derotation_probe", argv) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_trainers_and_training_data_refuse_a_folder_of_the_users_files(tmp_path):
+    from odolab.training_data import main as make_data
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "curves.csv").write_text("my own numbers")
+    with pytest.raises(UsageError, match="did not write"):
+        _job(tmp_path, "--reports", str(mine))
+    assert run_cli(make_data, "python -m odolab.training_data", ["--episodes", "1", "--out", str(mine)]) == 2
+    assert (mine / "curves.csv").read_text() == "my own numbers" and sorted(p.name for p in mine.iterdir()) == ["curves.csv"]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from odolab.cli import ArgumentParser, UsageError, check_output_dir, check_output_file, file_arg, number, path_arg, run_cli
+from odolab.cli import ArgumentParser, UsageError, check_output_dir, check_output_file, check_report_dir, file_arg, number, path_arg, run_cli
 
 __all__ = ["TrainingJob", "check_workers", "parse_training_command", "run_training_cli", "training_main", "training_parser"]
 
@@ -113,7 +113,7 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
     except ValueError as exc:
         raise UsageError(str(exc) if args.export else f"{exc} (the default --export is <work>/model.pt)") from None
     check_output_dir(work, "--work")  # made only once every check above has passed
-    check_output_dir(reports, "--reports")
+    check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
     check_output_file(export, "--export")
     if args.threads:
         torch.set_num_threads(args.threads)
