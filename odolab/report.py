@@ -111,7 +111,7 @@ class OutputFolder:
             raise ManifestError(f"{root}: holds the results of odolab {said} (its {MANIFEST} says so), not of "
                                 f"odolab {owner}; choose another folder")
         for rel in _manifest_lines(root):
-            if len(Path(rel).parts) > 1:
+            if len(Path(rel).parts) > 1 and names.fullmatch(rel):  # other lines: refused below, by name
                 check_owned_folder(root, Path(rel).parent)
         for rel in files:
             check_owned_path(root, rel)

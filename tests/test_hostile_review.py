@@ -267,3 +267,21 @@ def test_trainers_and_training_data_refuse_a_folder_of_the_users_files(tmp_path)
         _job(tmp_path, "--reports", str(mine))
     assert run_cli(make_data, "python -m odolab.training_data", ["--episodes", "1", "--out", str(mine)]) == 2
     assert (mine / "curves.csv").read_text() == "my own numbers" and sorted(p.name for p in mine.iterdir()) == ["curves.csv"]
+
+
+def test_a_meaningless_manifest_line_is_named(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+
+    (tmp_path / "table.csv").write_text("old")
+    (tmp_path / "manifest.txt").write_text("table.csv/x\n")
+    with pytest.raises(ManifestError, match="lists 'table.csv/x'"):
+        OutputFolder.check(tmp_path)
+
+
+def test_an_export_that_is_a_dangling_link_is_named_as_one(tmp_path):
+    pytest.importorskip("torch")
+    from odolab.learning.checkpoints import check_export
+
+    (tmp_path / "model.pt").symlink_to(tmp_path / "nowhere.pt")
+    with pytest.raises(ValueError, match="link to nothing"):
+        check_export(tmp_path / "model.pt", tmp_path / "r.toml", {})

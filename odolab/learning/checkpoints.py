@@ -60,6 +60,8 @@ def what_file(path: str | os.PathLike, kind: str | None = None) -> str | None:
     program's file)"."""
     if os.path.isdir(path):
         return "a folder"
+    if os.path.islink(path) and not os.path.exists(path):
+        return "a link to nothing (or a loop of links)"
     try:
         doc = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # noqa: BLE001 - not a torch file, or unsafe content: not a model either way
