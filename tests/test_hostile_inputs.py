@@ -61,7 +61,7 @@ def test_compare_numeric_options_have_ranges(args, words):
 @pytest.mark.parametrize("args,words", [
     (["--delta", "nan"], "--delta must be a finite number"),
     (["--delta", "inf"], "--delta must be a finite number"),
-    (["--delta", "1e300"], "--delta must be in"),
+    (["--delta", "1e300"], "--delta must be <="),
     (["--t-max-diff", "-1"], "--t-max-diff must be in [0, 60]"),
     (["--min-coverage", "nan"], "--min-coverage must be a finite number"),
 ])
