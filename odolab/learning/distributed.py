@@ -122,5 +122,4 @@ def _worker(payload: dict[str, Any]) -> None:
     import ray.train
 
     ctx = ray.train.get_context()
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
     payload["loop"]({**payload["config"], "team": Team(ctx.get_world_rank(), ctx.get_world_size())})

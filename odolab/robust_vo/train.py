@@ -194,7 +194,8 @@ def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: to
     """Run (or resume) every stage; export when all are done. Returns True when finished. With
     ``workers`` > 1, data-parallel on Ray Train (:mod:`odolab.learning.distributed`); the data are
     made first, here."""
-    load_start(cfg.init, cfg, export) if cfg.init else None  # checked before any data is made
+    if cfg.init:
+        load_start(cfg.init, cfg, export)  # checked before any data is made
     train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data, progress=progress)
     job = {"cfg": cfg, "work": work, "reports": reports, "export": export, "hours": hours, "progress": progress,
            "command": command}
