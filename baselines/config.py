@@ -6,6 +6,7 @@ Every odometer in ``baselines/`` takes one frozen config dataclass (``ICPConfig`
 out). Keyword options override single fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` sets
 ``config.depth.max_depth`` and ``config.voxel``.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -53,13 +54,17 @@ def configure(cls: type[_C], config: _C | None = None, **overrides: Any) -> _C:
             raise TypeError(f"{cls.__name__} has no option {name!r}; options: {', '.join(option_names(config))}")
         shallowest = [p for p in paths if len(p) == len(paths[0])]
         if len(shallowest) > 1:
-            raise TypeError(f"{cls.__name__}: option {name!r} is ambiguous: {', '.join('.'.join(p) for p in shallowest)}")
+            raise TypeError(
+                f"{cls.__name__}: option {name!r} is ambiguous: {', '.join('.'.join(p) for p in shallowest)}"
+            )
         current = config
         for part in paths[0]:
             current = getattr(current, part)
         if _is_config(current) and value is not None and not isinstance(value, type(current)):
-            raise TypeError(f"{cls.__name__}: {name!r} is a group of options ({', '.join(option_names(current))}); "
-                            "set those instead")
+            raise TypeError(
+                f"{cls.__name__}: {name!r} is a group of options ({', '.join(option_names(current))}); "
+                "set those instead"
+            )
         _check_type(cls.__name__, _field(config, paths[0]), value)
         node = changes
         for part in paths[0][:-1]:
@@ -75,15 +80,21 @@ def options_signature(config_cls: type) -> inspect.Signature:
     checkers that read it): ``config``, then every field name, nested or not, keyword-only, with its
     annotation and default. Set it as the odometer class's ``__signature__``."""
     default = config_cls()
-    params = [inspect.Parameter("config", inspect.Parameter.POSITIONAL_OR_KEYWORD, default=None,
-                                annotation=f"{config_cls.__name__} | None")]
+    params = [
+        inspect.Parameter(
+            "config", inspect.Parameter.POSITIONAL_OR_KEYWORD, default=None, annotation=f"{config_cls.__name__} | None"
+        )
+    ]
     for name in dict.fromkeys(path[-1] for path in _all_paths(default)):  # declaration order
         path = _paths(default, name)[0]
         value = default
         for part in path:
             value = getattr(value, part)
-        params.append(inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=value,
-                                        annotation=_field(default, path).type))
+        params.append(
+            inspect.Parameter(
+                name, inspect.Parameter.KEYWORD_ONLY, default=value, annotation=_field(default, path).type
+            )
+        )
     return inspect.Signature(params)
 
 
@@ -140,9 +151,9 @@ def _paths(config: object, name: str) -> list[tuple[str, ...]]:
 
 def _apply(config: _C, changes: _Changes) -> _C:
     """One ``dataclasses.replace`` per config level (so checks see all changes of a level at once)."""
-    return replace(config, **{
-        k: _apply(getattr(config, k), v) if isinstance(v, _Changes) else v for k, v in changes.items()
-    })
+    return replace(
+        config, **{k: _apply(getattr(config, k), v) if isinstance(v, _Changes) else v for k, v in changes.items()}
+    )
 
 
 #: Simple annotations -> the Python types a value may have (an int is a number; a bool is not).

@@ -1,6 +1,7 @@
 """6x6 covariances of rigid fits, over (rx, ry, rz, tx, ty, tz): a small motion ``exp(delta)``
 applied on the left, in the frame the fitted points are expressed in (for ``T_prev_cur`` that is
 the previous camera)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -3,6 +3,7 @@
 Conventions are odolab's (:mod:`odolab.api`): camera axes x right, y down, z forward, metres;
 ``T_a_b`` maps points in frame *b* into frame *a*.
 """
+
 from __future__ import annotations
 
 import reprlib
@@ -14,7 +15,6 @@ import cv2
 import numpy as np
 
 from odolab.api import Intrinsics
-
 
 #: The farthest depth cut a baseline accepts, metres (no sensor reads beyond; infinity is a typo).
 MAX_DEPTH_LIMIT = 1000.0
@@ -40,11 +40,15 @@ class DepthRange:
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_depth < self.max_depth <= MAX_DEPTH_LIMIT:
-            raise ValueError(f"need 0 <= min_depth < max_depth <= {MAX_DEPTH_LIMIT:g} m, got min_depth "
-                             f"{self.min_depth}, max_depth {self.max_depth}")
+            raise ValueError(
+                f"need 0 <= min_depth < max_depth <= {MAX_DEPTH_LIMIT:g} m, got min_depth "
+                f"{self.min_depth}, max_depth {self.max_depth}"
+            )
         if not (0.0 <= self.noise_floor <= MAX_NOISE and 0.0 <= self.noise_growth <= MAX_NOISE):
-            raise ValueError(f"need 0 <= noise_floor <= {MAX_NOISE:g} m and 0 <= noise_growth <= {MAX_NOISE:g} 1/m, "
-                             f"got {reprlib.repr(self.noise_floor)}, {reprlib.repr(self.noise_growth)}")
+            raise ValueError(
+                f"need 0 <= noise_floor <= {MAX_NOISE:g} m and 0 <= noise_growth <= {MAX_NOISE:g} 1/m, "
+                f"got {reprlib.repr(self.noise_floor)}, {reprlib.repr(self.noise_growth)}"
+            )
 
     def tolerance(self, z: np.ndarray) -> np.ndarray:
         """Largest difference (metres) between two readings of one surface at depth ``z`` (metres)."""
@@ -146,9 +150,7 @@ def pixel_grid(shape: tuple[int, ...], stride: int) -> np.ndarray:
     return sub
 
 
-def backproject(
-    depth: np.ndarray, intr: Intrinsics, rng: DepthRange, stride: int = 1
-) -> tuple[np.ndarray, np.ndarray]:
+def backproject(depth: np.ndarray, intr: Intrinsics, rng: DepthRange, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Usable depth pixels (every ``stride``-th row and column) as camera-frame points (N, 3), and
     their flat pixel indices (N,)."""
     mask = depth_mask(depth, rng)

@@ -42,6 +42,7 @@ planar by a least-squares fit of the final 3D inlier pairs seen from above (the 
 matrix's out-of-plane error, 3 cm of height or 2 degrees of tilt, failed the motion bounds on a
 third of the otherwise correct steps). ``planar=False`` keeps the 6-DoF result.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -233,9 +234,7 @@ class FeatureEssentialOdometer(Odometer):
         self.last_path = fit.path
         return Estimate(T, covariance=_covariance(fit))
 
-    def _solve_essential(
-        self, prev: Frame, cur: Frame, m: _Matches, R_oracle: np.ndarray | None
-    ) -> _PoseFit | None:
+    def _solve_essential(self, prev: Frame, cur: Frame, m: _Matches, R_oracle: np.ndarray | None) -> _PoseFit | None:
         """The paper's solver (see the module docstring); None where it cannot be trusted."""
         cfg = self.config
         e = essential_motion(m.prev, m.cur, self.intrinsics.matrix, cfg.ransac_px, cfg.ransac_iterations)
@@ -369,8 +368,7 @@ class OracleRotationFeatureEssentialOdometer(FeatureEssentialOdometer):
     def oracle_rotation(self, prev: Frame, cur: Frame) -> np.ndarray:
         if prev.gt_pose is None or cur.gt_pose is None:
             raise ValueError(
-                f"{self.name}: needs ground-truth poses (Frame.gt_pose) of both frames; "
-                "this sequence has none"
+                f"{self.name}: needs ground-truth poses (Frame.gt_pose) of both frames; this sequence has none"
             )
         return np.asarray(prev.gt_pose)[:3, :3].T @ np.asarray(cur.gt_pose)[:3, :3]
 

@@ -33,6 +33,7 @@ Validity is judged on the images, not on ICP's own fitness (which stays above 0.
 alignments of indoor scenes): see :func:`~baselines.verification.verify` (motion bounds of
 the action, depth agreement, grey-level correlation).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -93,10 +94,19 @@ class ICPConfig(OdometerConfig):
 
     def __post_init__(self) -> None:
         check_choice("variant", self.variant, _VARIANTS)
-        for name, low, high in (("pixel_stride", 1, 64), ("voxel", 1e-4, 1.0), ("normal_radius", 0.1, 100.0),
-                                ("normal_neighbours", 3, 1000), ("max_iterations", 1, 10_000), ("tolerance", 0.0, 1.0),
-                                ("geometric_weight", 0.0, 1.0), ("max_starts", 1, 100), ("min_cloud_points", 3, 10**7),
-                                ("min_coarse_points", 3, 10**7), ("min_normal_constraint", 0.0, 1.0)):
+        for name, low, high in (
+            ("pixel_stride", 1, 64),
+            ("voxel", 1e-4, 1.0),
+            ("normal_radius", 0.1, 100.0),
+            ("normal_neighbours", 3, 1000),
+            ("max_iterations", 1, 10_000),
+            ("tolerance", 0.0, 1.0),
+            ("geometric_weight", 0.0, 1.0),
+            ("max_starts", 1, 100),
+            ("min_cloud_points", 3, 10**7),
+            ("min_coarse_points", 3, 10**7),
+            ("min_normal_constraint", 0.0, 1.0),
+        ):
             check_range(name, getattr(self, name), low, high)
         if self.tukey_k is not None:
             check_range("tukey_k", self.tukey_k, 1e-4, 10.0)
@@ -158,7 +168,12 @@ class ICPOdometer(Odometer):
         found = first_verified(
             initial_guesses(action, prev, cur, self.intrinsics, cfg.depth)[: cfg.max_starts],
             lambda T: self._coarse_to_fine(source, target, T),
-            prev, cur, action, self.intrinsics, cfg.depth, cfg.verify,
+            prev,
+            cur,
+            action,
+            self.intrinsics,
+            cfg.depth,
+            cfg.verify,
         )
         if found is None:
             return Estimate.invalid()
@@ -196,7 +211,9 @@ class ICPOdometer(Odometer):
             if cfg.variant == "colored":
                 estimation = _reg.TransformationEstimationForColoredICP(cfg.geometric_weight, *kernel)
                 return _reg.registration_colored_icp(src, tgt, dist, T, estimation, criteria)
-            return _reg.registration_icp(src, tgt, dist, T, _reg.TransformationEstimationPointToPlane(*kernel), criteria)
+            return _reg.registration_icp(
+                src, tgt, dist, T, _reg.TransformationEstimationPointToPlane(*kernel), criteria
+            )
 
     def _pyramid(self, frame: Frame) -> _Pyramid | None:
         """Clouds of ``frame`` at each level; None when it has too few depth readings."""
@@ -210,7 +227,9 @@ class ICPOdometer(Odometer):
         for scale, _ in reversed(cfg.levels):  # fine to coarse, each level from the one before
             voxel = scale * cfg.voxel
             cloud = cloud.voxel_down_sample(voxel)
-            search = o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.normal_radius * voxel, max_nn=cfg.normal_neighbours)
+            search = o3d.geometry.KDTreeSearchParamHybrid(
+                radius=cfg.normal_radius * voxel, max_nn=cfg.normal_neighbours
+            )
             cloud.estimate_normals(search)
             clouds.append(cloud)
         if len(clouds[-1].points) < cfg.min_coarse_points or len(clouds[0].points) < cfg.min_cloud_points:

@@ -39,6 +39,7 @@ odometer gains here is an upper bound of what it would gain in a real building.
     python -m odolab.compare --odometers 'open3d-rgbd,manhattan(open3d-rgbd)'
     python -m odolab.navigate --odometers 'manhattan(fused(open3d-rgbd,robust-vo,planar-depth))' --episodes 100
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -46,8 +47,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.api import (Action, Estimate, Frame, Intrinsics, Odometer, failure_reason, load_inputs, load_odometer,
-                        planar_to_transform, split_odometer_names)
+from odolab.api import (
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Odometer,
+    failure_reason,
+    load_inputs,
+    load_odometer,
+    planar_to_transform,
+    split_odometer_names,
+)
 
 #: Vertical surfaces agree on a direction when within this of their mean (deg, modulo 90).
 INLIER_DEG = 10.0
@@ -66,8 +77,15 @@ class WallDirection:
     samples: int
 
 
-def wall_direction(depth: np.ndarray, intrinsics: Intrinsics, max_depth: float = 4.0, stride: int = 4,
-                   baseline: int = 2, max_vertical: float = 0.15, min_samples: int = 30) -> WallDirection | None:
+def wall_direction(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    max_depth: float = 4.0,
+    stride: int = 4,
+    baseline: int = 2,
+    max_vertical: float = 0.15,
+    min_samples: int = 30,
+) -> WallDirection | None:
     """The walls' direction in a depth image (H, W, metres; 0 = no reading), or None when fewer than
     ``min_samples`` vertical-surface samples agree.
 
@@ -81,7 +99,7 @@ def wall_direction(depth: np.ndarray, intrinsics: Intrinsics, max_depth: float =
     K = intrinsics
     d = np.asarray(depth, np.float64)[::stride, ::stride]
     d = np.where(np.isfinite(d), d, 0.0)  # no reading
-    v, u = np.mgrid[0:depth.shape[0]:stride, 0:depth.shape[1]:stride].astype(np.float64)
+    v, u = np.mgrid[0 : depth.shape[0] : stride, 0 : depth.shape[1] : stride].astype(np.float64)
     points = np.stack([(u - K.cx) / K.fx * d, (v - K.cy) / K.fy * d, d], axis=-1)
     b = baseline
     here, right, down = d[:-b, :-b], d[:-b, b:], d[b:, :-b]
@@ -117,8 +135,9 @@ def anchor_direction(views: list[tuple[float, int]]) -> float:
     angles = np.array([a for a, _ in views], np.float64)
     weights = np.array([n for _, n in views], np.float64)
     if not len(views) or not np.isfinite(angles).all() or not (np.isfinite(weights) & (weights > 0)).all():
-        raise ValueError("anchor_direction needs views with finite angles and positive sample counts, "
-                         f"got {views!r:.200}")
+        raise ValueError(
+            f"anchor_direction needs views with finite angles and positive sample counts, got {views!r:.200}"
+        )
     near = np.abs(np.angle(np.exp(4j * (angles[:, None] - angles[None, :])))) / 4 <= np.radians(ANCHOR_DEG)
     score = [(int(row.sum()), float(weights[row].sum())) for row in near]
     group = near[max(range(len(views)), key=lambda i: score[i])]
@@ -132,22 +151,37 @@ class ManhattanOdometer(Odometer):
     ``max_depth`` (m, of the wall samples); ``options_file``: the inner odometer's options (TOML,
     ``[odometers."icp"]``)."""
 
-    def __init__(self, inputs: str = "", step_sigma_deg: float = 0.3, prior_sigma_deg: float = 3.5,
-                 wall_sigma_deg: float = 1.0, anchor_steps: int = 5, relock_views: int = 5,
-                 relock_spread_deg: float = 2.0, relock_support: float = 0.9, min_support: float = 0.3,
-                 max_depth: float = 4.0, options_file: str = "") -> None:
+    def __init__(
+        self,
+        inputs: str = "",
+        step_sigma_deg: float = 0.3,
+        prior_sigma_deg: float = 3.5,
+        wall_sigma_deg: float = 1.0,
+        anchor_steps: int = 5,
+        relock_views: int = 5,
+        relock_spread_deg: float = 2.0,
+        relock_support: float = 0.9,
+        min_support: float = 0.3,
+        max_depth: float = 4.0,
+        options_file: str = "",
+    ) -> None:
         names = split_odometer_names(inputs) if isinstance(inputs, str) else []
         if len(names) != 1:
-            raise ValueError(f"manhattan takes one inner odometer, e.g. manhattan(open3d-rgbd), got {len(names)}"
-                             + (f" ({', '.join(names)})" if names else ""))
+            raise ValueError(
+                f"manhattan takes one inner odometer, e.g. manhattan(open3d-rgbd), got {len(names)}"
+                + (f" ({', '.join(names)})" if names else "")
+            )
         if names[0].startswith("manhattan"):
             raise ValueError(f"manhattan({names[0]}) would hold the heading to the walls twice; use one manhattan(...)")
-        for key, value, lo, hi in (("step_sigma_deg", step_sigma_deg, 1e-3, 45.0),
-                                   ("prior_sigma_deg", prior_sigma_deg, 1e-3, 45.0),
-                                   ("wall_sigma_deg", wall_sigma_deg, 1e-3, 45.0),
-                                   ("relock_spread_deg", relock_spread_deg, 0.0, 45.0),
-                                   ("relock_support", relock_support, 0.0, 1.0),
-                                   ("min_support", min_support, 0.0, 1.0), ("max_depth", max_depth, 0.5, 20.0)):
+        for key, value, lo, hi in (
+            ("step_sigma_deg", step_sigma_deg, 1e-3, 45.0),
+            ("prior_sigma_deg", prior_sigma_deg, 1e-3, 45.0),
+            ("wall_sigma_deg", wall_sigma_deg, 1e-3, 45.0),
+            ("relock_spread_deg", relock_spread_deg, 0.0, 45.0),
+            ("relock_support", relock_support, 0.0, 1.0),
+            ("min_support", min_support, 0.0, 1.0),
+            ("max_depth", max_depth, 0.5, 20.0),
+        ):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= float(value) <= hi:
                 raise ValueError(f"manhattan: {key} must be a number in [{lo:g}, {hi:g}], got {value!r}")
         for key, value, lo in (("anchor_steps", anchor_steps, 1), ("relock_views", relock_views, 0)):
@@ -163,10 +197,12 @@ class ManhattanOdometer(Odometer):
         self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
         self.threads = self.inner.threads
         sigmas = ";".join(str(float(v)) for v in (step_sigma_deg, prior_sigma_deg, wall_sigma_deg))  # 1 and 1.0 alike
-        settings = (f"{names[0]}={self.inner.weights};{sigmas};"
-                    f"{anchor_steps};{relock_views};{float(relock_spread_deg)};{float(relock_support)};"
-                    f"{float(min_support)};{float(max_depth)};"
-                    f"anchor-consensus-{ANCHOR_DEG}")
+        settings = (
+            f"{names[0]}={self.inner.weights};{sigmas};"
+            f"{anchor_steps};{relock_views};{float(relock_spread_deg)};{float(relock_support)};"
+            f"{float(min_support)};{float(max_depth)};"
+            f"anchor-consensus-{ANCHOR_DEG}"
+        )
         self.weights = hashlib.sha256(settings.encode()).hexdigest()
         self._reset_state()
 
@@ -197,11 +233,11 @@ class ManhattanOdometer(Odometer):
             self.world = anchor_direction(self._anchor)
             return 0.0
         innovation = wrap_quarter(implied - self.world)  # heading error, as the walls see it
-        if innovation ** 2 > 9.0 * (self.variance + self.wall_var):
+        if innovation**2 > 9.0 * (self.variance + self.wall_var):
             if not self.relock_views or wall.support < self.relock_support:
                 return 0.0
             self._rejected.append(innovation)
-            recent = self._rejected[-self.relock_views:]
+            recent = self._rejected[-self.relock_views :]
             if len(recent) < self.relock_views or max(recent) - min(recent) > self.relock_spread:
                 return 0.0
             self.variance = max(self.variance, float(np.mean(recent)) ** 2)  # the inner odometer jumped
@@ -229,8 +265,9 @@ class ManhattanOdometer(Odometer):
         if not answered:
             return est
         turn, self._pending = self._pending, 0.0
-        return Estimate(np.asarray(est.transform, np.float64) @ planar_to_transform(0.0, 0.0, turn),
-                        covariance=est.covariance)
+        return Estimate(
+            np.asarray(est.transform, np.float64) @ planar_to_transform(0.0, 0.0, turn), covariance=est.covariance
+        )
 
     def _advance(self, prev: Frame, cur: Frame, action: Action | None, est: Estimate | None) -> None:
         """Predict the heading by ``est`` (None: the step failed, the action prior's motion) and

@@ -11,6 +11,7 @@ no action is known) and counted. ``no-motion`` is that fallback as a row of its 
 ``action-prior`` odometer). Speed: steps per second of ``step()`` alone, median over ``--repeat``
 passes. Prints a markdown table; bad input is one line on stderr and exit code 2.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,8 +22,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from baselines.depth_geometry import DepthRange
-from odolab.api import (SequenceResult, UnknownCameraError, UnknownOdometerError, invert, load_odometer,
-                        load_tum_sequence, run_odometers)
+from odolab.api import (
+    SequenceResult,
+    UnknownCameraError,
+    UnknownOdometerError,
+    invert,
+    load_odometer,
+    load_tum_sequence,
+    run_odometers,
+)
 
 NO_MOTION = "no-motion"
 DEFAULT_ODOMETERS = (NO_MOTION, "feature-essential", "icp", "open3d-rgbd")
@@ -50,8 +58,14 @@ def relative_pose_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, flo
 def score(result: SequenceResult, steps_per_s: float | None) -> Row:
     """Mean per-pair errors of one runner result (its estimates as used: failed steps = no motion)."""
     errors = np.array([relative_pose_error(e, g) for e, g in zip(result.estimates, result.truth)])
-    return Row(result.odometer, 1000.0 * float(errors[:, 0].mean()), float(np.degrees(errors[:, 1].mean())),
-               result.failures, len(result.estimates), steps_per_s)
+    return Row(
+        result.odometer,
+        1000.0 * float(errors[:, 0].mean()),
+        float(np.degrees(errors[:, 1].mean())),
+        result.failures,
+        len(result.estimates),
+        steps_per_s,
+    )
 
 
 def load(name: str, max_depth: float):
@@ -84,6 +98,7 @@ def _positive(kind):
         if not math.isfinite(value) or value <= 0 or value > 1000:
             raise argparse.ArgumentTypeError(f"must be in (0, 1000], got {text}")
         return value
+
     return parse
 
 
@@ -94,7 +109,9 @@ def _pinhole(text: str) -> tuple[float, float, float, float]:
     except ValueError:
         values = []
     if len(values) != 4 or not all(math.isfinite(v) for v in values) or min(values[:2]) <= 0:
-        raise argparse.ArgumentTypeError(f"expected four numbers fx,fy,cx,cy (pixels, fx and fy positive), got {text!r:.80}")
+        raise argparse.ArgumentTypeError(
+            f"expected four numbers fx,fy,cx,cy (pixels, fx and fy positive), got {text!r:.80}"
+        )
     fx, fy, cx, cy = values
     return fx, fy, cx, cy
 
@@ -102,26 +119,49 @@ def _pinhole(text: str) -> tuple[float, float, float, float]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m baselines.measure_tum", description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", help="TUM RGB-D sequence folder (rgb.txt, depth.txt, groundtruth.txt)")
-    parser.add_argument("--odometers", nargs="+", default=list(DEFAULT_ODOMETERS), metavar="NAME",
-                        help=f"registered odometer names, or {NO_MOTION!r} (default: %(default)s)")
-    parser.add_argument("--max-depth", type=_positive(float), default=4.0,
-                        help=f"depth cut for every odometer (open3d-rgbd's own default is 6), metres, "
-                             f"({DepthRange().min_depth:g}, 1000] (4)")
+    parser.add_argument(
+        "--odometers",
+        nargs="+",
+        default=list(DEFAULT_ODOMETERS),
+        metavar="NAME",
+        help=f"registered odometer names, or {NO_MOTION!r} (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--max-depth",
+        type=_positive(float),
+        default=4.0,
+        help=f"depth cut for every odometer (open3d-rgbd's own default is 6), metres, "
+        f"({DepthRange().min_depth:g}, 1000] (4)",
+    )
     parser.add_argument("--repeat", type=_positive(int), default=3, help="timed passes per odometer, 1-1000 (3)")
-    parser.add_argument("--depth-scale", type=_positive(float), default=None, metavar="S",
-                        help="depth PNG values per metre (default TUM's 5000; millimetres: 1000)")
-    parser.add_argument("--intrinsics", type=_pinhole, default=None, metavar="FX,FY,CX,CY",
-                        help="the camera's pinhole in pixels (default: the TUM camera the folder's name says)")
+    parser.add_argument(
+        "--depth-scale",
+        type=_positive(float),
+        default=None,
+        metavar="S",
+        help="depth PNG values per metre (default TUM's 5000; millimetres: 1000)",
+    )
+    parser.add_argument(
+        "--intrinsics",
+        type=_pinhole,
+        default=None,
+        metavar="FX,FY,CX,CY",
+        help="the camera's pinhole in pixels (default: the TUM camera the folder's name says)",
+    )
     args = parser.parse_args(argv)
     if args.max_depth <= DepthRange().min_depth:
-        parser.error(f"--max-depth must be above the odometers' min_depth {DepthRange().min_depth:g} m, got {args.max_depth:g}")
+        parser.error(
+            f"--max-depth must be above the odometers' min_depth {DepthRange().min_depth:g} m, got {args.max_depth:g}"
+        )
     try:
         scale = {} if args.depth_scale is None else {"depth_scale": args.depth_scale}
         try:
             seq = load_tum_sequence(args.folder, args.intrinsics, **scale)
         except UnknownCameraError:
-            raise ValueError(f"{args.folder}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
-                             "in it); give it with --intrinsics fx,fy,cx,cy (pixels)") from None
+            raise ValueError(
+                f"{args.folder}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
+                "in it); give it with --intrinsics fx,fy,cx,cy (pixels)"
+            ) from None
         if len(seq) < 2:
             raise ValueError(f"{args.folder}: needs at least 2 frames with depth and ground truth")
         odometers = {name: load(name, args.max_depth) for name in dict.fromkeys(args.odometers)}

@@ -2,6 +2,7 @@
 
 Conventions: :mod:`odolab.api` (planar ``(dx, dz, dyaw)``, ``T_prev_cur``).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,7 +12,10 @@ from odolab.api import Action, Frame, Intrinsics, nominal_motion, planar_to_tran
 
 
 def initial_guesses(
-    action: Action | None, prev: Frame | None = None, cur: Frame | None = None, intr: Intrinsics | None = None,
+    action: Action | None,
+    prev: Frame | None = None,
+    cur: Frame | None = None,
+    intr: Intrinsics | None = None,
     rng: DepthRange = DepthRange(),
 ) -> list[np.ndarray]:
     """Starting motions ``T_prev_cur`` (4x4) to try for an action, most likely first.
@@ -61,7 +65,12 @@ def _planar_candidates(center: np.ndarray, dx: np.ndarray, dz: np.ndarray, dyaw:
 
 
 def _planar_costs(
-    X: np.ndarray, g_cur: np.ndarray, z_prev: np.ndarray, g_prev: np.ndarray, cand: np.ndarray, intr: Intrinsics,
+    X: np.ndarray,
+    g_cur: np.ndarray,
+    z_prev: np.ndarray,
+    g_prev: np.ndarray,
+    cand: np.ndarray,
+    intr: Intrinsics,
     rng: DepthRange,
 ) -> np.ndarray:
     """Mean robust cost (K,) of planar motions ``cand`` (K, 3) moving points ``X`` (N, 3) with grey

@@ -60,6 +60,7 @@ of turns still fail: there the grey levels of even the true motion correlate poo
 magnified texture under 25 grey levels of noise), and the check cannot rule out a slide along
 the wall.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -121,11 +122,19 @@ class Open3DRGBDConfig(OdometerConfig):
         check_choice("term", self.term, _JACOBIANS)
         for name, fewest in (("iterations", 1), ("fallback_iterations", 0)):
             its = getattr(self, name)
-            if (isinstance(its, (str, bytes)) or not hasattr(its, "__len__") or not fewest <= len(its) <= MAX_LEVELS
-                    or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= MAX_ITERATIONS
-                               for n in its)):
-                raise ValueError(f"{name}: expected a list of {fewest}-{MAX_LEVELS} whole numbers (one per pyramid "
-                                 f"level, coarse to fine) each in 1-{MAX_ITERATIONS}, got {its!r:.80}")
+            if (
+                isinstance(its, (str, bytes))
+                or not hasattr(its, "__len__")
+                or not fewest <= len(its) <= MAX_LEVELS
+                or not all(
+                    isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= MAX_ITERATIONS
+                    for n in its
+                )
+            ):
+                raise ValueError(
+                    f"{name}: expected a list of {fewest}-{MAX_LEVELS} whole numbers (one per pyramid "
+                    f"level, coarse to fine) each in 1-{MAX_ITERATIONS}, got {its!r:.80}"
+                )
             object.__setattr__(self, name, tuple(int(n) for n in its))
 
 
@@ -164,15 +173,26 @@ class Open3DRGBDOdometer(Odometer):
         found = None
         for schedule in (cfg.iterations, cfg.fallback_iterations):
             if found is None and schedule:
-                found = first_verified(guesses, lambda T, its=schedule: self._align(source, target, T, its),
-                                       prev, cur, action, self.intrinsics, cfg.depth, cfg.verify)
+                found = first_verified(
+                    guesses,
+                    lambda T, its=schedule: self._align(source, target, T, its),
+                    prev,
+                    cur,
+                    action,
+                    self.intrinsics,
+                    cfg.depth,
+                    cfg.verify,
+                )
         if found is None:
             return Estimate.invalid()
         sigma2 = found.check.depth.rms**2 / 3.0  # per-coordinate variance of the agreeing depths
         return Estimate(found.T_prev_cur, covariance=covariance_from_information(found.detail, sigma2))
 
     def _align(
-        self, source: o3d.geometry.RGBDImage, target: o3d.geometry.RGBDImage, guess: np.ndarray,
+        self,
+        source: o3d.geometry.RGBDImage,
+        target: o3d.geometry.RGBDImage,
+        guess: np.ndarray,
         iterations: tuple[int, ...],
     ) -> tuple[np.ndarray | None, np.ndarray]:
         """Open3D's ``T_prev_cur`` (None when it fails) and information matrix, from ``guess``, with

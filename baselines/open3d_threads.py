@@ -7,6 +7,7 @@ differences into different runs. On one thread the answers are identical run to 
 classical odometers therefore call Open3D's registration inside :func:`one_thread` (the previous
 setting is restored after the call, so the simulator's ray casting keeps its threads).
 """
+
 from __future__ import annotations
 
 import contextlib

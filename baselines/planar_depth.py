@@ -52,6 +52,7 @@ Conventions: :mod:`odolab.api` (``T_prev_cur``; covariance over (rx, ry, rz, tx,
 motion applied on the left in the previous camera frame). The out-of-plane components are held
 at zero and get ``out_of_plane_sigma``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -62,8 +63,16 @@ from baselines.config import OdometerConfig, check_range, config_digest, configu
 from baselines.depth_geometry import DepthRange, FrameMemo, backproject, backproject_pixels, depth_mask
 from baselines.motion_search import initial_guesses
 from baselines.verification import VerifyConfig, verify
-from odolab.api import (Action, Estimate, Frame, Intrinsics, Odometer, nominal_motion, planar_to_transform,
-                        transform_to_planar)
+from odolab.api import (
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Odometer,
+    nominal_motion,
+    planar_to_transform,
+    transform_to_planar,
+)
 
 __all__ = ["PlanarDepthConfig", "PlanarDepthOdometer"]
 
@@ -113,11 +122,15 @@ class PlanarDepthConfig(OdometerConfig):
         check_range("max_median_depth", self.max_median_depth, 0.0, 1000.0)
         check_range("one_plane_ratio", self.one_plane_ratio, 0.0, 0.5)
         if self.max_median_depth <= self.depth.min_depth:
-            raise ValueError(f"max_median_depth ({self.max_median_depth:g} m) must exceed min_depth "
-                             f"({self.depth.min_depth:g} m): no view could be answered")
+            raise ValueError(
+                f"max_median_depth ({self.max_median_depth:g} m) must exceed min_depth "
+                f"({self.depth.min_depth:g} m): no view could be answered"
+            )
         if self.depth.noise_floor <= 0:
-            raise ValueError(f"planar-depth needs noise_floor > 0 m (its Tukey kernel is tukey x the depth tolerance, "
-                             f"which is 0 at z = 0 without it), got {self.depth.noise_floor!r}")
+            raise ValueError(
+                f"planar-depth needs noise_floor > 0 m (its Tukey kernel is tukey x the depth tolerance, "
+                f"which is 0 at z = 0 without it), got {self.depth.noise_floor!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -142,11 +155,11 @@ def _surface(depth: np.ndarray, intr: Intrinsics, rng: DepthRange, k: int) -> _S
     ok = np.zeros((h, w), dtype=bool)
     n = np.zeros((h, w, 3))
     c = (slice(k, h - k), slice(k, w - k))
-    du = P[k:h - k, 2 * k:] - P[k:h - k, :w - 2 * k]
-    dv = P[2 * k:, k:w - k] - P[:h - 2 * k, k:w - k]
+    du = P[k : h - k, 2 * k :] - P[k : h - k, : w - 2 * k]
+    dv = P[2 * k :, k : w - k] - P[: h - 2 * k, k : w - k]
     m = np.cross(du, dv)
     norm = np.linalg.norm(m, axis=-1)
-    near = [z[k:h - k, 2 * k:], z[k:h - k, :w - 2 * k], z[2 * k:, k:w - k], z[:h - 2 * k, k:w - k]]
+    near = [z[k : h - k, 2 * k :], z[k : h - k, : w - 2 * k], z[2 * k :, k : w - k], z[: h - 2 * k, k : w - k]]
     with np.errstate(invalid="ignore"):
         smooth = np.all([np.abs(zz - z[c]) < 0.05 * z[c] for zz in near], axis=0)
     ok[c] = usable[c] & smooth & (norm > 0)
@@ -165,8 +178,9 @@ def _exp_planar(omega: float, v: tuple[float, float]) -> np.ndarray:
     return E
 
 
-def _without_slide(H: np.ndarray, g: np.ndarray, normals: np.ndarray, weights: np.ndarray,
-                   ratio: float) -> tuple[np.ndarray, np.ndarray]:
+def _without_slide(
+    H: np.ndarray, g: np.ndarray, normals: np.ndarray, weights: np.ndarray, ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The data's Gauss-Newton system over (omega_y, v_x, v_z) with the information along a wall
     removed when the weighted normals' (x, z) scatter is that of one plane (smaller eigenvalue
     below ``ratio`` of the sum): the translation along the least-seen normal direction is then

@@ -4,6 +4,7 @@ The solvers of :mod:`baselines.feature_essential`, free of any odometer state. C
 odolab's (:mod:`odolab.api`): camera axes x right, y down, z forward, metres; pixels (u, v) along
 width and height; ``T_prev_cur`` maps current-camera points into the previous camera.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -74,7 +75,13 @@ def pnp(
     EPnP in RANSAC (at most ``iterations``), then Levenberg-Marquardt on its inliers.
     """
     ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        X, uv, K, None, iterationsCount=iterations, reprojectionError=px, confidence=RANSAC_CONFIDENCE,
+        X,
+        uv,
+        K,
+        None,
+        iterationsCount=iterations,
+        reprojectionError=px,
+        confidence=RANSAC_CONFIDENCE,
         flags=cv2.SOLVEPNP_EPNP,
     )
     mask = np.zeros(len(X), dtype=bool)
@@ -127,9 +134,7 @@ def translation_given_rotation(
     return T, best
 
 
-def planar_procrustes(
-    P_prev: np.ndarray, P_cur: np.ndarray, T: np.ndarray, yaw: float | None = None
-) -> np.ndarray:
+def planar_procrustes(P_prev: np.ndarray, P_cur: np.ndarray, T: np.ndarray, yaw: float | None = None) -> np.ndarray:
     """Planar motion (dx, dz, dyaw) best mapping ``P_cur`` onto ``P_prev`` (N, 3) seen from above.
 
     Least squares on the (x, z) coordinates (metres) of the pairs within

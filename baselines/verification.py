@@ -4,6 +4,7 @@ A motion ``T_prev_cur`` is accepted when it respects the action's motion bounds,
 depth onto the previous depth image, and lines up the two images' grey levels
 (:func:`verify`, configured by :class:`VerifyConfig`). Conventions: :mod:`odolab.api`.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
@@ -16,7 +17,6 @@ from baselines.depth_geometry import DepthRange, backproject_pixels, blurred_gre
 from baselines.motion_search import nominal_motion
 from odolab.api import Action, Frame, Intrinsics, transform_to_planar
 
-
 #: Moved points nearer than this (metres) to the previous camera's plane land nowhere.
 _IN_FRONT = 1e-6
 
@@ -25,7 +25,11 @@ def _check_number(name: str, value: object, low: float, high: float) -> None:
     """``ValueError`` unless ``value`` is a number (not a bool, not NaN) in ``[low, high]``.
     (:func:`baselines.config.check_range` does the same for the odometers' own options; this module
     cannot import it: ``baselines.config`` imports this one.)"""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not low <= value <= high:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not low <= value <= high
+    ):
         raise ValueError(f"{name} must be a number in [{low:g}, {high:g}], got {value!r:.80}")
 
 
@@ -44,7 +48,11 @@ class DepthAgreement:
 
 
 def _reproject(
-    prev_depth: np.ndarray, cur_depth: np.ndarray, T_prev_cur: np.ndarray, intr: Intrinsics, rng: DepthRange,
+    prev_depth: np.ndarray,
+    cur_depth: np.ndarray,
+    T_prev_cur: np.ndarray,
+    intr: Intrinsics,
+    rng: DepthRange,
     stride: int,
 ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
     """Every ``stride``-th usable current pixel moved by ``T_prev_cur`` onto the previous image.
@@ -70,9 +78,7 @@ def _reproject(
     return (v[inside][seen], u[inside][seen]), (pv[seen], pu[seen]), z[inside][seen], z_prev[seen]
 
 
-def _depth_agreement(
-    z_moved: np.ndarray, z_prev: np.ndarray, rng: DepthRange
-) -> tuple[DepthAgreement, np.ndarray]:
+def _depth_agreement(z_moved: np.ndarray, z_prev: np.ndarray, rng: DepthRange) -> tuple[DepthAgreement, np.ndarray]:
     """Agreement statistics of moved vs previous depths (metres), and the mask of agreeing points.
 
     Two depths agree within the noise model's :meth:`~baselines.depth_geometry.DepthRange.tolerance`.
@@ -203,8 +209,14 @@ class VerifyConfig:
     min_ncc_points: int = 100
 
     def __post_init__(self) -> None:
-        for name, low, high in (("min_points_in_view", 0, np.inf), ("min_agreement", 0.0, 1.0), ("min_ncc", -1.0, 1.0),
-                                ("check_stride", 1, 64), ("ncc_blur_sigma", 0.0, 100.0), ("min_ncc_points", 0, np.inf)):
+        for name, low, high in (
+            ("min_points_in_view", 0, np.inf),
+            ("min_agreement", 0.0, 1.0),
+            ("min_ncc", -1.0, 1.0),
+            ("check_stride", 1, 64),
+            ("ncc_blur_sigma", 0.0, 100.0),
+            ("min_ncc_points", 0, np.inf),
+        ):
             _check_number(name, getattr(self, name), low, high)
 
 

@@ -4,6 +4,7 @@ Run it side by side with the built-ins, from the repository root:
 
     python -m odolab.compare --odometers action-prior,examples.nominal_motion:NominalMotion
 """
+
 import numpy as np
 
 from odolab.api import Action, Estimate, Frame, Odometer

@@ -14,6 +14,7 @@ Train (from the repository root), then compare it with the built-ins::
 The checkpoint is ``{"format": 1, "config": {...}, "state_dict": {...}}`` written with
 ``torch.save`` and read with ``torch.load(weights_only=True)`` (no pickled code is executed).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -63,10 +64,14 @@ class TinyNet(nn.Module):
         super().__init__()
         c = cfg.channels
         self.features = nn.Sequential(
-            nn.Conv2d(4, c, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(c, 2 * c, 3, stride=2, padding=1), nn.ReLU(),
-            nn.Conv2d(2 * c, 2 * c, 3, stride=2, padding=1), nn.ReLU(),
-            nn.AdaptiveAvgPool2d(1), nn.Flatten(),
+            nn.Conv2d(4, c, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(c, 2 * c, 3, stride=2, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(2 * c, 2 * c, 3, stride=2, padding=1),
+            nn.ReLU(),
+            nn.AdaptiveAvgPool2d(1),
+            nn.Flatten(),
         )
         self.head = nn.Sequential(nn.Linear(2 * c + len(MOTION_ACTIONS), 32), nn.ReLU(), nn.Linear(32, 3))
 
@@ -74,8 +79,11 @@ class TinyNet(nn.Module):
         return self.head(torch.cat([self.features(images), actions], dim=1))
 
 
-def network_inputs(pairs: list[tuple[Frame, Frame, Action | None]], cfg: TinyConfig) -> tuple[torch.Tensor, torch.Tensor]:
+def network_inputs(
+    pairs: list[tuple[Frame, Frame, Action | None]], cfg: TinyConfig
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Pooled (B, 4, H, W) inputs [depth prev, depth cur, grey prev, grey cur] in [0, 1] and (B, 3) one-hots."""
+
     def planes(frame: Frame) -> list[np.ndarray]:
         depth = np.clip(np.asarray(frame.depth, np.float32) / cfg.max_depth, 0.0, 1.0)
         grey = np.asarray(frame.rgb, np.float32).mean(axis=2) / 255.0
@@ -148,8 +156,9 @@ class TorchPairs(torch.utils.data.Dataset):
         return images[0], onehot[0], torch.tensor(p.planar, dtype=torch.float32), p.action.value
 
 
-def train(dataset: PairDataset, cfg: TinyConfig, iterations: int, batch: int = 32, lr: float = 3e-3,
-          seed: int = 0) -> TinyNet:
+def train(
+    dataset: PairDataset, cfg: TinyConfig, iterations: int, batch: int = 32, lr: float = 3e-3, seed: int = 0
+) -> TinyNet:
     """Fit the network to the true planar motions of ``dataset`` (L1 on the scaled correction)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -179,8 +188,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=str(DEFAULT_CACHE), help=f"episode cache folder (default {DEFAULT_CACHE})")
     ap.add_argument("--out", default="runs/tiny.pt", help="checkpoint path (default runs/tiny.pt)")
     args = ap.parse_args(argv)
-    for option, value, top in (("--episodes", args.episodes, 1000), ("--max-steps", args.max_steps, 500),
-                               ("--iterations", args.iterations, 1_000_000)):
+    for option, value, top in (
+        ("--episodes", args.episodes, 1000),
+        ("--max-steps", args.max_steps, 500),
+        ("--iterations", args.iterations, 1_000_000),
+    ):
         if not 1 <= value <= top:
             ap.error(f"{option} must be in [1, {top}], got {value}")
     if not 0 <= args.seed <= 2**32 - 1:
@@ -194,8 +206,10 @@ def main(argv: list[str] | None = None) -> int:
     net = train(dataset, cfg, args.iterations, seed=args.seed)
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     save_checkpoint(args.out, cfg, net)
-    print(f"trained on {len(dataset)} pairs of {args.episodes} episodes, "
-          f"{sum(p.numel() for p in net.parameters())} parameters; wrote {args.out}")
+    print(
+        f"trained on {len(dataset)} pairs of {args.episodes} episodes, "
+        f"{sum(p.numel() for p in net.parameters())} parameters; wrote {args.out}"
+    )
     return 0
 
 

@@ -8,6 +8,7 @@ was made by::
 
 Fitting needs only the motion (no images), so 400 episodes take a few seconds.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,12 +42,14 @@ class ActionPrior:
         return np.array(self.means[action])
 
     def to_json(self) -> dict:
-        return {"source": self.source,
-                "means": {a.label: list(self.means[a]) for a in self.means},
-                "samples": {a.label: self.samples[a] for a in self.samples}}
+        return {
+            "source": self.source,
+            "means": {a.label: list(self.means[a]) for a in self.means},
+            "samples": {a.label: self.samples[a] for a in self.samples},
+        }
 
     @classmethod
-    def from_json(cls, data: dict, origin: str = "action prior") -> "ActionPrior":
+    def from_json(cls, data: dict, origin: str = "action prior") -> ActionPrior:
         """Parse :meth:`to_json` output; ``ValueError`` naming ``origin`` (the file), the field and
         the action for anything else: every motion action needs a mean of 3 finite numbers within
         ``MEAN_LIMIT`` and a whole, non-negative sample count."""
@@ -55,8 +58,10 @@ class ActionPrior:
         for field in ("means", "samples"):
             table = data.get(field) if isinstance(data, dict) else None
             if not isinstance(table, dict):
-                raise ValueError(f"{origin}: '{field}' must be an object mapping each of {labels} to a value, "
-                                 f"got {type(table).__name__}")
+                raise ValueError(
+                    f"{origin}: '{field}' must be an object mapping each of {labels} to a value, "
+                    f"got {type(table).__name__}"
+                )
             unknown = sorted(set(table) - {a.label for a in MOTION_ACTIONS})
             if unknown:
                 raise ValueError(f"{origin}: {field}: unknown action {unknown[0]!r}; expected {labels}")
@@ -66,11 +71,16 @@ class ActionPrior:
             fields[field] = {a: table[a.label] for a in MOTION_ACTIONS}
         means, samples = {}, {}
         for a, v in fields["means"].items():
-            if (not isinstance(v, list) or len(v) != 3
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
-                    or not all(np.isfinite(x) and abs(x) <= MEAN_LIMIT for x in v)):
-                raise ValueError(f"{origin}: means.{a.label}: expected [dx m, dz m, dyaw rad], 3 numbers within "
-                                 f"+-{MEAN_LIMIT:g}, got {v!r:.80}")
+            if (
+                not isinstance(v, list)
+                or len(v) != 3
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+                or not all(np.isfinite(x) and abs(x) <= MEAN_LIMIT for x in v)
+            ):
+                raise ValueError(
+                    f"{origin}: means.{a.label}: expected [dx m, dz m, dyaw rad], 3 numbers within "
+                    f"+-{MEAN_LIMIT:g}, got {v!r:.80}"
+                )
             means[a] = tuple(float(x) for x in v)
         for a, n in fields["samples"].items():
             if not isinstance(n, int) or isinstance(n, bool) or n < 0:
@@ -79,7 +89,7 @@ class ActionPrior:
         return cls(means, samples, str(data.get("source", "")))
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "ActionPrior":
+    def load(cls, path: str | os.PathLike) -> ActionPrior:
         """Read a prior written by ``python -m odolab.action_prior``; errors name the file."""
         data = read_input_json(path, "action prior file")  # regular files only, no repeated keys
         if not isinstance(data, dict):
@@ -87,14 +97,13 @@ class ActionPrior:
         return cls.from_json(data, origin=str(path))
 
     @classmethod
-    def shipped(cls) -> "ActionPrior":
+    def shipped(cls) -> ActionPrior:
         """The table fitted on the train split and shipped with odolab."""
         text = files("odolab.data").joinpath(_SHIPPED).read_text()
         return cls.from_json(json.loads(text), origin=_SHIPPED)
 
 
-def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
-                     noise=None) -> ActionPrior:
+def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0, noise=None) -> ActionPrior:
     """Average the true per-step motion of each action over ``n_episodes`` train rollouts."""
     from odolab.episodes import EpisodeSpec, NoiseConfig, rollout
     from odolab.sim.camera import CameraSpec
@@ -119,10 +128,12 @@ def _main(argv=None) -> int:
     from odolab.io.atomic import write_text_atomic
 
     ap = ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, 100_000), default=400,
-                    help="train episodes, 1-100000 (400)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 2000), default=500,
-                    help="steps each, 1-2000 (500)")
+    ap.add_argument(
+        "--episodes", type=number("--episodes", int, 1, 100_000), default=400, help="train episodes, 1-100000 (400)"
+    )
+    ap.add_argument(
+        "--max-steps", type=number("--max-steps", int, 1, 2000), default=500, help="steps each, 1-2000 (500)"
+    )
     ap.add_argument("--seed", type=seed(), default=0, help=f"seed, 0-{MAX_SEED} (0)")
     ap.add_argument("--out", type=file_arg("--out"), default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
@@ -131,8 +142,10 @@ def _main(argv=None) -> int:
     prior = fit_action_prior(args.episodes, args.max_steps, args.seed)
     unseen = [a.label for a, n in prior.samples.items() if n == 0]
     if unseen:
-        raise UsageError(f"no {' or '.join(unseen)} step in {args.episodes} episodes of at most {args.max_steps} "
-                         "steps: a mean of nothing is no prior; use more --episodes or --max-steps")
+        raise UsageError(
+            f"no {' or '.join(unseen)} step in {args.episodes} episodes of at most {args.max_steps} "
+            "steps: a mean of nothing is no prior; use more --episodes or --max-steps"
+        )
     text = json.dumps(prior.to_json(), indent=2) + "\n"
     if args.out is None:
         print(text, end="")

@@ -3,6 +3,7 @@
 ``baselines/``, ``examples/`` and third-party code import only from here (an import-linter contract
 in ``pyproject.toml`` holds them to it). Heavy modules (the simulator, Open3D) load on first use.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -39,48 +40,110 @@ from odolab.types import (
 )
 
 __all__ = [
-    "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Odometer",
-    "Sequence", "as_action", "UnknownOdometerError", "available_odometers", "check_threads", "integrate", "invert", "load_odometer",
-    "nominal_motion", "nominal_planar", "planar_to_transform", "register_odometer", "split_odometer_names",
-    "transform_to_planar", "whole_number", "wrap_angle",
-    # episodes and training data (loaded on first use)
-    "EpisodeCache", "EpisodeSpec", "NoiseConfig", "Pair", "PairDataset", "SPLITS", "episode_specs",
-    "generate_episodes", "load_episodes", "stream_episodes", "true_motions",
+    "DEFAULT_CACHE",
+    "FORWARD_STEP",
+    "MOTION_ACTIONS",
+    "SPLITS",
+    "TURN_ANGLE",
+    "Action",
     # running and comparing
-    "ComparisonConfig", "ComparisonError", "ComparisonResult", "DEFAULT_CACHE", "SequenceResult", "run_comparison",
-    "run_odometers", "failure_reason", "load_inputs", "load_tum_sequence", "UnknownCameraError", "write_bytes_atomic",
-    "write_json_atomic",
+    "ComparisonConfig",
+    "ComparisonError",
+    "ComparisonResult",
+    # episodes and training data (loaded on first use)
+    "EpisodeCache",
+    "EpisodeSpec",
+    "Estimate",
     # evaluating trajectories (the library behind python -m odolab.evaluate)
-    "Evaluation", "Trajectory", "evaluate_trajectory", "pair_trajectories",
+    "Evaluation",
+    "Frame",
+    "Intrinsics",
+    "NoiseConfig",
+    "Odometer",
+    "Pair",
+    "PairDataset",
+    "Sequence",
+    "SequenceResult",
+    "Trajectory",
+    "UnknownCameraError",
+    "UnknownOdometerError",
+    "as_action",
+    "available_odometers",
+    "check_threads",
+    "episode_specs",
+    "evaluate_trajectory",
+    "failure_reason",
+    "generate_episodes",
+    "integrate",
+    "invert",
+    "load_episodes",
+    "load_inputs",
+    "load_odometer",
+    "load_tum_sequence",
+    "nominal_motion",
+    "nominal_planar",
+    "pair_trajectories",
+    "planar_to_transform",
+    "register_odometer",
+    "run_comparison",
+    "run_odometers",
+    "split_odometer_names",
+    "stream_episodes",
+    "transform_to_planar",
+    "true_motions",
+    "whole_number",
+    "wrap_angle",
+    "write_bytes_atomic",
+    "write_json_atomic",
 ]
 
 if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and import-linter
     from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonError, ComparisonResult, run_comparison
+    from odolab.composites import load_inputs
     from odolab.datasets import Pair, PairDataset, episode_specs, true_motions
-    from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, generate_episodes, load_episodes, stream_episodes
+    from odolab.episodes import (
+        EpisodeCache,
+        EpisodeSpec,
+        NoiseConfig,
+        generate_episodes,
+        load_episodes,
+        stream_episodes,
+    )
     from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.io.atomic import write_bytes_atomic, write_json_atomic
     from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
-    from odolab.composites import load_inputs
     from odolab.runner import SequenceResult, failure_reason
     from odolab.sim.scenes import SPLITS
     from odolab.trajectory import Trajectory
 
 _LAZY = {
-    "EpisodeCache": "odolab.episodes", "EpisodeSpec": "odolab.episodes", "NoiseConfig": "odolab.episodes",
-    "generate_episodes": "odolab.episodes", "load_episodes": "odolab.episodes",
-    "stream_episodes": "odolab.episodes", "SPLITS": "odolab.sim.scenes",
-    "Pair": "odolab.datasets", "PairDataset": "odolab.datasets", "episode_specs": "odolab.datasets",
+    "EpisodeCache": "odolab.episodes",
+    "EpisodeSpec": "odolab.episodes",
+    "NoiseConfig": "odolab.episodes",
+    "generate_episodes": "odolab.episodes",
+    "load_episodes": "odolab.episodes",
+    "stream_episodes": "odolab.episodes",
+    "SPLITS": "odolab.sim.scenes",
+    "Pair": "odolab.datasets",
+    "PairDataset": "odolab.datasets",
+    "episode_specs": "odolab.datasets",
     "true_motions": "odolab.datasets",
-    "ComparisonConfig": "odolab.comparison", "ComparisonResult": "odolab.comparison",
+    "ComparisonConfig": "odolab.comparison",
+    "ComparisonResult": "odolab.comparison",
     "ComparisonError": "odolab.comparison",
-    "run_comparison": "odolab.comparison", "DEFAULT_CACHE": "odolab.comparison", "SequenceResult": "odolab.runner",
-    "failure_reason": "odolab.runner", "load_inputs": "odolab.composites",
-    "load_tum_sequence": "odolab.io.tum_rgbd", "UnknownCameraError": "odolab.io.tum_rgbd",
+    "run_comparison": "odolab.comparison",
+    "DEFAULT_CACHE": "odolab.comparison",
+    "SequenceResult": "odolab.runner",
+    "failure_reason": "odolab.runner",
+    "load_inputs": "odolab.composites",
+    "load_tum_sequence": "odolab.io.tum_rgbd",
+    "UnknownCameraError": "odolab.io.tum_rgbd",
     "write_bytes_atomic": "odolab.io.atomic",
     "write_json_atomic": "odolab.io.atomic",
-    "Evaluation": "odolab.evaluation", "evaluate_trajectory": "odolab.evaluation",
-    "pair_trajectories": "odolab.evaluation", "Trajectory": "odolab.trajectory",
+    "Evaluation": "odolab.evaluation",
+    "evaluate_trajectory": "odolab.evaluation",
+    "pair_trajectories": "odolab.evaluation",
+    "Trajectory": "odolab.trajectory",
 }
 
 

@@ -4,12 +4,14 @@ Simulator figures are ratios to the physical limit measured in the same run: bar
 ``cast_rays`` on precomputed rays of the same scene and poses (docs/reference-facts.md section 7). A noisy,
 textured frame should cost at most 2x that (aim 1.5x).
 """
+
 from __future__ import annotations
 
 import platform
 import time
+from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 
@@ -31,8 +33,10 @@ def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> l
     rng = np.random.default_rng(0)
     for k in range(n_scenes):
         scene = generate_scene(scene_seed("test", k))
-        sensors = {n: Sensors(scene, CameraSpec(), 1.0, 1.0, np.random.default_rng(1), np.random.default_rng(2),
-                              threads=n) for n in (1, 2)}
+        sensors = {
+            n: Sensors(scene, CameraSpec(), 1.0, 1.0, np.random.default_rng(1), np.random.default_rng(2), threads=n)
+            for n in (1, 2)
+        }
         r = sensors[1].renderer
         cells = np.argwhere(scene.navigable)
         poses = []
@@ -44,8 +48,12 @@ def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> l
         for rep in range(repeats):
             for i, p in enumerate(poses):
                 rays = o3d.core.Tensor(r.rays(p))  # Open3D's own (aligned) copy
-                calls = (lambda: r.raycasting_scene.cast_rays(rays), lambda: r.render(p),
-                         lambda: sensors[2].read(p), lambda: sensors[1].read(p))
+                calls = (
+                    partial(r.raycasting_scene.cast_rays, rays),
+                    partial(r.render, p),
+                    partial(sensors[2].read, p),
+                    partial(sensors[1].read, p),
+                )
                 for j, call in enumerate(calls):
                     t0 = time.perf_counter()
                     call()
@@ -53,11 +61,19 @@ def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> l
         for s in sensors.values():
             s.close()
         bare, clean, full, single = np.median(times, axis=(1, 2))
-        rows.append({"scene": scene.seed, "triangles": int(len(scene.triangles)),
-                     "cast_rays_ms": bare * 1e3, "clean_frame_ms": clean * 1e3, "noisy_frame_ms": full * 1e3,
-                     "noisy_fps": 1.0 / full, "ratio_to_cast_rays": float(np.median(times[2] / times[0])),
-                     "noisy_1thread_ms": single * 1e3,
-                     "ratio_1thread": float(np.median(times[3] / times[0]))})
+        rows.append(
+            {
+                "scene": scene.seed,
+                "triangles": len(scene.triangles),
+                "cast_rays_ms": bare * 1e3,
+                "clean_frame_ms": clean * 1e3,
+                "noisy_frame_ms": full * 1e3,
+                "noisy_fps": 1.0 / full,
+                "ratio_to_cast_rays": float(np.median(times[2] / times[0])),
+                "noisy_1thread_ms": single * 1e3,
+                "ratio_1thread": float(np.median(times[3] / times[0])),
+            }
+        )
     return rows
 
 
@@ -72,8 +88,14 @@ def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
     return {"episodes": n, "frames": frames, "seconds": seconds, "frames_per_s": frames / seconds}
 
 
-def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, options: dict | None = None,
-                    rows: list[dict] | None = None, after_each: Callable[[], None] | None = None) -> list[dict]:
+def bench_odometers(
+    names: list[str],
+    episodes: int = 4,
+    max_steps: int = 60,
+    options: dict | None = None,
+    rows: list[dict] | None = None,
+    after_each: Callable[[], None] | None = None,
+) -> list[dict]:
     """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192); ``options``:
     constructor options by odometer name. Each odometer's row is appended to ``rows`` (a new list
     when None, returned) as soon as it is timed, then ``after_each()`` is called."""
@@ -81,8 +103,11 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, op
     from odolab.episodes import EpisodeSpec, load_episodes
     from odolab.odometer import load_odometer
 
-    eps = load_episodes([EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps) for i in range(episodes)],
-                        parallel=False, progress=False)
+    eps = load_episodes(
+        [EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps) for i in range(episodes)],
+        parallel=False,
+        progress=False,
+    )
     out = [] if rows is None else rows
     for name in names:
         odo = load_odometer(name, **(options or {}).get(name, {}))
@@ -96,8 +121,9 @@ def bench_odometers(names: list[str], episodes: int = 4, max_steps: int = 60, op
     return out
 
 
-def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior"), episodes: int = 3,
-                     max_steps: int = 100) -> list[dict]:
+def bench_navigation(
+    odometers: Sequence[str] = ("ground-truth", "action-prior"), episodes: int = 3, max_steps: int = 100
+) -> list[dict]:
     """Closed-loop navigation in one process (:func:`odolab.navigation.episode.navigate`, default
     policy) on the first test episodes: steps per second and milliseconds per step in the policy (of
     which fast-marching planning), the sensors, the odometer and the rest (episode set-up). The action prior's agent believes a
@@ -114,19 +140,31 @@ def bench_navigation(odometers: Sequence[str] = ("ground-truth", "action-prior")
             navigate(EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps), odo, timings=parts)
         seconds, steps = time.perf_counter() - started, max(parts.get("steps", 0), 1)
         timed = sum(parts.get(k, 0.0) for k in ("policy", "sensors", "odometer"))
-        rows.append({"odometer": name, "episodes": episodes, "max_steps": max_steps, "steps": int(parts.get("steps", 0)),
-                     "steps_per_s": steps / seconds,
-                     **{f"{k}_ms_per_step": 1e3 * parts.get(k, 0.0) / steps
-                        for k in ("policy", "planning", "sensors", "odometer")},
-                     "rest_ms_per_step": 1e3 * (seconds - timed) / steps,  # episode set-up (scene, renderer), bookkeeping
-                     "planning_share": parts.get("planning", 0.0) / seconds})
+        rows.append(
+            {
+                "odometer": name,
+                "episodes": episodes,
+                "max_steps": max_steps,
+                "steps": int(parts.get("steps", 0)),
+                "steps_per_s": steps / seconds,
+                **{
+                    f"{k}_ms_per_step": 1e3 * parts.get(k, 0.0) / steps
+                    for k in ("policy", "planning", "sensors", "odometer")
+                },
+                "rest_ms_per_step": 1e3 * (seconds - timed) / steps,  # episode set-up (scene, renderer), bookkeeping
+                "planning_share": parts.get("planning", 0.0) / seconds,
+            }
+        )
     return rows
 
 
 #: Recipes ``--only training`` times by default: the shipped one, and at the paper's input size with
 #: 16 base planes (the next shipped recipe) and with the paper's 32.
-TRAINING_RECIPES = ("studies/robust_vo/shipped.toml", "studies/robust_vo/shipped-341.toml",
-                    "studies/robust_vo/ablations/full-size.toml")
+TRAINING_RECIPES = (
+    "studies/robust_vo/shipped.toml",
+    "studies/robust_vo/shipped-341.toml",
+    "studies/robust_vo/ablations/full-size.toml",
+)
 
 
 def bench_training(recipes: Sequence[Path], device: str | None = None) -> list[dict]:
@@ -157,24 +195,46 @@ def _table(rows: list[dict]) -> str:
     from odolab.summary import text_table
 
     keys = list(dict.fromkeys(k for r in rows for k in r))  # every row's columns ('-' where one has none)
-    return text_table(keys, [[f"{r[k]:.2f}" if isinstance(r.get(k), float) else str(r.get(k, "-")) for k in keys]
-                             for r in rows], markdown=True)
+    return text_table(
+        keys,
+        [[f"{r[k]:.2f}" if isinstance(r.get(k), float) else str(r.get(k, "-")) for k in keys] for r in rows],
+        markdown=True,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers, unknown_odometer
 
     ap = ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["simulator", "odometers", "navigation", "evaluate", "training"], action="append",
-                    help="run only these parts (repeatable; default all)")
-    ap.add_argument("--recipe", type=file_arg("--recipe"), action="append", default=None, metavar="FILE.toml",
-                    help="robust-VO recipe the training part times (repeatable; default: "
-                         + " and ".join(TRAINING_RECIPES) + ")")
+    ap.add_argument(
+        "--only",
+        choices=["simulator", "odometers", "navigation", "evaluate", "training"],
+        action="append",
+        help="run only these parts (repeatable; default all)",
+    )
+    ap.add_argument(
+        "--recipe",
+        type=file_arg("--recipe"),
+        action="append",
+        default=None,
+        metavar="FILE.toml",
+        help="robust-VO recipe the training part times (repeatable; default: " + " and ".join(TRAINING_RECIPES) + ")",
+    )
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
-    ap.add_argument("--json", type=file_arg("--json"), default=None, metavar="FILE.json",
-                    help="also write the figures here (a .json file, replaced atomically)")
-    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value",
-                    help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'")
+    ap.add_argument(
+        "--json",
+        type=file_arg("--json"),
+        default=None,
+        metavar="FILE.json",
+        help="also write the figures here (a .json file, replaced atomically)",
+    )
+    ap.add_argument(
+        "--odometer-option",
+        action="append",
+        default=[],
+        metavar="NAME.key=value",
+        help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'",
+    )
     args = ap.parse_args(argv)
     if args.json is not None:
         check_output_file(args.json, "--json", [".json"])
@@ -191,19 +251,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             except ConfigError as exc:
                 raise UsageError(f"--recipe: {exc}") from None
     elif args.recipe:
-        raise UsageError(f"--recipe chooses what the training part times; --only {' '.join(dict.fromkeys(parts))} does not run it")
+        raise UsageError(
+            f"--recipe chooses what the training part times; --only {' '.join(dict.fromkeys(parts))} does not run it"
+        )
     if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
-        raise UsageError(f"--odometers and --odometer-option choose what the odometer part times; "
-                         f"--only {' '.join(dict.fromkeys(parts))} does not run it"
-                         + (" (navigation always times ground-truth and action-prior, with their defaults)"
-                            if "navigation" in parts else ""))
+        raise UsageError(
+            f"--odometers and --odometer-option choose what the odometer part times; "
+            f"--only {' '.join(dict.fromkeys(parts))} does not run it"
+            + (
+                " (navigation always times ground-truth and action-prior, with their defaults)"
+                if "navigation" in parts
+                else ""
+            )
+        )
     try:
         names = standalone_odometers() if args.odometers is None else parse_odometer_list(args.odometers)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     unknown = [u for u in map(unknown_odometer, names) if u]
     if unknown or not names:
-        raise UsageError(f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}")
+        raise UsageError(
+            f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}"
+        )
     from odolab.comparison import ComparisonError, load_odometers
     from odolab.options import OptionError, parse_assignments
 
@@ -216,8 +285,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import os
 
-    report: dict = {"machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                                "cpu_model": _cpu_model(), "python": platform.python_version()}}
+    report: dict = {
+        "machine": {
+            "cpus": os.cpu_count(),
+            "processor": platform.processor() or platform.machine(),
+            "cpu_model": _cpu_model(),
+            "python": platform.python_version(),
+        }
+    }
     print(f"machine: {report['machine']}")
 
     running: set[str] = set()
@@ -232,7 +307,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     save()  # at once: a stop before the first part ends leaves no older, complete-looking file
     if "simulator" in parts:
         report["simulator"] = bench_simulator()
-        print("\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path not in a second thread)\n")
+        print(
+            "\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path not in a second thread)\n"
+        )
         print(_table(report["simulator"]))
         report["episodes"] = bench_episodes()
         print("\n## Episode generation, end to end, one process\n")
@@ -247,8 +324,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         save()
     if "navigation" in parts:
         report["navigation"] = bench_navigation()
-        print("\n## Navigation, closed loop, one process (first 3 test episodes, at most 100 steps; ms per step; "
-              "planning is part of the policy; planning_share of the whole time)\n")
+        print(
+            "\n## Navigation, closed loop, one process (first 3 test episodes, at most 100 steps; ms per step; "
+            "planning is part of the policy; planning_share of the whole time)\n"
+        )
         print(_table(report["navigation"]))
         save()
     if "evaluate" in parts:
@@ -260,8 +339,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         save()
     if "training" in parts:
         report["training"] = bench_training(recipes)
-        print("\n## Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
-              "own epoch end to end; fp32 bare beside the chosen precision)\n")
+        print(
+            "\n## Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
+            "own epoch end to end; fp32 bare beside the chosen precision)\n"
+        )
         print(_table(report["training"]))
         save()
     return 0

@@ -4,6 +4,7 @@ Every numeric option is parsed by :func:`number`, which enforces a documented cl
 refuses NaN and infinity; output paths are checked by :func:`check_output_dir` and
 :func:`check_output_file` *before* any work starts, so a run never ends on an unwritable path.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -12,8 +13,8 @@ import os
 import re
 import sys
 import tempfile
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
 
 #: Largest accepted seed (seeds feed numpy's SeedSequence; 2^32 - 1 keeps them portable).
 MAX_SEED = 2**32 - 1
@@ -33,18 +34,19 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # type: ignore[override]
         # argparse says "argument --x: <type's message>"; ours already start with the option's name
-        match = re.fullmatch(r"argument ([^:]+): (\S+) (.*)", message, flags=re.S)
+        match = re.fullmatch(r"argument ([^:]+): (\S+) (.*)", message, flags=re.DOTALL)
         if match and match.group(2).rstrip(":") in match.group(1).split("/"):
             message = f"{match.group(2)} {match.group(3)}"
         raise UsageError(message)
 
 
-def number(name: str, kind: type = int, minimum: float | None = None,
-           maximum: float | None = None) -> Callable[[str], float]:
+def number(
+    name: str, kind: type = int, minimum: float | None = None, maximum: float | None = None
+) -> Callable[[str], float]:
     """An argparse ``type`` parsing ``kind`` (int or float) in ``[minimum, maximum]`` (either bound
     may be None); the error names the option: ``--episodes must be >= 1, got 0``. NaN and infinity
     are always refused."""
-    show = (lambda v: str(int(v))) if kind is int else (lambda v: f"{v:g}")  # noqa: E731
+    show = (lambda v: str(int(v))) if kind is int else (lambda v: f"{v:g}")
 
     def parse(text: str):
         noun = "an integer" if kind is int else "a number"
@@ -61,6 +63,7 @@ def number(name: str, kind: type = int, minimum: float | None = None,
             bound = f"in [{show(minimum)}, {show(maximum)}]" if minimum is not None else f"<= {show(maximum)}"
             raise argparse.ArgumentTypeError(f"{name} must be {bound}, got {text}")
         return value
+
     return parse
 
 
@@ -72,6 +75,7 @@ def seed(name: str = "--seed") -> Callable[[str], int]:
 def pinhole(name: str = "--intrinsics") -> Callable[[str], tuple[float, float, float, float]]:
     """An argparse ``type`` for a camera's pinhole ``fx,fy,cx,cy`` (pixels): four finite numbers,
     the focal lengths positive; the error names the option and what it got."""
+
     def parse(text: str) -> tuple[float, float, float, float]:
         parts = [p.strip() for p in text.split(",")]
         try:
@@ -84,6 +88,7 @@ def pinhole(name: str = "--intrinsics") -> Callable[[str], tuple[float, float, f
             raise argparse.ArgumentTypeError(f"{name}: the focal lengths fx, fy must be positive, got {text!r:.80}")
         fx, fy, cx, cy = values
         return fx, fy, cx, cy
+
     return parse
 
 
@@ -100,21 +105,25 @@ def _describe(exc: OSError) -> str:
 
 def path_arg(option: str) -> Callable[[str], Path]:
     """An argparse ``type`` for a path: an empty string is refused (it would mean the current folder)."""
+
     def parse(text: str) -> Path:
         if not text.strip():
             raise argparse.ArgumentTypeError(f"{option} is empty; give a path")
         return Path(text)
+
     return parse
 
 
 def file_arg(option: str) -> Callable[[str], Path]:
     """An argparse ``type`` for an output file's path: :func:`path_arg`, and a path ending in a
     slash (a folder's name, which ``Path`` would silently drop) is refused."""
+
     def parse(text: str) -> Path:
         path = path_arg(option)(text)
         if text.endswith(("/", os.sep)):
             raise argparse.ArgumentTypeError(f"{option} {text}: ends in '/', a folder's name; give a file name")
         return path
+
     return parse
 
 
@@ -124,19 +133,24 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
     anywhere inside is refused too (odolab writes and deletes nothing through a link), as are
     pipes and devices: found now, not when the results are written after the whole run."""
     if path.is_dir() and not (path / manifest).is_file() and any(path.iterdir()):
-        raise UsageError(f"{option} {path}: holds files odolab did not write (no {manifest}); "
-                         "choose a new or empty folder")
+        raise UsageError(
+            f"{option} {path}: holds files odolab did not write (no {manifest}); choose a new or empty folder"
+        )
     if path.is_dir():  # found now, not when the report is written after the whole run
         for entry in sorted(Path(root) / name for root, dirs, files in os.walk(path) for name in dirs + files):
             if entry.is_symlink() and not entry.exists():
                 raise UsageError(f"{option} {path}: {entry.relative_to(path)} is a link to nothing; remove it")
             if entry.is_symlink():
-                raise UsageError(f"{option} {path}: {entry.relative_to(path)}: expected a file or folder of an "
-                                 f"odolab run, found a symbolic link to {os.readlink(entry)} (nothing is written "
-                                 f"through a link); remove the link or choose another {option}")
+                raise UsageError(
+                    f"{option} {path}: {entry.relative_to(path)}: expected a file or folder of an "
+                    f"odolab run, found a symbolic link to {os.readlink(entry)} (nothing is written "
+                    f"through a link); remove the link or choose another {option}"
+                )
             if entry.exists() and not entry.is_file() and not entry.is_dir():
-                raise UsageError(f"{option} {path}: {entry.relative_to(path)} is not a regular file "
-                                 "(a device, pipe or socket); remove it")
+                raise UsageError(
+                    f"{option} {path}: {entry.relative_to(path)} is not a regular file "
+                    "(a device, pipe or socket); remove it"
+                )
     check_output_dir(path, option)
 
 
@@ -144,8 +158,10 @@ def check_output_dir(path: Path, option: str) -> None:
     """Create folder ``path`` if needed and prove it writable, or raise :class:`UsageError` naming
     ``option`` (e.g. a path that is a file, or a read-only location)."""
     if path.is_symlink() and not path.exists():
-        raise UsageError(f"{option} {path}: is a link to nothing (or a loop of links), not a folder; "
-                         f"remove it or choose another {option}")
+        raise UsageError(
+            f"{option} {path}: is a link to nothing (or a loop of links), not a folder; "
+            f"remove it or choose another {option}"
+        )
     if path.exists() and not path.is_dir():
         raise UsageError(f"{option} {path}: is a file, not a folder")
     try:
@@ -174,8 +190,10 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
             targets.append((target, f"links to {target}, "))
         for named, shown in targets:
             if not named.suffix:  # ".json" alone is a hidden file's name with no extension
-                raise UsageError(f"{option} {path}: {shown}{named.name!r} has no file extension; {use} "
-                                 f"after a name (e.g. out.{allowed[0]})")
+                raise UsageError(
+                    f"{option} {path}: {shown}{named.name!r} has no file extension; {use} "
+                    f"after a name (e.g. out.{allowed[0]})"
+                )
             if named.suffix.lower().lstrip(".") not in allowed:
                 raise UsageError(f"{option} {path}: {shown}unknown file type {named.suffix!r}; {use}")
     folder = path.parent if str(path.parent) else Path(".")
@@ -202,8 +220,7 @@ def _capped(text: str) -> str:
     return f"{text[:MAX_ERROR_CHARS]}... ({len(text) - MAX_ERROR_CHARS} more characters)"
 
 
-def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,
-            argv: Sequence[str] | None = None) -> int:
+def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv: Sequence[str] | None = None) -> int:
     """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2."""
     try:
         return int(main(argv) or 0)

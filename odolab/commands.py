@@ -6,15 +6,20 @@
 Each subcommand imports its module only when it runs, so ``odolab --help`` is quick and a command
 that needs torch is the only one that loads it.
 """
+
 from __future__ import annotations
 
 import importlib
 import sys
-from typing import Sequence
+from collections.abc import Sequence
 
 #: subcommand -> (module, its main function, one line of help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
-    "compare": ("odolab.compare", "main", "run odometers on simulator episodes or TUM folders; tables, figures, report"),
+    "compare": (
+        "odolab.compare",
+        "main",
+        "run odometers on simulator episodes or TUM folders; tables, figures, report",
+    ),
     "evaluate": ("odolab.evaluate", "main", "ATE, RPE and KITTI t_rel/r_rel of trajectory files (TUM or KITTI format)"),
     "navigate": ("odolab.navigate", "main", "PointGoal navigation with each odometer; success, SPL, report"),
     "navigation-diff": ("odolab.navigation.diff", "main", "compare two navigation runs episode by episode"),
@@ -23,7 +28,11 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "training-data": ("odolab.training_data", "main", "render episodes into training shards (resumable, on Ray)"),
     "train-robust-vo": ("odolab.robust_vo.train", "main", "train the robust VO from a TOML recipe (resumable)"),
     "train-deepvo": ("baselines.deepvo.train", "main", "train DeepVO from a TOML recipe (resumable)"),
-    "calibrate-fusion": ("odolab.fusion.calibrate", "main", "calibrate the noise models of fused(...) on the val split"),
+    "calibrate-fusion": (
+        "odolab.fusion.calibrate",
+        "main",
+        "calibrate the noise models of fused(...) on the val split",
+    ),
 }
 
 

@@ -4,22 +4,39 @@ With no arguments: every available odometer on 5 test-split episodes of at most 
 written to ``runs/compare`` (table.csv, report.html, figures, trajectories). Episodes are cached
 (``--cache``) and generated as parallel Ray tasks (``--ray-address`` for a cluster).
 """
+
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
-from odolab.cli import (MAX_SEED, ArgumentParser, UsageError, check_output_dir, check_report_dir, given_options,
-                        number, path_arg, pinhole, run_cli, seed)
-from odolab.comparison import (DEFAULT_CACHE, ComparisonConfig, ComparisonError, failure_reasons, odometer_names,
-                               run_comparison)
+from odolab.cli import (
+    MAX_SEED,
+    ArgumentParser,
+    UsageError,
+    check_output_dir,
+    check_report_dir,
+    given_options,
+    number,
+    path_arg,
+    pinhole,
+    run_cli,
+    seed,
+)
+from odolab.comparison import (
+    DEFAULT_CACHE,
+    ComparisonConfig,
+    ComparisonError,
+    failure_reasons,
+    odometer_names,
+    run_comparison,
+)
+from odolab.episodes import MAX_EPISODE_STEPS
 from odolab.odometer import available_odometers, parse_odometer_list, standalone_odometers
 from odolab.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
-from odolab.episodes import MAX_EPISODE_STEPS
 from odolab.sim.scenes import SPLITS
-
 
 #: Documented ranges of the numeric options (enforced with one line by odolab.cli.number).
 MAX_EPISODES = 1000
@@ -27,46 +44,107 @@ MAX_EPISODES = 1000
 DEPTH_SCALE_RANGE = (1.0, 1e6)
 MAX_NOISE = 10.0
 #: Options that choose simulator episodes; with --tum they would be silently meaningless.
-SIMULATOR_OPTIONS = ("--episodes", "--seed", "--split", "--max-steps", "--rgb-noise", "--depth-noise",
-                     "--actuation-noise", "--cache", "--no-cache", "--ray-address", "--serial")
+SIMULATOR_OPTIONS = (
+    "--episodes",
+    "--seed",
+    "--split",
+    "--max-steps",
+    "--rgb-noise",
+    "--depth-noise",
+    "--actuation-noise",
+    "--cache",
+    "--no-cache",
+    "--ray-address",
+    "--serial",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
-    ap.add_argument("--odometers", default=None,
-                    help="comma-separated names, module:Class or path/to/file.py:Class, or fused(a,b,...) of "
-                         "several (default: all of %(choices)s)".replace("%(choices)s", ", ".join(standalone_odometers())))
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, MAX_EPISODES), default=5,
-                    help=f"number of episodes, 1-{MAX_EPISODES} (default 5)")
+    ap.add_argument(
+        "--odometers",
+        default=None,
+        help="comma-separated names, module:Class or path/to/file.py:Class, or fused(a,b,...) of "
+        "several (default: all of %(choices)s)".replace("%(choices)s", ", ".join(standalone_odometers())),
+    )
+    ap.add_argument(
+        "--episodes",
+        type=number("--episodes", int, 1, MAX_EPISODES),
+        default=5,
+        help=f"number of episodes, 1-{MAX_EPISODES} (default 5)",
+    )
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
     ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=60,
-                    help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 60)")
-    for kind, default, what in (("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"), ("depth", 1.0, "Redwood depth"),
-                                ("actuation", 0.5, "PyRobot actuation")):
-        ap.add_argument(f"--{kind}-noise", type=number(f"--{kind}-noise", float, 0, MAX_NOISE), default=default,
-                        metavar="M", help=f"{what} noise multiplier, 0-{MAX_NOISE:g}, 0 = none (default {default:g})")
-    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/compare"),
-                    help="output folder (default runs/compare); files a previous run wrote there are replaced")
-    ap.add_argument("--tum", type=path_arg("--tum"), default=None,
-                    help="run on a TUM RGB-D folder instead of the simulator (simulator options are then refused)")
-    ap.add_argument("--depth-scale", type=number("--depth-scale", float, *DEPTH_SCALE_RANGE), default=None,
-                    metavar="S", help="--tum: depth PNG values per metre (default TUM's 5000; millimetres: 1000)")
-    ap.add_argument("--intrinsics", type=pinhole("--intrinsics"), default=None, metavar="FX,FY,CX,CY",
-                    help="--tum: the camera's pinhole in pixels (default: the TUM camera fr1/fr2/fr3 the "
-                         "folder's name says)")
-    ap.add_argument("--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})")
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
+        default=60,
+        help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 60)",
+    )
+    for kind, default, what in (
+        ("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"),
+        ("depth", 1.0, "Redwood depth"),
+        ("actuation", 0.5, "PyRobot actuation"),
+    ):
+        ap.add_argument(
+            f"--{kind}-noise",
+            type=number(f"--{kind}-noise", float, 0, MAX_NOISE),
+            default=default,
+            metavar="M",
+            help=f"{what} noise multiplier, 0-{MAX_NOISE:g}, 0 = none (default {default:g})",
+        )
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("runs/compare"),
+        help="output folder (default runs/compare); files a previous run wrote there are replaced",
+    )
+    ap.add_argument(
+        "--tum",
+        type=path_arg("--tum"),
+        default=None,
+        help="run on a TUM RGB-D folder instead of the simulator (simulator options are then refused)",
+    )
+    ap.add_argument(
+        "--depth-scale",
+        type=number("--depth-scale", float, *DEPTH_SCALE_RANGE),
+        default=None,
+        metavar="S",
+        help="--tum: depth PNG values per metre (default TUM's 5000; millimetres: 1000)",
+    )
+    ap.add_argument(
+        "--intrinsics",
+        type=pinhole("--intrinsics"),
+        default=None,
+        metavar="FX,FY,CX,CY",
+        help="--tum: the camera's pinhole in pixels (default: the TUM camera fr1/fr2/fr3 the folder's name says)",
+    )
+    ap.add_argument(
+        "--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})"
+    )
     ap.add_argument("--no-cache", action="store_true", help="do not read or write the episode cache")
-    ap.add_argument("--ray-address", default=None,
-                    help="Ray cluster address host:port or ray://host:port (default: a local instance)")
+    ap.add_argument(
+        "--ray-address",
+        default=None,
+        help="Ray cluster address host:port or ray://host:port (default: a local instance)",
+    )
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value",
-                    help="constructor option of one odometer, e.g. icp.max_depth=4.0 or "
-                         "examples.tiny_learned:TinyLearnedOdometer.checkpoint=runs/tiny.pt (repeatable)")
-    ap.add_argument("--config", type=path_arg("--config"), default=None, metavar="FILE.toml",
-                    help='odometer options from a TOML file: [odometers."NAME"] key = value '
-                         "(--odometer-option overrides it)")
+    ap.add_argument(
+        "--odometer-option",
+        action="append",
+        default=[],
+        metavar="NAME.key=value",
+        help="constructor option of one odometer, e.g. icp.max_depth=4.0 or "
+        "examples.tiny_learned:TinyLearnedOdometer.checkpoint=runs/tiny.pt (repeatable)",
+    )
+    ap.add_argument(
+        "--config",
+        type=path_arg("--config"),
+        default=None,
+        metavar="FILE.toml",
+        help='odometer options from a TOML file: [odometers."NAME"] key = value (--odometer-option overrides it)',
+    )
     return ap
 
 
@@ -81,13 +159,17 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
         from odolab.io.tum_rgbd import tum_camera_for
 
         if args.intrinsics is None and tum_camera_for(args.tum) is None:
-            raise UsageError(f"--tum {args.tum}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
-                             "in it); give it with --intrinsics fx,fy,cx,cy (pixels)")
+            raise UsageError(
+                f"--tum {args.tum}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
+                "in it); give it with --intrinsics fx,fy,cx,cy (pixels)"
+            )
         ignored = given_options(argv, SIMULATOR_OPTIONS)
         if ignored:
-            raise UsageError(f"{', '.join(ignored)}: simulator option{'s' if len(ignored) > 1 else ''}, "
-                             "meaningless with --tum (a TUM folder is one real recording); drop "
-                             f"{'them' if len(ignored) > 1 else 'it'}")
+            raise UsageError(
+                f"{', '.join(ignored)}: simulator option{'s' if len(ignored) > 1 else ''}, "
+                "meaningless with --tum (a TUM folder is one real recording); drop "
+                f"{'them' if len(ignored) > 1 else 'it'}"
+            )
     else:
         if args.no_cache and given_options(argv, ["--cache"]):
             raise UsageError("--cache and --no-cache contradict each other; give one of them")
@@ -101,8 +183,11 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
     from odolab.report import MANIFEST, ManifestError, OutputFolder
 
     try:  # what the previous run wrote, and this run's fixed files, can be replaced without leaving --out
-        OutputFolder.check(args.out, files=("table.csv", "table_per_action.csv", "errors.png", "report.html", MANIFEST),
-                           folders=("trajectories",))
+        OutputFolder.check(
+            args.out,
+            files=("table.csv", "table_per_action.csv", "errors.png", "report.html", MANIFEST),
+            folders=("trajectories",),
+        )
     except ManifestError as exc:
         raise UsageError(f"--out {exc}") from None
     except UnsafeOutputError as exc:
@@ -113,8 +198,9 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
     from odolab.episodes import NoiseConfig
 
     try:
-        options = merge_options(read_options_file(args.config) if args.config else {},
-                                parse_assignments(args.odometer_option))
+        options = merge_options(
+            read_options_file(args.config) if args.config else {}, parse_assignments(args.odometer_option)
+        )
     except OptionError as exc:
         raise UsageError(str(exc)) from None
     names = None
@@ -129,12 +215,21 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
     return ComparisonConfig(
-        odometers=names, options=options, episodes=args.episodes, seed=args.seed, split=args.split,
+        odometers=names,
+        options=options,
+        episodes=args.episodes,
+        seed=args.seed,
+        split=args.split,
         max_steps=args.max_steps,
         noise=NoiseConfig(rgb=args.rgb_noise, depth=args.depth_noise, actuation=args.actuation_noise),
-        tum=args.tum, tum_depth_scale=args.depth_scale, tum_intrinsics=args.intrinsics,
-        cache=None if args.no_cache else args.cache, ray_address=args.ray_address,
-        parallel=not args.serial, progress=not args.quiet)
+        tum=args.tum,
+        tum_depth_scale=args.depth_scale,
+        tum_intrinsics=args.intrinsics,
+        cache=None if args.no_cache else args.cache,
+        ray_address=args.ray_address,
+        parallel=not args.serial,
+        progress=not args.quiet,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -155,8 +250,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"note: {warning}", file=sys.stderr)
     print(result.title)  # the table first: nothing that follows can lose it
     print(format_table(result.rows, real_data=args.tum is not None))
-    write_report(args.out, result.rows, result.action_rows, result.results, result.title, result.notes,
-                 result.plans, result.configs)
+    write_report(
+        args.out,
+        result.rows,
+        result.action_rows,
+        result.results,
+        result.title,
+        result.notes,
+        result.plans,
+        result.configs,
+    )
     for r in result.results:
         for e in r.errors[:1]:
             print(f"note: {r.odometer} raised on {r.sequence}: {e}")

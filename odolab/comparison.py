@@ -11,17 +11,27 @@ the runner, and summarises. A study, a notebook or a navigation loop calls it di
 
 Every mistake in the configuration raises :class:`ComparisonError` with one line naming it.
 """
+
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any
 
 from odolab import runner, summary
-from odolab.odometer import (REGISTRY, IncompleteOdometerError, Odometer, OracleInputError, UnknownOdometerError,
-                             available_odometers, inner_names,
-                             standalone_odometers, unknown_odometer)
+from odolab.odometer import (
+    REGISTRY,
+    IncompleteOdometerError,
+    Odometer,
+    OracleInputError,
+    UnknownOdometerError,
+    available_odometers,
+    inner_names,
+    standalone_odometers,
+    unknown_odometer,
+)
 from odolab.options import OptionError, check_options
 from odolab.report import FloorPlan
 from odolab.runner import RunObserver, SequenceResult
@@ -30,8 +40,16 @@ from odolab.sim.scenes import SPLITS
 if TYPE_CHECKING:  # the simulator's modules load only when episodes are made
     from odolab.episodes import EpisodeSpec, NoiseConfig
 
-__all__ = ["DEFAULT_CACHE", "ComparisonConfig", "ComparisonError", "ComparisonResult", "load_odometers",
-           "failure_reasons", "odometer_names", "run_comparison"]
+__all__ = [
+    "DEFAULT_CACHE",
+    "ComparisonConfig",
+    "ComparisonError",
+    "ComparisonResult",
+    "failure_reasons",
+    "load_odometers",
+    "odometer_names",
+    "run_comparison",
+]
 
 #: Where episodes are cached unless told otherwise.
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "odolab" / "episodes"
@@ -97,8 +115,9 @@ def odometer_names(names: list[str] | None) -> list[str]:
     except ValueError as exc:  # nested too deep
         raise ComparisonError(str(exc)) from None
     if unknown:
-        raise ComparisonError(f"unknown odometer {unknown[0]!r}; available: {', '.join(known)} "
-                              "(and fused(a,b,...) of any of them)")
+        raise ComparisonError(
+            f"unknown odometer {unknown[0]!r}; available: {', '.join(known)} (and fused(a,b,...) of any of them)"
+        )
     return chosen
 
 
@@ -111,13 +130,15 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
     if stray:
         name, holder = stray[0], (holders[stray[0]] or [""])[0]
         hint = f"; it is an input of {holder!r}: {_options_file_advice(name, holder)}" if holder else ""
-        raise ComparisonError(f"options given for {name!r}, which is not among the odometers: "
-                              f"{', '.join(chosen)}{hint}")
+        raise ComparisonError(
+            f"options given for {name!r}, which is not among the odometers: {', '.join(chosen)}{hint}"
+        )
     for name in options:
         if options[name] and holders[name]:
             raise ComparisonError(
                 f"options given for {name!r} reach the {name!r} row only, not the {name} inside {holders[name][0]!r}, "
-                f"which would run with its defaults; {_options_file_advice(name, holders[name][0])}")
+                f"which would run with its defaults; {_options_file_advice(name, holders[name][0])}"
+            )
     out: dict[str, Odometer] = {}
     for name in chosen:
         opts = options.get(name, {})
@@ -127,7 +148,7 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
             out[name] = REGISTRY.load(name, **opts)
         except (UnknownOdometerError, OptionError, IncompleteOdometerError, OracleInputError) as exc:
             raise ComparisonError(str(exc)) from None
-        except Exception as exc:  # a broken plugin or a bad option value is reported, not a traceback
+        except Exception as exc:  # noqa: BLE001 - a broken plugin or a bad option value is reported, not a traceback
             detail = f" with options {_short(opts)}" if opts else ""
             raise ComparisonError(f"could not load odometer {name!r}{detail}: {type(exc).__name__}: {exc}") from None
     return out
@@ -178,7 +199,7 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     are generated first and each is read back when its turn comes, so memory holds one."""
     from odolab.episodes import EpisodeCache, generate_episodes, load_episodes, stream_episodes
 
-    make = dict(ray_address=config.ray_address, parallel=config.parallel, progress=config.progress)
+    make = {"ray_address": config.ray_address, "parallel": config.parallel, "progress": config.progress}
     if config.cache is None:
         return iter(load_episodes(specs, None, **make)), None
     cache = EpisodeCache(config.cache)
@@ -186,8 +207,9 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     return stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
 
 
-def _run(odometers: dict[str, Odometer], sequences, observer: RunObserver | None,
-         total: int | None = None) -> list[SequenceResult]:
+def _run(
+    odometers: dict[str, Odometer], sequences, observer: RunObserver | None, total: int | None = None
+) -> list[SequenceResult]:
     from odolab.io.errors import FileFormatError
 
     try:
@@ -197,8 +219,16 @@ def _run(odometers: dict[str, Odometer], sequences, observer: RunObserver | None
 
 
 def _options_note(config: ComparisonConfig) -> list[str]:
-    return ["Odometer options: " + "; ".join(f"{name}: " + ", ".join(f"{k}={v!r}" for k, v in opts.items())
-                                              for name, opts in config.options.items())] if config.options else []
+    return (
+        [
+            "Odometer options: "
+            + "; ".join(
+                f"{name}: " + ", ".join(f"{k}={v!r}" for k, v in opts.items()) for name, opts in config.options.items()
+            )
+        ]
+        if config.options
+        else []
+    )
 
 
 def odometer_configs(odometers: dict) -> dict[str, str]:
@@ -207,12 +237,16 @@ def odometer_configs(odometers: dict) -> dict[str, str]:
 
     def flat(prefix: str, value) -> list[str]:
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            return [item for f in dataclasses.fields(value)
-                    for item in flat(f"{prefix}{f.name}.", getattr(value, f.name))]
+            return [
+                item for f in dataclasses.fields(value) for item in flat(f"{prefix}{f.name}.", getattr(value, f.name))
+            ]
         return [f"{prefix[:-1]}={value!r}"]
 
-    return {name: ", ".join(flat("", odo.config))
-            for name, odo in odometers.items() if dataclasses.is_dataclass(getattr(odo, "config", None))}
+    return {
+        name: ", ".join(flat("", odo.config))
+        for name, odo in odometers.items()
+        if dataclasses.is_dataclass(getattr(odo, "config", None))
+    }
 
 
 def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None) -> ComparisonResult:
@@ -223,26 +257,37 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
     if config.tum is not None:
         blind = [name for name, odo in odometers.items() if getattr(odo, "needs_action", False)]
         if blind and config.odometers is not None:
-            raise ComparisonError(f"{blind[0]} needs the action of every step, "
-                                  "and real data has none; leave it out of a --tum comparison")
+            raise ComparisonError(
+                f"{blind[0]} needs the action of every step, and real data has none; leave it out of a --tum comparison"
+            )
         odometers = {name: odo for name, odo in odometers.items() if name not in blind}  # all, by default
         sequences = _tum_sequences(config)
         depth_warning = sequences[0].depth_warning()  # read before the run: a few frames
         results = _run(odometers, sequences, observer)
         title = f"odolab compare on TUM folder {config.tum}"
         dropped = sequences[0].dropped
-        left_out = (f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
-                    f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s.")
+        left_out = (
+            f"{len(sequences[0])} frames; colour images left out: {dropped['no depth']} without a depth "
+            f"image and {dropped['no ground truth']} without a ground-truth pose within 0.02 s."
+        )
         k = sequences[0].intrinsics
-        camera = (f"Camera fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g} ({k.width}x{k.height}); depth "
-                  f"{sequences[0].depth_scale:g} PNG values per metre.")
-        notes = ["Real data: no actions; 'action-prior' is therefore the no-motion row.",
-                 *([f"Left out, as they need actions: {', '.join(blind)}."] if blind else []),
-                 "Rows marked oracle read ground truth.", left_out, camera, *_options_note(config),
-                 *([depth_warning] if depth_warning else [])]
+        camera = (
+            f"Camera fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g} ({k.width}x{k.height}); depth "
+            f"{sequences[0].depth_scale:g} PNG values per metre."
+        )
+        notes = [
+            "Real data: no actions; 'action-prior' is therefore the no-motion row.",
+            *([f"Left out, as they need actions: {', '.join(blind)}."] if blind else []),
+            "Rows marked oracle read ground truth.",
+            left_out,
+            camera,
+            *_options_note(config),
+            *([depth_warning] if depth_warning else []),
+        ]
         warnings = ([left_out] if any(dropped.values()) else []) + ([depth_warning] if depth_warning else [])
-        return ComparisonResult(results, summary.summarize(results), [], title, notes, None, warnings,
-                                odometer_configs(odometers))
+        return ComparisonResult(
+            results, summary.summarize(results), [], title, notes, None, warnings, odometer_configs(odometers)
+        )
 
     from odolab.datasets import episode_specs
     from odolab.episodes import NoiseConfig
@@ -269,16 +314,28 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
     one = [r for r in results if r.odometer == results[0].odometer]
     steps = sum(len(r.actions) for r in one)
     collided = sum(int(r.collisions.sum()) for r in one if r.collisions is not None)
-    notes = [f"{steps} steps, {collided} of them collisions ({100 * collided / max(steps, 1):.1f}%).",
-             "Errors are x 1e-2 (m, m, rad), mean absolute error over all steps; "
-             "rows marked oracle read ground truth.",
-             f"Noise multipliers: RGB {noise.rgb:g}, depth {noise.depth:g}, actuation {noise.actuation:g} "
-             "(the action prior was fitted at 1, 1, 0.5).",
-             f"Command: python -m odolab.compare --episodes {config.episodes} --seed {config.seed} "
-             f"--split {config.split} --max-steps {config.max_steps} --rgb-noise {noise.rgb:g} "
-             f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"]
+    notes = [
+        f"{steps} steps, {collided} of them collisions ({100 * collided / max(steps, 1):.1f}%).",
+        "Errors are x 1e-2 (m, m, rad), mean absolute error over all steps; rows marked oracle read ground truth.",
+        (
+            f"Noise multipliers: RGB {noise.rgb:g}, depth {noise.depth:g}, actuation {noise.actuation:g} "
+            "(the action prior was fitted at 1, 1, 0.5)."
+        ),
+        (
+            f"Command: python -m odolab.compare --episodes {config.episodes} --seed {config.seed} "
+            f"--split {config.split} --max-steps {config.max_steps} --rgb-noise {noise.rgb:g} "
+            f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"
+        ),
+    ]
     notes += _options_note(config)
     plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
-    return ComparisonResult(results, summary.summarize(results), summary.summarize_actions(results), title,
-                            notes, plans, configs=odometer_configs(odometers))
+    return ComparisonResult(
+        results,
+        summary.summarize(results),
+        summary.summarize_actions(results),
+        title,
+        notes,
+        plans,
+        configs=odometer_configs(odometers),
+    )

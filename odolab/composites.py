@@ -1,5 +1,6 @@
 """What odometers built on others share (``fused(a,b)``, ``manhattan(a)``): loading their inputs,
 each with its own options from a TOML file (``options_file``, as ``compare --config``)."""
+
 from __future__ import annotations
 
 from odolab.odometer import REGISTRY, Odometer
@@ -17,7 +18,9 @@ def load_inputs(owner: str, names: list[str], options_file: str = "") -> dict[st
     tables = read_options_file(options_file) if options_file else {}
     stray = [n for n in tables if n not in names]
     if stray:
-        raise ValueError(f"{options_file}: options for {stray[0]!r}, which is not an input of {owner} ({', '.join(names)})")
+        raise ValueError(
+            f"{options_file}: options for {stray[0]!r}, which is not an input of {owner} ({', '.join(names)})"
+        )
     inputs: dict[str, Odometer] = {}
     for n in names:
         opts = tables.get(n, {})
@@ -30,5 +33,5 @@ def load_inputs(owner: str, names: list[str], options_file: str = "") -> dict[st
         except ValueError as exc:  # a value its own checks refuse (a range, NaN): say where it came from
             if not opts:
                 raise
-            raise ValueError(f"{options_file}: [odometers.\"{n}\"] {exc}") from None
+            raise ValueError(f'{options_file}: [odometers."{n}"] {exc}') from None
     return inputs

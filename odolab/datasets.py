@@ -15,6 +15,7 @@ shards beside the cache would double the disk use for the same access pattern; c
 ``.npz`` members cannot be mapped at all.) This module imports no torch; a torch ``Dataset`` is a
 small wrapper (``TorchPairs`` in ``examples/tiny_learned.py``).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -30,8 +31,9 @@ from odolab.types import Action, Frame, Intrinsics, Sequence
 __all__ = ["Pair", "PairDataset", "episode_specs", "true_motions"]
 
 
-def episode_specs(split: str, n: int, *, seed: int = 0, max_steps: int = 100,
-                  noise: NoiseConfig | None = None, first: int = 0) -> list[EpisodeSpec]:
+def episode_specs(
+    split: str, n: int, *, seed: int = 0, max_steps: int = 100, noise: NoiseConfig | None = None, first: int = 0
+) -> list[EpisodeSpec]:
     """Specs of episodes ``first .. first + n - 1`` of ``split`` from ``seed`` (same args, same episodes)."""
     noise = noise or NoiseConfig()
     return [EpisodeSpec(split=split, index=first + i, seed=seed, max_steps=max_steps, noise=noise) for i in range(n)]
@@ -80,8 +82,10 @@ class PairDataset:
         counts = []
         for spec in self.specs:
             if not cache.has(spec):
-                raise ValueError(f"episode {spec.split}-s{spec.seed}-e{spec.index:03d} is not in the cache "
-                                 f"{cache.root}; generate it first")
+                raise ValueError(
+                    f"episode {spec.split}-s{spec.seed}-e{spec.index:03d} is not in the cache "
+                    f"{cache.root}; generate it first"
+                )
             path = cache.path(spec)
             with np.load(path, allow_pickle=False) as z:
                 counts.append(len(z["actions"]))
@@ -116,11 +120,20 @@ class PairDataset:
     def __getitem__(self, k: int) -> Pair:
         e, i = self.locate(k)
         m = self._maps(e)
-        frames = [Frame(np.array(m["rgb"][j]), np.array(m["depth"][j]), float(j), m["poses"][j].copy())
-                  for j in (i, i + 1)]
+        frames = [
+            Frame(np.array(m["rgb"][j]), np.array(m["depth"][j]), float(j), m["poses"][j].copy()) for j in (i, i + 1)
+        ]
         motion = invert(m["poses"][i]) @ m["poses"][i + 1]
-        return Pair(frames[0], frames[1], Action(int(m["actions"][i])), motion, transform_to_planar(motion), e, i,
-                    bool(m["collisions"][i]))
+        return Pair(
+            frames[0],
+            frames[1],
+            Action(int(m["actions"][i])),
+            motion,
+            transform_to_planar(motion),
+            e,
+            i,
+            bool(m["collisions"][i]),
+        )
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()

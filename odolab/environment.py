@@ -7,6 +7,7 @@ true state in a scene and moves it by noisy actions (``step``), seeing through `
 and closed-loop navigation both go through these two classes: the same laws of motion and sensing,
 and the generator's policy driven step by step sees exactly the stored frames.
 """
+
 from __future__ import annotations
 
 import os
@@ -43,8 +44,16 @@ class Sensors:
     frame on two idle cores. ``threads=1`` runs both in the calling thread.
     """
 
-    def __init__(self, scene: Scene, camera: CameraSpec, rgb_noise: float, depth_noise: float,
-                 rgb_rng: np.random.Generator, depth_rng: np.random.Generator, threads: int = 2) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        camera: CameraSpec,
+        rgb_noise: float,
+        depth_noise: float,
+        rgb_rng: np.random.Generator,
+        depth_rng: np.random.Generator,
+        threads: int = 2,
+    ) -> None:
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads not in (1, 2):
             raise ValueError(f"Sensors threads must be the integer 1 or 2, got {threads!r}")
         self.camera = camera
@@ -52,8 +61,9 @@ class Sensors:
         self._pool, self._pool_pid = None, None
         self.renderer = Renderer(scene, camera)
         self.rgb_noise = RGBNoise(multiplier=rgb_noise)
-        self.depth_noise = RedwoodDepthNoise(multiplier=depth_noise, min_depth=camera.min_depth,
-                                             max_depth=camera.max_depth)
+        self.depth_noise = RedwoodDepthNoise(
+            multiplier=depth_noise, min_depth=camera.min_depth, max_depth=camera.max_depth
+        )
         self.rgb_rng, self.depth_rng = rgb_rng, depth_rng
 
     def read(self, T_world_cam: np.ndarray) -> SensorReading:
@@ -102,8 +112,15 @@ class PointNavEnv:
     simulator and the metrics, never for the agent's policy. ``sensors``: None for a motion-only
     environment (the episode generator's rollout renders later, in one pass)."""
 
-    def __init__(self, scene: Scene, start: AgentState, actuation: ActuationNoise, act_rng: np.random.Generator,
-                 sensors: Sensors | None = None, stop_at_contact: bool = True) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        start: AgentState,
+        actuation: ActuationNoise,
+        act_rng: np.random.Generator,
+        sensors: Sensors | None = None,
+        stop_at_contact: bool = True,
+    ) -> None:
         self.scene, self.state, self.actuation, self.act_rng = scene, start, actuation, act_rng
         self.sensors, self.stop_at_contact = sensors, stop_at_contact
         self.steps, self.collisions = 0, 0
@@ -126,8 +143,9 @@ class PointNavEnv:
         ending an episode is the caller's decision, not a motion."""
         if action not in (Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT):
             raise ValueError(f"step takes a motion action, got {action!r}")
-        self.state, collided = step_agent(self.scene, self.state, action, self.actuation, self.act_rng,
-                                          self.stop_at_contact)
+        self.state, collided = step_agent(
+            self.scene, self.state, action, self.actuation, self.act_rng, self.stop_at_contact
+        )
         self.steps += 1
         self.collisions += int(collided)
         return collided

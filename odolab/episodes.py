@@ -8,6 +8,7 @@ Three independent random streams (scene/start/goal, actuation, sensors) are spaw
 Episodes are cached as ``.npz`` files (atomic writes, loaded without pickle) by
 :class:`EpisodeCache`; :func:`load_episodes` generates the missing ones as parallel tasks.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -16,20 +17,20 @@ import os
 import sys
 import zipfile
 import zlib
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
+from odolab.environment import PointNavEnv, Sensors
 from odolab.geometry import camera_pose_from_agent
 from odolab.io.atomic import atomic_open
-from odolab.types import Action, Frame, Intrinsics
-from odolab.environment import PointNavEnv, Sensors
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
 from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import SPLITS, generate_scene, scene_seed
+from odolab.types import Action, Frame, Intrinsics
 
 _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
 FORMAT_VERSION = 1  # the .npz layout
@@ -79,8 +80,9 @@ class EpisodeSpec:
         """Stable short hash of the spec (the cache file name)."""
         from odolab.sim.redwood import table_digest
 
-        blob = json.dumps({"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **asdict(self)},
-                          sort_keys=True)
+        blob = json.dumps(
+            {"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **asdict(self)}, sort_keys=True
+        )
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def streams(self) -> list[np.random.Generator]:
@@ -138,8 +140,10 @@ def sample_start_goal(spec: EpisodeSpec, scene, rng: np.random.Generator, max_tr
             if ratio < spec.min_geodesic_ratio and rng.random() > straight_episode_keep_rate(ratio):
                 continue
             return (sx, sy), (gx, gy), geo
-    raise RuntimeError(f"scene {scene.seed}: no start/goal pair within "
-                       f"{spec.min_goal_distance}-{spec.max_goal_distance} m in {max_tries} tries")
+    raise RuntimeError(
+        f"scene {scene.seed}: no start/goal pair within "
+        f"{spec.min_goal_distance}-{spec.max_goal_distance} m in {max_tries} tries"
+    )
 
 
 @dataclass(frozen=True)
@@ -166,8 +170,9 @@ def start_environment(spec: EpisodeSpec, sensors: bool = True) -> tuple[PointNav
     (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
     start = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
     seeing = Sensors(scene, spec.camera, spec.noise.rgb, spec.noise.depth, rgb_rng, depth_rng) if sensors else None
-    env = PointNavEnv(scene, start, ActuationNoise(spec.noise.controller, spec.noise.actuation), act_rng, seeing,
-                      spec.stop_at_contact)
+    env = PointNavEnv(
+        scene, start, ActuationNoise(spec.noise.controller, spec.noise.actuation), act_rng, seeing, spec.stop_at_contact
+    )
     return env, EpisodeStart(seed, start, (gx, gy), geo, float(np.hypot(gx - sx, gy - sy)))
 
 
@@ -176,8 +181,13 @@ def rollout(spec: EpisodeSpec) -> Rollout:
     from odolab.sim.planner import ShortestPathFollower, geodesic_field
 
     env, begin = start_environment(spec, sensors=False)
-    follower = ShortestPathFollower(geodesic_field(env.scene, *begin.goal), goal_radius=spec.goal_radius,
-                                    noise=env.actuation, rng=env.act_rng, stop_at_contact=spec.stop_at_contact)
+    follower = ShortestPathFollower(
+        geodesic_field(env.scene, *begin.goal),
+        goal_radius=spec.goal_radius,
+        noise=env.actuation,
+        rng=env.act_rng,
+        stop_at_contact=spec.stop_at_contact,
+    )
     states, actions, collisions = [env.state], [], []
     reached = False
     for _ in range(spec.max_steps):
@@ -188,8 +198,16 @@ def rollout(spec: EpisodeSpec) -> Rollout:
         collisions.append(env.step(action))
         states.append(env.state)
         actions.append(action)
-    return Rollout(begin.scene_seed, begin.goal, begin.start_distance, begin.euclidean_distance, states, actions,
-                   collisions, reached)
+    return Rollout(
+        begin.scene_seed,
+        begin.goal,
+        begin.start_distance,
+        begin.euclidean_distance,
+        states,
+        actions,
+        collisions,
+        reached,
+    )
 
 
 @dataclass(frozen=True)
@@ -230,7 +248,9 @@ class Episode:
         return self.poses[i]
 
 
-def render_frames(spec: EpisodeSpec, motion: Rollout) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def render_frames(
+    spec: EpisodeSpec, motion: Rollout
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """``(clean rgb, clean depth, noisy rgb, noisy depth)`` of each state of ``motion``, in order,
     with the sensor noise of ``spec`` drawn from its own streams (so any consumer sees the same frames)."""
     _, _, rgb_rng, depth_rng = spec.streams()
@@ -250,10 +270,22 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
     depth = np.empty((n, cam.height, cam.width), np.float32)
     for i, (_, _, noisy_rgb, noisy_depth) in enumerate(render_frames(spec, motion)):
         rgb[i], depth[i] = noisy_rgb, noisy_depth
-    info = {"scene_seed": motion.scene_seed, "goal": list(motion.goal), "start_distance": motion.start_distance,
-            "euclidean_distance": motion.euclidean_distance, "reached_goal": motion.reached_goal}
-    return Episode(spec, rgb, depth, motion.camera_poses(cam.mount_height),
-                   np.array([a.value for a in motion.actions], np.int8), np.array(motion.collisions, bool), info)
+    info = {
+        "scene_seed": motion.scene_seed,
+        "goal": list(motion.goal),
+        "start_distance": motion.start_distance,
+        "euclidean_distance": motion.euclidean_distance,
+        "reached_goal": motion.reached_goal,
+    }
+    return Episode(
+        spec,
+        rgb,
+        depth,
+        motion.camera_poses(cam.mount_height),
+        np.array([a.value for a in motion.actions], np.int8),
+        np.array(motion.collisions, bool),
+        info,
+    )
 
 
 class EpisodeCache:
@@ -271,8 +303,10 @@ class EpisodeCache:
 
     def _discard(self, path: Path, exc: BaseException) -> None:
         """Name a damaged entry on stderr and delete it."""
-        print(f"odolab: episode cache entry {path} is damaged ({type(exc).__name__}: {exc}); regenerating it",
-              file=sys.stderr)
+        print(
+            f"odolab: episode cache entry {path} is damaged ({type(exc).__name__}: {exc}); regenerating it",
+            file=sys.stderr,
+        )
         try:
             path.unlink(missing_ok=True)
         except OSError:  # e.g. a folder in its place: put() will then say so
@@ -323,14 +357,26 @@ class EpisodeCache:
         p = self.path(episode.spec)
         info = json.dumps({**episode.info, "spec_key": episode.spec.key()})
         with atomic_open(p, "wb") as f:
-            np.savez(f, rgb=episode.rgb, depth=episode.depth, poses=episode.poses,
-                     actions=episode.actions, collisions=episode.collisions, info=np.array(info))
+            np.savez(
+                f,
+                rgb=episode.rgb,
+                depth=episode.depth,
+                poses=episode.poses,
+                actions=episode.actions,
+                collisions=episode.collisions,
+                info=np.array(info),
+            )
         return p
 
 
-def generate_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None, *,
-                      ray_address: str | None = None, parallel: bool = True,
-                      progress: bool = True) -> dict[int, Episode]:
+def generate_episodes(
+    specs: list[EpisodeSpec],
+    cache: EpisodeCache | None = None,
+    *,
+    ray_address: str | None = None,
+    parallel: bool = True,
+    progress: bool = True,
+) -> dict[int, Episode]:
     """Generate the episodes of ``specs`` that ``cache`` lacks (all without a cache), as Ray tasks
     when ``parallel`` and more than one is missing. With a cache each is written as it finishes and
     not kept in memory; without one they are returned, by index into ``specs``."""
@@ -345,20 +391,38 @@ def generate_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = Non
         else:
             kept[missing[k]] = ep
 
-    fan_out(render_episode, [specs[i] for i in missing], on_result=done, parallel=parallel,
-            ray_address=ray_address, progress=progress, desc="episodes")
+    fan_out(
+        render_episode,
+        [specs[i] for i in missing],
+        on_result=done,
+        parallel=parallel,
+        ray_address=ray_address,
+        progress=progress,
+        desc="episodes",
+    )
     return kept
 
 
-def load_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None, *,
-                  ray_address: str | None = None, parallel: bool = True, progress: bool = True) -> list[Episode]:
+def load_episodes(
+    specs: list[EpisodeSpec],
+    cache: EpisodeCache | None = None,
+    *,
+    ray_address: str | None = None,
+    parallel: bool = True,
+    progress: bool = True,
+) -> list[Episode]:
     """All episodes of ``specs`` in memory, in order (generated where the cache lacks them)."""
     return list(stream_episodes(specs, cache, ray_address=ray_address, parallel=parallel, progress=progress))
 
 
-def stream_episodes(specs: list[EpisodeSpec], cache: EpisodeCache | None = None, *,
-                    ray_address: str | None = None, parallel: bool = True,
-                    progress: bool = True) -> Iterator[Episode]:
+def stream_episodes(
+    specs: list[EpisodeSpec],
+    cache: EpisodeCache | None = None,
+    *,
+    ray_address: str | None = None,
+    parallel: bool = True,
+    progress: bool = True,
+) -> Iterator[Episode]:
     """The episodes of ``specs`` in order, one at a time: the missing ones are generated first; with
     a cache, each is then read back only when its turn comes, so memory holds one episode."""
     fresh = generate_episodes(specs, cache, ray_address=ray_address, parallel=parallel, progress=progress)

@@ -17,6 +17,7 @@ printed with its pairing, the poses used and dropped, the alignment and the cove
 This module parses, calls :mod:`odolab.evaluation` (the library: pairing, metrics, JSON summary)
 and prints.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,7 +25,7 @@ import json
 import math
 import os
 import sys
-from typing import Sequence
+from collections.abc import Sequence
 
 from odolab import metrics
 from odolab.cli import ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli
@@ -51,22 +52,47 @@ def _parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("gt", help="ground-truth trajectory file")
     ap.add_argument("est", nargs="+", help="estimated trajectory file(s)")
-    ap.add_argument("--format", default=None, choices=FORMATS,
-                    help="file format of all files (default: told from their column count, 8 TUM, 12 KITTI)")
-    ap.add_argument("--align", default="se3", choices=metrics.ALIGNMENTS,
-                    help="Umeyama alignment of each estimate to the ground truth (default se3)")
-    ap.add_argument("--delta", type=number("--delta", float, None, MAX_DELTA), default=1.0,
-                    help=f"RPE pair distance, > 0 and <= {MAX_DELTA:g} (default 1)")
+    ap.add_argument(
+        "--format",
+        default=None,
+        choices=FORMATS,
+        help="file format of all files (default: told from their column count, 8 TUM, 12 KITTI)",
+    )
+    ap.add_argument(
+        "--align",
+        default="se3",
+        choices=metrics.ALIGNMENTS,
+        help="Umeyama alignment of each estimate to the ground truth (default se3)",
+    )
+    ap.add_argument(
+        "--delta",
+        type=number("--delta", float, None, MAX_DELTA),
+        default=1.0,
+        help=f"RPE pair distance, > 0 and <= {MAX_DELTA:g} (default 1)",
+    )
     ap.add_argument("--delta-unit", default="f", choices=("f", "m"), help="frames or metres (default f)")
-    ap.add_argument("--t-max-diff", type=number("--t-max-diff", float, 0, MAX_TIME_DIFF), default=0.01,
-                    help=f"TUM: largest timestamp gap (s) of an associated pair, 0-{MAX_TIME_DIFF:g} (default 0.01)")
+    ap.add_argument(
+        "--t-max-diff",
+        type=number("--t-max-diff", float, 0, MAX_TIME_DIFF),
+        default=0.01,
+        help=f"TUM: largest timestamp gap (s) of an associated pair, 0-{MAX_TIME_DIFF:g} (default 0.01)",
+    )
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    ap.add_argument("--plot", metavar="FILE.png", type=file_arg("--plot"),
-                    help=f"draw trajectories and errors into this image ({', '.join(IMAGE_SUFFIXES)})")
-    ap.add_argument("--min-coverage", type=number("--min-coverage", float, 0, 1), default=None, metavar="X",
-                    help="fail (exit 2) if an estimate's coverage is below X, 0-1. Coverage: the share of "
-                         "ground-truth poses with an estimate within reach (half the estimate's median "
-                         "interval, at least --t-max-diff), so a complete estimate at half the rate covers 1")
+    ap.add_argument(
+        "--plot",
+        metavar="FILE.png",
+        type=file_arg("--plot"),
+        help=f"draw trajectories and errors into this image ({', '.join(IMAGE_SUFFIXES)})",
+    )
+    ap.add_argument(
+        "--min-coverage",
+        type=number("--min-coverage", float, 0, 1),
+        default=None,
+        metavar="X",
+        help="fail (exit 2) if an estimate's coverage is below X, 0-1. Coverage: the share of "
+        "ground-truth poses with an estimate within reach (half the estimate's median "
+        "interval, at least --t-max-diff), so a complete estimate at half the rate covers 1",
+    )
     return ap
 
 
@@ -83,8 +109,10 @@ def _format(paths: list[str]) -> str:
             raise UsageError(str(exc)) from None
         first = paths[0]
         if found[path] != found[first]:
-            raise UsageError(f"{path} is a {found[path].upper()} file but {first} a {found[first].upper()} file; "
-                             "give files of one format")
+            raise UsageError(
+                f"{path} is a {found[path].upper()} file but {first} a {found[first].upper()} file; "
+                "give files of one format"
+            )
     return found[paths[0]]
 
 
@@ -94,8 +122,10 @@ def _kitti_note(path: str, ev: Evaluation) -> str | None:
         return None
     length = float(metrics.path_lengths(ev.gt_poses[:, :3, 3])[-1]) if len(ev.gt_poses) else 0.0
     lo, hi = metrics.KITTI_LENGTHS[0], metrics.KITTI_LENGTHS[-1]
-    return (f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of {lo:g}-{hi:g} m of the "
-            f"ground truth, and its paired poses span a path of {length:.4g} m")
+    return (
+        f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of {lo:g}-{hi:g} m of the "
+        f"ground truth, and its paired poses span a path of {length:.4g} m"
+    )
 
 
 def _read(path: str, fmt: str, duplicates: dict[str, int]) -> Trajectory:
@@ -119,12 +149,25 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
         pairing += f" (repeated timestamps dropped, first kept: {', '.join(dropped)})"
     unit = "frames" if args.delta_unit == "f" else "m"
     head = [
-        f"ground truth: {gt_path} ({rows[0][1].pairing.n_gt} poses, {fmt}); pairing {pairing}; "
-        f"align {args.align}; RPE delta {args.delta:g} {unit}, consecutive pairs (evo_rpe defaults); "
-        "figures are RMSEs",
+        (
+            f"ground truth: {gt_path} ({rows[0][1].pairing.n_gt} poses, {fmt}); pairing {pairing}; "
+            f"align {args.align}; RPE delta {args.delta:g} {unit}, consecutive pairs (evo_rpe defaults); "
+            "figures are RMSEs"
+        ),
     ]
-    cols = ["estimate", "pairs", "dropped gt/est", "coverage", "scale", f"ATE m ({args.align})",
-            "RPE m", "RPE deg", "t_rel %", "r_rel deg/100m", "segments"]
+    cols = [
+        "estimate",
+        "pairs",
+        "dropped gt/est",
+        "coverage",
+        "scale",
+        f"ATE m ({args.align})",
+        "RPE m",
+        "RPE deg",
+        "t_rel %",
+        "r_rel deg/100m",
+        "segments",
+    ]
 
     def f(x: float, spec: str) -> str:
         return "-" if not math.isfinite(x) else format(x, spec)
@@ -132,12 +175,21 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
     body = []
     for path, ev in rows:
         p = ev.pairing
-        body.append([
-            path, str(len(p.idx_gt)), f"{p.n_gt - p.used('gt')}/{p.n_est - p.used('est')}",
-            f"{p.coverage:.3f}", f"{ev.ate.scale:.4f}", f(ev.ate.rmse, ".4f"), f(ev.rpe.trans.rmse, ".4f"),
-            f(ev.rpe.rot.rmse, ".4f"), f(ev.kitti.t_rel, ".4f"), f(ev.kitti.r_rel, ".4f"),
-            str(ev.kitti.n_segments),
-        ])
+        body.append(
+            [
+                path,
+                str(len(p.idx_gt)),
+                f"{p.n_gt - p.used('gt')}/{p.n_est - p.used('est')}",
+                f"{p.coverage:.3f}",
+                f"{ev.ate.scale:.4f}",
+                f(ev.ate.rmse, ".4f"),
+                f(ev.rpe.trans.rmse, ".4f"),
+                f(ev.rpe.rot.rmse, ".4f"),
+                f(ev.kitti.t_rel, ".4f"),
+                f(ev.kitti.r_rel, ".4f"),
+                str(ev.kitti.n_segments),
+            ]
+        )
     from odolab.summary import text_table
 
     return "\n".join(head + [text_table(cols, body)])
@@ -178,7 +230,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             ev = evaluate_trajectory(gt, est, pairing, args.align, args.delta, args.delta_unit)
         except ValueError as exc:
-            hint = "; --align none evaluates without aligning" if args.align != "none" and "alignment" in str(exc) else ""
+            hint = (
+                "; --align none evaluates without aligning" if args.align != "none" and "alignment" in str(exc) else ""
+            )
             raise UsageError(f"{path}: {exc}{hint}") from None
         rows.append((path, ev))
 

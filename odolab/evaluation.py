@@ -5,6 +5,7 @@ directly). KITTI files pair line by line; TUM files pair by nearest timestamp ex
 does (:func:`odolab.io.tum.associate`). The estimate is aligned to the ground truth once; ATE, RPE
 and the KITTI errors are computed on the aligned estimate. Definitions: :mod:`odolab.metrics`.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,8 +16,14 @@ import numpy as np
 from odolab import metrics
 from odolab.trajectory import Trajectory
 
-__all__ = ["Pairing", "Evaluation", "pair_trajectories", "time_coverage", "evaluate_trajectory",
-           "evaluation_to_dict"]
+__all__ = [
+    "Evaluation",
+    "Pairing",
+    "evaluate_trajectory",
+    "evaluation_to_dict",
+    "pair_trajectories",
+    "time_coverage",
+]
 
 
 @dataclass(frozen=True)
@@ -134,9 +141,18 @@ def _num(x: float) -> float | None:
 
 
 def _stats_dict(s: metrics.ErrorStats) -> dict:
-    return {k: (v if k == "n" else _num(v)) for k, v in
-            (("rmse", s.rmse), ("mean", s.mean), ("median", s.median), ("std", s.std),
-             ("min", s.min), ("max", s.max), ("n", s.n))}
+    return {
+        k: (v if k == "n" else _num(v))
+        for k, v in (
+            ("rmse", s.rmse),
+            ("mean", s.mean),
+            ("median", s.median),
+            ("std", s.std),
+            ("min", s.min),
+            ("max", s.max),
+            ("n", s.n),
+        )
+    }
 
 
 def evaluation_to_dict(ev: Evaluation) -> dict:
@@ -150,13 +166,19 @@ def evaluation_to_dict(ev: Evaluation) -> dict:
         "t_rel": _num(ev.kitti.t_rel),
         "r_rel": _num(ev.kitti.r_rel),
         "coverage": p.coverage,
-        "units": {"ate": "m (RMSE)", "rpe_trans": "m (RMSE)", "rpe_rot": "deg (RMSE)",
-                  "t_rel": "%", "r_rel": "deg/100 m", "coverage": "share of ground-truth poses within reach of an estimate"},
+        "units": {
+            "ate": "m (RMSE)",
+            "rpe_trans": "m (RMSE)",
+            "rpe_rot": "deg (RMSE)",
+            "t_rel": "%",
+            "r_rel": "deg/100 m",
+            "coverage": "share of ground-truth poses within reach of an estimate",
+        },
         "pairing": {
             "method": "by index" if p.method == "index" else "by timestamp (evo nearest-time rule)",
             "max_diff_s": p.max_diff,
             "largest_time_diff_s": p.largest_time_diff,
-            "pairs": int(len(p.idx_gt)),
+            "pairs": len(p.idx_gt),
         },
         "poses": {
             "gt": {"total": p.n_gt, "used": p.used("gt"), "dropped": p.n_gt - p.used("gt")},

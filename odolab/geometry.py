@@ -19,19 +19,20 @@ Expressed in the *previous* camera/agent frame:
 
 So a noiseless ``move_forward`` is (0, 0.25, 0) and ``turn_left`` is (0, 0, +pi/6).
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 __all__ = [
-    "planar_to_transform",
-    "transform_to_planar",
-    "invert",
-    "wrap_angle",
-    "camera_pose_from_agent",
     "agent_from_camera_pose",
+    "camera_pose_from_agent",
     "integrate",
+    "invert",
+    "planar_to_transform",
     "rotation_angle",
+    "transform_to_planar",
+    "wrap_angle",
 ]
 
 
@@ -112,8 +113,6 @@ def rotation_angle(R: np.ndarray) -> np.ndarray | float:
     """
     R = np.asarray(R, dtype=np.float64)
     cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    axis = np.stack(
-        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1
-    )
+    axis = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
     a = np.arctan2(np.linalg.norm(axis, axis=-1) / 2.0, cos)
     return float(a) if np.ndim(a) == 0 else a

@@ -51,6 +51,7 @@ ground-truth position steps. Segments start at every 10th frame ``f`` and have n
 ``t_rel = 100 * mean(t_err)`` (%) and ``r_rel = mean(r_err) * 180/pi * 100`` (deg/100 m), means over
 all segments of all lengths pooled; also per segment length.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -60,22 +61,22 @@ import numpy as np
 from odolab.geometry import invert, rotation_angle, wrap_angle
 
 __all__ = [
-    "per_step_abs_error",
-    "ErrorStats",
-    "ATEResult",
-    "RPEResult",
-    "KittiLengthStats",
-    "KittiResult",
     "ALIGNMENTS",
     "KITTI_LENGTHS",
-    "umeyama_alignment",
+    "ATEResult",
+    "ErrorStats",
+    "KittiLengthStats",
+    "KittiResult",
+    "RPEResult",
     "apply_alignment",
-    "path_lengths",
     "ate",
+    "kitti_relative_errors",
+    "path_lengths",
+    "per_step_abs_error",
+    "relative_motion_errors",
     "rpe",
     "rpe_pairs",
-    "relative_motion_errors",
-    "kitti_relative_errors",
+    "umeyama_alignment",
 ]
 
 #: Accepted values of ``align``: none, rigid (rotation + translation), similarity (+ scale).
@@ -115,7 +116,7 @@ class ErrorStats:
     n: int
 
     @classmethod
-    def of(cls, errors: np.ndarray) -> "ErrorStats":
+    def of(cls, errors: np.ndarray) -> ErrorStats:
         """Statistics of a 1-D error array."""
         e = np.asarray(errors, dtype=np.float64).reshape(-1)
         if e.size == 0:
@@ -219,9 +220,7 @@ def path_lengths(positions: np.ndarray) -> np.ndarray:
     return np.concatenate(([0.0], np.cumsum(steps)))
 
 
-def umeyama_alignment(
-    src: np.ndarray, dst: np.ndarray, with_scale: bool
-) -> tuple[np.ndarray, np.ndarray, float]:
+def umeyama_alignment(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
     """Least-squares similarity ``dst ~ s R src + t`` of paired points (N, 3) (Umeyama, PAMI 1991).
 
     Returns ``(R (3, 3), t (3,), s)``; ``s = 1`` unless ``with_scale``. A reflection is never
@@ -239,9 +238,7 @@ def umeyama_alignment(
     cov = yc.T @ xc / n
     u, d, vt = np.linalg.svd(cov)
     if np.count_nonzero(d > np.finfo(d.dtype).eps) < m - 1:
-        raise ValueError(
-            f"alignment impossible: the {n} paired positions are degenerate (all on a line or a point)"
-        )
+        raise ValueError(f"alignment impossible: the {n} paired positions are degenerate (all on a line or a point)")
     S = np.eye(m)
     if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
         S[-1, -1] = -1.0
@@ -268,9 +265,7 @@ def _align(gt: np.ndarray, est: np.ndarray, align: str) -> tuple[np.ndarray, np.
     return umeyama_alignment(est[:, :3, 3], gt[:, :3, 3], with_scale=(align == "sim3"))
 
 
-def _relative_errors(
-    gt: np.ndarray, est: np.ndarray, i: np.ndarray, j: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def _relative_errors(gt: np.ndarray, est: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``E = inv(inv(G_i) G_j) inv(P_i) P_j`` for index arrays: (||t_E|| m, angle(R_E) rad)."""
     dg = invert(gt[i]) @ gt[j]
     dp = invert(est[i]) @ est[j]
@@ -288,9 +283,7 @@ def ate(gt_poses: np.ndarray, est_poses: np.ndarray, align: str = "none") -> ATE
     p = s * est[:, :3, 3] @ R.T + t
     errors = np.linalg.norm(p - gt[:, :3, 3], axis=1)
     st = ErrorStats.of(errors)
-    return ATEResult(
-        **st.__dict__, errors=errors, align=align, scale=s, rotation=R, translation=t
-    )
+    return ATEResult(**st.__dict__, errors=errors, align=align, scale=s, rotation=R, translation=t)
 
 
 def rpe_pairs(
@@ -355,8 +348,14 @@ def rpe(
     trans, rot = _relative_errors(gt, est, pairs[:, 0], pairs[:, 1])
     rot = np.degrees(rot)
     return RPEResult(
-        trans=ErrorStats.of(trans), rot=ErrorStats.of(rot), trans_errors=trans, rot_errors=rot,
-        pairs=pairs, delta=float(delta), delta_unit=delta_unit, all_pairs=all_pairs,
+        trans=ErrorStats.of(trans),
+        rot=ErrorStats.of(rot),
+        trans_errors=trans,
+        rot_errors=rot,
+        pairs=pairs,
+        delta=float(delta),
+        delta_unit=delta_unit,
+        all_pairs=all_pairs,
     )
 
 
@@ -366,14 +365,18 @@ def _no_rpe_pair(poses: np.ndarray, delta: float, delta_unit: str, rel_tol: floa
     if len(poses) < 2:
         return f"RPE needs at least 2 poses to compare, got {len(poses)}"
     if delta_unit == "f":
-        return (f"RPE: delta = {delta:g} frames gives no pose pair among {len(poses)} poses; "
-                f"a delta of at most {len(poses) - 1} frames does")
+        return (
+            f"RPE: delta = {delta:g} frames gives no pose pair among {len(poses)} poses; "
+            f"a delta of at most {len(poses) - 1} frames does"
+        )
     length = float(path_lengths(poses[:, :3, 3])[-1])
     if length == 0:
         return f"RPE: delta = {delta:g} m gives no pose pair: the {len(poses)} poses do not move (a path of 0 m)"
     if delta > length:
-        return (f"RPE: delta = {delta:g} {unit} gives no pose pair: the path is {length:.4g} m long; "
-                "a delta shorter than the path does")
+        return (
+            f"RPE: delta = {delta:g} {unit} gives no pose pair: the path is {length:.4g} m long; "
+            "a delta shorter than the path does"
+        )
     return f"RPE: no two of the {len(poses)} poses are {delta:g} {unit} apart along the path (within {rel_tol:.0%})"
 
 
@@ -418,6 +421,13 @@ def kitti_relative_errors(
         if np.any(seg_len == L)
     )
     return KittiResult(
-        t_rel=t_rel, r_rel=r_rel, n_segments=int(len(first)), per_length=per_length,
-        first=first, last=last, length=seg_len, t_err=t_err, r_err=r_err,
+        t_rel=t_rel,
+        r_rel=r_rel,
+        n_segments=len(first),
+        per_length=per_length,
+        first=first,
+        last=last,
+        length=seg_len,
+        t_err=t_err,
+        r_err=r_err,
     )

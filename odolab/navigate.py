@@ -8,18 +8,17 @@ task per (odometer, episode) on a local instance or the cluster at --ray-address
 episode is saved at once; the same command resumes. Writes nav.csv, nav.md, episodes.csv, metrics.png,
 belief.png, paths-*.png and report.html under --out (see odolab.navigation.study).
 """
+
 from __future__ import annotations
 
 import dataclasses
-
 import shlex
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_report_dir, number, path_arg, run_cli
 from odolab.sim.scenes import SPLITS
-
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -30,28 +29,48 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.navigation.report import output_files, write_outputs
     from odolab.navigation.study import NavTask, config_doc, run_navigation
     from odolab.odometer import REGISTRY, parse_odometer_list
-    from odolab.summary import failed_steps_text
-    from odolab.options import (OptionError, merge_options, naming_the_file, parse_assignments, read_options_file,
-                                without_defaults)
+    from odolab.options import (
+        OptionError,
+        merge_options,
+        naming_the_file,
+        parse_assignments,
+        read_options_file,
+        without_defaults,
+    )
     from odolab.parallel import check_ray_option
+    from odolab.summary import failed_steps_text
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
-    ap.add_argument("--odometers", default="ground-truth,action-prior",
-                    help="comma-separated odometers, fused(a,b) included (default: %(default)s)")
+    ap.add_argument(
+        "--odometers",
+        default="ground-truth,action-prior",
+        help="comma-separated odometers, fused(a,b) included (default: %(default)s)",
+    )
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=10, help="episodes (default 10)")
     ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
     ap.add_argument("--split", default="test", help=f"{' | '.join(SPLITS)} (default test)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=MAX_EPISODE_STEPS,
-                    help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {MAX_EPISODE_STEPS}, the Challenge's)")
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
+        default=MAX_EPISODE_STEPS,
+        help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {MAX_EPISODE_STEPS}, the Challenge's)",
+    )
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
-    ap.add_argument("--policy", action="append", default=[], metavar="key=value",
-                    help="a parameter of the map-and-plan policy (odolab.navigation.agent.PolicyConfig), "
-                         "e.g. heading_tolerance=45 (repeatable). Keys, defaults and ranges: "
-                         + "; ".join(f"{f.name} {f.default} {range_text(f.name)}" for f in dataclasses.fields(PolicyConfig))
-                         + " (fallback_radius below agent_radius; 0 turns the fallback off). Results made before "
-                           "fallback_radius existed were made with fallback_radius=0")
-    ap.add_argument("--config", type=path_arg("--config"), default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value')
+    ap.add_argument(
+        "--policy",
+        action="append",
+        default=[],
+        metavar="key=value",
+        help="a parameter of the map-and-plan policy (odolab.navigation.agent.PolicyConfig), "
+        "e.g. heading_tolerance=45 (repeatable). Keys, defaults and ranges: "
+        + "; ".join(f"{f.name} {f.default} {range_text(f.name)}" for f in dataclasses.fields(PolicyConfig))
+        + " (fallback_radius below agent_radius; 0 turns the fallback off). Results made before "
+        "fallback_radius existed were made with fallback_radius=0",
+    )
+    ap.add_argument(
+        "--config", type=path_arg("--config"), default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value'
+    )
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="run the episodes in this process, without Ray")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -61,8 +80,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         policy = PolicyConfig.from_assignments(args.policy)
         names = parse_odometer_list(args.odometers)
-        options = merge_options(read_options_file(args.config) if args.config else {},
-                                parse_assignments(args.odometer_option))
+        options = merge_options(
+            read_options_file(args.config) if args.config else {}, parse_assignments(args.odometer_option)
+        )
     except (ValueError, OptionError) as exc:
         raise UsageError(str(exc)) from None
     check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
@@ -73,24 +93,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
     noise = NoiseConfig()
-    specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
-             for i in range(args.episodes)]
+    specs = [
+        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
+        for i in range(args.episodes)
+    ]
     tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].weights) for n in names for s in specs]
     try:
         for name in output_files(specs):  # the report's files, found unusable now rather than after every episode
             check_owned_path(args.out, name)
-        rows = run_navigation(args.out, tasks, config_doc(names, options, specs, policy), ray_address=args.ray_address,
-                              parallel=not args.serial, progress=not args.quiet)
+        rows = run_navigation(
+            args.out,
+            tasks,
+            config_doc(names, options, specs, policy),
+            ray_address=args.ray_address,
+            parallel=not args.serial,
+            progress=not args.quiet,
+        )
     except UnsafeOutputError as exc:
         raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    command = "python -m odolab.navigate " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    command = "python -m odolab.navigate " + " ".join(
+        shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])
+    )
     table = write_outputs(args.out, rows, names, specs, command, policy=dataclasses.asdict(policy))
     for r in table:
-        print(f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
-              f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "
-              f"{failed_steps_text(r['failed_steps'], r['steps'] * r['episodes'])}  ({r['episodes']} episodes)")
+        print(
+            f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
+            f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "
+            f"{failed_steps_text(r['failed_steps'], r['steps'] * r['episodes'])}  ({r['episodes']} episodes)"
+        )
     print(f"wrote {args.out}/report.html")
     return 0
 

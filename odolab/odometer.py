@@ -15,6 +15,7 @@ or named directly as ``"package.module:Class"`` (an importable module) or ``"pat
 :data:`MAX_NESTING` levels deep.
 Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is imported.
 """
+
 from __future__ import annotations
 
 import functools
@@ -25,16 +26,25 @@ import inspect
 import os
 import re
 import sys
+from collections.abc import Callable, Iterator
 from importlib.metadata import entry_points
-from typing import Callable, Iterator
 
 import numpy as np
 
 from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence, as_action  # noqa: F401
 
 __all__ = [
-    "ENTRY_POINT_GROUP", "MAX_NESTING", "REGISTRY", "IncompleteOdometerError", "Odometer", "OdometerRegistry",
-    "OracleInputError", "UnknownOdometerError", "available_odometers", "load_odometer", "register_odometer",
+    "ENTRY_POINT_GROUP",
+    "MAX_NESTING",
+    "REGISTRY",
+    "IncompleteOdometerError",
+    "Odometer",
+    "OdometerRegistry",
+    "OracleInputError",
+    "UnknownOdometerError",
+    "available_odometers",
+    "load_odometer",
+    "register_odometer",
 ]
 
 ENTRY_POINT_GROUP = "odolab.odometers"
@@ -109,8 +119,10 @@ def _actions_checked_step(step: Callable) -> Callable:
     if not inspect.isfunction(step) or getattr(step, "_actions_checked", False):
         return step
     params = list(inspect.signature(step).parameters.values())
-    if len(params) < 4 or params[3].kind not in (inspect.Parameter.POSITIONAL_OR_KEYWORD,
-                                                 inspect.Parameter.POSITIONAL_ONLY):
+    if len(params) < 4 or params[3].kind not in (
+        inspect.Parameter.POSITIONAL_OR_KEYWORD,
+        inspect.Parameter.POSITIONAL_ONLY,
+    ):
         return step
     name = params[3].name
 
@@ -137,8 +149,10 @@ def _actions_checked_batch(step_batch: Callable) -> Callable:
         pairs = list(pairs)
         for k, pair in enumerate(pairs):
             if not isinstance(pair, (tuple, list)) or len(pair) != 3:
-                raise ValueError(f"step_batch: pair {k} must be (prev, cur, action), got "
-                                 f"{f'{len(pair)} items' if isinstance(pair, (tuple, list)) else type(pair).__name__}")
+                raise ValueError(
+                    f"step_batch: pair {k} must be (prev, cur, action), got "
+                    f"{f'{len(pair)} items' if isinstance(pair, (tuple, list)) else type(pair).__name__}"
+                )
         return step_batch(self, [(p, c, as_action(a)) for p, c, a in pairs], *args, **kwargs)
 
     checked._actions_checked = True  # type: ignore[attr-defined]
@@ -187,8 +201,10 @@ def check_nesting(text: str) -> None:
     """``ValueError`` when odometer name(s) ``text`` nest composites more than :data:`MAX_NESTING` deep."""
     deepest = nesting_depth(text)
     if deepest > MAX_NESTING:
-        raise ValueError(f"odometer name {_short_name(text)!r} nests composites {deepest} deep; "
-                         f"at most {MAX_NESTING} (manhattan(fused(icp,open3d-rgbd)) is 2)")
+        raise ValueError(
+            f"odometer name {_short_name(text)!r} nests composites {deepest} deep; "
+            f"at most {MAX_NESTING} (manhattan(fused(icp,open3d-rgbd)) is 2)"
+        )
 
 
 def _registry() -> dict[str, Callable[..., Odometer] | str]:
@@ -231,7 +247,9 @@ def _import_file(path: str):
     when it is missing or raises while it is imported."""
     full = os.path.abspath(path)
     if not os.path.isfile(full):
-        raise ImportError(f"no such file {path}" + (" (a file's path must end in .py)" if not full.endswith(".py") else ""))
+        raise ImportError(
+            f"no such file {path}" + (" (a file's path must end in .py)" if not full.endswith(".py") else "")
+        )
     stem = re.sub(r"\W", "_", os.path.splitext(os.path.basename(full))[0])
     module_name = f"odolab_file_{stem}_{hashlib.sha256(full.encode()).hexdigest()[:12]}"
     if module_name in sys.modules:
@@ -243,7 +261,7 @@ def _import_file(path: str):
     sys.modules[module_name] = module  # dataclasses and pickling look their module up there
     try:
         spec.loader.exec_module(module)
-    except (Exception, SystemExit) as exc:  # a syntax error or any error of the file's own code
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - a syntax error or any error of the file's own code
         del sys.modules[module_name]
         raise ImportError(f"{path} raised {type(exc).__name__} while imported: {exc}") from None
     except BaseException:
@@ -291,8 +309,10 @@ def parse_odometer_list(text: str) -> list[str]:
         if match:
             parts = split_odometer_names(match["inputs"], keep_empty=True)  # fused(fused(a,b),c): 2 inputs
             if any(not part for part in parts):
-                raise ValueError(f"--odometers: {name!r} has an empty input; name its inputs inside the parentheses, "
-                                 "e.g. fused(icp,open3d-rgbd) or manhattan(icp)")
+                raise ValueError(
+                    f"--odometers: {name!r} has an empty input; name its inputs inside the parentheses, "
+                    "e.g. fused(icp,open3d-rgbd) or manhattan(icp)"
+                )
             if len(set(parts)) < len(parts):
                 raise ValueError(f"--odometers: {name!r}: an input is named twice")
     return names
@@ -340,9 +360,7 @@ class OdometerRegistry:
         if target is None and ":" in name:  # "package.module:Class" or "file.py:Class", imported on demand
             target = name
         if target is None:
-            raise UnknownOdometerError(
-                f"unknown odometer {name!r}; available: {', '.join(self.names())}"
-            )
+            raise UnknownOdometerError(f"unknown odometer {name!r}; available: {', '.join(self.names())}")
         if isinstance(target, str):
             module, _, attr = target.rpartition(":")
             try:
@@ -365,18 +383,21 @@ class OdometerRegistry:
         if not isinstance(odo, Odometer):
             raise IncompleteOdometerError(
                 f"odometer {_short_name(name)!r}: made a {type(odo).__name__}, not an Odometer; subclass "
-                "odolab.api.Odometer (it gives the name, oracle and intrinsics every odometer has)")
+                "odolab.api.Odometer (it gives the name, oracle and intrinsics every odometer has)"
+            )
         if type(odo).step is Odometer.step and type(odo).step_batch is Odometer.step_batch:
             raise IncompleteOdometerError(
                 f"odometer {_short_name(name)!r}: class {type(odo).__name__} overrides neither step() nor "
-                "step_batch(), so every step would fail; implement step(prev, cur, action)")
+                "step_batch(), so every step would fail; implement step(prev, cur, action)"
+            )
         oracle_input = self._oracle_input(name)
         if oracle_input is not None and not getattr(odo, "oracle", False):
             head = name.split("(")[0]
             raise OracleInputError(
                 f"odometer {_short_name(name)!r}: its input {oracle_input!r} reads ground truth (an oracle), but "
                 f"{head} is not marked oracle, so the input would never see it; set {head}'s oracle attribute "
-                "from its inputs, or leave the oracle out")
+                "from its inputs, or leave the oracle out"
+            )
         odo.name = name
         return odo
 

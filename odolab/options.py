@@ -11,20 +11,30 @@ otherwise (``runs/tiny.pt``). From a TOML file (read with :mod:`tomllib`, never 
 Command-line options override the file's. Every problem raises :class:`OptionError` with one line
 naming the option and what was expected.
 """
+
 from __future__ import annotations
 
 import inspect
 import numbers
 import os
-import tomllib
-from typing import Any, Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 import numpy as np
+import tomllib
 
 from odolab.io.tomlfile import read_toml
 
-__all__ = ["OptionError", "parse_assignments", "read_options_file", "merge_options", "check_options", "without_defaults",
-           "naming_the_file", "whole_number"]
+__all__ = [
+    "OptionError",
+    "check_options",
+    "merge_options",
+    "naming_the_file",
+    "parse_assignments",
+    "read_options_file",
+    "whole_number",
+    "without_defaults",
+]
 
 Options = dict[str, dict[str, Any]]
 
@@ -57,7 +67,9 @@ def parse_assignments(assignments: Iterable[str]) -> Options:
         except OptionError as exc:
             raise OptionError(f"--odometer-option {target.strip()}: {exc}") from None
         except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
-            raise OptionError(f"--odometer-option {target.strip()}: a number too long to read (over 4300 digits)") from None
+            raise OptionError(
+                f"--odometer-option {target.strip()}: a number too long to read (over 4300 digits)"
+            ) from None
     return out
 
 
@@ -96,12 +108,16 @@ def check_options(name: str, factory: Callable[..., Any], options: Mapping[str, 
         return
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
         return
-    accepted = [p for p, v in params.items()
-                if v.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
+    accepted = [
+        p
+        for p, v in params.items()
+        if v.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    ]
     for key, value in options.items():
         if key not in accepted:
-            raise OptionError(f"odometer {name!r} has no option {key!r}; "
-                              f"it accepts: {', '.join(accepted) or 'no options'}")
+            raise OptionError(
+                f"odometer {name!r} has no option {key!r}; it accepts: {', '.join(accepted) or 'no options'}"
+            )
         parts = _simple_parts(params[key].annotation)
         if parts and not any(_fits(value, p) for p in parts):
             want = " or ".join(_SIMPLE[p][1] for p in parts)
@@ -140,15 +156,19 @@ def without_defaults(factory: Callable[..., Any], options: Mapping[str, Any]) ->
             return False
         try:
             return bool(p.default == value)
-        except Exception:  # an array's ambiguous truth value: not a default
+        except Exception:  # noqa: BLE001 - an array's ambiguous truth value: not a default
             return False
 
     return {k: v for k, v in options.items() if not is_default(k, v)}
 
 
 #: Annotation -> (accepted Python types, words for the error). bool is never a number here.
-_SIMPLE = {"float": ((numbers.Real,), "a number"), "int": ((numbers.Integral,), "an integer"), "str": ((str,), "text"),
-           "bool": ((bool, np.bool_), "true or false")}
+_SIMPLE = {
+    "float": ((numbers.Real,), "a number"),
+    "int": ((numbers.Integral,), "an integer"),
+    "str": ((str,), "text"),
+    "bool": ((bool, np.bool_), "true or false"),
+}
 
 
 def _fits(value: Any, part: str) -> bool:

@@ -2,6 +2,7 @@
 cluster when given its address. The same call runs serially in-process when asked to (tests,
 single items), so results never depend on where they were computed.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -9,7 +10,8 @@ import logging
 import os
 import re
 import socket
-from typing import Any, Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 
 from tqdm.auto import tqdm
 
@@ -26,14 +28,15 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
         return
     match = _ADDRESS.match(address)
     if match is None or not 0 < int(match["port"]) < 65536:
-        raise ValueError(f"--ray-address {address!r} is not an address; expected host:port, "
-                         "ray://host:port or auto")
+        raise ValueError(f"--ray-address {address!r} is not an address; expected host:port, ray://host:port or auto")
     host = match["host"].strip("[]")
     try:
         with socket.create_connection((host, int(match["port"])), timeout=timeout):
             pass
     except OSError as exc:
-        reason = f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc)).lower()
+        reason = (
+            f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc)).lower()
+        )
         raise ValueError(f"--ray-address {address}: no Ray cluster there ({reason})") from None
 
 
@@ -92,9 +95,16 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
     return True
 
 
-def fan_out(fn: Callable[[Any], Any], items: Sequence[Any], *,
-            on_result: Callable[[int, Any], None] | None = None, parallel: bool = True,
-            ray_address: str | None = None, progress: bool = True, desc: str = "tasks") -> list[Any]:
+def fan_out(
+    fn: Callable[[Any], Any],
+    items: Sequence[Any],
+    *,
+    on_result: Callable[[int, Any], None] | None = None,
+    parallel: bool = True,
+    ray_address: str | None = None,
+    progress: bool = True,
+    desc: str = "tasks",
+) -> list[Any]:
     """``[fn(item) for item in items]``, as Ray tasks when ``parallel`` and there are 2+ items.
 
     ``on_result(k, result)`` is called in the driver as each item finishes (in completion order),

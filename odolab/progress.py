@@ -1,4 +1,5 @@
 """A progress bar over odometry steps (tqdm), as a :class:`odolab.runner.RunObserver`."""
+
 from __future__ import annotations
 
 import time
@@ -15,7 +16,7 @@ NAME_WIDTH = 24
 
 def fit_name(name: str, width: int = NAME_WIDTH) -> str:
     """``name`` padded or cut (ending in "~") to exactly ``width`` characters."""
-    return name.ljust(width) if len(name) <= width else name[:width - 1] + "~"
+    return name.ljust(width) if len(name) <= width else name[: width - 1] + "~"
 
 
 class StepProgressBar:
@@ -24,8 +25,13 @@ class StepProgressBar:
     widths, and the rate shown (after the name) is the running odometer's own, its steps over the
     time spent on them. The remaining time comes from the average rate of the whole run."""
 
-    def __init__(self, desc: str = "odometry steps", disable: bool = False, file: IO[str] | None = None,
-                 clock: Callable[[], float] = time.perf_counter) -> None:
+    def __init__(
+        self,
+        desc: str = "odometry steps",
+        disable: bool = False,
+        file: IO[str] | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.desc, self.disable, self.file, self.clock = desc, disable, file, clock
         self._bar: tqdm | None = None
         self._last = 0.0
@@ -36,11 +42,20 @@ class StepProgressBar:
         if total_steps is None:  # no share or bar to show; the counter gets room for a million steps
             bar_format = "{desc}: {n_fmt:>7} steps [{elapsed:>5}{postfix}]"
         else:
-            bar_format = ("{desc}: {percentage:3.0f}%|{bar}| {n_fmt:>DIGITS}/{total_fmt} [{elapsed:>5}<{remaining:>5}"
-                          "{postfix}]").replace("DIGITS", str(len(str(total_steps))))
-        self._bar = tqdm(total=total_steps, desc=self.desc, unit="step", disable=self.disable, file=self.file,
-                         bar_format=bar_format, smoothing=0.0, dynamic_ncols=self.file is None,
-                         postfix=self.postfix(""))
+            bar_format = (
+                "{desc}: {percentage:3.0f}%|{bar}| {n_fmt:>DIGITS}/{total_fmt} [{elapsed:>5}<{remaining:>5}{postfix}]"
+            ).replace("DIGITS", str(len(str(total_steps))))
+        self._bar = tqdm(
+            total=total_steps,
+            desc=self.desc,
+            unit="step",
+            disable=self.disable,
+            file=self.file,
+            bar_format=bar_format,
+            smoothing=0.0,
+            dynamic_ncols=self.file is None,
+            postfix=self.postfix(""),
+        )
         self._last = self.clock()
         self._spent = {}
 

@@ -4,8 +4,8 @@
 * ``action-prior``: the mean motion of the action taken, fitted on the train split (the paper's
   ``sys_error`` row); identity when no action is known (real data).
 """
-from __future__ import annotations
 
+from __future__ import annotations
 
 from odolab.action_prior import ActionPrior
 from odolab.geometry import invert
@@ -27,7 +27,7 @@ class GroundTruthOdometer(Odometer):
 class ActionPriorOdometer(Odometer):
     """Predicts the train-split mean motion of the action (see :mod:`odolab.action_prior`)."""
 
-    def __init__(self, prior: "ActionPrior | str | None" = None) -> None:
+    def __init__(self, prior: ActionPrior | str | None = None) -> None:
         """``prior``: a table, the path of one written by ``python -m odolab.action_prior``, or None
         (or "") for the shipped one."""
         if isinstance(prior, str):

@@ -16,6 +16,7 @@ has no file of its own. A run removes the files that ``manifest.txt`` says the p
 the same folder wrote and it did not rewrite, and nothing else. Tables are written first: a
 figure that fails is reported on the page and on stderr and costs nothing else.
 """
+
 from __future__ import annotations
 
 import csv
@@ -24,9 +25,10 @@ import io
 import os
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -39,8 +41,12 @@ from odolab.runner import SequenceResult
 from odolab.summary import ActionRow, Row, fmt, text_table
 from odolab.trajectory import Trajectory
 
-_ACTION_COLORS = {"move_forward": "#4C72B0", "turn_left": "#DD8452", "turn_right": "#55A868",
-                  "move_forward_collided": "#8C8C8C"}
+_ACTION_COLORS = {
+    "move_forward": "#4C72B0",
+    "turn_left": "#DD8452",
+    "turn_right": "#55A868",
+    "move_forward_collided": "#8C8C8C",
+}
 MANIFEST = "manifest.txt"
 #: Metres of floor plan shown around the trajectories in each top-down figure (with a plan).
 ZOOM_MARGIN = 1.5
@@ -53,8 +59,10 @@ def _safe(name: str) -> str:
 
 
 #: The names compare writes (and its cleanup may remove), relative to its folder.
-COMPARE_NAMES = re.compile(r"(table\.csv|table_per_action\.csv|errors\.png|report\.html"
-                           r"|trajectories/[^/]+/[^/]+\.(tum|kitti|png))")
+COMPARE_NAMES = re.compile(
+    r"(table\.csv|table_per_action\.csv|errors\.png|report\.html"
+    r"|trajectories/[^/]+/[^/]+\.(tum|kitti|png))"
+)
 
 
 class ManifestError(ValueError):
@@ -86,8 +94,13 @@ class OutputFolder:
         self.removed = self._remove_previous()
 
     @staticmethod
-    def check(root: Path, files: tuple[str, ...] = (), folders: tuple[str, ...] = (), owner: str = "compare",
-              names: re.Pattern = COMPARE_NAMES) -> None:
+    def check(
+        root: Path,
+        files: tuple[str, ...] = (),
+        folders: tuple[str, ...] = (),
+        owner: str = "compare",
+        names: re.Pattern = COMPARE_NAMES,
+    ) -> None:
         """Raise :class:`~odolab.io.owned.UnsafeOutputError` unless a run can write ``root``: the
         folders of every path its manifest names and each of ``folders`` are folders (or nothing),
         each of ``files`` a regular file (or nothing), all inside ``root`` with no symbolic link on
@@ -104,12 +117,16 @@ class OutputFolder:
             try:
                 manifest.read_text(encoding="utf-8")
             except (OSError, UnicodeDecodeError) as exc:
-                raise ManifestError(f"{root}: its {MANIFEST} cannot be read ({type(exc).__name__}), so what the last run "
-                                    "wrote is unknown; delete the folder's old results or choose another folder") from None
+                raise ManifestError(
+                    f"{root}: its {MANIFEST} cannot be read ({type(exc).__name__}), so what the last run "
+                    "wrote is unknown; delete the folder's old results or choose another folder"
+                ) from None
         said = _manifest_owner(root)
         if said is not None and said != owner:
-            raise ManifestError(f"{root}: holds the results of odolab {said} (its {MANIFEST} says so), not of "
-                                f"odolab {owner}; choose another folder")
+            raise ManifestError(
+                f"{root}: holds the results of odolab {said} (its {MANIFEST} says so), not of "
+                f"odolab {owner}; choose another folder"
+            )
         for rel in _manifest_lines(root):
             if len(Path(rel).parts) > 1 and names.fullmatch(rel):  # other lines: refused below, by name
                 check_owned_folder(root, Path(rel).parent)
@@ -119,8 +136,10 @@ class OutputFolder:
             check_owned_folder(root, rel)
         foreign = [rel for rel in _manifest_lines(root) if not names.fullmatch(rel)]
         if foreign:
-            raise ManifestError(f"{root}: its {MANIFEST} lists {foreign[0]!r}, which odolab {owner} never writes "
-                                "(not a manifest of this command); choose another folder")
+            raise ManifestError(
+                f"{root}: its {MANIFEST} lists {foreign[0]!r}, which odolab {owner} never writes "
+                "(not a manifest of this command); choose another folder"
+            )
 
     def path(self, relative: str) -> Path:
         """The path of ``relative`` (its folder created), recorded as written by this run."""
@@ -137,8 +156,10 @@ class OutputFolder:
             self._write_manifest()
 
     def _write_manifest(self) -> None:
-        write_text_atomic(owned_path(self.root, MANIFEST),
-                          f"{_OWNER_LINE}{self.owner}\n" + "".join(f"{rel}\n" for rel in sorted(self.written)))
+        write_text_atomic(
+            owned_path(self.root, MANIFEST),
+            f"{_OWNER_LINE}{self.owner}\n" + "".join(f"{rel}\n" for rel in sorted(self.written)),
+        )
 
     def _remove_previous(self) -> list[str]:
         removed = []
@@ -168,7 +189,7 @@ def _manifest_owner(root: Path) -> str | None:
             first = f.readline(200).strip()
     except (OSError, UnicodeDecodeError):
         return None
-    return first[len(_OWNER_LINE):].strip() or None if first.startswith(_OWNER_LINE) else None
+    return first[len(_OWNER_LINE) :].strip() or None if first.startswith(_OWNER_LINE) else None
 
 
 def _manifest_lines(root: Path) -> list[str]:
@@ -180,9 +201,18 @@ def _manifest_lines(root: Path) -> list[str]:
         lines = Path(root, MANIFEST).read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError):
         return []
-    return [rel for rel in lines if rel and rel != MANIFEST and not rel.startswith("#") and not Path(rel).is_absolute()
-            and ".." not in Path(rel).parts and "\x00" not in rel and len(rel.encode()) < 4096
-            and all(len(part.encode()) <= 255 for part in Path(rel).parts)]  # names no file system holds: none
+    return [
+        rel
+        for rel in lines
+        if rel
+        and rel != MANIFEST
+        and not rel.startswith("#")
+        and not Path(rel).is_absolute()
+        and ".." not in Path(rel).parts
+        and "\x00" not in rel
+        and len(rel.encode()) < 4096
+        and all(len(part.encode()) <= 255 for part in Path(rel).parts)
+    ]  # names no file system holds: none
 
 
 def _csv(rows: list, cls) -> str:
@@ -241,14 +271,19 @@ def summary_columns(rows: list[Row], real_data: bool, spread: bool = True) -> li
 def table_caption(rows: list[Row], real_data: bool, spread: bool = True) -> str:
     """What the summary table's figures are: units, pooling, alignment, what "own" means."""
     many = spread and any(r.sequences > 1 for r in rows)
-    what = ("Per frame pair: mean translation and rotation error of the relative pose" if real_data else
-            "Per step: mean absolute error of (dx, dz, dyaw), x1e-2 (m, m, rad), pooled over all steps")
-    return (f"{what}{'; +- is the standard deviation over sequences' if many else ''}. 'As used' scores a "
-            "failed step with the action prior's motion that replaced it; 'own' leaves failed steps out "
-            "(as the paper scored raw estimates) and must be read with the failure share. ATE: RMSE of the "
-            "position error with no alignment (trajectories start at the true pose); python -m "
-            "odolab.evaluate aligns by default (SE(3)), use --align none for these figures. '-': does not "
-            "apply (reference rows are not timed).")
+    what = (
+        "Per frame pair: mean translation and rotation error of the relative pose"
+        if real_data
+        else "Per step: mean absolute error of (dx, dz, dyaw), x1e-2 (m, m, rad), pooled over all steps"
+    )
+    return (
+        f"{what}{'; +- is the standard deviation over sequences' if many else ''}. 'As used' scores a "
+        "failed step with the action prior's motion that replaced it; 'own' leaves failed steps out "
+        "(as the paper scored raw estimates) and must be read with the failure share. ATE: RMSE of the "
+        "position error with no alignment (trajectories start at the true pose); python -m "
+        "odolab.evaluate aligns by default (SE(3)), use --align none for these figures. '-': does not "
+        "apply (reference rows are not timed)."
+    )
 
 
 def format_table(rows: list[Row], real_data: bool = False) -> str:
@@ -309,10 +344,12 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
     fig, axes = plt.subplots(1, 4, figsize=(max(12, 2.6 * len(names)), 4.8))
     x = np.arange(len(names))
     width = 0.8 / max(len(actions), 1)
-    panels = [("dx", "mean |error| of dx, as used (x1e-2 m)", "per-step error as used: dx"),
-              ("dz", "mean |error| of dz, as used (x1e-2 m)", "per-step error as used: dz"),
-              ("dyaw", "mean |error| of dyaw, as used (x1e-2 rad)", "per-step error as used: dyaw"),
-              ("failed", "failed steps (% of the action's steps)", "failures (prior used instead)")]
+    panels = [
+        ("dx", "mean |error| of dx, as used (x1e-2 m)", "per-step error as used: dx"),
+        ("dz", "mean |error| of dz, as used (x1e-2 m)", "per-step error as used: dz"),
+        ("dyaw", "mean |error| of dyaw, as used (x1e-2 rad)", "per-step error as used: dyaw"),
+        ("failed", "failed steps (% of the action's steps)", "failures (prior used instead)"),
+    ]
     for ax, (comp, ylabel, title) in zip(axes, panels):
         values: dict[str, list[float]] = {}
         for a in actions:
@@ -324,8 +361,17 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
             ax.bar(xs, values[a], width, label=f"{a} ({_step_counts(action_rows, a)})", color=_ACTION_COLORS.get(a))
             for xi, v in zip(xs, values[a]):
                 if top is not None and np.isfinite(v) and v > top:  # cut at the axis: write the value
-                    ax.text(xi, top * 0.98, f"{v:.1f}", rotation=90, ha="center", va="top", fontsize=7,
-                            color="white", fontweight="bold")
+                    ax.text(
+                        xi,
+                        top * 0.98,
+                        f"{v:.1f}",
+                        rotation=90,
+                        ha="center",
+                        va="top",
+                        fontsize=7,
+                        color="white",
+                        fontweight="bold",
+                    )
         if top is not None:
             ax.set_ylim(0, top)
             title += f"\n(axis cut at {top:.1f}: taller bars carry their value)"
@@ -334,8 +380,11 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
         ax.set_title(title, fontsize=10)
         ax.grid(True, axis="y", alpha=0.3)
     axes[0].legend(title="action (steps per odometer)", fontsize=7, title_fontsize=8)
-    fig.suptitle("Per-step error by odometer and action; as used: a failed step is scored with the action "
-                 "prior that replaced it", fontsize=10)
+    fig.suptitle(
+        "Per-step error by odometer and action; as used: a failed step is scored with the action "
+        "prior that replaced it",
+        fontsize=10,
+    )
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -356,8 +405,20 @@ class FloorPlan:
 OBSTACLE_SHADE = 0.75
 #: Colours of the odometers' trajectories over a floor plan: saturated, none of them grey or black
 #: (obstacles are grey, ground truth black); after these, the colours repeat with another line style.
-TRAJECTORY_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22",
-                     "#17becf", "#393b79", "#7b4173", "#637939")
+TRAJECTORY_COLORS = (
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#bcbd22",
+    "#17becf",
+    "#393b79",
+    "#7b4173",
+    "#637939",
+)
 _LINE_STYLES = ("-", "--", ":", "-.")
 
 
@@ -383,10 +444,21 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     fig, ax = plt.subplots(figsize=(5.6, 6.0))
     if plan is not None:
         h, w = plan.free.shape
-        extent = (plan.origin[0], plan.origin[0] + w * plan.resolution,
-                  plan.origin[1], plan.origin[1] + h * plan.resolution)
-        ax.imshow(np.where(plan.free, 1.0, OBSTACLE_SHADE), cmap="gray", vmin=0, vmax=1, origin="lower",
-                  extent=extent, interpolation="nearest")
+        extent = (
+            plan.origin[0],
+            plan.origin[0] + w * plan.resolution,
+            plan.origin[1],
+            plan.origin[1] + h * plan.resolution,
+        )
+        ax.imshow(
+            np.where(plan.free, 1.0, OBSTACLE_SHADE),
+            cmap="gray",
+            vmin=0,
+            vmax=1,
+            origin="lower",
+            extent=extent,
+            interpolation="nearest",
+        )
     ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2.5, label="ground truth")
     ax.plot(gt[-1, 0], gt[-1, 1], "ks", ms=7, zorder=4)
     for r in mine:
@@ -404,9 +476,19 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     half = extent / 2 + margin  # a square view: equal axes, no warning
     ax.set_xlim(centre[0] - half, centre[0] + half)  # the trajectories, not the whole plan, fill it
     ax.set_ylim(centre[1] - half, centre[1] + half)
-    markers = [Line2D([], [], ls="none", marker="o", ms=7, color="w", markeredgecolor="k", label="start"),
-               Line2D([], [], ls="none", marker="s", ms=6, color="0.3", markeredgecolor="k",
-                      label="end (each trajectory's colour)")]
+    markers = [
+        Line2D([], [], ls="none", marker="o", ms=7, color="w", markeredgecolor="k", label="start"),
+        Line2D(
+            [],
+            [],
+            ls="none",
+            marker="s",
+            ms=6,
+            color="0.3",
+            markeredgecolor="k",
+            label="end (each trajectory's colour)",
+        ),
+    ]
     if plan is not None and plan.goal is not None:
         markers.append(_draw_goal(ax, np.asarray(plan.goal, dtype=float), centre, half, gt[-1, :2]))
     ax.set_aspect("equal", adjustable="box")
@@ -415,8 +497,9 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     ax.set_title(f"{mine[0].sequence}: {len(gt) - 1} steps", fontsize=10)
     ax.grid(True, alpha=0.3)
     handles, _ = ax.get_legend_handles_labels()
-    ax.legend(handles=handles + markers, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2,
-              frameon=False)
+    ax.legend(
+        handles=handles + markers, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False
+    )
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -435,9 +518,17 @@ def _draw_goal(ax: Any, goal: np.ndarray, centre: np.ndarray, half: float, end: 
         return Line2D([], [], ls="none", label="goal", **style)
     edge = centre + offset * (0.88 * half / np.abs(offset).max())  # on the way to the goal, inside the view
     tail = centre + offset * (0.62 * half / np.abs(offset).max())
-    ax.annotate(f"goal {np.linalg.norm(goal - end):.1f} m\nfrom the end", xy=edge, xytext=tail, fontsize=7, ha="center",
-                va="center", zorder=6, arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 1.2},
-                bbox={"boxstyle": "round,pad=0.2", "fc": "gold", "ec": "k", "lw": 0.6})
+    ax.annotate(
+        f"goal {np.linalg.norm(goal - end):.1f} m\nfrom the end",
+        xy=edge,
+        xytext=tail,
+        fontsize=7,
+        ha="center",
+        va="center",
+        zorder=6,
+        arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 1.2},
+        bbox={"boxstyle": "round,pad=0.2", "fc": "gold", "ec": "k", "lw": 0.6},
+    )
     return Line2D([], [], ls="none", label="goal (off view: arrow)", **style)
 
 
@@ -487,22 +578,44 @@ def rst_to_html(text: str) -> str:
 
 def _html_table(header: list[str], rows: list[list[str]], caption: str = "") -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c).replace(' +- ', ' &plusmn; ')}</td>" for c in r)
-                   + "</tr>\n" for r in rows)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(c).replace(' +- ', ' &plusmn; ')}</td>" for c in r) + "</tr>\n"
+        for r in rows
+    )
     cap = f"<caption>{html.escape(caption)}</caption>" if caption else ""
     return f"<table>{cap}<thead><tr>{head}</tr></thead>\n<tbody>{body}</tbody></table>"
 
 
 def _action_table(action_rows: list[ActionRow]) -> str:
-    header = ["odometer", "action", "dx error, x1e-2 m, as used", "dz error, x1e-2 m, as used",
-              "dyaw error, x1e-2 rad, as used", "dx error, x1e-2 m, on answered steps",
-              "dz error, x1e-2 m, on answered steps", "dyaw error, x1e-2 rad, on answered steps", "steps",
-              "failed steps"]
-    rows = [[r.odometer, r.action, *(fmt(v, ".2f") for v in (r.dx, r.dz, r.dyaw, r.dx_own, r.dz_own, r.dyaw_own)),
-             str(r.steps), str(r.failures)] for r in action_rows]
-    return _html_table(header, rows, "Mean absolute error per step of each action (no alignment). "
-                       "move_forward_collided: the forward steps that collided (the agent stopped at contact, "
-                       "short of the commanded step), also counted in move_forward; shown when some did.")
+    header = [
+        "odometer",
+        "action",
+        "dx error, x1e-2 m, as used",
+        "dz error, x1e-2 m, as used",
+        "dyaw error, x1e-2 rad, as used",
+        "dx error, x1e-2 m, on answered steps",
+        "dz error, x1e-2 m, on answered steps",
+        "dyaw error, x1e-2 rad, on answered steps",
+        "steps",
+        "failed steps",
+    ]
+    rows = [
+        [
+            r.odometer,
+            r.action,
+            *(fmt(v, ".2f") for v in (r.dx, r.dz, r.dyaw, r.dx_own, r.dz_own, r.dyaw_own)),
+            str(r.steps),
+            str(r.failures),
+        ]
+        for r in action_rows
+    ]
+    return _html_table(
+        header,
+        rows,
+        "Mean absolute error per step of each action (no alignment). "
+        "move_forward_collided: the forward steps that collided (the agent stopped at contact, "
+        "short of the commanded step), also counted in move_forward; shown when some did.",
+    )
 
 
 _STYLE = """body{font-family:system-ui,sans-serif;max-width:1280px;margin:2em auto;padding:0 1em;color:#222;
@@ -516,17 +629,27 @@ tbody tr:nth-child(even){background:#f8f9fb} code{background:#f2f2f2;padding:0 3
 .gallery figcaption{font-size:.85em;text-align:center} img.wide{max-width:100%}"""
 
 
-def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], results: list[SequenceResult],
-                 title: str, notes: list[str], plans: dict[str, FloorPlan] | None = None,
-                 configs: dict[str, str] | None = None) -> None:
+def write_report(
+    out: Path,
+    rows: list[Row],
+    action_rows: list[ActionRow],
+    results: list[SequenceResult],
+    title: str,
+    notes: list[str],
+    plans: dict[str, FloorPlan] | None = None,
+    configs: dict[str, str] | None = None,
+) -> None:
     """Write the tables, figures, trajectories and ``report.html`` into ``out`` (layout: module
     docstring); files of the previous run into ``out`` that this one did not write are removed."""
     from odolab.summary import __doc__ as summary_doc
 
     folder = OutputFolder(out)
     for rel in folder.not_removed:
-        print(f"odolab: warning: {out / rel}: named by the previous run's {MANIFEST} but not removed (a symbolic "
-              "link on the way, or not a removable file); left as it is", file=sys.stderr)
+        print(
+            f"odolab: warning: {out / rel}: named by the previous run's {MANIFEST} but not removed (a symbolic "
+            "link on the way, or not a removable file); left as it is",
+            file=sys.stderr,
+        )
     real_data = not action_rows
     write_text_atomic(folder.path("table.csv"), _csv(rows, Row))
     if action_rows:
@@ -542,58 +665,79 @@ def write_report(out: Path, rows: list[Row], action_rows: list[ActionRow], resul
         except Exception as exc:  # noqa: BLE001 - a figure must never cost the tables
             folder.discard(relative)
             problems.append(f"{relative}: {type(exc).__name__}: {exc}")
-            print(f"odolab: warning: figure {out / relative} could not be drawn ({type(exc).__name__}: {exc})",
-                  file=sys.stderr)
+            print(
+                f"odolab: warning: figure {out / relative} could not be drawn ({type(exc).__name__}: {exc})",
+                file=sys.stderr,
+            )
             return False
 
     sections = []
     cols = summary_columns(rows, real_data)
-    sections.append("<h2>Summary</h2>" + _html_table([c[1] for c in cols], [[c[2](r) for c in cols] for r in rows],
-                                                      table_caption(rows, real_data)))
+    sections.append(
+        "<h2>Summary</h2>"
+        + _html_table([c[1] for c in cols], [[c[2](r) for c in cols] for r in rows], table_caption(rows, real_data))
+    )
     if action_rows:
         sections.append("<h2>Per action</h2>" + _action_table(action_rows))
         if figure("errors.png", lambda p: plot_errors(action_rows, p)):
-            sections.append('<h2>Per-step error by odometer and action</h2><img class="wide" src="errors.png" '
-                            'alt="per-step error bars">')
+            sections.append(
+                '<h2>Per-step error by odometer and action</h2><img class="wide" src="errors.png" '
+                'alt="per-step error bars">'
+            )
     names = list(dict.fromkeys(r.odometer for r in results))
     cards = []
     for seq in dict.fromkeys(r.sequence for r in results if r.gt_poses is not None):
         mine = [r for r in results if r.sequence == seq]
         rel = f"trajectories/{_safe(seq)}/top-down.png"
-        if figure(rel, lambda p, m=mine: plot_sequence(m, p, names, (plans or {}).get(seq))):
-            cards.append(f'<figure><a href="{html.escape(rel)}"><img src="{html.escape(rel)}" loading="lazy" '
-                         f'alt="{html.escape(seq)}"></a><figcaption>{html.escape(seq)}</figcaption></figure>')
+        if figure(rel, lambda p, m=mine, s=seq: plot_sequence(m, p, names, (plans or {}).get(s))):
+            cards.append(
+                f'<figure><a href="{html.escape(rel)}"><img src="{html.escape(rel)}" loading="lazy" '
+                f'alt="{html.escape(seq)}"></a><figcaption>{html.escape(seq)}</figcaption></figure>'
+            )
     if cards:
-        sections.append(f"<h2>Trajectories, top-down ({len(cards)} sequence{'s' if len(cards) > 1 else ''})</h2>"
-                        "<p>Ground truth (black) and "
-                        "each odometer's integrated trajectory, world x/y in metres, over the floor plan where "
-                        "known (obstacles grey); a circle marks the start, a square each trajectory's end, a "
-                        "star the goal (an arrow when it lies outside the view). Click a figure for full size.</p>"
-                        f"<div class=\"gallery\">{''.join(cards)}</div>")
+        sections.append(
+            f"<h2>Trajectories, top-down ({len(cards)} sequence{'s' if len(cards) > 1 else ''})</h2>"
+            "<p>Ground truth (black) and "
+            "each odometer's integrated trajectory, world x/y in metres, over the floor plan where "
+            "known (obstacles grey); a circle marks the start, a square each trajectory's end, a "
+            "star the goal (an arrow when it lies outside the view). Click a figure for full size.</p>"
+            f'<div class="gallery">{"".join(cards)}</div>'
+        )
     definitions = summary_doc.split("\n\n", 1)[1] if summary_doc and "\n\n" in summary_doc else (summary_doc or "")
     sections.append("<h2>Definitions</h2>" + rst_to_html(definitions))
-    failures = [f"<li>{html.escape(r.odometer)} on {html.escape(r.sequence)}: {html.escape(e)}</li>"
-                for r in results for e in r.errors]
+    failures = [
+        f"<li>{html.escape(r.odometer)} on {html.escape(r.sequence)}: {html.escape(e)}</li>"
+        for r in results
+        for e in r.errors
+    ]
     if configs:
-        sections.append("<h2>Odometer configurations</h2><details><summary>every setting of each odometer "
-                        "(its frozen config)</summary><ul>" + "".join(
-                            f"<li><b>{html.escape(n)}</b>: {html.escape(c)}</li>" for n, c in configs.items())
-                        + "</ul></details>")
-    sections.append("<h2>Exceptions raised by odometers (first few)</h2>"
-                    f"<ul>{''.join(failures) or '<li>none</li>'}</ul>")
+        sections.append(
+            "<h2>Odometer configurations</h2><details><summary>every setting of each odometer "
+            "(its frozen config)</summary><ul>"
+            + "".join(f"<li><b>{html.escape(n)}</b>: {html.escape(c)}</li>" for n, c in configs.items())
+            + "</ul></details>"
+        )
+    sections.append(
+        f"<h2>Exceptions raised by odometers (first few)</h2><ul>{''.join(failures) or '<li>none</li>'}</ul>"
+    )
     if problems:
-        sections.append("<h2>Figures that could not be drawn</h2><ul>"
-                        + "".join(f"<li>{html.escape(p)}</li>" for p in problems) + "</ul>")
-    sections.append("<h2>Files</h2><p><code>table.csv</code> (all columns above, full precision), "
-                    "<code>trajectories/&lt;sequence&gt;/&lt;odometer&gt;.tum</code> and <code>.kitti</code> "
-                    "(readable by <code>python -m odolab.evaluate</code> and evo); "
-                    f"<code>{GROUND_TRUTH_FILE}.tum</code> / <code>.kitti</code> are the true poses (the "
-                    "ground-truth row integrates exactly these, so it has no file of its own); "
-                    f"<code>{MANIFEST}</code> lists every file this run wrote.</p>")
+        sections.append(
+            "<h2>Figures that could not be drawn</h2><ul>"
+            + "".join(f"<li>{html.escape(p)}</li>" for p in problems)
+            + "</ul>"
+        )
+    sections.append(
+        "<h2>Files</h2><p><code>table.csv</code> (all columns above, full precision), "
+        "<code>trajectories/&lt;sequence&gt;/&lt;odometer&gt;.tum</code> and <code>.kitti</code> "
+        "(readable by <code>python -m odolab.evaluate</code> and evo); "
+        f"<code>{GROUND_TRUTH_FILE}.tum</code> / <code>.kitti</code> are the true poses (the "
+        "ground-truth row integrates exactly these, so it has no file of its own); "
+        f"<code>{MANIFEST}</code> lists every file this run wrote.</p>"
+    )
     page = f"""<!doctype html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <meta name="viewport" content="width=device-width, initial-scale=1"><style>{_STYLE}</style></head><body>
 <h1>{html.escape(title)}</h1>
-<ul>{''.join(f'<li>{html.escape(n)}</li>' for n in notes)}</ul>
+<ul>{"".join(f"<li>{html.escape(n)}</li>" for n in notes)}</ul>
 {chr(10).join(sections)}
 </body></html>
 """

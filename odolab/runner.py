@@ -19,13 +19,15 @@ included) for fusion and for scoring raw estimates.
 Timing: the wall time of a ``step_batch`` call divided by the number of pairs it answered is each
 pair's ``step_seconds``; frame copies and checks are outside the timed region.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import time
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Iterable, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -137,8 +139,12 @@ def _read_only(a: np.ndarray | None) -> np.ndarray | None:
 
 def guarded_frame(frame: Frame, oracle: bool) -> Frame:
     """The frame as one odometer sees it: read-only private arrays, ``gt_pose`` only for oracles."""
-    return dataclasses.replace(frame, rgb=_read_only(frame.rgb), depth=_read_only(frame.depth),
-                               gt_pose=_read_only(frame.gt_pose) if oracle else None)
+    return dataclasses.replace(
+        frame,
+        rgb=_read_only(frame.rgb),
+        depth=_read_only(frame.depth),
+        gt_pose=_read_only(frame.gt_pose) if oracle else None,
+    )
 
 
 def _step_chunks(odometer: Odometer, seq: Sequence, oracle: bool, n: int, stamps: list[float]):
@@ -182,7 +188,7 @@ class _StepLog:
 
     def answer(self, first: int, count: int, answers: list | None, seconds: float) -> None:
         """Record the answers (None: the call raised) to steps ``first .. first + count - 1``."""
-        self.seconds[first:first + count] = seconds / count
+        self.seconds[first : first + count] = seconds / count
         for k, i in enumerate(range(first, first + count)):
             if answers is None:
                 self.reasons[i] = "raised"
@@ -192,19 +198,20 @@ class _StepLog:
                 self.raw[i] = answers[k]
                 try:
                     self.reasons[i] = failure_reason(answers[k])
-                except Exception as exc:  # not an Estimate at all
+                except Exception as exc:  # noqa: BLE001 - not an Estimate at all
                     self.note(f"step {i}", exc)
                     self.reasons[i] = "raised"
 
 
-def _run_steps(odometer: Odometer, name: str, seq: Sequence, oracle: bool, log: _StepLog,
-               observer: RunObserver | None) -> None:
+def _run_steps(
+    odometer: Odometer, name: str, seq: Sequence, oracle: bool, log: _StepLog, observer: RunObserver | None
+) -> None:
     """Ask the odometer about every pair, one ``step_batch`` call per chunk, timed."""
     for first, chunk in _step_chunks(odometer, seq, oracle, log.n, log.stamps):
         t0 = time.perf_counter()
         try:
             answers = list(odometer.step_batch(chunk))
-        except (Exception, SystemExit) as exc:  # an odometer's bug (even sys.exit) must not end the comparison
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - a bug (even sys.exit) must not end the comparison
             answers = None
             log.note(f"step {first}" if len(chunk) == 1 else f"steps {first}-{first + len(chunk) - 1}", exc)
         log.answer(first, len(chunk), answers, time.perf_counter() - t0)
@@ -212,8 +219,14 @@ def _run_steps(odometer: Odometer, name: str, seq: Sequence, oracle: bool, log: 
             observer.advance(name, len(chunk))
 
 
-def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrior,
-                 observer: RunObserver | None = None, max_errors: int = 5) -> SequenceResult:
+def run_sequence(
+    odometer: Odometer,
+    seq: Sequence,
+    name: str,
+    prior: ActionPrior,
+    observer: RunObserver | None = None,
+    max_errors: int = 5,
+) -> SequenceResult:
     """Run one odometer over one sequence (see the module docstring for failure handling)."""
     n = len(seq) - 1
     log = _StepLog(n, max_errors)
@@ -224,7 +237,7 @@ def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrio
             observer.advance(name, 0)
         try:
             odometer.reset(seq.intrinsics)
-        except (Exception, SystemExit) as exc:  # a broken odometer fails this sequence, not the comparison
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - a broken odometer fails this sequence, not the comparison
             log.note("reset", exc)
             if observer is not None:
                 observer.advance(name, n)
@@ -236,21 +249,41 @@ def run_sequence(odometer: Odometer, seq: Sequence, name: str, prior: ActionPrio
     estimates = np.empty((n, 4, 4))
     for i in range(n):
         action = None if actions[i] == NO_ACTION else Action(int(actions[i]))
-        estimates[i] = (np.asarray(log.raw[i].transform, np.float64) if valid[i]
-                        else planar_to_transform(*prior.motion(action)))
+        estimates[i] = (
+            np.asarray(log.raw[i].transform, np.float64) if valid[i] else planar_to_transform(*prior.motion(action))
+        )
     gt = [seq.gt_pose(i) for i in range(n + 1)]
     has_gt = all(g is not None for g in gt)
     gt_poses = np.stack(gt).astype(np.float64) if has_gt else None
     truth = invert(gt_poses[:-1]) @ gt_poses[1:] if has_gt else None
     poses = integrate(estimates, start=gt_poses[0] if has_gt else None)
     collisions = seq.collisions
-    return SequenceResult(name, seq.name, oracle, estimates, truth, poses, gt_poses, actions, valid, log.seconds,
-                          None if collisions is None else np.asarray(collisions), np.array(stamps), log.errors,
-                          tuple(log.raw), dict(Counter(r for r in log.reasons if r is not None)))
+    return SequenceResult(
+        name,
+        seq.name,
+        oracle,
+        estimates,
+        truth,
+        poses,
+        gt_poses,
+        actions,
+        valid,
+        log.seconds,
+        None if collisions is None else np.asarray(collisions),
+        np.array(stamps),
+        log.errors,
+        tuple(log.raw),
+        dict(Counter(r for r in log.reasons if r is not None)),
+    )
 
 
-def run(odometers: dict[str, Odometer], sequences: Iterable[Sequence], prior: ActionPrior | None = None,
-        observer: RunObserver | None = None, total_steps: int | None = None) -> list[SequenceResult]:
+def run(
+    odometers: dict[str, Odometer],
+    sequences: Iterable[Sequence],
+    prior: ActionPrior | None = None,
+    observer: RunObserver | None = None,
+    total_steps: int | None = None,
+) -> list[SequenceResult]:
     """Every odometer on every sequence, one sequence at a time (so ``sequences`` may be a stream
     that holds one episode in memory). ``observer`` hears of progress; ``total_steps`` (steps per
     odometer, summed over sequences) tells it the total when ``sequences`` has no length."""

@@ -17,13 +17,14 @@ forward / left / right steps, 12.10 / 12.68 / 7.51 % collided, 11.25 % overall),
 PointNav generator (geodesic 1-30 m; episodes with geodesic / euclidean < 1.1 mostly rejected) and
 the TUM RGB-D fr1/xyz frames shipped in ``tests/data`` (grey spread median 93, mean 137).
 """
+
 from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -54,8 +55,13 @@ def motion_stats(spec) -> MotionStats:
     from odolab.episodes import rollout
 
     r = rollout(spec)
-    return MotionStats([a.value for a in r.actions], [bool(c) for c in r.collisions], r.start_distance,
-                       r.euclidean_distance, r.reached_goal)
+    return MotionStats(
+        [a.value for a in r.actions],
+        [bool(c) for c in r.collisions],
+        r.start_distance,
+        r.euclidean_distance,
+        r.reached_goal,
+    )
 
 
 @dataclass
@@ -103,10 +109,16 @@ class ImageStats:
             if n < 100:
                 continue
             mean = self.bin_sum[i] / n
-            std = np.sqrt(max(self.bin_sq[i] / n - mean ** 2, 0.0))
-            rows.append({"depth_m": f"{DEPTH_BINS[i]:.0f}-{DEPTH_BINS[i + 1]:.0f}", "pixels": int(n),
-                         "bias_pct": 100 * mean, "spread_pct": 100 * std,
-                         "outliers_pct": 100 * self.bin_outliers[i] / (n + self.bin_outliers[i])})
+            std = np.sqrt(max(self.bin_sq[i] / n - mean**2, 0.0))
+            rows.append(
+                {
+                    "depth_m": f"{DEPTH_BINS[i]:.0f}-{DEPTH_BINS[i + 1]:.0f}",
+                    "pixels": int(n),
+                    "bias_pct": 100 * mean,
+                    "spread_pct": 100 * std,
+                    "outliers_pct": 100 * self.bin_outliers[i] / (n + self.bin_outliers[i]),
+                }
+            )
         return rows
 
 
@@ -149,7 +161,7 @@ def summarize_motion(stats: list[MotionStats]) -> dict:
 
     acts = np.concatenate([s.actions for s in stats]).astype(int)
     hits = np.concatenate([s.collisions for s in stats]).astype(bool)
-    out = {"episodes": len(stats), "steps": int(len(acts)), "mix_pct": {}, "collisions_pct": {}}
+    out = {"episodes": len(stats), "steps": len(acts), "mix_pct": {}, "collisions_pct": {}}
     for a in MOTION_ACTIONS:
         sel = acts == a.value
         out["mix_pct"][a.label] = 100 * float(sel.mean())
@@ -158,9 +170,13 @@ def summarize_motion(stats: list[MotionStats]) -> dict:
     geo = np.array([s.geodesic for s in stats])
     ratio = geo / np.array([s.euclidean for s in stats])
     lengths = np.array([len(s.actions) for s in stats])
-    out.update(geodesic_m=geo.tolist(), ratio=ratio.tolist(), lengths=lengths.tolist(),
-               reached_pct=100 * float(np.mean([s.reached for s in stats])),
-               worst_collisions=int(max(sum(s.collisions) for s in stats)))
+    out.update(
+        geodesic_m=geo.tolist(),
+        ratio=ratio.tolist(),
+        lengths=lengths.tolist(),
+        reached_pct=100 * float(np.mean([s.reached for s in stats])),
+        worst_collisions=int(max(sum(s.collisions) for s in stats)),
+    )
     return out
 
 
@@ -173,24 +189,49 @@ def card_table(motion: dict, images: ImageStats) -> list[tuple[str, str, str]]:
     c, m = motion["collisions_pct"], motion["mix_pct"]
     geo, ratio, lengths = (np.array(motion[k]) for k in ("geodesic_m", "ratio", "lengths"))
     rows = [
-        ("collisions, % of steps: forward / left / right / all",
-         " / ".join("-" if c[k] is None else f"{c[k]:.1f}" for k in ("move_forward", "turn_left", "turn_right", "all")),
-         " / ".join(f"{PAPER_COLLISIONS[k]:.1f}" for k in ("move_forward", "turn_left", "turn_right", "all"))
-         + " (paper, Table S2)"),
-        ("action mix, %: forward / left / right", " / ".join(f"{m[k]:.1f}" for k in PAPER_MIX),
-         " / ".join(f"{v:.1f}" for v in PAPER_MIX.values()) + " (paper, Table S2)"),
-        ("geodesic start-goal distance, m: min / median / max",
-         f"{geo.min():.1f} / {np.median(geo):.1f} / {geo.max():.1f}", "1-30 (habitat-lab PointNav generator)"),
-        ("episodes with geodesic / euclidean < 1.1, %", f"{100 * np.mean(ratio < 1.1):.1f}",
-         "kept with probability 20 (r - 0.98)^2 <= 14.4 % (habitat-lab)"),
-        ("episode length, steps: median / max (goals reached %)",
-         f"{np.median(lengths):.0f} / {lengths.max()} ({motion['reached_pct']:.0f})", "up to 500 (the task)"),
-        ("clean frames: grey mean, median over frames", f"{np.median(images.grey_mean):.0f}",
-         "90-150 wanted; TUM fr1/xyz 137"),
-        ("clean frames: grey spread (std), median over frames", f"{np.median(images.grey_std):.0f}",
-         ">= 40 wanted; TUM fr1/xyz 93"),
-        ("depth holes, % of pixels with a clean reading", f"{100 * images.holes / max(images.pixels, 1):.1f}",
-         "about 11 % (habitat-sim's Redwood table: its hole cells)"),
+        (
+            "collisions, % of steps: forward / left / right / all",
+            " / ".join(
+                "-" if c[k] is None else f"{c[k]:.1f}" for k in ("move_forward", "turn_left", "turn_right", "all")
+            ),
+            " / ".join(f"{PAPER_COLLISIONS[k]:.1f}" for k in ("move_forward", "turn_left", "turn_right", "all"))
+            + " (paper, Table S2)",
+        ),
+        (
+            "action mix, %: forward / left / right",
+            " / ".join(f"{m[k]:.1f}" for k in PAPER_MIX),
+            " / ".join(f"{v:.1f}" for v in PAPER_MIX.values()) + " (paper, Table S2)",
+        ),
+        (
+            "geodesic start-goal distance, m: min / median / max",
+            f"{geo.min():.1f} / {np.median(geo):.1f} / {geo.max():.1f}",
+            "1-30 (habitat-lab PointNav generator)",
+        ),
+        (
+            "episodes with geodesic / euclidean < 1.1, %",
+            f"{100 * np.mean(ratio < 1.1):.1f}",
+            "kept with probability 20 (r - 0.98)^2 <= 14.4 % (habitat-lab)",
+        ),
+        (
+            "episode length, steps: median / max (goals reached %)",
+            f"{np.median(lengths):.0f} / {lengths.max()} ({motion['reached_pct']:.0f})",
+            "up to 500 (the task)",
+        ),
+        (
+            "clean frames: grey mean, median over frames",
+            f"{np.median(images.grey_mean):.0f}",
+            "90-150 wanted; TUM fr1/xyz 137",
+        ),
+        (
+            "clean frames: grey spread (std), median over frames",
+            f"{np.median(images.grey_std):.0f}",
+            ">= 40 wanted; TUM fr1/xyz 93",
+        ),
+        (
+            "depth holes, % of pixels with a clean reading",
+            f"{100 * images.holes / max(images.pixels, 1):.1f}",
+            "about 11 % (habitat-sim's Redwood table: its hole cells)",
+        ),
     ]
     return rows
 
@@ -205,21 +246,40 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     from odolab.io.atomic import save_figure_atomic, write_text_atomic
     from odolab.report import OutputFolder
 
-    folder = OutputFolder(out, "simcard", CARD_NAMES)  # a manifest: an interrupted run never leaves two runs' files mixed
+    folder = OutputFolder(
+        out, "simcard", CARD_NAMES
+    )  # a manifest: an interrupted run never leaves two runs' files mixed
     rows = card_table(motion, images)
     depth_rows = images.depth_rows()
-    data = {"command": command, "redwood_table": source, "motion": motion,
-            "images": {"frames": images.frames, "grey_mean": images.grey_mean, "grey_std": images.grey_std,
-                       "holes_pct": 100 * images.holes / max(images.pixels, 1), "depth_bins": depth_rows},
-            "table": [{"statistic": a, "odolab": b, "reference": c} for a, b, c in rows]}
+    data = {
+        "command": command,
+        "redwood_table": source,
+        "motion": motion,
+        "images": {
+            "frames": images.frames,
+            "grey_mean": images.grey_mean,
+            "grey_std": images.grey_std,
+            "holes_pct": 100 * images.holes / max(images.pixels, 1),
+            "depth_bins": depth_rows,
+        },
+        "table": [{"statistic": a, "odolab": b, "reference": c} for a, b, c in rows],
+    }
     write_text_atomic(folder.path("card.json"), json.dumps(data, indent=1, default=float, allow_nan=False))
-    md = [f"# The simulator in numbers\n\n`{command}`\n\nRedwood distortion table: {source}\n",
-          "| statistic | odolab | reference |", "|---|---|---|"]
+    md = [
+        f"# The simulator in numbers\n\n`{command}`\n\nRedwood distortion table: {source}\n",
+        "| statistic | odolab | reference |",
+        "|---|---|---|",
+    ]
     md += [f"| {a} | {b} | {c} |" for a, b, c in rows]
-    md += ["\n## Noisy / clean depth per clean-depth bin\n", "| depth m | pixels | bias % | spread % | outliers % |",
-           "|---|---|---|---|---|"]
-    md += [f"| {r['depth_m']} | {r['pixels']} | {r['bias_pct']:+.2f} | {r['spread_pct']:.2f} | {r['outliers_pct']:.2f} |"
-           for r in depth_rows]
+    md += [
+        "\n## Noisy / clean depth per clean-depth bin\n",
+        "| depth m | pixels | bias % | spread % | outliers % |",
+        "|---|---|---|---|---|",
+    ]
+    md += [
+        f"| {r['depth_m']} | {r['pixels']} | {r['bias_pct']:+.2f} | {r['spread_pct']:.2f} | {r['outliers_pct']:.2f} |"
+        for r in depth_rows
+    ]
     md += ["\nFigures: `motion.png`, `depth.png`, `frames.png`."]
     write_text_atomic(folder.path("card.md"), "\n".join(md) + "\n")
 
@@ -229,8 +289,12 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     c = motion["collisions_pct"]
     ax[0, 0].bar(x - 0.2, [c[k] or 0.0 for k in labels + ["all"]], 0.4, label="odolab (no bar: no step)")
     ax[0, 0].bar(x + 0.2, [PAPER_COLLISIONS[k] for k in labels + ["all"]], 0.4, label="paper (Table S2)")
-    ax[0, 0].set(xticks=x, xticklabels=["forward", "left", "right", "all"], ylabel="collided steps (%)",
-                 title="Collision rate per action")
+    ax[0, 0].set(
+        xticks=x,
+        xticklabels=["forward", "left", "right", "all"],
+        ylabel="collided steps (%)",
+        title="Collision rate per action",
+    )
     ax[0, 0].legend()
     x3 = np.arange(3)
     ax[0, 1].bar(x3 - 0.2, [motion["mix_pct"][k] for k in labels], 0.4, label="odolab")
@@ -267,8 +331,11 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     if images.hole_map is not None:
         im = ax[1].imshow(100 * images.hole_map / max(images.frames, 1), cmap="magma", vmin=0, vmax=100)
         fig.colorbar(im, ax=ax[1], label="frames with a hole (%)")
-    ax[1].set(title=f"Depth holes per pixel ({100 * images.holes / max(images.pixels, 1):.1f} % of pixels)",
-              xlabel="image column (px)", ylabel="image row (px)")
+    ax[1].set(
+        title=f"Depth holes per pixel ({100 * images.holes / max(images.pixels, 1):.1f} % of pixels)",
+        xlabel="image column (px)",
+        ylabel="image row (px)",
+    )
     fig.tight_layout()
     save_figure_atomic(fig, folder.path("depth.png"))
     plt.close(fig)
@@ -276,8 +343,9 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     if samples:
         fig, ax = plt.subplots(len(samples), 4, figsize=(16, 2.4 * len(samples)), squeeze=False)
         for i, (rgb, nrgb, d, nd) in enumerate(samples):
-            for j, (img, title) in enumerate(((rgb, "clean RGB"), (nrgb, "noisy RGB"), (d, "clean depth (m)"),
-                                              (nd, "noisy depth (m), black = none"))):
+            for j, (img, title) in enumerate(
+                ((rgb, "clean RGB"), (nrgb, "noisy RGB"), (d, "clean depth (m)"), (nd, "noisy depth (m), black = none"))
+            ):
                 kw = {} if img.ndim == 3 else {"cmap": "viridis", "vmin": 0, "vmax": 10}
                 ax[i, j].imshow(img, **kw)
                 ax[i, j].set_axis_off()
@@ -292,16 +360,34 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
 def build_parser() -> ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.simcard", description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="train", choices=["train", "val", "test"], help="scene split (default train)")
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, 100_000), default=400,
-                    help="rollouts for the motion statistics, 1-100000 (default 400)")
-    ap.add_argument("--rendered", type=number("--rendered", int, 1, 1000), default=24,
-                    help="episodes rendered for the image statistics, 1-1000 (default 24)")
-    ap.add_argument("--frames", type=number("--frames", int, 1, 500), default=30,
-                    help="frames per rendered episode, 1-500 (default 30)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 2000), default=500,
-                    help="steps per episode, 1-2000 (default 500)")
+    ap.add_argument(
+        "--episodes",
+        type=number("--episodes", int, 1, 100_000),
+        default=400,
+        help="rollouts for the motion statistics, 1-100000 (default 400)",
+    )
+    ap.add_argument(
+        "--rendered",
+        type=number("--rendered", int, 1, 1000),
+        default=24,
+        help="episodes rendered for the image statistics, 1-1000 (default 24)",
+    )
+    ap.add_argument(
+        "--frames",
+        type=number("--frames", int, 1, 500),
+        default=30,
+        help="frames per rendered episode, 1-500 (default 30)",
+    )
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, 2000),
+        default=500,
+        help="steps per episode, 1-2000 (default 500)",
+    )
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
-    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/simcard"), help="output folder (default runs/simcard)")
+    ap.add_argument(
+        "--out", type=path_arg("--out"), default=Path("runs/simcard"), help="output folder (default runs/simcard)"
+    )
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="no Ray: everything in this process")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -335,18 +421,26 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_ray_address(args.ray_address)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
-    specs = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps)
-             for i in range(args.episodes)]
-    run = dict(parallel=not args.serial, ray_address=args.ray_address, progress=not args.quiet)
+    specs = [
+        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)
+    ]
+    run = {"parallel": not args.serial, "ray_address": args.ray_address, "progress": not args.quiet}
     motion = summarize_motion(fan_out(motion_stats, specs, desc="rollouts", **run))
-    rendered = [EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.frames)
-                for i in range(args.rendered)]
-    parts = fan_out(_render_part, [(s, args.frames, 1 if i < 4 else 0) for i, s in enumerate(rendered)],
-                    desc="rendered episodes", **run)
+    rendered = [
+        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.frames) for i in range(args.rendered)
+    ]
+    parts = fan_out(
+        _render_part,
+        [(s, args.frames, 1 if i < 4 else 0) for i, s in enumerate(rendered)],
+        desc="rendered episodes",
+        **run,
+    )
     images = merge_images([p for p, _ in parts])
     samples = [s for _, ss in parts for s in ss]
-    command = (f"python -m odolab.simcard --split {args.split} --episodes {args.episodes} --rendered {args.rendered} "
-               f"--frames {args.frames} --max-steps {args.max_steps} --seed {args.seed}")
+    command = (
+        f"python -m odolab.simcard --split {args.split} --episodes {args.episodes} --rendered {args.rendered} "
+        f"--frames {args.frames} --max-steps {args.max_steps} --seed {args.seed}"
+    )
     write_card(args.out, motion, images, samples, source, command)
     print((args.out / "card.md").read_text())
     print(f"wrote {args.out / 'card.md'}, card.json, motion.png, depth.png, frames.png")

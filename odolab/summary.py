@@ -22,17 +22,18 @@ Definitions (each metric's formula lives in :mod:`odolab.metrics`):
 Reference rows (``ground-truth``, ``action-prior``) come first, then the odometers in the order
 they were given.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
 from odolab.geometry import transform_to_planar
 from odolab.metrics import ate, per_step_abs_error, relative_motion_errors
-from odolab.types import MOTION_ACTIONS, Action
 from odolab.runner import SequenceResult
+from odolab.types import MOTION_ACTIONS, Action
 
 #: Rows that bracket every real odometer: zero error (an oracle) and the paper's ``sys_error``.
 REFERENCE_ODOMETERS = ("action-prior", "ground-truth")
@@ -125,20 +126,35 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
         seconds = sum(float(r.step_seconds.sum()) for r in mine)
         steps = len(pooled)
         reference = name in REFERENCE_ODOMETERS
-        rows.append(Row(
-            odometer=name, oracle=mine[0].oracle, reference=reference,
-            dx=_mean(pooled[:, 0]), dz=_mean(pooled[:, 1]), dyaw=_mean(pooled[:, 2]),
-            dx_std=float(per_seq[:, 0].std()), dz_std=float(per_seq[:, 1].std()),
-            dyaw_std=float(per_seq[:, 2].std()),
-            dx_own=_mean(pooled[valid, 0]), dz_own=_mean(pooled[valid, 1]), dyaw_own=_mean(pooled[valid, 2]),
-            trans_mm=_mean(trans), rot_deg=_mean(rot), trans_mm_own=_mean(trans[valid]),
-            rot_deg_own=_mean(rot[valid]),
-            ate_m=float(ates.mean()), ate_std=float(ates.std()),
-            drift_m=float(drifts.mean()), drift_std=float(drifts.std()),
-            fps=float("nan") if reference else steps / seconds if seconds > 0 else float("inf"),
-            failures=int((~valid).sum()), failure_share=float((~valid).mean()) if steps else 0.0,
-            steps=steps, sequences=len(mine),
-        ))
+        rows.append(
+            Row(
+                odometer=name,
+                oracle=mine[0].oracle,
+                reference=reference,
+                dx=_mean(pooled[:, 0]),
+                dz=_mean(pooled[:, 1]),
+                dyaw=_mean(pooled[:, 2]),
+                dx_std=float(per_seq[:, 0].std()),
+                dz_std=float(per_seq[:, 1].std()),
+                dyaw_std=float(per_seq[:, 2].std()),
+                dx_own=_mean(pooled[valid, 0]),
+                dz_own=_mean(pooled[valid, 1]),
+                dyaw_own=_mean(pooled[valid, 2]),
+                trans_mm=_mean(trans),
+                rot_deg=_mean(rot),
+                trans_mm_own=_mean(trans[valid]),
+                rot_deg_own=_mean(rot[valid]),
+                ate_m=float(ates.mean()),
+                ate_std=float(ates.std()),
+                drift_m=float(drifts.mean()),
+                drift_std=float(drifts.std()),
+                fps=float("nan") if reference else steps / seconds if seconds > 0 else float("inf"),
+                failures=int((~valid).sum()),
+                failure_share=float((~valid).mean()) if steps else 0.0,
+                steps=steps,
+                sequences=len(mine),
+            )
+        )
     return rows
 
 
@@ -164,8 +180,16 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
         for label, sel in groups:
             if sel.any():
                 e, own = errs[sel], errs[sel & valid]
-                rows.append(ActionRow(name, label, *(_mean(e[:, k]) for k in range(3)),
-                                      *(_mean(own[:, k]) for k in range(3)), int(sel.sum()), int((~valid[sel]).sum())))
+                rows.append(
+                    ActionRow(
+                        name,
+                        label,
+                        *(_mean(e[:, k]) for k in range(3)),
+                        *(_mean(own[:, k]) for k in range(3)),
+                        int(sel.sum()),
+                        int((~valid[sel]).sum()),
+                    )
+                )
     return rows
 
 
@@ -183,8 +207,12 @@ def failed_steps_text(failed: int, steps: float) -> str:
 
 def every_step_failed(rows: Sequence[Row]) -> list[str]:
     """One console line per row whose every step failed: its figures are the action prior's."""
-    return [f"{r.odometer}: {failed_steps_text(r.failures, r.steps)}; its figures are the action prior's, "
-            "which stood in for each" for r in rows if r.steps and r.failures >= r.steps]
+    return [
+        f"{r.odometer}: {failed_steps_text(r.failures, r.steps)}; its figures are the action prior's, "
+        "which stood in for each"
+        for r in rows
+        if r.steps and r.failures >= r.steps
+    ]
 
 
 def fmt(value: float, spec: str, std: float | None = None) -> str:
@@ -206,8 +234,9 @@ def text_table(header: Sequence[str], rows: Sequence[Sequence[str]], markdown: b
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
 
     def line(cells: Sequence[str]) -> str:
-        return "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+        return "  ".join(
+            str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(cells, widths))
+        ).rstrip()
 
     head = line(header)
     return "\n".join([head, "-" * len(head), *(line(r) for r in rows)])

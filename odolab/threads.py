@@ -10,11 +10,12 @@ timing. Odometers that do not declare ``threads`` (all classical ones) leave tor
 simulator avoids BLAS calls next to Open3D work for the same reason (see :mod:`odolab.sim.camera`).
 torch is never imported here: only odometers that already imported it are affected.
 """
+
 from __future__ import annotations
 
 import contextlib
 import sys
-from typing import Iterator
+from collections.abc import Iterator
 
 from odolab.odometer import Odometer
 from odolab.options import whole_number

@@ -23,6 +23,7 @@ process: one read of the file, which the frames are read from anyway); a shard m
 checksums were kept is checked against its zip archive's own CRC-32 of each array instead. A
 damaged shard raises :class:`DamagedShardError` naming it.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -31,9 +32,9 @@ import os
 import sys
 import zipfile
 import zlib
+from collections.abc import Sequence as Seq
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Sequence as Seq
 
 import cv2
 import numpy as np
@@ -47,8 +48,15 @@ from odolab.sim.camera import CameraSpec
 from odolab.sim.scenes import SPLITS
 from odolab.types import MOTION_ACTIONS, Action, Intrinsics
 
-__all__ = ["DamagedShardError", "DataConfig", "TrainingData", "file_crc32", "make_training_data", "resize_frame",
-           "verify_shard"]
+__all__ = [
+    "DamagedShardError",
+    "DataConfig",
+    "TrainingData",
+    "file_crc32",
+    "make_training_data",
+    "resize_frame",
+    "verify_shard",
+]
 
 FORMAT = 1
 MANIFEST = "dataset.json"
@@ -81,11 +89,15 @@ def verify_shard(path: Path, entry: dict) -> None:
     expected = entry.get("crc32")
     if expected is not None:
         if isinstance(expected, bool) or not isinstance(expected, int):
-            raise DamagedShardError(f"{path}: its crc32 in {MANIFEST} must be an integer, got {expected!r:.40}; {advice}")
+            raise DamagedShardError(
+                f"{path}: its crc32 in {MANIFEST} must be an integer, got {expected!r:.40}; {advice}"
+            )
         got = file_crc32(path)
         if got != expected:
-            raise DamagedShardError(f"{path}: damaged: its CRC-32 is {got:08x}, but {expected:08x} was written with "
-                                    f"it in {MANIFEST}; {advice}")
+            raise DamagedShardError(
+                f"{path}: damaged: its CRC-32 is {got:08x}, but {expected:08x} was written with "
+                f"it in {MANIFEST}; {advice}"
+            )
         return
     try:
         with zipfile.ZipFile(path) as archive:
@@ -132,27 +144,44 @@ class DataConfig:
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
             raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r}")
-        for name, top in (("episodes", MAX_EPISODES), ("max_steps", MAX_EPISODE_STEPS), ("width", None),
-                          ("height", None), ("episodes_per_shard", MAX_EPISODES_PER_SHARD)):
+        for name, top in (
+            ("episodes", MAX_EPISODES),
+            ("max_steps", MAX_EPISODE_STEPS),
+            ("width", None),
+            ("height", None),
+            ("episodes_per_shard", MAX_EPISODES_PER_SHARD),
+        ):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or (
-                    top is not None and value > top):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, np.integer))
+                or value < 1
+                or (top is not None and value > top)
+            ):
                 most = f" and at most {top}" if top is not None else ""
                 raise ValueError(f"{name} must be >= 1{most} (an integer), got {value!r}")
         if not 0 <= self.seed <= 2**32 - 1:
             raise ValueError(f"seed must be in [0, 2^32 - 1], got {self.seed}")
         if not 0 <= self.first <= MAX_EPISODE_INDEX - self.episodes + 1:
-            raise ValueError(f"first must be in [0, {MAX_EPISODE_INDEX - self.episodes + 1}] (the last episode's index "
-                             f"at most 2^31 - 1), got {self.first}")
+            raise ValueError(
+                f"first must be in [0, {MAX_EPISODE_INDEX - self.episodes + 1}] (the last episode's index "
+                f"at most 2^31 - 1), got {self.first}"
+            )
         camera = CameraSpec()
         if self.width > camera.width or self.height > camera.height:
-            raise ValueError(f"width x height must be at most the camera's {camera.width} x {camera.height}, "
-                             f"got {self.width} x {self.height}")
+            raise ValueError(
+                f"width x height must be at most the camera's {camera.width} x {camera.height}, "
+                f"got {self.width} x {self.height}"
+            )
 
     @property
     def specs(self) -> list[EpisodeSpec]:
-        return [EpisodeSpec(split=self.split, index=self.first + i, seed=self.seed, max_steps=self.max_steps,
-                            noise=self.noise) for i in range(self.episodes)]
+        return [
+            EpisodeSpec(
+                split=self.split, index=self.first + i, seed=self.seed, max_steps=self.max_steps, noise=self.noise
+            )
+            for i in range(self.episodes)
+        ]
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -162,7 +191,9 @@ class DataConfig:
     def require_size(self, width: int, height: int) -> None:
         """``ValueError`` unless the frames are ``width`` x ``height`` px (what a model takes)."""
         if (self.width, self.height) != (width, height):
-            raise ValueError(f"{self.split} data is {self.width} x {self.height} px but the model takes {width} x {height}")
+            raise ValueError(
+                f"{self.split} data is {self.width} x {self.height} px but the model takes {width} x {height}"
+            )
 
     def folder(self, root: str | os.PathLike) -> Path:
         """The conventional folder of this data under ``root``:
@@ -171,7 +202,7 @@ class DataConfig:
 
     def shard_specs(self) -> list[list[EpisodeSpec]]:
         specs, k = self.specs, self.episodes_per_shard
-        return [specs[i:i + k] for i in range(0, len(specs), k)]
+        return [specs[i : i + k] for i in range(0, len(specs), k)]
 
     def shard_name(self, index: int, specs: list[EpisodeSpec]) -> str:
         """File name of shard ``index``; its digest changes with the simulator and the resolution."""
@@ -179,12 +210,14 @@ class DataConfig:
         return f"shard-{index:05d}-{hashlib.sha256(blob.encode()).hexdigest()[:12]}.npz"
 
     @classmethod
-    def from_dict(cls, doc: dict, source: str) -> "DataConfig":
+    def from_dict(cls, doc: dict, source: str) -> DataConfig:
         """Inverse of ``asdict``; ``ValueError`` names ``source`` and the bad field."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(doc) - known)
         if unknown:
-            raise ValueError(f"{source}: unknown data field(s) {', '.join(unknown)}; expected {', '.join(sorted(known))}")
+            raise ValueError(
+                f"{source}: unknown data field(s) {', '.join(unknown)}; expected {', '.join(sorted(known))}"
+            )
         doc = dict(doc)
         if "noise" in doc:
             if not isinstance(doc["noise"], dict):
@@ -224,15 +257,27 @@ def _read_manifest(root: Path) -> dict | None:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"{path}: not a readable training-data manifest ({exc})") from None
-    if (not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("shards"), dict)
-            or not isinstance(doc.get("config"), dict)):
-        raise ValueError(f"{path}: not an odolab training-data manifest of format {FORMAT} (no config or shards); "
-                         "delete it, or choose another folder")
+    if (
+        not isinstance(doc, dict)
+        or doc.get("format") != FORMAT
+        or not isinstance(doc.get("shards"), dict)
+        or not isinstance(doc.get("config"), dict)
+    ):
+        raise ValueError(
+            f"{path}: not an odolab training-data manifest of format {FORMAT} (no config or shards); "
+            "delete it, or choose another folder"
+        )
     return doc
 
 
-def make_training_data(cfg: DataConfig, root: str | os.PathLike, *, ray_address: str | None = None,
-                       parallel: bool = True, progress: bool = True) -> dict:
+def make_training_data(
+    cfg: DataConfig,
+    root: str | os.PathLike,
+    *,
+    ray_address: str | None = None,
+    parallel: bool = True,
+    progress: bool = True,
+) -> dict:
     """Render the shards of ``cfg`` that ``root`` lacks (as Ray tasks), each written atomically as it
     finishes, with ``dataset.json`` updated after each: an interrupted run resumes where it stopped.
     A folder made with another config is refused (``ValueError`` naming the differing fields).
@@ -244,10 +289,14 @@ def make_training_data(cfg: DataConfig, root: str | os.PathLike, *, ray_address:
     config = json.loads(json.dumps(asdict(cfg)))
     doc = _read_manifest(root) or {"format": FORMAT, "config": config, "shards": {}}
     if doc["config"] != config:
-        diff = [f"{k} (folder {doc['config'].get(k)!r}, asked {v!r})" for k, v in config.items()
-                if doc["config"].get(k) != v]
-        raise ValueError(f"{root} holds training data made with another config: {'; '.join(diff)}; "
-                         "choose another folder")
+        diff = [
+            f"{k} (folder {doc['config'].get(k)!r}, asked {v!r})"
+            for k, v in config.items()
+            if doc["config"].get(k) != v
+        ]
+        raise ValueError(
+            f"{root} holds training data made with another config: {'; '.join(diff)}; choose another folder"
+        )
     groups = cfg.shard_specs()
     names = [cfg.shard_name(i, g) for i, g in enumerate(groups)]
     todo = [i for i, name in enumerate(names) if name not in doc["shards"] or not (root / name).exists()]
@@ -259,15 +308,27 @@ def make_training_data(cfg: DataConfig, root: str | os.PathLike, *, ray_address:
         i = todo[k]
         with atomic_open(root / names[i], "wb") as f:
             np.savez(f, **arrays)
-        doc["shards"][names[i]] = {"index": i, "episodes": len(groups[i]), "frames": int(len(arrays["actions"])),
-                                   "pairs": _action_counts(arrays["actions"]), "crc32": file_crc32(root / names[i])}
+        doc["shards"][names[i]] = {
+            "index": i,
+            "episodes": len(groups[i]),
+            "frames": len(arrays["actions"]),
+            "pairs": _action_counts(arrays["actions"]),
+            "crc32": file_crc32(root / names[i]),
+        }
         write_manifest()
 
     for orphan in root.glob(".shard-*.tmp"):  # a shard being written when a run was killed
         orphan.unlink(missing_ok=True)
     write_manifest()
-    fan_out(_render_shard, [(cfg, groups[i]) for i in todo], on_result=done, parallel=parallel,
-            ray_address=ray_address, progress=progress, desc=f"{cfg.split} shards")
+    fan_out(
+        _render_shard,
+        [(cfg, groups[i]) for i in todo],
+        on_result=done,
+        parallel=parallel,
+        ray_address=ray_address,
+        progress=progress,
+        desc=f"{cfg.split} shards",
+    )
     stale = set(doc["shards"]) - set(names)
     for name in stale:  # shards of an older simulator: dropped from the manifest and deleted
         doc["shards"].pop(name)
@@ -294,8 +355,10 @@ class TrainingData:
         expected = [self.config.shard_name(i, g) for i, g in enumerate(self.config.shard_specs())]
         missing = [n for n in expected if n not in doc["shards"] or not (self.root / n).exists()]
         if missing:
-            raise ValueError(f"{self.root}: {len(missing)} of {len(expected)} shards missing (e.g. {missing[0]}); "
-                             "run the same python -m odolab.training_data command again to finish it")
+            raise ValueError(
+                f"{self.root}: {len(missing)} of {len(expected)} shards missing (e.g. {missing[0]}); "
+                "run the same python -m odolab.training_data command again to finish it"
+            )
         self.shards = expected
         #: Per shard, its manifest entry (its CRC-32 among others), checked on first use.
         self._entries = [doc["shards"][n] if isinstance(doc["shards"][n], dict) else {} for n in expected]
@@ -305,8 +368,10 @@ class TrainingData:
                 with np.load(self.root / name, allow_pickle=False) as z:
                     small.append({k: np.array(z[k]) for k in ("poses", "actions", "collisions", "episode")})
             except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
-                raise ValueError(f"{self.root / name}: unreadable shard ({exc}); delete it and run the "
-                                 "python -m odolab.training_data command again") from None
+                raise ValueError(
+                    f"{self.root / name}: unreadable shard ({exc}); delete it and run the "
+                    "python -m odolab.training_data command again"
+                ) from None
         sizes = np.array([len(s["actions"]) for s in small])
         self._start = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         actions = np.concatenate([s["actions"] for s in small])
@@ -341,8 +406,13 @@ class TrainingData:
     def verify(self, progress: bool = False) -> None:
         """Check every shard not yet checked (:func:`verify_shard`): one read of the whole data, so
         that copies of this object (a trainer's loader workers) need not check again."""
-        for s in tqdm([s for s in range(len(self.shards)) if s not in self._verified], desc="checking shards",
-                      unit="shard", disable=not progress, leave=False):
+        for s in tqdm(
+            [s for s in range(len(self.shards)) if s not in self._verified],
+            desc="checking shards",
+            unit="shard",
+            disable=not progress,
+            leave=False,
+        ):
             verify_shard(self.root / self.shards[s], self._entries[s])
             self._verified.add(s)
 
@@ -377,8 +447,13 @@ class TrainingData:
         f = self.pairs[idx]
         rgb, depth = self.frames(np.stack([f, f + 1], axis=1))
         b = len(idx)
-        return {"rgb": rgb.reshape(b, 2, *rgb.shape[1:]), "depth": depth.reshape(b, 2, *depth.shape[1:]),
-                "action": self.pair_actions[idx], "planar": self.pair_planar[idx], "motion": self.pair_motion[idx]}
+        return {
+            "rgb": rgb.reshape(b, 2, *rgb.shape[1:]),
+            "depth": depth.reshape(b, 2, *depth.shape[1:]),
+            "action": self.pair_actions[idx],
+            "planar": self.pair_planar[idx],
+            "motion": self.pair_motion[idx],
+        }
 
     def windows(self, length: int) -> np.ndarray:
         """Indices into the pair arrays of the pairs that start ``length - 1`` consecutive pairs of one
@@ -402,32 +477,60 @@ def main(argv: list[str] | None = None) -> int:
     from odolab.cli import ArgumentParser, check_report_dir, number, path_arg, seed
     from odolab.parallel import check_ray_address
 
-    ap = ArgumentParser(prog="python -m odolab.training_data",
-                        description="Render simulator episodes into memory-mappable training shards (resumable).")
+    ap = ArgumentParser(
+        prog="python -m odolab.training_data",
+        description="Render simulator episodes into memory-mappable training shards (resumable).",
+    )
     d = DataConfig()
     ap.add_argument("--split", choices=SPLITS, default=d.split, help=f"scene pool (default {d.split})")
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, MAX_EPISODES), default=d.episodes,
-                    help=f"episodes, 1-{MAX_EPISODES} (default {d.episodes})")
-    ap.add_argument("--first", type=number("--first", int, 0, MAX_EPISODE_INDEX), default=0,
-                    help="index of the first episode; the last one's is at most 2^31 - 1 (default 0)")
+    ap.add_argument(
+        "--episodes",
+        type=number("--episodes", int, 1, MAX_EPISODES),
+        default=d.episodes,
+        help=f"episodes, 1-{MAX_EPISODES} (default {d.episodes})",
+    )
+    ap.add_argument(
+        "--first",
+        type=number("--first", int, 0, MAX_EPISODE_INDEX),
+        default=0,
+        help="index of the first episode; the last one's is at most 2^31 - 1 (default 0)",
+    )
     ap.add_argument("--seed", type=seed(), default=0, help="episode seed (default 0)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, MAX_EPISODE_STEPS), default=d.max_steps,
-                    help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {d.max_steps})")
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
+        default=d.max_steps,
+        help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {d.max_steps})",
+    )
     ap.add_argument("--width", type=number("--width", int, 8, 341), default=d.width, help=f"pixels (default {d.width})")
-    ap.add_argument("--height", type=number("--height", int, 8, 192), default=d.height,
-                    help=f"pixels (default {d.height})")
-    ap.add_argument("--episodes-per-shard", type=number("--episodes-per-shard", int, 1, MAX_EPISODES_PER_SHARD),
-                    default=d.episodes_per_shard, help=f"1-{MAX_EPISODES_PER_SHARD} (default {d.episodes_per_shard})")
+    ap.add_argument(
+        "--height", type=number("--height", int, 8, 192), default=d.height, help=f"pixels (default {d.height})"
+    )
+    ap.add_argument(
+        "--episodes-per-shard",
+        type=number("--episodes-per-shard", int, 1, MAX_EPISODES_PER_SHARD),
+        default=d.episodes_per_shard,
+        help=f"1-{MAX_EPISODES_PER_SHARD} (default {d.episodes_per_shard})",
+    )
     ap.add_argument("--out", type=path_arg("--out"), required=True, help="folder (created; reused to resume)")
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="render in this process, without Ray")
     args = ap.parse_args(argv)
     if args.first + args.episodes - 1 > MAX_EPISODE_INDEX:
-        ap.error(f"--first {args.first} + --episodes {args.episodes}: the last episode's index would be "
-                 f"{args.first + args.episodes - 1}, above 2^31 - 1; use a smaller --first")
-    cfg = DataConfig(split=args.split, episodes=args.episodes, seed=args.seed, first=args.first,
-                     max_steps=args.max_steps, width=args.width, height=args.height,
-                     episodes_per_shard=args.episodes_per_shard)
+        ap.error(
+            f"--first {args.first} + --episodes {args.episodes}: the last episode's index would be "
+            f"{args.first + args.episodes - 1}, above 2^31 - 1; use a smaller --first"
+        )
+    cfg = DataConfig(
+        split=args.split,
+        episodes=args.episodes,
+        seed=args.seed,
+        first=args.first,
+        max_steps=args.max_steps,
+        width=args.width,
+        height=args.height,
+        episodes_per_shard=args.episodes_per_shard,
+    )
     check_report_dir(args.out, "--out", manifest=MANIFEST)  # a folder of the user's own files is refused
     try:
         if args.ray_address is not None and not args.serial:
@@ -437,8 +540,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         ap.error(str(exc))
     counts = ", ".join(f"{k} {v}" for k, v in data.counts().items())
-    print(f"{args.out}: {len(data)} pairs ({counts}) from {cfg.episodes} {cfg.split} episodes at "
-          f"{cfg.width}x{cfg.height}")
+    print(
+        f"{args.out}: {len(data)} pairs ({counts}) from {cfg.episodes} {cfg.split} episodes at {cfg.width}x{cfg.height}"
+    )
     return 0
 
 

@@ -3,6 +3,7 @@
 A trajectory is a sequence of poses ``T_world_cam`` (4x4, metres): pose *i* maps points in the
 camera frame at time/frame *i* into the trajectory's world frame (for KITTI files: camera 0).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,9 +30,7 @@ class Trajectory:
         if self.timestamps is not None:
             self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
             if len(self.timestamps) != len(self.poses):
-                raise ValueError(
-                    f"Trajectory: {len(self.timestamps)} timestamps for {len(self.poses)} poses"
-                )
+                raise ValueError(f"Trajectory: {len(self.timestamps)} timestamps for {len(self.poses)} poses")
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -41,7 +40,7 @@ class Trajectory:
         """Camera centres in the world frame, ``(N, 3)`` metres."""
         return self.poses[:, :3, 3]
 
-    def subset(self, idx: np.ndarray) -> "Trajectory":
+    def subset(self, idx: np.ndarray) -> Trajectory:
         """A new trajectory holding the poses (and timestamps) at the integer indices ``idx``."""
         idx = np.asarray(idx, dtype=np.intp)
         stamps = None if self.timestamps is None else self.timestamps[idx]

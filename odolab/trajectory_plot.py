@@ -1,8 +1,10 @@
 """Figures of trajectory evaluations (matplotlib, Agg backend; imported only when plotting)."""
+
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,7 +31,7 @@ def top_down_axes(positions: np.ndarray) -> tuple[int, int]:
     return a, b
 
 
-def plot_evaluations(path: str | os.PathLike, rows: Sequence[tuple[str, "Evaluation"]]) -> None:
+def plot_evaluations(path: str | os.PathLike, rows: Sequence[tuple[str, Evaluation]]) -> None:
     """Write one figure for ``(label, evaluation)`` rows sharing a ground truth.
 
     Panels: aligned estimates over the ground truth, top-down (m); position error (m) over time
@@ -55,17 +57,20 @@ def plot_evaluations(path: str | os.PathLike, rows: Sequence[tuple[str, "Evaluat
         ax_ate.plot(x, ev.ate.errors, lw=0.8, label=f"{name}: RMSE {ev.ate.rmse:.4f} m")
         if has_segments:
             per = ev.kitti.per_length
-            ax_rel.plot([s.length for s in per], [s.t_rel for s in per], "o-",
-                        label=f"{name}: t_rel {ev.kitti.t_rel:.3f} %")
+            ax_rel.plot(
+                [s.length for s in per], [s.t_rel for s in per], "o-", label=f"{name}: t_rel {ev.kitti.t_rel:.3f} %"
+            )
         else:
-            ax_rel.plot(x[ev.rpe.pairs[:, 1]], ev.rpe.trans_errors, lw=0.8,
-                        label=f"{name}: RMSE {ev.rpe.trans.rmse:.4f} m")
+            ax_rel.plot(
+                x[ev.rpe.pairs[:, 1]], ev.rpe.trans_errors, lw=0.8, label=f"{name}: RMSE {ev.rpe.trans.rmse:.4f} m"
+            )
     ax_traj.set(title="Trajectories, top-down", xlabel=f"{_AXIS_NAMES[a]} [m]", ylabel=f"{_AXIS_NAMES[b]} [m]")
     ax_traj.set_aspect("equal", adjustable="datalim")
     ax_ate.set(title="Absolute position error (ATE)", xlabel=xlabel, ylabel="error [m]")
     if has_segments:
-        ax_rel.set(title="KITTI translational drift per segment length",
-                   xlabel="segment length [m]", ylabel="t_rel [%]")
+        ax_rel.set(
+            title="KITTI translational drift per segment length", xlabel="segment length [m]", ylabel="t_rel [%]"
+        )
     else:
         ev0 = rows[0][1]
         unit = "frames" if ev0.rpe.delta_unit == "f" else "m"

@@ -4,6 +4,7 @@
 :class:`Estimate` and the :class:`Sequence` protocol. Conventions (frames, planar motion) are
 those of :mod:`odolab.geometry`. This module knows no odometer, no file format and no simulator.
 """
+
 from __future__ import annotations
 
 import enum
@@ -16,8 +17,17 @@ import numpy as np
 from odolab.geometry import planar_to_transform, transform_to_planar
 
 __all__ = [
-    "FORWARD_STEP", "MOTION_ACTIONS", "TURN_ANGLE", "Action", "Estimate", "Frame", "Intrinsics", "Sequence",
-    "as_action", "nominal_motion", "nominal_planar",
+    "FORWARD_STEP",
+    "MOTION_ACTIONS",
+    "TURN_ANGLE",
+    "Action",
+    "Estimate",
+    "Frame",
+    "Intrinsics",
+    "Sequence",
+    "as_action",
+    "nominal_motion",
+    "nominal_planar",
 ]
 
 
@@ -47,6 +57,7 @@ def as_action(value: object) -> Action | None:
     if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)) and 0 <= int(value) <= 3:
         return Action(int(value))
     raise TypeError(f"action: expected an Action (or its value, 0-3) or None, got {value!r}")
+
 
 #: The commanded (noiseless) motions of the PointNav Challenge 2020 task (Habitat's
 #: ``challenge_pointnav2020.local.rgbd.yaml``: ``FORWARD_STEP_SIZE: 0.25``, ``TURN_ANGLE: 30``).
@@ -93,19 +104,24 @@ class Intrinsics:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @classmethod
-    def from_hfov(cls, width: int, height: int, hfov_deg: float) -> "Intrinsics":
+    def from_hfov(cls, width: int, height: int, hfov_deg: float) -> Intrinsics:
         """Square-pixel pinhole, principal point at the image centre, whose horizontal field of view
         (degrees) spans the whole image width (edge to edge: ``fx = width / 2 / tan(hfov / 2)``)."""
         f = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
         return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height)
 
-    def resized(self, width: int, height: int) -> "Intrinsics":
+    def resized(self, width: int, height: int) -> Intrinsics:
         """The same camera seen through an image resized (stretched) to ``width`` x ``height``: pixel
         edges map to pixel edges, so u' = (u + 0.5) * width / self.width - 0.5 (likewise v)."""
         sx, sy = width / self.width, height / self.height
-        return Intrinsics(float(self.fx * sx), float(self.fy * sy), float((self.cx + 0.5) * sx - 0.5),
-                          float((self.cy + 0.5) * sy - 0.5),
-                          int(width), int(height))
+        return Intrinsics(
+            float(self.fx * sx),
+            float(self.fy * sy),
+            float((self.cx + 0.5) * sx - 0.5),
+            float((self.cy + 0.5) * sy - 0.5),
+            int(width),
+            int(height),
+        )
 
 
 @dataclass(frozen=True)
@@ -127,12 +143,15 @@ class Frame:
         would otherwise fail deep inside OpenCV or Open3D, or answer for the wrong pixels)."""
         rgb, depth = self.rgb, self.depth
         if not isinstance(depth, np.ndarray) or depth.ndim != 2:
-            raise ValueError(f"Frame.depth: expected an (H, W) array of metres, got "
-                             f"{getattr(depth, 'shape', type(depth).__name__)}")
+            raise ValueError(
+                f"Frame.depth: expected an (H, W) array of metres, got {getattr(depth, 'shape', type(depth).__name__)}"
+            )
         if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3:
             raise ValueError(f"Frame.rgb: expected an (H, W, 3) array, got {getattr(rgb, 'shape', type(rgb).__name__)}")
         if rgb.shape[:2] != depth.shape:
-            raise ValueError(f"Frame: rgb is {rgb.shape[0]}x{rgb.shape[1]} pixels but depth {depth.shape[0]}x{depth.shape[1]}")
+            raise ValueError(
+                f"Frame: rgb is {rgb.shape[0]}x{rgb.shape[1]} pixels but depth {depth.shape[0]}x{depth.shape[1]}"
+            )
 
 
 @dataclass(frozen=True)
@@ -149,12 +168,12 @@ class Estimate:
     covariance: np.ndarray | None = None
 
     @classmethod
-    def from_planar(cls, dx: float, dz: float, dyaw: float, **kw) -> "Estimate":
+    def from_planar(cls, dx: float, dz: float, dyaw: float, **kw) -> Estimate:
         """Build from the paper's planar motion (signs: :mod:`odolab.geometry`)."""
         return cls(planar_to_transform(dx, dz, dyaw), **kw)
 
     @classmethod
-    def invalid(cls) -> "Estimate":
+    def invalid(cls) -> Estimate:
         """An estimate that says 'I could not tell' (identity transform, ``valid=False``)."""
         return cls(np.eye(4), valid=False)
 

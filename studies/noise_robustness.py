@@ -15,6 +15,7 @@ again (unless a learned odometer's model file changed: each row records its dige
 (``table.md``) and figure (``growth.png``) are redrawn from it at the end. ``--redraw`` (with the
 command's other options) redraws them from ``results.json`` alone, computing nothing.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,7 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from odolab.api import ComparisonConfig, NoiseConfig, load_odometer, run_comparison, write_bytes_atomic, write_json_atomic
+from odolab.api import (
+    ComparisonConfig,
+    NoiseConfig,
+    load_odometer,
+    run_comparison,
+    write_bytes_atomic,
+    write_json_atomic,
+)
 from odolab.io.inputs import read_input_json
 from odolab.io.owned import UnsafeOutputError, check_owned_path, owned_path
 
@@ -59,8 +67,11 @@ def _whole(row: object) -> bool:
     if not isinstance(row, dict):
         return False
     need = [k for k in ROW_KEYS if k != "odometer" and not k.endswith("_own")]
-    return (all(_size(row.get(k)) for k in need) and row["failure_share"] <= 1
-            and all(row.get(k) is None or _size(row.get(k)) for k in ROW_KEYS if k.endswith("_own")))
+    return (
+        all(_size(row.get(k)) for k in need)
+        and row["failure_share"] <= 1
+        and all(row.get(k) is None or _size(row.get(k)) for k in ROW_KEYS if k.endswith("_own"))
+    )
 
 
 def _settings(config: object) -> str:
@@ -73,36 +84,60 @@ def _settings(config: object) -> str:
     return " ".join(said)
 
 
-def run_study(out: Path, odometers: list[str], levels: list[float], episodes: int, max_steps: int,
-              options: dict | None = None, parallel: bool = True, weights: dict[str, str | None] | None = None,
-              quiet: bool = False) -> dict:
+def run_study(
+    out: Path,
+    odometers: list[str],
+    levels: list[float],
+    episodes: int,
+    max_steps: int,
+    options: dict | None = None,
+    parallel: bool = True,
+    weights: dict[str, str | None] | None = None,
+    quiet: bool = False,
+) -> dict:
     """Run what ``out/results.json`` lacks; returns ``{"config": ..., "results": {"<level>/<odometer>": row}}``."""
     path = out / "results.json"
     config = {"episodes": episodes, "max_steps": max_steps, "split": "test", "seed": 0}
     doc = json.loads(path.read_text()) if path.exists() else {"config": config, "results": {}}
     if doc.get("config") != config:
-        raise ValueError(f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; "
-                         "choose another --out")
+        raise ValueError(
+            f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; choose another --out"
+        )
     weights = weights if weights is not None else _weights(odometers, options or {})
-    for level in sorted(set([1.0, *levels])):
+    for level in sorted({1.0, *levels}):
         for name in odometers:
             key = f"{level:g}/{name}"
             done = doc["results"].get(key)
             if _whole(done) and done.get("weights") == weights[name]:
                 continue  # done with these weights (a retrained model's rows, or damaged ones, are run again)
-            result = run_comparison(ComparisonConfig(
-                odometers=[name], options={name: (options or {}).get(name, {})}, episodes=episodes,
-                max_steps=max_steps, noise=NoiseConfig(rgb=level, depth=level), parallel=parallel,
-                progress=not quiet))
-            row = [r for r in result.rows if r.odometer == name][0]
-            doc["results"][key] = {"level": level, "odometer": name, "steps": row.steps,
-                                   **{c: getattr(row, c) for c in COMPONENTS},
-                                   **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
-                                   "failure_share": row.failure_share, "ate_m": row.ate_m, "weights": weights[name]}
+            result = run_comparison(
+                ComparisonConfig(
+                    odometers=[name],
+                    options={name: (options or {}).get(name, {})},
+                    episodes=episodes,
+                    max_steps=max_steps,
+                    noise=NoiseConfig(rgb=level, depth=level),
+                    parallel=parallel,
+                    progress=not quiet,
+                )
+            )
+            row = next(r for r in result.rows if r.odometer == name)
+            doc["results"][key] = {
+                "level": level,
+                "odometer": name,
+                "steps": row.steps,
+                **{c: getattr(row, c) for c in COMPONENTS},
+                **{f"{c}_own": getattr(row, f"{c}_own") for c in COMPONENTS},
+                "failure_share": row.failure_share,
+                "ate_m": row.ate_m,
+                "weights": weights[name],
+            }
             write_json_atomic(owned_path(out, "results.json"), doc)  # NaN (no own error) as null; never through a link
             if not quiet:
-                print(f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS),
-                      flush=True)
+                print(
+                    f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS),
+                    flush=True,
+                )
     return doc
 
 
@@ -113,30 +148,45 @@ def redraw_results(out: Path, odometers: list[str], levels: list[float], episode
     doc = json.loads(path.read_text(encoding="utf-8"))
     config = {"episodes": episodes, "max_steps": max_steps, "split": "test", "seed": 0}
     if doc.get("config") != config:
-        raise ValueError(f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; "
-                         "give its settings with --redraw")
-    missing = [f"{level:g}/{name}" for level in sorted(set([1.0, *levels])) for name in odometers
-               if not _whole(doc["results"].get(f"{level:g}/{name}"))]
+        raise ValueError(
+            f"{path} was made with {_settings(doc.get('config'))}, not {_settings(config)}; "
+            "give its settings with --redraw"
+        )
+    missing = [
+        f"{level:g}/{name}"
+        for level in sorted({1.0, *levels})
+        for name in odometers
+        if not _whole(doc["results"].get(f"{level:g}/{name}"))
+    ]
     if missing:
-        raise ValueError(f"--redraw: {path} has no result for {', '.join(missing[:4])}"
-                         f"{' ...' if len(missing) > 4 else ''}; run without --redraw to compute them")
+        raise ValueError(
+            f"--redraw: {path} has no result for {', '.join(missing[:4])}"
+            f"{' ...' if len(missing) > 4 else ''}; run without --redraw to compute them"
+        )
     return doc
 
 
 def growth_table(doc: dict, odometers: list[str], levels: list[float]) -> str:
     """Markdown: per odometer, errors at level 1 and each level, growth factors, failure shares."""
     res = doc["results"]
-    lines = ["| odometer | noise | dx | dz | dyaw | growth dx | growth dz | growth dyaw | failed steps | ATE m |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| odometer | noise | dx | dz | dyaw | growth dx | growth dz | growth dyaw | failed steps | ATE m |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name in odometers:
         base = res.get(f"1/{name}")
-        for level in sorted(set([1.0, *levels])):
+        for level in sorted({1.0, *levels}):
             r = res.get(f"{level:g}/{name}")
             if r is None or base is None:
                 continue
             growth = [r[c] / base[c] if base[c] > 0 else float("nan") for c in COMPONENTS]
-            lines.append(f"| {name} | x{level:g} | " + " | ".join(f"{r[c]:.2f}" for c in COMPONENTS) + " | "
-                         + " | ".join(f"{g:.2f}" for g in growth) + f" | {100 * r['failure_share']:.0f}% | {r['ate_m']:.3f} |")
+            lines.append(
+                f"| {name} | x{level:g} | "
+                + " | ".join(f"{r[c]:.2f}" for c in COMPONENTS)
+                + " | "
+                + " | ".join(f"{g:.2f}" for g in growth)
+                + f" | {100 * r['failure_share']:.0f}% | {r['ate_m']:.3f} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -179,8 +229,11 @@ def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> 
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(fontsize=8)
     n = doc["config"]["episodes"]
-    fig.suptitle(f"Per-step error at sensor noise x1 and x{level:g} (RGB sigma and Redwood depth noise; "
-                 f"{n} test episode{'s' if n != 1 else ''} x {doc['config']['max_steps']} steps)", fontsize=10)
+    fig.suptitle(
+        f"Per-step error at sensor noise x1 and x{level:g} (RGB sigma and Redwood depth noise; "
+        f"{n} test episode{'s' if n != 1 else ''} x {doc['config']['max_steps']} steps)",
+        fontsize=10,
+    )
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
@@ -193,16 +246,29 @@ def main(argv: list[str] | None = None) -> int:
     from odolab.odometer import parse_odometer_list
 
     ap = ArgumentParser(prog="python -m studies.noise_robustness", description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=path_arg("--out"), default=Path("reports/noise-robustness"),
-                    help="results.json, table.md, growth.png (default reports/noise-robustness)")
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("reports/noise-robustness"),
+        help="results.json, table.md, growth.png (default reports/noise-robustness)",
+    )
     ap.add_argument("--odometers", default=DEFAULT_ODOMETERS, help=f"comma-separated (default {DEFAULT_ODOMETERS})")
     ap.add_argument("--levels", default="2", help="sensor-noise multipliers in [0, 10] besides 1 (default 2)")
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, 1000), default=20, help="test episodes (default 20)")
-    ap.add_argument("--max-steps", type=number("--max-steps", int, 1, 500), default=100, help="steps each (default 100)")
+    ap.add_argument(
+        "--episodes", type=number("--episodes", int, 1, 1000), default=20, help="test episodes (default 20)"
+    )
+    ap.add_argument(
+        "--max-steps", type=number("--max-steps", int, 1, 500), default=100, help="steps each (default 100)"
+    )
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars or per-row lines (the table is still printed)")
-    ap.add_argument("--redraw", action="store_true",
-                    help="rebuild table.md and the figures from --out's results.json of the same settings, computing nothing")
+    ap.add_argument(
+        "--quiet", action="store_true", help="no progress bars or per-row lines (the table is still printed)"
+    )
+    ap.add_argument(
+        "--redraw",
+        action="store_true",
+        help="rebuild table.md and the figures from --out's results.json of the same settings, computing nothing",
+    )
     args = ap.parse_args(argv)
     parse_level = number("--levels", float, 0.0, 10.0)
     try:
@@ -215,8 +281,10 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(f"{exc} (in --levels {args.levels!r}: comma-separated numbers)") from None
     others = [v for v in levels if v != 1.0]
     if not others:
-        raise UsageError(f"--levels {args.levels!r}: name at least one multiplier besides 1 (1 is the base "
-                         "every growth factor divides by, and is always run)")
+        raise UsageError(
+            f"--levels {args.levels!r}: name at least one multiplier besides 1 (1 is the base "
+            "every growth factor divides by, and is always run)"
+        )
     if args.redraw and not (args.out / "results.json").is_file():
         raise UsageError(f"--redraw: {args.out / 'results.json'}: no such results file; run the study first")
     try:
@@ -243,8 +311,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.redraw:
             doc = redraw_results(args.out, odometers, levels, args.episodes, args.max_steps)
         else:
-            doc = run_study(args.out, odometers, levels, args.episodes, args.max_steps, parallel=not args.serial,
-                            weights=weights, quiet=args.quiet)
+            doc = run_study(
+                args.out,
+                odometers,
+                levels,
+                args.episodes,
+                args.max_steps,
+                parallel=not args.serial,
+                weights=weights,
+                quiet=args.quiet,
+            )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     table = growth_table(doc, odometers, levels)

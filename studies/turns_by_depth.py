@@ -18,6 +18,7 @@ model file or settings) are the saved ones; the split, seed, ``--scenes`` and ``
 folder are fixed (another value is refused). ``--redraw`` rebuilds the table and figure from
 ``results.json`` alone, computing nothing.
 """
+
 from __future__ import annotations
 
 import math
@@ -69,14 +70,21 @@ def turn_pairs(split: str, seed: int, scenes: int, per_scene: int, first: int = 
 
 def _row_ok(row: object) -> bool:
     """A saved pair: [median depth m, answered, |yaw error| deg or None when not answered]."""
+
     def number(v: object) -> bool:
         try:  # an integer of hundreds of digits is no float: not a number here
             return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
         except OverflowError:
             return False
 
-    return (isinstance(row, list) and len(row) == 3 and number(row[0]) and row[0] >= 0 and isinstance(row[1], bool)
-            and ((row[1] and number(row[2]) and 0 <= row[2] <= 180) or (not row[1] and row[2] is None)))
+    return (
+        isinstance(row, list)
+        and len(row) == 3
+        and number(row[0])
+        and row[0] >= 0
+        and isinstance(row[1], bool)
+        and ((row[1] and number(row[2]) and 0 <= row[2] <= 180) or (not row[1] and row[2] is None))
+    )
 
 
 def read_results(path: Path) -> dict | None:
@@ -91,11 +99,18 @@ def read_results(path: Path) -> dict | None:
     except ValueError as exc:
         raise ResultsError(f"{exc}; delete it or choose another --out") from None
     cfg = doc.get("config") if isinstance(doc, dict) else None
-    if not (isinstance(cfg, dict) and isinstance(doc.get("pairs"), dict) and isinstance(cfg.get("split"), str)
-            and all(type(cfg.get(k)) is int for k in SHARED[1:])
-            and isinstance(cfg.get("options", {}), dict) and isinstance(cfg.get("weights", {}), dict)):
-        raise ResultsError(f"{path}: not a results file of this study (expected config with {', '.join(SHARED)} and "
-                           "pairs per odometer); delete it or choose another --out")
+    if not (
+        isinstance(cfg, dict)
+        and isinstance(doc.get("pairs"), dict)
+        and isinstance(cfg.get("split"), str)
+        and all(type(cfg.get(k)) is int for k in SHARED[1:])
+        and isinstance(cfg.get("options", {}), dict)
+        and isinstance(cfg.get("weights", {}), dict)
+    ):
+        raise ResultsError(
+            f"{path}: not a results file of this study (expected config with {', '.join(SHARED)} and "
+            "pairs per odometer); delete it or choose another --out"
+        )
     return doc
 
 
@@ -108,11 +123,14 @@ def check_shared(doc: dict, path: Path, split: str, seed: int, scenes: int, per_
     """:class:`ResultsError` unless ``doc`` was made with these shared settings."""
     want = {"split": split, "seed": seed, "scenes": scenes, "per_scene": per_scene}
     if any(doc["config"].get(k) != v for k, v in want.items()):
-        raise ResultsError(f"{path} was made with {_settings(doc['config'])}, not {_settings(want)}; "
-                           "choose another --out")
+        raise ResultsError(
+            f"{path} was made with {_settings(doc['config'])}, not {_settings(want)}; choose another --out"
+        )
 
 
-def reusable(doc: dict, name: str, options: dict, weights: str | None, per_scene: int, total: int) -> tuple[list, str | None]:
+def reusable(
+    doc: dict, name: str, options: dict, weights: str | None, per_scene: int, total: int
+) -> tuple[list, str | None]:
     """The saved pairs of ``name`` that a run with ``options`` and ``weights`` may keep (whole scenes,
     at most ``total``), and why none are kept (None when kept, or when there were none)."""
     rows = doc["pairs"].get(name)
@@ -128,8 +146,17 @@ def reusable(doc: dict, name: str, options: dict, weights: str | None, per_scene
     return rows, None
 
 
-def run_study(loaded: dict[str, Odometer], options: dict, split: str, seed: int, scenes: int, per_scene: int,
-              quiet: bool = False, saved: dict | None = None, save=None) -> dict:
+def run_study(
+    loaded: dict[str, Odometer],
+    options: dict,
+    split: str,
+    seed: int,
+    scenes: int,
+    per_scene: int,
+    quiet: bool = False,
+    saved: dict | None = None,
+    save=None,
+) -> dict:
     """Every odometer (name -> loaded with ``options``) on the same turn pairs; returns {"config",
     "pairs": {name: [[median depth m, answered, |yaw error| deg or None]]}}.
 
@@ -142,8 +169,21 @@ def run_study(loaded: dict[str, Odometer], options: dict, split: str, seed: int,
 
     intrinsics = EpisodeSpec().camera.intrinsics  # turn_pairs' episodes use the default camera
     total = scenes * per_scene
-    doc = saved if saved is not None else {"config": {"split": split, "seed": seed, "scenes": scenes,
-                                                      "per_scene": per_scene, "options": {}, "weights": {}}, "pairs": {}}
+    doc = (
+        saved
+        if saved is not None
+        else {
+            "config": {
+                "split": split,
+                "seed": seed,
+                "scenes": scenes,
+                "per_scene": per_scene,
+                "options": {},
+                "weights": {},
+            },
+            "pairs": {},
+        }
+    )
     cfg = doc["config"]
     cfg["options"], cfg["weights"] = dict(cfg.get("options", {})), dict(cfg.get("weights", {}))
     done: dict[str, int] = {}  # name -> scenes already saved
@@ -177,9 +217,14 @@ def run_study(loaded: dict[str, Odometer], options: dict, split: str, seed: int,
 def selected(doc: dict, names: list[str]) -> dict:
     """``doc`` with the pairs, options and weights of ``names`` only (in that order)."""
     cfg = doc["config"]
-    return {"config": {**cfg, "options": {n: cfg.get("options", {}).get(n, {}) for n in names},
-                       "weights": {n: cfg.get("weights", {}).get(n) for n in names}},
-            "pairs": {n: doc["pairs"][n] for n in names}}
+    return {
+        "config": {
+            **cfg,
+            "options": {n: cfg.get("options", {}).get(n, {}) for n in names},
+            "weights": {n: cfg.get("weights", {}).get(n) for n in names},
+        },
+        "pairs": {n: doc["pairs"][n] for n in names},
+    }
 
 
 def _answer(odometer: Odometer, prev, cur, action, true_yaw: float) -> tuple[bool, float | None]:
@@ -192,7 +237,7 @@ def _answer(odometer: Odometer, prev, cur, action, true_yaw: float) -> tuple[boo
     try:
         with odometer_threads(odometer):
             est = odometer.step(guarded_frame(prev, oracle), guarded_frame(cur, oracle), action)
-    except Exception:
+    except Exception:  # noqa: BLE001 - a failing odometer is a failed step
         return False, None
     if failure_reason(est) is not None:
         return False, None
@@ -202,24 +247,38 @@ def _answer(odometer: Odometer, prev, cur, action, true_yaw: float) -> tuple[boo
 def stats(rows: list, label: str) -> dict:
     """Pairs, failed share, RMS yaw error (deg) and share > 2 deg off of the answered, of ``rows``."""
     errs = np.array([r[2] for r in rows if r[1]], float)
-    return {"bin": label, "pairs": len(rows), "failed": 1 - len(errs) / len(rows) if rows else float("nan"),
-            "rms_deg": float(np.sqrt(np.mean(errs**2))) if errs.size else float("nan"),
-            "over_2deg": float(np.mean(errs > 2.0)) if errs.size else float("nan")}
+    return {
+        "bin": label,
+        "pairs": len(rows),
+        "failed": 1 - len(errs) / len(rows) if rows else float("nan"),
+        "rms_deg": float(np.sqrt(np.mean(errs**2))) if errs.size else float("nan"),
+        "over_2deg": float(np.mean(errs > 2.0)) if errs.size else float("nan"),
+    }
 
 
 def bin_stats(rows: list) -> list[dict]:
     """:func:`stats` per depth bin of :data:`BINS`."""
-    return [stats([r for r in rows if lo <= r[0] < hi], f"{lo:g}-{hi:g} m" if np.isfinite(hi) else f"> {lo:g} m")
-            for lo, hi in BINS]
+    return [
+        stats([r for r in rows if lo <= r[0] < hi], f"{lo:g}-{hi:g} m" if np.isfinite(hi) else f"> {lo:g} m")
+        for lo, hi in BINS
+    ]
 
 
 def table(doc: dict) -> str:
-    lines = ["| odometer | median depth | pairs | failed | yaw RMS deg (answered) | > 2 deg off |", "|---|---|---|---|---|---|"]
+    lines = [
+        "| odometer | median depth | pairs | failed | yaw RMS deg (answered) | > 2 deg off |",
+        "|---|---|---|---|---|---|",
+    ]
     for n, rows in doc["pairs"].items():
         for s in bin_stats(rows) + [stats(rows, "all")]:
-            failed, rms, off = (("n/a" if np.isnan(v) else f) for v, f in (
-                (s["failed"], f"{100 * s['failed']:.1f} %"), (s["rms_deg"], f"{s['rms_deg']:.2f}"),
-                (s["over_2deg"], f"{100 * s['over_2deg']:.1f} %")))
+            failed, rms, off = (
+                ("n/a" if np.isnan(v) else f)
+                for v, f in (
+                    (s["failed"], f"{100 * s['failed']:.1f} %"),
+                    (s["rms_deg"], f"{s['rms_deg']:.2f}"),
+                    (s["over_2deg"], f"{100 * s['over_2deg']:.1f} %"),
+                )
+            )
             lines.append(f"| {n} | {s['bin']} | {s['pairs']} | {failed} | {rms} | {off} |")
     return "\n".join(lines) + "\n"
 
@@ -251,9 +310,14 @@ def figure(doc: dict, path: Path) -> None:
     rows = -(-len(names) // 4)  # at most four names per legend row
     fig.legend(*a.get_legend_handles_labels(), loc="lower center", ncol=min(len(names), 4), fontsize=8, frameon=False)
     cfg = doc["config"]
-    given = "; ".join(f"{n} " + ", ".join(f"{k}={v}" for k, v in o.items()) for n, o in cfg.get("options", {}).items() if o)
-    fig.suptitle(f"Turns from random poses: {count(cfg['scenes'], cfg['split'] + ' scene')} x "
-                 f"{count(cfg['per_scene'], 'turn')}" + (f" (options: {given[:120]})" if given else ""), fontsize=10)
+    given = "; ".join(
+        f"{n} " + ", ".join(f"{k}={v}" for k, v in o.items()) for n, o in cfg.get("options", {}).items() if o
+    )
+    fig.suptitle(
+        f"Turns from random poses: {count(cfg['scenes'], cfg['split'] + ' scene')} x "
+        f"{count(cfg['per_scene'], 'turn')}" + (f" (options: {given[:120]})" if given else ""),
+        fontsize=10,
+    )
     fig.tight_layout(rect=(0, 0.05 + 0.04 * rows, 1, 1))
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -267,16 +331,23 @@ def main(argv: list[str] | None = None) -> int:
     from odolab.options import OptionError, parse_assignments
 
     ap = ArgumentParser(prog="python -m studies.turns_by_depth", description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=path_arg("--out"), default=Path("reports/turns-by-depth"),
-                    help="results.json, table.md, turns.png (default reports/turns-by-depth)")
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("reports/turns-by-depth"),
+        help="results.json, table.md, turns.png (default reports/turns-by-depth)",
+    )
     ap.add_argument("--odometers", default="open3d-rgbd", help="comma-separated (default open3d-rgbd)")
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
     ap.add_argument("--split", choices=("train", "val", "test"), default="val")
     ap.add_argument("--seed", type=seed(), default=7)
     ap.add_argument("--scenes", type=number("--scenes", int, 1, 1000), default=20)
     ap.add_argument("--per-scene", type=number("--per-scene", int, 1, 1000), default=20)
-    ap.add_argument("--redraw", action="store_true",
-                    help="rebuild table.md and turns.png from --out's results.json of the same settings, computing nothing")
+    ap.add_argument(
+        "--redraw",
+        action="store_true",
+        help="rebuild table.md and turns.png from --out's results.json of the same settings, computing nothing",
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     try:
@@ -309,17 +380,29 @@ def main(argv: list[str] | None = None) -> int:
         for n in names:
             rows = saved["pairs"].get(n)
             if saved["config"].get("options", {}).get(n, {}) != options.get(n, {}):
-                raise UsageError(f"--redraw: {results}: {n}'s pairs were computed with other options "
-                                 f"({saved['config'].get('options', {}).get(n, {})!r}, not {options.get(n, {})!r}); "
-                                 "give those, or run without --redraw to compute them")
+                raise UsageError(
+                    f"--redraw: {results}: {n}'s pairs were computed with other options "
+                    f"({saved['config'].get('options', {}).get(n, {})!r}, not {options.get(n, {})!r}); "
+                    "give those, or run without --redraw to compute them"
+                )
             if not (isinstance(rows, list) and len(rows) == total and all(map(_row_ok, rows))):
                 have = sum(map(_row_ok, rows)) if isinstance(rows, list) else 0
-                raise UsageError(f"--redraw: {results}: {n} has {have} of {total} pairs; "
-                                 "run without --redraw to compute them")
+                raise UsageError(
+                    f"--redraw: {results}: {n} has {have} of {total} pairs; run without --redraw to compute them"
+                )
         doc = saved
     else:
-        doc = run_study(loaded, options, args.split, args.seed, args.scenes, args.per_scene, quiet=args.quiet,
-                        saved=saved, save=lambda d: write_json_atomic(owned_path(args.out, "results.json"), d))
+        doc = run_study(
+            loaded,
+            options,
+            args.split,
+            args.seed,
+            args.scenes,
+            args.per_scene,
+            quiet=args.quiet,
+            saved=saved,
+            save=lambda d: write_json_atomic(owned_path(args.out, "results.json"), d),
+        )
     view = selected(doc, names)
     text = table(view)
     write_bytes_atomic(owned_path(args.out, "table.md"), text.encode())

@@ -1,5 +1,6 @@
 """Open an HTML report in headless Chromium (Debian's ``chromium``) and report what a reader
 would meet: images that did not load, tables without rows, console and resource errors."""
+
 from __future__ import annotations
 
 import json
@@ -38,13 +39,29 @@ def inspect_page(page: Path, timeout: float = 60.0) -> dict:
     try:
         with tempfile.TemporaryDirectory() as profile:
             proc = subprocess.run(
-                [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
-                 "--allow-file-access-from-files", "--virtual-time-budget=10000", "--dump-dom", probe.as_uri()],
-                capture_output=True, text=True, timeout=timeout)
+                [
+                    CHROMIUM,
+                    "--headless",
+                    "--no-sandbox",
+                    "--disable-gpu",
+                    "--disable-background-networking",
+                    "--disable-component-update",
+                    "--disable-sync",
+                    "--no-first-run",
+                    f"--user-data-dir={profile}",
+                    "--allow-file-access-from-files",
+                    "--virtual-time-budget=10000",
+                    "--dump-dom",
+                    probe.as_uri(),
+                ],
+                capture_output=True,
+                text=True,
+                timeout=timeout,
+                check=False,
+            )
     finally:
         probe.unlink(missing_ok=True)
-    match = re.search(r'<pre id="__found">(.*?)</pre>', proc.stdout, re.S)
+    match = re.search(r'<pre id="__found">(.*?)</pre>', proc.stdout, re.DOTALL)
     if match is None:
         raise AssertionError(f"the page never finished loading in chromium: {proc.stderr[-2000:]}")
     import html

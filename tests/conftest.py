@@ -1,4 +1,5 @@
 """Shared fixtures: tiny cameras and short episodes keep the suite fast on 2 cores."""
+
 from __future__ import annotations
 
 import pytest

@@ -1,4 +1,5 @@
 """The classical odometers of ``baselines/`` on real TUM frames and on views with known motion."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -11,8 +12,8 @@ import pytest
 
 from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import DepthRange, normal_constraint
-from baselines.motion_search import planar_search
 from baselines.measure_tum import relative_pose_error
+from baselines.motion_search import planar_search
 from baselines.pose_solvers import planar_procrustes, pnp, translation_given_rotation
 from baselines.verification import VerifyConfig, first_verified
 from odolab.api import (
@@ -201,9 +202,7 @@ def test_feature_essential_uses_the_essential_matrix_only_with_parallax(T_true, 
 def degenerate_frames(frame: Frame) -> dict[str, tuple[Frame, Frame]]:
     """Pairs no odometer can estimate from."""
     no_depth = dataclasses.replace(frame, depth=np.zeros_like(frame.depth))
-    blank = dataclasses.replace(
-        frame, rgb=np.full_like(frame.rgb, 128), depth=np.full_like(frame.depth, 2.0)
-    )
+    blank = dataclasses.replace(frame, rgb=np.full_like(frame.rgb, 128), depth=np.full_like(frame.depth, 2.0))
     far = dataclasses.replace(frame, depth=np.full_like(frame.depth, 9.0))  # all beyond max_depth
     nan_depth = dataclasses.replace(frame, depth=np.full_like(frame.depth, np.nan))
     return {
@@ -384,8 +383,11 @@ def test_beats_the_action_prior_on_the_simulator(name, short_sim_episodes):
     on each of dx, dz, dyaw (measured: ratios 0.25-0.7)."""
     from odolab import runner, summary
 
-    rows = summary.summarize(runner.run(
-        {"action-prior": load_odometer("action-prior"), name: load_odometer(name)}, short_sim_episodes,
-    ))
+    rows = summary.summarize(
+        runner.run(
+            {"action-prior": load_odometer("action-prior"), name: load_odometer(name)},
+            short_sim_episodes,
+        )
+    )
     prior, odo = (np.array([r.dx, r.dz, r.dyaw]) for r in rows)
     assert np.all(odo < 0.8 * prior), (name, odo, prior)

@@ -1,5 +1,6 @@
 """Every recursion and every integer option is bounded before work starts: a hostile depth or size is
 one clear line, never a RecursionError or an OverflowError after the work was done."""
+
 from __future__ import annotations
 
 import pytest
@@ -29,8 +30,19 @@ def test_composites_nested_too_deep_are_one_line_in_every_entry_point(depth):
 
 
 def test_a_deep_name_on_the_command_line_is_one_short_line(tmp_path):
-    one_line_error("odolab.compare", "--odometers", _nested(1000), "--episodes", "1", "--max-steps", "2",
-                   "--no-cache", "--out", tmp_path / "o", words="nests composites 1000 deep")
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        _nested(1000),
+        "--episodes",
+        "1",
+        "--max-steps",
+        "2",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="nests composites 1000 deep",
+    )
 
 
 def test_a_base_chain_too_long_is_one_line(tmp_path):
@@ -54,15 +66,18 @@ def test_tables_nested_too_deep_to_merge_are_one_line(tmp_path):
         read_toml(tmp_path / "top.toml")
 
 
-@pytest.mark.parametrize("args,words", [
-    (["--first", str(2**31)], "--first must be in [0, 2147483647]"),
-    (["--first", str(2**63)], "--first must be in [0, 2147483647]"),
-    (["--first", str(2**31 - 1), "--episodes", "2"], "the last episode's index would be 2147483648"),
-    (["--episodes", str(10**12)], "--episodes must be in [1, 1000000]"),
-    (["--max-steps", str(2**40)], "--max-steps must be in [1, 500]"),
-    (["--episodes-per-shard", str(2**40)], "--episodes-per-shard must be in [1, 1000]"),
-    (["--seed", str(2**32)], "--seed must be in [0, 4294967295]"),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--first", str(2**31)], "--first must be in [0, 2147483647]"),
+        (["--first", str(2**63)], "--first must be in [0, 2147483647]"),
+        (["--first", str(2**31 - 1), "--episodes", "2"], "the last episode's index would be 2147483648"),
+        (["--episodes", str(10**12)], "--episodes must be in [1, 1000000]"),
+        (["--max-steps", str(2**40)], "--max-steps must be in [1, 500]"),
+        (["--episodes-per-shard", str(2**40)], "--episodes-per-shard must be in [1, 1000]"),
+        (["--seed", str(2**32)], "--seed must be in [0, 4294967295]"),
+    ],
+)
 def test_training_data_integers_are_checked_before_rendering(tmp_path, args, words):
     one_line_error("odolab.training_data", *args, "--serial", "--out", tmp_path / "d", words=words)
     assert not (tmp_path / "d").exists()  # refused before any work
@@ -77,11 +92,14 @@ def test_a_training_data_config_refuses_an_episode_index_its_shards_cannot_store
         DataConfig(max_steps=10**9)
 
 
-@pytest.mark.parametrize("args,words", [
-    (["--episodes", str(10**9)], "--episodes must be in [1, 1000]"),
-    (["--iterations", str(10**12)], "--iterations must be in [1, 1000000]"),
-    (["--seed", "-1"], "--seed must be in [0, 4294967295]"),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--episodes", str(10**9)], "--episodes must be in [1, 1000]"),
+        (["--iterations", str(10**12)], "--iterations must be in [1, 1000000]"),
+        (["--seed", "-1"], "--seed must be in [0, 4294967295]"),
+    ],
+)
 def test_the_example_trainer_checks_its_integers_first(args, words, capsys):
     pytest.importorskip("torch")
     from examples import tiny_learned

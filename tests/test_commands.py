@@ -1,4 +1,5 @@
 """The ``odolab`` console command: its subcommands are the ``python -m`` commands."""
+
 from __future__ import annotations
 
 import importlib

@@ -1,4 +1,5 @@
 """compare's orchestration as one library call: what a study, a notebook or navigation would make."""
+
 import csv
 
 import pytest
@@ -10,8 +11,15 @@ from odolab.compare import main
 
 def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the library call writes nothing
-    config = api.ComparisonConfig(odometers=["ground-truth", "action-prior"], episodes=2, max_steps=8, seed=5,
-                                  cache=None, parallel=False, progress=False)
+    config = api.ComparisonConfig(
+        odometers=["ground-truth", "action-prior"],
+        episodes=2,
+        max_steps=8,
+        seed=5,
+        cache=None,
+        parallel=False,
+        progress=False,
+    )
     result = api.run_comparison(config)
     assert list(tmp_path.iterdir()) == []
     assert [r.odometer for r in result.rows] == ["ground-truth", "action-prior"]
@@ -19,10 +27,29 @@ def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
     assert result.rows[0].ate_m < 1e-9 < result.rows[1].ate_m
     assert any("collisions" in n for n in result.notes) and result.action_rows
     out = tmp_path / "cli"
-    assert run_cli(main, "odolab.compare", ["--odometers", "ground-truth,action-prior", "--episodes", "2",
-                                            "--max-steps", "8", "--seed", "5", "--no-cache", "--serial",
-                                            "--quiet", "--out", str(out)]) == 0
-    table = {r["odometer"]: float(r["ate_m"]) for r in csv.DictReader(open(out / "table.csv"))}
+    assert (
+        run_cli(
+            main,
+            "odolab.compare",
+            [
+                "--odometers",
+                "ground-truth,action-prior",
+                "--episodes",
+                "2",
+                "--max-steps",
+                "8",
+                "--seed",
+                "5",
+                "--no-cache",
+                "--serial",
+                "--quiet",
+                "--out",
+                str(out),
+            ],
+        )
+        == 0
+    )
+    table = {r["odometer"]: float(r["ate_m"]) for r in csv.DictReader((out / "table.csv").read_text().splitlines())}
     assert table["action-prior"] == pytest.approx(result.rows[1].ate_m, abs=1e-5)  # the CSV keeps 5 decimals
 
 
@@ -44,8 +71,15 @@ def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
 
     from odolab.summary import COLLIDED_FORWARD
 
-    config = api.ComparisonConfig(odometers=["ground-truth", "action-prior"], episodes=3, max_steps=60, seed=1,
-                                  cache=None, parallel=False, progress=False)
+    config = api.ComparisonConfig(
+        odometers=["ground-truth", "action-prior"],
+        episodes=3,
+        max_steps=60,
+        seed=1,
+        cache=None,
+        parallel=False,
+        progress=False,
+    )
     result = api.run_comparison(config)
     prior = [r for r in result.results if r.odometer == "action-prior"]
     blocked = sum(int(((r.actions == api.Action.MOVE_FORWARD.value) & r.collisions).sum()) for r in prior)

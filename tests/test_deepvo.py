@@ -1,5 +1,6 @@
 """baselines/deepvo: targets by SE(3) composition, a tiny DeepVO that learns, an LSTM state that
 carries across steps and resets between sequences, resumable training, the odometer in compare."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -9,12 +10,12 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from baselines.deepvo import train as trainer  # noqa: E402
-from baselines.deepvo.config import DeepVOModel, DeepVOTraining, load_training  # noqa: E402
-from baselines.deepvo.model import DeepVONet  # noqa: E402
-from baselines.deepvo.odometer import DeepVOOdometer, load_model  # noqa: E402
-from odolab.api import Action, integrate, invert, planar_to_transform  # noqa: E402
-from odolab.learning import CheckpointError, DataConfig, TrainingData, make_training_data  # noqa: E402
+from baselines.deepvo import train as trainer
+from baselines.deepvo.config import DeepVOModel, DeepVOTraining, load_training
+from baselines.deepvo.model import DeepVONet
+from baselines.deepvo.odometer import DeepVOOdometer, load_model
+from odolab.api import Action, integrate, invert, planar_to_transform
+from odolab.learning import CheckpointError, DataConfig, TrainingData, make_training_data
 
 W, H = 48, 32
 NAME = "baselines.deepvo.odometer:DeepVOOdometer"
@@ -23,9 +24,21 @@ NAME = "baselines.deepvo.odometer:DeepVOOdometer"
 def _recipe(root, **kw) -> DeepVOTraining:
     data = DataConfig(split="train", episodes=2, max_steps=12, width=W, height=H, episodes_per_shard=1)
     model = DeepVOModel(width=W, height=H, width_scale=1 / 16, hidden=16)
-    return DeepVOTraining(**{"model": model, "train_data": data, "val_data": dataclasses.replace(data, split="val", episodes=1),
-                             "data_root": str(root), "window": 4, "batch": 4, "epochs": 2, "lr": 2e-3,
-                             "val_windows": 8, "seed": 5, **kw})
+    return DeepVOTraining(
+        **{
+            "model": model,
+            "train_data": data,
+            "val_data": dataclasses.replace(data, split="val", episodes=1),
+            "data_root": str(root),
+            "window": 4,
+            "batch": 4,
+            "epochs": 2,
+            "lr": 2e-3,
+            "val_windows": 8,
+            "seed": 5,
+            **kw,
+        }
+    )
 
 
 @pytest.fixture(scope="module")
@@ -39,8 +52,16 @@ def recipe(tmp_path_factory) -> DeepVOTraining:
 @pytest.fixture(scope="module")
 def trained(recipe, tmp_path_factory):
     root = tmp_path_factory.mktemp("deepvo-run")
-    assert trainer.run(recipe, work=root / "work", reports=root / "reports", export=root / "model.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    assert trainer.run(
+        recipe,
+        work=root / "work",
+        reports=root / "reports",
+        export=root / "model.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     return root
 
 
@@ -51,7 +72,7 @@ def test_targets_reintegrate_to_the_true_poses(recipe):
     for episode in np.unique(data.episode):
         k = np.flatnonzero(data.episode[data.pairs] == episode)
         first = data.pairs[k[0]]
-        truth = invert(data.poses[first]) @ data.poses[first:first + len(k) + 1]
+        truth = invert(data.poses[first]) @ data.poses[first : first + len(k) + 1]
         rebuilt = integrate(np.stack([planar_to_transform(*p) for p in data.pair_planar[k]]))
         assert np.allclose(rebuilt, truth, atol=1e-6)
         assert np.any(np.abs(data.pair_planar[k, 2]) > 0.4)  # there are 30 degree turns in it
@@ -98,10 +119,26 @@ def test_the_lstm_state_carries_across_steps_and_reset_clears_it(trained, recipe
 
 def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
     one = dataclasses.replace(recipe, epochs=1)
-    assert trainer.run(one, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "one.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
-    assert trainer.run(recipe, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "two.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    assert trainer.run(
+        one,
+        work=tmp_path / "w",
+        reports=tmp_path / "r",
+        export=tmp_path / "one.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
+    assert trainer.run(
+        recipe,
+        work=tmp_path / "w",
+        reports=tmp_path / "r",
+        export=tmp_path / "two.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     a = torch.load(trained / "model.pt", weights_only=True)["networks"]["deepvo"]
     b = torch.load(tmp_path / "two.pt", weights_only=True)["networks"]["deepvo"]
     assert all(torch.equal(a[k], b[k]) for k in a)
@@ -113,10 +150,18 @@ def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
 def test_compare_runs_deepvo_with_finite_errors(trained, tmp_path):
     from odolab.api import ComparisonConfig, run_comparison
 
-    result = run_comparison(ComparisonConfig(odometers=["action-prior", NAME], episodes=1, max_steps=6, cache=None,
-                                             options={NAME: {"checkpoint": str(trained / "model.pt")}},
-                                             parallel=False, progress=False))
-    row = [r for r in result.rows if r.odometer == NAME][0]
+    result = run_comparison(
+        ComparisonConfig(
+            odometers=["action-prior", NAME],
+            episodes=1,
+            max_steps=6,
+            cache=None,
+            options={NAME: {"checkpoint": str(trained / "model.pt")}},
+            parallel=False,
+            progress=False,
+        )
+    )
+    row = next(r for r in result.rows if r.odometer == NAME)
     assert np.all(np.isfinite([row.dx, row.dz, row.dyaw, row.ate_m])) and row.failures == 0
 
 
@@ -138,27 +183,66 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
     first = trained / "model.pt"
     _, first_net, info = load_model(first)
     second = dataclasses.replace(recipe, init=str(first), rotation_weight=1.0, epochs=1, lr=1e-12)
-    assert trainer.run(second, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "m.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    assert trainer.run(
+        second,
+        work=tmp_path / "w",
+        reports=tmp_path / "r",
+        export=tmp_path / "m.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     _, net, _ = load_model(tmp_path / "m.pt")
     for a, b in zip(first_net.parameters(), net.parameters()):  # lr 1e-12: barely moved (BatchNorm's
-        assert torch.allclose(a, b, atol=1e-6)                     # running statistics do move)
+        assert torch.allclose(a, b, atol=1e-6)  # running statistics do move)
     state = torch.load(tmp_path / "w" / "deepvo.pt", weights_only=True)
     assert state["identity"]["init_sha256"] == info["sha256"]
     with pytest.raises(ValueError, match="no such model file"):
-        trainer.run(dataclasses.replace(second, init=str(tmp_path / "none.pt")), work=tmp_path / "w2",
-                    reports=tmp_path / "r2", export=tmp_path / "m2.pt", device=torch.device("cpu"), hours=None,
-                    parallel_data=False, progress=False)
+        trainer.run(
+            dataclasses.replace(second, init=str(tmp_path / "none.pt")),
+            work=tmp_path / "w2",
+            reports=tmp_path / "r2",
+            export=tmp_path / "m2.pt",
+            device=torch.device("cpu"),
+            hours=None,
+            parallel_data=False,
+            progress=False,
+        )
     with pytest.raises(ValueError, match="is this run's --export, which would overwrite it"):
-        trainer.run(second, work=tmp_path / "w4", reports=tmp_path / "r4", export=first, device=torch.device("cpu"),
-                    hours=None, parallel_data=False, progress=False)
+        trainer.run(
+            second,
+            work=tmp_path / "w4",
+            reports=tmp_path / "r4",
+            export=first,
+            device=torch.device("cpu"),
+            hours=None,
+            parallel_data=False,
+            progress=False,
+        )
     with pytest.raises(ValueError, match="is a folder"):
-        trainer.run(dataclasses.replace(second, init=str(tmp_path)), work=tmp_path / "w5", reports=tmp_path / "r5",
-                    export=tmp_path / "m5.pt", device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+        trainer.run(
+            dataclasses.replace(second, init=str(tmp_path)),
+            work=tmp_path / "w5",
+            reports=tmp_path / "r5",
+            export=tmp_path / "m5.pt",
+            device=torch.device("cpu"),
+            hours=None,
+            parallel_data=False,
+            progress=False,
+        )
     wider = dataclasses.replace(second, model=dataclasses.replace(recipe.model, hidden=8))
     with pytest.raises(ValueError, match="differs from this recipe's in hidden"):
-        trainer.run(wider, work=tmp_path / "w3", reports=tmp_path / "r3", export=tmp_path / "m3.pt",
-                    device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+        trainer.run(
+            wider,
+            work=tmp_path / "w3",
+            reports=tmp_path / "r3",
+            export=tmp_path / "m3.pt",
+            device=torch.device("cpu"),
+            hours=None,
+            parallel_data=False,
+            progress=False,
+        )
 
 
 @pytest.mark.parametrize("gain", ["depth", "actions"])
@@ -180,8 +264,16 @@ def test_a_model_gains_an_input_and_answers_alike(trained, recipe, tmp_path, gai
         a, _ = first_net(rgb)
         b, _ = net(torch.cat([rgb, depth], dim=2) if gain == "depth" else rgb, actions=actions)
     assert torch.allclose(a, b, atol=1e-6) and a.abs().max() > 1e-3
-    trainer.run(dataclasses.replace(grown, epochs=1), work=tmp_path / "w", reports=tmp_path / "r",
-                export=tmp_path / "grown.pt", device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    trainer.run(
+        dataclasses.replace(grown, epochs=1),
+        work=tmp_path / "w",
+        reports=tmp_path / "r",
+        export=tmp_path / "grown.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     back = dataclasses.replace(recipe, init=str(tmp_path / "grown.pt"))
     with pytest.raises(ValueError, match="not lose it"):
         trainer.first_stage(back, tmp_path / "m2.pt")
@@ -194,9 +286,19 @@ def test_a_deepvo_with_actions_needs_them(trained, recipe, tmp_path):
     from odolab.episodes import EpisodeSpec, render_episode
 
     first = trained / "model.pt"
-    grown = dataclasses.replace(recipe, init=str(first), model=dataclasses.replace(recipe.model, actions=True), epochs=1)
-    trainer.run(grown, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "a.pt",
-                device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    grown = dataclasses.replace(
+        recipe, init=str(first), model=dataclasses.replace(recipe.model, actions=True), epochs=1
+    )
+    trainer.run(
+        grown,
+        work=tmp_path / "w",
+        reports=tmp_path / "r",
+        export=tmp_path / "a.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     _, net, _ = load_model(tmp_path / "a.pt")
     with pytest.raises(ValueError, match="takes the action of each pair"):
         net(torch.zeros(1, 2, 3, H, W))
@@ -221,6 +323,6 @@ def test_the_shipped_deepvo_is_registered_and_runs_in_a_comparison():
     odo = load_odometer("deepvo")
     assert odo.weights and odo.cfg.width == 170  # the shipped file, reduced resolution
     result = run_comparison(ComparisonConfig(odometers=["deepvo"], episodes=1, max_steps=6, parallel=False))
-    row = [r for r in result.rows if r.odometer == "deepvo"][0]
+    row = next(r for r in result.rows if r.odometer == "deepvo")
     assert row.steps == 6 and row.failure_share == 0.0
     assert all(np.isfinite(getattr(row, c)) for c in ("dx", "dz", "dyaw"))

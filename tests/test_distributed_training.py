@@ -1,5 +1,6 @@
 """Data-parallel training on Ray Train: two workers sharing each batch follow one worker, on a local
 instance and on a two-node local cluster."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -11,10 +12,10 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("ray.train.torch")
 
-from odolab.learning import ComputeConfig, make_training_data  # noqa: E402
-from odolab.robust_vo import train as trainer  # noqa: E402
-from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig  # noqa: E402
-from odolab.training_data import DataConfig  # noqa: E402
+from odolab.learning import ComputeConfig, make_training_data
+from odolab.robust_vo import train as trainer
+from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
+from odolab.training_data import DataConfig
 
 pytestmark = pytest.mark.slow
 
@@ -29,8 +30,16 @@ def _recipe(root) -> TrainConfig:
     data = DataConfig(split="train", episodes=2, max_steps=16, width=W, height=H, episodes_per_shard=1)
     model = ModelConfig(width=W, height=H, base_planes=8, groups=4, hidden=32, compress_channels=8, dropout=0.0)
     stages = (StageConfig("forward", ("move_forward",), 2, lr=1e-3, batch=8),)
-    return TrainConfig(model=model, stages=stages, train_data=data, val_data=dataclasses.replace(data, split="val", episodes=1),
-                       data_root=str(root), val_pairs=20, seed=3, compute=ComputeConfig(precision="fp32", loader_workers=0))
+    return TrainConfig(
+        model=model,
+        stages=stages,
+        train_data=data,
+        val_data=dataclasses.replace(data, split="val", episodes=1),
+        data_root=str(root),
+        val_pairs=20,
+        seed=3,
+        compute=ComputeConfig(precision="fp32", loader_workers=0),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -42,8 +51,17 @@ def recipe(tmp_path_factory) -> TrainConfig:
 
 
 def _train(cfg: TrainConfig, root, **kw) -> dict:
-    done = trainer.run(cfg, work=root / "work", reports=root / "reports", export=root / "model.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False, **kw)
+    done = trainer.run(
+        cfg,
+        work=root / "work",
+        reports=root / "reports",
+        export=root / "model.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+        **kw,
+    )
     assert done and (root / "model.pt").is_file()
     return {"status": json.loads((root / "reports" / "training.json").read_text())}
 
@@ -65,8 +83,11 @@ def test_two_workers_follow_one_worker(recipe, tmp_path):
     assert one_err.shape == two_err.shape and one_err.size
     np.testing.assert_allclose(two_err, one_err, rtol=TOLERANCE)
     # the same samples were seen: every worker's share of every batch counts once
-    pairs = [s["pairs_seen"] for s in (two["status"]["stages"]["forward"], )]
-    assert pairs[0] == json.loads((tmp_path / "one" / "reports" / "training.json").read_text())["stages"]["forward"]["pairs_seen"]
+    pairs = [s["pairs_seen"] for s in (two["status"]["stages"]["forward"],)]
+    assert (
+        pairs[0]
+        == json.loads((tmp_path / "one" / "reports" / "training.json").read_text())["stages"]["forward"]["pairs_seen"]
+    )
 
 
 def test_a_two_node_local_cluster_trains_to_the_end(recipe, tmp_path):

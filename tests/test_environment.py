@@ -1,4 +1,5 @@
 """The step-wise environment sees what the episode generator stored (both go through it)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,8 +17,13 @@ def test_driving_the_environment_as_the_generator_does_sees_the_episodes_frames(
     spec = EpisodeSpec(split="test", index=1, seed=0, max_steps=15, camera=CameraSpec(width=64, height=36))
     ep = render_episode(spec)
     env, begin = start_environment(spec)
-    follower = ShortestPathFollower(geodesic_field(env.scene, *begin.goal), goal_radius=spec.goal_radius,
-                                    noise=env.actuation, rng=env.act_rng, stop_at_contact=spec.stop_at_contact)
+    follower = ShortestPathFollower(
+        geodesic_field(env.scene, *begin.goal),
+        goal_radius=spec.goal_radius,
+        noise=env.actuation,
+        rng=env.act_rng,
+        stop_at_contact=spec.stop_at_contact,
+    )
     assert np.allclose(env.camera_pose(), ep.poses[0]) and begin.goal == tuple(ep.info["goal"])
     first = env.observe()
     assert np.array_equal(first.rgb, ep.rgb[0]) and np.array_equal(first.depth, ep.depth[0])
@@ -46,8 +52,9 @@ def test_sensors_give_the_same_frames_with_the_depth_path_in_a_second_thread():
     cam = CameraSpec(width=96, height=54)
     cells = np.argwhere(scene.navigable)[::97][:6]
     poses = [camera_pose_from_agent(*scene.cell_to_world(*c), 0.7 * k, cam.mount_height) for k, c in enumerate(cells)]
-    one, two = (Sensors(scene, cam, 1.0, 1.0, np.random.default_rng(3), np.random.default_rng(4), threads=n)
-                for n in (1, 2))
+    one, two = (
+        Sensors(scene, cam, 1.0, 1.0, np.random.default_rng(3), np.random.default_rng(4), threads=n) for n in (1, 2)
+    )
     for p in poses:
         a, b = one.read(p), two.read(p)
         for field in ("clean_rgb", "clean_depth", "rgb", "depth"):

@@ -1,4 +1,5 @@
 """Episodes: determinism by seed, the Sequence contract, and the on-disk cache."""
+
 import dataclasses
 
 import numpy as np
@@ -48,7 +49,7 @@ def test_true_motion_matches_actions():
     r = rollout(EpisodeSpec(split="train", index=3, max_steps=80))
     poses = r.camera_poses(0.88)
     for a, T, hit in zip(r.actions, invert(poses[:-1]) @ poses[1:], r.collisions):
-        dx, dz, dyaw = transform_to_planar(T)
+        _dx, dz, dyaw = transform_to_planar(T)
         if a == Action.MOVE_FORWARD and not hit:
             assert 0.11 < dz < 0.39 and abs(dyaw) < 0.5  # 0.25 + 0.5 (0.017 +- 3 sqrt(0.007))
         elif a == Action.MOVE_FORWARD:

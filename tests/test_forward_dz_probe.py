@@ -1,5 +1,6 @@
 """studies/robust_vo/forward_dz_probe: the geometric bound it reports behaves as stated (with the true
 dx and yaw the median depth residual gives dz; errors in them make it worse)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,16 +8,23 @@ import pytest
 
 pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import Action  # noqa: E402
-from odolab.episodes import NoiseConfig  # noqa: E402
-from odolab.learning import DataConfig, TrainingData, make_training_data  # noqa: E402
-from studies.robust_vo.forward_dz_probe import residual  # noqa: E402
+from odolab.api import Action
+from odolab.episodes import NoiseConfig
+from odolab.learning import DataConfig, TrainingData, make_training_data
+from studies.robust_vo.forward_dz_probe import residual
 
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory) -> TrainingData:
-    cfg = DataConfig(split="val", episodes=1, max_steps=20, width=96, height=54, episodes_per_shard=1,
-                     noise=NoiseConfig(rgb=0.0, depth=0.0, actuation=0.5))
+    cfg = DataConfig(
+        split="val",
+        episodes=1,
+        max_steps=20,
+        width=96,
+        height=54,
+        episodes_per_shard=1,
+        noise=NoiseConfig(rgb=0.0, depth=0.0, actuation=0.5),
+    )
     root = tmp_path_factory.mktemp("dz-probe") / "data"
     make_training_data(cfg, root, parallel=False, progress=False)
     return TrainingData(root)

@@ -1,5 +1,6 @@
 """Pose-graph fusion (odolab.fusion): the graph's arithmetic, the robust kernel, calibration, the
 fused odometer's fallback and its name in the registry."""
+
 from __future__ import annotations
 
 import json
@@ -11,13 +12,19 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer  # noqa: E402
-from odolab.fusion.calibration import (CHI2_6_95, Calibration, InputCalibration, debiased,  # noqa: E402
-                                       ellipsoid_share, fit_input)
-from odolab.io.inputs import MAX_INPUT_BYTES  # noqa: E402
-from odolab.fusion.graph import (Measurement, OnlineGraph, check_measurement, left_covariance, residual,  # noqa: E402
-                                 right_covariance, smooth)
-from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer  # noqa: E402
+from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer
+from odolab.fusion.calibration import CHI2_6_95, Calibration, InputCalibration, debiased, ellipsoid_share, fit_input
+from odolab.fusion.graph import (
+    Measurement,
+    OnlineGraph,
+    check_measurement,
+    left_covariance,
+    residual,
+    right_covariance,
+    smooth,
+)
+from odolab.io.inputs import MAX_INPUT_BYTES
+from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer
 
 
 def _pose(dx, dz, dyaw):
@@ -38,8 +45,11 @@ def test_two_inputs_fuse_to_the_information_weighted_mean():
 def test_a_wild_input_is_down_weighted_by_the_robust_kernel():
     good, wild = _pose(0.0, 0.25, 0.0), _pose(0.4, -0.3, 0.6)
     cov = np.diag([1e-4] * 3 + [1e-4] * 3)
-    ms = [Measurement(0, 1, good, cov, "a"), Measurement(0, 1, good @ _pose(0.005, 0, 0), cov, "b"),
-          Measurement(0, 1, wild, cov, "c")]
+    ms = [
+        Measurement(0, 1, good, cov, "a"),
+        Measurement(0, 1, good @ _pose(0.005, 0, 0), cov, "b"),
+        Measurement(0, 1, wild, cov, "c"),
+    ]
     out = {}
     for kernel in ("none", "huber", "cauchy"):
         g = OnlineGraph(kernel=kernel, iterations=5)
@@ -175,6 +185,7 @@ def test_calibration_finds_a_bias_and_a_correlation_and_fusion_removes_the_bias(
 
     def loglik(cov):
         from odolab.fusion.calibration import mahalanobis2
+
         return -0.5 * (mahalanobis2(fresh, cov).mean() + np.linalg.slogdet(cov)[1])
 
     assert loglik(full) > loglik(diag) + 0.5
@@ -235,47 +246,51 @@ def test_near_views_get_their_own_entries_and_fusion_picks_them_by_depth(tmp_pat
 
 def test_bad_calibration_files_are_named(tmp_path):
     def one(fixed, scale="{}", more=""):
-        return '{"format": 1, "inputs": {"x": {"fixed": %s, "own_scale": %s, "steps": {}%s}}}' % (fixed, scale, more)
+        return f'{{"format": 1, "inputs": {{"x": {{"fixed": {fixed}, "own_scale": {scale}, "steps": {{}}{more}}}}}}}'
 
     ok = '{"turn_left": [1, 1, 1, 1, 1, 1]}'
     eye = [[float(i == j) for j in range(6)] for i in range(6)]
 
     def corr(m):
-        return one(ok, more=', "correlation": {"turn_left": %s}' % m)
+        return one(ok, more=f', "correlation": {{"turn_left": {m}}}')
 
     near_singular = [row[:] for row in eye]
     near_singular[1][3] = near_singular[3][1] = 1 - 2e-9
     lopsided = [row[:] for row in eye]
     lopsided[0][1] = 0.5
-    for text, words in [("{", "not a valid calibration file"), ('{"format": 1, "format": 1, "inputs": {}}', "key 'format' appears twice"),
-                        (one(ok, '{"turn_left": 1, "turn_left": 2}'), "key 'turn_left' appears twice"),
-                        ('{"format": 9, "inputs": {}}', "format 1"),
-                        ('{"format": true, "inputs": {}}', "format 1"), ('{"format": 1, "inputs": {}}', "calibrates no"),
-                        ('{"format": 1, "inputs": {"x": 1}, "extra": 2}', "unknown key 'extra'"),
-                        ('{"format": 1, "source": 3, "inputs": {"x": 1}}', "source must be a string"),
-                        ('{"format": 1, "inputs": {"x": 1}}', "input 'x': expected an object"),
-                        ('{"format": 1, "inputs": {"x": {"fixed": {}, "steps": {}}}}', "no 'own_scale'"),
-                        (one(ok, more=', "biases": {}'), "unknown key 'biases'"),
-                        (one('{"turn_left": [1, 2]}'), r"fixed.turn_left: expected a list of 6 numbers, got \[1, 2\]"),
-                        (one('{"turn_left": [1e-300, 1, 1, 1, 1, 1]}'), "fixed.turn_left: expected 6 sigmas in"),
-                        (one('{"fly": [1, 1, 1, 1, 1, 1]}'), "fixed: unknown action 'fly'"),
-                        (one("{}"), "fixed gives no action"),
-                        (one(ok, '{"turn_left": 0}'), "own_scale.turn_left: expected null or a number"),
-                        (one(ok, '{"turn_left": -5}'), "own_scale.turn_left: expected null or a number"),
-                        (one(ok, more=', "bias": {"turn_left": [0, 0]}'), "bias.turn_left: expected a list of 6"),
-                        (one(ok, more=', "bias": {"turn_left": "abcdef"}'), "bias.turn_left: expected a list of 6"),
-                        (one(ok, more=', "bias": {"turn_left": [0, 3, 0, 0, 0, 0]}'), "bias.turn_left: expected rotations within"),
-                        (one(ok, more=', "bias": {"turn_left": [0, 0, 0, 99, 0, 0]}'), "translations within"),
-                        (one(ok, more=', "bias": {"turn_left": [0, 0, 0, 1%s, 0, 0]}' % ("0" * 400)), "bias.turn_left: int too large"),
-                        (one(ok, more=', "bias": {"turn_right": [0, 0, 0, 0, 0, 0]}'), "no fixed sigmas"),
-                        (one(ok, more=', "bias": {"stop": [0, 0, 0, 0, 0, 0]}'), "bias: unknown action 'stop'"),
-                        (one(ok, more=', "bias": null'), "bias must map actions"),
-                        (one(ok, more=', "bias": 3'), "bias must map actions"),
-                        (corr("[[1]]"), "correlation.turn_left: expected 6 rows of 6 numbers"),
-                        (corr(str([[1.0] * 6] * 6)), "correlation.turn_left: expected a positive definite"),
-                        (corr(str(near_singular)), "its smallest is"),
-                        (corr(str(lopsided)), "correlation.turn_left: expected a symmetric matrix"),
-                        (corr(str([[2.0 * v for v in row] for row in eye])), "expected ones on the diagonal")]:
+    for text, words in [
+        ("{", "not a valid calibration file"),
+        ('{"format": 1, "format": 1, "inputs": {}}', "key 'format' appears twice"),
+        (one(ok, '{"turn_left": 1, "turn_left": 2}'), "key 'turn_left' appears twice"),
+        ('{"format": 9, "inputs": {}}', "format 1"),
+        ('{"format": true, "inputs": {}}', "format 1"),
+        ('{"format": 1, "inputs": {}}', "calibrates no"),
+        ('{"format": 1, "inputs": {"x": 1}, "extra": 2}', "unknown key 'extra'"),
+        ('{"format": 1, "source": 3, "inputs": {"x": 1}}', "source must be a string"),
+        ('{"format": 1, "inputs": {"x": 1}}', "input 'x': expected an object"),
+        ('{"format": 1, "inputs": {"x": {"fixed": {}, "steps": {}}}}', "no 'own_scale'"),
+        (one(ok, more=', "biases": {}'), "unknown key 'biases'"),
+        (one('{"turn_left": [1, 2]}'), r"fixed.turn_left: expected a list of 6 numbers, got \[1, 2\]"),
+        (one('{"turn_left": [1e-300, 1, 1, 1, 1, 1]}'), "fixed.turn_left: expected 6 sigmas in"),
+        (one('{"fly": [1, 1, 1, 1, 1, 1]}'), "fixed: unknown action 'fly'"),
+        (one("{}"), "fixed gives no action"),
+        (one(ok, '{"turn_left": 0}'), "own_scale.turn_left: expected null or a number"),
+        (one(ok, '{"turn_left": -5}'), "own_scale.turn_left: expected null or a number"),
+        (one(ok, more=', "bias": {"turn_left": [0, 0]}'), "bias.turn_left: expected a list of 6"),
+        (one(ok, more=', "bias": {"turn_left": "abcdef"}'), "bias.turn_left: expected a list of 6"),
+        (one(ok, more=', "bias": {"turn_left": [0, 3, 0, 0, 0, 0]}'), "bias.turn_left: expected rotations within"),
+        (one(ok, more=', "bias": {"turn_left": [0, 0, 0, 99, 0, 0]}'), "translations within"),
+        (one(ok, more=', "bias": {"turn_left": [0, 0, 0, 1%s, 0, 0]}' % ("0" * 400)), "bias.turn_left: int too large"),
+        (one(ok, more=', "bias": {"turn_right": [0, 0, 0, 0, 0, 0]}'), "no fixed sigmas"),
+        (one(ok, more=', "bias": {"stop": [0, 0, 0, 0, 0, 0]}'), "bias: unknown action 'stop'"),
+        (one(ok, more=', "bias": null'), "bias must map actions"),
+        (one(ok, more=', "bias": 3'), "bias must map actions"),
+        (corr("[[1]]"), "correlation.turn_left: expected 6 rows of 6 numbers"),
+        (corr(str([[1.0] * 6] * 6)), "correlation.turn_left: expected a positive definite"),
+        (corr(str(near_singular)), "its smallest is"),
+        (corr(str(lopsided)), "correlation.turn_left: expected a symmetric matrix"),
+        (corr(str([[2.0 * v for v in row] for row in eye])), "expected ones on the diagonal"),
+    ]:
         p = tmp_path / "c.json"
         p.write_text(text)
         with pytest.raises(ValueError, match=words):
@@ -294,7 +309,9 @@ def test_bad_calibration_files_are_named(tmp_path):
     with pytest.raises(ValueError, match="is a pipe, device or socket; the calibration file must be a regular file"):
         Calibration.load(fifo)
     # a fitted-looking file with an identity correlation and a small bias loads
-    p.write_text(one(ok, more=', "bias": {"turn_left": [0, 0.01, 0, -0.02, 0, 0]}, "correlation": {"turn_left": %s}' % eye))
+    p.write_text(
+        one(ok, more=f', "bias": {{"turn_left": [0, 0.01, 0, -0.02, 0, 0]}}, "correlation": {{"turn_left": {eye}}}')
+    )
     assert Calibration.load(p).for_input("x").bias["turn_left"][1] == 0.01
 
 
@@ -309,6 +326,7 @@ def test_a_fitted_calibration_is_never_refused_by_the_loader(tmp_path):
 
 
 # --- the fused odometer --------------------------------------------------------------------------
+
 
 class _Never(Odometer):
     def step(self, prev, cur, action):
@@ -379,7 +397,9 @@ def test_an_answer_whose_covariance_is_not_one_is_no_answer(calibration, tmp_pat
     cal = Calibration.load(calibration)
     fixed = {a: [0.01, 0.01, 0.01, 0.02, 0.02, 0.02] for a in ("move_forward", "turn_left", "turn_right")}
     own = InputCalibration(fixed, {a: 1.0 for a in fixed}, {a: 100 for a in fixed})  # its own covariance used
-    Calibration({**{n: cal.for_input(n) for n in ("action-prior", "test-fixed")}, "test-badcov": own}).save(tmp_path / "c.json")
+    Calibration({**{n: cal.for_input(n) for n in ("action-prior", "test-fixed")}, "test-badcov": own}).save(
+        tmp_path / "c.json"
+    )
     register_odometer("test-badcov", _BadCovariance)
     odo = REGISTRY.load("fused(test-badcov,test-fixed)", calibration=str(tmp_path / "c.json"))
     odo.reset(Intrinsics.from_hfov(4, 4, 79.0))
@@ -424,8 +444,9 @@ def test_a_fused_odometer_digest_changes_with_its_calibration(calibration, tmp_p
 def test_span_factors_tie_steps_across_the_graph(calibration):
     from odolab.api import Intrinsics
 
-    odo = REGISTRY.load("fused(test-fixed,test-far)", calibration=calibration, kernel="none", span=3,
-                        span_inputs="test-fixed")
+    odo = REGISTRY.load(
+        "fused(test-fixed,test-far)", calibration=calibration, kernel="none", span=3, span_inputs="test-fixed"
+    )
     odo.reset(Intrinsics.from_hfov(4, 4, 79.0))
     for _ in range(4):
         est = odo.step(*_frames(), Action.MOVE_FORWARD)
@@ -437,7 +458,11 @@ def test_span_factors_tie_steps_across_the_graph(calibration):
 
 
 def test_fused_names_and_bad_options(calibration):
-    assert split_odometer_names("icp, fused(icp,open3d-rgbd) ,robust-vo") == ["icp", "fused(icp,open3d-rgbd)", "robust-vo"]
+    assert split_odometer_names("icp, fused(icp,open3d-rgbd) ,robust-vo") == [
+        "icp",
+        "fused(icp,open3d-rgbd)",
+        "robust-vo",
+    ]
     with pytest.raises(ValueError, match="unbalanced"):
         split_odometer_names("fused(icp")
     assert unknown_odometer("fused(icp,nope)") == "nope" and unknown_odometer("fused(icp)") is None
@@ -457,6 +482,7 @@ def test_fused_names_and_bad_options(calibration):
 
 
 # --- the command lines ------------------------------------------------------------------------------
+
 
 def _calibrate(argv):
     from odolab.cli import run_cli
@@ -482,39 +508,54 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
     from odolab.cli import run_cli
 
     (tmp_path / "file").write_text("x")
-    cases = [(["--odometers", ""], "--odometers is empty"), (["--odometers", "action-prior,icp,icp"], "twice"),
-             (["--odometers", "action-prior,fused(action-prior,icp)"], "not an input of fusion"),
-             (["--odometers", "icp"], "must include action-prior"),
-             (["--episodes", "1", "--max-steps", "5"], "too few to calibrate"),
-             (["--cache", str(tmp_path / "file")], "--cache"),
-             (["--out", str(tmp_path / "cal.txt")], "unknown file type '.txt'"),
-             (["--check", str(tmp_path / "missing.json")], "no such calibration file"),
-             (["--check", str(tmp_path / "old.json"), "--out", str(tmp_path / "x.json")], "--check only prints"),
-             (["--check", str(tmp_path / "old.json")], "a calibration of format 0, this odolab reads format")]
+    cases = [
+        (["--odometers", ""], "--odometers is empty"),
+        (["--odometers", "action-prior,icp,icp"], "twice"),
+        (["--odometers", "action-prior,fused(action-prior,icp)"], "not an input of fusion"),
+        (["--odometers", "icp"], "must include action-prior"),
+        (["--episodes", "1", "--max-steps", "5"], "too few to calibrate"),
+        (["--cache", str(tmp_path / "file")], "--cache"),
+        (["--out", str(tmp_path / "cal.txt")], "unknown file type '.txt'"),
+        (["--check", str(tmp_path / "missing.json")], "no such calibration file"),
+        (["--check", str(tmp_path / "old.json"), "--out", str(tmp_path / "x.json")], "--check only prints"),
+        (["--check", str(tmp_path / "old.json")], "a calibration of format 0, this odolab reads format"),
+    ]
     (tmp_path / "old.json").write_text('{"format": 0, "inputs": {}}')
     import json
 
     shipped = json.loads((Path(__file__).parents[1] / "odolab/data/fusion/calibration.json").read_text())
     shipped["inputs"] = {k: v for k, v in shipped["inputs"].items() if k in ("action-prior", "icp")}
     (tmp_path / "two.json").write_text(json.dumps(shipped))
-    cases.append((["--check", str(tmp_path / "two.json"), "--odometers", "action-prior,icp,open3d-rgbd,robust-vo"],
-                  "no calibration for 'open3d-rgbd'"))  # the default list typed out is still a list given
+    cases.append(
+        (
+            ["--check", str(tmp_path / "two.json"), "--odometers", "action-prior,icp,open3d-rgbd,robust-vo"],
+            "no calibration for 'open3d-rgbd'",
+        )
+    )  # the default list typed out is still a list given
     shipped["inputs"]["bogus"] = shipped["inputs"]["icp"]
     (tmp_path / "bogus.json").write_text(json.dumps(shipped))
-    cases.append((["--check", str(tmp_path / "bogus.json")], f"{tmp_path / 'bogus.json'}: input 'bogus' is not a registered"))
+    cases.append(
+        (["--check", str(tmp_path / "bogus.json")], f"{tmp_path / 'bogus.json'}: input 'bogus' is not a registered")
+    )
     icp = shipped["inputs"]["icp"]
-    for i, (where, value, words) in enumerate([("fixed", {"move_forward": ["0.06"] * 6}, "expected a number, got '0.06'"),
-                                               ("fixed", {"move_forward": "111111"}, "a list of 6 numbers"),
-                                               ("steps", {"move_forward": -5}, "whole number of steps >= 0, got -5"),
-                                               ("steps", {"move_forward": 3.7}, "got 3.7"),
-                                               ("steps", {"jump": 3}, "unknown action 'jump'"),
-                                               ("inside95", {"move_forward": 7.0}, "share in [0, 1], got 7.0")]):
+    for i, (where, value, words) in enumerate(
+        [
+            ("fixed", {"move_forward": ["0.06"] * 6}, "expected a number, got '0.06'"),
+            ("fixed", {"move_forward": "111111"}, "a list of 6 numbers"),
+            ("steps", {"move_forward": -5}, "whole number of steps >= 0, got -5"),
+            ("steps", {"move_forward": 3.7}, "got 3.7"),
+            ("steps", {"jump": 3}, "unknown action 'jump'"),
+            ("inside95", {"move_forward": 7.0}, "share in [0, 1], got 7.0"),
+        ]
+    ):
         loose = json.loads(json.dumps(icp))
         loose[where] = {**loose.get(where, {}), **value}
         (tmp_path / f"t{i}.json").write_text(json.dumps({**shipped, "inputs": {"icp": loose}}))
         cases.append((["--check", str(tmp_path / f"t{i}.json")], words))
     (tmp_path / "digits.json").write_text('{"format": ' + "9" * 5000 + "}")
-    cases.append((["--check", str(tmp_path / "digits.json")], f"{tmp_path / 'digits.json'}: not a valid calibration file"))
+    cases.append(
+        (["--check", str(tmp_path / "digits.json")], f"{tmp_path / 'digits.json'}: not a valid calibration file")
+    )
     for i, stranger in enumerate(("this:Zen", "fused(action-prior,icp)")):  # never imported nor built from a file
         shipped["inputs"] = {stranger: icp}
         (tmp_path / f"s{i}.json").write_text(json.dumps(shipped))
@@ -523,10 +564,19 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
         assert _calibrate(argv + ["--serial"]) == 2, argv
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err, (argv, err)
-    for argv, words in [(["--odometers", "fused(action-prior,icp)", "--odometer-option",
-                          f"fused(action-prior,icp).calibration={tmp_path / 'missing.json'}"], "no such calibration file"),
-                        (["--odometers", "fused(icp,icp)"], "named twice"),
-                        (["--odometers", "icp", "--odometer-option", "icp.bogus=1"], "no option 'bogus'")]:
+    for argv, words in [
+        (
+            [
+                "--odometers",
+                "fused(action-prior,icp)",
+                "--odometer-option",
+                f"fused(action-prior,icp).calibration={tmp_path / 'missing.json'}",
+            ],
+            "no such calibration file",
+        ),
+        (["--odometers", "fused(icp,icp)"], "named twice"),
+        (["--odometers", "icp", "--odometer-option", "icp.bogus=1"], "no option 'bogus'"),
+    ]:
         assert run_cli(bench_main, "python -m odolab.bench", ["--only", "odometers"] + argv) == 2
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err, (argv, err)

@@ -1,5 +1,6 @@
 """Hostile input, one test per class: every command answers with one line and exit code 2 (no
 traceback), damaged caches regenerate, finished work is never lost, outputs honour the umask."""
+
 from __future__ import annotations
 
 import os
@@ -26,7 +27,7 @@ def one_line_error(module: str, *args: str, words: str) -> None:
     import io
 
     mod = importlib.import_module(module)
-    main = getattr(mod, "main", None) or getattr(mod, "_main")
+    main = getattr(mod, "main", None) or mod._main
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         code = run_cli(main, module, [str(a) for a in args])
@@ -37,73 +38,104 @@ def one_line_error(module: str, *args: str, words: str) -> None:
 
 
 def test_a_bad_option_is_one_line_from_the_command_line():
-    proc = subprocess.run([sys.executable, "-m", "odolab.compare", "--seed", "-1"], capture_output=True, text=True,
-                          cwd=ROOT, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "odolab.compare", "--seed", "-1"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+        check=False,
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip() == "python -m odolab.compare: error: --seed must be in [0, 4294967295], got -1"
 
 
 # ----------------------------------------------------------------------------- numeric options
 
-@pytest.mark.parametrize("args,words", [
-    (["--seed", "-1"], "--seed must be in [0, 4294967295], got -1"),
-    (["--seed", "99999999999"], "--seed must be in"),
-    (["--rgb-noise", "inf"], "--rgb-noise must be a finite number"),
-    (["--depth-noise", "1e300"], "--depth-noise must be in [0, 10]"),
-    (["--actuation-noise", "nan"], "--actuation-noise must be a finite number"),
-    (["--episodes", "10000000"], "--episodes must be in [1, 1000]"),
-    (["--max-steps", "100000"], "--max-steps must be in [1, 500]"),
-])
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--seed", "-1"], "--seed must be in [0, 4294967295], got -1"),
+        (["--seed", "99999999999"], "--seed must be in"),
+        (["--rgb-noise", "inf"], "--rgb-noise must be a finite number"),
+        (["--depth-noise", "1e300"], "--depth-noise must be in [0, 10]"),
+        (["--actuation-noise", "nan"], "--actuation-noise must be a finite number"),
+        (["--episodes", "10000000"], "--episodes must be in [1, 1000]"),
+        (["--max-steps", "100000"], "--max-steps must be in [1, 500]"),
+    ],
+)
 def test_compare_numeric_options_have_ranges(args, words):
     one_line_error("odolab.compare", *args, words=words)
 
 
-@pytest.mark.parametrize("args,words", [
-    (["--delta", "nan"], "--delta must be a finite number"),
-    (["--delta", "inf"], "--delta must be a finite number"),
-    (["--delta", "1e300"], "--delta must be <="),
-    (["--t-max-diff", "-1"], "--t-max-diff must be in [0, 60]"),
-    (["--min-coverage", "nan"], "--min-coverage must be a finite number"),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--delta", "nan"], "--delta must be a finite number"),
+        (["--delta", "inf"], "--delta must be a finite number"),
+        (["--delta", "1e300"], "--delta must be <="),
+        (["--t-max-diff", "-1"], "--t-max-diff must be in [0, 60]"),
+        (["--min-coverage", "nan"], "--min-coverage must be a finite number"),
+    ],
+)
 def test_evaluate_numeric_options_have_ranges(tmp_path, args, words):
     gt = tmp_path / "gt.txt"
     gt.write_text(TUM_OK)
     one_line_error("odolab.evaluate", gt, gt, "--format", "tum", *args, words=words)
 
 
-@pytest.mark.parametrize("args,words", [
-    (["--seed", "-5"], "--seed must be in"),
-    (["--episodes", "1e9"], "--episodes must be an integer"),
-    (["--episodes", "100000000"], "--episodes must be in"),
-    (["--max-steps", "0"], "--max-steps must be in"),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--seed", "-5"], "--seed must be in"),
+        (["--episodes", "1e9"], "--episodes must be an integer"),
+        (["--episodes", "100000000"], "--episodes must be in"),
+        (["--max-steps", "0"], "--max-steps must be in"),
+    ],
+)
 def test_action_prior_numeric_options_have_ranges(args, words):
     one_line_error("odolab.action_prior", *args, words=words)
 
 
 # ----------------------------------------------------------------------------- output paths
 
+
 def test_compare_output_paths_are_checked_before_work(tmp_path):
     a_file = tmp_path / "file"
     a_file.write_text("x")
     one_line_error("odolab.compare", "--cache", a_file, "--out", tmp_path / "o", words="--cache")
     one_line_error("odolab.compare", "--out", a_file, words="is a file, not a folder")
-    one_line_error("odolab.compare", "--no-cache", "--cache", tmp_path / "c", "--out", tmp_path / "o",
-                   words="--cache and --no-cache contradict")
+    one_line_error(
+        "odolab.compare",
+        "--no-cache",
+        "--cache",
+        tmp_path / "c",
+        "--out",
+        tmp_path / "o",
+        words="--cache and --no-cache contradict",
+    )
     # /proc refuses new files even to root: a read-only location on every Linux machine
-    one_line_error("odolab.compare", "--cache", "/proc/odolab-cache", "--out", tmp_path / "o",
-                   words="--cache /proc/odolab-cache: not a writable folder")
+    one_line_error(
+        "odolab.compare",
+        "--cache",
+        "/proc/odolab-cache",
+        "--out",
+        tmp_path / "o",
+        words="--cache /proc/odolab-cache: not a writable folder",
+    )
 
 
 def test_evaluate_plot_path_is_checked_before_work(tmp_path):
     gt = tmp_path / "gt.txt"
     gt.write_text(TUM_OK)
-    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "fig.xyz",
-                   words="unknown file type '.xyz'")
-    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path,
-                   words="is a folder, not a file")
-    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "no" / "f.png",
-                   words="does not exist")
+    one_line_error(
+        "odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "fig.xyz", words="unknown file type '.xyz'"
+    )
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path, words="is a folder, not a file")
+    one_line_error(
+        "odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "no" / "f.png", words="does not exist"
+    )
     one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", "/proc/f.png", words="cannot write in /proc")
 
 
@@ -113,8 +145,14 @@ def test_bench_json_path_is_checked_before_work(tmp_path):
     notes.write_text("mine")
     one_line_error("odolab.bench", "--only", "evaluate", "--json", notes, words="unknown file type '.md'")
     (tmp_path / "link.json").symlink_to(notes)  # the link's name is not what would be replaced
-    one_line_error("odolab.bench", "--only", "evaluate", "--json", tmp_path / "link.json",
-                   words=f"links to {notes}, unknown file type '.md'")
+    one_line_error(
+        "odolab.bench",
+        "--only",
+        "evaluate",
+        "--json",
+        tmp_path / "link.json",
+        words=f"links to {notes}, unknown file type '.md'",
+    )
     assert notes.read_text() == "mine"
     one_line_error("odolab.bench", "--only", "evaluate", "--json", f"{tmp_path}/new.json/", words="ends in '/'")
     assert not (tmp_path / "new.json").exists()
@@ -124,33 +162,52 @@ def test_bench_json_path_is_checked_before_work(tmp_path):
 
 # ----------------------------------------------------------------------------- Ray addresses
 
-@pytest.mark.parametrize("address,words", [
-    ("127.0.0.1:1", "no Ray cluster there"),        # a dead loopback port: nothing listens
-    ("not an address", "is not an address"),
-    ("127.0.0.1:99999", "is not an address"),
-])
+
+@pytest.mark.parametrize(
+    "address,words",
+    [
+        ("127.0.0.1:1", "no Ray cluster there"),  # a dead loopback port: nothing listens
+        ("not an address", "is not an address"),
+        ("127.0.0.1:99999", "is not an address"),
+    ],
+)
 def test_ray_address_fails_within_seconds(tmp_path, address, words):
     start = time.monotonic()
-    one_line_error("odolab.compare", "--ray-address", address, "--odometers", "action-prior", "--episodes", "2",
-                   "--max-steps", "5", "--no-cache", "--out", tmp_path, words=words)
+    one_line_error(
+        "odolab.compare",
+        "--ray-address",
+        address,
+        "--odometers",
+        "action-prior",
+        "--episodes",
+        "2",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path,
+        words=words,
+    )
     assert time.monotonic() - start < 30
 
 
 # ----------------------------------------------------------------------------- damaged cache
 
+
 @pytest.mark.parametrize("damage", ["truncated", "bad crc"])
 def test_damaged_cache_entry_is_named_and_regenerated(tmp_path, small_spec, capsys, damage):
-    from odolab.episodes import EpisodeCache, load_episodes, render_episode
-
     import dataclasses
+
+    from odolab.episodes import EpisodeCache, load_episodes, render_episode
 
     small_spec = dataclasses.replace(small_spec, max_steps=4)
     cache = EpisodeCache(tmp_path)
     path = cache.put(render_episode(small_spec))
     good = path.read_bytes()
     k = len(good) // 3  # inside the rgb member: the zip directory stays readable, the CRC fails
-    path.write_bytes(good[: len(good) // 2] if damage == "truncated" else
-                     good[:k] + bytes([good[k] ^ 0xFF]) + good[k + 1:])
+    path.write_bytes(
+        good[: len(good) // 2] if damage == "truncated" else good[:k] + bytes([good[k] ^ 0xFF]) + good[k + 1 :]
+    )
     capsys.readouterr()
     (ep,) = load_episodes([small_spec], cache, parallel=False, progress=False)
     err = capsys.readouterr().err.strip().splitlines()
@@ -160,6 +217,7 @@ def test_damaged_cache_entry_is_named_and_regenerated(tmp_path, small_spec, caps
 
 
 # ----------------------------------------------------------------------------- TUM files
+
 
 def test_duplicate_timestamps_keep_the_first_and_are_counted(tmp_path, capsys):
     from odolab.evaluate import main
@@ -189,6 +247,7 @@ def test_error_messages_print_plain_numbers(tmp_path):
 
 # ----------------------------------------------------------------------------- file modes
 
+
 def test_outputs_honour_the_umask(tmp_path):
     from odolab.io.atomic import atomic_open, write_text_atomic
 
@@ -208,10 +267,13 @@ def test_outputs_honour_the_umask(tmp_path):
 TUM_DIR = ROOT / "tests" / "data" / "tum_fr1_xyz_10"
 
 
-@pytest.mark.parametrize("args,words", [
-    (["--episodes", "3"], "--episodes: simulator option, meaningless with --tum"),
-    (["--split=val", "--rgb-noise", "2"], "--split, --rgb-noise: simulator options"),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--episodes", "3"], "--episodes: simulator option, meaningless with --tum"),
+        (["--split=val", "--rgb-noise", "2"], "--split, --rgb-noise: simulator options"),
+    ],
+)
 def test_tum_refuses_simulator_options(tmp_path, args, words):
     one_line_error("odolab.compare", "--tum", TUM_DIR, *args, "--out", tmp_path, words=words)
 
@@ -226,8 +288,12 @@ def test_tum_says_how_many_frames_it_left_out(tmp_path, capsys):
     lines = (folder / "depth.txt").read_text().splitlines()
     (folder / "depth.txt").write_text("\n".join(lines[:-3]) + "\n")
     out = tmp_path / "out"
-    assert run_cli(main, "odolab.compare", ["--tum", str(folder), "--odometers", "action-prior", "--quiet",
-                                            "--out", str(out)]) == 0
+    assert (
+        run_cli(
+            main, "odolab.compare", ["--tum", str(folder), "--odometers", "action-prior", "--quiet", "--out", str(out)]
+        )
+        == 0
+    )
     said = "7 frames; colour images left out: 3 without a depth image and 0 without a ground-truth pose"
     assert said in capsys.readouterr().err and said in (out / "report.html").read_text()
 
@@ -247,11 +313,17 @@ def test_a_bad_image_stops_before_any_odometer_runs(tmp_path, command):
 
     folder = tmp_path / "rgbd_dataset_freiburg1_bad"
     shutil.copytree(TUM_DIR, folder)
-    depth = sorted((folder / "depth").iterdir())[-1]  # the last frame: found before the first step
+    depth = max((folder / "depth").iterdir())  # the last frame: found before the first step
     depth.write_bytes(depth.read_bytes()[:100])
     args = ["--tum", folder, "--out", tmp_path / "o"] if command == "odolab.compare" else [folder]
-    proc = subprocess.run([sys.executable, "-m", command, *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", command, *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        check=False,
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stdout == ""
     (line,) = proc.stderr.strip().splitlines()
     assert f"{depth}: cannot be read as an image (listed in depth.txt, line 13)" in line
@@ -260,9 +332,13 @@ def test_a_bad_image_stops_before_any_odometer_runs(tmp_path, command):
 def test_measure_tum_runs_reference_rows_and_names_an_unknown_odometer(capsys):
     from baselines.measure_tum import main as measure_main
 
-    assert measure_main([str(TUM_DIR), "--odometers", "ground-truth", "action-prior", "no-motion", "--repeat", "1"]) == 0
+    assert (
+        measure_main([str(TUM_DIR), "--odometers", "ground-truth", "action-prior", "no-motion", "--repeat", "1"]) == 0
+    )
     out = capsys.readouterr().out
-    rows = {line.split("|")[1].strip(): line.split("|")[2].strip() for line in out.splitlines() if line.startswith("| ")}
+    rows = {
+        line.split("|")[1].strip(): line.split("|")[2].strip() for line in out.splitlines() if line.startswith("| ")
+    }
     assert rows["ground-truth"] == "0.00" and float(rows["no-motion"]) > 5 and rows["action-prior"] == rows["no-motion"]
     assert measure_main([str(TUM_DIR), "--odometers", "nope"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -296,8 +372,7 @@ def test_an_interrupted_rerun_never_mixes_two_runs(tmp_path):
 
 
 def test_an_odometer_calling_sys_exit_fails_its_steps_not_the_comparison():
-    from odolab.api import Estimate, Odometer, run_odometers
-    from odolab.api import load_tum_sequence
+    from odolab.api import Estimate, Odometer, load_tum_sequence, run_odometers
 
     class Quitter(Odometer):
         def step(self, prev, cur, action) -> Estimate:
@@ -331,11 +406,10 @@ def test_action_prior_refuses_a_prior_of_nothing_and_odd_out_paths(tmp_path):
 
 
 def test_absurd_thread_counts_are_refused_not_crashed_on():
+    import numpy as np
     import pytest
 
     from odolab.api import load_odometer
-
-    import numpy as np
 
     for name in ("robust-vo", "deepvo"):
         for bad in (100000, np.inf, np.nan, 2.5, True, "3"):
@@ -360,8 +434,12 @@ def test_json_reports_have_no_nan(tmp_path):
 
     from odolab.io.atomic import write_json_atomic
 
-    report = {"odometers": [{"odometer": "action-prior", "steps_per_s": float("nan")},
-                            {"odometer": "icp", "steps_per_s": 18.5, "fails": np.float64("inf")}]}
+    report = {
+        "odometers": [
+            {"odometer": "action-prior", "steps_per_s": float("nan")},
+            {"odometer": "icp", "steps_per_s": 18.5, "fails": np.float64("inf")},
+        ]
+    }
     write_json_atomic(tmp_path / "r.json", report)
     text = (tmp_path / "r.json").read_text()
     assert "NaN" not in text and "Infinity" not in text
@@ -425,19 +503,54 @@ def test_a_report_folder_holding_a_pipe_or_a_dead_link_is_refused_before_work(tm
         else:
             (out / "table.csv").symlink_to(tmp_path / "missing" / "t.csv")
         words = "is not a regular file" if kind == "fifo" else "is a link to nothing"
-        one_line_error("odolab.compare", "--odometers", "action-prior", "--episodes", "1", "--max-steps", "5",
-                       "--no-cache", "--serial", "--out", out, words=words)
+        one_line_error(
+            "odolab.compare",
+            "--odometers",
+            "action-prior",
+            "--episodes",
+            "1",
+            "--max-steps",
+            "5",
+            "--no-cache",
+            "--serial",
+            "--out",
+            out,
+            words=words,
+        )
 
 
 def test_numbers_too_long_to_read_are_one_line_errors(tmp_path):
     big = "9" * 5000
-    one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.x={big}",
-                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o",
-                   words="action-prior.x: a number too long to read")
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "action-prior",
+        "--odometer-option",
+        f"action-prior.x={big}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="action-prior.x: a number too long to read",
+    )
     cfg = tmp_path / "big.toml"
     cfg.write_text(f'[odometers."action-prior"]\nx = {big}\n')
-    one_line_error("odolab.compare", "--config", cfg, "--episodes", "1", "--max-steps", "5", "--no-cache",
-                   "--out", tmp_path / "o2", words=f"{cfg}: holds a number too long to read")
+    one_line_error(
+        "odolab.compare",
+        "--config",
+        cfg,
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o2",
+        words=f"{cfg}: holds a number too long to read",
+    )
     from odolab.learning import ConfigError
     from odolab.robust_vo.config import load_train_config
 
@@ -452,45 +565,101 @@ def test_an_action_prior_file_that_is_a_pipe_or_repeats_a_key_is_one_line(tmp_pa
     twice = tmp_path / "twice.json"
     twice.write_text('{"means": {"move_forward": [0, 0, 0]}, "means": {}, "samples": {}}')
     for path, words in [(fifo, "is a pipe, device or socket"), (twice, "key 'means' appears twice")]:
-        one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.prior={path}",
-                       "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)
+        one_line_error(
+            "odolab.compare",
+            "--odometers",
+            "action-prior",
+            "--odometer-option",
+            f"action-prior.prior={path}",
+            "--episodes",
+            "1",
+            "--max-steps",
+            "5",
+            "--no-cache",
+            "--out",
+            tmp_path / "o",
+            words=words,
+        )
 
 
-@pytest.mark.parametrize("value", ["[]", "[0]", "[1000000]", '"123"', "[1.5]", "[true]", "[2147483648]",
-                                   "[5,5,5,5,5,5,5,5]", "20", "[[20,5]]"])
+@pytest.mark.parametrize(
+    "value",
+    ["[]", "[0]", "[1000000]", '"123"', "[1.5]", "[true]", "[2147483648]", "[5,5,5,5,5,5,5,5]", "20", "[[20,5]]"],
+)
 def test_open3d_iterations_out_of_range_are_one_line(tmp_path, value):
     """0 iterations would quietly return the starting guess, a million would never end, 8 pyramid
     levels leave a 2 x 1 pixel image, a string would be read digit by digit."""
-    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option", f"open3d-rgbd.iterations={value}",
-                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o",
-                   words="iterations: expected a list of 1-6 whole numbers")
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--odometer-option",
+        f"open3d-rgbd.iterations={value}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="iterations: expected a list of 1-6 whole numbers",
+    )
 
 
 @pytest.mark.parametrize("value", ["[0]", "[1000000]", '"123"', "[5,5,5,5,5,5,5]"])
 def test_open3d_fallback_iterations_out_of_range_are_one_line(tmp_path, value):
     """The fallback schedule is checked as the first one is (but may be empty: no fallback)."""
-    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option",
-                   f"open3d-rgbd.fallback_iterations={value}", "--episodes", "1", "--max-steps", "5", "--no-cache",
-                   "--out", tmp_path / "o", words="fallback_iterations: expected a list of 0-6 whole numbers")
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--odometer-option",
+        f"open3d-rgbd.fallback_iterations={value}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="fallback_iterations: expected a list of 0-6 whole numbers",
+    )
 
 
 def test_an_option_given_twice_is_refused(tmp_path):
-    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option", "open3d-rgbd.term=hybrid",
-                   "--odometer-option", "open3d-rgbd.term=color", "--episodes", "1", "--max-steps", "5", "--no-cache",
-                   "--out", tmp_path / "o", words="open3d-rgbd.term is given twice")
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--odometer-option",
+        "open3d-rgbd.term=hybrid",
+        "--odometer-option",
+        "open3d-rgbd.term=color",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="open3d-rgbd.term is given twice",
+    )
 
 
-@pytest.mark.parametrize("change,words", [
-    ({"means": [[0, 0.25, 0]]}, "'means' must be an object mapping each of move_forward"),
-    ({"samples": "x"}, "'samples' must be an object"),
-    ({"means": {"move_forward": "123"}}, "means.move_forward: expected [dx m, dz m, dyaw rad]"),
-    ({"means": {"move_forward": [0, 1000, 0]}}, "means.move_forward: expected"),
-    ({"means": {"turn_left": None}}, "means.turn_left: expected"),
-    ({"means": {"move_forward": [0, 0.25, 0]}, "drop": "turn_left"}, "means: no value for 'turn_left'"),
-    ({"means": {"stop": [0, 0, 0]}}, "means: unknown action 'stop'"),
-    ({"samples": {"turn_left": -5}}, "samples.turn_left: expected a whole number >= 0"),
-    ({"samples": {"turn_left": True}}, "samples.turn_left: expected a whole number >= 0"),
-])
+@pytest.mark.parametrize(
+    "change,words",
+    [
+        ({"means": [[0, 0.25, 0]]}, "'means' must be an object mapping each of move_forward"),
+        ({"samples": "x"}, "'samples' must be an object"),
+        ({"means": {"move_forward": "123"}}, "means.move_forward: expected [dx m, dz m, dyaw rad]"),
+        ({"means": {"move_forward": [0, 1000, 0]}}, "means.move_forward: expected"),
+        ({"means": {"turn_left": None}}, "means.turn_left: expected"),
+        ({"means": {"move_forward": [0, 0.25, 0]}, "drop": "turn_left"}, "means: no value for 'turn_left'"),
+        ({"means": {"stop": [0, 0, 0]}}, "means: unknown action 'stop'"),
+        ({"samples": {"turn_left": -5}}, "samples.turn_left: expected a whole number >= 0"),
+        ({"samples": {"turn_left": True}}, "samples.turn_left: expected a whole number >= 0"),
+    ],
+)
 def test_an_action_prior_file_with_bad_fields_names_the_field(tmp_path, change, words):
     import json
 
@@ -504,29 +673,72 @@ def test_an_action_prior_file_with_bad_fields_names_the_field(tmp_path, change, 
         del doc["means"][change["drop"]]
     path = tmp_path / "prior.json"
     path.write_text(json.dumps(doc))
-    one_line_error("odolab.compare", "--odometers", "action-prior", "--odometer-option", f"action-prior.prior={path}",
-                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "action-prior",
+        "--odometer-option",
+        f"action-prior.prior={path}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words=words,
+    )
 
 
-@pytest.mark.parametrize("option,value,words", [
-    ("fallback_iterations", "[" * 3000 + "]" * 3000, "open3d-rgbd.fallback_iterations: value nested too deeply"),
-    ("max_depth", "inf", "max_depth <= 1000 m, got min_depth 0.1, max_depth inf"),
-    ("max_depth", "1e300", "max_depth <= 1000 m"),
-])
+@pytest.mark.parametrize(
+    "option,value,words",
+    [
+        ("fallback_iterations", "[" * 3000 + "]" * 3000, "open3d-rgbd.fallback_iterations: value nested too deeply"),
+        ("max_depth", "inf", "max_depth <= 1000 m, got min_depth 0.1, max_depth inf"),
+        ("max_depth", "1e300", "max_depth <= 1000 m"),
+    ],
+)
 def test_open3d_depth_and_nesting_are_one_line(tmp_path, option, value, words):
     """A depth cut of infinity ran (and wrote Infinity into navigate's JSON); [[[...]]] 3000 deep
     was a RecursionError traceback."""
-    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--odometer-option", f"open3d-rgbd.{option}={value}",
-                   "--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words=words)
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--odometer-option",
+        f"open3d-rgbd.{option}={value}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words=words,
+    )
 
 
 def test_a_deeply_nested_options_file_and_a_huge_option_are_short_lines(tmp_path, capsys):
     deep = tmp_path / "deep.toml"
     deep.write_text('[odometers."open3d-rgbd"]\nfallback_iterations = ' + "[" * 3000 + "]" * 3000 + "\n")
-    one_line_error("odolab.compare", "--odometers", "open3d-rgbd", "--config", deep, "--episodes", "1",
-                   "--max-steps", "5", "--no-cache", "--out", tmp_path / "o", words="holds a value nested too deeply")
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--config",
+        deep,
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="holds a value nested too deeply",
+    )
     huge = "[" + ",".join(["5"] * 20000) + "]"  # the odometer's message cuts the value; the loader's did not
     from odolab.comparison import ComparisonError, load_odometers
+
     with pytest.raises(ComparisonError) as info:
         load_odometers(["open3d-rgbd"], {"open3d-rgbd": {"fallback_iterations": [5] * 20000}})
     assert len(str(info.value)) < 500 and "fallback_iterations" in str(info.value)
@@ -536,6 +748,7 @@ def test_a_deeply_nested_options_file_and_a_huge_option_are_short_lines(tmp_path
 def test_equal_settings_give_equal_digests():
     """6 and 6.0 set the same depth cut: a rerun with either reuses the other's episodes."""
     from odolab.odometer import load_odometer
+
     assert load_odometer("open3d-rgbd", max_depth=6).weights == load_odometer("open3d-rgbd").weights
     assert load_odometer("open3d-rgbd", max_depth=5).weights != load_odometer("open3d-rgbd").weights
 
@@ -546,20 +759,35 @@ def test_a_pasted_20000_character_name_is_not_echoed_whole(tmp_path):
 
     from odolab.cli import MAX_ERROR_CHARS
     from odolab.compare import main
+
     name = "k" * 20000
     for args in (["--odometers", name], ["--odometers", "icp", "--odometer-option", f"icp.{name}=1"]):
         err = io.StringIO()
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            code = run_cli(main, "odolab.compare", [*args, "--episodes", "1", "--max-steps", "3", "--no-cache",
-                                                    "--out", str(tmp_path / "o")])
+            code = run_cli(
+                main,
+                "odolab.compare",
+                [*args, "--episodes", "1", "--max-steps", "3", "--no-cache", "--out", str(tmp_path / "o")],
+            )
         line = err.getvalue().strip()
         assert code == 2 and "\n" not in line and line.endswith("more characters)")
         assert len(line) < MAX_ERROR_CHARS + 100
 
 
-@pytest.mark.parametrize("module", ["odolab.compare", "odolab.bench", "odolab.simcard", "odolab.evaluate",
-                                    "odolab.navigate", "odolab.action_prior", "odolab.training_data",
-                                    "odolab.fusion.calibrate", "odolab.navigation.diff"])
+@pytest.mark.parametrize(
+    "module",
+    [
+        "odolab.compare",
+        "odolab.bench",
+        "odolab.simcard",
+        "odolab.evaluate",
+        "odolab.navigate",
+        "odolab.action_prior",
+        "odolab.training_data",
+        "odolab.fusion.calibrate",
+        "odolab.navigation.diff",
+    ],
+)
 def test_every_command_names_itself_as_typed_in_its_errors(module):
-    proc = subprocess.run([sys.executable, "-m", module, "--bogus-option"], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", module, "--bogus-option"], capture_output=True, text=True, check=False)
     assert proc.returncode == 2 and proc.stderr.startswith(f"python -m {module}: error: "), proc.stderr

@@ -1,4 +1,5 @@
 """Cases a fresh hostile review found after issue 42 (fast: nothing trains, nothing is computed)."""
+
 from __future__ import annotations
 
 import json
@@ -7,7 +8,6 @@ from pathlib import Path
 import pytest
 
 from odolab.cli import UsageError, run_cli
-
 from tests.test_output_ownership import ROBUST_RECIPE
 
 RECIPE = ROBUST_RECIPE.replace("{stage}", "forward")  # parsed only: no data is made
@@ -21,8 +21,11 @@ def _job(tmp_path: Path, *argv: str):
     recipe = tmp_path / "recipe.toml"
     recipe.write_text(RECIPE)
     ap = training_parser("python -m odolab.robust_vo.train", "train", "robust-vo")
-    return parse_training_command(ap, ["--config", str(recipe), "--work", str(tmp_path / "work"),
-                                       "--reports", str(tmp_path / "reports"), *argv], load_train_config)
+    return parse_training_command(
+        ap,
+        ["--config", str(recipe), "--work", str(tmp_path / "work"), "--reports", str(tmp_path / "reports"), *argv],
+        load_train_config,
+    )
 
 
 def test_workers_a_local_ray_instance_cannot_hold_are_refused_before_any_work(tmp_path, monkeypatch):
@@ -74,10 +77,23 @@ def test_the_export_is_never_one_of_the_reports_the_run_writes(tmp_path, monkeyp
 
 
 def _noise_doc() -> dict:
-    row = {"level": 1.0, "odometer": "icp", "steps": 10, "dx": 1.0, "dz": 1.0, "dyaw": 1.0, "dx_own": 1.0,
-           "dz_own": None, "dyaw_own": 1.0, "failure_share": 0.1, "ate_m": 0.2}
-    return {"config": {"episodes": 1, "max_steps": 3, "split": "test", "seed": 0},
-            "results": {"1/icp": row, "2/icp": {**row, "level": 2.0}}}
+    row = {
+        "level": 1.0,
+        "odometer": "icp",
+        "steps": 10,
+        "dx": 1.0,
+        "dz": 1.0,
+        "dyaw": 1.0,
+        "dx_own": 1.0,
+        "dz_own": None,
+        "dyaw_own": 1.0,
+        "failure_share": 0.1,
+        "ate_m": 0.2,
+    }
+    return {
+        "config": {"episodes": 1, "max_steps": 3, "split": "test", "seed": 0},
+        "results": {"1/icp": row, "2/icp": {**row, "level": 2.0}},
+    }
 
 
 def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, capsys):
@@ -86,13 +102,22 @@ def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, caps
     import studies.noise_robustness as noise
 
     assert noise._whole(_noise_doc()["results"]["1/icp"])
-    for key, value in (("dx", 10**400), ("dz", True), ("dyaw", -1.0), ("failure_share", 1.5), ("dx_own", 10**400),
-                       ("ate_m", float("nan"))):
+    for key, value in (
+        ("dx", 10**400),
+        ("dz", True),
+        ("dyaw", -1.0),
+        ("failure_share", 1.5),
+        ("dx_own", 10**400),
+        ("ate_m", float("nan")),
+    ):
         assert not noise._whole({**_noise_doc()["results"]["1/icp"], key: value}), key
 
     def cli(out: Path) -> int:
-        return run_cli(noise.main, "python -m studies.noise_robustness",
-                       ["--odometers", "icp", "--episodes", "1", "--max-steps", "3", "--redraw", "--quiet", "--out", str(out)])
+        return run_cli(
+            noise.main,
+            "python -m studies.noise_robustness",
+            ["--odometers", "icp", "--episodes", "1", "--max-steps", "3", "--redraw", "--quiet", "--out", str(out)],
+        )
 
     ok = tmp_path / "ok"
     ok.mkdir()
@@ -117,8 +142,17 @@ def test_the_turns_study_names_damage_and_other_options_apart(tmp_path, capsys):
     assert turns._row_ok([1.5, True, 0.3]) and not turns._row_ok([10**400, True, 0.3])
     assert not turns._row_ok([1.5, True, 10**400])
     pairs = [[1.0, True, 0.5]] * 4
-    doc = {"config": {"split": "val", "seed": 7, "scenes": 2, "per_scene": 2, "options": {"icp": {"max_iter": 3}},
-                      "weights": {}}, "pairs": {"icp": pairs}}
+    doc = {
+        "config": {
+            "split": "val",
+            "seed": 7,
+            "scenes": 2,
+            "per_scene": 2,
+            "options": {"icp": {"max_iter": 3}},
+            "weights": {},
+        },
+        "pairs": {"icp": pairs},
+    }
     out = tmp_path / "t"
     out.mkdir()
     (out / "results.json").write_text(json.dumps(doc))
@@ -179,10 +213,9 @@ def test_evaluate_refuses_a_device_at_once(tmp_path):
 
 def test_one_trainer_never_replaces_anothers_model(tmp_path):
     torch = pytest.importorskip("torch")
-    from odolab.learning.checkpoints import CheckpointError, check_export, save_model
-
-
     import dataclasses
+
+    from odolab.learning.checkpoints import CheckpointError, check_export, save_model
 
     @dataclasses.dataclass
     class R:
@@ -206,8 +239,9 @@ def test_an_unreadable_manifest_is_refused_not_ignored(tmp_path):
         OutputFolder.check(tmp_path)
 
 
-@pytest.mark.parametrize("pinhole, words", [((525.0, 525.0, 1e9, 1e9), "principal point"),
-                                            ((1e-9, 1e-9, 0.0, 0.0), "implausible")])
+@pytest.mark.parametrize(
+    "pinhole, words", [((525.0, 525.0, 1e9, 1e9), "principal point"), ((1e-9, 1e-9, 0.0, 0.0), "implausible")]
+)
 def test_implausible_tum_intrinsics_are_refused(pinhole, words):
     from odolab.io.tum_rgbd import load_tum_sequence
 
@@ -266,7 +300,9 @@ def test_trainers_and_training_data_refuse_a_folder_of_the_users_files(tmp_path)
     with pytest.raises(UsageError, match="did not write"):
         _job(tmp_path, "--reports", str(mine))
     assert run_cli(make_data, "python -m odolab.training_data", ["--episodes", "1", "--out", str(mine)]) == 2
-    assert (mine / "curves.csv").read_text() == "my own numbers" and sorted(p.name for p in mine.iterdir()) == ["curves.csv"]
+    assert (mine / "curves.csv").read_text() == "my own numbers" and sorted(p.name for p in mine.iterdir()) == [
+        "curves.csv"
+    ]
 
 
 def test_a_meaningless_manifest_line_is_named(tmp_path):

@@ -1,5 +1,6 @@
 """What a learned odometer needs from odolab.api: specs, true motions, a pair dataset with random
 access that maps (not loads) the cached episodes, and per-odometer options from the command line."""
+
 import pickle
 
 import numpy as np
@@ -16,8 +17,9 @@ from odolab.sim.camera import CameraSpec
 @pytest.fixture(scope="module")
 def cached(tmp_path_factory):
     root = tmp_path_factory.mktemp("cache")
-    specs = [api.EpisodeSpec(split="train", index=i, max_steps=8, camera=CameraSpec(width=64, height=36))
-             for i in range(2)]
+    specs = [
+        api.EpisodeSpec(split="train", index=i, max_steps=8, camera=CameraSpec(width=64, height=36)) for i in range(2)
+    ]
     cache = api.EpisodeCache(root)
     api.generate_episodes(specs, cache, parallel=False, progress=False)
     return specs, cache
@@ -130,36 +132,84 @@ def test_compare_passes_options_to_the_constructor(tmp_path):
         return {r["odometer"]: float(r["dz"]) for r in csv.DictReader(open(out / "table.csv"))}
 
     # each odometer gets its own options
-    assert run_cli(main, "odolab.compare", ["--odometers", "scaled,scaled-too", "--odometer-option", "scaled.step=0.1",
-                                            "--odometer-option", "scaled-too.step=0.3", *cached,
-                                            "--out", str(tmp_path / "cli")]) == 0
+    assert (
+        run_cli(
+            main,
+            "odolab.compare",
+            [
+                "--odometers",
+                "scaled,scaled-too",
+                "--odometer-option",
+                "scaled.step=0.1",
+                "--odometer-option",
+                "scaled-too.step=0.3",
+                *cached,
+                "--out",
+                str(tmp_path / "cli"),
+            ],
+        )
+        == 0
+    )
     by_cli = dz(tmp_path / "cli")
     assert by_cli["scaled"] != by_cli["scaled-too"]
     # a TOML file gives the same, and the command line overrides it
     cfg = tmp_path / "opts.toml"
     cfg.write_text('[odometers.scaled]\nstep = 0.3\n\n[odometers."scaled-too"]\nstep = 0.5\n')
-    assert run_cli(main, "odolab.compare", ["--odometers", "scaled,scaled-too", "--config", str(cfg),
-                                            "--odometer-option", "scaled-too.step=0.1", *cached,
-                                            "--out", str(tmp_path / "file")]) == 0
+    assert (
+        run_cli(
+            main,
+            "odolab.compare",
+            [
+                "--odometers",
+                "scaled,scaled-too",
+                "--config",
+                str(cfg),
+                "--odometer-option",
+                "scaled-too.step=0.1",
+                *cached,
+                "--out",
+                str(tmp_path / "file"),
+            ],
+        )
+        == 0
+    )
     by_file = dz(tmp_path / "file")
     assert by_file == {"scaled": by_cli["scaled-too"], "scaled-too": by_cli["scaled"]}
 
 
-@pytest.mark.parametrize("args,words", [
-    (["--odometers", "action-prior", "--odometer-option", "action-prior.nope=1"],
-     "odometer 'action-prior' has no option 'nope'; it accepts: prior"),
-    (["--odometers", "action-prior", "--odometer-option", "icp.max_depth=1"],
-     "options given for 'icp', which is not among the odometers"),
-    (["--odometers", "action-prior", "--odometer-option", "garbage"], "expected NAME.key=value"),
-    (["--odometers", "examples.nominal_motion:NominalMotion", "--odometer-option",
-      "examples.nominal_motion:NominalMotion.speed=2"], "has no option 'speed'"),
-    (["--config", "/nonexistent/o.toml"], "/nonexistent/o.toml: no such options file"),
-    (["--odometers", "icp", "--odometer-option", "icp.max_depth=abc"],
-     "odometer 'icp' option max_depth: expected a number, got 'abc'"),
-    (["--odometers", "icp", "--odometer-option", "icp.max_iterations=2.5"],
-     "odometer 'icp' option max_iterations: expected an integer, got 2.5"),
-    (["--odometers", "icp", "--odometer-option", "icp.max_depth=true"], "expected a number, got True"),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (
+            ["--odometers", "action-prior", "--odometer-option", "action-prior.nope=1"],
+            "odometer 'action-prior' has no option 'nope'; it accepts: prior",
+        ),
+        (
+            ["--odometers", "action-prior", "--odometer-option", "icp.max_depth=1"],
+            "options given for 'icp', which is not among the odometers",
+        ),
+        (["--odometers", "action-prior", "--odometer-option", "garbage"], "expected NAME.key=value"),
+        (
+            [
+                "--odometers",
+                "examples.nominal_motion:NominalMotion",
+                "--odometer-option",
+                "examples.nominal_motion:NominalMotion.speed=2",
+            ],
+            "has no option 'speed'",
+        ),
+        (["--config", "/nonexistent/o.toml"], "/nonexistent/o.toml: no such options file"),
+        (
+            ["--odometers", "icp", "--odometer-option", "icp.max_depth=abc"],
+            "odometer 'icp' option max_depth: expected a number, got 'abc'",
+        ),
+        (
+            ["--odometers", "icp", "--odometer-option", "icp.max_iterations=2.5"],
+            "odometer 'icp' option max_iterations: expected an integer, got 2.5",
+        ),
+        (["--odometers", "icp", "--odometer-option", "icp.max_depth=true"], "expected a number, got True"),
+    ],
+)
 def test_bad_options_are_one_line(args, words, tmp_path, capsys):
     assert run_cli(main, "python -m odolab.compare", [*args, *BASE, "--out", str(tmp_path)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
@@ -170,23 +220,33 @@ def test_a_bad_option_value_is_one_line(tmp_path):
     api.register_odometer("scaled", Scaled)
     with pytest.raises(Exception) as info:
         main(["--odometers", "scaled", "--odometer-option", "scaled.step=7", *BASE, "--out", str(tmp_path)])
-    assert "could not load odometer 'scaled'" in str(info.value) and "step must be in (0, 1) m, got 7" in str(info.value)
+    assert "could not load odometer 'scaled'" in str(info.value) and "step must be in (0, 1) m, got 7" in str(
+        info.value
+    )
 
 
 def test_every_public_name_of_the_api_resolves():
     assert [n for n in api.__all__ if getattr(api, n, None) is None] == []
     with pytest.raises(AttributeError):
-        api.no_such_name
+        _ = api.no_such_name
 
 
 def test_a_bad_value_from_an_options_file_names_the_file(tmp_path, capsys):
     api.register_odometer("scaled", Scaled)
     cfg = tmp_path / "opts.toml"
     cfg.write_text("[odometers.scaled]\nstep = 7\n")
-    assert run_cli(main, "odolab.compare", ["--odometers", "scaled", "--config", str(cfg), *BASE,
-                                            "--out", str(tmp_path / "out")]) == 2
+    assert (
+        run_cli(
+            main,
+            "odolab.compare",
+            ["--odometers", "scaled", "--config", str(cfg), *BASE, "--out", str(tmp_path / "out")],
+        )
+        == 2
+    )
     line = capsys.readouterr().err.strip()
-    assert "step must be in (0, 1) m, got 7" in line and line.split(": error: ")[1].startswith(f"options from --config {cfg}: ")
+    assert "step must be in (0, 1) m, got 7" in line and line.split(": error: ")[1].startswith(
+        f"options from --config {cfg}: "
+    )
 
 
 def test_numpy_scalars_set_options_as_the_numbers_they_hold():

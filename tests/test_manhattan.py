@@ -1,12 +1,22 @@
 """baselines/manhattan: the walls' direction from depth, and an odometer whose heading they hold."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from baselines.manhattan import ManhattanOdometer, anchor_direction, wall_direction, wrap_quarter
-from odolab.api import (Action, Estimate, Frame, Intrinsics, Odometer, invert, load_odometer, planar_to_transform,
-                        register_odometer)
+from odolab.api import (
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Odometer,
+    invert,
+    load_odometer,
+    planar_to_transform,
+    register_odometer,
+)
 from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
 
 K = Intrinsics.from_hfov(160, 90, 79.0)
@@ -15,7 +25,7 @@ K = Intrinsics.from_hfov(160, 90, 79.0)
 def wall_depth(angle: float, distance: float = 2.0) -> np.ndarray:
     """Depth image of an infinite vertical wall whose normal points at ``angle`` (rad) in the
     camera's x-z plane, ``distance`` m from the camera."""
-    v, u = np.mgrid[0:K.height, 0:K.width].astype(np.float64)
+    _v, u = np.mgrid[0 : K.height, 0 : K.width].astype(np.float64)
     ray_x, ray_z = (u - K.cx) / K.fx, np.ones_like(u)
     n = np.array([np.sin(angle), np.cos(angle)])  # wall points p with n . p = distance
     t = distance / (n[0] * ray_x + n[1] * ray_z)
@@ -35,8 +45,9 @@ def test_no_wall_no_direction():
 
 @pytest.fixture(scope="module")
 def episode():
-    return render_episode(EpisodeSpec(split="val", index=3, seed=0, max_steps=100,
-                                      noise=NoiseConfig(rgb=1.0, depth=1.0, actuation=0.5)))
+    return render_episode(
+        EpisodeSpec(split="val", index=3, seed=0, max_steps=100, noise=NoiseConfig(rgb=1.0, depth=1.0, actuation=0.5))
+    )
 
 
 def _heading(T_world_cam: np.ndarray) -> float:
@@ -97,11 +108,16 @@ def test_the_walls_hold_a_random_walking_heading(episode):
     assert np.mean(held) < 0.35 * np.mean(plain) and max(held) < 2.0
 
 
-@pytest.mark.parametrize("options, field", [({"step_sigma_deg": 0}, "step_sigma_deg"),
-                                            ({"wall_sigma_deg": float("nan")}, "wall_sigma_deg"),
-                                            ({"anchor_steps": 2.5}, "anchor_steps"),
-                                            ({"min_support": "high"}, "min_support"),
-                                            ({"relock_support": 1.5}, "relock_support")])
+@pytest.mark.parametrize(
+    "options, field",
+    [
+        ({"step_sigma_deg": 0}, "step_sigma_deg"),
+        ({"wall_sigma_deg": float("nan")}, "wall_sigma_deg"),
+        ({"anchor_steps": 2.5}, "anchor_steps"),
+        ({"min_support": "high"}, "min_support"),
+        ({"relock_support": 1.5}, "relock_support"),
+    ],
+)
 def test_bad_options_are_named(options, field):
     with pytest.raises(ValueError, match=field):
         ManhattanOdometer("ground-truth", **options)
@@ -178,7 +194,9 @@ def test_options_for_a_row_that_is_also_an_inner_odometer_are_refused():
     with pytest.raises(ComparisonError, match="options_file"):
         load_odometers(["icp", "fused(icp,open3d-rgbd)"], {"icp": {"voxel": 0.05}})
     assert set(load_odometers(["icp", "manhattan(open3d-rgbd)"], {"icp": {"voxel": 0.05}})) == {
-        "icp", "manhattan(open3d-rgbd)"}
+        "icp",
+        "manhattan(open3d-rgbd)",
+    }
 
 
 class JumpingTruth(Odometer):
@@ -206,10 +224,14 @@ def test_a_jump_of_the_inner_odometer_is_undone_by_the_relock(episode):
     assert undone < 2.0 and stays > 10.0 and strict > 10.0
 
 
-@pytest.mark.parametrize("views, expected", [
-    ([(-29.2, 524), (-28.1, 445), (-1.9, 37), (-28.6, 300), (-22.7, 88)], -28.7),  # val 3's first views, one stray
-    ([(44.0, 100), (-44.5, 100), (20.0, 500)], -45.25),  # agreeing across the +-45 degree seam
-    ([(10.0, 100)], 10.0)])
+@pytest.mark.parametrize(
+    "views, expected",
+    [
+        ([(-29.2, 524), (-28.1, 445), (-1.9, 37), (-28.6, 300), (-22.7, 88)], -28.7),  # val 3's first views, one stray
+        ([(44.0, 100), (-44.5, 100), (20.0, 500)], -45.25),  # agreeing across the +-45 degree seam
+        ([(10.0, 100)], 10.0),
+    ],
+)
 def test_the_anchor_is_the_largest_agreeing_group(views, expected):
     """A stray anchor view (clutter, 26 degrees off the walls) does not pull the world's direction;
     angles are compared modulo 90 degrees; the group's mean is weighted by samples."""
@@ -232,5 +254,6 @@ def test_an_options_file_that_is_not_a_path_is_named():
 def test_options_for_an_input_alone_point_to_the_options_file():
     """Options for ``icp`` when only ``manhattan(icp)`` runs would be lost; the refusal says where they go."""
     from odolab.comparison import ComparisonError, load_odometers
+
     with pytest.raises(ComparisonError, match=r"input of 'manhattan\(icp\)'.*options_file=FILE"):
         load_odometers(["manhattan(icp)"], {"icp": {"voxel": 0.05}})

@@ -1,5 +1,6 @@
 """Trajectory metrics: cross-checked against evo's Python API, the KITTI devkit rules and the
 reference figures of evo's shipped test data (tests/data/evo/README.md)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -36,21 +37,27 @@ def se3(R: np.ndarray, t) -> np.ndarray:
     return T
 
 
-def make_pair(seed: int, n: int = 300, step: float = 0.5, scale: float = 1.0, noise: float = 0.01,
-              yaw_drift: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+def make_pair(
+    seed: int, n: int = 300, step: float = 0.5, scale: float = 1.0, noise: float = 0.01, yaw_drift: float = 0.002
+) -> tuple[np.ndarray, np.ndarray]:
     """A ground-truth path that turns through +-180 deg many times, and an estimate of it with
     per-step noise, yaw drift, a scale factor and an arbitrary starting frame."""
     rng = np.random.default_rng(seed)
     yaw = rng.normal(0.35, 0.3, n - 1)  # about 20 deg per step: many half turns
-    rel_gt = np.array([
-        se3(rot("z", y) @ rot("x", rng.normal(0, 0.05)), [step, rng.normal(0, 0.05), rng.normal(0, 0.05)])
-        for y in yaw
-    ])
+    rel_gt = np.array(
+        [
+            se3(rot("z", y) @ rot("x", rng.normal(0, 0.05)), [step, rng.normal(0, 0.05), rng.normal(0, 0.05)])
+            for y in yaw
+        ]
+    )
     gt = integrate(rel_gt, start=se3(rot("y", 0.3), [1.0, -2.0, 0.5]))
-    rel_est = np.array([
-        T @ se3(rot("z", yaw_drift + rng.normal(0, noise)) @ rot("x", rng.normal(0, noise)), rng.normal(0, noise, 3))
-        for T in rel_gt
-    ])
+    rel_est = np.array(
+        [
+            T
+            @ se3(rot("z", yaw_drift + rng.normal(0, noise)) @ rot("x", rng.normal(0, noise)), rng.normal(0, noise, 3))
+            for T in rel_gt
+        ]
+    )
     rel_est[:, :3, 3] *= scale
     est = integrate(rel_est, start=se3(rot("x", 2.0) @ rot("z", -2.5), [5.0, 1.0, -3.0]))
     return gt, est
@@ -71,8 +78,10 @@ def evo_ape(gt, est, align: str) -> tuple[float, np.ndarray, float]:
 
 
 def evo_rpe(gt, est, delta, unit, all_pairs=False, relation="trans_part") -> tuple[np.ndarray, list[int]]:
-    pr = {"trans_part": evo_metrics.PoseRelation.translation_part,
-          "angle_deg": evo_metrics.PoseRelation.rotation_angle_deg}[relation]
+    pr = {
+        "trans_part": evo_metrics.PoseRelation.translation_part,
+        "angle_deg": evo_metrics.PoseRelation.rotation_angle_deg,
+    }[relation]
     r = evo_metrics.RPE(pr, delta, {"f": Unit.frames, "m": Unit.meters}[unit], 0.1, all_pairs)
     r.process_data((evo_path(gt), evo_path(est)))
     return r.error, r.delta_ids
@@ -116,10 +125,10 @@ def test_rotation_angle_small_and_half_turn():
 
 
 CASES = [
-    dict(seed=1),
-    dict(seed=2, noise=0.05, yaw_drift=0.01),
-    dict(seed=3, scale=0.37),
-    dict(seed=4, scale=2.5, noise=0.0, yaw_drift=0.0),
+    {"seed": 1},
+    {"seed": 2, "noise": 0.05, "yaw_drift": 0.01},
+    {"seed": 3, "scale": 0.37},
+    {"seed": 4, "scale": 2.5, "noise": 0.0, "yaw_drift": 0.0},
 ]
 
 
@@ -137,8 +146,9 @@ def test_ate_matches_evo(case, align):
 
 
 @pytest.mark.parametrize("case", CASES[:3])
-@pytest.mark.parametrize("delta,unit,all_pairs", [(1, "f", False), (7, "f", False), (7, "f", True),
-                                                   (3.0, "m", False), (3.0, "m", True)])
+@pytest.mark.parametrize(
+    "delta,unit,all_pairs", [(1, "f", False), (7, "f", False), (7, "f", True), (3.0, "m", False), (3.0, "m", True)]
+)
 def test_rpe_matches_evo(case, delta, unit, all_pairs):
     gt, est = make_pair(**case)
     ours = M.rpe(gt, est, delta, unit, all_pairs=all_pairs)

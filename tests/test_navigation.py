@@ -1,4 +1,5 @@
 """Closed-loop navigation: the goal update of eq. 1, and an agent with true odometry reaching the goal."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -10,8 +11,7 @@ import pytest
 
 from odolab.api import Action, invert, load_odometer
 from odolab.episodes import EpisodeSpec, render_episode, rollout
-from odolab.navigation.agent import MapPlanAgent
-from odolab.navigation.agent import in_agent_frame
+from odolab.navigation.agent import MapPlanAgent, in_agent_frame
 from odolab.navigation.episode import navigate
 
 
@@ -20,7 +20,9 @@ def test_the_goal_follows_the_true_relative_goal_when_the_odometry_is_true():
     motion = rollout(spec)
     ep = render_episode(spec, motion)
     start = motion.states[0]
-    agent = MapPlanAgent(tuple(in_agent_frame(motion.goal, start.x, start.y, start.yaw)), ep.intrinsics, spec.camera.mount_height)
+    agent = MapPlanAgent(
+        tuple(in_agent_frame(motion.goal, start.x, start.y, start.yaw)), ep.intrinsics, spec.camera.mount_height
+    )
     for t in range(len(ep.actions)):
         agent.update(invert(ep.poses[t]) @ ep.poses[t + 1])
         s = motion.states[t + 1]
@@ -78,8 +80,9 @@ def test_a_gap_the_map_narrowed_is_taken_by_the_fallback_plan():
     ys = ys[(ys < 0.6) | (ys > 0.9)]
     actions = {}
     for fallback in (0.0, 0.1):
-        agent = MapPlanAgent((3.0, 0.0), cam.intrinsics, cam.mount_height,
-                             PolicyConfig(extent=2.0, fallback_radius=fallback))
+        agent = MapPlanAgent(
+            (3.0, 0.0), cam.intrinsics, cam.mount_height, PolicyConfig(extent=2.0, fallback_radius=fallback)
+        )
         agent.map.vote(np.full(ys.shape, 1.0), ys, weight=5)
         actions[fallback] = agent.act(blind)
     assert actions == {0.0: Action.MOVE_FORWARD, 0.1: Action.TURN_LEFT}
@@ -99,12 +102,13 @@ def _full_march(agent, radius):
     speed = np.where(clearance < radius + cfg.margin, cfg.margin_speed, 1.0)
     gr, gc, _ = m.to_cell(*agent.goal)
     k = int(np.ceil((radius + cfg.margin) / cfg.cell))
-    blocked[max(gr - k, 0):gr + k + 1, max(gc - k, 0):gc + k + 1] = False
-    speed[max(gr - k, 0):gr + k + 1, max(gc - k, 0):gc + k + 1] = 1.0
+    blocked[max(gr - k, 0) : gr + k + 1, max(gc - k, 0) : gc + k + 1] = False
+    speed[max(gr - k, 0) : gr + k + 1, max(gc - k, 0) : gc + k + 1] = 1.0
     wx, wy = m.to_world(np.arange(m.n), np.arange(m.n))
     phi = np.hypot(wx[None, :] - agent.goal[0], wy[:, None] - agent.goal[1]) - cfg.cell
-    return np.ma.filled(skfmm.travel_time(np.ma.MaskedArray(phi, mask=blocked), speed, dx=cfg.cell)
-                        .astype(np.float64), np.inf)
+    return np.ma.filled(
+        skfmm.travel_time(np.ma.MaskedArray(phi, mask=blocked), speed, dx=cfg.cell).astype(np.float64), np.inf
+    )
 
 
 @pytest.mark.parametrize("clutter", [60, 0])
@@ -126,7 +130,7 @@ def test_the_cut_short_march_gives_the_full_march_times_to_the_bit(clutter):
     agent.map.vote(np.full(ys.shape, -1.0), ys, weight=5)  # cells left of x = -1 have no way to the goal
     hook = np.arange(-3.3, 3.3, 0.02)
     agent.map.vote(np.full(hook.shape, 1.2), hook, weight=5)  # a long wall between the agent and the goal
-    r, c = np.mgrid[0:m.n:7, 0:m.n:7]
+    r, c = np.mgrid[0 : m.n : 7, 0 : m.n : 7]
     near_r, near_c, _ = m.to_cell(np.full(5, 0.9), np.linspace(0.0, 1.0, 5))  # 1.1 m from the goal, 8 m round
     r, c = np.concatenate([r.ravel(), near_r]), np.concatenate([c.ravel(), near_c])
     for radius in (cfg.agent_radius, 0.1):
@@ -150,7 +154,8 @@ def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
     old = {k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k != "fallback_radius"}
     assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.0))) == []
     assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.1))) == [
-        "--policy fallback_radius (not recorded there, so 0.0: that folder predates this parameter, 0.1 now)"]
+        "--policy fallback_radius (not recorded there, so 0.0: that folder predates this parameter, 0.1 now)"
+    ]
     assert _policy_to_match(old, dataclasses.asdict(PolicyConfig())) == "--policy fallback_radius=0.0"
     assert _policy_to_match({**old, "cell": 5.0}, dataclasses.asdict(PolicyConfig())) is None  # out of range
     assert _policy_to_match({**old, "cell": "0.05"}, dataclasses.asdict(PolicyConfig())) is None  # not a number
@@ -179,7 +184,7 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert len(done) == 4
     done[2].unlink()  # an interrupted run: one episode missing
     done[0].write_text('{"odometer": "act')  # and two files of one odometer damaged
-    done[1].write_text('{}')
+    done[1].write_text("{}")
     assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
     assert (tmp_path / "a" / "nav.csv").read_text() == a
     notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note:")]
@@ -199,36 +204,55 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
 def test_navigate_keeps_out_of_folders_it_did_not_make(tmp_path, capsys):
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "report.html").write_text("precious")
-    assert _navigate(["--odometers", "ground-truth", "--episodes", "1", "--max-steps", "5", "--serial", "--quiet",
-                      "--out", str(tmp_path / "mine")]) == 2
+    assert (
+        _navigate(
+            [
+                "--odometers",
+                "ground-truth",
+                "--episodes",
+                "1",
+                "--max-steps",
+                "5",
+                "--serial",
+                "--quiet",
+                "--out",
+                str(tmp_path / "mine"),
+            ]
+        )
+        == 2
+    )
     assert "did not write" in capsys.readouterr().err and (tmp_path / "mine" / "report.html").read_text() == "precious"
 
 
 def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
-    for argv, words in [(["--odometers", "nope"], "unknown odometer 'nope'"),
-                        (["--odometers", "icp,icp"], "names 'icp' twice"),
-                        (["--episodes", "0"], "--episodes"),
-                        (["--split", "moon"], "not a split"),
-                        (["--odometers", "fused(icp"], "unbalanced"),
-                        (["--policy", "nope=1"], "key one of cell, stride"),
-                        (["--policy", "heading_tolerance"], "expected key=value"),
-                        (["--policy", "stride=1.5"], "stride takes a whole number in [1, 64]"),
-                        (["--policy", "stop_distance=nan"], "stop_distance must be in [0.01, 10]"),
-                        (["--policy", "cell=1e-6"], "cell must be in [0.02, 1]"),
-                        (["--policy", "votes=99999999999999999999999"], "votes must be in [1, 1000]"),
-                        (["--policy", "obstacle_gap=50"], "obstacle_gap must be in [0, 0.5]"),
-                        (["--policy", "stride=" + "1" * 5000], "this value is too long to read"),
-                        (["--policy", "cell=0.05" + "0" * 40], "cell takes a number in [0.02, 1]; this value is too long"),
-                        (["--policy", "memory=x"], "memory takes a whole number in [1, 1000000]"),
-                        (["--policy", "margin_speed=abc"], "margin_speed takes a number in (0, 1]"),
-                        (["--policy", "cell=0.1", "--policy", "cell=0.2"], "cell is given twice"),
-                        (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)"),
-                        (["--policy", "votes=\u0663"], "votes takes a whole number in [1, 1000]"),
-                        (["--policy", "votes=1_0"], "votes takes a whole number in [1, 1000]"),
-                        (["--policy", "fallback_radius=1"], "fallback_radius must be in [0, 1)"),
-                        (["--policy", "fallback_radius=0.2"], "need fallback_radius < agent_radius"),
-                        (["--policy", "agent_radius=0.1"], "fallback_radius 0.1 (its default) and agent_radius 0.1: "
-                                                           "set fallback_radius below 0.1, or to 0")]:
+    for argv, words in [
+        (["--odometers", "nope"], "unknown odometer 'nope'"),
+        (["--odometers", "icp,icp"], "names 'icp' twice"),
+        (["--episodes", "0"], "--episodes"),
+        (["--split", "moon"], "not a split"),
+        (["--odometers", "fused(icp"], "unbalanced"),
+        (["--policy", "nope=1"], "key one of cell, stride"),
+        (["--policy", "heading_tolerance"], "expected key=value"),
+        (["--policy", "stride=1.5"], "stride takes a whole number in [1, 64]"),
+        (["--policy", "stop_distance=nan"], "stop_distance must be in [0.01, 10]"),
+        (["--policy", "cell=1e-6"], "cell must be in [0.02, 1]"),
+        (["--policy", "votes=99999999999999999999999"], "votes must be in [1, 1000]"),
+        (["--policy", "obstacle_gap=50"], "obstacle_gap must be in [0, 0.5]"),
+        (["--policy", "stride=" + "1" * 5000], "this value is too long to read"),
+        (["--policy", "cell=0.05" + "0" * 40], "cell takes a number in [0.02, 1]; this value is too long"),
+        (["--policy", "memory=x"], "memory takes a whole number in [1, 1000000]"),
+        (["--policy", "margin_speed=abc"], "margin_speed takes a number in (0, 1]"),
+        (["--policy", "cell=0.1", "--policy", "cell=0.2"], "cell is given twice"),
+        (["--policy", "heading_tolerance=180"], "heading_tolerance must be in [0, 180)"),
+        (["--policy", "votes=\u0663"], "votes takes a whole number in [1, 1000]"),
+        (["--policy", "votes=1_0"], "votes takes a whole number in [1, 1000]"),
+        (["--policy", "fallback_radius=1"], "fallback_radius must be in [0, 1)"),
+        (["--policy", "fallback_radius=0.2"], "need fallback_radius < agent_radius"),
+        (
+            ["--policy", "agent_radius=0.1"],
+            "fallback_radius 0.1 (its default) and agent_radius 0.1: set fallback_radius below 0.1, or to 0",
+        ),
+    ]:
         assert _navigate(argv + ["--out", str(tmp_path / "x"), "--serial"]) == 2
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err
@@ -262,9 +286,20 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     from odolab.navigation.study import ROW_KEYS, NavTask, read_row
 
     spec = EpisodeSpec(split="test", index=3, max_steps=1)  # the one step ran out the episode: stopped false
-    row = {k: 0 for k in ROW_KEYS} | {"odometer": "robust-vo", "episode": 3, "split": "test", "stopped": False,
-                                       "weights": "a" * 64, "steps": 1, "d0": 1.0, "d_end": 1.0, "path": 0.25,
-                                       "goal": [1.0, 2.0], "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
+    row = {k: 0 for k in ROW_KEYS} | {
+        "odometer": "robust-vo",
+        "episode": 3,
+        "split": "test",
+        "stopped": False,
+        "weights": "a" * 64,
+        "steps": 1,
+        "d0": 1.0,
+        "d_end": 1.0,
+        "path": 0.25,
+        "goal": [1.0, 2.0],
+        "true_xy": [[0, 0], [0.25, 0]],
+        "believed_xy": [[0, 0], [0.2, 0]],
+    }
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))
     assert read_row(path, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64)) == row
@@ -329,15 +364,33 @@ def test_a_saved_episode_with_infinities_is_run_again_and_a_pipe_refused(tmp_pat
 
     spec = EpisodeSpec(split="test", index=3, max_steps=1)
     task = NavTask("icp", {}, spec, PolicyConfig(), None)
-    row = {k: 0 for k in ROW_KEYS} | {"odometer": "icp", "episode": 3, "split": "test", "stopped": False, "steps": 1,
-                                       "d0": 1.0, "d_end": 1.0, "path": 0.25,
-                                       "goal": [1.0, 2.0], "true_xy": [[0, 0], [0.25, 0]], "believed_xy": [[0, 0], [0.2, 0]]}
+    row = {k: 0 for k in ROW_KEYS} | {
+        "odometer": "icp",
+        "episode": 3,
+        "split": "test",
+        "stopped": False,
+        "steps": 1,
+        "d0": 1.0,
+        "d_end": 1.0,
+        "path": 0.25,
+        "goal": [1.0, 2.0],
+        "true_xy": [[0, 0], [0.25, 0]],
+        "believed_xy": [[0, 0], [0.2, 0]],
+    }
     path = tmp_path / "0003.json"
     path.write_text(json.dumps(row))
     assert read_row(path, task) == row
-    for change in ({"believed_xy": [[0, 0], ["0.2", 0]]}, {"believed_xy": [[0, 0], [True, False]]},
-                   {"believed_xy": [[0, 0], [1e300, 0]]}, {"believed_xy": [[0.1, 0], [0.2, 0]]},
-                   {"stopped": "no"}, {"episode": True}, {"episode": 3.0}, {"split": "val"}, {"seed": 1}):
+    for change in (
+        {"believed_xy": [[0, 0], ["0.2", 0]]},
+        {"believed_xy": [[0, 0], [True, False]]},
+        {"believed_xy": [[0, 0], [1e300, 0]]},
+        {"believed_xy": [[0.1, 0], [0.2, 0]]},
+        {"stopped": "no"},
+        {"episode": True},
+        {"episode": 3.0},
+        {"split": "val"},
+        {"seed": 1},
+    ):
         path.write_text(json.dumps(row | change))  # each a value no run of this task writes
         assert read_row(path, task) is None, change
     for key in ("split", "seed"):
@@ -377,12 +430,29 @@ def test_the_markdown_table_bolds_the_best_non_oracle_row():
     from odolab.navigation.report import markdown_table, summarize
 
     def row(name, success, failed):
-        return {"odometer": name, "success": success, "spl": 0.5 * success, "soft_spl": 0.6, "d_end": 1.0,
-                "belief_error": 0.2, "steps": 100, "collisions": 3, "failed_steps": failed, "stopped": True,
-                "path": 2.0}
+        return {
+            "odometer": name,
+            "success": success,
+            "spl": 0.5 * success,
+            "soft_spl": 0.6,
+            "d_end": 1.0,
+            "belief_error": 0.2,
+            "steps": 100,
+            "collisions": 3,
+            "failed_steps": failed,
+            "stopped": True,
+            "path": 2.0,
+        }
 
-    rows = [row("ground-truth", 1, 0), row("ground-truth", 1, 0), row("a|b", 1, 50), row("a|b", 0, 0),
-            row("c", 0, 0), row("c", 0, 0), row("d", 0, 0)]
+    rows = [
+        row("ground-truth", 1, 0),
+        row("ground-truth", 1, 0),
+        row("a|b", 1, 50),
+        row("a|b", 0, 0),
+        row("c", 0, 0),
+        row("c", 0, 0),
+        row("d", 0, 0),
+    ]
     lines = markdown_table(summarize(rows, ["ground-truth", "a|b", "c", "d", "none"])).splitlines()
     assert lines[0].startswith("| odometer | episodes | success | SPL | SoftSPL |") and len(lines) == 7
     oracle, ab, c, d, none = lines[2:]
@@ -397,6 +467,7 @@ def test_the_markdown_table_bolds_the_best_non_oracle_row():
 
 def test_a_refusal_for_changed_options_names_the_key_and_both_values():
     from odolab.navigation.study import _option_changes
+
     said = _option_changes("open3d-rgbd", {}, {"max_depth": 5.0})
     assert said == "options of open3d-rgbd (max_depth: default there, 5.0 now)"
     said = _option_changes("icp", {"voxel": 0.04, "x": "a" * 500}, {"voxel": 0.05})
@@ -404,8 +475,18 @@ def test_a_refusal_for_changed_options_names_the_key_and_both_values():
 
 
 def test_naming_a_default_option_resumes_a_folder_made_without_it(tmp_path, capsys):
-    args = ["--odometers", "manhattan(action-prior)", "--episodes", "1", "--max-steps", "4", "--serial", "--quiet",
-            "--out", str(tmp_path)]
+    args = [
+        "--odometers",
+        "manhattan(action-prior)",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "4",
+        "--serial",
+        "--quiet",
+        "--out",
+        str(tmp_path),
+    ]
     assert _navigate(args) == 0
     assert _navigate([*args, "--odometer-option", "manhattan(action-prior).relock_views=5"]) == 0
     assert _navigate([*args, "--odometer-option", "manhattan(action-prior).relock_views=4"]) == 2
@@ -414,7 +495,9 @@ def test_naming_a_default_option_resumes_a_folder_made_without_it(tmp_path, caps
 
 def test_navigate_adds_each_part_of_its_time_to_the_given_timings():
     parts = {"steps": 2.0}
-    run = navigate(EpisodeSpec(split="test", index=1, seed=0, max_steps=5), load_odometer("action-prior"), timings=parts)
+    run = navigate(
+        EpisodeSpec(split="test", index=1, seed=0, max_steps=5), load_odometer("action-prior"), timings=parts
+    )
     assert parts["steps"] == 2 + run.outcome.steps
     assert set(parts) == {"policy", "planning", "sensors", "odometer", "steps"}
     assert 0 < parts["planning"] <= parts["policy"]

@@ -1,4 +1,5 @@
 """python -m odolab.navigation.diff: two runs of the same episodes compared episode by episode."""
+
 from __future__ import annotations
 
 import pytest
@@ -28,15 +29,21 @@ def _diff(args, capsys):
 
 def test_won_and_lost_episodes_are_paired_by_odometer_and_episode(tmp_path, capsys):
     before = _folder(tmp_path, "a", [("x", 0, 1, 10, 2), ("x", 1, 0, 500, 40), ("x", 2, 1, 20, 0), ("y", 0, 1, 5, 0)])
-    after = _folder(tmp_path, "b", [("x", 2, 0, 500, 90), ("x", 1, 1, 30, 4), ("x", 0, 1, 10, 2), ("x", 3, 1, 9, 9),
-                                    ("fused(a,b)", 0, 1, 5, 5)])
+    after = _folder(
+        tmp_path,
+        "b",
+        [("x", 2, 0, 500, 90), ("x", 1, 1, 30, 4), ("x", 0, 1, 10, 2), ("x", 3, 1, 9, 9), ("fused(a,b)", 0, 1, 5, 5)],
+    )
     b, a = read_episodes(before), read_episodes(after)
     (d,) = diff_runs(b, a)  # y and fused(a,b) are in one run only
     assert (d.odometer, d.episodes, d.success, d.won, d.lost) == ("x", 3, (2, 2), ("1",), ("2",))
     assert d.collisions == (14.0, 32.0) and d.spl == pytest.approx((0.8 * 2 / 3, 0.8 * 2 / 3))
     assert "| x | 3 | 2 -> 2 | 1 | 2 | 0.53 -> 0.53 | 14.0 -> 32.0 | 177 -> 180 |" in markdown([d])
-    assert unpaired(b, a) == ["1 odometer(s) only in BEFORE: y", "1 odometer(s) only in AFTER: fused(a,b)",
-                              "episodes of the shared odometers left out: 0 only in BEFORE, 1 only in AFTER"]
+    assert unpaired(b, a) == [
+        "1 odometer(s) only in BEFORE: y",
+        "1 odometer(s) only in AFTER: fused(a,b)",
+        "episodes of the shared odometers left out: 0 only in BEFORE, 1 only in AFTER",
+    ]
     code, out, err = _diff([before, after], capsys)
     assert code == 0 and out.startswith("| odometer |") and len(err) == 4 and err[0].startswith("note: ")
     assert "no readable config.json" in err[3]  # these folders hold a table only
@@ -46,16 +53,19 @@ def test_runs_made_with_other_settings_are_pointed_out(tmp_path):
     import json
 
     def config(folder, policy, max_steps=500):
-        (folder / "config.json").write_text(json.dumps({"options": {}, "policy": policy,
-                                                        "episodes": [{"max_steps": max_steps, "noise": {"rgb": 1.0}}]}))
+        (folder / "config.json").write_text(
+            json.dumps({"options": {}, "policy": policy, "episodes": [{"max_steps": max_steps, "noise": {"rgb": 1.0}}]})
+        )
 
     before, after = _folder(tmp_path, "a", [("x", 0, 1, 10, 2)]), _folder(tmp_path, "b", [("x", 0, 1, 10, 2)])
     config(before, {"cell": 0.05})  # from before fallback_radius existed: it counts as 0.0
     config(after, {"cell": 0.05, "fallback_radius": 0.0})
     assert setting_notes(before, after) == []
     config(after, {"cell": 0.05, "fallback_radius": 0.1}, max_steps=12)
-    assert setting_notes(before, after) == ["the policies differ: fallback_radius 0.0 -> 0.1",
-                                            "the episodes' max_steps differ: 500 -> 12"]
+    assert setting_notes(before, after) == [
+        "the policies differ: fallback_radius 0.0 -> 0.1",
+        "the episodes' max_steps differ: 500 -> 12",
+    ]
     (after / "config.json").write_text("{")
     assert setting_notes(before, after) == [f"no readable config.json in {after}: the runs' settings were not compared"]
 
@@ -73,21 +83,23 @@ def test_bad_tables_are_refused_in_one_line_naming_file_and_line(tmp_path, capsy
     good = _folder(tmp_path, "good", [("x", 0, 1, 10, 2)])
     bad = _folder(tmp_path, "bad", [("x", 0, 1, 10, 2)])
     text = (bad / "episodes.csv").read_text()
-    cases = [(text.replace(",10,2,", ",ten,2,"), "line 2: steps must be a whole number in [0, 1000000], got 'ten'"),
-             (text.replace(",10,2,", ",10," + "9" * 400 + ","), "line 2: collisions must be a whole number"),
-             (text + text.splitlines()[1] + "\n", "line 3: episode 0 of 'x' (test, seed 0) appears twice"),
-             (text.replace(",1.0000,", ",0.5,"), "line 2: success must be 0 or 1, got '0.5'"),
-             (text.replace(",1.0000,0.8,", ",1.0000,nan,"), "line 2: spl must be a number in [0, 1]"),
-             (text.replace('"x",0,', '"x",0_0,'), "line 2: episode must be a whole number"),
-             (text.replace("\n", "\n\n\n", 1).replace(",10,2,", ",ten,2,"), "line 4: steps"),
-             ("odometer,episode\nx,0\n", "no column split, seed, success"),
-             (HEAD.replace("spl,soft", "success,soft"), "column success appears twice"),
-             (HEAD, "holds no episodes"),
-             (HEAD + "x,0,test\n", "line 2: 3 fields, the header has 14"),
-             (HEAD + '"x,0,test,0\n', "not CSV"),
-             (HEAD + "L" * 200_000 + ",0\n", "not CSV"),
-             ("\ufeff" + text, None),
-             ("\xff\xfe", "not UTF-8 text")]
+    cases = [
+        (text.replace(",10,2,", ",ten,2,"), "line 2: steps must be a whole number in [0, 1000000], got 'ten'"),
+        (text.replace(",10,2,", ",10," + "9" * 400 + ","), "line 2: collisions must be a whole number"),
+        (text + text.splitlines()[1] + "\n", "line 3: episode 0 of 'x' (test, seed 0) appears twice"),
+        (text.replace(",1.0000,", ",0.5,"), "line 2: success must be 0 or 1, got '0.5'"),
+        (text.replace(",1.0000,0.8,", ",1.0000,nan,"), "line 2: spl must be a number in [0, 1]"),
+        (text.replace('"x",0,', '"x",0_0,'), "line 2: episode must be a whole number"),
+        (text.replace("\n", "\n\n\n", 1).replace(",10,2,", ",ten,2,"), "line 4: steps"),
+        ("odometer,episode\nx,0\n", "no column split, seed, success"),
+        (HEAD.replace("spl,soft", "success,soft"), "column success appears twice"),
+        (HEAD, "holds no episodes"),
+        (HEAD + "x,0,test\n", "line 2: 3 fields, the header has 14"),
+        (HEAD + '"x,0,test,0\n', "not CSV"),
+        (HEAD + "L" * 200_000 + ",0\n", "not CSV"),
+        ("\ufeff" + text, None),
+        ("\xff\xfe", "not UTF-8 text"),
+    ]
     for content, words in cases:
         (bad / "episodes.csv").write_text(content, encoding="latin-1" if content == "\xff\xfe" else "utf-8")
         code, _, err = _diff([good, bad], capsys)

@@ -1,5 +1,6 @@
 """navigate reuses a saved episode only when everything it depends on is the task's (its key) and
 its fields agree with each other; any other is run again and named on the console (issue 42)."""
+
 from __future__ import annotations
 
 import json
@@ -58,16 +59,20 @@ def test_rows_without_a_key_must_fit_the_step_limit_and_agree_with_themselves(tm
     path.write_text(json.dumps(old))
 
     def task(max_steps: int) -> NavTask:
-        return NavTask("ground-truth", {}, EpisodeSpec(split="test", index=0, max_steps=max_steps), PolicyConfig(), None)
+        return NavTask(
+            "ground-truth", {}, EpisodeSpec(split="test", index=0, max_steps=max_steps), PolicyConfig(), None
+        )
 
     assert read_row(path, task(5)) == old
     for limit, why in ((4, "5 steps, above --max-steps 4"), (6, "not stopped after 5 steps, below --max-steps 6")):
         reasons = {}
         assert read_row(path, task(limit), [], reasons) is None and reasons[path] == why
-    for change, why in (({"stopped": True}, "stopped after 5 steps, where --max-steps 5 ends"),
-                        ({"spl": 0.5}, "spl 0.5 where success and the distances give 0.0"),
-                        ({"path": saved["path"] + 1.0}, "m where its positions give"),
-                        ({"failed_steps": 6}, "more failed steps or collisions than its 5 steps")):
+    for change, why in (
+        ({"stopped": True}, "stopped after 5 steps, where --max-steps 5 ends"),
+        ({"spl": 0.5}, "spl 0.5 where success and the distances give 0.0"),
+        ({"path": saved["path"] + 1.0}, "m where its positions give"),
+        ({"failed_steps": 6}, "more failed steps or collisions than its 5 steps"),
+    ):
         path.write_text(json.dumps({**old, **change}))
         reasons = {}
         assert read_row(path, task(5), [], reasons) is None and why in reasons[path], change

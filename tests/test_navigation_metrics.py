@@ -1,4 +1,5 @@
 """Navigation metrics on hand-made paths with known answers (habitat-lab's definitions)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -48,9 +49,20 @@ def test_the_final_belief_error_is_the_distance_between_the_last_true_and_believ
     from odolab.navigation.metrics import belief_error
     from odolab.navigation.report import summarize
 
-    row = {"odometer": "x", "true_xy": [[0, 0], [1, 0], [2, 0]], "believed_xy": [[0, 0], [1, 0.5], [2, 3.0]],
-           "success": 1, "spl": 0.5, "soft_spl": 0.5, "d_end": 0.1, "steps": 2, "collisions": 0, "failed_steps": 0,
-           "path": 2.0, "stopped": True}
+    row = {
+        "odometer": "x",
+        "true_xy": [[0, 0], [1, 0], [2, 0]],
+        "believed_xy": [[0, 0], [1, 0.5], [2, 3.0]],
+        "success": 1,
+        "spl": 0.5,
+        "soft_spl": 0.5,
+        "d_end": 0.1,
+        "steps": 2,
+        "collisions": 0,
+        "failed_steps": 0,
+        "path": 2.0,
+        "stopped": True,
+    }
     assert belief_error(row) == 3.0
     other = {**row, "believed_xy": [[0, 0], [1, 0], [6, 3.0]]}  # 3-4-5
     short = {**row, "path": 0.5, "stopped": False, "success": 0}  # too short for the drift per metre

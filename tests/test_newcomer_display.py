@@ -1,6 +1,7 @@
 """What a newcomer sees: no Ray notice for a cluster they never started, a progress bar that keeps
 its layout and shows each odometer's own rate, and figures whose colours, scales, legends and
 labels can be read (issue 42)."""
+
 from __future__ import annotations
 
 import io
@@ -30,13 +31,17 @@ def _captured_figure(monkeypatch, module) -> list:
 
 # -- Ray ---------------------------------------------------------------------------------------
 
+
 def test_a_local_ray_start_prints_no_token_notice():
-    code = ("from odolab.parallel import fan_out\n"
-            "def neg(x):\n    return -x\n"
-            "assert fan_out(neg, [1, 2], progress=True) == [-1, -2]\n")
+    code = (
+        "from odolab.parallel import fan_out\n"
+        "def neg(x):\n    return -x\n"
+        "assert fan_out(neg, [1, 2], progress=True) == [-1, -2]\n"
+    )
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_AUTH_MODE", "RAY_ADDRESS")}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env,
-                          timeout=120, check=False)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env, timeout=120, check=False
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "Token authentication" not in proc.stdout + proc.stderr
 
@@ -58,6 +63,7 @@ def test_token_notices_are_kept_for_a_users_cluster_and_hidden_for_a_local_one(c
 
 # -- progress bar ------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("total", [1000, None])
 def test_the_progress_bar_keeps_its_width_and_shows_each_odometers_own_rate(total):
     from odolab.progress import StepProgressBar
@@ -66,11 +72,17 @@ def test_the_progress_bar_keeps_its_width_and_shows_each_odometers_own_rate(tota
     bar = StepProgressBar(file=io.StringIO(), clock=lambda: now[0])
     bar.start(total)
     widths, texts = set(), []
-    for name, steps, seconds in [("feature-essential", 0, 0.0), ("feature-essential", 10, 0.862),
-                                 ("icp", 0, 5.0), ("icp", 100, 0.775),
-                                 ("fused(icp,open3d-rgbd,robust-vo)", 0, 0.0),
-                                 ("fused(icp,open3d-rgbd,robust-vo)", 4, 2.0), ("ground-truth", 100, 1e-4),
-                                 ("feature-essential", 0, 9.0), ("feature-essential", 10, 0.862)]:
+    for name, steps, seconds in [
+        ("feature-essential", 0, 0.0),
+        ("feature-essential", 10, 0.862),
+        ("icp", 0, 5.0),
+        ("icp", 100, 0.775),
+        ("fused(icp,open3d-rgbd,robust-vo)", 0, 0.0),
+        ("fused(icp,open3d-rgbd,robust-vo)", 4, 2.0),
+        ("ground-truth", 100, 1e-4),
+        ("feature-essential", 0, 9.0),
+        ("feature-essential", 10, 0.862),
+    ]:
         now[0] += seconds
         bar.advance(name, steps)
         texts.append(str(bar._bar))
@@ -83,6 +95,7 @@ def test_the_progress_bar_keeps_its_width_and_shows_each_odometers_own_rate(tota
 
 
 # -- figures -----------------------------------------------------------------------------------
+
 
 def _grey(color) -> bool:
     r, g, b = to_rgb(color)
@@ -105,8 +118,18 @@ def test_top_down_trajectories_never_take_the_obstacles_grey_and_show_start_end_
     def result(name: str, shift: float) -> SequenceResult:
         mine = poses.copy()
         mine[:, 1, 3] = shift * np.arange(n + 1)
-        return SequenceResult(name, "seq", False, np.tile(np.eye(4), (n, 1, 1)), None, mine, poses,
-                              np.zeros(n, np.int8), np.ones(n, bool), np.zeros(n))
+        return SequenceResult(
+            name,
+            "seq",
+            False,
+            np.tile(np.eye(4), (n, 1, 1)),
+            None,
+            mine,
+            poses,
+            np.zeros(n, np.int8),
+            np.ones(n, bool),
+            np.zeros(n),
+        )
 
     plan = report.FloorPlan(np.ones((40, 40), bool), (-1.0, -1.0), 0.1, goal=(20.0, 0.0))
     figures = _captured_figure(monkeypatch, report)
@@ -124,8 +147,12 @@ def _action_rows():
 
     rows = []
     for name, scale in (("action-prior", 1.0), ("icp", 0.4)):
-        for action, steps, dz in (("move_forward", 123, 4.4), ("turn_left", 43, 1.2), ("turn_right", 59, 1.1),
-                                  ("move_forward_collided", 11, 16.7)):
+        for action, steps, dz in (
+            ("move_forward", 123, 4.4),
+            ("turn_left", 43, 1.2),
+            ("turn_right", 59, 1.1),
+            ("move_forward_collided", 11, 16.7),
+        ):
             e = dz * scale
             rows.append(ActionRow(name, action, e, e, e, e, e, e, steps, 0))
     return rows

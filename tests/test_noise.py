@@ -1,11 +1,12 @@
 """Noise models against their formulas (docs/reference-facts.md section 2), by statistics over many samples."""
+
 import numpy as np
 import pytest
 from scipy.stats import norm
 
-from odolab.types import Action
 from odolab.sim.noise import ActuationNoise, GaussianTable, RedwoodDepthNoise, RGBNoise, habitat_normalized_depth
 from odolab.sim.redwood import load_table, surrogate_table
+from odolab.types import Action
 
 TRUNC3_VAR = 1 - 2 * 3 * norm.pdf(3) / (norm.cdf(3) - norm.cdf(-3))  # variance factor of a +-3 sigma cut
 
@@ -23,7 +24,7 @@ def test_rgb_noise_std_and_mean():
     out = RGBNoise().apply(img, np.random.default_rng(1)).astype(float)
     # clip(img/255 + 0.1 N) * 255, stored as uint8 (truncation: mean drops by 0.5)
     assert out.mean() == pytest.approx(127.5, abs=0.15)
-    assert out.std() == pytest.approx(np.sqrt(25.5 ** 2 + 1 / 12), rel=0.01)
+    assert out.std() == pytest.approx(np.sqrt(25.5**2 + 1 / 12), rel=0.01)
 
 
 def test_rgb_noise_clips_and_zero_multiplier_is_exact():
@@ -126,7 +127,8 @@ def test_redwood_distortion_widens_the_spread_beyond_3m():
         rel = {}
         for use in (True, False):
             out = RedwoodDepthNoise(distortion=table if use else None, use_distortion=use).apply(
-                depth, np.random.default_rng(9))
+                depth, np.random.default_rng(9)
+            )
             rel[use] = out[out > 0] / d - 1
         assert abs(rel[True].mean()) < 0.01
         if d > 3:

@@ -1,4 +1,5 @@
 """The noise-robustness study resumes what it finished, and reruns rows whose model file changed."""
+
 import json
 
 import studies.noise_robustness as study
@@ -39,13 +40,30 @@ def test_noise_study_command_line_levels_and_refusals(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "besides 1" in err[0]
     out = tmp_path / "b"
-    assert cli("--levels", "0,1,0", "--odometers", "action-prior", "--episodes", 1, "--max-steps", 3,
-               "--serial", "--quiet", "--out", out) == 0
+    assert (
+        cli(
+            "--levels",
+            "0,1,0",
+            "--odometers",
+            "action-prior",
+            "--episodes",
+            1,
+            "--max-steps",
+            3,
+            "--serial",
+            "--quiet",
+            "--out",
+            out,
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "level 0" not in printed and "| action-prior |" in printed  # quiet: the table only
     assert sorted(p.name for p in out.glob("*.png")) == ["growth.png"]
-    assert cli("--levels", "2", "--odometers", "action-prior", "--episodes", 2, "--max-steps", 3,
-               "--serial", "--out", out) == 2
+    assert (
+        cli("--levels", "2", "--odometers", "action-prior", "--episodes", 2, "--max-steps", 3, "--serial", "--out", out)
+        == 2
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--episodes 1" in err[0] and "--episodes 2" in err[0] and "{" not in err[0]
 
@@ -54,13 +72,31 @@ def test_noise_study_levels_are_one_per_printed_key_and_nan_rows_run_again(tmp_p
     from odolab.cli import run_cli
 
     seen = []
-    monkeypatch.setattr(study, "run_study", lambda out, odometers, levels, *a, **k: seen.append(levels) or
-                        {"config": {}, "results": {}})
+    monkeypatch.setattr(
+        study, "run_study", lambda out, odometers, levels, *a, **k: seen.append(levels) or {"config": {}, "results": {}}
+    )
     monkeypatch.setattr(study, "growth_table", lambda *a: "table")
     monkeypatch.setattr(study, "growth_figure", lambda *a: None)
-    assert run_cli(study.main, "s", ["--levels", "2,2.0000001,-0,0", "--odometers", "action-prior",
-                                     "--out", str(tmp_path / "o")]) == 0
+    assert (
+        run_cli(
+            study.main,
+            "s",
+            ["--levels", "2,2.0000001,-0,0", "--odometers", "action-prior", "--out", str(tmp_path / "o")],
+        )
+        == 0
+    )
     assert seen == [[2.0, 0.0]] and str(seen[0][1]) == "0.0"  # not -0.0
-    row = {"level": 1.0, "odometer": "x", "steps": 3, "dx": 1.0, "dz": 1.0, "dyaw": 1.0, "dx_own": None,
-           "dz_own": 1.0, "dyaw_own": 1.0, "failure_share": 0.0, "ate_m": 0.1}
+    row = {
+        "level": 1.0,
+        "odometer": "x",
+        "steps": 3,
+        "dx": 1.0,
+        "dz": 1.0,
+        "dyaw": 1.0,
+        "dx_own": None,
+        "dz_own": 1.0,
+        "dyaw_own": 1.0,
+        "failure_share": 0.0,
+        "ate_m": 0.1,
+    }
     assert study._whole(row) and not study._whole(row | {"dx": float("nan")})

@@ -1,4 +1,5 @@
 """The Odometer contract, the registry, the reference odometers and the runner's bookkeeping."""
+
 import numpy as np
 import pytest
 
@@ -100,7 +101,10 @@ def test_runner_counts_failures_and_falls_back_to_the_prior(episodes):
     assert np.array_equal(~res.valid, expect_fail)
     assert res.failures == expect_fail.sum()
     assert res.errors and "boom" in res.errors[0]
-    assert res.failure_reasons == {"raised": int((k % 2 == 0).sum()), "not-valid": int(((k % 2 != 0) & (k % 3 == 0)).sum())}
+    assert res.failure_reasons == {
+        "raised": int((k % 2 == 0).sum()),
+        "not-valid": int(((k % 2 != 0) & (k % 3 == 0)).sum()),
+    }
     i = int(np.argmax(expect_fail))
     assert api.transform_to_planar(res.estimates[i]) == pytest.approx(prior.motion(ep.action(i)))
     assert np.allclose(res.poses[0], ep.poses[0])
@@ -142,9 +146,13 @@ def test_a_frame_that_cannot_be_rgbd_is_refused_naming_the_field():
 
     rgb, depth = np.zeros((6, 8, 3), np.uint8), np.ones((6, 8), np.float32)
     Frame(rgb, depth)
-    for bad_rgb, bad_depth, said in ((rgb, depth[..., None], "Frame.depth"), (rgb, depth.tolist(), "Frame.depth"),
-                                     (rgb[..., 0], depth, "Frame.rgb"), (None, depth, "Frame.rgb"),
-                                     (rgb, depth.T, "rgb is 6x8 pixels but depth 8x6")):
+    for bad_rgb, bad_depth, said in (
+        (rgb, depth[..., None], "Frame.depth"),
+        (rgb, depth.tolist(), "Frame.depth"),
+        (rgb[..., 0], depth, "Frame.rgb"),
+        (None, depth, "Frame.rgb"),
+        (rgb, depth.T, "rgb is 6x8 pixels but depth 8x6"),
+    ):
         with pytest.raises(ValueError, match=said):
             Frame(bad_rgb, bad_depth)
 

@@ -1,5 +1,6 @@
 """No command deletes or writes outside the folder it owns, whatever links that folder holds, and
 none overwrites a folder, a recipe, a state or data that odolab did not write (issue 42)."""
+
 from __future__ import annotations
 
 import json
@@ -34,16 +35,20 @@ def test_owned_paths_never_pass_a_link_a_file_for_a_folder_or_leave_the_root(tmp
     (root / "sub").symlink_to(outside)
     (root / "file").write_text("x")
     (root / "link.tum").symlink_to(outside / "victim.tum")
-    for rel, expected, found in (("sub/victim.tum", "expected a folder", "found a symbolic link to"),
-                                 ("file/a.tum", "expected a folder", "found a file"),
-                                 ("link.tum", "expected a regular file or nothing", "found a symbolic link to")):
+    for rel, expected, found in (
+        ("sub/victim.tum", "expected a folder", "found a symbolic link to"),
+        ("file/a.tum", "expected a folder", "found a file"),
+        ("link.tum", "expected a regular file or nothing", "found a symbolic link to"),
+    ):
         with pytest.raises(UnsafeOutputError, match=f"{expected}, {found}"):
             owned_path(root, rel)
         assert not remove_owned(root, rel)
     for rel in ("../outside/victim.tum", "a/../../outside/victim.tum", str(outside / "victim.tum"), ""):
         with pytest.raises(UnsafeOutputError):
             check_owned_path(root, rel)
-    assert (outside / "victim.tum").read_text() == "precious" and sorted(p.name for p in outside.iterdir()) == ["victim.tum"]
+    assert (outside / "victim.tum").read_text() == "precious" and sorted(p.name for p in outside.iterdir()) == [
+        "victim.tum"
+    ]
     assert owned_path(root, "new/deep/a.tum") == root / "new" / "deep" / "a.tum" and (root / "new" / "deep").is_dir()
     for rel, found in (("sub", "a symbolic link to"), ("file", "a file"), ("sub/x", "a symbolic link to")):
         with pytest.raises(UnsafeOutputError, match=f"expected a folder, found {found}"):
@@ -138,8 +143,11 @@ def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
     out = tmp_path / "nav"
     assert _navigate(args + ["--out", out]) == 0
     outside = _outside(tmp_path)
-    for rel, target in (("nav.md", outside / "victim.tum"), ("config.json", outside / "config.json"),
-                        ("episodes/ground-truth", outside / "episodes")):
+    for rel, target in (
+        ("nav.md", outside / "victim.tum"),
+        ("config.json", outside / "config.json"),
+        ("episodes/ground-truth", outside / "episodes"),
+    ):
         original = out / rel
         moved = tmp_path / "moved"
         original.rename(moved)
@@ -203,8 +211,11 @@ def _robust_job(tmp_path: Path, *argv: str, stage: str = "forward"):
     recipe = tmp_path / "recipe.toml"
     recipe.write_text(ROBUST_RECIPE.replace("{stage}", stage))  # parsed only: no data is made
     ap = training_parser("python -m odolab.robust_vo.train", "train", "robust-vo")
-    return parse_training_command(ap, ["--config", str(recipe), "--work", str(tmp_path / "work"),
-                                       "--reports", str(tmp_path / "reports"), *argv], load_train_config)
+    return parse_training_command(
+        ap,
+        ["--config", str(recipe), "--work", str(tmp_path / "work"), "--reports", str(tmp_path / "reports"), *argv],
+        load_train_config,
+    )
 
 
 def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(tmp_path):
@@ -213,14 +224,17 @@ def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(
     from odolab.learning import save_checkpoint
 
     recipe = tmp_path / "recipe.toml"
-    with pytest.raises(UsageError, match="--export .*recipe.toml: expected a new file or a model odolab exported, "
-                                         "found the recipe"):
+    with pytest.raises(
+        UsageError, match="--export .*recipe.toml: expected a new file or a model odolab exported, found the recipe"
+    ):
         _robust_job(tmp_path, "--export", str(recipe))
     assert "[[stages]]" in recipe.read_text()
     with pytest.raises(UsageError, match="found the file where stage 'forward' keeps its training state"):
         _robust_job(tmp_path, "--export", str(tmp_path / "work" / "forward.pt"))
     # a stage named "model": its state is where the model goes by default
-    with pytest.raises(UsageError, match=r"stage 'model' keeps its training state.*default --export is <work>/model.pt"):
+    with pytest.raises(
+        UsageError, match=r"stage 'model' keeps its training state.*default --export is <work>/model.pt"
+    ):
         _robust_job(tmp_path, stage="model")
     state = tmp_path / "elsewhere.pt"
     save_checkpoint(state, "odolab-training-state", 1, {"epoch": 1})
@@ -248,9 +262,21 @@ def test_the_deepvo_export_never_replaces_its_training_state_and_saving_never_re
     recipe.write_text("epochs = 1\n")
     ap = training_parser("python -m baselines.deepvo.train", "train", "deepvo")
     with pytest.raises(UsageError, match="found the file where the DeepVO training keeps its training state"):
-        parse_training_command(ap, ["--config", str(recipe), "--work", str(tmp_path / "work"), "--reports",
-                                    str(tmp_path / "r"), "--export", str(tmp_path / "work" / "deepvo.pt")],
-                               load_training, state_files)
+        parse_training_command(
+            ap,
+            [
+                "--config",
+                str(recipe),
+                "--work",
+                str(tmp_path / "work"),
+                "--reports",
+                str(tmp_path / "r"),
+                "--export",
+                str(tmp_path / "work" / "deepvo.pt"),
+            ],
+            load_training,
+            state_files,
+        )
     cfg = load_training(str(recipe))
     with pytest.raises(CheckpointError, match="found a file that is not an odolab model"):
         save_model(recipe, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})

@@ -1,5 +1,6 @@
 """planar-depth: the yaw of near-wall turns from the depth alone, and a covariance that says which
 directions the depth leaves to the prior."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -8,9 +9,9 @@ import numpy as np
 import pytest
 
 import studies.turns_by_depth as study
-from odolab.api import invert, load_odometer, planar_to_transform, transform_to_planar
 from baselines.depth_geometry import backproject
 from baselines.planar_depth import PlanarDepthOdometer, _surface
+from odolab.api import invert, load_odometer, planar_to_transform, transform_to_planar
 from odolab.episodes import EpisodeSpec
 
 
@@ -52,14 +53,16 @@ def test_near_wall_turns_come_out_within_degrees_and_the_slide_along_the_wall_st
 
 
 def test_a_start_off_by_degrees_converges_to_the_same_answer(near_wall_turns):
-    _, _, action, prev, cur, _ = near_wall_turns[0]
+    _, _, _action, prev, cur, _ = near_wall_turns[0]
     odo = PlanarDepthOdometer()
     odo.reset(EpisodeSpec().camera.intrinsics)
     X, _ = backproject(cur.depth, odo.intrinsics, odo.config.depth, odo.config.pixel_stride)
     surf = _surface(prev.depth, odo.intrinsics, odo.config.depth, odo.config.normal_step)
     true = transform_to_planar(invert(prev.gt_pose) @ cur.gt_pose)
     prior = np.zeros(2)
-    ends = [odo._fit(X, surf, planar_to_transform(true[0], true[1], true[2] + np.radians(d)), prior) for d in (-4, 0, 4)]
+    ends = [
+        odo._fit(X, surf, planar_to_transform(true[0], true[1], true[2] + np.radians(d)), prior) for d in (-4, 0, 4)
+    ]
     yaws = [transform_to_planar(f.T_prev_cur)[2] for f in ends]
     assert np.ptp(np.degrees(yaws)) < 0.05 and abs(np.degrees(yaws[1] - true[2])) < 1.5
 
@@ -80,11 +83,15 @@ def test_blank_depth_and_bad_options_are_refused(near_wall_turns):
     odo.reset(EpisodeSpec().camera.intrinsics)
     assert not odo.step(prev, dataclasses.replace(cur, depth=np.zeros_like(cur.depth)), action).valid
     assert not odo.step(dataclasses.replace(prev, depth=np.zeros_like(prev.depth)), cur, action).valid
-    for key, value, said in (("pixel_stride", 0, r"pixel_stride must be in \[1, 64\], got 0"),
-                             ("prior_sigma", float("nan"), "prior_sigma"), ("tukey", True, "tukey"),
-                             ("max_median_depth", 0.05, "must exceed min_depth"), ("noise_floor", 0.0, "noise_floor > 0"),
-                             ("min_ncc", float("nan"), r"min_ncc must be a number in \[-1, 1\]"),
-                             ("forward_range", [0.0, "a"], "forward_range")):
+    for key, value, said in (
+        ("pixel_stride", 0, r"pixel_stride must be in \[1, 64\], got 0"),
+        ("prior_sigma", float("nan"), "prior_sigma"),
+        ("tukey", True, "tukey"),
+        ("max_median_depth", 0.05, "must exceed min_depth"),
+        ("noise_floor", 0.0, "noise_floor > 0"),
+        ("min_ncc", float("nan"), r"min_ncc must be a number in \[-1, 1\]"),
+        ("forward_range", [0.0, "a"], "forward_range"),
+    ):
         with pytest.raises((TypeError, ValueError), match=said):
             load_odometer("planar-depth", **{key: value})
 
@@ -93,16 +100,24 @@ def _wall_frames(slide: float, noise: float, seed: int = 0):
     """A fronto-parallel wall 0.8 m ahead, then after a 0.25 m step towards it with ``slide`` m to
     the right (invisible: the wall looks the same), each depth with ``noise`` relative noise."""
     from odolab.types import Frame
+
     cam = EpisodeSpec().camera
     rng = np.random.default_rng(seed)
     rgb = rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8)
-    frames = [Frame(rgb=rgb, depth=(z * (1 + noise * rng.standard_normal((cam.height, cam.width)))).astype(np.float32),
-                    timestamp=float(i)) for i, z in enumerate((0.8, 0.55))]
+    frames = [
+        Frame(
+            rgb=rgb,
+            depth=(z * (1 + noise * rng.standard_normal((cam.height, cam.width)))).astype(np.float32),
+            timestamp=float(i),
+        )
+        for i, z in enumerate((0.8, 0.55))
+    ]
     return cam.intrinsics, frames
 
 
 def test_one_wall_leaves_the_slide_along_it_to_the_prior():
     from odolab.types import Action
+
     intr, (prev, cur) = _wall_frames(slide=0.15, noise=0.002)
     sigmas = {}
     for ratio in (0.05, 0.0):  # 0 (the default): the switch off, the normals' noise taken for information

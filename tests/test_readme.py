@@ -1,5 +1,6 @@
 """The README's and docs' claims: code that runs as written, tables equal to the reports they quote,
 commands that exist, links that resolve, and pages that read as a reference, not a history."""
+
 import csv
 import importlib.util
 import re
@@ -23,7 +24,7 @@ def table_rows(text: str, header_start: str) -> list[list[str]]:
     lines = text.splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith(header_start))
     rows = []
-    for line in lines[start + 2:]:
+    for line in lines[start + 2 :]:
         if not line.startswith("|"):
             break
         rows.append([cell.strip() for cell in line.strip().strip("|").split("|")])
@@ -35,9 +36,9 @@ def number(cell: str) -> float:
 
 
 def test_add_an_odometer_snippet_runs():
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.DOTALL)
     snippet = next(b for b in blocks if "register_odometer(" in b)
-    exec(compile(snippet, "README.md", "exec"), {"__name__": "readme_snippet"})
+    exec(compile(snippet, "README.md", "exec"), {"__name__": "readme_snippet"})  # noqa: S102 - the README's own snippet
     odo = api.load_odometer("nominal")
     frame = api.Frame(np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2), np.float32))
     assert odo.step(frame, frame, api.Action.MOVE_FORWARD).planar == pytest.approx([0.0, 0.25, 0.0])
@@ -67,7 +68,8 @@ def test_readme_headline_table_is_the_reports():
         n = nav[name]
         low, high = re.findall(r"[\d.]+", success.split("[")[1])
         assert (number(success), float(low), float(high)) == pytest.approx(
-            (float(n["success"]), float(n["success_low"]), float(n["success_high"])), abs=0.006), name
+            (float(n["success"]), float(n["success_low"]), float(n["success_high"])), abs=0.006
+        ), name
 
 
 def test_results_page_table_is_the_report():
@@ -77,8 +79,13 @@ def test_results_page_table_is_the_report():
     assert len(rows) == len(compare)
     for name_cell, dx, dz, dyaw, ate, drift, fps, failed in rows:
         row = compare[name_cell.split(" (")[0]]
-        for cell, key, tol in ((dx, "dx", 0.006), (dz, "dz", 0.006), (dyaw, "dyaw", 0.006),
-                               (ate, "ate_m", 6e-4), (drift, "drift_m", 6e-4)):
+        for cell, key, tol in (
+            (dx, "dx", 0.006),
+            (dz, "dz", 0.006),
+            (dyaw, "dyaw", 0.006),
+            (ate, "ate_m", 6e-4),
+            (drift, "drift_m", 6e-4),
+        ):
             assert number(cell) == pytest.approx(float(row[key]), abs=tol), (name_cell, key)
         if fps != "-":
             assert number(fps) == pytest.approx(float(row["fps"]), rel=0.01), name_cell
@@ -96,14 +103,17 @@ def test_navigation_page_table_is_the_report():
 def test_readme_defaults_are_compares():
     """The defaults README's "Run" states: episodes, --max-steps and the odometers."""
     text = README.read_text()
-    run = text[text.index("## Run"):text.index("## Test")]
-    helptext = " ".join(subprocess.run([sys.executable, "-m", "odolab.compare", "--help"], cwd=ROOT,
-                                       capture_output=True, text=True, check=True).stdout.split())
+    run = text[text.index("## Run") : text.index("## Test")]
+    helptext = " ".join(
+        subprocess.run(
+            [sys.executable, "-m", "odolab.compare", "--help"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.split()
+    )
     episodes = re.search(r"`--episodes (\d+)`", run).group(1)
     max_steps = re.search(r"`--max-steps (\d+)`", run).group(1)
     assert f"number of episodes, 1-1000 (default {episodes})" in helptext
     assert f"(default {max_steps})" in helptext.split("--max-steps MAX_STEPS", 2)[-1][:80]
-    named = re.search(r"every registered odometer: (.*?)\n\(choose", run, flags=re.S).group(1)
+    named = re.search(r"every registered odometer: (.*?)\n\(choose", run, flags=re.DOTALL).group(1)
     listed = re.findall(r"`([a-z0-9-]+)`", named)
     default = re.search(r"\(default: all of (.*?)\)", helptext).group(1).replace("- ", "-")
     assert listed == [n.strip() for n in default.split(",")]
@@ -119,9 +129,12 @@ def test_every_readme_command_exists():
         assert importlib.util.find_spec(module) is not None, module
     odolab = Path(sys.executable).with_name("odolab")  # the console script the package installs
     listing = subprocess.run([str(odolab), "--help"], capture_output=True, text=True, check=True).stdout
-    pairs = dict(re.findall(r"^  (\S+) .*\(python -m ([\w.]+)\)$", listing, flags=re.M))
-    named = {re.search(r"`odolab ([\w-]+)`", row[1]).group(1): re.search(r"`python -m ([\w.]+)`", row[0]).group(1)
-             for row in rows if row[1]}
+    pairs = dict(re.findall(r"^  (\S+) .*\(python -m ([\w.]+)\)$", listing, flags=re.MULTILINE))
+    named = {
+        re.search(r"`odolab ([\w-]+)`", row[1]).group(1): re.search(r"`python -m ([\w.]+)`", row[0]).group(1)
+        for row in rows
+        if row[1]
+    }
     assert named == pairs
 
 
@@ -133,7 +146,7 @@ def slug(heading: str) -> str:
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
 def test_links_resolve(page):
-    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.DOTALL)
     for target in re.findall(r"\]\(([^)\s]+)\)", text):
         if re.match(r"[a-z]+://", target):
             continue
@@ -143,16 +156,15 @@ def test_links_resolve(page):
             continue  # the training page is written apart from this one
         assert file.exists(), f"{page.name}: {target}"
         if anchor and file.suffix == ".md":
-            headings = re.findall(r"^#+ (.*)$", file.read_text(), flags=re.M)
+            headings = re.findall(r"^#+ (.*)$", file.read_text(), flags=re.MULTILINE)
             assert anchor in {slug(h) for h in headings}, f"{page.name}: {target}"
 
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
 def test_pages_are_a_reference_not_a_history(page):
     text = page.read_text()
-    prose = re.sub(r"`[^`]+`", "", re.sub(r"```.*?```", "", text, flags=re.S))
+    prose = re.sub(r"`[^`]+`", "", re.sub(r"```.*?```", "", text, flags=re.DOTALL))
     for words in ("former", "earlier session", "earlier run", "not committed", "previous session"):
         assert words not in prose.lower(), f"{page.name}: {words!r}"
-    hashes = [h for h in re.findall(r"\b[0-9a-f]{7,40}\b", text)
-              if re.search(r"[a-f]", h) and re.search(r"\d", h)]
+    hashes = [h for h in re.findall(r"\b[0-9a-f]{7,40}\b", text) if re.search(r"[a-f]", h) and re.search(r"\d", h)]
     assert not hashes, f"{page.name}: commit-like {hashes}"

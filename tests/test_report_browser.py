@@ -1,20 +1,22 @@
 """Every HTML report, opened in a real headless browser: no console or resource errors, every
 image loads, every table has rows; and the report's content is what a reader needs."""
+
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
 import pytest
+from browser_check import CHROMIUM, inspect_page
 
 from odolab.cli import run_cli
 from odolab.compare import main
-from browser_check import CHROMIUM, inspect_page
 
 ROOT = Path(__file__).resolve().parents[1]
 # Skipped only off CI, where a developer may lack chromium; in CI (.ci/run installs it) a missing browser fails.
-needs_browser = pytest.mark.skipif(CHROMIUM is None and not os.environ.get("CI"),
-                                   reason="chromium is not installed (README set-up)")
+needs_browser = pytest.mark.skipif(
+    CHROMIUM is None and not os.environ.get("CI"), reason="chromium is not installed (README set-up)"
+)
 
 
 def assert_readable(page: Path) -> dict:
@@ -30,9 +32,19 @@ def assert_readable(page: Path) -> dict:
 @pytest.fixture(scope="module")
 def sim_report(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sim") / "run"
-    args = ["--odometers", "examples.nominal_motion:NominalMotion,ground-truth,action-prior", "--episodes", "5",
-            "--max-steps", "8", "--serial",
-            "--quiet", "--no-cache", "--out", str(out)]
+    args = [
+        "--odometers",
+        "examples.nominal_motion:NominalMotion,ground-truth,action-prior",
+        "--episodes",
+        "5",
+        "--max-steps",
+        "8",
+        "--serial",
+        "--quiet",
+        "--no-cache",
+        "--out",
+        str(out),
+    ]
     assert run_cli(main, "odolab.compare", args) == 0
     return out
 
@@ -40,8 +52,15 @@ def sim_report(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def tum_report(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("tum") / "run"
-    args = ["--tum", str(ROOT / "tests" / "data" / "tum_fr1_xyz_10"), "--odometers", "action-prior,ground-truth",
-            "--quiet", "--out", str(out)]
+    args = [
+        "--tum",
+        str(ROOT / "tests" / "data" / "tum_fr1_xyz_10"),
+        "--odometers",
+        "action-prior,ground-truth",
+        "--quiet",
+        "--out",
+        str(out),
+    ]
     assert run_cli(main, "odolab.compare", args) == 0
     return out
 
@@ -68,8 +87,10 @@ def test_committed_reports_load_in_a_browser(page):
 def test_a_broken_page_is_caught(tmp_path):
     if CHROMIUM is None and not os.environ.get("CI"):
         pytest.skip("chromium is not installed")
-    (tmp_path / "report.html").write_text('<html><head></head><body><img src="missing.png"><table>'
-                                         '<thead><tr><th>a</th></tr></thead><tbody></tbody></table></body></html>')
+    (tmp_path / "report.html").write_text(
+        '<html><head></head><body><img src="missing.png"><table>'
+        "<thead><tr><th>a</th></tr></thead><tbody></tbody></table></body></html>"
+    )
     found = inspect_page(tmp_path / "report.html")
     assert found["images"][0]["width"] == 0 and found["tables"] == [0]
     assert any("missing.png" in e for e in found["errors"])
@@ -82,7 +103,7 @@ def test_report_reads_well(sim_report, tum_report):
     assert page.index("ground-truth (oracle)") < page.index("action-prior (reference)") < page.index("Nominal")
     import csv
 
-    rows = list(csv.DictReader(open(sim_report / "table.csv")))
+    rows = list(csv.DictReader((sim_report / "table.csv").read_text().splitlines()))
     # reference rows first, each group in the given order
     assert [r["odometer"] for r in rows] == ["ground-truth", "action-prior", "examples.nominal_motion:NominalMotion"]
     assert [r["fps"] == "nan" for r in rows] == [True, True, False]  # reference rows are not timed: "-"
@@ -115,8 +136,19 @@ def test_a_failing_figure_costs_nothing_else(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(odolab.report, "plot_errors", broken)
     out = tmp_path / "run"
-    args = ["--odometers", "action-prior", "--episodes", "1", "--max-steps", "6", "--serial", "--quiet",
-            "--no-cache", "--out", str(out)]
+    args = [
+        "--odometers",
+        "action-prior",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "6",
+        "--serial",
+        "--quiet",
+        "--no-cache",
+        "--out",
+        str(out),
+    ]
     assert run_cli(main, "odolab.compare", args) == 0
     assert (out / "table.csv").exists() and not (out / "errors.png").exists()
     assert "no room on the canvas" in (out / "report.html").read_text()

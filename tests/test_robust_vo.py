@@ -1,6 +1,7 @@
 """The robust VO (odolab/robust_vo): inputs psi, the motion maps behind its augmentations, the GeoInv
 loss, training (loss falls, resumes bit for bit), checkpoints and the odometer. Tiny models on tiny
 data: 48 x 32 px, 8 base planes."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -11,18 +12,18 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import Action, Intrinsics, invert, load_odometer, transform_to_planar  # noqa: E402
-from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode  # noqa: E402
-from odolab.learning import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data  # noqa: E402
-from odolab.robust_vo import train as trainer  # noqa: E402
-from odolab.robust_vo.batches import Samples, make_batch, stage_samples  # noqa: E402
-from odolab.robust_vo.checkpoint import load_model, save_model  # noqa: E402
-from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config  # noqa: E402
-from odolab.robust_vo.inputs import frame_channels, pair_channels, top_down_projection  # noqa: E402
-from odolab.robust_vo.model import build_networks, predict  # noqa: E402
-from odolab.robust_vo.motion import compose, geoinv_loss, inverse, mirror, swap_action  # noqa: E402
-from odolab.robust_vo.odometer import RobustVOOdometer  # noqa: E402
-from odolab.sim.camera import CameraSpec  # noqa: E402
+from odolab.api import Action, Intrinsics, invert, load_odometer, transform_to_planar
+from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
+from odolab.learning import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
+from odolab.robust_vo import train as trainer
+from odolab.robust_vo.batches import Samples, make_batch, stage_samples
+from odolab.robust_vo.checkpoint import load_model, save_model
+from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config
+from odolab.robust_vo.inputs import frame_channels, pair_channels, top_down_projection
+from odolab.robust_vo.model import build_networks, predict
+from odolab.robust_vo.motion import compose, geoinv_loss, inverse, mirror, swap_action
+from odolab.robust_vo.odometer import RobustVOOdometer
+from odolab.sim.camera import CameraSpec
 
 W, H = 48, 32
 TINY = ModelConfig(width=W, height=H, base_planes=8, groups=4, hidden=32, compress_channels=8, dropout=0.2)
@@ -32,11 +33,20 @@ S = np.diag([-1.0, 1.0, 1.0, 1.0])  # the left-right mirror in camera axes (x ri
 def _recipe(root, stages=None, **model) -> TrainConfig:
     data = DataConfig(split="train", episodes=2, max_steps=12, width=W, height=H, episodes_per_shard=1)
     val = dataclasses.replace(data, split="val", episodes=1)
-    stages = stages or (StageConfig("forward", ("move_forward",), 1, lr=1e-3, batch=8),
-                        StageConfig("turns", ("turn_left", "turn_right"), 1, lr=1e-3, batch=8, data_aug=True),
-                        StageConfig("joint", ("turn_left", "turn_right"), 1, lr=5e-4, batch=8, geoinv=True))
-    return TrainConfig(model=dataclasses.replace(TINY, **model), stages=tuple(stages), train_data=data, val_data=val,
-                       data_root=str(root), val_pairs=20, seed=3)
+    stages = stages or (
+        StageConfig("forward", ("move_forward",), 1, lr=1e-3, batch=8),
+        StageConfig("turns", ("turn_left", "turn_right"), 1, lr=1e-3, batch=8, data_aug=True),
+        StageConfig("joint", ("turn_left", "turn_right"), 1, lr=5e-4, batch=8, geoinv=True),
+    )
+    return TrainConfig(
+        model=dataclasses.replace(TINY, **model),
+        stages=tuple(stages),
+        train_data=data,
+        val_data=val,
+        data_root=str(root),
+        val_pairs=20,
+        seed=3,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -56,13 +66,22 @@ def data(recipe) -> TrainingData:
 def trained(recipe, tmp_path_factory):
     """The tiny recipe trained once, every stage, exported."""
     root = tmp_path_factory.mktemp("vo-run")
-    done = trainer.run(recipe, work=root / "work", reports=root / "reports", export=root / "model.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    done = trainer.run(
+        recipe,
+        work=root / "work",
+        reports=root / "reports",
+        export=root / "model.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     assert done
     return root
 
 
 # --- inputs -----------------------------------------------------------------------------------------
+
 
 def test_pair_channels_are_the_papers_30_with_one_hot_depth_bins():
     rng = np.random.default_rng(0)
@@ -94,7 +113,7 @@ def test_top_down_projection_puts_a_wall_at_its_distance_and_centre():
     centred left-right; a wall only in the image's left half lands left of centre."""
     K = CameraSpec().intrinsics.resized(W, H)
     depth = torch.full((2, H, W), 4.0)
-    depth[1, :, W // 2:] = 0.0
+    depth[1, :, W // 2 :] = 0.0
     proj = top_down_projection(depth, K, max_depth=10.0, rows=1.0)
     rows = torch.nonzero(proj[0].sum(1)).flatten()
     expected = (H - 1) - int(np.floor((4.0 - 0.1) / 9.9 * H))
@@ -107,10 +126,17 @@ def test_top_down_projection_puts_a_wall_at_its_distance_and_centre():
 
 # --- motion maps, checked against the simulator ---------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def noiseless_episode():
-    spec = EpisodeSpec(split="test", index=2, seed=0, max_steps=14, camera=CameraSpec(width=160, height=90),
-                       noise=NoiseConfig(rgb=0.0, depth=0.0, actuation=0.5))
+    spec = EpisodeSpec(
+        split="test",
+        index=2,
+        seed=0,
+        max_steps=14,
+        camera=CameraSpec(width=160, height=90),
+        noise=NoiseConfig(rgb=0.0, depth=0.0, actuation=0.5),
+    )
     return render_episode(spec)
 
 
@@ -172,6 +198,7 @@ def test_geoinv_loss_is_zero_exactly_for_consistent_predictions():
 
 # --- data, samples, batches -----------------------------------------------------------------------
 
+
 def test_training_data_pairs_carry_the_episodes_true_motions(recipe, data):
     spec = recipe.train_data.specs[1]
     ep = render_episode(spec)
@@ -201,6 +228,7 @@ def test_stage_samples_follow_the_switches(data):
 
 def test_blocked_forward_pairs_are_repeated_and_nothing_else():
     from types import SimpleNamespace
+
     acts = np.array([Action.MOVE_FORWARD.value] * 4 + [Action.TURN_LEFT.value, Action.TURN_RIGHT.value])
     planar = np.array([[0, 0.25, 0], [0, 0.01, 0], [0, 0.2, 0], [0, 0.1, 0], [0, 0.0, 0.5], [0, 0.0, -0.5]])
     fake = SimpleNamespace(pair_actions=acts, pair_planar=planar)
@@ -231,13 +259,13 @@ def test_a_batch_swaps_and_mirrors_frames_targets_and_actions_together(data):
 
 # --- training -------------------------------------------------------------------------------------
 
+
 def test_a_tiny_model_learns_its_batch(data):
     torch.manual_seed(0)
     cfg = dataclasses.replace(TINY, dropout=0.0)
     nets = build_networks(cfg)
     idx = data.select([Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT])[:16]
-    batch = make_batch(data, Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool)), cfg,
-                       torch.device("cpu"))
+    batch = make_batch(data, Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool)), cfg, torch.device("cpu"))
     opt = torch.optim.Adam(nets.parameters(), lr=2e-3)
     losses = []
     for _ in range(60):
@@ -268,13 +296,37 @@ def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_pat
     again: the same weights, bit for bit, as the run that was never stopped."""
     work = tmp_path / "work"
     first = dataclasses.replace(recipe, stages=recipe.stages[:1])
-    assert trainer.run(first, work=work, reports=tmp_path / "r", export=tmp_path / "first.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
-    stopped = trainer.run(recipe, work=work, reports=tmp_path / "r", export=tmp_path / "m.pt",
-                          device=torch.device("cpu"), hours=1e-9, parallel_data=False, progress=False)
+    assert trainer.run(
+        first,
+        work=work,
+        reports=tmp_path / "r",
+        export=tmp_path / "first.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
+    stopped = trainer.run(
+        recipe,
+        work=work,
+        reports=tmp_path / "r",
+        export=tmp_path / "m.pt",
+        device=torch.device("cpu"),
+        hours=1e-9,
+        parallel_data=False,
+        progress=False,
+    )
     assert not stopped and not (tmp_path / "m.pt").exists()
-    assert trainer.run(recipe, work=work, reports=tmp_path / "r", export=tmp_path / "m.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    assert trainer.run(
+        recipe,
+        work=work,
+        reports=tmp_path / "r",
+        export=tmp_path / "m.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     a, b = torch.load(trained / "model.pt", weights_only=True), torch.load(tmp_path / "m.pt", weights_only=True)
     for name in a["networks"]:
         for key, value in a["networks"][name].items():
@@ -284,11 +336,20 @@ def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_pat
 def test_a_changed_recipe_does_not_continue_an_old_run(trained, recipe):
     changed = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, dd_bins=5))
     with pytest.raises(ValueError, match="another run"):
-        trainer.run(changed, work=trained / "work", reports=trained / "r2", export=trained / "x.pt",
-                    device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+        trainer.run(
+            changed,
+            work=trained / "work",
+            reports=trained / "r2",
+            export=trained / "x.pt",
+            device=torch.device("cpu"),
+            hours=None,
+            parallel_data=False,
+            progress=False,
+        )
 
 
 # --- checkpoints and the odometer -----------------------------------------------------------------
+
 
 def _pairs(recipe):
     spec = dataclasses.replace(recipe.val_data.specs[0], max_steps=8)
@@ -357,6 +418,7 @@ def test_save_and_load_round_trip(recipe, tmp_path):
 
 # --- recipes --------------------------------------------------------------------------------------
 
+
 def test_recipe_errors_name_the_file_and_field(tmp_path):
     path = tmp_path / "r.toml"
     path.write_text('[model]\ndd_bins = "ten"\n[[stages]]\nname = "f"\nactions = ["move_forward"]\nepochs = 1\n')
@@ -378,7 +440,14 @@ def test_the_shipped_recipe_is_the_papers_row_18_with_the_nominal_warp():
     m = cfg.model
     assert (m.kind, m.visual, m.dd_bins, m.sproj, m.warp) == ("sepact", "rgbd", 10, True, "nominal")
     assert load_train_config("studies/robust_vo/ablations/no-warp.toml").model == dataclasses.replace(m, warp="none")
-    assert [s.name for s in cfg.stages] == ["forward", "turns", "joint", "forward-decay", "forward-long", "forward-final"]
+    assert [s.name for s in cfg.stages] == [
+        "forward",
+        "turns",
+        "joint",
+        "forward-decay",
+        "forward-long",
+        "forward-final",
+    ]
     assert cfg.stages[1].data_aug and cfg.stages[2].geoinv and not cfg.stages[0].data_aug
     forward = [s for s in cfg.stages if s.actions == ("move_forward",)]
     assert [s.lr for s in forward] == sorted((s.lr for s in forward), reverse=True)  # step decays
@@ -407,8 +476,10 @@ def test_resized_intrinsics_map_pixel_edges_to_pixel_edges():
 
 
 def test_a_variant_states_only_what_it_changes(tmp_path):
-    (tmp_path / "base.toml").write_text('seed = 4\n[model]\ndd_bins = 5\nsproj = false\n'
-                                        '[[stages]]\nname = "f"\nactions = ["move_forward"]\nepochs = 1\n')
+    (tmp_path / "base.toml").write_text(
+        "seed = 4\n[model]\ndd_bins = 5\nsproj = false\n"
+        '[[stages]]\nname = "f"\nactions = ["move_forward"]\nepochs = 1\n'
+    )
     (tmp_path / "v.toml").write_text('base = "base.toml"\n[model]\ndd_bins = 20\n')
     cfg = load_train_config(str(tmp_path / "v.toml"))
     assert (cfg.seed, cfg.model.dd_bins, cfg.model.sproj, len(cfg.stages)) == (4, 20, False, 1)
@@ -435,15 +506,20 @@ def test_every_ablation_recipe_changes_one_switch_of_the_shipped_one():
 
 def test_hostile_recipe_values_are_refused_with_their_field(tmp_path):
     head = '[[stages]]\nactions = ["move_forward"]\nepochs = 1\n'
-    for body, match in (('name = "../evil"\n', "stage name must be letters"),
-                        ('name = "f"\nlr = inf\n', r"lr must be in \[1e-12, 1\], got inf"),
-                        ('name = "f"\nbatch = 0\n', r"batch must be in \[1, 65536\], got 0")):
+    for body, match in (
+        ('name = "../evil"\n', "stage name must be letters"),
+        ('name = "f"\nlr = inf\n', r"lr must be in \[1e-12, 1\], got inf"),
+        ('name = "f"\nbatch = 0\n', r"batch must be in \[1, 65536\], got 0"),
+    ):
         path = tmp_path / "r.toml"
         path.write_text(head + body)
         with pytest.raises(ConfigError, match=match):
             load_train_config(str(path))
-    for model, match in (("groups = 0", "groups must be in"), ("compress_channels = 0", "compress_channels must be in"),
-                         ("hidden = 0", "hidden must be in")):
+    for model, match in (
+        ("groups = 0", "groups must be in"),
+        ("compress_channels = 0", "compress_channels must be in"),
+        ("hidden = 0", "hidden must be in"),
+    ):
         path = tmp_path / "m.toml"
         path.write_text(f"[model]\n{model}\n" + head + 'name = "f"\n')
         with pytest.raises(ConfigError, match=match):
@@ -475,8 +551,16 @@ def test_a_resumed_state_names_what_changed(trained, recipe):
     assert differences({"s": {"blocked_repeat": 4}}, {"s": {}}) == ["s.blocked_repeat (saved 4, now unset)"]
     changed = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, dd_bins=5))
     with pytest.raises(ValueError, match=r"model.dd_bins \(saved 10, now 5\)"):
-        trainer.run(changed, work=trained / "work", reports=trained / "r3", export=trained / "y.pt",
-                    device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+        trainer.run(
+            changed,
+            work=trained / "work",
+            reports=trained / "r3",
+            export=trained / "y.pt",
+            device=torch.device("cpu"),
+            hours=None,
+            parallel_data=False,
+            progress=False,
+        )
 
 
 def test_blocked_repeat_of_one_keeps_the_identity_of_recipes_written_before_it(recipe):
@@ -485,7 +569,7 @@ def test_blocked_repeat_of_one_keeps_the_identity_of_recipes_written_before_it(r
     identity = trainer._identity(recipe, recipe.stages[-1])
     assert "blocked_repeat" not in identity["stage"] and all("blocked_repeat" not in s for s in identity["before"])
     more = dataclasses.replace(stage, blocked_repeat=4)
-    changed = dataclasses.replace(recipe, stages=(*recipe.stages[:k], more, *recipe.stages[k + 1:]))
+    changed = dataclasses.replace(recipe, stages=(*recipe.stages[:k], more, *recipe.stages[k + 1 :]))
     assert trainer._identity(changed, more)["stage"]["blocked_repeat"] == 4
 
 
@@ -503,15 +587,25 @@ def test_real_data_without_actions_is_refused_for_an_action_model_and_bad_seeds_
     from odolab.api import ComparisonConfig, ComparisonError, run_comparison
 
     with pytest.raises(ComparisonError, match="robust-vo needs the action of every step"):
-        run_comparison(ComparisonConfig(odometers=["robust-vo"], tum=__import__("pathlib").Path("tests/data/tum_fr1_xyz_10")))
+        run_comparison(
+            ComparisonConfig(odometers=["robust-vo"], tum=__import__("pathlib").Path("tests/data/tum_fr1_xyz_10"))
+        )
     with pytest.raises(ValueError, match=r"seed must be an integer in \[0, 4294967295\], got -1"):
         RobustVOOdometer(seed=-1)
 
 
 def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path):
     tied = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, mirror_turns=True))
-    assert trainer.run(tied, work=tmp_path / "w", reports=tmp_path / "r", export=tmp_path / "m.pt",
-                       device=torch.device("cpu"), hours=None, parallel_data=False, progress=False)
+    assert trainer.run(
+        tied,
+        work=tmp_path / "w",
+        reports=tmp_path / "r",
+        export=tmp_path / "m.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        parallel_data=False,
+        progress=False,
+    )
     cfg, nets, _ = load_model(tmp_path / "m.pt")
     assert cfg.mirror_turns and set(nets) == {"move_forward", "turn_left"}
     odo = RobustVOOdometer(checkpoint=str(tmp_path / "m.pt"))

@@ -1,5 +1,6 @@
 """The nominal-motion warp of the robust VO's input (odolab.robust_vo.warp): geometry against the
 simulator, its place in training batches, and the same input at inference."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -9,16 +10,16 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import Action, invert, load_odometer, nominal_motion  # noqa: E402
-from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode  # noqa: E402
-from odolab.learning import DataConfig, TrainingData, make_training_data  # noqa: E402
-from odolab.robust_vo.batches import Samples, make_batch  # noqa: E402
-from odolab.robust_vo.checkpoint import save_model  # noqa: E402
-from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig  # noqa: E402
-from odolab.robust_vo.inputs import pair_channels  # noqa: E402
-from odolab.robust_vo.model import build_networks  # noqa: E402
-from odolab.robust_vo.warp import nominal_transforms, warp_current, warp_pairs  # noqa: E402
-from odolab.sim.camera import CameraSpec  # noqa: E402
+from odolab.api import Action, invert, load_odometer, nominal_motion
+from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
+from odolab.learning import DataConfig, TrainingData, make_training_data
+from odolab.robust_vo.batches import Samples, make_batch
+from odolab.robust_vo.checkpoint import save_model
+from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
+from odolab.robust_vo.inputs import pair_channels
+from odolab.robust_vo.model import build_networks
+from odolab.robust_vo.warp import nominal_transforms, warp_current, warp_pairs
+from odolab.sim.camera import CameraSpec
 
 W, H = 48, 32
 WARPED = ModelConfig(width=W, height=H, base_planes=8, groups=4, hidden=32, compress_channels=8, warp="nominal")
@@ -26,8 +27,14 @@ WARPED = ModelConfig(width=W, height=H, base_planes=8, groups=4, hidden=32, comp
 
 @pytest.fixture(scope="module")
 def episode():
-    spec = EpisodeSpec(split="test", index=2, seed=0, max_steps=20, camera=CameraSpec(width=160, height=90),
-                       noise=NoiseConfig(rgb=0.0, depth=0.0, actuation=0.5))
+    spec = EpisodeSpec(
+        split="test",
+        index=2,
+        seed=0,
+        max_steps=20,
+        camera=CameraSpec(width=160, height=90),
+        noise=NoiseConfig(rgb=0.0, depth=0.0, actuation=0.5),
+    )
     return render_episode(spec)
 
 
@@ -79,8 +86,13 @@ def test_a_bad_warp_name_is_refused():
 @pytest.fixture(scope="module")
 def recipe(tmp_path_factory) -> TrainConfig:
     data = DataConfig(split="val", episodes=1, max_steps=12, width=W, height=H, episodes_per_shard=1)
-    cfg = TrainConfig(model=WARPED, stages=(StageConfig("all", ("move_forward",), 1),), train_data=data,
-                      val_data=data, data_root=str(tmp_path_factory.mktemp("warp-data")))
+    cfg = TrainConfig(
+        model=WARPED,
+        stages=(StageConfig("all", ("move_forward",), 1),),
+        train_data=data,
+        val_data=data,
+        data_root=str(tmp_path_factory.mktemp("warp-data")),
+    )
     make_training_data(data, cfg.data_folder(data), parallel=False, progress=False)
     return cfg
 
@@ -94,11 +106,16 @@ def test_a_batch_warps_each_sample_by_the_action_it_now_stands_for(recipe):
     expected = pair_channels(*warp_pairs(rgb, depth, swapped.action, data.intrinsics), data.intrinsics, WARPED)
     assert swapped.action[0] != b["action"][0]
     assert torch.allclose(swapped.x, expected)
-    plain = make_batch(data, Samples(np.array([k]), np.array([False]), np.array([False])),
-                       dataclasses.replace(WARPED, warp="none"), torch.device("cpu"))
+    plain = make_batch(
+        data,
+        Samples(np.array([k]), np.array([False]), np.array([False])),
+        dataclasses.replace(WARPED, warp="none"),
+        torch.device("cpu"),
+    )
     c = WARPED.channels_per_frame
-    unswapped = make_batch(data, Samples(np.array([k]), np.array([False]), np.array([False])), WARPED,
-                           torch.device("cpu"))
+    unswapped = make_batch(
+        data, Samples(np.array([k]), np.array([False]), np.array([False])), WARPED, torch.device("cpu")
+    )
     assert torch.equal(unswapped.x[:, :c], plain.x[:, :c]) and not torch.allclose(unswapped.x[:, c:], plain.x[:, c:])
 
 
@@ -117,8 +134,9 @@ def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path, d
     odo.reset(ep.intrinsics)
     for i in range(len(ep) - 1):
         x = odo._pair_channels(ep[i], ep[i + 1], ep.action(i))
-        batch = make_batch(data, Samples(np.array([i]), np.array([False]), np.array([False])), model,
-                           torch.device("cpu"))
+        batch = make_batch(
+            data, Samples(np.array([i]), np.array([False]), np.array([False])), model, torch.device("cpu")
+        )
         assert x.shape[0] == model.input_channels == 2 * WARPED.channels_per_frame + (depth_residual > 0)
         c = 2 * WARPED.channels_per_frame
         differ = (x[:c] - batch.x[0, :c]).abs() > 1e-3  # stored depth is rounded to 1 mm: a rare bin flips
@@ -129,6 +147,7 @@ def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path, d
 
 
 # --- depth_residual: the warped depth change as a channel of its own ---------------------------
+
 
 def test_the_residual_channel_is_the_depth_change_scaled_clipped_and_zero_on_holes():
     from odolab.robust_vo.inputs import residual_channel
@@ -183,8 +202,9 @@ def test_a_start_from_a_model_without_the_residual_answers_as_that_model(recipe,
         net.norm.mean.normal_()
         net.norm.var.uniform_(0.5, 2.0)
     save_model(tmp_path / "old.pt", recipe, old_nets, {})
-    grown_cfg = dataclasses.replace(recipe, model=dataclasses.replace(WARPED, depth_residual=0.1),
-                                    init=str(tmp_path / "old.pt"))
+    grown_cfg = dataclasses.replace(
+        recipe, model=dataclasses.replace(WARPED, depth_residual=0.1), init=str(tmp_path / "old.pt")
+    )
     start, digest = load_start(grown_cfg.init, grown_cfg, tmp_path / "new.pt")
     assert len(digest) == 64
     grown = build_networks(grown_cfg.model)
@@ -204,13 +224,15 @@ def test_a_start_from_a_model_without_the_residual_answers_as_that_model(recipe,
     with pytest.raises(ValueError, match="no such model file"):
         load_start(str(tmp_path / "none.pt"), grown_cfg, tmp_path / "new.pt")
     save_model(tmp_path / "grown.pt", grown_cfg, grown, {})  # a residual of 0.1 m cannot start one of 0.5 m
-    rescaled = dataclasses.replace(grown_cfg, model=dataclasses.replace(grown_cfg.model, depth_residual=0.5),
-                                   init=str(tmp_path / "grown.pt"))
+    rescaled = dataclasses.replace(
+        grown_cfg, model=dataclasses.replace(grown_cfg.model, depth_residual=0.5), init=str(tmp_path / "grown.pt")
+    )
     with pytest.raises(ValueError, match="may only add the residual channel"):
         load_start(rescaled.init, rescaled, tmp_path / "new.pt")
 
 
 # --- mirror_turns: one turn network for both turns ----------------------------------------------
+
 
 def test_mirror_turns_answers_a_right_turn_with_the_mirrored_left_network():
     from odolab.robust_vo.model import predict

@@ -1,5 +1,6 @@
 """The runner against hostile or unusual odometers: frames they cannot change, transforms that are
 not rigid motions, a reset that raises, batched steps with honest timing, raw estimates kept."""
+
 import time
 
 import numpy as np
@@ -63,24 +64,28 @@ def _fixed(transform):
     class Fixed(api.Odometer):
         def step(self, prev, cur, action):
             return api.Estimate(np.array(transform, dtype=float))
+
     return Fixed()
 
 
-def _with(R=np.eye(3), t=(0, 0, 0.25), bottom=(0, 0, 0, 1)):
+def _with(R=None, t=(0, 0, 0.25), bottom=(0, 0, 0, 1)):
     T = np.eye(4)
-    T[:3, :3], T[:3, 3], T[3] = R, t, bottom
+    T[:3, :3], T[:3, 3], T[3] = np.eye(3) if R is None else R, t, bottom
     return T
 
 
-@pytest.mark.parametrize("transform,reason", [
-    (_with(R=np.diag([1.0, 1.0, -1.0])), "not-a-rotation"),          # a reflection (det -1)
-    (_with(R=1.01 * np.eye(3)), "not-a-rotation"),                    # scaled by 1 %
-    (_with(R=[[1, 0.01, 0], [0, 1, 0], [0, 0, 1]]), "not-a-rotation"),  # sheared
-    (_with(bottom=(0, 0, 0.1, 1)), "bad-bottom-row"),
-    (_with(t=(0, 0, 1e200)), "absurd-translation"),
-    (_with(t=(0, 0, runner.MAX_STEP_TRANSLATION * 1.01)), "absurd-translation"),
-    (_with(t=(0, np.nan, 0)), "non-finite"),
-])
+@pytest.mark.parametrize(
+    "transform,reason",
+    [
+        (_with(R=np.diag([1.0, 1.0, -1.0])), "not-a-rotation"),  # a reflection (det -1)
+        (_with(R=1.01 * np.eye(3)), "not-a-rotation"),  # scaled by 1 %
+        (_with(R=[[1, 0.01, 0], [0, 1, 0], [0, 0, 1]]), "not-a-rotation"),  # sheared
+        (_with(bottom=(0, 0, 0.1, 1)), "bad-bottom-row"),
+        (_with(t=(0, 0, 1e200)), "absurd-translation"),
+        (_with(t=(0, 0, runner.MAX_STEP_TRANSLATION * 1.01)), "absurd-translation"),
+        (_with(t=(0, np.nan, 0)), "non-finite"),
+    ],
+)
 def test_a_valid_step_that_is_not_a_rigid_motion_is_a_counted_failure(episode, transform, reason):
     res = runner.run_sequence(_fixed(transform), episode, "bad", PRIOR)
     n = len(episode) - 1
@@ -187,8 +192,19 @@ def test_compare_prints_failure_reasons(tmp_path, capsys):
     from odolab.compare import main
 
     api.register_odometer("broken-reset", BrokenReset)
-    args = ["--odometers", "broken-reset,action-prior", "--episodes", "1", "--max-steps", "5", "--serial",
-            "--quiet", "--no-cache", "--out", str(tmp_path)]
+    args = [
+        "--odometers",
+        "broken-reset,action-prior",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--serial",
+        "--quiet",
+        "--no-cache",
+        "--out",
+        str(tmp_path),
+    ]
     assert run_cli(main, "odolab.compare", args) == 0
     out = capsys.readouterr().out
     assert "note: broken-reset failed steps by reason: reset-raised 5" in out

@@ -1,4 +1,5 @@
 """The shipped learned models: small, registered, and right about known simulator motions."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,9 +7,9 @@ import pytest
 
 pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from odolab.api import Action, available_odometers, load_odometer  # noqa: E402
-from odolab.episodes import EpisodeSpec, render_episode  # noqa: E402
-from odolab.robust_vo.checkpoint import SHIPPED  # noqa: E402
+from odolab.api import Action, available_odometers, load_odometer
+from odolab.episodes import EpisodeSpec, render_episode
+from odolab.robust_vo.checkpoint import SHIPPED
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +31,7 @@ def test_the_shipped_robust_vo_gets_known_motions_right(episode):
     est = np.stack([odo.step(episode[i], episode[i + 1], episode.action(i)).planar for i in range(len(episode) - 1)])
     actions = np.array([episode.action(i) for i in range(len(episode) - 1)])
     left, right = actions == Action.TURN_LEFT, actions == Action.TURN_RIGHT
-    forward = (actions == Action.MOVE_FORWARD) & ~episode.collisions[:len(actions)]
+    forward = (actions == Action.MOVE_FORWARD) & ~episode.collisions[: len(actions)]
     assert left.any() and right.any() and forward.any()
     assert np.all(est[left, 2] > 0.3) and np.all(est[right, 2] < -0.3)
     assert np.all(est[forward, 1] > 0.12)

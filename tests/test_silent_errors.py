@@ -1,6 +1,7 @@
 """Runs that would be silently wrong are marked or refused: an oracle inside a composite, an
 odometer that implements nothing, depth read at the wrong scale, a damaged training shard, a
 trajectory whose KITTI drift cannot be computed; and odometers load from a file's path."""
+
 from __future__ import annotations
 
 import shutil
@@ -94,12 +95,29 @@ def test_a_composite_that_hides_ground_truth_from_its_oracle_input_is_refused(or
 def test_the_calibration_command_names_an_oracle_input(tmp_path, capsys, oracle_calibration):
     from odolab.fusion import calibrate
 
-    calibrate.main(["--odometers", "action-prior,test-truth", "--episodes", "1", "--max-steps", "30", "--serial",
-                    "--quiet", "--split", "val", "--cache", str(tmp_path / "cache"), "--out", str(tmp_path / "c.json")])
+    calibrate.main(
+        [
+            "--odometers",
+            "action-prior,test-truth",
+            "--episodes",
+            "1",
+            "--max-steps",
+            "30",
+            "--serial",
+            "--quiet",
+            "--split",
+            "val",
+            "--cache",
+            str(tmp_path / "cache"),
+            "--out",
+            str(tmp_path / "c.json"),
+        ]
+    )
     assert "test-truth (an oracle" in capsys.readouterr().out
 
 
 # ----------------------------------------------------------------------------- an odometer that implements nothing
+
 
 class _Abstract(Odometer):
     pass
@@ -129,10 +147,19 @@ def test_an_odometer_failing_every_step_is_said_on_the_compare_console():
     from odolab.summary import every_step_failed
 
     register_odometer("test-never", _Never)
-    result = run_comparison(ComparisonConfig(odometers=["test-never", "action-prior"], episodes=1, max_steps=3,
-                                             cache=None, parallel=False, progress=False))
+    result = run_comparison(
+        ComparisonConfig(
+            odometers=["test-never", "action-prior"],
+            episodes=1,
+            max_steps=3,
+            cache=None,
+            parallel=False,
+            progress=False,
+        )
+    )
     assert every_step_failed(result.rows) == [
-        "test-never: failed steps: every one of 3; its figures are the action prior's, which stood in for each"]
+        "test-never: failed steps: every one of 3; its figures are the action prior's, which stood in for each"
+    ]
 
 
 @pytest.mark.slow
@@ -141,8 +168,18 @@ def test_the_navigate_console_counts_failed_steps(tmp_path, capsys):
     from odolab.navigate import main as navigate
 
     register_odometer("test-never", _Never)
-    args = ["--odometers", "test-never,action-prior", "--episodes", "1", "--max-steps", "3", "--serial", "--quiet",
-            "--out", str(tmp_path)]
+    args = [
+        "--odometers",
+        "test-never,action-prior",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "3",
+        "--serial",
+        "--quiet",
+        "--out",
+        str(tmp_path),
+    ]
     assert run_cli(navigate, "python -m odolab.navigate", args) == 0
     lines = capsys.readouterr().out.splitlines()
     assert "failed steps: every one of 3" in next(ln for ln in lines if "test-never:" in ln)
@@ -151,7 +188,7 @@ def test_the_navigate_console_counts_failed_steps(tmp_path, capsys):
 
 # ----------------------------------------------------------------------------- odometers from a file
 
-ODOMETER_FILE = '''
+ODOMETER_FILE = """
 from dataclasses import dataclass
 from odolab.api import Estimate, Odometer
 
@@ -165,7 +202,7 @@ class Forward(Odometer):
 
     def step(self, prev, cur, action):
         return Estimate.from_planar(0.0, self.settings.dz, 0.0)
-'''
+"""
 
 
 def test_an_odometer_loads_from_a_file_path_without_pythonpath(tmp_path, monkeypatch):
@@ -237,28 +274,47 @@ def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale
     from odolab.comparison import ComparisonConfig, run_comparison
 
     def run(scale):
-        config = ComparisonConfig(odometers=["ground-truth"], tum=millimetre_folder, tum_depth_scale=scale,
-                                  tum_intrinsics=FR1, progress=False)
+        config = ComparisonConfig(
+            odometers=["ground-truth"], tum=millimetre_folder, tum_depth_scale=scale, tum_intrinsics=FR1, progress=False
+        )
         return run_comparison(config)
 
     assert not any("median" in w for w in run(1000.0).warnings)
     assert any("depth's median is 0.22 m" in w for w in run(None).warnings)
 
 
-@pytest.mark.parametrize("args,words", [
-    ([], "cannot tell the camera from the folder's name (no fr1, fr2 or fr3 in it); give it with --intrinsics"),
-    (["--intrinsics", "517,516,318"], "--intrinsics must be four numbers fx,fy,cx,cy"),
-    (["--intrinsics", "0,516,318,255"], "--intrinsics: the focal lengths fx, fy must be positive"),
-    (["--intrinsics", ",".join(map(str, FR1)), "--depth-scale", "0"], "--depth-scale must be in [1, 1e+06]"),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        ([], "cannot tell the camera from the folder's name (no fr1, fr2 or fr3 in it); give it with --intrinsics"),
+        (["--intrinsics", "517,516,318"], "--intrinsics must be four numbers fx,fy,cx,cy"),
+        (["--intrinsics", "0,516,318,255"], "--intrinsics: the focal lengths fx, fy must be positive"),
+        (["--intrinsics", ",".join(map(str, FR1)), "--depth-scale", "0"], "--depth-scale must be in [1, 1e+06]"),
+    ],
+)
 def test_compare_names_a_missing_or_bad_camera_and_scale_in_one_line(millimetre_folder, tmp_path, args, words):
-    one_line_error("odolab.compare", "--tum", millimetre_folder, "--odometers", "ground-truth", *args,
-                   "--out", tmp_path / "o", words=words)
+    one_line_error(
+        "odolab.compare",
+        "--tum",
+        millimetre_folder,
+        "--odometers",
+        "ground-truth",
+        *args,
+        "--out",
+        tmp_path / "o",
+        words=words,
+    )
 
 
 def test_the_tum_options_need_a_tum_folder(tmp_path):
-    one_line_error("odolab.compare", "--depth-scale", "1000", "--out", tmp_path / "o",
-                   words="--depth-scale describes a TUM folder's images; it needs --tum")
+    one_line_error(
+        "odolab.compare",
+        "--depth-scale",
+        "1000",
+        "--out",
+        tmp_path / "o",
+        words="--depth-scale describes a TUM folder's images; it needs --tum",
+    )
 
 
 # ----------------------------------------------------------------------------- evaluate's frictions
@@ -292,9 +348,11 @@ def test_evaluate_refuses_a_format_it_cannot_tell_in_one_line(tmp_path, capsys):
     kitti.write_text(KITTI_OK)
     odd.write_text("1 2 3 4 5\n")
     named.write_text(KITTI_OK)
-    for args, words in (([tum, kitti], f"{kitti} is a KITTI file but {tum} a TUM file"),
-                        ([odd, odd], "expected 8 columns (TUM) or 12 (KITTI), got 5"),
-                        ([named, named], "named .tum but its lines have 12 columns, as KITTI files do")):
+    for args, words in (
+        ([tum, kitti], f"{kitti} is a KITTI file but {tum} a TUM file"),
+        ([odd, odd], "expected 8 columns (TUM) or 12 (KITTI), got 5"),
+        ([named, named], "named .tum but its lines have 12 columns, as KITTI files do"),
+    ):
         code, _, err = _evaluate(capsys, *args)
         assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
     assert _evaluate(capsys, named, named, "--format", "kitti")[0] == 0  # --format decides
@@ -318,19 +376,26 @@ def test_evaluate_says_why_t_rel_is_a_dash(tmp_path, capsys):
     path.write_text(TUM_OK)
     code, out, _ = _evaluate(capsys, path, path)
     assert code == 0
-    assert (f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of 100-800 m of the ground "
-            "truth, and its paired poses span a path of 3.414 m") in out
+    assert (
+        f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of 100-800 m of the ground "
+        "truth, and its paired poses span a path of 3.414 m"
+    ) in out
 
 
 # ----------------------------------------------------------------------------- damaged training shards
+
 
 @pytest.fixture(scope="module")
 def shards(tmp_path_factory) -> Path:
     from odolab.training_data import DataConfig, make_training_data
 
     root = tmp_path_factory.mktemp("data") / "train"
-    make_training_data(DataConfig(split="train", episodes=2, max_steps=4, width=24, height=16, episodes_per_shard=1),
-                       root, parallel=False, progress=False)
+    make_training_data(
+        DataConfig(split="train", episodes=2, max_steps=4, width=24, height=16, episodes_per_shard=1),
+        root,
+        parallel=False,
+        progress=False,
+    )
     return root
 
 

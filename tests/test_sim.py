@@ -1,23 +1,29 @@
 """Scenes, rendering and the agent's motion rules."""
+
 import numpy as np
 import pytest
 
 from odolab.geometry import camera_pose_from_agent, invert
-from odolab.types import Action
 from odolab.sim.agent import AgentState, apply_motion, step_agent
 from odolab.sim.camera import CameraSpec, Renderer
 from odolab.sim.noise import ActuationNoise, Motion
 from odolab.sim.planner import ShortestPathFollower, geodesic_field, largest_component
 from odolab.sim.scenes import generate_scene, scene_seed, split_of_seed
+from odolab.types import Action
 
 
 def test_scene_is_deterministic_and_splits_are_disjoint():
     a, b = generate_scene(scene_seed("test", 3)), generate_scene(scene_seed("test", 3))
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.navigable, b.navigable)
-    assert not np.array_equal(a.vertices.shape, generate_scene(scene_seed("test", 4)).vertices.shape) or \
-        not np.array_equal(a.vertices, generate_scene(scene_seed("test", 4)).vertices)
+    assert not np.array_equal(
+        a.vertices.shape, generate_scene(scene_seed("test", 4)).vertices.shape
+    ) or not np.array_equal(a.vertices, generate_scene(scene_seed("test", 4)).vertices)
     seeds = {s: {scene_seed(s, k) for k in range(0, 5000, 7)} for s in ("train", "val", "test")}
-    assert not (seeds["train"] & seeds["val"]) and not (seeds["train"] & seeds["test"]) and not (seeds["val"] & seeds["test"])
+    assert (
+        not (seeds["train"] & seeds["val"])
+        and not (seeds["train"] & seeds["test"])
+        and not (seeds["val"] & seeds["test"])
+    )
     assert all(split_of_seed(x) == s for s, xs in seeds.items() for x in xs)
     with pytest.raises(ValueError, match="split"):
         scene_seed("validation", 0)
@@ -26,7 +32,7 @@ def test_scene_is_deterministic_and_splits_are_disjoint():
 def test_many_scenes_have_room_to_move():
     for k in range(20):
         s = generate_scene(scene_seed("train", k))
-        assert largest_component(s).sum() * s.resolution ** 2 > 5.0  # m^2 of navigable floor
+        assert largest_component(s).sum() * s.resolution**2 > 5.0  # m^2 of navigable floor
 
 
 def test_depth_is_z_distance_to_the_wall():
@@ -46,7 +52,7 @@ def test_depth_is_z_distance_to_the_wall():
     y = next((y for y in ys if scene.is_navigable(1.0, y) and clear(y)), None)
     assert y is not None, "no clear line of sight to the west wall in this scene"
     rgb, depth = r.render(camera_pose_from_agent(1.0, y, np.pi, cam.mount_height))
-    row = depth[cam.height // 2, cam.width // 2 - 30: cam.width // 2 + 30]  # +-7 degrees off-axis
+    row = depth[cam.height // 2, cam.width // 2 - 30 : cam.width // 2 + 30]  # +-7 degrees off-axis
     assert row == pytest.approx(np.ones_like(row), abs=2e-3)
     assert rgb.dtype == np.uint8 and depth.dtype == np.float32 and rgb.shape == (cam.height, cam.width, 3)
 
@@ -63,7 +69,7 @@ def test_texture_is_fixed_to_the_world():
     Tb = camera_pose_from_agent(x, y, 0.3 + np.radians(10), cam.mount_height)
     rgb_a, d_a = r.render(Ta)
     rgb_b, d_b = r.render(Tb)
-    v, u = np.mgrid[10:cam.height - 10:7, 10:cam.width - 10:7]
+    v, u = np.mgrid[10 : cam.height - 10 : 7, 10 : cam.width - 10 : 7]
     z = d_a[v, u]
     keep = z > 0
     pts = np.stack([(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z, np.ones_like(z)], -1)[keep]
@@ -103,14 +109,25 @@ def test_blocked_forward_step_stops_at_contact_without_sliding_and_still_turns()
     assert abs(cross) < 1e-9
     # ... and it stopped within 1 cm of where the straight path leaves the navigable area
     nx, ny = s1.x + 0.011 * np.cos(s0.yaw), s1.y + 0.011 * np.sin(s0.yaw)
-    assert not scene.is_navigable(nx, ny) or not scene.is_navigable(nx + 0.01 * np.cos(s0.yaw), ny + 0.01 * np.sin(s0.yaw))
+    assert not scene.is_navigable(nx, ny) or not scene.is_navigable(
+        nx + 0.01 * np.cos(s0.yaw), ny + 0.01 * np.sin(s0.yaw)
+    )
     # the other rule: a blocked step leaves the agent where it was
     s3, c3 = apply_motion(scene, s0, Motion(forward=0.25, right=0.0, yaw=0.05), stop_at_contact=False)
     assert c3 and (s3.x, s3.y) == (s0.x, s0.y) and s3.yaw == pytest.approx(s0.yaw + 0.05)
     # A free step moves the full amount: some heading from the same place is free for 0.3 m
-    free = next((AgentState(s0.x, s0.y, float(yaw)) for yaw in np.linspace(-np.pi, np.pi, 16, endpoint=False)
-                 if np.all(scene.is_navigable(s0.x + np.linspace(0, 0.3, 7) * np.cos(yaw),
-                                              s0.y + np.linspace(0, 0.3, 7) * np.sin(yaw)))), None)
+    free = next(
+        (
+            AgentState(s0.x, s0.y, float(yaw))
+            for yaw in np.linspace(-np.pi, np.pi, 16, endpoint=False)
+            if np.all(
+                scene.is_navigable(
+                    s0.x + np.linspace(0, 0.3, 7) * np.cos(yaw), s0.y + np.linspace(0, 0.3, 7) * np.sin(yaw)
+                )
+            )
+        ),
+        None,
+    )
     assert free is not None
     s2, c2 = apply_motion(scene, free, Motion(0.25, 0.0, 0.0))
     assert not c2 and np.hypot(s2.x - free.x, s2.y - free.y) == pytest.approx(0.25)

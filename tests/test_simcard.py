@@ -1,4 +1,5 @@
 """The simulator card: its statistics and files."""
+
 import json
 
 import numpy as np
@@ -25,8 +26,25 @@ def test_image_stats_count_holes_and_depth_error_per_bin():
 
 def test_simcard_command_writes_the_card(tmp_path, capsys):
     out = tmp_path / "card"
-    assert main(["--episodes", "3", "--rendered", "1", "--frames", "3", "--max-steps", "40", "--serial",
-                 "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "--episodes",
+                "3",
+                "--rendered",
+                "1",
+                "--frames",
+                "3",
+                "--max-steps",
+                "40",
+                "--serial",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     data = json.loads((out / "card.json").read_text())
     assert data["motion"]["episodes"] == 3 and data["images"]["frames"] == 3
     mix = data["motion"]["mix_pct"]

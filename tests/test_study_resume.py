@@ -1,5 +1,6 @@
 """The studies resume from their saved results (keyed by what they depend on) and redraw their
 tables and figures from them without computing anything (issue 42)."""
+
 from __future__ import annotations
 
 import json

@@ -1,5 +1,6 @@
 """examples/tiny_learned.py: trained through odolab.api, loaded from the command line with a
 checkpoint option, read with weights_only=True, and its estimates follow its weights."""
+
 import csv
 
 import numpy as np
@@ -7,10 +8,10 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from examples import tiny_learned as tl  # noqa: E402
-from odolab import api  # noqa: E402
-from odolab.cli import run_cli  # noqa: E402
-from odolab.compare import main as compare  # noqa: E402
+from examples import tiny_learned as tl
+from odolab import api
+from odolab.cli import run_cli
+from odolab.compare import main as compare
 
 NAME = "examples.tiny_learned:TinyLearnedOdometer"
 
@@ -19,8 +20,18 @@ NAME = "examples.tiny_learned:TinyLearnedOdometer"
 def checkpoint(tmp_path_factory):
     root = tmp_path_factory.mktemp("tiny")
     path = root / "tiny.pt"
-    args = ["--episodes", "2", "--max-steps", "6", "--iterations", "25", "--cache", str(root / "cache"),
-            "--out", str(path)]
+    args = [
+        "--episodes",
+        "2",
+        "--max-steps",
+        "6",
+        "--iterations",
+        "25",
+        "--cache",
+        str(root / "cache"),
+        "--out",
+        str(path),
+    ]
     assert tl.main(args) == 0 and path.stat().st_size > 0
     return path
 
@@ -31,7 +42,7 @@ def _pair():
 
 
 def test_the_network_is_tiny(checkpoint):
-    cfg, net = tl.load_checkpoint(checkpoint)
+    _cfg, net = tl.load_checkpoint(checkpoint)
     assert 1000 < sum(p.numel() for p in net.parameters()) < 10000
 
 
@@ -45,11 +56,25 @@ def test_compare_runs_it_with_a_checkpoint_option(checkpoint, tmp_path, monkeypa
 
     monkeypatch.setattr(torch, "load", spy)
     out = tmp_path / "run"
-    args = ["--odometers", f"action-prior,{NAME}", "--odometer-option", f"{NAME}.checkpoint={checkpoint}",
-            "--odometer-option", f"{NAME}.batch_size=4", "--episodes", "1", "--max-steps", "8", "--serial",
-            "--quiet", "--no-cache", "--out", str(out)]
+    args = [
+        "--odometers",
+        f"action-prior,{NAME}",
+        "--odometer-option",
+        f"{NAME}.checkpoint={checkpoint}",
+        "--odometer-option",
+        f"{NAME}.batch_size=4",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "8",
+        "--serial",
+        "--quiet",
+        "--no-cache",
+        "--out",
+        str(out),
+    ]
     assert run_cli(compare, "odolab.compare", args) == 0
-    rows = {r["odometer"]: r for r in csv.DictReader(open(out / "table.csv"))}
+    rows = {r["odometer"]: r for r in csv.DictReader((out / "table.csv").read_text().splitlines())}
     assert int(rows[NAME]["failures"]) == 0 and float(rows[NAME]["dz"]) >= 0
     assert calls == [True]
 
@@ -84,8 +109,23 @@ def test_a_checkpoint_with_pickled_code_is_refused(tmp_path):
     # any class beyond tensors and plain containers needs the unsafe unpickler to be rebuilt
     torch.save({"format": tl.CHECKPOINT_FORMAT, "config": argparse.Namespace(height=24), "state_dict": {}}, bad)
     with pytest.raises(Exception, match="could not load odometer") as info:
-        compare(["--odometers", NAME, "--odometer-option", f"{NAME}.checkpoint={bad}", "--episodes", "1",
-                 "--max-steps", "3", "--serial", "--quiet", "--no-cache", "--out", str(tmp_path / "o")])
+        compare(
+            [
+                "--odometers",
+                NAME,
+                "--odometer-option",
+                f"{NAME}.checkpoint={bad}",
+                "--episodes",
+                "1",
+                "--max-steps",
+                "3",
+                "--serial",
+                "--quiet",
+                "--no-cache",
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
     assert "Weights only load failed" in str(info.value) or "weights_only" in str(info.value)
 
 

@@ -1,5 +1,6 @@
 """The training step's compute choices (device, precision, memory format), batch prefetching, and
 the epoch loop's saves within an epoch."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,9 +8,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from odolab.learning import ComputeConfig, choose_compute, prefetched  # noqa: E402
-from odolab.learning.compute import cpu_flags, native_bf16  # noqa: E402
-from odolab.learning.epochs import EpochLoop, EpochTracker  # noqa: E402
+from odolab.learning import ComputeConfig, choose_compute, prefetched
+from odolab.learning.compute import cpu_flags, native_bf16
+from odolab.learning.epochs import EpochLoop, EpochTracker
 
 CPU = torch.device("cpu")
 X86_BF16 = "processor\t: 0\nflags\t\t: fpu sse avx512f avx512_bf16\n"
@@ -44,7 +45,13 @@ def test_the_device_is_a_gpu_when_present_else_the_cpu(monkeypatch):
 
 
 def test_a_bad_compute_table_is_refused_in_one_line():
-    for bad in ({"precision": "fp16"}, {"memory_format": "nhwc"}, {"loader_workers": -1}, {"loader_workers": True}, {"loader_workers": "many"}):
+    for bad in (
+        {"precision": "fp16"},
+        {"memory_format": "nhwc"},
+        {"loader_workers": -1},
+        {"loader_workers": True},
+        {"loader_workers": "many"},
+    ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             ComputeConfig(**bad)
 
@@ -105,7 +112,7 @@ def _toy_run(path, batches_before_kill: int | None, save_every: float) -> dict:
         for b in range(tracker.start, 6):
             if batches_before_kill is not None and b == batches_before_kill:
                 raise Killed()
-            idx = torch.from_numpy(order[b * 8:(b + 1) * 8])
+            idx = torch.from_numpy(order[b * 8 : (b + 1) * 8])
             loss = (net(x[idx]) - y[idx]).pow(2).mean()
             opt.zero_grad()
             loss.backward()
@@ -137,7 +144,8 @@ def test_bench_training_prints_and_writes_one_row_per_recipe(tmp_path, capsys):
     from odolab import bench
 
     recipe = tmp_path / "tiny.toml"
-    recipe.write_text(f"""data_root = "{tmp_path / 'data'}"
+    recipe.write_text(
+        f"""data_root = "{tmp_path / "data"}"
 val_pairs = 20
 [model]
 width = 64
@@ -164,7 +172,9 @@ name = "forward"
 actions = ["move_forward"]
 epochs = 1
 batch = 4
-""", encoding="utf-8")
+""",
+        encoding="utf-8",
+    )
     out = tmp_path / "bench.json"
     assert bench.main(["--only", "training", "--recipe", str(recipe), "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["training"]
@@ -196,7 +206,7 @@ def test_the_projection_filters_only_its_band_with_the_same_numbers():
         z = torch.where(valid > 0, smooth / share.clamp_min(1e-6), torch.zeros_like(d))
         keep = max(1, int(round(rows * h)))
         top = (h - keep) // 2
-        z = z[:, top:top + keep]
+        z = z[:, top : top + keep]
         u = torch.arange(w, dtype=d.dtype)
         x = (u - K.cx) / K.fx * z
         x_max = 10.0 * (K.cx + 0.5) / K.fx

@@ -1,5 +1,6 @@
 """odolab/training_data.py: shards made once and resumed, refused when made otherwise, frames resized
 with holes kept, windows of consecutive pairs."""
+
 from __future__ import annotations
 
 import json
@@ -24,8 +25,7 @@ def test_a_folder_lists_its_shards_and_counts(folder):
     doc = json.loads((folder / td.MANIFEST).read_text())
     assert len(doc["shards"]) == 2  # 3 episodes, 2 per shard
     data = TrainingData(folder)
-    assert sum(data.counts().values()) == len(data) == sum(
-        sum(s["pairs"].values()) for s in doc["shards"].values())
+    assert sum(data.counts().values()) == len(data) == sum(sum(s["pairs"].values()) for s in doc["shards"].values())
     assert data.config == CFG
 
 
@@ -45,8 +45,12 @@ def test_an_interrupted_run_makes_only_the_missing_shard(folder, monkeypatch):
 
 def test_a_folder_made_otherwise_is_refused(folder):
     with pytest.raises(ValueError, match=r"another config: width \(folder 40, asked 64\)"):
-        make_training_data(DataConfig(split="train", episodes=3, max_steps=6, width=64, height=24,
-                                      episodes_per_shard=2), folder, parallel=False, progress=False)
+        make_training_data(
+            DataConfig(split="train", episodes=3, max_steps=6, width=64, height=24, episodes_per_shard=2),
+            folder,
+            parallel=False,
+            progress=False,
+        )
 
 
 def test_a_damaged_shard_or_manifest_is_named(folder, tmp_path):
@@ -54,7 +58,7 @@ def test_a_damaged_shard_or_manifest_is_named(folder, tmp_path):
 
     copy = tmp_path / "copy"
     shutil.copytree(folder, copy)
-    shard = sorted(copy.glob("shard-*.npz"))[0]
+    shard = min(copy.glob("shard-*.npz"))
     shard.write_bytes(b"garbage")
     with pytest.raises(ValueError, match=f"{shard.name}: unreadable shard"):
         TrainingData(copy)
@@ -70,9 +74,9 @@ def test_windows_are_runs_of_consecutive_pairs_of_one_episode(folder):
     for length in (2, 3, 5):
         for k in data.windows(length):
             f = data.pairs[k]
-            run = data.pairs[k:k + length - 1]
+            run = data.pairs[k : k + length - 1]
             assert np.array_equal(run, f + np.arange(length - 1))
-            assert len(set(data.episode[f:f + length])) == 1
+            assert len(set(data.episode[f : f + length])) == 1
     assert len(data.windows(2)) == len(data)
     with pytest.raises(ValueError):
         data.windows(1)
@@ -105,8 +109,21 @@ def test_the_cli_makes_data_and_refuses_bad_options(tmp_path, capsys):
     from odolab.cli import run_cli
 
     out = tmp_path / "d"
-    args = ["--split", "val", "--episodes", "1", "--max-steps", "3", "--width", "32", "--height", "18",
-            "--serial", "--out", str(out)]
+    args = [
+        "--split",
+        "val",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "3",
+        "--width",
+        "32",
+        "--height",
+        "18",
+        "--serial",
+        "--out",
+        str(out),
+    ]
     assert run_cli(td.main, "python -m odolab.training_data", args) == 0
     assert "pairs" in capsys.readouterr().out
     assert run_cli(td.main, "python -m odolab.training_data", args[:-2] + ["--width", "500", "--out", str(out)]) == 2

@@ -1,4 +1,5 @@
 """Trajectory files (TUM, KITTI) and timestamp association, checked against evo."""
+
 from __future__ import annotations
 
 from pathlib import Path

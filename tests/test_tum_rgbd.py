@@ -1,4 +1,5 @@
 """The TUM RGB-D folder reader: frames, association, camera choice and every bad-input error."""
+
 from __future__ import annotations
 
 import shutil
@@ -165,7 +166,9 @@ def test_image_that_does_not_load(copy):
     (copy / "rgb" / "1305031102.066667.png").write_bytes(b"not a png at all")
     seq = load_tum_sequence(copy, check_images=False)  # decoding is lazy when asked
     seq[0]
-    with pytest.raises(FileFormatError, match=r"1305031102.066667.png: cannot be read as an image \(listed in rgb.txt, line 6\)"):
+    with pytest.raises(
+        FileFormatError, match=r"1305031102.066667.png: cannot be read as an image \(listed in rgb.txt, line 6\)"
+    ):
         seq[2]
 
 
@@ -173,7 +176,9 @@ def test_depth_must_be_16_bit(copy):
     path = copy / "depth" / "1305031102.033333.png"
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(path), (raw // 256).astype(np.uint8))
-    with pytest.raises(FileFormatError, match=r"depth must be a 16-bit single-channel image, got uint8 \(listed in depth.txt, line 5\)"):
+    with pytest.raises(
+        FileFormatError, match=r"depth must be a 16-bit single-channel image, got uint8 \(listed in depth.txt, line 5\)"
+    ):
         load_tum_sequence(copy)
 
 
@@ -185,12 +190,15 @@ def test_depth_of_the_wrong_size(copy):
         load_tum_sequence(copy)[0]
 
 
-@pytest.mark.parametrize("kind,damage,problem", [
-    ("rgb", "truncated", "cannot be read as an image"),
-    ("depth", "truncated", "cannot be read as an image"),
-    ("depth", "three channels", "got 3-channel uint16"),
-    ("rgb", "smaller", "colour image is 320x240, the camera's is 640x480"),
-])
+@pytest.mark.parametrize(
+    "kind,damage,problem",
+    [
+        ("rgb", "truncated", "cannot be read as an image"),
+        ("depth", "truncated", "cannot be read as an image"),
+        ("depth", "three channels", "got 3-channel uint16"),
+        ("rgb", "smaller", "colour image is 320x240, the camera's is 640x480"),
+    ],
+)
 def test_bad_images_are_found_before_any_frame_is_used(copy, kind, damage, problem):
     listed = sorted((copy / kind).iterdir())
     path = listed[len(listed) // 2]

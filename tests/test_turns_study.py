@@ -1,4 +1,5 @@
 """The turns-by-depth study, and the far views it found open3d-rgbd's image check refusing."""
+
 from __future__ import annotations
 
 import json
@@ -15,8 +16,10 @@ def _run(args):
 
 def test_the_study_scores_every_odometer_on_the_same_turns(tmp_path, capsys):
     out = tmp_path / "t"
-    assert _run(["--odometers", "ground-truth,action-prior", "--scenes", "1", "--per-scene", "3", "--out", out,
-                 "--quiet"]) == 0
+    assert (
+        _run(["--odometers", "ground-truth,action-prior", "--scenes", "1", "--per-scene", "3", "--out", out, "--quiet"])
+        == 0
+    )
     doc = json.loads((out / "results.json").read_text())
     truth, prior = doc["pairs"]["ground-truth"], doc["pairs"]["action-prior"]
     assert [r[0] for r in truth] == [r[0] for r in prior] and len(truth) == 3  # the same pairs, same depths
@@ -29,11 +32,13 @@ def test_the_study_scores_every_odometer_on_the_same_turns(tmp_path, capsys):
 
 
 def test_the_study_refuses_bad_input_in_one_line(tmp_path, capsys):
-    for args, said in ((["--odometers", "nope"], "unknown odometer 'nope'"),
-                       (["--odometer-option", "icp.max_depth=3"], "options given for 'icp', which is not among the odometers"),
-                       (["--odometer-option", "open3d-rgbd.noise_growth=" + "1" * 320], "noise_growth <= 1 1/m"),
-                       (["--odometer-option", "open3d-rgbd.bogus=1"], "has no option 'bogus'"),
-                       (["--scenes", "0"], "--scenes")):
+    for args, said in (
+        (["--odometers", "nope"], "unknown odometer 'nope'"),
+        (["--odometer-option", "icp.max_depth=3"], "options given for 'icp', which is not among the odometers"),
+        (["--odometer-option", "open3d-rgbd.noise_growth=" + "1" * 320], "noise_growth <= 1 1/m"),
+        (["--odometer-option", "open3d-rgbd.bogus=1"], "has no option 'bogus'"),
+        (["--scenes", "0"], "--scenes"),
+    ):
         assert _run([*args, "--out", tmp_path / "x"]) == 2
         err = capsys.readouterr().err
         assert said in err and "Traceback" not in err and err.count("\n") == 1
@@ -43,7 +48,6 @@ def test_open3d_rgbd_accepts_the_true_turn_of_a_far_view():
     """In views reaching past 4 m the simulator's depth noise outgrows the shared tolerance
     0.01 + 0.01 z^2 m: the true motion failed open3d-rgbd's image check. Its own 0.015 z^2 passes it."""
     from baselines.verification import verify
-
     from odolab.episodes import EpisodeSpec
 
     odo = load_odometer("open3d-rgbd")
@@ -62,6 +66,7 @@ def test_the_classical_odometers_give_the_same_answer_every_run():
     """Open3D's parallel reductions differ in the last bits from run to run on two threads, which
     a closed loop grows into different navigation runs: its solvers run on one thread."""
     import open3d as o3d
+
     from odolab.episodes import EpisodeSpec
     from odolab.runner import guarded_frame
 
@@ -75,7 +80,9 @@ def test_the_classical_odometers_give_the_same_answer_every_run():
             for _ in range(3):
                 odo = load_odometer(name)
                 odo.reset(intr)
-                runs.append([odo.step(guarded_frame(p, False), guarded_frame(c, False), a) for _, _, a, p, c, _ in pairs])
+                runs.append(
+                    [odo.step(guarded_frame(p, False), guarded_frame(c, False), a) for _, _, a, p, c, _ in pairs]
+                )
             _same(name, runs)
     finally:
         o3d.utility.set_max_threads(before)

@@ -1,4 +1,5 @@
 """DeepVO's network and training recipe, read from TOML (``studies/deepvo/*.toml``)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -7,8 +8,17 @@ from odolab.learning import ComputeConfig, DataConfig, dataclass_from_toml
 from odolab.learning.configs import check_ranges
 
 #: The original encoder (FlowNetSimple's 9 convolutions): (output channels, kernel, stride).
-FLOWNET_LAYERS = ((64, 7, 2), (128, 5, 2), (256, 5, 2), (256, 3, 1), (512, 3, 2), (512, 3, 1), (512, 3, 2),
-                  (512, 3, 1), (1024, 3, 2))
+FLOWNET_LAYERS = (
+    (64, 7, 2),
+    (128, 5, 2),
+    (256, 5, 2),
+    (256, 3, 1),
+    (512, 3, 2),
+    (512, 3, 1),
+    (512, 3, 2),
+    (512, 3, 1),
+    (1024, 3, 2),
+)
 
 
 @dataclass(frozen=True)
@@ -32,8 +42,17 @@ class DeepVOModel:
     actions: bool = False
 
     def __post_init__(self) -> None:
-        check_ranges("", self, width=(8, 2048), height=(8, 2048), width_scale=(1e-3, 4.0), hidden=(1, 8192),
-                     layers=(1, 16), dropout=(0.0, 0.99), max_depth=(0.1, 100.0))
+        check_ranges(
+            "",
+            self,
+            width=(8, 2048),
+            height=(8, 2048),
+            width_scale=(1e-3, 4.0),
+            hidden=(1, 8192),
+            layers=(1, 16),
+            dropout=(0.0, 0.99),
+            max_depth=(0.1, 100.0),
+        )
 
     @property
     def channels(self) -> tuple[int, ...]:
@@ -68,9 +87,18 @@ class DeepVOTraining:
     compute: ComputeConfig = field(default_factory=ComputeConfig)
 
     def __post_init__(self) -> None:
-        check_ranges("recipe", self, window=(2, 64), batch=(1, 65_536), epochs=(1, 100_000), lr=(1e-12, 1.0),
-                     rotation_weight=(0.0, 1e6), windows_per_epoch=(0, 10**9), val_windows=(1, 10**7),
-                     seed=(0, 2**32 - 1))
+        check_ranges(
+            "recipe",
+            self,
+            window=(2, 64),
+            batch=(1, 65_536),
+            epochs=(1, 100_000),
+            lr=(1e-12, 1.0),
+            rotation_weight=(0.0, 1e6),
+            windows_per_epoch=(0, 10**9),
+            val_windows=(1, 10**7),
+            seed=(0, 2**32 - 1),
+        )
         for data in (self.train_data, self.val_data):
             data.require_size(self.model.width, self.model.height)
 

@@ -1,5 +1,6 @@
 """The DeepVO network: two frames stacked on channels -> FlowNetSimple-like convolutions (BatchNorm,
 LeakyReLU 0.1, dropout) -> a stacked LSTM over the sequence of pairs -> linear to (dx, dz, dyaw)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,8 +24,12 @@ def frame_tensor(rgb: np.ndarray, depth: np.ndarray, cfg: DeepVOModel) -> torch.
 
 
 def _conv(cin: int, cout: int, kernel: int, stride: int, dropout: float) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(cin, cout, kernel, stride, kernel // 2, bias=False), nn.BatchNorm2d(cout),
-                         nn.LeakyReLU(0.1, inplace=True), nn.Dropout(dropout))
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, kernel, stride, kernel // 2, bias=False),
+        nn.BatchNorm2d(cout),
+        nn.LeakyReLU(0.1, inplace=True),
+        nn.Dropout(dropout),
+    )
 
 
 #: Actions a model with ``actions`` takes (their one-hot index is ``value - 1``).
@@ -48,22 +53,33 @@ class DeepVONet(nn.Module):
             features = self.encoder(torch.zeros(1, 2 * cfg.frame_channels, cfg.height, cfg.width)).numel()
         self.encoder.train()
         self.actions = cfg.actions
-        self.lstm = nn.LSTM(features + (ACTION_INPUTS if cfg.actions else 0), cfg.hidden, cfg.layers, batch_first=True,
-                            dropout=cfg.dropout if cfg.layers > 1 else 0.0)
+        self.lstm = nn.LSTM(
+            features + (ACTION_INPUTS if cfg.actions else 0),
+            cfg.hidden,
+            cfg.layers,
+            batch_first=True,
+            dropout=cfg.dropout if cfg.layers > 1 else 0.0,
+        )
         self.drop = nn.Dropout(cfg.dropout)
         self.head = nn.Linear(cfg.hidden, 3)
         nn.init.zeros_(self.head.weight)  # start at the mean motion (the bias); see odolab.robust_vo.model
         self.register_buffer("scale", torch.tensor(SCALE))
 
-    def forward(self, frames: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None = None,
-                actions: torch.Tensor | None = None) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    def forward(
+        self,
+        frames: torch.Tensor,
+        state: tuple[torch.Tensor, torch.Tensor] | None = None,
+        actions: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
         b, t1 = frames.shape[:2]
         pairs = torch.cat([frames[:, :-1], frames[:, 1:]], dim=2).flatten(0, 1)
         f = self.encoder(pairs).flatten(1).reshape(b, t1 - 1, -1)
         if self.actions:
             if actions is None or tuple(actions.shape) != (b, t1 - 1):
                 got = None if actions is None else tuple(actions.shape)
-                raise ValueError(f"this DeepVO takes the action of each pair: expected actions of shape {(b, t1 - 1)}, got {got}")
+                raise ValueError(
+                    f"this DeepVO takes the action of each pair: expected actions of shape {(b, t1 - 1)}, got {got}"
+                )
             f = torch.cat([f, nn.functional.one_hot(actions.long() - 1, ACTION_INPUTS).to(f.dtype)], dim=2)
         out, state = self.lstm(f, state)
         return self.head(self.drop(out)) * self.scale, state

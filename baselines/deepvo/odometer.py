@@ -11,6 +11,7 @@ it. DeepVO sees no action (unless its model was trained with ``actions``): it an
 too. A STOP step is answered with no motion (and leaves the state as it is), as the other
 odometers do; a model with ``actions`` answers ``valid=False`` where no action is given.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,11 +19,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads
-from odolab.learning import checkpoints, pick_device, resize_frame
-
 from baselines.deepvo.config import DeepVOModel, DeepVOTraining
 from baselines.deepvo.model import DeepVONet, frame_tensor
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads
+from odolab.learning import checkpoints, pick_device, resize_frame
 
 KIND = "odolab-deepvo"
 SHIPPED = Path(__file__).resolve().parent / "deepvo.pt"

@@ -10,6 +10,7 @@ when every epoch is done. Stopped at any moment (or by ``--hours``), the same co
 Targets are the pairs' true planar motions from SE(3) composition, ``inv(T_prev) @ T_cur`` (never
 differences of Euler angles); the loss is MSE(dx, dz) + ``rotation_weight`` x MSE(dyaw).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -22,17 +23,18 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from baselines.deepvo.config import DeepVOTraining, load_training
+from baselines.deepvo.model import ACTION_INPUTS, DeepVONet, frame_tensor
+from baselines.deepvo.odometer import load_model, save_model
 from odolab.learning import EpochLoop, TrainingData, load_init, make_training_data, prefetched, require_finite
 from odolab.learning.distributed import Team, run_on_ray
 from odolab.learning.epochs import EpochTracker
 from odolab.learning.validation import error_rows, write_report
 
-from baselines.deepvo.config import DeepVOTraining, load_training
-from baselines.deepvo.model import ACTION_INPUTS, DeepVONet, frame_tensor
-from baselines.deepvo.odometer import load_model, save_model
 
-
-def window_batch(data: TrainingData, starts: np.ndarray, window: int, cfg) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+def window_batch(
+    data: TrainingData, starts: np.ndarray, window: int, cfg
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
     """Frames (B, window, C, H, W), true (dx, dz, dyaw) (B, window - 1, 3) and actions (B, window - 1)
     of the windows starting at pair indices ``starts`` (from :meth:`TrainingData.windows`)."""
     frames = data.pairs[starts][:, None] + np.arange(window)[None]
@@ -65,7 +67,9 @@ def disjoint(starts: np.ndarray, pairs: int) -> np.ndarray:
 
 def loss_fn(pred: torch.Tensor, target: torch.Tensor, rotation_weight: float) -> torch.Tensor:
     """MSE of (dx, dz) + ``rotation_weight`` x MSE of dyaw, over every pair of every window."""
-    return (pred[..., :2] - target[..., :2]).pow(2).mean() + rotation_weight * (pred[..., 2] - target[..., 2]).pow(2).mean()
+    return (pred[..., :2] - target[..., :2]).pow(2).mean() + rotation_weight * (pred[..., 2] - target[..., 2]).pow(
+        2
+    ).mean()
 
 
 #: Inputs a recipe's model may add to the model it starts from (``init``).
@@ -90,8 +94,10 @@ def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
     refused = [name for name in changed if name not in gained]
     if refused:
         lost = [name for name in refused if name in GAINABLE]
-        raise ValueError(f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(refused)}"
-                         + (f" (a start may gain {' or '.join(GAINABLE)}, not lose it)" if lost else ""))
+        raise ValueError(
+            f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(refused)}"
+            + (f" (a start may gain {' or '.join(GAINABLE)}, not lose it)" if lost else "")
+        )
     state = dict(first.state_dict())
     if "depth" in gained:
         key = "encoder.0.0.weight"  # (out, 2 x 3, k, k) -> (out, 2 x 4, k, k): [rgb, depth] per frame
@@ -105,21 +111,48 @@ def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
     return state, digest
 
 
-def run(cfg: DeepVOTraining, *, work: Path, reports: Path, export: Path, device: torch.device,
-        hours: float | None, ray_address: str | None = None, parallel_data: bool = True, progress: bool = True,
-        command: str = "", workers: int = 1, gpus_per_worker: float = 0.0) -> bool:
+def run(
+    cfg: DeepVOTraining,
+    *,
+    work: Path,
+    reports: Path,
+    export: Path,
+    device: torch.device,
+    hours: float | None,
+    ray_address: str | None = None,
+    parallel_data: bool = True,
+    progress: bool = True,
+    command: str = "",
+    workers: int = 1,
+    gpus_per_worker: float = 0.0,
+) -> bool:
     """Train (or resume); export when every epoch is done. Returns True when finished. With
     ``workers`` > 1, data-parallel on Ray Train (:mod:`odolab.learning.distributed`)."""
     first_stage(cfg, export)  # checked before any data is made
     for dc in (cfg.train_data, cfg.val_data):
         make_training_data(dc, cfg.data_folder(dc), ray_address=ray_address, parallel=parallel_data, progress=progress)
         TrainingData(cfg.data_folder(dc)).verify(progress)
-    job = {"cfg": cfg, "work": work, "reports": reports, "export": export, "hours": hours, "progress": progress,
-           "command": command, "device": device}
+    job = {
+        "cfg": cfg,
+        "work": work,
+        "reports": reports,
+        "export": export,
+        "hours": hours,
+        "progress": progress,
+        "command": command,
+        "device": device,
+    }
     if workers == 1:
         return bool(train_windows({**job, "team": Team()})["finished"])
-    return run_on_ray(_team_member, job, workers=workers, work=work, export=export, ray_address=ray_address,
-                      gpus_per_worker=gpus_per_worker)
+    return run_on_ray(
+        _team_member,
+        job,
+        workers=workers,
+        work=work,
+        export=export,
+        ray_address=ray_address,
+        gpus_per_worker=gpus_per_worker,
+    )
 
 
 def _team_member(job: dict) -> dict:
@@ -161,20 +194,31 @@ def train_windows(job: dict) -> dict:
             mean = train.pair_planar.mean(axis=0)
             net.head.bias.copy_(torch.from_numpy(mean).to(torch.float32) / net.scale.cpu())
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    loop = EpochLoop(work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity, unit="windows",
-                     team=team)
+    loop = EpochLoop(
+        work / "deepvo.pt", {"net": net}, optimizer, cfg.epochs, cfg.seed, identity, unit="windows", team=team
+    )
     loop.resume()
 
     def train_epoch(epoch: int, rng: np.random.Generator, tracker: EpochTracker) -> dict:
         order = rng.permutation(starts)
         if cfg.windows_per_epoch:
-            order = order[:cfg.windows_per_epoch]
-        batches = [b for b in (np.sort(order[k:k + cfg.batch]) for k in range(0, len(order), cfg.batch))
-                   if len(b) >= team.size][tracker.start:]
-        bar = tqdm(total=len(order), initial=tracker.samples, desc=f"deepvo epoch {epoch}", unit="window",
-                   disable=not (progress and team.leader), leave=False)
-        made = prefetched([team.share(b) for b in batches], WindowBatches(train, cfg.window, cfg.model),
-                          compute.loader_workers)
+            order = order[: cfg.windows_per_epoch]
+        batches = [
+            b
+            for b in (np.sort(order[k : k + cfg.batch]) for k in range(0, len(order), cfg.batch))
+            if len(b) >= team.size
+        ][tracker.start :]
+        bar = tqdm(
+            total=len(order),
+            initial=tracker.samples,
+            desc=f"deepvo epoch {epoch}",
+            unit="window",
+            disable=not (progress and team.leader),
+            leave=False,
+        )
+        made = prefetched(
+            [team.share(b) for b in batches], WindowBatches(train, cfg.window, cfg.model), compute.loader_workers
+        )
         for (x, target, actions), whole in zip(made, batches):
             with compute.autocast():
                 pred, _ = net(x.to(device), actions=torch.from_numpy(actions).to(device))
@@ -192,9 +236,11 @@ def train_windows(job: dict) -> dict:
 
     def validate(epoch: int) -> list[dict]:
         preds, truths, acts = [], [], []
-        parts = [val_starts[k:k + 64] for k in range(0, len(val_starts), 64)]
+        parts = [val_starts[k : k + 64] for k in range(0, len(val_starts), 64)]
         for x, target, actions in prefetched(parts, WindowBatches(val, cfg.window, cfg.model), compute.loader_workers):
-            preds.append(net(x.to(device), actions=torch.from_numpy(actions).to(device))[0].cpu().numpy().reshape(-1, 3))
+            preds.append(
+                net(x.to(device), actions=torch.from_numpy(actions).to(device))[0].cpu().numpy().reshape(-1, 3)
+            )
             truths.append(target.reshape(-1, 3))
             acts.append(actions.ravel())
         if not preds:
@@ -202,9 +248,16 @@ def train_windows(job: dict) -> dict:
         return error_rows(np.concatenate(preds), np.concatenate(truths), np.concatenate(acts))
 
     def status() -> dict:
-        return {"command": command, "compute": {**compute.describe(), "workers": team.size}, "train_pairs": train.counts(), "val_pairs": val.counts(),
-                "epochs_done": loop.epoch, "epochs": loop.epochs, "hours": round(loop.seconds / 3600, 3),
-                "windows_seen": int(sum(r.get("windows", 0) for r in loop.curves.rows if r.get("split") == "train"))}
+        return {
+            "command": command,
+            "compute": {**compute.describe(), "workers": team.size},
+            "train_pairs": train.counts(),
+            "val_pairs": val.counts(),
+            "epochs_done": loop.epoch,
+            "epochs": loop.epochs,
+            "hours": round(loop.seconds / 3600, 3),
+            "windows_seen": int(sum(r.get("windows", 0) for r in loop.curves.rows if r.get("split") == "train")),
+        }
 
     def after(_: EpochLoop) -> None:
         write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
@@ -220,8 +273,15 @@ def train_windows(job: dict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     from odolab.learning.cli import training_main
 
-    return training_main(argv, prog="python -m baselines.deepvo.train", description=__doc__.split("\n")[0], family="deepvo",
-                         load_config=load_training, run=run, state_files=state_files)
+    return training_main(
+        argv,
+        prog="python -m baselines.deepvo.train",
+        description=__doc__.split("\n")[0],
+        family="deepvo",
+        load_config=load_training,
+        run=run,
+        state_files=state_files,
+    )
 
 
 def state_files(cfg: DeepVOTraining, work: Path) -> dict[str, Path]:

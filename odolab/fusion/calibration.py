@@ -43,14 +43,16 @@ So "calibrated" means: the 95 % confidence ellipsoid holds 95 % of the val steps
 robust to the heavy tails that would make a variance fit meaningless). :func:`ellipsoid_share`
 checks it on other data.
 """
+
 from __future__ import annotations
 
 import hashlib
 import json
 import os
 import reprlib
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -196,7 +198,9 @@ def debiased(xi: np.ndarray, bias: np.ndarray) -> np.ndarray:
     """Residuals (N, 6) of the bias-corrected measurements ``T @ exp(bias)`` from those of ``T``:
     ``log(exp(-bias) exp(xi))`` per row (exact on SE(3), not a subtraction)."""
     B = gtsam.Pose3.Expmap(np.asarray(bias, np.float64))
-    return np.array([gtsam.Pose3.Logmap(B.between(gtsam.Pose3.Expmap(np.asarray(x, np.float64)))) for x in xi]).reshape(-1, 6)
+    return np.array([gtsam.Pose3.Logmap(B.between(gtsam.Pose3.Expmap(np.asarray(x, np.float64)))) for x in xi]).reshape(
+        -1, 6
+    )
 
 
 def nll(xi: np.ndarray, cov: np.ndarray) -> float:
@@ -222,7 +226,9 @@ def _correlation(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return corr
 
 
-def _fit_entry(xi: np.ndarray, own: list[np.ndarray | None]) -> tuple[list[float], float | None, list[float], list[list[float]], float]:
+def _fit_entry(
+    xi: np.ndarray, own: list[np.ndarray | None]
+) -> tuple[list[float], float | None, list[float], list[list[float]], float]:
     """One entry from its steps' residuals ``xi`` (N, 6) and own covariances: (sigmas, own scale or
     None, bias, correlation, share of the steps inside the 95 % ellipsoid)."""
     keep = inliers(xi)
@@ -245,12 +251,18 @@ def _fit_entry(xi: np.ndarray, own: list[np.ndarray | None]) -> tuple[list[float
         except np.linalg.LinAlgError:
             pass
     covs = np.stack([scale * own[i] if scale is not None and i in have else fixed for i in range(len(r))])
-    return ([float(v) for v in sigma], scale, [float(b) for b in bias], [[float(c) for c in row] for row in corr],
-            ellipsoid_share(r, covs))
+    return (
+        [float(v) for v in sigma],
+        scale,
+        [float(b) for b in bias],
+        [[float(c) for c in row] for row in corr],
+        ellipsoid_share(r, covs),
+    )
 
 
-def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None],
-              near: np.ndarray | None = None) -> InputCalibration:
+def fit_input(
+    xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None], near: np.ndarray | None = None
+) -> InputCalibration:
     """Fit one input from its valid steps: residuals ``xi`` (N, 6), action values (N,), own
     covariances (right perturbation) or None per step, and whether each step's view was near (N,
     bool; None = no near class)."""
@@ -267,7 +279,7 @@ def fit_input(xi: np.ndarray, actions: np.ndarray, own: list[np.ndarray | None],
             entry = _fit_entry(xi[rows], [own[k] for k in rows])
             for key, value in zip(("fixed", "own_scale", "bias", "correlation", "inside95"), entry):
                 tables[key][label] = value
-            tables["steps"][label] = int(len(rows))
+            tables["steps"][label] = len(rows)
     if not tables["fixed"]:
         raise ValueError(f"too few valid steps to calibrate (at least {MIN_STEPS} of some action are needed)")
     return InputCalibration(**tables)
@@ -285,48 +297,75 @@ class Calibration:
 
     def for_input(self, name: str) -> InputCalibration:
         if name not in self.inputs:
-            raise ValueError(f"no calibration for odometer {name!r} (calibrated: {', '.join(sorted(self.inputs))}); "
-                           f"run python -m odolab.fusion.calibrate --odometers {name},...")
+            raise ValueError(
+                f"no calibration for odometer {name!r} (calibrated: {', '.join(sorted(self.inputs))}); "
+                f"run python -m odolab.fusion.calibrate --odometers {name},..."
+            )
         return self.inputs[name]
 
     def save(self, path: str | os.PathLike) -> None:
-        doc = {"format": FORMAT, "source": self.source, "near_depth": self.near_depth,
-               "inputs": {n: asdict(c) for n, c in self.inputs.items()}}
+        doc = {
+            "format": FORMAT,
+            "source": self.source,
+            "near_depth": self.near_depth,
+            "inputs": {n: asdict(c) for n, c in self.inputs.items()},
+        }
         write_bytes_atomic(path, (json.dumps(doc, indent=1) + "\n").encode())
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Calibration":
+    def load(cls, path: str | os.PathLike) -> Calibration:
         """Read a calibration file; errors name the file, the input, the field and the action, and
         say what was expected and what was found."""
         data = read_input_bytes(path, "calibration file")  # the digest is of these bytes
         doc = parse_input_json(data, path, "calibration file")
         fmt = doc.get("format") if isinstance(doc, dict) else None
         if type(fmt) is int and fmt != FORMAT and isinstance(doc.get("inputs"), dict):
-            raise ValueError(f"{path}: a calibration of format {fmt}, this odolab reads format {FORMAT}; "
-                             "calibrate again with python -m odolab.fusion.calibrate")
-        if not isinstance(doc, dict) or type(fmt) is not int or fmt != FORMAT or not isinstance(doc.get("inputs"), dict):
+            raise ValueError(
+                f"{path}: a calibration of format {fmt}, this odolab reads format {FORMAT}; "
+                "calibrate again with python -m odolab.fusion.calibrate"
+            )
+        if (
+            not isinstance(doc, dict)
+            or type(fmt) is not int
+            or fmt != FORMAT
+            or not isinstance(doc.get("inputs"), dict)
+        ):
             raise ValueError(f"{path}: not a calibration file of format {FORMAT} (expected keys format, inputs)")
         stray = sorted(set(doc) - {"format", "source", "near_depth", "inputs"})
         if stray:
-            raise ValueError(f"{path}: unknown key {stray[0]!r}; a calibration file has format, source, near_depth, inputs")
+            raise ValueError(
+                f"{path}: unknown key {stray[0]!r}; a calibration file has format, source, near_depth, inputs"
+            )
         near_depth = doc.get("near_depth", 0.0)
-        if isinstance(near_depth, bool) or not isinstance(near_depth, (int, float)) or not 0.0 <= near_depth <= MAX_NEAR_DEPTH:
-            raise ValueError(f"{path}: near_depth must be a number of metres in [0, {MAX_NEAR_DEPTH:g}] (0: no near "
-                             f"class), got {reprlib.repr(near_depth)}")
+        if (
+            isinstance(near_depth, bool)
+            or not isinstance(near_depth, (int, float))
+            or not 0.0 <= near_depth <= MAX_NEAR_DEPTH
+        ):
+            raise ValueError(
+                f"{path}: near_depth must be a number of metres in [0, {MAX_NEAR_DEPTH:g}] (0: no near "
+                f"class), got {reprlib.repr(near_depth)}"
+            )
         if not isinstance(doc.get("source", ""), str):
-            raise ValueError(f"{path}: source must be a string (the command that made the file), got {reprlib.repr(doc['source'])}")
+            raise ValueError(
+                f"{path}: source must be a string (the command that made the file), got {reprlib.repr(doc['source'])}"
+            )
         if not doc["inputs"]:
             raise ValueError(f"{path}: calibrates no odometer (its 'inputs' is empty)")
         inputs = {name: _input(c, f"{path}: input {name!r}") for name, c in doc["inputs"].items()}
         for name, cal in inputs.items():
             near = sorted(label for label in cal.fixed if label.endswith(NEAR))
-            lone = next((label for label in near if label[:-len(NEAR)] not in cal.fixed), None)
+            lone = next((label for label in near if label[: -len(NEAR)] not in cal.fixed), None)
             if lone is not None:
-                raise ValueError(f"{path}: input {name!r}: {lone!r} without {lone[:-len(NEAR)]!r} (a near entry "
-                                 "refines a plain one; far views need the plain one)")
+                raise ValueError(
+                    f"{path}: input {name!r}: {lone!r} without {lone[: -len(NEAR)]!r} (a near entry "
+                    "refines a plain one; far views need the plain one)"
+                )
             if near and not near_depth:
-                raise ValueError(f"{path}: input {name!r} has near-view entries ({', '.join(near)}) but the file's "
-                                 "near_depth is 0 or absent, so they would never be used; give near_depth in metres")
+                raise ValueError(
+                    f"{path}: input {name!r} has near-view entries ({', '.join(near)}) but the file's "
+                    "near_depth is 0 or absent, so they would never be used; give near_depth in metres"
+                )
         return cls(inputs, doc.get("source", ""), float(near_depth), hashlib.sha256(data).hexdigest())
 
 
@@ -349,8 +388,10 @@ def _sigmas(v: Any) -> list[float]:
 def _bias(v: Any) -> list[float]:
     out, (rot, trans) = _numbers(v, 6), BIAS_LIMITS
     if not all(abs(x) <= rot for x in out[:3]) or not all(abs(x) <= trans for x in out[3:]):
-        raise ValueError(f"expected rotations within +-{rot:g} rad then translations within +-{trans:g} m "
-                         f"(a larger systematic error is a broken odometer, not one to correct), got {reprlib.repr(v)}")
+        raise ValueError(
+            f"expected rotations within +-{rot:g} rad then translations within +-{trans:g} m "
+            f"(a larger systematic error is a broken odometer, not one to correct), got {reprlib.repr(v)}"
+        )
     return out
 
 
@@ -365,9 +406,11 @@ def _correlation_matrix(v: Any) -> list[list[float]]:
         raise ValueError(f"expected ones on the diagonal, got {reprlib.repr(np.diag(a).tolist())}")
     smallest = float(np.linalg.eigvalsh(a).min())
     if smallest < MIN_CORRELATION_EIGENVALUE:
-        raise ValueError(f"expected a positive definite matrix with eigenvalues of at least "
-                         f"{MIN_CORRELATION_EIGENVALUE:g} (a fitted one has at least {CORRELATION_SHRINK:g}), "
-                         f"its smallest is {smallest:.3g}")
+        raise ValueError(
+            f"expected a positive definite matrix with eigenvalues of at least "
+            f"{MIN_CORRELATION_EIGENVALUE:g} (a fitted one has at least {CORRELATION_SHRINK:g}), "
+            f"its smallest is {smallest:.3g}"
+        )
     return rows
 
 
@@ -381,8 +424,14 @@ def _own_scale(v: Any) -> float | None:
 
 
 #: What each key of an input holds per action, and how it is read.
-_FIELDS: dict[str, Callable[[Any], Any]] = {"fixed": _sigmas, "own_scale": _own_scale, "steps": _count,
-                                            "inside95": _share, "bias": _bias, "correlation": _correlation_matrix}
+_FIELDS: dict[str, Callable[[Any], Any]] = {
+    "fixed": _sigmas,
+    "own_scale": _own_scale,
+    "steps": _count,
+    "inside95": _share,
+    "bias": _bias,
+    "correlation": _correlation_matrix,
+}
 _REQUIRED = ("fixed", "own_scale", "steps")
 
 
@@ -395,14 +444,18 @@ def _input(c: Any, where: str) -> InputCalibration:
         raise ValueError(f"{where}: unknown key {stray[0]!r}; expected some of {', '.join(_FIELDS)}")
     missing = [k for k in _REQUIRED if k not in c]
     if missing:
-        raise ValueError(f"{where}: no {missing[0]!r}; expected {', '.join(_REQUIRED)} (and optionally "
-                         f"{', '.join(k for k in _FIELDS if k not in _REQUIRED)})")
+        raise ValueError(
+            f"{where}: no {missing[0]!r}; expected {', '.join(_REQUIRED)} (and optionally "
+            f"{', '.join(k for k in _FIELDS if k not in _REQUIRED)})"
+        )
     labels = context_labels()
     parsed = {}
     for key, parse in _FIELDS.items():
         table = c.get(key, {})
         if not isinstance(table, dict):
-            raise ValueError(f"{where}: {key} must map actions ({', '.join(labels)}) to values, got {reprlib.repr(table)}")
+            raise ValueError(
+                f"{where}: {key} must map actions ({', '.join(labels)}) to values, got {reprlib.repr(table)}"
+            )
         parsed[key] = {}
         for action, value in table.items():
             if action not in labels:

@@ -7,6 +7,7 @@ perturbation, ``T_ij_true = T_ij @ exp(xi)`` (rotation first, radians then metre
 ``Estimate.covariance`` is the *left* perturbation in the previous camera; :func:`right_covariance`
 converts it.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -57,8 +58,9 @@ def left_covariance(T: np.ndarray, cov_right: np.ndarray) -> np.ndarray:
 
 def residual(T_measured: np.ndarray, T_true: np.ndarray) -> np.ndarray:
     """xi (6,) with ``T_true = T_measured @ exp(xi)``: what a factor's noise model must explain."""
-    return gtsam.Pose3.Logmap(gtsam.Pose3(np.asarray(T_measured, np.float64)).between(
-        gtsam.Pose3(np.asarray(T_true, np.float64))))
+    return gtsam.Pose3.Logmap(
+        gtsam.Pose3(np.asarray(T_measured, np.float64)).between(gtsam.Pose3(np.asarray(T_true, np.float64)))
+    )
 
 
 def noise_model(cov: np.ndarray, kernel: str = "huber", k: float = 1.345) -> gtsam.noiseModel.Base:
@@ -70,12 +72,14 @@ def noise_model(cov: np.ndarray, kernel: str = "huber", k: float = 1.345) -> gts
     gaussian = gtsam.noiseModel.Gaussian.Covariance(cov)
     if kernel == "none":
         return gaussian
-    estimator = (gtsam.noiseModel.mEstimator.Huber if kernel == "huber" else gtsam.noiseModel.mEstimator.Cauchy)
+    estimator = gtsam.noiseModel.mEstimator.Huber if kernel == "huber" else gtsam.noiseModel.mEstimator.Cauchy
     return gtsam.noiseModel.Robust.Create(estimator.Create(k), gaussian)
 
 
 def _factor(m: Measurement, kernel: str, k: float) -> gtsam.BetweenFactorPose3:
-    return gtsam.BetweenFactorPose3(m.i, m.j, gtsam.Pose3(np.asarray(m.T_ij, np.float64)), noise_model(m.cov, kernel, k))
+    return gtsam.BetweenFactorPose3(
+        m.i, m.j, gtsam.Pose3(np.asarray(m.T_ij, np.float64)), noise_model(m.cov, kernel, k)
+    )
 
 
 def check_measurement(m: Measurement, what: str = "measurement") -> None:
@@ -149,7 +153,9 @@ class OnlineGraph:
         else:
             bad = [m for m in measurements if m.j != j or not 0 <= m.i < j]
             if bad:
-                raise ValueError(f"measurements for pose {j} must end at it and start before it, got {bad[0].i}->{bad[0].j}")
+                raise ValueError(
+                    f"measurements for pose {j} must end at it and start before it, got {bad[0].i}->{bad[0].j}"
+                )
             for n, m in enumerate(measurements):
                 check_measurement(m, f"measurement {n} for pose {j}")
             if np.asarray(guess).shape != (4, 4) or not np.all(np.isfinite(guess)):
@@ -197,8 +203,13 @@ class OnlineGraph:
         return np.stack([self._pose(i).matrix() for i in range(self.n)]) if self.n else np.zeros((0, 4, 4))
 
 
-def smooth(n_poses: int, measurements: list[Measurement], guess: np.ndarray | None = None, kernel: str = "huber",
-           k: float = 1.345) -> np.ndarray:
+def smooth(
+    n_poses: int,
+    measurements: list[Measurement],
+    guess: np.ndarray | None = None,
+    kernel: str = "huber",
+    k: float = 1.345,
+) -> np.ndarray:
     """Batch Levenberg-Marquardt over poses 0 .. n_poses - 1 (pose 0 at the origin): (n, 4, 4).
 
     ``guess`` (n, 4, 4): initial poses (default: the first measurement of each consecutive pair,

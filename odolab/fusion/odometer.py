@@ -26,6 +26,7 @@ the ground truth to hand on, and reports mark its row oracle.
 Options of the inputs themselves come from ``options_file`` (TOML, ``[odometers."icp"] key = value``
 tables, as ``python -m odolab.compare --options-file``).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -38,8 +39,15 @@ import numpy as np
 from odolab.action_prior import ActionPrior
 from odolab.composites import load_inputs
 from odolab.fusion.calibration import Calibration, view_is_near
-from odolab.fusion.graph import (KERNELS, Measurement, OnlineGraph, check_covariance, left_covariance,
-                                right_covariance, smooth)
+from odolab.fusion.graph import (
+    KERNELS,
+    Measurement,
+    OnlineGraph,
+    check_covariance,
+    left_covariance,
+    right_covariance,
+    smooth,
+)
 from odolab.geometry import planar_to_transform
 from odolab.odometer import Odometer, split_odometer_names
 from odolab.runner import failure_reason
@@ -53,11 +61,21 @@ PRIOR = "action-prior"
 class FusedOdometer(Odometer):
     """Pose-graph fusion of ``inputs`` (comma-separated odometer names); see the module docstring."""
 
-    def __init__(self, inputs: str = "", calibration: str = "", kernel: str = "huber", kernel_width: float = 1.345,
-                 span: int = 1, span_inputs: str = "", options_file: str = "") -> None:
+    def __init__(
+        self,
+        inputs: str = "",
+        calibration: str = "",
+        kernel: str = "huber",
+        kernel_width: float = 1.345,
+        span: int = 1,
+        span_inputs: str = "",
+        options_file: str = "",
+    ) -> None:
         names = split_odometer_names(inputs)
         if not names:
-            raise ValueError("fused needs its inputs, e.g. fused(icp,open3d-rgbd) or the option inputs='icp,open3d-rgbd'")
+            raise ValueError(
+                "fused needs its inputs, e.g. fused(icp,open3d-rgbd) or the option inputs='icp,open3d-rgbd'"
+            )
         if len(set(names)) != len(names):
             raise ValueError(f"fused: an input is named twice in {names}")
         if any(n.startswith("fused") for n in names):
@@ -80,8 +98,10 @@ class FusedOdometer(Odometer):
         if [n for n in spanning if n not in names]:
             raise ValueError(f"span_inputs must be among the inputs {names}, got {spanning}")
         if not calibration and not SHIPPED_CALIBRATION.exists():
-            raise ValueError("odolab ships no fusion calibration here; make one with python -m odolab.fusion.calibrate "
-                             "and pass it as the option calibration=FILE")
+            raise ValueError(
+                "odolab ships no fusion calibration here; make one with python -m odolab.fusion.calibrate "
+                "and pass it as the option calibration=FILE"
+            )
         self.calibration = Calibration.load(calibration or SHIPPED_CALIBRATION)
         self.input_calibration = {n: self.calibration.for_input(n) for n in names}
         self.prior_calibration = self.calibration.for_input(PRIOR)
@@ -116,7 +136,7 @@ class FusedOdometer(Odometer):
     def _answer(self, odo: Odometer, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
         try:
             est = odo.step(prev, cur, action)
-        except Exception:  # an input that raises is an input that did not answer
+        except Exception:  # noqa: BLE001 - an input that raises is an input that did not answer
             return None
         return est if failure_reason(est) is None else None
 
@@ -131,7 +151,7 @@ class FusedOdometer(Odometer):
         span_answers = {}
         for k in range(2, min(self.span, len(self._frames)) + 1):
             for n in self.spanning:
-                if answers[n] is not None and all(n in covs for covs in list(self._step_covs)[-(k - 1):]):
+                if answers[n] is not None and all(n in covs for covs in list(self._step_covs)[-(k - 1) :]):
                     span_answers[k, n] = self._answer(self.inputs[n], self._frames[-k], cur, None)
         started = time.perf_counter()  # from here on: the graph's own time, not the inputs'
         steps, step_covs = [], {}
@@ -142,7 +162,9 @@ class FusedOdometer(Odometer):
             cal = self.input_calibration[n]
             try:  # an answer whose own covariance is not one (singular, 3x3, ...) is no answer
                 own = right_covariance(est.transform, est.covariance) if est.covariance is not None else None
-                m = Measurement(j - 1, j, cal.corrected(action, est.transform, near), cal.covariance(action, own, near), n)
+                m = Measurement(
+                    j - 1, j, cal.corrected(action, est.transform, near), cal.covariance(action, own, near), n
+                )
                 check_covariance(m.cov)  # the motion itself passed the runner's rigidity check
             except ValueError:
                 continue
@@ -151,7 +173,7 @@ class FusedOdometer(Odometer):
         spans = []
         for (k, n), est in span_answers.items():
             if est is not None:  # weighted as the input's consecutive steps it spans, summed
-                cov = sum(covs[n] for covs in list(self._step_covs)[-(k - 1):]) + step_covs[n]
+                cov = sum(covs[n] for covs in list(self._step_covs)[-(k - 1) :]) + step_covs[n]
                 spans.append(Measurement(j - k, j, est.transform, cov, n))
         valid = bool(steps or spans)
         prior_T = planar_to_transform(*self.prior.motion(action))
@@ -177,5 +199,6 @@ class FusedOdometer(Odometer):
         frames (not causal: for evaluating a finished trajectory, not for driving)."""
         if self._graph is None:
             raise RuntimeError("call reset(intrinsics) and step before smoothing")
-        return smooth(self._graph.n, self._measurements, guess=self._graph.poses(), kernel=self.kernel,
-                      k=self.kernel_width)
+        return smooth(
+            self._graph.n, self._measurements, guess=self._graph.poses(), kernel=self.kernel, k=self.kernel_width
+        )

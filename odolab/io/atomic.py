@@ -3,6 +3,7 @@
 Files get the permissions an ordinary ``open(path, "w")`` would give (``0o666`` minus the
 process umask), not the ``0o600`` of a bare temporary file.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -10,7 +11,8 @@ import json
 import math
 import os
 import tempfile
-from typing import IO, Any, Iterator
+from collections.abc import Iterator
+from typing import IO, Any
 
 
 def _umask() -> int:
@@ -55,11 +57,13 @@ def atomic_open(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
     when the block ends without an exception (flushed and fsynced first)."""
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_open: mode must be 'w' or 'wb', got {mode!r}")
-    with _temporary_beside(os.fspath(path), ".tmp") as tmp:
-        with open(tmp, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
+    with (
+        _temporary_beside(os.fspath(path), ".tmp") as tmp,
+        open(tmp, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as f,
+    ):
+        yield f
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:

@@ -1,4 +1,5 @@
 """The one error type of odolab's file readers: it names the file, the line and the problem."""
+
 from __future__ import annotations
 
 import os

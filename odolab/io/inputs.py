@@ -1,5 +1,6 @@
 """Reading a user's input file whole: only regular files (a pipe or a device would block or never
 end) of a sane size, JSON without repeated keys, every failure one ``ValueError`` line naming the file."""
+
 from __future__ import annotations
 
 import json

@@ -5,6 +5,7 @@ rows of the 4x4 ``T_cam0_cami`` in row-major order ``r11 r12 r13 tx r21 r22 r23 
 tz`` (metres): pose *i* maps points of camera *i* into the frame of camera 0 (the first frame).
 Poses pair with another file by line index; there are no timestamps.
 """
+
 from __future__ import annotations
 
 import os
@@ -12,11 +13,11 @@ import os
 import numpy as np
 
 from odolab.io.atomic import write_text_atomic
-from odolab.io.textfiles import format_rows, read_numeric_rows
 from odolab.io.errors import FileFormatError
+from odolab.io.textfiles import format_rows, read_numeric_rows
 from odolab.trajectory import Trajectory
 
-__all__ = ["read_kitti_poses", "write_kitti_poses", "ROTATION_TOLERANCE"]
+__all__ = ["ROTATION_TOLERANCE", "read_kitti_poses", "write_kitti_poses"]
 
 #: Largest accepted ``max |R^T R - I|`` (files store rotations with ~7 significant digits).
 ROTATION_TOLERANCE = 1e-3

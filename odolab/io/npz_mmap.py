@@ -6,6 +6,7 @@ file stored byte for byte in the zip archive, so it can be mapped in place: find
 header (zip format, APPNOTE 4.3.7), skip it, parse the ``.npy`` header (:mod:`numpy.lib.format`),
 and map the data that follows. Slicing the map then reads only the pages of the slice.
 """
+
 from __future__ import annotations
 
 import os

@@ -7,6 +7,7 @@ symbolic link, every folder on the way must be a folder (missing ones are create
 itself must be a regular file or absent. The folder itself may be a link (the user named it);
 nothing under it is followed.
 """
+
 from __future__ import annotations
 
 import os
@@ -37,10 +38,12 @@ def _parts(root: Path, relative: str | os.PathLike) -> tuple[str, ...]:
     """The components of ``relative``, refused unless it is a plain relative path below ``root``."""
     text = os.fspath(relative)
     parts = PurePath(text).parts
-    if not text or PurePath(text).is_absolute() or not parts or any(p in ("..", ".") for p in parts) \
-            or "\x00" in text:
-        raise UnsafeOutputError(root / text if text and not PurePath(text).is_absolute() else text,
-                                f"a plain path inside {root}", f"{text!r}")
+    if not text or PurePath(text).is_absolute() or not parts or any(p in ("..", ".") for p in parts) or "\x00" in text:
+        raise UnsafeOutputError(
+            root / text if text and not PurePath(text).is_absolute() else text,
+            f"a plain path inside {root}",
+            f"{text!r}",
+        )
     return parts
 
 
@@ -82,9 +85,12 @@ def _check(root: Path, relative: str | os.PathLike, create: bool, folder: bool) 
                 missing = True
             continue
         except OSError as exc:  # a name too long, a folder on the way not searchable
-            raise UnsafeOutputError(here, "a folder" if wants_folder else "a regular file or nothing",
-                                    f"a path that cannot be read ({(exc.strerror or str(exc)).lower()})") from None
-        if (stat.S_ISDIR(mode) if wants_folder else stat.S_ISREG(mode)):
+            raise UnsafeOutputError(
+                here,
+                "a folder" if wants_folder else "a regular file or nothing",
+                f"a path that cannot be read ({(exc.strerror or str(exc)).lower()})",
+            ) from None
+        if stat.S_ISDIR(mode) if wants_folder else stat.S_ISREG(mode):
             continue
         raise UnsafeOutputError(here, "a folder" if wants_folder else "a regular file or nothing", _kind(mode, here))
     real_root = os.path.realpath(root)

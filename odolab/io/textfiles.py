@@ -1,4 +1,5 @@
 """Helpers shared by the text-table trajectory formats: strict reading and number formatting."""
+
 from __future__ import annotations
 
 import math
@@ -39,16 +40,12 @@ def read_numeric_rows(path: str | os.PathLike, n_cols: int, layout: str) -> tupl
             continue
         fields = text.split()
         if len(fields) != n_cols:
-            raise FileFormatError(
-                path, no, f"expected {n_cols} columns, got {len(fields)} (layout: {layout})"
-            )
+            raise FileFormatError(path, no, f"expected {n_cols} columns, got {len(fields)} (layout: {layout})")
         try:
             values = [float(v) for v in fields]
         except ValueError:
             bad = next(i for i, v in enumerate(fields) if not _is_number(v))
-            raise FileFormatError(
-                path, no, f"column {bad + 1}: {fields[bad]!r} is not a number"
-            ) from None
+            raise FileFormatError(path, no, f"column {bad + 1}: {fields[bad]!r} is not a number") from None
         for i, v in enumerate(values):
             if not math.isfinite(v):
                 raise FileFormatError(path, no, f"column {i + 1}: value {fields[i]!r} is not finite")
@@ -75,12 +72,14 @@ def infer_format(path: str | os.PathLike) -> str:
         count = len(text.split())
         fmt = next((f for f, n in FORMAT_COLUMNS.items() if n == count), None)
         if fmt is None:
-            raise FileFormatError(path, no, f"cannot tell the trajectory format: expected 8 columns (TUM) or 12 "
-                                            f"(KITTI), got {count}")
+            raise FileFormatError(
+                path, no, f"cannot tell the trajectory format: expected 8 columns (TUM) or 12 (KITTI), got {count}"
+            )
         named = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
         if named in FORMAT_COLUMNS and named != fmt:
-            raise FileFormatError(path, no, f"named .{named} but its lines have {count} columns, "
-                                            f"as {fmt.upper()} files do")
+            raise FileFormatError(
+                path, no, f"named .{named} but its lines have {count} columns, as {fmt.upper()} files do"
+            )
         return fmt
     raise FileFormatError(path, None, "no poses (the file is empty or only has comments)")
 

@@ -1,10 +1,12 @@
 """The one TOML file reader (:mod:`tomllib`: values only, nothing is evaluated): every way a file can
 fail to read becomes one ``ValueError`` line naming the file."""
+
 from __future__ import annotations
 
 import os
-import tomllib
 from typing import Any
+
+import tomllib
 
 from odolab.io.inputs import read_input_bytes
 

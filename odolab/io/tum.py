@@ -5,6 +5,7 @@ one pose per line, ``timestamp tx ty tz qx qy qz qw`` (seconds; metres; unit qua
 last) giving ``T_world_cam``; ``#`` starts a comment line. The reader is strict: every problem
 raises :class:`~odolab.io.errors.FileFormatError` naming the file and line.
 """
+
 from __future__ import annotations
 
 import os
@@ -12,17 +13,17 @@ import os
 import numpy as np
 
 from odolab.io.atomic import write_text_atomic
-from odolab.io.textfiles import format_rows, read_numeric_rows
 from odolab.io.errors import FileFormatError
+from odolab.io.textfiles import format_rows, read_numeric_rows
 from odolab.trajectory import Trajectory
 
 __all__ = [
-    "read_tum_trajectory",
-    "read_tum_file",
-    "write_tum_trajectory",
     "associate",
-    "quaternion_to_matrix",
     "matrix_to_quaternion",
+    "quaternion_to_matrix",
+    "read_tum_file",
+    "read_tum_trajectory",
+    "write_tum_trajectory",
 ]
 
 _LAYOUT = "t tx ty tz qx qy qz qw"
@@ -57,10 +58,18 @@ def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     # Four candidate solutions, each scaled by 4 * (its pivot component).
     cand = np.stack(
         [
-            np.stack([1 + m00 - m11 - m22, R[:, 0, 1] + R[:, 1, 0], R[:, 0, 2] + R[:, 2, 0], R[:, 2, 1] - R[:, 1, 2]], -1),
-            np.stack([R[:, 0, 1] + R[:, 1, 0], 1 - m00 + m11 - m22, R[:, 1, 2] + R[:, 2, 1], R[:, 0, 2] - R[:, 2, 0]], -1),
-            np.stack([R[:, 0, 2] + R[:, 2, 0], R[:, 1, 2] + R[:, 2, 1], 1 - m00 - m11 + m22, R[:, 1, 0] - R[:, 0, 1]], -1),
-            np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1], 1 + m00 + m11 + m22], -1),
+            np.stack(
+                [1 + m00 - m11 - m22, R[:, 0, 1] + R[:, 1, 0], R[:, 0, 2] + R[:, 2, 0], R[:, 2, 1] - R[:, 1, 2]], -1
+            ),
+            np.stack(
+                [R[:, 0, 1] + R[:, 1, 0], 1 - m00 + m11 - m22, R[:, 1, 2] + R[:, 2, 1], R[:, 0, 2] - R[:, 2, 0]], -1
+            ),
+            np.stack(
+                [R[:, 0, 2] + R[:, 2, 0], R[:, 1, 2] + R[:, 2, 1], 1 - m00 - m11 + m22, R[:, 1, 0] - R[:, 0, 1]], -1
+            ),
+            np.stack(
+                [R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1], 1 + m00 + m11 + m22], -1
+            ),
         ],
         axis=1,
     )  # (N, 4 candidates, 4 components)
@@ -116,15 +125,11 @@ def write_tum_trajectory(path: str | os.PathLike, traj: Trajectory) -> None:
     """Write ``traj`` (timestamps required) as a TUM file, atomically (temp file + rename)."""
     if traj.timestamps is None:
         raise ValueError("write_tum_trajectory: the trajectory has no timestamps")
-    values = np.column_stack(
-        [traj.timestamps, traj.positions, matrix_to_quaternion(traj.poses[:, :3, :3])]
-    )
+    values = np.column_stack([traj.timestamps, traj.positions, matrix_to_quaternion(traj.poses[:, :3, :3])])
     write_text_atomic(path, "# " + _LAYOUT + "\n" + format_rows(values))
 
 
-def associate(
-    t_ref: np.ndarray, t_est: np.ndarray, max_diff: float = 0.01
-) -> tuple[np.ndarray, np.ndarray]:
+def associate(t_ref: np.ndarray, t_est: np.ndarray, max_diff: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
     """Pair timestamps (s) by nearest time, exactly as evo's ``sync.associate_trajectories``.
 
     Rule (evo 1.38, ``evo/core/sync.py``, nearest-time method): the list with fewer stamps is the

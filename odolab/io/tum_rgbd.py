@@ -19,6 +19,7 @@ Other recordings in the same layout may store depth at another scale (many store
 :meth:`TumSequence.depth_warning` says when the depth's median is implausible for the scale
 (outside :data:`PLAUSIBLE_MEDIAN_DEPTH`), the sign of a wrong scale.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,11 +34,18 @@ import numpy as np
 from odolab.io.errors import FileFormatError
 from odolab.io.textfiles import read_lines
 from odolab.io.tum import associate, read_tum_trajectory
-from odolab.types import Action, Frame, Intrinsics
 from odolab.trajectory import Trajectory
+from odolab.types import Action, Frame, Intrinsics
 
-__all__ = ["PLAUSIBLE_MEDIAN_DEPTH", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "TumSequence", "UnknownCameraError",
-           "load_tum_sequence", "tum_camera_for"]
+__all__ = [
+    "PLAUSIBLE_MEDIAN_DEPTH",
+    "TUM_CAMERAS",
+    "TUM_DEPTH_SCALE",
+    "TumSequence",
+    "UnknownCameraError",
+    "load_tum_sequence",
+    "tum_camera_for",
+]
 
 #: Depth PNG value per metre.
 TUM_DEPTH_SCALE = 5000.0
@@ -54,6 +62,7 @@ MEDIAN_FRAMES = 10
 
 class UnknownCameraError(ValueError):
     """The folder's name names no TUM camera and no intrinsics were given."""
+
 
 #: The benchmark's published pinhole intrinsics of its three Kinects (640x480, no undistortion).
 TUM_CAMERAS: dict[str, Intrinsics] = {
@@ -95,8 +104,14 @@ class TumSequence:
 
     collisions = None
 
-    def __init__(self, root: Path, intrinsics: Intrinsics, frames: list[_FrameFiles],
-                 dropped: dict[str, int] | None = None, depth_scale: float = TUM_DEPTH_SCALE) -> None:
+    def __init__(
+        self,
+        root: Path,
+        intrinsics: Intrinsics,
+        frames: list[_FrameFiles],
+        dropped: dict[str, int] | None = None,
+        depth_scale: float = TUM_DEPTH_SCALE,
+    ) -> None:
         self.root = root
         self.intrinsics = intrinsics
         #: Depth PNG value per metre.
@@ -136,13 +151,19 @@ class TumSequence:
         if median is None or low <= median <= high:
             return None
         raw = median * self.depth_scale
-        guess = next((s for s in (1000.0, TUM_DEPTH_SCALE, 1.0) if low <= raw / s <= high and s != self.depth_scale),
-                     None)
-        hint = (f" At {guess:g} per metre{' (millimetres)' if guess == 1000.0 else ''} it would be "
-                f"{raw / guess:.2f} m." if guess is not None else "")
-        return (f"{self.root}: the depth's median is {median:.2f} m at a depth scale of {self.depth_scale:g} PNG "
-                f"values per metre, implausible for an RGB-D camera indoors (expected {low:g}-{high:g} m): "
-                f"is the scale right?{hint}")
+        guess = next(
+            (s for s in (1000.0, TUM_DEPTH_SCALE, 1.0) if low <= raw / s <= high and s != self.depth_scale), None
+        )
+        hint = (
+            f" At {guess:g} per metre{' (millimetres)' if guess == 1000.0 else ''} it would be {raw / guess:.2f} m."
+            if guess is not None
+            else ""
+        )
+        return (
+            f"{self.root}: the depth's median is {median:.2f} m at a depth scale of {self.depth_scale:g} PNG "
+            f"values per metre, implausible for an RGB-D camera indoors (expected {low:g}-{high:g} m): "
+            f"is the scale right?{hint}"
+        )
 
     @property
     def name(self) -> str:
@@ -217,8 +238,11 @@ def tum_camera_for(folder: str | os.PathLike) -> Intrinsics | None:
 
 
 def load_tum_sequence(
-    path: str | os.PathLike, intrinsics: Intrinsics | tuple[float, float, float, float] | None = None,
-    max_time_diff: float = 0.02, check_images: bool = True, depth_scale: float = TUM_DEPTH_SCALE,
+    path: str | os.PathLike,
+    intrinsics: Intrinsics | tuple[float, float, float, float] | None = None,
+    max_time_diff: float = 0.02,
+    check_images: bool = True,
+    depth_scale: float = TUM_DEPTH_SCALE,
 ) -> TumSequence:
     """Read the TUM RGB-D folder ``path`` (see the module docstring) as a :class:`TumSequence`.
 
@@ -235,19 +259,27 @@ def load_tum_sequence(
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such folder (expected a TUM RGB-D sequence)")
     low, high = DEPTH_SCALE_RANGE
-    if isinstance(depth_scale, bool) or not isinstance(depth_scale, (int, float, np.number)) \
-            or not math.isfinite(depth_scale) or not low <= depth_scale <= high:
-        raise ValueError(f"depth_scale must be a number of PNG values per metre in [{low:g}, {high:g}], "
-                         f"got {depth_scale!r:.40}")
+    if (
+        isinstance(depth_scale, bool)
+        or not isinstance(depth_scale, (int, float, np.number))
+        or not math.isfinite(depth_scale)
+        or not low <= depth_scale <= high
+    ):
+        raise ValueError(
+            f"depth_scale must be a number of PNG values per metre in [{low:g}, {high:g}], got {depth_scale!r:.40}"
+        )
     if intrinsics is not None and not isinstance(intrinsics, Intrinsics):
         intrinsics = tuple(intrinsics)
-        if len(intrinsics) != 4 or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
-                                           and math.isfinite(v) for v in intrinsics):
-            raise ValueError(f"intrinsics must be an Intrinsics or four finite numbers (fx, fy, cx, cy), "
-                             f"got {intrinsics!r:.80}")
+        if len(intrinsics) != 4 or not all(
+            isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and math.isfinite(v) for v in intrinsics
+        ):
+            raise ValueError(
+                f"intrinsics must be an Intrinsics or four finite numbers (fx, fy, cx, cy), got {intrinsics!r:.80}"
+            )
         if min(intrinsics[:2]) <= 0:
-            raise ValueError(f"intrinsics: the focal lengths fx, fy must be positive, got {intrinsics[0]:g}, "
-                             f"{intrinsics[1]:g}")
+            raise ValueError(
+                f"intrinsics: the focal lengths fx, fy must be positive, got {intrinsics[0]:g}, {intrinsics[1]:g}"
+            )
     if intrinsics is None:
         intrinsics = tum_camera_for(root)
         if intrinsics is None:
@@ -264,11 +296,14 @@ def load_tum_sequence(
         fx, fy, cx, cy = (float(v) for v in intrinsics)
         w, h = int(first.shape[1]), int(first.shape[0])
         if not (0 <= cx <= w and 0 <= cy <= h):
-            raise ValueError(f"intrinsics: the principal point (cx, cy) must lie in the {w} x {h} images, "
-                             f"got ({cx:g}, {cy:g})")
+            raise ValueError(
+                f"intrinsics: the principal point (cx, cy) must lie in the {w} x {h} images, got ({cx:g}, {cy:g})"
+            )
         if not all(0.05 * size <= f <= 20 * size for f, size in ((fx, w), (fy, h))):
-            raise ValueError(f"intrinsics: focal lengths fx, fy of {fx:g}, {fy:g} pixels are implausible for "
-                             f"{w} x {h} images (expected 0.05 to 20 times the image width and height)")
+            raise ValueError(
+                f"intrinsics: focal lengths fx, fy of {fx:g}, {fy:g} pixels are implausible for "
+                f"{w} x {h} images (expected 0.05 to 20 times the image width and height)"
+            )
         intrinsics = Intrinsics(fx, fy, cx, cy, w, h)
     depth = _read_list(root / "depth.txt")
     gt = read_tum_trajectory(root / "groundtruth.txt")
@@ -287,9 +322,7 @@ def load_tum_sequence(
             f"no frame has a ground-truth pose within {max_time_diff} s (frames {rgb_t[0]:.3f}-{rgb_t[-1]:.3f} s, "
             f"ground truth {gt.timestamps[0]:.3f}-{gt.timestamps[-1]:.3f} s)",
         )
-    frames = [
-        _FrameFiles(rgb[i_rgb[k]], depth[i_depth[k]], gt.poses[g]) for k, g in zip(i_pair, i_gt)
-    ]
+    frames = [_FrameFiles(rgb[i_rgb[k]], depth[i_depth[k]], gt.poses[g]) for k, g in zip(i_pair, i_gt)]
     dropped = {"no depth": len(rgb) - len(i_rgb), "no ground truth": len(i_rgb) - len(i_pair)}
     seq = TumSequence(root, intrinsics, frames, dropped, float(depth_scale))
     if check_images:

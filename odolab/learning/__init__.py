@@ -4,10 +4,11 @@ epoch loop with validation curves, and the training data as torch batches.
 The public face for learned code beside :mod:`odolab.api` (which stays torch-free): the robust VO
 (:mod:`odolab.robust_vo`) and ``baselines/deepvo`` are written against these two modules only.
 """
+
 from __future__ import annotations
 
-from odolab.learning.compute import Compute, ComputeConfig, choose_compute
 from odolab.learning.checkpoints import CheckpointError, load_checkpoint, load_init, save_checkpoint
+from odolab.learning.compute import Compute, ComputeConfig, choose_compute
 from odolab.learning.configs import ConfigError, dataclass_from_toml, read_toml
 from odolab.learning.curves import Curves
 from odolab.learning.device import pick_device
@@ -16,7 +17,24 @@ from odolab.learning.loading import prefetched
 from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 __all__ = [
-    "CheckpointError", "Compute", "ComputeConfig", "ConfigError", "Curves", "DataConfig", "EpochLoop", "StopRequested", "TrainingData",
-    "dataclass_from_toml", "load_checkpoint", "load_init", "make_training_data", "pick_device", "prefetched", "choose_compute", "read_toml", "require_finite", "resize_frame",
+    "CheckpointError",
+    "Compute",
+    "ComputeConfig",
+    "ConfigError",
+    "Curves",
+    "DataConfig",
+    "EpochLoop",
+    "StopRequested",
+    "TrainingData",
+    "choose_compute",
+    "dataclass_from_toml",
+    "load_checkpoint",
+    "load_init",
+    "make_training_data",
+    "pick_device",
+    "prefetched",
+    "read_toml",
+    "require_finite",
+    "resize_frame",
     "save_checkpoint",
 ]

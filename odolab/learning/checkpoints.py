@@ -1,14 +1,16 @@
 """Checkpoints as plain data: ``{"format": ..., "kind": ..., ...}`` of tensors, numbers, strings,
 lists and dicts, written atomically and read with ``torch.load(weights_only=True)`` (no pickled code
 is ever executed)."""
+
 from __future__ import annotations
 
 import hashlib
 import io
 import os
 import pickle
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import torch
 
@@ -37,16 +39,21 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str
     try:
         doc = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:  # torch's message would suggest weights_only=False: never for a file like this
-        raise CheckpointError(f"{path}: not a readable torch checkpoint (corrupt, or it holds objects other than "
-                              "tensors and plain data, which odolab never unpickles)") from None
-    except Exception as exc:  # truncated, not a zip, not torch's format at all: whatever torch raised
-        raise CheckpointError(f"{path}: not a readable torch checkpoint (corrupt or not a torch file: "
-                              f"{type(exc).__name__})") from None
+        raise CheckpointError(
+            f"{path}: not a readable torch checkpoint (corrupt, or it holds objects other than "
+            "tensors and plain data, which odolab never unpickles)"
+        ) from None
+    except Exception as exc:  # noqa: BLE001 - truncated, not a zip, not torch's format: whatever torch raised
+        raise CheckpointError(
+            f"{path}: not a readable torch checkpoint (corrupt or not a torch file: {type(exc).__name__})"
+        ) from None
     if not isinstance(doc, dict) or doc.get("kind") != kind:
         got = doc.get("kind") if isinstance(doc, dict) else type(doc).__name__
         raise CheckpointError(f"{path}: expected a {kind!r} checkpoint, got {got!r}")
     if doc.get("format") != format:
-        raise CheckpointError(f"{path}: {kind} checkpoint of format {doc.get('format')!r}; this odolab reads format {format}")
+        raise CheckpointError(
+            f"{path}: {kind} checkpoint of format {doc.get('format')!r}; this odolab reads format {format}"
+        )
     return doc
 
 
@@ -66,8 +73,13 @@ def what_file(path: str | os.PathLike, kind: str | None = None) -> str | None:
         doc = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # noqa: BLE001 - not a torch file, or unsafe content: not a model either way
         return "a file that is not an odolab model (a recipe, data or another program's file)"
-    if isinstance(doc, dict) and doc.get("format") == MODEL_FORMAT and isinstance(doc.get("networks"), dict) \
-            and isinstance(doc.get("kind"), str) and "model" in doc:
+    if (
+        isinstance(doc, dict)
+        and doc.get("format") == MODEL_FORMAT
+        and isinstance(doc.get("networks"), dict)
+        and isinstance(doc.get("kind"), str)
+        and "model" in doc
+    ):
         return None if kind is None or doc["kind"] == kind else f"a model of kind {doc['kind']!r} (another trainer's)"
     kind = doc.get("kind") if isinstance(doc, dict) else None
     if kind == "odolab-training-state":
@@ -91,21 +103,28 @@ def check_export(export: Path, recipe: Path, states: dict[str, Path], kind: str 
             return os.path.realpath(a) == os.path.realpath(b)
 
     if same(export, recipe):
-        raise ValueError(f"--export {export}: expected {expected}, found the recipe (--config {recipe}), which the "
-                         "model would replace; give --export another path")
+        raise ValueError(
+            f"--export {export}: expected {expected}, found the recipe (--config {recipe}), which the "
+            "model would replace; give --export another path"
+        )
     for what, state in states.items():
         if same(export, state):
-            raise ValueError(f"--export {export}: expected {expected}, found the file where {what} keeps its "
-                             "training state, which the model would replace; give --export another path")
+            raise ValueError(
+                f"--export {export}: expected {expected}, found the file where {what} keeps its "
+                "training state, which the model would replace; give --export another path"
+            )
     if os.path.lexists(export):
         found = what_file(export, kind)
         if found is not None:
-            raise ValueError(f"--export {export}: expected {expected}, found {found}; odolab replaces only the "
-                             "models it exported: give --export another path")
+            raise ValueError(
+                f"--export {export}: expected {expected}, found {found}; odolab replaces only the "
+                "models it exported: give --export another path"
+            )
 
 
-def save_model(path: str | os.PathLike, kind: str, recipe: Any, networks: dict[str, torch.nn.Module],
-               training: dict[str, Any]) -> None:
+def save_model(
+    path: str | os.PathLike, kind: str, recipe: Any, networks: dict[str, torch.nn.Module], training: dict[str, Any]
+) -> None:
     """A trained model file: the recipe (a dataclass with a ``model`` field; its ``model`` part is what
     loading needs), each network's weights (on the CPU) and the training status, all plain data.
     An existing file at ``path`` that is not a model odolab exported is never replaced
@@ -114,16 +133,29 @@ def save_model(path: str | os.PathLike, kind: str, recipe: Any, networks: dict[s
     import json
 
     if os.path.lexists(path) and (found := what_file(path, kind)) is not None:
-        raise CheckpointError(f"{path}: expected a new file or a model odolab exported, found {found}; "
-                              "not replaced (export the model elsewhere)")
+        raise CheckpointError(
+            f"{path}: expected a new file or a model odolab exported, found {found}; "
+            "not replaced (export the model elsewhere)"
+        )
     doc = json.loads(json.dumps(dataclasses.asdict(recipe)))
-    save_checkpoint(path, kind, MODEL_FORMAT, {
-        "model": doc["model"], "recipe": doc, "training": json.loads(json.dumps(training)),
-        "networks": {name: {k: v.detach().cpu() for k, v in net.state_dict().items()} for name, net in networks.items()}})
+    save_checkpoint(
+        path,
+        kind,
+        MODEL_FORMAT,
+        {
+            "model": doc["model"],
+            "recipe": doc,
+            "training": json.loads(json.dumps(training)),
+            "networks": {
+                name: {k: v.detach().cpu() for k, v in net.state_dict().items()} for name, net in networks.items()
+            },
+        },
+    )
 
 
-def load_model(path: str | os.PathLike, kind: str, model_cls: type,
-               build: Callable[[Any], dict[str, torch.nn.Module]]) -> tuple[Any, dict[str, torch.nn.Module], dict]:
+def load_model(
+    path: str | os.PathLike, kind: str, model_cls: type, build: Callable[[Any], dict[str, torch.nn.Module]]
+) -> tuple[Any, dict[str, torch.nn.Module], dict]:
     """Read a model file of ``kind``: (``model_cls`` config, networks built by ``build(config)`` with
     their weights, in eval mode, ``{"recipe": ..., "training": ..., "sha256": file digest}``). :class:`CheckpointError`
     names the file when it is not such a file or its weights do not fit its config."""
@@ -148,7 +180,9 @@ def load_model(path: str | os.PathLike, kind: str, model_cls: type,
     return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {}), "sha256": digest}
 
 
-def load_init(init: str, export: str | os.PathLike, load: Callable[[Path], tuple[Any, Any, dict]]) -> tuple[Any, Any, str]:
+def load_init(
+    init: str, export: str | os.PathLike, load: Callable[[Path], tuple[Any, Any, dict]]
+) -> tuple[Any, Any, str]:
     """The exported model a run starts from (a recipe's ``init``): ``load(path)``'s config and networks
     and the file's SHA-256 (part of the run's identity: another start is another run). Refused with
     a message naming ``init``: a missing file, a folder, the run's own ``export`` (which would
@@ -157,8 +191,10 @@ def load_init(init: str, export: str | os.PathLike, load: Callable[[Path], tuple
     if path.is_dir():
         raise ValueError(f"init = {init!r} is a folder; give the exported model file (e.g. <work>/model.pt)")
     if not path.is_file():
-        raise ValueError(f"init = {init!r}: no such model file (relative to {Path.cwd()}; "
-                         "train the first stage first, see the recipe)")
+        raise ValueError(
+            f"init = {init!r}: no such model file (relative to {Path.cwd()}; "
+            "train the first stage first, see the recipe)"
+        )
     if path.resolve() == Path(export).resolve():
         raise ValueError(f"init = {init!r} is this run's --export, which would overwrite it; export elsewhere")
     try:

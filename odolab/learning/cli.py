@@ -1,18 +1,37 @@
 """The command line every trainer shares (``python -m odolab.robust_vo.train``,
 ``python -m baselines.deepvo.train``): a TOML recipe, where states, curves and the model go, a time
 budget, the device and thread count. Mistakes are one line and exit code 2, before any work."""
+
 from __future__ import annotations
 
 import argparse
 import os
 import sys
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
-from odolab.cli import ArgumentParser, UsageError, check_output_dir, check_output_file, check_report_dir, file_arg, number, path_arg, run_cli
+from odolab.cli import (
+    ArgumentParser,
+    UsageError,
+    check_output_dir,
+    check_output_file,
+    check_report_dir,
+    file_arg,
+    number,
+    path_arg,
+    run_cli,
+)
 
-__all__ = ["TrainingJob", "check_workers", "parse_training_command", "run_training_cli", "training_main", "training_parser"]
+__all__ = [
+    "TrainingJob",
+    "check_workers",
+    "parse_training_command",
+    "run_training_cli",
+    "training_main",
+    "training_parser",
+]
 
 
 @dataclass(frozen=True)
@@ -39,24 +58,55 @@ def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
     ``reports/<family>/<recipe name>``)."""
     ap = ArgumentParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", type=path_arg("--config"), required=True, help="TOML recipe")
-    ap.add_argument("--work", type=path_arg("--work"), default=None,
-                    help=f"per-epoch training states (default runs/{family}/<recipe name>)")
-    ap.add_argument("--reports", type=path_arg("--reports"), default=None,
-                    help=f"validation curves and status (default reports/{family}/<recipe name>)")
-    ap.add_argument("--export", type=file_arg("--export"), default=None,
-                    help="the trained model, written when every epoch is done (default <work>/model.pt)")
-    ap.add_argument("--hours", type=number("--hours", float, 0.001, 1000.0), default=None,
-                    help="stop before an epoch that would start after this many hours (rerun to resume)")
+    ap.add_argument(
+        "--work",
+        type=path_arg("--work"),
+        default=None,
+        help=f"per-epoch training states (default runs/{family}/<recipe name>)",
+    )
+    ap.add_argument(
+        "--reports",
+        type=path_arg("--reports"),
+        default=None,
+        help=f"validation curves and status (default reports/{family}/<recipe name>)",
+    )
+    ap.add_argument(
+        "--export",
+        type=file_arg("--export"),
+        default=None,
+        help="the trained model, written when every epoch is done (default <work>/model.pt)",
+    )
+    ap.add_argument(
+        "--hours",
+        type=number("--hours", float, 0.001, 1000.0),
+        default=None,
+        help="stop before an epoch that would start after this many hours (rerun to resume)",
+    )
     ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
-    ap.add_argument("--threads", type=number("--threads", int, 1, 1024), default=None,
-                    help="torch CPU threads (default: torch's choice, all cores)")
-    ap.add_argument("--ray-address", default=None,
-                    help="Ray cluster for making the data and the training workers (default: a local instance)")
-    ap.add_argument("--workers", type=number("--workers", int, 1, 1024), default=1,
-                    help="data-parallel training workers on Ray Train, each taking a share of every batch "
-                         "(default 1: in this process, without Ray)")
-    ap.add_argument("--gpus-per-worker", type=number("--gpus-per-worker", float, 0.0, 64.0), default=0.0,
-                    help="GPUs per training worker with --workers (default 0: CPU workers, gloo)")
+    ap.add_argument(
+        "--threads",
+        type=number("--threads", int, 1, 1024),
+        default=None,
+        help="torch CPU threads (default: torch's choice, all cores)",
+    )
+    ap.add_argument(
+        "--ray-address",
+        default=None,
+        help="Ray cluster for making the data and the training workers (default: a local instance)",
+    )
+    ap.add_argument(
+        "--workers",
+        type=number("--workers", int, 1, 1024),
+        default=1,
+        help="data-parallel training workers on Ray Train, each taking a share of every batch "
+        "(default 1: in this process, without Ray)",
+    )
+    ap.add_argument(
+        "--gpus-per-worker",
+        type=number("--gpus-per-worker", float, 0.0, 64.0),
+        default=0.0,
+        help="GPUs per training worker with --workers (default 0: CPU workers, gloo)",
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     ap.set_defaults(family=family)
     return ap
@@ -72,8 +122,12 @@ def stage_states(config: Any, work: Path) -> dict[str, Path]:
     return {f"stage {s.name!r}": work / f"{s.name}.pt" for s in getattr(config, "stages", ())}
 
 
-def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
-                           load_config: Callable[[str], Any], state_files: StateFiles | None = None) -> TrainingJob:
+def parse_training_command(
+    ap: ArgumentParser,
+    argv: Sequence[str] | None,
+    load_config: Callable[[str], Any],
+    state_files: StateFiles | None = None,
+) -> TrainingJob:
     """Parse, read the recipe with ``load_config`` (its ``ValueError`` becomes a usage error), pick
     the device, set the thread count and check every output path before any work: ``--export``
     must not be the recipe, a training state (``state_files``, default :func:`stage_states`) or a
@@ -100,14 +154,20 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
         try:
             check_ray_address(address)
         except ValueError as exc:
-            said = str(exc) if args.ray_address is not None else \
-                str(exc).replace("--ray-address", "RAY_ADDRESS (environment)", 1) + "; unset it for a local instance"
+            said = (
+                str(exc)
+                if args.ray_address is not None
+                else str(exc).replace("--ray-address", "RAY_ADDRESS (environment)", 1)
+                + "; unset it for a local instance"
+            )
             raise UsageError(said) from None
     check_workers(args.workers, args.gpus_per_worker, args.device, device, args.ray_address)
     for kept in REPORT_FILES:  # the reports a run writes beside the model: found now, not after training
         if _same_path(export, reports / kept):
-            raise UsageError(f"--export {export}: expected a file apart from the reports, found the path of "
-                             f"{kept} in --reports {reports}, which the run writes; give --export another path")
+            raise UsageError(
+                f"--export {export}: expected a file apart from the reports, found the path of "
+                f"{kept} in --reports {reports}, which the run writes; give --export another path"
+            )
     try:  # never the recipe, a training state or a file no export wrote
         check_export(export, args.config, (state_files or stage_states)(config, work), kind=f"odolab-{args.family}")
     except ValueError as exc:
@@ -118,8 +178,19 @@ def parse_training_command(ap: ArgumentParser, argv: Sequence[str] | None,
     if args.threads:
         torch.set_num_threads(args.threads)
     argv = list(argv) if argv is not None else sys.argv[1:]
-    return TrainingJob(config, device, work, reports, export, args.hours, args.ray_address, not args.quiet,
-                       " ".join([ap.prog, *argv]), args.workers, args.gpus_per_worker)
+    return TrainingJob(
+        config,
+        device,
+        work,
+        reports,
+        export,
+        args.hours,
+        args.ray_address,
+        not args.quiet,
+        " ".join([ap.prog, *argv]),
+        args.workers,
+        args.gpus_per_worker,
+    )
 
 
 #: The files a training writes under ``--reports`` (odolab.learning.validation).
@@ -148,8 +219,14 @@ def local_ray_resources() -> tuple[float, float]:
     return cpus, float(torch.cuda.device_count() if torch.cuda.is_available() else 0)
 
 
-def check_workers(workers: int, gpus_per_worker: float, device_name: str | None, device: Any,
-                  ray_address: str | None, resources: Callable[[], tuple[float, float]] | None = None) -> None:
+def check_workers(
+    workers: int,
+    gpus_per_worker: float,
+    device_name: str | None,
+    device: Any,
+    ray_address: str | None,
+    resources: Callable[[], tuple[float, float]] | None = None,
+) -> None:
     """:class:`UsageError`, before any work, for ``--workers`` / ``--gpus-per-worker`` / ``--device``
     that cannot run as asked: GPUs per worker without workers, a ``--device`` the workers would not
     use (they train on a GPU exactly when ``--gpus-per-worker`` gives them one), or more than a
@@ -157,49 +234,79 @@ def check_workers(workers: int, gpus_per_worker: float, device_name: str | None,
     or ``RAY_ADDRESS``) may grow, so its size is not checked here."""
     if workers == 1:
         if gpus_per_worker:
-            raise UsageError("--gpus-per-worker places Ray Train workers; with --workers 1 training runs here "
-                             "(use --device cuda for this machine's GPU)")
+            raise UsageError(
+                "--gpus-per-worker places Ray Train workers; with --workers 1 training runs here "
+                "(use --device cuda for this machine's GPU)"
+            )
         return
     if device_name:
         if device.type not in ("cpu", "cuda"):
-            raise UsageError(f"--device {device_name} with --workers {workers}: Ray Train workers train on "
-                             "CPUs, or on CUDA GPUs with --gpus-per-worker")
+            raise UsageError(
+                f"--device {device_name} with --workers {workers}: Ray Train workers train on "
+                "CPUs, or on CUDA GPUs with --gpus-per-worker"
+            )
         if device.type == "cuda" and not gpus_per_worker:
-            raise UsageError(f"--device {device_name} with --workers {workers}: a worker gets a GPU only with "
-                             "--gpus-per-worker (e.g. --gpus-per-worker 1); without it they train on CPUs")
+            raise UsageError(
+                f"--device {device_name} with --workers {workers}: a worker gets a GPU only with "
+                "--gpus-per-worker (e.g. --gpus-per-worker 1); without it they train on CPUs"
+            )
         if device.type == "cpu" and gpus_per_worker:
-            raise UsageError(f"--device {device_name} contradicts --gpus-per-worker {gpus_per_worker:g}: give one "
-                             "of them (workers with GPUs train on them)")
+            raise UsageError(
+                f"--device {device_name} contradicts --gpus-per-worker {gpus_per_worker:g}: give one "
+                "of them (workers with GPUs train on them)"
+            )
     if ray_address is not None or os.environ.get("RAY_ADDRESS"):
         return
     cpus, gpus = (resources or local_ray_resources)()
     if workers > cpus:
-        raise UsageError(f"--workers {workers}: a local Ray instance here has {cpus:g} CPUs and each worker "
-                         f"takes one; use --workers {max(1, int(cpus))} or fewer, or --ray-address for a cluster")
+        raise UsageError(
+            f"--workers {workers}: a local Ray instance here has {cpus:g} CPUs and each worker "
+            f"takes one; use --workers {max(1, int(cpus))} or fewer, or --ray-address for a cluster"
+        )
     if gpus_per_worker * workers > gpus + 1e-9:
-        raise UsageError(f"--workers {workers} --gpus-per-worker {gpus_per_worker:g}: needs "
-                         f"{gpus_per_worker * workers:g} GPUs, this machine has {gpus:g}; use fewer, or "
-                         "--ray-address for a cluster")
+        raise UsageError(
+            f"--workers {workers} --gpus-per-worker {gpus_per_worker:g}: needs "
+            f"{gpus_per_worker * workers:g} GPUs, this machine has {gpus:g}; use fewer, or "
+            "--ray-address for a cluster"
+        )
 
 
-def run_training_cli(main: Callable[[Sequence[str] | None], int | None], prog: str,
-                     argv: Sequence[str] | None = None) -> int:
+def run_training_cli(
+    main: Callable[[Sequence[str] | None], int | None], prog: str, argv: Sequence[str] | None = None
+) -> int:
     """:func:`odolab.cli.run_cli` for trainers (one line and exit 2 for a user's mistake)."""
     return run_cli(main, prog, argv)
 
 
-def training_main(argv: Sequence[str] | None, *, prog: str, description: str, family: str,
-                  load_config: Callable[[str], Any], run: Callable[..., bool],
-                  state_files: StateFiles | None = None) -> int:
+def training_main(
+    argv: Sequence[str] | None,
+    *,
+    prog: str,
+    description: str,
+    family: str,
+    load_config: Callable[[str], Any],
+    run: Callable[..., bool],
+    state_files: StateFiles | None = None,
+) -> int:
     """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
     ``run(config, work=, reports=, export=, device=, hours=, ray_address=, progress=, command=)``
     (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
     ap = training_parser(prog, description, family)
     job = parse_training_command(ap, argv, load_config, state_files)
     try:
-        done = run(job.config, work=job.work, reports=job.reports, export=job.export, device=job.device,
-                   hours=job.hours, ray_address=job.ray_address, progress=job.progress, command=job.command,
-                   workers=job.workers, gpus_per_worker=job.gpus_per_worker)
+        done = run(
+            job.config,
+            work=job.work,
+            reports=job.reports,
+            export=job.export,
+            device=job.device,
+            hours=job.hours,
+            ray_address=job.ray_address,
+            progress=job.progress,
+            command=job.command,
+            workers=job.workers,
+            gpus_per_worker=job.gpus_per_worker,
+        )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     said = f"finished; model written to {job.export}" if done else "stopped; run the same command to resume"

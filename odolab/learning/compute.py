@@ -6,6 +6,7 @@ memory format of the network's inputs, chosen per machine.
 elsewhere; emulated bf16 is slower than fp32. ``auto`` keeps the default contiguous memory layout
 (``channels_last`` is there to be asked for and timed: docs/training.md).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -79,9 +80,13 @@ class Compute:
 
     def describe(self) -> dict[str, str]:
         """Plain data for reports."""
-        return {"device": str(self.device), "precision": self.precision, "memory_format": self.memory_format,
-                "loader_workers": self.loader_workers,
-                "machine": f"{platform.machine()} {platform.processor() or ''}".strip()}
+        return {
+            "device": str(self.device),
+            "precision": self.precision,
+            "memory_format": self.memory_format,
+            "loader_workers": self.loader_workers,
+            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+        }
 
 
 @dataclass(frozen=True)
@@ -101,8 +106,11 @@ class ComputeConfig:
             raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
         if self.memory_format not in MEMORY_FORMATS:
             raise ValueError(f"memory_format must be one of {', '.join(MEMORY_FORMATS)}, got {self.memory_format!r}")
-        if self.loader_workers != "auto" and (isinstance(self.loader_workers, bool) or not isinstance(self.loader_workers, int)
-                                              or not 0 <= self.loader_workers <= 64):
+        if self.loader_workers != "auto" and (
+            isinstance(self.loader_workers, bool)
+            or not isinstance(self.loader_workers, int)
+            or not 0 <= self.loader_workers <= 64
+        ):
             raise ValueError(f"loader_workers must be 'auto' or in [0, 64], got {self.loader_workers!r}")
 
     def resolve(self, device: torch.device, cores: int | None = None) -> Compute:
@@ -116,8 +124,9 @@ class ComputeConfig:
         return dataclasses.replace(choose_compute(device, self.precision, self.memory_format), loader_workers=workers)
 
 
-def choose_compute(device: torch.device, precision: str = "auto", memory_format: str = "auto",
-                   flags: set[str] | None = None) -> Compute:
+def choose_compute(
+    device: torch.device, precision: str = "auto", memory_format: str = "auto", flags: set[str] | None = None
+) -> Compute:
     """Resolve ``auto`` choices for ``device`` (module docstring); an explicit ``bf16`` is honoured
     even where it is emulated. ``ValueError`` for an unknown name."""
     if precision not in PRECISIONS:
@@ -129,4 +138,3 @@ def choose_compute(device: torch.device, precision: str = "auto", memory_format:
     if memory_format == "auto":
         memory_format = "contiguous"
     return Compute(device, precision, memory_format)
-

@@ -1,5 +1,6 @@
 """Configs from TOML files (read with :mod:`tomllib`, never evaluated) into frozen dataclasses, with
 errors that name the file, the field, what was expected and what was found."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -31,8 +32,9 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
     :data:`MAX_BASE_CHAIN` bases is refused.
     """
     if len(_seen) >= MAX_BASE_CHAIN:
-        raise ConfigError(f"{path}: reached through a chain of {len(_seen)} base files (from {_seen[0]}); "
-                          f"at most {MAX_BASE_CHAIN}")
+        raise ConfigError(
+            f"{path}: reached through a chain of {len(_seen)} base files (from {_seen[0]}); at most {MAX_BASE_CHAIN}"
+        )
     doc = _read_toml_file(path)
     base = doc.pop("base", None)
     if base is None:
@@ -86,7 +88,9 @@ def _check(value: Any, annotation: Any, where: str) -> Any:
         raise ConfigError(f"{where}: expected {annotation}, got {value!r}")
     if origin is typing.Literal:
         if value not in typing.get_args(annotation):
-            raise ConfigError(f"{where}: expected one of {', '.join(map(repr, typing.get_args(annotation)))}, got {value!r}")
+            raise ConfigError(
+                f"{where}: expected one of {', '.join(map(repr, typing.get_args(annotation)))}, got {value!r}"
+            )
         return value
     if origin in (tuple, list):
         if not isinstance(value, (list, tuple)):
@@ -117,7 +121,9 @@ def dataclass_from_dict(cls: type[T], doc: dict[str, Any], where: str) -> T:
     known = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(doc) - known)
     if unknown:
-        raise ConfigError(f"{where}: unknown field(s) {', '.join(unknown)}; expected some of {', '.join(sorted(known))}")
+        raise ConfigError(
+            f"{where}: unknown field(s) {', '.join(unknown)}; expected some of {', '.join(sorted(known))}"
+        )
     values = {k: _check(v, hints[k], f"{where}.{k}" if where else k) for k, v in doc.items()}
     try:
         return cls(**values)

@@ -1,10 +1,12 @@
 """Training curves: rows of numbers per epoch, kept as CSV and drawn as small multiples."""
+
 from __future__ import annotations
 
 import csv
 import io
 import os
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from odolab.io.atomic import write_bytes_atomic
 
@@ -31,9 +33,19 @@ class Curves:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         write_bytes_atomic(path, out.getvalue().encode())
 
-    def plot(self, path: str | os.PathLike, *, x: str, series: dict[str, dict[str, Any]], rows: str, cols: str,
-             where: dict[str, Any] | None = None, ylabel: dict[str, str] | None = None, title: str = "",
-             scale: dict[str, float] | None = None) -> None:
+    def plot(
+        self,
+        path: str | os.PathLike,
+        *,
+        x: str,
+        series: dict[str, dict[str, Any]],
+        rows: str,
+        cols: str,
+        where: dict[str, Any] | None = None,
+        ylabel: dict[str, str] | None = None,
+        title: str = "",
+        scale: dict[str, float] | None = None,
+    ) -> None:
         """Small multiples: one panel per (``rows`` value, ``cols`` value), ``x`` on the horizontal axis
         and one line per ``series`` column (value: matplotlib style, with ``label``). ``where``
         filters rows; ``scale`` multiplies values per ``cols`` value (e.g. rad -> deg);
@@ -49,8 +61,13 @@ class Curves:
         col_keys = list(dict.fromkeys(r[cols] for r in data))
         if not data:
             return
-        fig, axes = plt.subplots(len(row_keys), len(col_keys), figsize=(3.6 * len(col_keys), 2.6 * len(row_keys)),
-                                 squeeze=False, constrained_layout=True)
+        fig, axes = plt.subplots(
+            len(row_keys),
+            len(col_keys),
+            figsize=(3.6 * len(col_keys), 2.6 * len(row_keys)),
+            squeeze=False,
+            constrained_layout=True,
+        )
         for i, rk in enumerate(row_keys):
             for j, ck in enumerate(col_keys):
                 ax = axes[i][j]

@@ -1,4 +1,5 @@
 """Where a model runs: a GPU when one is present, else the CPU."""
+
 from __future__ import annotations
 
 import torch

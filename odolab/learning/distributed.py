@@ -6,12 +6,14 @@ and the process group (gloo on CPUs, nccl on GPUs); the trainers' own loop does 
 Every worker reads the same data and state folders, so on a cluster they must be on storage that
 all nodes share. Worker 0 (the leader) validates, saves the states and writes the reports.
 """
+
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import numpy as np
 import torch
@@ -31,7 +33,7 @@ class Team:
 
     def share(self, items: np.ndarray) -> np.ndarray:
         """This worker's part of a global batch: every ``size``-th item from ``rank`` on."""
-        return items[self.rank::self.size]
+        return items[self.rank :: self.size]
 
     def sum(self, t: torch.Tensor) -> torch.Tensor:
         """``t`` summed over the workers (in place; ``t`` alone when training alone)."""
@@ -59,7 +61,7 @@ class Team:
         offset = 0
         for p, g in zip(params, grads):
             n = g.numel()
-            p.grad = (flat[offset:offset + n] / total).view_as(g).clone()
+            p.grad = (flat[offset : offset + n] / total).view_as(g).clone()
             offset += n
 
     def average_buffers(self, modules: Iterable[torch.nn.Module]) -> None:
@@ -71,11 +73,20 @@ class Team:
         flat = self.sum(torch.cat([b.reshape(-1) for b in buffers])) / self.size
         offset = 0
         for b in buffers:
-            b.copy_(flat[offset:offset + b.numel()].view_as(b))
+            b.copy_(flat[offset : offset + b.numel()].view_as(b))
             offset += b.numel()
 
-def run_on_ray(loop: Callable[[dict[str, Any]], Any], config: dict[str, Any], *, workers: int, work: Path,
-               export: Path, ray_address: str | None = None, gpus_per_worker: float = 0.0) -> bool:
+
+def run_on_ray(
+    loop: Callable[[dict[str, Any]], Any],
+    config: dict[str, Any],
+    *,
+    workers: int,
+    work: Path,
+    export: Path,
+    ray_address: str | None = None,
+    gpus_per_worker: float = 0.0,
+) -> bool:
     """Run ``loop(config)`` in ``workers`` Ray Train workers (``config["team"]`` set to each one's
     :class:`Team`), on the cluster at ``ray_address`` or a local instance; Ray Train's own records go
     under ``work/ray``. Returns whether the leader wrote ``export`` (the training finished); a
@@ -90,18 +101,25 @@ def run_on_ray(loop: Callable[[dict[str, Any]], Any], config: dict[str, Any], *,
     use_gpu = gpus_per_worker > 0
     if started and ray_address is None and not os.environ.get("RAY_ADDRESS"):  # a local instance cannot grow
         have = ray.cluster_resources()
-        short = [f"{need:g} {kind}s, it has {have.get(kind, 0):g}" for kind, need in
-                 (("CPU", workers), ("GPU", workers * gpus_per_worker)) if need > have.get(kind, 0) + 1e-9]
+        short = [
+            f"{need:g} {kind}s, it has {have.get(kind, 0):g}"
+            for kind, need in (("CPU", workers), ("GPU", workers * gpus_per_worker))
+            if need > have.get(kind, 0) + 1e-9
+        ]
         if short:
             ray.shutdown()
-            raise ValueError(f"{workers} training workers need {'; '.join(short)} on this machine's Ray instance "
-                             "(Ray Train would wait for them forever); use fewer workers or a cluster")
+            raise ValueError(
+                f"{workers} training workers need {'; '.join(short)} on this machine's Ray instance "
+                "(Ray Train would wait for them forever); use fewer workers or a cluster"
+            )
     resources = {"CPU": 1, **({"GPU": gpus_per_worker} if use_gpu else {})}
     trainer = TorchTrainer(
-        _worker, train_loop_config={"loop": loop, "config": config},
+        _worker,
+        train_loop_config={"loop": loop, "config": config},
         torch_config=TorchConfig(backend="nccl" if use_gpu else "gloo"),
         scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu, resources_per_worker=resources),
-        run_config=RunConfig(storage_path=str((work / "ray").resolve()), name="train"))
+        run_config=RunConfig(storage_path=str((work / "ray").resolve()), name="train"),
+    )
     before = _stamp(export)
     try:
         trainer.fit()

@@ -3,11 +3,13 @@ curves are saved atomically, and within an epoch every ``save_every`` seconds to
 the running sums and torch's random state), so a killed run loses at most that much and a rerun goes
 on from the last save with the same numbers on the same machine (each epoch's randomness is seeded by
 (seed, epoch); the batches of an epoch are made in a fixed order from that seed)."""
+
 from __future__ import annotations
 
 import os
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -28,8 +30,11 @@ def differences(saved: Any, now: Any, where: str = "") -> list[str]:
     """Dotted paths where two plain-data documents differ, as ``path (saved X, now Y)``; a key one
     side lacks shows as ``unset`` (a switch at its default is left out of identities)."""
     if isinstance(saved, dict) and isinstance(now, dict):
-        return [d for k in sorted(set(saved) | set(now), key=str)
-                for d in differences(saved.get(k, _ABSENT), now.get(k, _ABSENT), f"{where}.{k}" if where else str(k))]
+        return [
+            d
+            for k in sorted(set(saved) | set(now), key=str)
+            for d in differences(saved.get(k, _ABSENT), now.get(k, _ABSENT), f"{where}.{k}" if where else str(k))
+        ]
     if isinstance(saved, list) and isinstance(now, list) and len(saved) == len(now):
         return [d for i, (a, b) in enumerate(zip(saved, now)) for d in differences(a, b, f"{where}[{i}]")]
 
@@ -43,8 +48,10 @@ def require_finite(loss: torch.Tensor, epoch: int) -> None:
     """``ValueError`` when a training loss is NaN or infinite (a learning rate too high, a bad
     weight): the epoch in progress is dropped, the last saved one is kept."""
     if not torch.isfinite(loss).all():
-        raise ValueError(f"the training loss became {loss.item()} in epoch {epoch}; nothing of that epoch was "
-                         "saved (is the learning rate or a loss weight too large?)")
+        raise ValueError(
+            f"the training loss became {loss.item()} in epoch {epoch}; nothing of that epoch was "
+            "saved (is the learning rate or a loss weight too large?)"
+        )
 
 
 class StopRequested(Exception):
@@ -56,7 +63,7 @@ class EpochTracker:
     are already done (skip them), call :meth:`add` after each batch; it saves the loop's state every
     ``save_every`` seconds and stops (:class:`StopRequested`) at the deadline, after saving."""
 
-    def __init__(self, loop: "EpochLoop", unit: str, partial: dict[str, Any] | None, deadline: float | None) -> None:
+    def __init__(self, loop: EpochLoop, unit: str, partial: dict[str, Any] | None, deadline: float | None) -> None:
         self.loop, self.unit, self.deadline = loop, unit, deadline
         partial = partial or {}
         self.start = self.batches = int(partial.get("batches", 0))
@@ -83,13 +90,21 @@ class EpochTracker:
             raise StopRequested()
 
     def partial(self) -> dict[str, Any]:
-        return {"batches": self.batches, "loss_sum": self.loss_sum, "samples": self.samples,
-                "seconds": self.seconds, "torch_rng": torch.get_rng_state()}
+        return {
+            "batches": self.batches,
+            "loss_sum": self.loss_sum,
+            "samples": self.samples,
+            "seconds": self.seconds,
+            "torch_rng": torch.get_rng_state(),
+        }
 
     def row(self) -> dict[str, Any]:
         """The epoch's training numbers: mean loss, samples and samples per second (``unit`` names them)."""
-        return {"loss": self.loss_sum / max(self.samples, 1), self.unit: self.samples,
-                f"{self.unit}_per_s": self.samples / max(self.seconds, 1e-9)}
+        return {
+            "loss": self.loss_sum / max(self.samples, 1),
+            self.unit: self.samples,
+            f"{self.unit}_per_s": self.samples / max(self.seconds, 1e-9),
+        }
 
 
 class EpochLoop:
@@ -102,9 +117,18 @@ class EpochLoop:
     together, and only the leader saves and validates.
     """
 
-    def __init__(self, path: str | os.PathLike, modules: dict[str, nn.Module], optimizer: torch.optim.Optimizer,
-                 epochs: int, seed: int, identity: dict[str, Any], unit: str = "pairs",
-                 save_every: float = 600.0, team: Team = Team()) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        modules: dict[str, nn.Module],
+        optimizer: torch.optim.Optimizer,
+        epochs: int,
+        seed: int,
+        identity: dict[str, Any],
+        unit: str = "pairs",
+        save_every: float = 600.0,
+        team: Team = Team(),
+    ) -> None:
         self.path, self.modules, self.optimizer, self.team = path, modules, optimizer, team
         self.epochs, self.seed, self.identity = int(epochs), int(seed), identity
         self.unit, self.save_every = unit, float(save_every)
@@ -123,8 +147,10 @@ class EpochLoop:
             raise ValueError(f"{exc}; delete it to start this training over") from None
         if doc["identity"] != self.identity:
             changed = differences(doc["identity"], self.identity)
-            raise ValueError(f"{self.path}: saved training state belongs to another run (differs in: "
-                             f"{'; '.join(changed[:4])}); delete it or use another work folder")
+            raise ValueError(
+                f"{self.path}: saved training state belongs to another run (differs in: "
+                f"{'; '.join(changed[:4])}); delete it or use another work folder"
+            )
         for name, module in self.modules.items():
             module.load_state_dict(doc["modules"][name])
         self.optimizer.load_state_dict(doc["optimizer"])
@@ -137,8 +163,14 @@ class EpochLoop:
         """Write the state (the leader only); ``partial``: the epoch in progress (:meth:`EpochTracker.partial`)."""
         if not self.team.leader:
             return
-        doc = {"identity": self.identity, "epoch": self.epoch, "seconds": self.seconds, "curves": self.curves.rows,
-               "modules": {n: m.state_dict() for n, m in self.modules.items()}, "optimizer": self.optimizer.state_dict()}
+        doc = {
+            "identity": self.identity,
+            "epoch": self.epoch,
+            "seconds": self.seconds,
+            "curves": self.curves.rows,
+            "modules": {n: m.state_dict() for n, m in self.modules.items()},
+            "optimizer": self.optimizer.state_dict(),
+        }
         if partial is not None:
             doc["partial"] = partial
         save_checkpoint(self.path, STATE_KIND, STATE_FORMAT, doc)
@@ -152,9 +184,14 @@ class EpochLoop:
     def finished(self) -> bool:
         return self.epoch >= self.epochs
 
-    def run(self, train_epoch: Callable[[int, np.random.Generator, EpochTracker], dict[str, Any]],
-            validate: Callable[[int], list[dict[str, Any]]], *, deadline: float | None = None,
-            after_epoch: Callable[["EpochLoop"], None] | None = None) -> bool:
+    def run(
+        self,
+        train_epoch: Callable[[int, np.random.Generator, EpochTracker], dict[str, Any]],
+        validate: Callable[[int], list[dict[str, Any]]],
+        *,
+        deadline: float | None = None,
+        after_epoch: Callable[[EpochLoop], None] | None = None,
+    ) -> bool:
         """Run the remaining epochs; ``train_epoch(epoch, rng, tracker)`` skips ``tracker.start``
         batches, calls ``tracker.add`` after each batch and returns extra training numbers (with
         ``tracker.row()`` they make one curve row); ``validate(epoch)`` returns validation rows. Stops at
@@ -183,8 +220,10 @@ class EpochLoop:
             with torch.inference_mode():
                 val_rows = validate(epoch) if self.team.leader else []
             self.seconds += tracker.seconds + time.monotonic() - started
-            self.curves.add([{"epoch": epoch, "split": "train", **train_row}] + [{"epoch": epoch, "split": "val", **r}
-                                                                                  for r in val_rows])
+            self.curves.add(
+                [{"epoch": epoch, "split": "train", **train_row}]
+                + [{"epoch": epoch, "split": "val", **r} for r in val_rows]
+            )
             self.epoch = epoch
             self.save()
             if after_epoch is not None and self.team.leader:

@@ -1,8 +1,10 @@
 """Batches made ahead of the training step: a worker process prepares the next batches (shard
 reads, input transforms) while the network computes, so loading is not the bottleneck."""
+
 from __future__ import annotations
 
-from typing import Any, Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
 
 from torch.utils.data import DataLoader, Dataset
 
@@ -27,8 +29,17 @@ def prefetched(parts: list[Any], make: Callable[[Any], Any], workers: int = 1, a
     platform spawns processes (Linux forks)."""
     if workers <= 0 or len(parts) <= 1:
         return (make(p) for p in parts)
-    return _Loader(DataLoader(BatchList(parts, make), batch_size=None, shuffle=False, num_workers=workers,
-                              prefetch_factor=ahead, persistent_workers=False, collate_fn=_keep))
+    return _Loader(
+        DataLoader(
+            BatchList(parts, make),
+            batch_size=None,
+            shuffle=False,
+            num_workers=workers,
+            prefetch_factor=ahead,
+            persistent_workers=False,
+            collate_fn=_keep,
+        )
+    )
 
 
 def _keep(item: Any) -> Any:
@@ -49,4 +60,3 @@ class _Loader:
             shutdown = getattr(it, "_shutdown_workers", None)
             if shutdown is not None:
                 shutdown()
-

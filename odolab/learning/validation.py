@@ -1,6 +1,7 @@
 """Validation as every learned odometer reports it: mean absolute error per action and component
 (dx m, dz m, dyaw rad, the paper's per-step error) beside the action prior's on the same pairs, kept
 per epoch as CSV, drawn as small multiples (PNG) and summarised in ``training.json``."""
+
 from __future__ import annotations
 
 import json
@@ -28,23 +29,46 @@ def error_rows(pred: np.ndarray, truth: np.ndarray, actions: np.ndarray, **label
             continue
         prior_err = np.abs(truth[mask] - prior.step(None, None, action).planar)
         for c, name in enumerate(COMPONENTS):
-            rows.append({**labels, "action": action.label, "component": name, "pairs": int(mask.sum()),
-                         "mae": float(err[mask, c].mean()), "prior_mae": float(prior_err[:, c].mean())})
+            rows.append(
+                {
+                    **labels,
+                    "action": action.label,
+                    "component": name,
+                    "pairs": int(mask.sum()),
+                    "mae": float(err[mask, c].mean()),
+                    "prior_mae": float(prior_err[:, c].mean()),
+                }
+            )
     return rows
 
 
-def write_report(folder: str | Path, rows: list[dict[str, Any]], status: dict[str, Any], title: str,
-                 x: str = "epoch") -> None:
+def write_report(
+    folder: str | Path, rows: list[dict[str, Any]], status: dict[str, Any], title: str, x: str = "epoch"
+) -> None:
     """``curves.csv`` (every row), ``curves.png`` (validation rows: one panel per action and
     component, the model against the action prior, yaw in degrees) and ``training.json``
     (``status``), each written atomically into ``folder``."""
     folder = Path(folder)
     curves = Curves(rows)
     curves.to_csv(folder / "curves.csv")
-    curves.plot(folder / "curves.png", x=x, rows="action", cols="component", where={"split": "val"},
-                series={"mae": {"label": "model (val)", "color": "C0"},
-                        "prior_mae": {"label": "action prior (val)", "color": "0.5", "linestyle": "--", "marker": "_",
-                                      "markersize": 8}},
-                scale={"dyaw": 180 / np.pi}, title=title,
-                ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"})
+    curves.plot(
+        folder / "curves.png",
+        x=x,
+        rows="action",
+        cols="component",
+        where={"split": "val"},
+        series={
+            "mae": {"label": "model (val)", "color": "C0"},
+            "prior_mae": {
+                "label": "action prior (val)",
+                "color": "0.5",
+                "linestyle": "--",
+                "marker": "_",
+                "markersize": 8,
+            },
+        },
+        scale={"dyaw": 180 / np.pi},
+        title=title,
+        ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
+    )
     write_bytes_atomic(folder / "training.json", json.dumps(status, indent=1).encode())

@@ -28,6 +28,7 @@ heading is within
 less than ``stuck_distance`` marks the cell ahead as an obstacle. It calls STOP when the believed
 goal is nearer than ``stop_distance``.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -41,15 +42,28 @@ import numpy as np
 from odolab.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap_angle
 from odolab.types import FORWARD_STEP, Action, Intrinsics
 
-
 #: The range of each policy parameter (m, degrees, counts); the map is a grid of up to
 #: (2 x (30 m + extent) / cell)^2 cells, so cell and extent are bounded together with the rest.
 POLICY_BOUNDS: dict[str, tuple[float, float]] = {
-    "cell": (0.02, 1.0), "stride": (1, 64), "min_height": (0.0, 3.0), "max_height": (0.0, 3.0),
-    "max_range": (0.1, 10.0), "votes": (1, 1000), "agent_radius": (0.0, 1.0), "margin": (0.0, 1.0),
-    "margin_speed": (0.0, 1.0), "heading_tolerance": (0.0, 180.0), "stop_distance": (0.01, 10.0),
-    "stuck_distance": (0.0, 1.0), "extent": (0.5, 20.0), "plan_margin": (0.5, 20.0), "memory": (1, 10**6),
-    "obstacle_gap": (0.0, 0.5), "own_clearance": (0.0, 0.5), "fallback_radius": (0.0, 1.0)}
+    "cell": (0.02, 1.0),
+    "stride": (1, 64),
+    "min_height": (0.0, 3.0),
+    "max_height": (0.0, 3.0),
+    "max_range": (0.1, 10.0),
+    "votes": (1, 1000),
+    "agent_radius": (0.0, 1.0),
+    "margin": (0.0, 1.0),
+    "margin_speed": (0.0, 1.0),
+    "heading_tolerance": (0.0, 180.0),
+    "stop_distance": (0.01, 10.0),
+    "stuck_distance": (0.0, 1.0),
+    "extent": (0.5, 20.0),
+    "plan_margin": (0.5, 20.0),
+    "memory": (1, 10**6),
+    "obstacle_gap": (0.0, 0.5),
+    "own_clearance": (0.0, 0.5),
+    "fallback_radius": (0.0, 1.0),
+}
 #: The value of each parameter added after results were first saved that gives the behaviour from
 #: before it: a saved policy without the parameter was made with this value.
 POLICY_BEFORE: dict[str, float] = {"fallback_radius": 0.0}
@@ -104,10 +118,14 @@ class PolicyConfig:
         kinds = {f.name: f.type for f in dataclasses.fields(self)}
         for name in POLICY_BOUNDS:  # a 1e-6 m cell or a 1e6 m map would not fit in memory
             value, whole = getattr(self, name), kinds[name] in ("int", int)
-            if (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral if whole else numbers.Real)
-                    or not np.isfinite(float(value))):
-                raise ValueError(f"{name} must be {'a whole number' if whole else 'a number'} in {range_text(name)}, "
-                                 f"got {value!r}")
+            if (
+                isinstance(value, (bool, np.bool_))
+                or not isinstance(value, numbers.Integral if whole else numbers.Real)
+                or not np.isfinite(float(value))
+            ):
+                raise ValueError(
+                    f"{name} must be {'a whole number' if whole else 'a number'} in {range_text(name)}, got {value!r}"
+                )
             value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
             object.__setattr__(self, name, value)
             if not _in_range(name, value):
@@ -116,12 +134,14 @@ class PolicyConfig:
             raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
         if self.fallback_radius >= self.agent_radius and self.fallback_radius != 0:
             default = " (its default)" if self.fallback_radius == PolicyConfig.fallback_radius else ""
-            raise ValueError(f"need fallback_radius < agent_radius, got fallback_radius {self.fallback_radius:g}"
-                             f"{default} and agent_radius {self.agent_radius:g}: set fallback_radius below "
-                             f"{self.agent_radius:g}, or to 0 to turn the fallback off")
+            raise ValueError(
+                f"need fallback_radius < agent_radius, got fallback_radius {self.fallback_radius:g}"
+                f"{default} and agent_radius {self.agent_radius:g}: set fallback_radius below "
+                f"{self.agent_radius:g}, or to 0 to turn the fallback off"
+            )
 
     @classmethod
-    def from_assignments(cls, items: list[str]) -> "PolicyConfig":
+    def from_assignments(cls, items: list[str]) -> PolicyConfig:
         """The default policy with ``key=value`` changes (``heading_tolerance=30``); ``ValueError``
         naming the item for an unknown key, a value that is not a number of the field's kind, or a
         value out of range."""
@@ -197,8 +217,13 @@ class OccupancyMap:
 class MapPlanAgent:
     """Chooses actions from depth frames and odometry alone (module docstring)."""
 
-    def __init__(self, goal_start: tuple[float, float], intrinsics: Intrinsics, mount_height: float,
-                 config: PolicyConfig | None = None) -> None:
+    def __init__(
+        self,
+        goal_start: tuple[float, float],
+        intrinsics: Intrinsics,
+        mount_height: float,
+        config: PolicyConfig | None = None,
+    ) -> None:
         self.cfg = config or PolicyConfig()
         self.goal = np.asarray(goal_start, np.float64)
         self.K, self.height = intrinsics, float(mount_height)
@@ -225,8 +250,8 @@ class MapPlanAgent:
     def observe(self, depth: np.ndarray) -> None:
         """Vote obstacle cells from a depth image (m, 0 = no reading) at the believed pose."""
         cfg, K = self.cfg, self.K
-        d = depth[::cfg.stride, ::cfg.stride].astype(np.float64)
-        v, u = np.mgrid[0:depth.shape[0]:cfg.stride, 0:depth.shape[1]:cfg.stride]
+        d = depth[:: cfg.stride, :: cfg.stride].astype(np.float64)
+        v, u = np.mgrid[0 : depth.shape[0] : cfg.stride, 0 : depth.shape[1] : cfg.stride]
         ok = (d > 0) & (d <= cfg.max_range)
         z = d[ok]
         pts = np.stack([(u[ok] - K.cx) / K.fx * z, (v[ok] - K.cy) / K.fy * z, z, np.ones_like(z)])
@@ -235,8 +260,9 @@ class MapPlanAgent:
         keep = (height >= cfg.min_height) & (height <= cfg.max_height)
         self.map.vote(world[0, keep], world[1, keep])
 
-    def _costs(self, x: float, y: float, margin: float | None, radius: float, r: np.ndarray,
-               c: np.ndarray) -> np.ndarray:
+    def _costs(
+        self, x: float, y: float, margin: float | None, radius: float, r: np.ndarray, c: np.ndarray
+    ) -> np.ndarray:
         """Fast-marching travel time (m at full speed) to the believed goal from the map cells (r, c),
         for an agent of ``radius`` m, over the traversable cells of the window spanning the agent at
         (x, y) and the goal plus ``margin`` m (None: the whole map); inf for cells off the window or
@@ -318,8 +344,10 @@ class MapPlanAgent:
         """The next action after seeing ``depth`` at the current believed pose."""
         cfg = self.cfg
         x, y, yaw = self.belief
-        if (self._last_action is Action.MOVE_FORWARD
-                and np.hypot(x - self._last_xy[0], y - self._last_xy[1]) < cfg.stuck_distance):
+        if (
+            self._last_action is Action.MOVE_FORWARD
+            and np.hypot(x - self._last_xy[0], y - self._last_xy[1]) < cfg.stuck_distance
+        ):
             ahead = np.array([x, y]) + (cfg.agent_radius + cfg.cell) * np.array([np.cos(yaw), np.sin(yaw)])
             self.map.vote(np.array([ahead[0]]), np.array([ahead[1]]), weight=cfg.votes)
         self.map.step += 1

@@ -9,6 +9,7 @@ collisions and steps before and after; notes on stderr say where the folders' po
 their ``config.json``) or episode settings differ. A policy or odometer change is judged on the same episodes,
 so these counts, not two independent success rates, say what it did.
 """
+
 from __future__ import annotations
 
 import csv
@@ -16,9 +17,9 @@ import io
 import math
 import re
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 from odolab.cli import ArgumentParser, UsageError, path_arg, run_cli
 from odolab.io.inputs import read_input_bytes, read_input_json
@@ -27,8 +28,15 @@ from odolab.navigation.report import markdown_cell
 
 #: The columns of ``episodes.csv`` this reads: (kind, lowest, highest); ``bool``: 0 or 1.
 COLUMNS: dict[str, tuple[type, float, float]] = {
-    "odometer": (str, 0, 0), "split": (str, 0, 0), "seed": (int, 0, 2**32 - 1), "episode": (int, 0, 10**9),
-    "success": (bool, 0, 1), "spl": (float, 0.0, 1.0), "collisions": (int, 0, 10**6), "steps": (int, 0, 10**6)}
+    "odometer": (str, 0, 0),
+    "split": (str, 0, 0),
+    "seed": (int, 0, 2**32 - 1),
+    "episode": (int, 0, 10**9),
+    "success": (bool, 0, 1),
+    "spl": (float, 0.0, 1.0),
+    "collisions": (int, 0, 10**6),
+    "steps": (int, 0, 10**6),
+}
 _WHOLE = re.compile(r"-?[0-9]+")  # ASCII digits only: not "1_0", "1.0" or other scripts' digits
 
 
@@ -89,9 +97,11 @@ def read_episodes(folder: Path) -> dict[tuple[str, str, int, int], dict]:
         twice = sorted({h for h in header if header.count(h) > 1})
         missing = [c for c in COLUMNS if c not in header]
         if twice or missing:
-            raise UsageError(f"{path}: " + (f"column {', '.join(twice)} appears twice" if twice else
-                                            f"no column {', '.join(missing)}")
-                             + " (expected the episodes.csv of python -m odolab.navigate)")
+            raise UsageError(
+                f"{path}: "
+                + (f"column {', '.join(twice)} appears twice" if twice else f"no column {', '.join(missing)}")
+                + " (expected the episodes.csv of python -m odolab.navigate)"
+            )
         where = {c: header.index(c) for c in COLUMNS}
         for raw in reader:
             line = reader.line_num
@@ -104,14 +114,22 @@ def read_episodes(folder: Path) -> dict[tuple[str, str, int, int], dict]:
                 try:
                     row[name] = _value(raw[where[name]], kind, low, high)
                 except ValueError:
-                    what = ("0 or 1" if name == "success" else
-                            f"a whole number in [{low}, {high}]" if kind is int else f"a number in [{low:g}, {high:g}]")
-                    raise UsageError(f"{path}, line {line}: {name} must be {what}, "
-                                     f"got {raw[where[name]][:40]!r}") from None
+                    what = (
+                        "0 or 1"
+                        if name == "success"
+                        else f"a whole number in [{low}, {high}]"
+                        if kind is int
+                        else f"a number in [{low:g}, {high:g}]"
+                    )
+                    raise UsageError(
+                        f"{path}, line {line}: {name} must be {what}, got {raw[where[name]][:40]!r}"
+                    ) from None
             key = (row["odometer"], row["split"], row["seed"], row["episode"])
             if key in rows:
-                raise UsageError(f"{path}, line {line}: episode {row['episode']} of {row['odometer'][:60]!r} "
-                                 f"({row['split']}, seed {row['seed']}) appears twice")
+                raise UsageError(
+                    f"{path}, line {line}: episode {row['episode']} of {row['odometer'][:60]!r} "
+                    f"({row['split']}, seed {row['seed']}) appears twice"
+                )
             rows[key] = row
     except csv.Error as exc:  # an unclosed quote, a field over the csv module's limit
         raise UsageError(f"{path}, line {reader.line_num}: not CSV ({exc})") from None
@@ -138,12 +156,18 @@ def diff_runs(before: dict, after: dict) -> list[RowDiff]:
     for name, keys in by_name.items():
         keys.sort(key=lambda k: (k[1], k[2], k[3]))
         b, a = [before[k] for k in keys], [after[k] for k in keys]
-        out.append(RowDiff(
-            odometer=name, episodes=len(keys), success=(sum(r["success"] for r in b), sum(r["success"] for r in a)),
-            won=tuple(label(k) for k, x, y in zip(keys, b, a) if y["success"] > x["success"]),
-            lost=tuple(label(k) for k, x, y in zip(keys, b, a) if y["success"] < x["success"]),
-            spl=(mean(b, "spl"), mean(a, "spl")), collisions=(mean(b, "collisions"), mean(a, "collisions")),
-            steps=(mean(b, "steps"), mean(a, "steps"))))
+        out.append(
+            RowDiff(
+                odometer=name,
+                episodes=len(keys),
+                success=(sum(r["success"] for r in b), sum(r["success"] for r in a)),
+                won=tuple(label(k) for k, x, y in zip(keys, b, a) if y["success"] > x["success"]),
+                lost=tuple(label(k) for k, x, y in zip(keys, b, a) if y["success"] < x["success"]),
+                spl=(mean(b, "spl"), mean(a, "spl")),
+                collisions=(mean(b, "collisions"), mean(a, "collisions")),
+                steps=(mean(b, "steps"), mean(a, "steps")),
+            )
+        )
     return out
 
 
@@ -173,30 +197,45 @@ def setting_notes(before: Path, after: Path) -> list[str]:
             doc = read_input_json(Path(folder) / "config.json", "navigation config")
         except ValueError:
             return [f"no readable config.json in {folder}: the runs' settings were not compared"]
-        if not isinstance(doc, dict) or not isinstance(doc.get("policy"), dict) or not isinstance(doc.get("episodes"), list):
+        if (
+            not isinstance(doc, dict)
+            or not isinstance(doc.get("policy"), dict)
+            or not isinstance(doc.get("episodes"), list)
+        ):
             return [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
         docs.append(doc)
     policies = [with_old_behaviour(d["policy"]) for d in docs]
-    changed = [f"{k} {policies[0].get(k, '-')!r} -> {policies[1].get(k, '-')!r}"
-               for k in sorted(set(policies[0]) | set(policies[1])) if policies[0].get(k) != policies[1].get(k)]
+    changed = [
+        f"{k} {policies[0].get(k, '-')!r} -> {policies[1].get(k, '-')!r}"
+        for k in sorted(set(policies[0]) | set(policies[1]))
+        if policies[0].get(k) != policies[1].get(k)
+    ]
     notes = [f"the policies differ: {', '.join(changed)[:300]}"] if changed else []
     first = [d["episodes"][0] if d["episodes"] and isinstance(d["episodes"][0], dict) else {} for d in docs]
     for key in ("max_steps", "noise", "camera"):
         if first[0].get(key) != first[1].get(key):
-            notes.append(f"the episodes' {key} differ: {str(first[0].get(key))[:100]} -> {str(first[1].get(key))[:100]}")
+            notes.append(
+                f"the episodes' {key} differ: {str(first[0].get(key))[:100]} -> {str(first[1].get(key))[:100]}"
+            )
     return notes
 
 
 def markdown(diffs: list[RowDiff]) -> str:
     """The comparison as a Markdown table (before -> after)."""
+
     def ids(v: tuple[str, ...]) -> str:
         return ", ".join(v[:12]) + (f" ... ({len(v)})" if len(v) > 12 else "") if v else "-"
-    lines = ["| odometer | episodes | successes | episodes won | episodes lost | SPL | collisions per episode | steps |",
-             "|---|---|---|---|---|---|---|---|"]
+
+    lines = [
+        "| odometer | episodes | successes | episodes won | episodes lost | SPL | collisions per episode | steps |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for d in diffs:
-        lines.append(f"| {markdown_cell(d.odometer)} | {d.episodes} | {d.success[0]} -> {d.success[1]} | "
-                     f"{ids(d.won)} | {ids(d.lost)} | {d.spl[0]:.2f} -> {d.spl[1]:.2f} | "
-                     f"{d.collisions[0]:.1f} -> {d.collisions[1]:.1f} | {d.steps[0]:.0f} -> {d.steps[1]:.0f} |")
+        lines.append(
+            f"| {markdown_cell(d.odometer)} | {d.episodes} | {d.success[0]} -> {d.success[1]} | "
+            f"{ids(d.won)} | {ids(d.lost)} | {d.spl[0]:.2f} -> {d.spl[1]:.2f} | "
+            f"{d.collisions[0]:.1f} -> {d.collisions[1]:.1f} | {d.steps[0]:.0f} -> {d.steps[1]:.0f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -210,8 +249,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     for note in unpaired(before, after) + setting_notes(args.before, args.after):
         print(f"note: {note}", file=sys.stderr)
     if not diffs:
-        raise UsageError(f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "
-                         "and odometer names are needed)")
+        raise UsageError(
+            f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "
+            "and odometer names are needed)"
+        )
     print(markdown(diffs), end="")
     return 0
 

@@ -5,12 +5,13 @@ The odometer sees each frame pair as the runner would show it (read-only copies,
 for oracles); a failed step (invalid, raising or not a rigid motion) is replaced by the action
 prior's mean motion, as in ``compare``.
 """
+
 from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
@@ -21,8 +22,8 @@ from odolab.navigation.agent import MapPlanAgent, PolicyConfig, in_agent_frame
 from odolab.navigation.metrics import EpisodeOutcome, path_length
 from odolab.odometer import Odometer
 from odolab.runner import failure_reason, guarded_frame
-from odolab.threads import odometer_threads
 from odolab.sim.planner import geodesic_field
+from odolab.threads import odometer_threads
 from odolab.types import Action
 
 
@@ -40,8 +41,13 @@ class NavigationRun:
     failed_steps: int
 
 
-def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None = None,
-             prior: ActionPrior | None = None, timings: dict[str, float] | None = None) -> NavigationRun:
+def navigate(
+    spec: EpisodeSpec,
+    odometer: Odometer,
+    policy: PolicyConfig | None = None,
+    prior: ActionPrior | None = None,
+    timings: dict[str, float] | None = None,
+) -> NavigationRun:
     """Run one episode of ``spec`` (its scene, start, goal, noise; at most ``spec.max_steps``
     actions) with ``odometer`` as the agent's only sense of its own motion. ``timings``, when given,
     is added to: wall seconds in the ``policy`` (of which ``planning``, its fast marching), the
@@ -73,7 +79,7 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
             with odometer_threads(odometer), clock("odometer"):  # its own torch threads, as in the runner
                 est = odometer.step(seen, new_seen, action)
             T = est.transform if failure_reason(est) is None else None
-        except Exception:  # a failing odometer is a failed step, as in the runner
+        except Exception:  # noqa: BLE001 - a failing odometer is a failed step, as in the runner
             T = None
         if T is None:
             failed += 1
@@ -89,8 +95,14 @@ def navigate(spec: EpisodeSpec, odometer: Odometer, policy: PolicyConfig | None 
     c, s = np.cos(begin.start.yaw), np.sin(begin.start.yaw)
     b = np.array(believed_xy)
     believed = np.stack([begin.start.x + c * b[:, 0] - s * b[:, 1], begin.start.y + s * b[:, 0] + c * b[:, 1]], axis=1)
-    outcome = EpisodeOutcome(d0=begin.start_distance, d_end=field.at(env.state.x, env.state.y), path=path_length(true),
-                             stopped=stopped, steps=len(actions), collisions=env.collisions)
+    outcome = EpisodeOutcome(
+        d0=begin.start_distance,
+        d_end=field.at(env.state.x, env.state.y),
+        path=path_length(true),
+        stopped=stopped,
+        steps=len(actions),
+        collisions=env.collisions,
+    )
     return NavigationRun(spec, outcome, true, believed, begin.goal, np.array(actions, np.int8), failed)
 
 

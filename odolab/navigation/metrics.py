@@ -8,6 +8,7 @@ agent's path length (the summed straight-line lengths of its actual steps, true 
 * SPL = S * d_0 / max(d_0, p);
 * SoftSPL = max(0, 1 - d_T / d_0) * d_0 / max(d_0, p) (no STOP needed).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -94,4 +95,6 @@ def belief_error(row: dict) -> float:
     """How far the agent's belief is from the truth when the episode ends: the distance (m, world
     frame) between its true and its believed final position, the odometry's closed-loop drift (the
     believed path starts on the true start, so this is the error the odometer accumulated)."""
-    return float(np.hypot(*(np.asarray(row["true_xy"][-1], np.float64) - np.asarray(row["believed_xy"][-1], np.float64))))
+    return float(
+        np.hypot(*(np.asarray(row["true_xy"][-1], np.float64) - np.asarray(row["believed_xy"][-1], np.float64)))
+    )

@@ -9,6 +9,7 @@ the README's Markdown table), ``episodes.csv``,
 ``paths-<episode>.png`` (one panel per odometer: the scene, start, goal, the true path and, dashed,
 where the agent believed it was) and ``report.html``.
 """
+
 from __future__ import annotations
 
 import csv
@@ -44,8 +45,13 @@ def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
         for m in METRICS:
             ci = mean_ci(np.array([r[m] for r in mine], np.float64), binary=m == "success")
             top = np.inf if m in UNBOUNDED else 1.0  # the interval stays where the metric can be
-            entry.update({m: ci.mean, f"{m}_low": float(np.clip(ci.low, 0.0, top)),
-                          f"{m}_high": float(np.clip(ci.high, 0.0, top))})
+            entry.update(
+                {
+                    m: ci.mean,
+                    f"{m}_low": float(np.clip(ci.low, 0.0, top)),
+                    f"{m}_high": float(np.clip(ci.high, 0.0, top)),
+                }
+            )
         entry["steps"] = float(np.mean([r["steps"] for r in mine])) if mine else float("nan")
         entry["collisions"] = float(np.mean([r["collisions"] for r in mine])) if mine else float("nan")
         entry["failed_steps"] = int(sum(r["failed_steps"] for r in mine))
@@ -59,8 +65,10 @@ def summarize(rows: list[dict], odometers: list[str]) -> list[dict]:
 
 def _csv(rows: list[dict], keys: list[str]) -> str:
     """CSV text (names such as ``fused(a,b)`` quoted), floats to 4 decimals."""
+
     def cell(v):
         return f"{v:.4f}" if isinstance(v, float) else str(v)
+
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(keys)
@@ -88,8 +96,7 @@ def metrics_figure(table: list[dict], path: Path) -> None:
     ax.set_ylabel("mean over episodes (95 % interval)")
     ax.set_title(f"PointGoal navigation, {table[0]['episodes'] if table else 0} episodes per odometer", fontsize=10)
     ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(title="metric", fontsize=8, title_fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0),
-              frameon=False)
+    ax.legend(title="metric", fontsize=8, title_fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -115,7 +122,9 @@ def belief_figure(table: list[dict], path: Path) -> None:
         ax.errorbar(x, y, xerr=xerr, yerr=yerr, fmt="o", color=cmap(k % 10), capsize=3, label=r["odometer"])
     ax.set_xscale("log")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_xlabel("final belief error: |true - believed position| at the end\n(m, mean, log scale; below 0.01 m drawn at 0.01)")
+    ax.set_xlabel(
+        "final belief error: |true - believed position| at the end\n(m, mean, log scale; below 0.01 m drawn at 0.01)"
+    )
     ax.set_ylabel("success (share of episodes)")
     ax.set_title("Navigation success against the odometry's closed-loop drift (95 % intervals)", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
@@ -138,8 +147,10 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
 
     env, begin = start_environment(spec, sensors=False)
     scene = env.scene
-    runs = [(name, next((r for r in rows if r["odometer"] == name and r["episode"] == spec.index), None))
-            for name in odometers]
+    runs = [
+        (name, next((r for r in rows if r["odometer"] == name and r["episode"] == spec.index), None))
+        for name in odometers
+    ]
     runs = [(name, r) for name, r in runs if r is not None] or [("no odometer", None)]
     pts = [np.array([[begin.start.x, begin.start.y], begin.goal])]
     pts += [np.array(r[k]) for _, r in runs if r is not None for k in ("true_xy", "believed_xy")]
@@ -147,21 +158,34 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
     centre, half = (allp.min(0) + allp.max(0)) / 2, np.ptp(allp, axis=0).max() / 2 + 1.0
     cols = min(3, len(runs))
     rows_n = -(-len(runs) // cols)
-    fig, axes = plt.subplots(rows_n, cols, figsize=(3.6 * cols, 3.6 * rows_n + 0.9), squeeze=False,
-                             sharex=True, sharey=True)
+    fig, axes = plt.subplots(
+        rows_n, cols, figsize=(3.6 * cols, 3.6 * rows_n + 0.9), squeeze=False, sharex=True, sharey=True
+    )
     h, w = scene.navigable.shape
-    extent = (scene.origin[0], scene.origin[0] + w * scene.resolution, scene.origin[1],
-              scene.origin[1] + h * scene.resolution)
+    extent = (
+        scene.origin[0],
+        scene.origin[0] + w * scene.resolution,
+        scene.origin[1],
+        scene.origin[1] + h * scene.resolution,
+    )
     for ax, (name, row) in zip(axes.flat, runs):
-        ax.imshow(np.where(scene.navigable, 1.0, 0.75), cmap="gray", vmin=0, vmax=1, origin="lower",
-                  interpolation="nearest", extent=extent)
+        ax.imshow(
+            np.where(scene.navigable, 1.0, 0.75),
+            cmap="gray",
+            vmin=0,
+            vmax=1,
+            origin="lower",
+            interpolation="nearest",
+            extent=extent,
+        )
         verdict = ""
         if row is not None:
             true, belief = np.array(row["true_xy"]), np.array(row["believed_xy"])
             ax.plot(true[:, 0], true[:, 1], "-", color="tab:blue", lw=1.4, label="true path")
             ax.plot(belief[:, 0], belief[:, 1], "--", color="tab:orange", lw=1.1, label="believed path")
-            verdict = ("success" if row["success"] else ("stopped" if row["stopped"] else "no stop")) + \
-                f", {row['steps']} steps"
+            verdict = (
+                "success" if row["success"] else ("stopped" if row["stopped"] else "no stop")
+            ) + f", {row['steps']} steps"
         ax.plot(begin.start.x, begin.start.y, "ko", ms=6, label="start")
         ax.plot(*begin.goal, "r*", ms=11, label="goal")
         ax.set_xlim(centre[0] - half, centre[0] + half)
@@ -169,7 +193,7 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
         ax.set_aspect("equal", adjustable="box")
         label = name if len(name) <= 34 else name[:31] + "..."
         ax.set_title(f"{label}\n{verdict}", fontsize=8)
-    for ax in axes.flat[len(runs):]:
+    for ax in axes.flat[len(runs) :]:
         ax.axis("off")
     for ax in axes[-1]:
         ax.set_xlabel("world x (m)")
@@ -177,7 +201,9 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
         ax.set_ylabel("world y (m)")
     handles, labels = axes.flat[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.suptitle(f"{spec.split} episode {spec.index}: geodesic start distance {begin.start_distance:.1f} m", fontsize=10)
+    fig.suptitle(
+        f"{spec.split} episode {spec.index}: geodesic start distance {begin.start_distance:.1f} m", fontsize=10
+    )
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     save_figure_atomic(fig, path)
     plt.close(fig)
@@ -197,19 +223,44 @@ def output_files(specs: list[EpisodeSpec], sample_episodes: int = 2) -> list[str
     return [*REPORT_FILES, *(paths_file(s) for s in specs[:sample_episodes])]
 
 
-def write_outputs(out: Path, rows: list[dict], odometers: list[str], specs: list[EpisodeSpec], command: str,
-                  sample_episodes: int = 2, policy: dict | None = None) -> list[dict]:
+def write_outputs(
+    out: Path,
+    rows: list[dict],
+    odometers: list[str],
+    specs: list[EpisodeSpec],
+    command: str,
+    sample_episodes: int = 2,
+    policy: dict | None = None,
+) -> list[dict]:
     """Tables, figures and ``report.html`` under ``out`` (``policy``: the policy's parameters, shown
     in the report, since a command's defaults change between versions), each through
     :func:`odolab.io.owned.owned_path` (never through a link); returns the per-odometer table."""
     rows = [{**r, "belief_error": belief_error(r)} for r in rows]
     table = summarize(rows, odometers)
-    keys = ["odometer", "episodes"] + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")] + [
-        "steps", "collisions", "failed_steps", "stopped_elsewhere", "ran_out", "drift_per_m"]
+    keys = (
+        ["odometer", "episodes"]
+        + [f"{m}{s}" for m in METRICS for s in ("", "_low", "_high")]
+        + ["steps", "collisions", "failed_steps", "stopped_elsewhere", "ran_out", "drift_per_m"]
+    )
     write_text_atomic(owned_path(out, "nav.csv"), _csv(table, keys))
     write_text_atomic(owned_path(out, "nav.md"), markdown_table(table))
-    ep_keys = ["odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions",
-               "success", "spl", "soft_spl", "failed_steps", "belief_error"]
+    ep_keys = [
+        "odometer",
+        "episode",
+        "split",
+        "seed",
+        "d0",
+        "d_end",
+        "path",
+        "stopped",
+        "steps",
+        "collisions",
+        "success",
+        "spl",
+        "soft_spl",
+        "failed_steps",
+        "belief_error",
+    ]
     write_text_atomic(owned_path(out, "episodes.csv"), _csv(rows, ep_keys))
     metrics_figure(table, owned_path(out, "metrics.png"))
     belief_figure(table, owned_path(out, "belief.png"))
@@ -245,8 +296,10 @@ def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
     SoftSPL with their intervals, in each of these columns the best value among the odometers other
     than ``oracle`` in bold (when at least two compete and they differ); failed steps (the odometer
     refused, and the action prior stood in) with their share of all steps."""
-    head = ("| odometer | episodes | success | SPL | SoftSPL | final distance to goal m | final belief error m | "
-            "steps | collisions | failed steps |\n|---|---|---|---|---|---|---|---|---|---|\n")
+    head = (
+        "| odometer | episodes | success | SPL | SoftSPL | final distance to goal m | final belief error m | "
+        "steps | collisions | failed steps |\n|---|---|---|---|---|---|---|---|---|---|\n"
+    )
     rivals = [r for r in table if r["odometer"] != oracle and r["episodes"]]
     best = {}
     for m in ("success", "spl", "soft_spl"):
@@ -260,8 +313,11 @@ def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
             if r in rivals and m in best and f"{r[m]:.2f}" == best[m]:
                 cells[k] = f"**{cells[k]}**"
         total = r["steps"] * r["episodes"] if r["episodes"] else 0
-        failed = (f"{r['failed_steps']} ({100 * r['failed_steps'] / total:.0f} %)" if r["failed_steps"] and total
-                  else str(r["failed_steps"]))
+        failed = (
+            f"{r['failed_steps']} ({100 * r['failed_steps'] / total:.0f} %)"
+            if r["failed_steps"] and total
+            else str(r["failed_steps"])
+        )
         name = markdown_cell(r["odometer"])
         steps = f"{r['steps']:.0f}" if r["episodes"] else "-"
         coll = f"{r['collisions']:.1f}" if r["episodes"] else "-"
@@ -270,29 +326,67 @@ def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
 
 
 def _html(table: list[dict], figures: list[str], command: str, policy: dict | None = None) -> str:
-    head = "<tr>" + "".join(f"<th>{h}</th>" for h in ("odometer", "episodes", "success", "SPL", "SoftSPL",
-                                                     "final distance to goal (m)", "final belief error (m)",
-                                                     "steps", "collisions", "failed odometer steps",
-                                                     "failures: stopped elsewhere / ran out",
-                                                     "drift per m of path (median)")) + "</tr>"
+    head = (
+        "<tr>"
+        + "".join(
+            f"<th>{h}</th>"
+            for h in (
+                "odometer",
+                "episodes",
+                "success",
+                "SPL",
+                "SoftSPL",
+                "final distance to goal (m)",
+                "final belief error (m)",
+                "steps",
+                "collisions",
+                "failed odometer steps",
+                "failures: stopped elsewhere / ran out",
+                "drift per m of path (median)",
+            )
+        )
+        + "</tr>"
+    )
     body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (r["odometer"], r["episodes"], _ci(r, "success"), _ci(r, "spl"),
-                                                   _ci(r, "soft_spl"), _ci(r, "d_end"), _ci(r, "belief_error"),
-                                                   f"{r['steps']:.0f}",
-                                                   f"{r['collisions']:.1f}", r["failed_steps"],
-                                                   f"{r['stopped_elsewhere']} / {r['ran_out']}",
-                                                   f"{100 * r['drift_per_m']:.1f} %")) + "</tr>"
-        for r in table)
-    imgs = "".join(f'<p><img src="{html.escape(f)}" alt="{html.escape(f)}"></p>' for f in ["metrics.png", "belief.png", *figures])
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
-            "<style>body{font-family:sans-serif;max-width:1280px;margin:2em auto}table{font-size:13px}td,th{padding:3px 6px;"
-            "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
-            "<h1>PointGoal navigation with each odometer</h1>"
-            f"<p><code>{html.escape(command)}</code></p>"
-            + (f"<p>Policy (<code>PolicyConfig</code>): <code>{html.escape(' '.join(f'{k}={v}' for k, v in policy.items()))}"
-               "</code></p>" if policy else "")
-            + "<p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
-            "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
-            "Final belief error: the distance between the agent's true and believed positions when the episode "
-            "ends (the odometry's drift in the closed loop).</p>"
-            f"<table>{head}{body}</table>{imgs}</body></html>\n")
+        "<tr>"
+        + "".join(
+            f"<td>{html.escape(str(v))}</td>"
+            for v in (
+                r["odometer"],
+                r["episodes"],
+                _ci(r, "success"),
+                _ci(r, "spl"),
+                _ci(r, "soft_spl"),
+                _ci(r, "d_end"),
+                _ci(r, "belief_error"),
+                f"{r['steps']:.0f}",
+                f"{r['collisions']:.1f}",
+                r["failed_steps"],
+                f"{r['stopped_elsewhere']} / {r['ran_out']}",
+                f"{100 * r['drift_per_m']:.1f} %",
+            )
+        )
+        + "</tr>"
+        for r in table
+    )
+    imgs = "".join(
+        f'<p><img src="{html.escape(f)}" alt="{html.escape(f)}"></p>' for f in ["metrics.png", "belief.png", *figures]
+    )
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>odolab navigation</title>"
+        "<style>body{font-family:sans-serif;max-width:1280px;margin:2em auto}table{font-size:13px}td,th{padding:3px 6px;"
+        "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
+        "<h1>PointGoal navigation with each odometer</h1>"
+        f"<p><code>{html.escape(command)}</code></p>"
+        + (
+            f"<p>Policy (<code>PolicyConfig</code>): <code>{html.escape(' '.join(f'{k}={v}' for k, v in policy.items()))}"
+            "</code></p>"
+            if policy
+            else ""
+        )
+        + "<p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
+        "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
+        "Final belief error: the distance between the agent's true and believed positions when the episode "
+        "ends (the odometry's drift in the closed loop).</p>"
+        f"<table>{head}{body}</table>{imgs}</body></html>\n"
+    )

@@ -10,6 +10,7 @@ seed and weights are the task's and its step count fits ``max_steps``) and its f
 each other (:func:`row_problem`); any other is run again, and named on the console. Every file is
 written through :func:`odolab.io.owned.owned_path`: never through a symbolic link.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -30,6 +31,7 @@ from odolab.io.inputs import read_input_json
 from odolab.io.owned import check_owned_path, owned_path
 from odolab.navigation.agent import PolicyConfig, with_old_behaviour
 
+
 @dataclass(frozen=True)
 class NavTask:
     """One closed-loop episode to run: odometer name and constructor options, episode, policy."""
@@ -43,8 +45,13 @@ class NavTask:
     def key(self) -> str:
         """SHA-256 of everything the run's result depends on: odometer, its options and weights,
         the whole episode spec (split, index, seed, max_steps, noise, camera) and the policy."""
-        doc = {"odometer": self.odometer, "options": self.options, "weights": self.weights,
-               "spec": dataclasses.asdict(self.spec), "policy": dataclasses.asdict(self.policy)}
+        doc = {
+            "odometer": self.odometer,
+            "options": self.options,
+            "weights": self.weights,
+            "spec": dataclasses.asdict(self.spec),
+            "policy": dataclasses.asdict(self.policy),
+        }
         return hashlib.sha256(json.dumps(doc, sort_keys=True, default=repr).encode()).hexdigest()
 
 
@@ -55,11 +62,28 @@ def run_task(task: NavTask) -> dict[str, Any]:
 
     run = navigate(task.spec, load_odometer(task.odometer, **task.options), task.policy)
     o = run.outcome
-    return {"odometer": task.odometer, "episode": task.spec.index, "split": task.spec.split, "seed": task.spec.seed,
-            "d0": o.d0, "d_end": o.d_end, "path": o.path, "stopped": o.stopped, "steps": o.steps,
-            "collisions": o.collisions, "success": o.success, "spl": o.spl, "soft_spl": o.soft_spl,
-            "failed_steps": run.failed_steps, "weights": task.weights, "goal": list(run.goal), "true_xy": run.true_xy.round(4).tolist(),
-            "believed_xy": run.believed_xy.round(4).tolist(), "max_steps": task.spec.max_steps, "key": task.key()}
+    return {
+        "odometer": task.odometer,
+        "episode": task.spec.index,
+        "split": task.spec.split,
+        "seed": task.spec.seed,
+        "d0": o.d0,
+        "d_end": o.d_end,
+        "path": o.path,
+        "stopped": o.stopped,
+        "steps": o.steps,
+        "collisions": o.collisions,
+        "success": o.success,
+        "spl": o.spl,
+        "soft_spl": o.soft_spl,
+        "failed_steps": run.failed_steps,
+        "weights": task.weights,
+        "goal": list(run.goal),
+        "true_xy": run.true_xy.round(4).tolist(),
+        "believed_xy": run.believed_xy.round(4).tolist(),
+        "max_steps": task.spec.max_steps,
+        "key": task.key(),
+    }
 
 
 def _safe(name: str) -> str:
@@ -69,8 +93,25 @@ def _safe(name: str) -> str:
     return clean if clean == name else f"{clean}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
 
-ROW_KEYS = ("odometer", "episode", "split", "seed", "d0", "d_end", "path", "stopped", "steps", "collisions", "success",
-            "spl", "soft_spl", "failed_steps", "goal", "true_xy", "believed_xy")
+ROW_KEYS = (
+    "odometer",
+    "episode",
+    "split",
+    "seed",
+    "d0",
+    "d_end",
+    "path",
+    "stopped",
+    "steps",
+    "collisions",
+    "success",
+    "spl",
+    "soft_spl",
+    "failed_steps",
+    "goal",
+    "true_xy",
+    "believed_xy",
+)
 
 
 def _number(v: Any, low: float = -np.inf, high: float = np.inf) -> bool:
@@ -83,25 +124,42 @@ def _path(v: Any) -> bool:
     bound on a step (:data:`odolab.runner.MAX_STEP_TRANSLATION`)."""
     from odolab.runner import MAX_STEP_TRANSLATION
 
-    if not isinstance(v, list) or not v or not all(isinstance(p, list) and len(p) == 2 and all(map(_number, p))
-                                                   for p in v):
+    if (
+        not isinstance(v, list)
+        or not v
+        or not all(isinstance(p, list) and len(p) == 2 and all(map(_number, p)) for p in v)
+    ):
         return False
     a = np.asarray(v, np.float64)
-    return bool(np.isfinite(a).all()) and (len(a) < 2 or float(np.abs(np.diff(a, axis=0)).max()) <= MAX_STEP_TRANSLATION)
+    return bool(np.isfinite(a).all()) and (
+        len(a) < 2 or float(np.abs(np.diff(a, axis=0)).max()) <= MAX_STEP_TRANSLATION
+    )
 
 
 def _sane(row: dict) -> bool:
     """Values a real run can have: success 0/1, stopped a bool, SPL and SoftSPL in [0, 1], distances >= 0
     (d_end may be inf off the navigable space), counts >= 0, paths as finite (x, y) rows, one more than
     the steps, the believed one starting on the true start."""
-    return (row["success"] in (0, 1) and not isinstance(row["success"], bool) and isinstance(row["stopped"], bool)
-            and _number(row["spl"], 0, 1) and _number(row["soft_spl"], 0, 1)
-            and (_number(row["d_end"], 0) or row["d_end"] == np.inf) and _number(row["d0"], 0) and _number(row["path"], 0)
-            and all(isinstance(row[k], int) and not isinstance(row[k], bool) and row[k] >= 0
-                    for k in ("steps", "collisions", "failed_steps"))
-            and _path(row["true_xy"]) and _path(row["believed_xy"]) and len(row["true_xy"]) == row["steps"] + 1
-            and len(row["believed_xy"]) == len(row["true_xy"]) and row["believed_xy"][0] == row["true_xy"][0]
-            and _path([row["goal"]]))
+    return (
+        row["success"] in (0, 1)
+        and not isinstance(row["success"], bool)
+        and isinstance(row["stopped"], bool)
+        and _number(row["spl"], 0, 1)
+        and _number(row["soft_spl"], 0, 1)
+        and (_number(row["d_end"], 0) or row["d_end"] == np.inf)
+        and _number(row["d0"], 0)
+        and _number(row["path"], 0)
+        and all(
+            isinstance(row[k], int) and not isinstance(row[k], bool) and row[k] >= 0
+            for k in ("steps", "collisions", "failed_steps")
+        )
+        and _path(row["true_xy"])
+        and _path(row["believed_xy"])
+        and len(row["true_xy"]) == row["steps"] + 1
+        and len(row["believed_xy"]) == len(row["true_xy"])
+        and row["believed_xy"][0] == row["true_xy"][0]
+        and _path([row["goal"]])
+    )
 
 
 def _same(value: Any, want: int) -> bool:
@@ -129,8 +187,13 @@ def row_problem(row: dict, task: NavTask) -> str | None:
     from odolab.navigation.metrics import SUCCESS_DISTANCE, path_length
 
     spec = task.spec
-    if not (row["odometer"] == task.odometer and _same(row["episode"], spec.index) and row["split"] == spec.split
-            and _same(row["seed"], spec.seed) and row.get("weights") == task.weights):
+    if not (
+        row["odometer"] == task.odometer
+        and _same(row["episode"], spec.index)
+        and row["split"] == spec.split
+        and _same(row["seed"], spec.seed)
+        and row.get("weights") == task.weights
+    ):
         return "made for another odometer, episode, split, seed, model file or setting"
     if "max_steps" in row and row["max_steps"] != spec.max_steps:
         return f"made with --max-steps {row['max_steps']!r}, not {spec.max_steps}"
@@ -145,8 +208,10 @@ def row_problem(row: dict, task: NavTask) -> str | None:
         return f"stopped after {steps} steps, where --max-steps {spec.max_steps} ends an episode without STOP"
     success = float(stopped and row["d_end"] < SUCCESS_DISTANCE)
     if row["success"] != success:
-        return (f"success {row['success']} with stopped {str(stopped).lower()} and {row['d_end']:.2f} m left "
-                f"(success needs STOP within {SUCCESS_DISTANCE} m)")
+        return (
+            f"success {row['success']} with stopped {str(stopped).lower()} and {row['d_end']:.2f} m left "
+            f"(success needs STOP within {SUCCESS_DISTANCE} m)"
+        )
     efficiency = row["d0"] / max(row["d0"], row["path"])
     if not _close(row["spl"], success * efficiency):
         return f"spl {row['spl']} where success and the distances give {success * efficiency}"
@@ -161,26 +226,37 @@ def row_problem(row: dict, task: NavTask) -> str | None:
     return None
 
 
-def read_row(path: Path, task: NavTask, rejected: list[Path] | None = None,
-             reasons: dict[Path, str] | None = None) -> dict | None:
+def read_row(
+    path: Path, task: NavTask, rejected: list[Path] | None = None, reasons: dict[Path, str] | None = None
+) -> dict | None:
     """A saved result if it is whole, consistent and belongs to ``task``; None if it is missing,
     damaged or not ``task``'s (:func:`row_problem`), so that the episode is run again (such a file
     is appended to ``rejected`` and its reason put in ``reasons``, for the caller's note)."""
     if path.is_symlink():  # navigate writes no links; writing the rerun's result would go through it
-        raise ValueError(f"{path} is a symbolic link where an episode's result file belongs; delete it or choose "
-                         "another --out")
+        raise ValueError(
+            f"{path} is a symbolic link where an episode's result file belongs; delete it or choose another --out"
+        )
     if not path.exists():
         return None
     if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
-        raise ValueError(f"{path} is a folder where an episode's result file belongs; delete it or choose another --out")
+        raise ValueError(
+            f"{path} is a folder where an episode's result file belongs; delete it or choose another --out"
+        )
     if not path.is_file():  # a pipe or device (or a link to one): the rerun's result could not replace it
-        raise ValueError(f"{path} is not a regular file (a pipe, device or link to one) where an episode's result "
-                         "file belongs; delete it or choose another --out")
+        raise ValueError(
+            f"{path} is not a regular file (a pipe, device or link to one) where an episode's result "
+            "file belongs; delete it or choose another --out"
+        )
     try:
         row = read_input_json(path, "navigation result")  # size-capped, duplicate keys refused
         missing = [k for k in ROW_KEYS if k not in row] if isinstance(row, dict) else ["every field"]
-        problem = (f"missing {', '.join(missing[:3])}" if missing else
-                   "values no run can have" if not _sane(row) else row_problem(row, task))
+        problem = (
+            f"missing {', '.join(missing[:3])}"
+            if missing
+            else "values no run can have"
+            if not _sane(row)
+            else row_problem(row, task)
+        )
     except ValueError:  # damaged, not a regular file, too large, or numbers too long to read
         problem = "not a readable result file"
     except (TypeError, KeyError):  # a field of an unexpected type reached a comparison
@@ -211,8 +287,11 @@ def _saved_policy(saved: dict, policy: dict) -> tuple[dict, list[str]]:
     """A folder's saved policy as made (a parameter it predates at its old behaviour, where this
     version has it), and the parameters, sorted, whose value or kind differ from ``policy``'s."""
     full = {k: v for k, v in with_old_behaviour(saved).items() if k in saved or k in policy}
-    return full, [k for k in sorted(set(full) | set(policy)) if k not in full or k not in policy
-                  or full[k] != policy[k] or type(full[k]) is not type(policy[k])]
+    return full, [
+        k
+        for k in sorted(set(full) | set(policy))
+        if k not in full or k not in policy or full[k] != policy[k] or type(full[k]) is not type(policy[k])
+    ]
 
 
 def _policy_changes(saved: Any, policy: dict) -> list[str]:
@@ -227,8 +306,13 @@ def _policy_changes(saved: Any, policy: dict) -> list[str]:
     short.maxstring, short.maxother = 30, 30
 
     def said(k: str) -> str:
-        there = (f"not recorded there, so {before[k]!r}: that folder predates this parameter" if k in before else
-                 f"{short.repr(saved[k])} there" if k in saved else "not recorded there: that folder predates this parameter")
+        there = (
+            f"not recorded there, so {before[k]!r}: that folder predates this parameter"
+            if k in before
+            else f"{short.repr(saved[k])} there"
+            if k in saved
+            else "not recorded there: that folder predates this parameter"
+        )
         now = f"{policy[k]!r} now" if k in policy else "no such parameter now"
         return f"--policy {k} ({there}, {now})"
 
@@ -241,8 +325,9 @@ def _policy_to_match(saved: Any, policy: dict) -> str | None:
     if not isinstance(saved, dict):
         return None
     full, diff = _saved_policy(saved, policy)
-    if not diff or not all(k in full and k in policy and type(full[k]) is type(policy[k])
-                           and type(full[k]) in (int, float) for k in diff):
+    if not diff or not all(
+        k in full and k in policy and type(full[k]) is type(policy[k]) and type(full[k]) in (int, float) for k in diff
+    ):
         return None
     try:  # a hand-edited value out of range is not suggested
         PolicyConfig(**{**policy, **{k: full[k] for k in diff}})
@@ -258,8 +343,11 @@ def _option_changes(odometer: str, saved: Any, options: dict) -> str:
     short = reprlib.Repr()
     short.maxstring, short.maxlist = 40, 6
     keys = sorted(k for k in set(saved) | set(options) if saved.get(k) != options.get(k))
-    said = ", ".join(f"{k}: {short.repr(saved[k]) if k in saved else 'default'} there, "
-                     f"{short.repr(options[k]) if k in options else 'default'} now" for k in keys[:3])
+    said = ", ".join(
+        f"{k}: {short.repr(saved[k]) if k in saved else 'default'} there, "
+        f"{short.repr(options[k]) if k in options else 'default'} now"
+        for k in keys[:3]
+    )
     return f"options of {odometer} ({said}{', ...' if len(keys) > 3 else ''})"
 
 
@@ -267,41 +355,60 @@ def result_path(out: Path, odometer: str, index: int) -> Path:
     return out / "episodes" / _safe(odometer) / f"{index:04d}.json"
 
 
-def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address: str | None = None,
-                   parallel: bool = True, progress: bool = True) -> list[dict]:
+def run_navigation(
+    out: Path,
+    tasks: list[NavTask],
+    config: dict,
+    *,
+    ray_address: str | None = None,
+    parallel: bool = True,
+    progress: bool = True,
+) -> list[dict]:
     """Run the tasks whose results ``out`` lacks; returns every task's row, in task order."""
     from odolab.parallel import fan_out
 
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "config.json"
     if not cfg_path.exists() and any(out.iterdir()):
-        raise ValueError(f"{out} holds files that odolab navigate did not write (no config.json); choose an empty "
-                         "or new --out")
+        raise ValueError(
+            f"{out} holds files that odolab navigate did not write (no config.json); choose an empty or new --out"
+        )
     if cfg_path.exists():
         try:
             saved = read_input_json(cfg_path, "navigation config")  # its errors name the file
         except ValueError as exc:
             raise ValueError(f"{exc}; choose another --out") from None
-        problem = ("not a JSON object" if not isinstance(saved, dict) else
-                   "its 'options' is not a JSON object" if not isinstance(saved.get("options", {}), dict) else None)
+        problem = (
+            "not a JSON object"
+            if not isinstance(saved, dict)
+            else "its 'options' is not a JSON object"
+            if not isinstance(saved.get("options", {}), dict)
+            else None
+        )
         if problem:
             raise ValueError(f"{cfg_path}: not a navigation config ({problem}); choose another --out")
         episodes = _episode_changes(saved.get("episodes"), config["episodes"])
         policy = _policy_changes(saved.get("policy"), config.get("policy"))
-        options = [_option_changes(n, saved["options"][n], o) for n, o in config["options"].items()
-                   if n in saved.get("options", {}) and saved["options"][n] != o]
+        options = [
+            _option_changes(n, saved["options"][n], o)
+            for n, o in config["options"].items()
+            if n in saved.get("options", {}) and saved["options"][n] != o
+        ]
         if episodes or policy or options:
             match = None if episodes or options else _policy_to_match(saved.get("policy"), config.get("policy"))
-            raise ValueError(f"{out} holds navigation results made with other settings "
-                             f"({', '.join(episodes + policy + options)}); "
-                             + (f"to add to it, pass {match}; or " if match else "")
-                             + "choose another --out or delete it")
+            raise ValueError(
+                f"{out} holds navigation results made with other settings "
+                f"({', '.join(episodes + policy + options)}); "
+                + (f"to add to it, pass {match}; or " if match else "")
+                + "choose another --out or delete it"
+            )
         config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
     for folder in {result_path(out, t.odometer, t.spec.index).parent for t in tasks}:
         for p in (folder.parent, folder):  # checked before any episode runs, not when its result is written
             if p.exists() and not p.is_dir() and not p.is_symlink():
-                raise ValueError(f"{p} is a file where navigate keeps a folder of episode results; delete it or "
-                                 "choose another --out")
+                raise ValueError(
+                    f"{p} is a file where navigate keeps a folder of episode results; delete it or choose another --out"
+                )
     check_owned_path(out, "config.json")  # no link on the way to any file this run writes
     for t in tasks:
         check_owned_path(out, result_path(out, t.odometer, t.spec.index).relative_to(out))
@@ -311,22 +418,38 @@ def run_navigation(out: Path, tasks: list[NavTask], config: dict, *, ray_address
     todo = [t for t in tasks if read_row(result_path(out, t.odometer, t.spec.index), t, rejected, reasons) is None]
     for folder in sorted({p.parent for p in rejected}):  # one line per odometer, not one per episode
         names = sorted(p.name for p in rejected if p.parent == folder)
-        said = "; ".join(f"{n}: {reasons[folder / n]}" for n in names[:3]) + (f"; {len(names) - 3} more"
-                                                                               if len(names) > 3 else "")
-        print(f"note: {len(names)} saved episode(s) in {folder} are damaged, inconsistent or belong to another run, "
-              f"model file, calibration or setting; running them again ({said})", file=sys.stderr)
+        said = "; ".join(f"{n}: {reasons[folder / n]}" for n in names[:3]) + (
+            f"; {len(names) - 3} more" if len(names) > 3 else ""
+        )
+        print(
+            f"note: {len(names)} saved episode(s) in {folder} are damaged, inconsistent or belong to another run, "
+            f"model file, calibration or setting; running them again ({said})",
+            file=sys.stderr,
+        )
 
     def done(k: int, row: dict) -> None:
-        write_text_atomic(owned_path(out, result_path(out, todo[k].odometer, todo[k].spec.index).relative_to(out)),
-                          json.dumps(row) + "\n")
+        write_text_atomic(
+            owned_path(out, result_path(out, todo[k].odometer, todo[k].spec.index).relative_to(out)),
+            json.dumps(row) + "\n",
+        )
 
-    fan_out(run_task, todo, on_result=done, parallel=parallel, ray_address=ray_address, progress=progress,
-            desc="navigation episodes")
+    fan_out(
+        run_task,
+        todo,
+        on_result=done,
+        parallel=parallel,
+        ray_address=ray_address,
+        progress=progress,
+        desc="navigation episodes",
+    )
     return [json.loads(result_path(out, t.odometer, t.spec.index).read_text(encoding="utf-8")) for t in tasks]
 
 
 def config_doc(odometers: list[str], options: dict, specs: list[EpisodeSpec], policy: PolicyConfig) -> dict:
     """What the results depend on (compared with a folder's ``config.json`` before reuse: the same
     episodes and policy, and the same options for an odometer run before; new odometers may join)."""
-    return {"options": {n: options.get(n, {}) for n in odometers}, "episodes": [dataclasses.asdict(s) for s in specs],
-            "policy": dataclasses.asdict(policy)}
+    return {
+        "options": {n: options.get(n, {}) for n in odometers},
+        "episodes": [dataclasses.asdict(s) for s in specs],
+        "policy": dataclasses.asdict(policy),
+    }

@@ -1,4 +1,5 @@
 """Training samples of the robust VO: which pairs, which augmentation, and the tensors of a batch."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ class Samples:
     def __len__(self) -> int:
         return len(self.pair)
 
-    def take(self, k: np.ndarray) -> "Samples":
+    def take(self, k: np.ndarray) -> Samples:
         return Samples(self.pair[k], self.swap[k], self.flip[k])
 
 
@@ -53,7 +54,9 @@ def stage_samples(data: TrainingData, stage: StageConfig) -> Samples:
     flip = np.concatenate([np.full(len(p), f) for p, _, f in parts])
     samples = Samples(pair.astype(np.int64), swap.astype(bool), flip.astype(bool))
     if stage.blocked_repeat > 1 and len(samples):
-        blocked = (acts[samples.pair] == Action.MOVE_FORWARD.value) & (data.pair_planar[samples.pair, 1] < FORWARD_STEP / 2)
+        blocked = (acts[samples.pair] == Action.MOVE_FORWARD.value) & (
+            data.pair_planar[samples.pair, 1] < FORWARD_STEP / 2
+        )
         extra = np.repeat(np.flatnonzero(blocked), stage.blocked_repeat - 1)
         samples = samples.take(np.concatenate([np.arange(len(samples)), extra]))
     return samples
@@ -68,8 +71,9 @@ class Batch:
     target: torch.Tensor
 
 
-def make_batch(data: TrainingData, samples: Samples, cfg: ModelConfig, device: torch.device,
-               swap_all: bool = False) -> Batch:
+def make_batch(
+    data: TrainingData, samples: Samples, cfg: ModelConfig, device: torch.device, swap_all: bool = False
+) -> Batch:
     """Read and transform the pairs of ``samples`` (swap, then mirror, then the ``warp`` of the
     action the sample now stands for); ``swap_all`` additionally swaps every pair (the other half of
     a GeoInv step)."""

@@ -1,5 +1,6 @@
 """The robust VO's model file: the model config, every network's weights (float32) and how they
 were trained, read back with ``torch.load(weights_only=True)``."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -43,13 +44,18 @@ def load_start(init: str, cfg: TrainConfig, export: str | os.PathLike) -> tuple[
     input channels; channels it lacks start with zero stem weights and an identity normaliser (mean
     0, variance 1), so the network at the start answers exactly as the one it came from."""
     model, nets, digest = load_init(init, export, load_model)
-    changed = [f.name for f in dataclasses.fields(model)
-               if f.name not in INIT_MAY_DIFFER and getattr(model, f.name) != getattr(cfg.model, f.name)]
+    changed = [
+        f.name
+        for f in dataclasses.fields(model)
+        if f.name not in INIT_MAY_DIFFER and getattr(model, f.name) != getattr(cfg.model, f.name)
+    ]
     if changed:
         raise ValueError(f"init = {init!r}: its model differs from this recipe's in {', '.join(changed)}")
     if model.depth_residual and model.depth_residual != cfg.model.depth_residual:
-        raise ValueError(f"init = {init!r}: it has depth_residual = {model.depth_residual}, this recipe "
-                         f"{cfg.model.depth_residual}; a start may only add the residual channel (from 0)")
+        raise ValueError(
+            f"init = {init!r}: it has depth_residual = {model.depth_residual}, this recipe "
+            f"{cfg.model.depth_residual}; a start may only add the residual channel (from 0)"
+        )
     return {name: net.state_dict() for name, net in nets.items()}, digest
 
 

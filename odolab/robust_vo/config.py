@@ -1,5 +1,6 @@
 """The robust VO's switches (every one of the paper's Table 1 and a few after it) and its training
 recipe, as frozen dataclasses read from TOML (see ``studies/robust_vo/*.toml``)."""
+
 from __future__ import annotations
 
 import re
@@ -137,11 +138,22 @@ class StageConfig:
             raise ValueError(f"stage name must be letters, digits, '-' or '_' (it names a file), got {self.name!r}")
         bad = [a for a in self.actions if a not in ACTION_BY_LABEL]
         if bad or not self.actions:
-            raise ValueError(f"stage {self.name!r}: actions must be some of {', '.join(ACTION_BY_LABEL)}, got {list(self.actions)}")
-        check_ranges(f"stage {self.name!r}", self, epochs=(1, 100_000), batch=(1, 65_536), lr=(1e-12, 1.0),
-                     pairs_per_epoch=(0, 10**9), blocked_repeat=(1, 1000))
+            raise ValueError(
+                f"stage {self.name!r}: actions must be some of {', '.join(ACTION_BY_LABEL)}, got {list(self.actions)}"
+            )
+        check_ranges(
+            f"stage {self.name!r}",
+            self,
+            epochs=(1, 100_000),
+            batch=(1, 65_536),
+            lr=(1e-12, 1.0),
+            pairs_per_epoch=(0, 10**9),
+            blocked_repeat=(1, 1000),
+        )
         if self.blocked_repeat > 1 and "move_forward" not in self.actions:
-            raise ValueError(f"stage {self.name!r}: blocked_repeat repeats forward pairs; this stage has no move_forward")
+            raise ValueError(
+                f"stage {self.name!r}: blocked_repeat repeats forward pairs; this stage has no move_forward"
+            )
         if self.geoinv and not {"turn_left", "turn_right"} <= set(self.actions):
             raise ValueError(f"stage {self.name!r}: geoinv pairs turn_left with turn_right; list both actions")
 

@@ -10,6 +10,7 @@ nominal warp, the current depth is in the previous camera, so this is the depth 
 deviation from the command made, e.g. -1 cm where the robot went 1 cm further than commanded
 towards a wall it faces.
 """
+
 from __future__ import annotations
 
 import torch
@@ -19,8 +20,9 @@ from odolab.api import Intrinsics
 from odolab.robust_vo.config import ModelConfig
 
 
-def top_down_projection(depth: torch.Tensor, intrinsics: Intrinsics, max_depth: float, rows: float = 100 / 192,
-                        min_depth: float = 0.1) -> torch.Tensor:
+def top_down_projection(
+    depth: torch.Tensor, intrinsics: Intrinsics, max_depth: float, rows: float = 100 / 192, min_depth: float = 0.1
+) -> torch.Tensor:
     """Soft top-down projection (B, H, W) in [0, 1] of depth images (B, H, W) in metres.
 
     Valid depth is smoothed by a 3x3 box filter over valid readings only, the central
@@ -66,7 +68,7 @@ def frame_channels(rgb: torch.Tensor, depth: torch.Tensor, intrinsics: Intrinsic
         k += 1
     if cfg.dd_bins:
         index = torch.clamp((d * cfg.dd_bins).long(), 0, cfg.dd_bins - 1)
-        out[:, k:k + cfg.dd_bins].zero_().scatter_(1, index[:, None], 1.0)
+        out[:, k : k + cfg.dd_bins].zero_().scatter_(1, index[:, None], 1.0)
         k += cfg.dd_bins
     if cfg.sproj:
         out[:, k].copy_(top_down_projection(depth.to(torch.float32), intrinsics, cfg.max_depth, cfg.sproj_rows))

@@ -1,5 +1,6 @@
 """The robust VO network (facts.md section 3): a running input normaliser, a ResNet-18 with
 GroupNorm, a 3x3 compression conv and a two-layer head with dropout predicting (dx, dz, dyaw)."""
+
 from __future__ import annotations
 
 import math
@@ -8,7 +9,6 @@ import torch
 from torch import nn
 
 from odolab.robust_vo.config import ModelConfig
-
 
 #: Negative slope of the head's hidden activation.
 HIDDEN_SLOPE = 0.01
@@ -60,8 +60,12 @@ class ResNet18GN(nn.Module):
 
     def __init__(self, cin: int, planes: int, groups: int) -> None:
         super().__init__()
-        self.stem = nn.Sequential(nn.Conv2d(cin, planes, 7, 2, 3, bias=False), nn.GroupNorm(groups, planes),
-                                  nn.ReLU(inplace=True), nn.MaxPool2d(3, 2, 1))
+        self.stem = nn.Sequential(
+            nn.Conv2d(cin, planes, 7, 2, 3, bias=False),
+            nn.GroupNorm(groups, planes),
+            nn.ReLU(inplace=True),
+            nn.MaxPool2d(3, 2, 1),
+        )
         layers, c = [], planes
         for k, width in enumerate((planes, 2 * planes, 4 * planes, 8 * planes)):
             stride = 1 if k == 0 else 2
@@ -89,8 +93,11 @@ class VONet(nn.Module):
         cin = cfg.input_channels
         self.norm = RunningNorm(cin)
         self.encoder = ResNet18GN(cin, cfg.base_planes, cfg.groups)
-        self.compress = nn.Sequential(nn.Conv2d(self.encoder.out_channels, cfg.compress_channels, 3, 1, 1, bias=False),
-                                      nn.GroupNorm(1, cfg.compress_channels), nn.ReLU(inplace=True))
+        self.compress = nn.Sequential(
+            nn.Conv2d(self.encoder.out_channels, cfg.compress_channels, 3, 1, 1, bias=False),
+            nn.GroupNorm(1, cfg.compress_channels),
+            nn.ReLU(inplace=True),
+        )
         fh, fw = feature_size(cfg.height, cfg.width)
         features = cfg.compress_channels * fh * fw
         self.embed = nn.Embedding(3, cfg.embed_dim) if cfg.kind == "actembed" else None
@@ -99,9 +106,13 @@ class VONet(nn.Module):
         # bias is set to the mean motion before training). With ReLU, Adam and targets whose spread is
         # ~0.05, every hidden unit of our turn networks died within the first epoch (measured: 0 of 512
         # alive), leaving a network that predicts the mean motion and never recovers.
-        self.head = nn.Sequential(nn.Dropout(cfg.dropout), nn.Linear(features + extra, cfg.hidden),
-                                  nn.LeakyReLU(HIDDEN_SLOPE, inplace=True), nn.Dropout(cfg.dropout),
-                                  nn.Linear(cfg.hidden, 3))
+        self.head = nn.Sequential(
+            nn.Dropout(cfg.dropout),
+            nn.Linear(features + extra, cfg.hidden),
+            nn.LeakyReLU(HIDDEN_SLOPE, inplace=True),
+            nn.Dropout(cfg.dropout),
+            nn.Linear(cfg.hidden, 3),
+        )
         nn.init.zeros_(self.head[-1].weight)
 
     def forward(self, x: torch.Tensor, action_index: torch.Tensor | None = None) -> torch.Tensor:

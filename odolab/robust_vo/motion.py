@@ -5,6 +5,7 @@ z forward (m), yaw positive to the left (rad). As an SE(2) element acting on (x,
 R(dyaw) = [[cos, -sin], [sin, cos]], so composing a then b gives p = p_a + R(yaw_a) p_b,
 yaw = yaw_a + yaw_b.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,8 +15,11 @@ from odolab.api import Action
 
 #: The action a pair becomes when its frames are swapped or the pair is mirrored (turns swap; a
 #: forward step stays forward under the mirror, and has no counterpart when swapped).
-OPPOSITE_TURN = {Action.TURN_LEFT: Action.TURN_RIGHT, Action.TURN_RIGHT: Action.TURN_LEFT,
-                 Action.MOVE_FORWARD: Action.MOVE_FORWARD}
+OPPOSITE_TURN = {
+    Action.TURN_LEFT: Action.TURN_RIGHT,
+    Action.TURN_RIGHT: Action.TURN_LEFT,
+    Action.MOVE_FORWARD: Action.MOVE_FORWARD,
+}
 
 
 def rotate(yaw: torch.Tensor, p: torch.Tensor) -> torch.Tensor:

@@ -15,6 +15,7 @@ rewrites a frame's arrays in place between steps must call ``reset``.
 A SepAct or ActEmbed model, or one with the ``nominal`` warp (:mod:`odolab.robust_vo.warp`), needs
 the action: on real data (no action) it answers ``valid=False``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -45,8 +46,16 @@ def planar_covariance_to_6d(cov: np.ndarray) -> np.ndarray:
 class RobustVOOdometer(Odometer):
     """The robust VO. See the module docstring for the options."""
 
-    def __init__(self, checkpoint: str = "", mirror_tta: bool = False, mc_samples: int = 0, threads: int = 1,
-                 batch_size: int = 1, device: str = "", seed: int = 0) -> None:
+    def __init__(
+        self,
+        checkpoint: str = "",
+        mirror_tta: bool = False,
+        mc_samples: int = 0,
+        threads: int = 1,
+        batch_size: int = 1,
+        device: str = "",
+        seed: int = 0,
+    ) -> None:
         if whole_number("mc_samples", mc_samples, 0, 1000) == 1:
             raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {mc_samples}")
         threads = check_threads(threads)
@@ -95,8 +104,9 @@ class RobustVOOdometer(Odometer):
         if self.cfg.warp == "none":
             return torch.cat([self._frame_channels(prev), self._frame_channels(cur)])
         (_, prev_depth), (rgb, depth) = self._resized(prev), self._resized(cur)
-        rgb, depth = warp_current(rgb, depth, prev_depth, nominal_transforms(np.array([action.value])),
-                                  self._input_intrinsics)
+        rgb, depth = warp_current(
+            rgb, depth, prev_depth, nominal_transforms(np.array([action.value])), self._input_intrinsics
+        )
         parts = [self._frame_channels(prev), frame_channels(rgb, depth, self._input_intrinsics, self.cfg)[0]]
         if self.cfg.depth_residual:
             parts.append(residual_channel(prev_depth, depth, self.cfg.depth_residual)[0])
@@ -122,8 +132,9 @@ class RobustVOOdometer(Odometer):
                 todo.append(k)
         if todo:
             chosen = [pairs[k][2] or Action.MOVE_FORWARD for k in todo]  # a unified model may get no action
-            x = torch.stack([self._pair_channels(pairs[k][0], pairs[k][1], a) for k, a in zip(todo, chosen)]
-                            ).to(self.device)
+            x = torch.stack([self._pair_channels(pairs[k][0], pairs[k][1], a) for k, a in zip(todo, chosen)]).to(
+                self.device
+            )
             actions = np.array([a.value for a in chosen])
             with torch.inference_mode():
                 if self.mc_samples:

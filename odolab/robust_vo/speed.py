@@ -8,6 +8,7 @@ few real episodes, worker start-up included. The end-to-end rate over the bare o
 rest of training costs (at least 0.7 is wanted). Beside them, one network's forward pass at batch 1
 (what the odometer's speed is bound by) in fp32 and bf16.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -81,8 +82,9 @@ def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingDat
     torch.manual_seed(0)
     nets = compute.prepare(build_networks(cfg.model))
     runner = StageRunner(cfg, stage, data, data, nets, compute, progress=False)
-    loop = EpochLoop(Path(tempfile.gettempdir()) / "unused.pt", dict(nets), runner.optimizer, 1, 0, {},
-                     save_every=float("inf"))
+    loop = EpochLoop(
+        Path(tempfile.gettempdir()) / "unused.pt", dict(nets), runner.optimizer, 1, 0, {}, save_every=float("inf")
+    )
     tracker = EpochTracker(loop, "pairs", None, None)
     nets.train()
     runner.train_epoch(1, np.random.default_rng(0), tracker)
@@ -102,9 +104,20 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
         infer = {p: inference_steps_per_s(cfg, choose_compute(device, p)) for p in ("fp32", "bf16")}
     m = cfg.model
-    return {"config": name, "input": f"{m.width}x{m.height}", "base_planes": m.base_planes,
-            "batch": cfg.stages[0].batch, "device": str(device), "precision": compute.precision,
-            "memory_format": compute.memory_format, "loader_workers": compute.loader_workers,
-            "bare_pairs_per_s": bare, "end_to_end_pairs_per_s": end_to_end, "fp32_bare_pairs_per_s": fp32_bare,
-            "end_to_end_over_bare": end_to_end / bare, "params_per_network": sum(p.numel() for p in VONet(m).parameters()),
-            "net_batch1_fp32_steps_per_s": infer["fp32"], "net_batch1_bf16_steps_per_s": infer["bf16"]}
+    return {
+        "config": name,
+        "input": f"{m.width}x{m.height}",
+        "base_planes": m.base_planes,
+        "batch": cfg.stages[0].batch,
+        "device": str(device),
+        "precision": compute.precision,
+        "memory_format": compute.memory_format,
+        "loader_workers": compute.loader_workers,
+        "bare_pairs_per_s": bare,
+        "end_to_end_pairs_per_s": end_to_end,
+        "fp32_bare_pairs_per_s": fp32_bare,
+        "end_to_end_over_bare": end_to_end / bare,
+        "params_per_network": sum(p.numel() for p in VONet(m).parameters()),
+        "net_batch1_fp32_steps_per_s": infer["fp32"],
+        "net_batch1_bf16_steps_per_s": infer["bf16"],
+    }

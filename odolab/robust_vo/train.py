@@ -8,6 +8,7 @@ them), saving after every epoch under ``--work``; it writes validation curves (C
 ``training.json`` under ``--reports`` after every epoch, and exports the networks to ``--export``
 once every stage is finished. Stopped at any moment (or by ``--hours``), the same command resumes.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -22,9 +23,9 @@ from tqdm.auto import tqdm
 
 from odolab.api import Action
 from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
-from odolab.learning.epochs import EpochTracker
 from odolab.learning.compute import Compute
 from odolab.learning.distributed import Team
+from odolab.learning.epochs import EpochTracker
 from odolab.learning.loading import prefetched
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Batch, Samples, make_batch, stage_samples
@@ -33,8 +34,10 @@ from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_
 from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
 
-def open_data(cfg: TrainConfig, *, ray_address: str | None = None, parallel: bool = True,
-              progress: bool = True) -> tuple[TrainingData, TrainingData]:
+
+def open_data(
+    cfg: TrainConfig, *, ray_address: str | None = None, parallel: bool = True, progress: bool = True
+) -> tuple[TrainingData, TrainingData]:
     """The recipe's train and val data, made first where missing."""
     out = []
     for data in (cfg.train_data, cfg.val_data):
@@ -71,8 +74,17 @@ class StepBatches:
 class StageRunner:
     """One stage: its samples, optimiser, epoch function and validation."""
 
-    def __init__(self, cfg: TrainConfig, stage: StageConfig, train: TrainingData, val: TrainingData,
-                 nets: torch.nn.ModuleDict, compute: Compute, progress: bool = True, team: Team = Team()) -> None:
+    def __init__(
+        self,
+        cfg: TrainConfig,
+        stage: StageConfig,
+        train: TrainingData,
+        val: TrainingData,
+        nets: torch.nn.ModuleDict,
+        compute: Compute,
+        progress: bool = True,
+        team: Team = Team(),
+    ) -> None:
         self.cfg, self.stage, self.train, self.val, self.nets, self.team = cfg, stage, train, val, nets, team
         self.compute, self.device = compute, compute.device
         self.names = stage_networks(cfg, stage)
@@ -95,8 +107,10 @@ class StageRunner:
         for name in self.names:
             acts = [a for a in self.stage.action_set if model.model_for(a) == name]
             # the targets as the network sees them: a mirrored action's are mirrored
-            seen = [self.train.pair_planar[self.train.select([a])] * ((-1.0, 1.0, -1.0) if model.mirrored(a) else 1.0)
-                    for a in acts]
+            seen = [
+                self.train.pair_planar[self.train.select([a])] * ((-1.0, 1.0, -1.0) if model.mirrored(a) else 1.0)
+                for a in acts
+            ]
             mean = np.concatenate(seen).mean(axis=0)
             with torch.no_grad():
                 self.nets[name].head[-1].bias.copy_(torch.from_numpy(mean).to(torch.float32))
@@ -107,12 +121,21 @@ class StageRunner:
         stage, team = self.stage, self.team
         order = rng.permutation(len(self.samples))
         if stage.pairs_per_epoch:
-            order = order[:stage.pairs_per_epoch]
-        batches = [b for b in (np.sort(order[k:k + stage.batch]) for k in range(0, len(order), stage.batch))
-                   if len(b) >= team.size][tracker.start:]
+            order = order[: stage.pairs_per_epoch]
+        batches = [
+            b
+            for b in (np.sort(order[k : k + stage.batch]) for k in range(0, len(order), stage.batch))
+            if len(b) >= team.size
+        ][tracker.start :]
         parts = [self.samples.take(team.share(b)) for b in batches]
-        bar = tqdm(total=len(order), initial=tracker.samples, desc=f"{stage.name} epoch {epoch}",
-                   unit="pair", disable=not (self.progress and team.leader), leave=False)
+        bar = tqdm(
+            total=len(order),
+            initial=tracker.samples,
+            desc=f"{stage.name} epoch {epoch}",
+            unit="pair",
+            disable=not (self.progress and team.leader),
+            leave=False,
+        )
         c = self.compute
         made = prefetched(parts, StepBatches(self.train, self.cfg.model, stage.geoinv), self.compute.loader_workers)
         for (batch, other), whole in zip(made, batches):
@@ -138,8 +161,10 @@ class StageRunner:
         """Mean absolute error per action and component on the val pairs, beside the action prior's
         (in fp32, as the odometer runs, whatever precision trains)."""
         preds, targets, actions = [], [], []
-        parts = [Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool))
-                 for idx in np.array_split(self.val_pairs, max(1, -(-len(self.val_pairs) // 64)))]
+        parts = [
+            Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool))
+            for idx in np.array_split(self.val_pairs, max(1, -(-len(self.val_pairs) // 64)))
+        ]
         c = self.compute
         for batch, _ in prefetched(parts, StepBatches(self.val, self.cfg.model, False), self.compute.loader_workers):
             preds.append(predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action).cpu().numpy())
@@ -147,8 +172,12 @@ class StageRunner:
             actions.append(batch.action)
         if not preds:
             return []
-        return error_rows(np.concatenate(preds), np.concatenate(targets).astype(np.float64),
-                          np.concatenate(actions), stage=self.stage.name)
+        return error_rows(
+            np.concatenate(preds),
+            np.concatenate(targets).astype(np.float64),
+            np.concatenate(actions),
+            stage=self.stage.name,
+        )
 
 
 def _identity(cfg: TrainConfig, stage: StageConfig, init_sha256: str = "") -> dict:
@@ -167,8 +196,15 @@ def _identity(cfg: TrainConfig, stage: StageConfig, init_sha256: str = "") -> di
             del stage_doc["blocked_repeat"]
     k = cfg.stages.index(stage)
     stage_doc = {key: v for key, v in doc["stages"][k].items() if key != "epochs"}
-    out = {"model": doc["model"], "stage": stage_doc, "before": doc["stages"][:k], "train_data": doc["train_data"],
-           "val_data": doc["val_data"], "seed": cfg.seed, "val_pairs": cfg.val_pairs}
+    out = {
+        "model": doc["model"],
+        "stage": stage_doc,
+        "before": doc["stages"][:k],
+        "train_data": doc["train_data"],
+        "val_data": doc["val_data"],
+        "seed": cfg.seed,
+        "val_pairs": cfg.val_pairs,
+    }
     if init_sha256:
         out["init_sha256"] = init_sha256
     return out
@@ -188,23 +224,49 @@ def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None
     write_report(reports, rows, status, f"Robust VO: validation error after each epoch (epochs of {said})", x="epochs")
 
 
-def run(cfg: TrainConfig, *, work: Path, reports: Path, export: Path, device: torch.device, hours: float | None,
-        ray_address: str | None = None, parallel_data: bool = True, progress: bool = True,
-        command: str = "", workers: int = 1, gpus_per_worker: float = 0.0) -> bool:
+def run(
+    cfg: TrainConfig,
+    *,
+    work: Path,
+    reports: Path,
+    export: Path,
+    device: torch.device,
+    hours: float | None,
+    ray_address: str | None = None,
+    parallel_data: bool = True,
+    progress: bool = True,
+    command: str = "",
+    workers: int = 1,
+    gpus_per_worker: float = 0.0,
+) -> bool:
     """Run (or resume) every stage; export when all are done. Returns True when finished. With
     ``workers`` > 1, data-parallel on Ray Train (:mod:`odolab.learning.distributed`); the data are
     made first, here."""
     if cfg.init:
         load_start(cfg.init, cfg, export)  # checked before any data is made
     train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data, progress=progress)
-    job = {"cfg": cfg, "work": work, "reports": reports, "export": export, "hours": hours, "progress": progress,
-           "command": command}
+    job = {
+        "cfg": cfg,
+        "work": work,
+        "reports": reports,
+        "export": export,
+        "hours": hours,
+        "progress": progress,
+        "command": command,
+    }
     if workers == 1:
         return bool(train_stages({**job, "train": train, "val": val, "device": device, "team": Team()})["finished"])
     from odolab.learning.distributed import run_on_ray
 
-    return run_on_ray(_team_member, job, workers=workers, work=work, export=export, ray_address=ray_address,
-                      gpus_per_worker=gpus_per_worker)
+    return run_on_ray(
+        _team_member,
+        job,
+        workers=workers,
+        work=work,
+        export=export,
+        ray_address=ray_address,
+        gpus_per_worker=gpus_per_worker,
+    )
 
 
 def _team_member(job: dict) -> dict:
@@ -237,22 +299,39 @@ def train_stages(job: dict) -> dict:
         last_trained = {name: "init" for name in nets}
     compute.prepare(nets)
     all_rows: list[dict] = []
-    status = {"command": job["command"], "compute": {**compute.describe(), "workers": team.size},
-              "train_pairs": train.counts(), "val_pairs": val.counts(), "stages": {}}
+    status = {
+        "command": job["command"],
+        "compute": {**compute.describe(), "workers": team.size},
+        "train_pairs": train.counts(),
+        "val_pairs": val.counts(),
+        "stages": {},
+    }
     finished = True
     for stage in cfg.stages:
         runner = StageRunner(cfg, stage, train, val, nets, compute, progress, team)
-        loop = EpochLoop(work / f"{stage.name}.pt", {n: nets[n] for n in runner.names}, runner.optimizer,
-                         stage.epochs, cfg.seed, _identity(cfg, stage, init_sha256), team=team)
+        loop = EpochLoop(
+            work / f"{stage.name}.pt",
+            {n: nets[n] for n in runner.names},
+            runner.optimizer,
+            stage.epochs,
+            cfg.seed,
+            _identity(cfg, stage, init_sha256),
+            team=team,
+        )
         loop.resume()
         if not loop.started:
             fresh = [n for n in runner.names if n not in last_trained]
             if fresh:
                 runner.init_bias()
         if finished:
-            def after(loop_: EpochLoop, stage=stage) -> None:
-                _write_reports(reports, all_rows + loop_.curves.rows,
-                               {**status, "stages": {**status["stages"], stage.name: _stage_status(loop_)}})
+
+            def after(loop_: EpochLoop, stage: StageConfig = stage, rows: list[dict] = all_rows) -> None:
+                _write_reports(
+                    reports,
+                    rows + loop_.curves.rows,
+                    {**status, "stages": {**status["stages"], stage.name: _stage_status(loop_)}},
+                )
+
             finished = loop.run(runner.train_epoch, runner.validate, deadline=deadline, after_epoch=after)
         status["stages"][stage.name] = _stage_status(loop)
         all_rows += loop.curves.rows
@@ -268,15 +347,25 @@ def train_stages(job: dict) -> dict:
 
 
 def _stage_status(loop: EpochLoop) -> dict:
-    return {"epochs_done": loop.epoch, "epochs": loop.epochs, "hours": round(loop.seconds / 3600, 3),
-            "pairs_seen": int(sum(r.get("pairs", 0) for r in loop.curves.rows if r.get("split") == "train"))}
+    return {
+        "epochs_done": loop.epoch,
+        "epochs": loop.epochs,
+        "hours": round(loop.seconds / 3600, 3),
+        "pairs_seen": int(sum(r.get("pairs", 0) for r in loop.curves.rows if r.get("split") == "train")),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     from odolab.learning.cli import training_main
 
-    return training_main(argv, prog="python -m odolab.robust_vo.train", description=__doc__.split("\n")[0], family="robust-vo",
-                         load_config=load_train_config, run=run)
+    return training_main(
+        argv,
+        prog="python -m odolab.robust_vo.train",
+        description=__doc__.split("\n")[0],
+        family="robust-vo",
+        load_config=load_train_config,
+        run=run,
+    )
 
 
 if __name__ == "__main__":

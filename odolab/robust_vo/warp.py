@@ -11,6 +11,7 @@ previous one up to noise and occlusions, so the network sees only the deviation 
 (what it must predict beyond the action prior). For a pure rotation the warp does not depend on the
 depth at all: it is the homography K R^T K^-1.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,19 +26,26 @@ FALLBACK_DEPTH = 5.0
 
 def nominal_transforms(actions: np.ndarray) -> torch.Tensor:
     """(B, 4, 4) float32 nominal ``T_prev_cur`` of action values ``actions`` (B,)."""
-    return torch.from_numpy(np.stack([nominal_motion(Action(int(a))) for a in actions]).astype(np.float32)
-                            ).reshape(-1, 4, 4)
+    return torch.from_numpy(np.stack([nominal_motion(Action(int(a))) for a in actions]).astype(np.float32)).reshape(
+        -1, 4, 4
+    )
 
 
-def warp_current(rgb: torch.Tensor, depth: torch.Tensor, prev_depth: torch.Tensor, T_prev_cur: torch.Tensor,
-                 intrinsics: Intrinsics, fallback_depth: float = FALLBACK_DEPTH) -> tuple[torch.Tensor, torch.Tensor]:
+def warp_current(
+    rgb: torch.Tensor,
+    depth: torch.Tensor,
+    prev_depth: torch.Tensor,
+    T_prev_cur: torch.Tensor,
+    intrinsics: Intrinsics,
+    fallback_depth: float = FALLBACK_DEPTH,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Resample current frames into their previous frames' views (module docstring).
 
     ``rgb`` (B, H, W, 3) uint8 or float 0-255 and ``depth`` (B, H, W) m: the current frames;
     ``prev_depth`` (B, H, W) m; ``T_prev_cur`` (B, 4, 4) camera axes; ``intrinsics`` of these images.
     Returns RGB (B, H, W, 3) float32 0-255 and depth (B, H, W) float32 m in the previous camera.
     """
-    b, h, w = depth.shape
+    _b, h, w = depth.shape
     K = intrinsics
     v, u = torch.meshgrid(torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij")
     ray = torch.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, torch.ones_like(u)], dim=-1)  # (H, W, 3)
@@ -53,22 +61,29 @@ def warp_current(rgb: torch.Tensor, depth: torch.Tensor, prev_depth: torch.Tenso
     vc = K.fy * in_cur[..., 1] / zs + K.cy
     inside = ahead & (uc >= -0.5) & (uc <= w - 0.5) & (vc >= -0.5) & (vc <= h - 0.5)
     grid = torch.stack([(uc + 0.5) / w * 2 - 1, (vc + 0.5) / h * 2 - 1], dim=-1)  # align_corners=False
-    colour = F.grid_sample(rgb.to(torch.float32).permute(0, 3, 1, 2), grid, mode="bilinear",
-                           padding_mode="border", align_corners=False).permute(0, 2, 3, 1)
-    sampled = F.grid_sample(depth.to(torch.float32)[:, None], grid, mode="nearest", padding_mode="zeros",
-                            align_corners=False)[:, 0]
+    colour = F.grid_sample(
+        rgb.to(torch.float32).permute(0, 3, 1, 2), grid, mode="bilinear", padding_mode="border", align_corners=False
+    ).permute(0, 2, 3, 1)
+    sampled = F.grid_sample(
+        depth.to(torch.float32)[:, None], grid, mode="nearest", padding_mode="zeros", align_corners=False
+    )[:, 0]
     ok = inside & (sampled > 0)
     # the sampled current point, back in the previous camera: z of R Q + t with Q = sampled * ray(uc, vc)
     q = sampled[..., None] * torch.stack([(uc - K.cx) / K.fx, (vc - K.cy) / K.fy, torch.ones_like(uc)], dim=-1)
     z_prev = torch.einsum("bj,bhwj->bhw", R[:, 2, :], q) + t[:, 2, None, None]
     ok = ok & (z_prev > 0)
-    return torch.where(ok[..., None], colour, torch.zeros_like(colour)), torch.where(ok, z_prev, torch.zeros_like(z_prev))
+    return torch.where(ok[..., None], colour, torch.zeros_like(colour)), torch.where(
+        ok, z_prev, torch.zeros_like(z_prev)
+    )
 
 
-def warp_pairs(rgb: torch.Tensor, depth: torch.Tensor, actions: np.ndarray,
-               intrinsics: Intrinsics) -> tuple[torch.Tensor, torch.Tensor]:
+def warp_pairs(
+    rgb: torch.Tensor, depth: torch.Tensor, actions: np.ndarray, intrinsics: Intrinsics
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Pairs ``rgb`` (B, 2, H, W, 3), ``depth`` (B, 2, H, W) with their current frames warped by the
     nominal motion of ``actions`` (B,) (float32 RGB 0-255, depth m)."""
     cur_rgb, cur_depth = warp_current(rgb[:, 1], depth[:, 1], depth[:, 0], nominal_transforms(actions), intrinsics)
-    return (torch.stack([rgb[:, 0].to(torch.float32), cur_rgb], dim=1),
-            torch.stack([depth[:, 0].to(torch.float32), cur_depth], dim=1))
+    return (
+        torch.stack([rgb[:, 0].to(torch.float32), cur_rgb], dim=1),
+        torch.stack([depth[:, 0].to(torch.float32), cur_depth], dim=1),
+    )

@@ -6,6 +6,7 @@ without sliding does (optionally it stays where it was); against an obstacle, fu
 have ~0 translation, the peak at 0 m in the paper's data. The rotation (with its noise) still
 happens.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from odolab.geometry import wrap_angle
-from odolab.types import Action
 from odolab.sim.noise import ActuationNoise, Motion
 from odolab.sim.scenes import Scene
+from odolab.types import Action
 
 
 @dataclass(frozen=True)
@@ -27,8 +28,9 @@ class AgentState:
     yaw: float
 
 
-def advance(scene: Scene, x0: float, y0: float, x1: float, y1: float, stop_at_contact: bool = True,
-            spacing: float = 0.01) -> tuple[float, float, bool]:
+def advance(
+    scene: Scene, x0: float, y0: float, x1: float, y1: float, stop_at_contact: bool = True, spacing: float = 0.01
+) -> tuple[float, float, bool]:
     """Move the agent's centre from (x0, y0) towards (x1, y1) without sliding.
 
     If the straight path leaves the navigable area anywhere (sampled every ``spacing`` m) the step
@@ -50,7 +52,9 @@ def advance(scene: Scene, x0: float, y0: float, x1: float, y1: float, stop_at_co
     return float(x0 + s[last] * (x1 - x0)), float(y0 + s[last] * (y1 - y0)), True
 
 
-def apply_motion(scene: Scene, state: AgentState, motion: Motion, stop_at_contact: bool = True) -> tuple[AgentState, bool]:
+def apply_motion(
+    scene: Scene, state: AgentState, motion: Motion, stop_at_contact: bool = True
+) -> tuple[AgentState, bool]:
     """Execute ``motion``; returns the new state and whether the translation was blocked
     (``stop_at_contact``: see :func:`advance`)."""
     c, s = np.cos(state.yaw), np.sin(state.yaw)
@@ -61,7 +65,13 @@ def apply_motion(scene: Scene, state: AgentState, motion: Motion, stop_at_contac
     return AgentState(x1, y1, float(wrap_angle(state.yaw + motion.yaw))), blocked
 
 
-def step_agent(scene: Scene, state: AgentState, action: Action, noise: ActuationNoise,
-               rng: np.random.Generator, stop_at_contact: bool = True) -> tuple[AgentState, bool]:
+def step_agent(
+    scene: Scene,
+    state: AgentState,
+    action: Action,
+    noise: ActuationNoise,
+    rng: np.random.Generator,
+    stop_at_contact: bool = True,
+) -> tuple[AgentState, bool]:
     """Take ``action`` with a fresh actuation-noise draw; returns (new state, collided)."""
     return apply_motion(scene, state, noise.sample(action, rng), stop_at_contact)

@@ -7,15 +7,16 @@ per pose they are only rotated. Each ray passes through a pixel centre, at integ
 with cx = (W - 1) / 2 (the convention of :class:`~odolab.types.Intrinsics`, used everywhere).
 Noise is added separately (:mod:`odolab.sim.noise`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.types import Intrinsics
 from odolab.sim.scenes import Scene
 from odolab.sim.textures import TEXEL_SIZE, make_tiles, mip_stack
+from odolab.types import Intrinsics
 
 _KEY_LIGHT = np.array([0.45, 0.3, 0.84]) / np.linalg.norm([0.45, 0.3, 0.84])  # world direction to the light
 AMBIENT, KEY, FILL = 0.4, 0.7, 0.25  # shading = AMBIENT + KEY max(n.l, 0) + FILL max(-n.l, 0)
@@ -61,7 +62,7 @@ def _aligned_empty(shape: tuple[int, ...], align: int = 64) -> np.ndarray:
     n = int(np.prod(shape)) * 4
     buf = np.empty(n + align, np.uint8)
     offset = (-buf.ctypes.data) % align
-    return buf[offset:offset + n].view(np.float32).reshape(shape)
+    return buf[offset : offset + n].view(np.float32).reshape(shape)
 
 
 class Renderer:
@@ -75,8 +76,9 @@ class Renderer:
     different ways differ in brightness.
     """
 
-    def __init__(self, scene: Scene, camera: CameraSpec = CameraSpec(), tiles: np.ndarray | None = None,
-                 nthreads: int = 0) -> None:
+    def __init__(
+        self, scene: Scene, camera: CameraSpec = CameraSpec(), tiles: np.ndarray | None = None, nthreads: int = 0
+    ) -> None:
         import open3d as o3d
 
         self.camera = camera
@@ -109,9 +111,11 @@ class Renderer:
 
         K = camera.intrinsics
         u, v_ = np.meshgrid(np.arange(camera.width), np.arange(camera.height))  # pixel centres (Intrinsics)
-        self._dirs_cam = np.stack(
-            [(u - K.cx) / K.fx, (v_ - K.cy) / K.fy, np.ones_like(u)], axis=-1
-        ).reshape(-1, 3).astype(np.float32)
+        self._dirs_cam = (
+            np.stack([(u - K.cx) / K.fx, (v_ - K.cy) / K.fy, np.ones_like(u)], axis=-1)
+            .reshape(-1, 3)
+            .astype(np.float32)
+        )
         self._dirs_cam_t = np.ascontiguousarray(self._dirs_cam.T)
         # Mip level = log2 of a pixel's footprint in texels, t |d| / (fx TEXEL_SIZE) / sqrt(cos), cos the
         # incidence: from the hit distance by a lookup (centre |d| = 1), plus for floor and ceiling the
@@ -169,8 +173,13 @@ class Renderer:
         hit = self._rc.cast_rays(self._rays_tensor(T_world_cam))
         # a miss carries the invalid id 2^32 - 1 = -1 as int32: with mode="wrap" it reads the last entry
         # of each per-triangle table, a black "miss" triangle.
-        return Hits(hit["t_hit"].numpy(), hit["primitive_ids"].numpy().view(np.int32),
-                    self._rays[0, :3].copy(), self._dirs_world, hit)
+        return Hits(
+            hit["t_hit"].numpy(),
+            hit["primitive_ids"].numpy().view(np.int32),
+            self._rays[0, :3].copy(),
+            self._dirs_world,
+            hit,
+        )
 
     def depth(self, hit: Hits) -> np.ndarray:
         """Clean z-depth (H, W) float32 metres of a :meth:`cast` (0 = no reading: a miss or out of range)."""

@@ -14,6 +14,7 @@ All per-pixel normal draws come from :class:`GaussianTable`, a 16-bit inverse-CD
 than drawing float normals and keeps a noisy frame within a small factor of bare ray casting.
 A multiplier of 0 turns a noise source off exactly.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -117,7 +118,7 @@ class RedwoodDepthNoise:
         rows = np.clip(np.arange(-pad, H + pad), 0, H - 1)
         cols = np.clip(np.arange(-pad, W + pad), 0, W - 1)
         cell_r, cell_c = cell_lookup(W, H)
-        packed = np.int32 if (H * W) << _CELL_BITS < 2 ** 31 else np.int64  # int32 is faster to gather
+        packed = np.int32 if (H * W) << _CELL_BITS < 2**31 else np.int64  # int32 is faster to gather
         self._row_pack = ((((rows & ~1) * W) << _CELL_BITS) + cell_r[rows] * COLS).astype(packed)
         self._col_pack = (((cols & ~1) << _CELL_BITS) + cell_c[cols]).astype(packed)
         self._y_base = np.arange(pad, H + pad, dtype=np.int16)[:, None]
@@ -142,8 +143,9 @@ class RedwoodDepthNoise:
         if self._lut_shape != (H, W):
             self._luts(H, W)
         draws = uniform_u16(rng, (3, H, W))
-        packed = (np.take(self._row_pack, self._y_base + np.take(self._shift, draws[0]))
-                  + np.take(self._col_pack, self._x_base + np.take(self._shift, draws[1])))
+        packed = np.take(self._row_pack, self._y_base + np.take(self._shift, draws[0])) + np.take(
+            self._col_pack, self._x_base + np.take(self._shift, draws[1])
+        )
         d = np.take(depth.reshape(-1), packed >> _CELL_BITS)  # 2x-downsampled read at the jittered pixel
         valid = (d > 0) & (d < self.max_depth)
         if self.distortion is not None:  # disparity 35.130 / (d / f) = 35.130 f / d
@@ -169,12 +171,18 @@ def habitat_normalized_depth(depth: np.ndarray, min_depth: float = 0.1, max_dept
 
 # (mean, VARIANCE) per component, metres and radians (docs/reference-facts.md section 2; habitat-sim pyrobot_noisy_controls.py).
 _ACTUATION = {
-    "ilqr": {"forward": ((0.014, 0.009, 0.008), (0.006, 0.005, 0.004)),
-             "turn": ((0.003, 0.003, 0.023), (0.002, 0.003, 0.012))},
-    "proportional": {"forward": ((0.017, 0.042, 0.031), (0.007, 0.023, 0.026)),
-                     "turn": ((0.001, 0.005, 0.043), (0.001, 0.004, 0.017))},
-    "movebase": {"forward": ((0.074, 0.036, 0.189), (0.019, 0.033, 0.038)),
-                 "turn": ((0.002, 0.003, 0.219), (0.0, 0.002, 0.019))},
+    "ilqr": {
+        "forward": ((0.014, 0.009, 0.008), (0.006, 0.005, 0.004)),
+        "turn": ((0.003, 0.003, 0.023), (0.002, 0.003, 0.012)),
+    },
+    "proportional": {
+        "forward": ((0.017, 0.042, 0.031), (0.007, 0.023, 0.026)),
+        "turn": ((0.001, 0.005, 0.043), (0.001, 0.004, 0.017)),
+    },
+    "movebase": {
+        "forward": ((0.074, 0.036, 0.189), (0.019, 0.033, 0.038)),
+        "turn": ((0.002, 0.003, 0.219), (0.0, 0.002, 0.019)),
+    },
 }
 CONTROLLERS = tuple(_ACTUATION)
 

@@ -18,8 +18,10 @@ keeps the best score above -0.25, stops searching once a score exceeds 0.99, and
 action of the winner (if nothing beats -0.25, habitat reports an error; we turn left and look again); STOP once the geodesic distance is below the goal radius. When the last 16
 actions alternate left/right it commits to a whole primitive (its "thrashing" fix).
 """
+
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -27,8 +29,8 @@ import numpy as np
 
 from odolab.sim.agent import AgentState, advance, apply_motion
 from odolab.sim.noise import ActuationNoise
-from odolab.types import FORWARD_STEP, TURN_ANGLE, Action
 from odolab.sim.scenes import Scene
+from odolab.types import FORWARD_STEP, TURN_ANGLE, Action
 
 UNREACHABLE = np.inf
 
@@ -56,7 +58,9 @@ class GeodesicField:
         c0 = int(np.clip(np.floor(fc), 0, cols - 2))
         a, b = float(np.clip(fr - r0, 0, 1)), float(np.clip(fc - c0, 0, 1))
         f = self._filled
-        return float((1 - a) * ((1 - b) * f[r0, c0] + b * f[r0, c0 + 1]) + a * ((1 - b) * f[r0 + 1, c0] + b * f[r0 + 1, c0 + 1]))
+        return float(
+            (1 - a) * ((1 - b) * f[r0, c0] + b * f[r0, c0 + 1]) + a * ((1 - b) * f[r0 + 1, c0] + b * f[r0 + 1, c0 + 1])
+        )
 
 
 def geodesic_field(scene: Scene, x: float, y: float) -> GeodesicField:
@@ -141,16 +145,29 @@ class ShortestPathFollower:
 
     def _reward(self, state: AgentState, yaw: float, turns: int, here: float) -> float:
         if self.noise is None:
-            x, y, collided = advance(self.geodesic.scene, state.x, state.y, state.x + FORWARD_STEP * np.cos(yaw),
-                                     state.y + FORWARD_STEP * np.sin(yaw), self.stop_at_contact)
+            x, y, collided = advance(
+                self.geodesic.scene,
+                state.x,
+                state.y,
+                state.x + FORWARD_STEP * np.cos(yaw),
+                state.y + FORWARD_STEP * np.sin(yaw),
+                self.stop_at_contact,
+            )
         else:  # habitat's follower tries the agent's own (noisy) move_forward
-            end, collided = apply_motion(self.geodesic.scene, AgentState(state.x, state.y, yaw),
-                                         self.noise.sample(Action.MOVE_FORWARD, self.rng), self.stop_at_contact)
+            end, collided = apply_motion(
+                self.geodesic.scene,
+                AgentState(state.x, state.y, yaw),
+                self.noise.sample(Action.MOVE_FORWARD, self.rng),
+                self.stop_at_contact,
+            )
             x, y = end.x, end.y
         after = self.geodesic.at(x, y)
-        return ((here - after) / FORWARD_STEP - TURN_COST * turns
-                - (COLLISION_COST if collided else 0.0)
-                - (CLOSE_COST if self._edge_at(x, y) < CLOSE_TO_OBSTACLE else 0.0))
+        return (
+            (here - after) / FORWARD_STEP
+            - TURN_COST * turns
+            - (COLLISION_COST if collided else 0.0)
+            - (CLOSE_COST if self._edge_at(x, y) < CLOSE_TO_OBSTACLE else 0.0)
+        )
 
     def best_primitive(self, state: AgentState) -> list[Action]:
         """The best ``[turn] * n + [MOVE_FORWARD]`` from ``state`` ([] if none beats a collision)."""
@@ -169,7 +186,7 @@ class ShortestPathFollower:
         h = list(self._history)
         if len(h) < THRASHING_THRESHOLD or h[-1] not in (Action.TURN_LEFT, Action.TURN_RIGHT):
             return False
-        return all({a, b} == {Action.TURN_LEFT, Action.TURN_RIGHT} for a, b in zip(h[:-1], h[1:]))
+        return all({a, b} == {Action.TURN_LEFT, Action.TURN_RIGHT} for a, b in itertools.pairwise(h))
 
     def next_action(self, state: AgentState) -> Action:
         """STOP at the goal, else the first action of the best primitive (TURN_LEFT if boxed in)."""

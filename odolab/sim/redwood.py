@@ -24,6 +24,7 @@ statistical model of the same table, written from its measured properties:
 
 :mod:`odolab.simcard` measures the resulting hole share, bias and spread per depth bin.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -41,13 +42,15 @@ ENV_VAR = "ODOLAB_REDWOOD_TABLE"
 # Per-bin column profile of the factor: polynomial coefficients (constant first) in the column
 # coordinate s = (col + 0.5) / 40 - 1 in [-1, 1], fitted by least squares to habitat-sim's table
 # (column means over the non-hole rows); and the spread of the cells around that profile.
-_PROFILE = np.array([
-    [0.9980, 0.0061, 0.0043, -0.0205, -0.0002, 0.0150],
-    [0.9904, 0.0170, 0.0427, -0.0584, -0.0114, 0.0457],
-    [0.9821, 0.0378, 0.0879, -0.1159, -0.0231, 0.0911],
-    [0.9716, 0.0400, 0.1552, -0.0806, -0.0765, 0.0315],
-    [0.9627, 0.0603, 0.1832, -0.1379, -0.1381, 0.0805],
-])
+_PROFILE = np.array(
+    [
+        [0.9980, 0.0061, 0.0043, -0.0205, -0.0002, 0.0150],
+        [0.9904, 0.0170, 0.0427, -0.0584, -0.0114, 0.0457],
+        [0.9821, 0.0378, 0.0879, -0.1159, -0.0231, 0.0911],
+        [0.9716, 0.0400, 0.1552, -0.0806, -0.0765, 0.0315],
+        [0.9627, 0.0603, 0.1832, -0.1379, -0.1381, 0.0805],
+    ]
+)
 _CELL_SPREAD = np.array([0.0021, 0.0059, 0.0110, 0.0172, 0.0201])
 _CELL_CORRELATION_SIGMA = 2.5  # cells: a Gaussian field with lag-1 correlation about 0.85
 
@@ -102,8 +105,9 @@ def load_table(path: str | os.PathLike) -> DistortionTable:
     except OSError as exc:
         raise ValueError(f"{p}: cannot be read ({exc.strerror or exc})") from None
     if arr.size != ROWS * COLS * BINS or not np.issubdtype(arr.dtype, np.floating):
-        raise ValueError(f"{p}: expected {ROWS * COLS * BINS} float values (80 x 80 cells x 5 bins), "
-                         f"got {arr.size} of {arr.dtype}")
+        raise ValueError(
+            f"{p}: expected {ROWS * COLS * BINS} float values (80 x 80 cells x 5 bins), got {arr.size} of {arr.dtype}"
+        )
     factors = arr.reshape(ROWS, COLS, BINS).astype(np.float32)  # habitat-sim's own reshape
     if not np.all(np.isfinite(factors)) or factors.min() < 0 or factors.max() > 2:
         raise ValueError(f"{p}: factors must be finite and in [0, 2], got {factors.min():g}..{factors.max():g}")
@@ -147,8 +151,8 @@ def default_table() -> DistortionTable:
 
 def cell_lookup(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Row and column of the table cell seen by each pixel row (``height``,) and column (``width``,)."""
-    rows = ((np.arange(height) / max(height - 1, 1) * (SENSOR_HEIGHT - 1) + 0.5).astype(np.int64) // 6)
-    cols = ((np.arange(width) / max(width - 1, 1) * (SENSOR_WIDTH - 1) + 0.5).astype(np.int64) // 8)
+    rows = (np.arange(height) / max(height - 1, 1) * (SENSOR_HEIGHT - 1) + 0.5).astype(np.int64) // 6
+    cols = (np.arange(width) / max(width - 1, 1) * (SENSOR_WIDTH - 1) + 0.5).astype(np.int64) // 8
     return np.minimum(rows, ROWS - 1), np.minimum(cols, COLS - 1)
 
 

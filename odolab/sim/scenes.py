@@ -8,6 +8,7 @@ Scene seeds are split into disjoint pools, so no test scene is ever seen in trai
 
     train: seeds [0, 1_000_000)   val: [1_000_000, 1_000_100)   test: [2_000_000, 2_000_100)
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -116,8 +117,22 @@ class Cylinder:
 
 
 _BOX_FACES = np.array(  # corners indexed by bits (x, y, z); outward-facing triangles
-    [[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
-     [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], dtype=np.int32)
+    [
+        [0, 2, 1],
+        [1, 2, 3],
+        [4, 5, 6],
+        [5, 7, 6],
+        [0, 1, 4],
+        [1, 5, 4],
+        [2, 6, 3],
+        [3, 6, 7],
+        [0, 4, 2],
+        [2, 4, 6],
+        [1, 3, 5],
+        [3, 7, 5],
+    ],
+    dtype=np.int32,
+)
 
 
 def _box_mesh(b: Box) -> tuple[np.ndarray, np.ndarray]:
@@ -129,19 +144,23 @@ def _box_mesh(b: Box) -> tuple[np.ndarray, np.ndarray]:
 def _cylinder_mesh(c: Cylinder, segments: int = 16) -> tuple[np.ndarray, np.ndarray]:
     a = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
     ring = np.stack([c.x + c.radius * np.cos(a), c.y + c.radius * np.sin(a)], axis=1)
-    verts = np.concatenate([
-        np.column_stack([ring, np.zeros(segments)]),
-        np.column_stack([ring, np.full(segments, c.height)]),
-        [[c.x, c.y, c.height]],
-    ])
+    verts = np.concatenate(
+        [
+            np.column_stack([ring, np.zeros(segments)]),
+            np.column_stack([ring, np.full(segments, c.height)]),
+            [[c.x, c.y, c.height]],
+        ]
+    )
     i = np.arange(segments)
     j = (i + 1) % segments
     top = 2 * segments
-    faces = np.concatenate([
-        np.stack([i, j, segments + i], 1),
-        np.stack([j, segments + j, segments + i], 1),
-        np.stack([segments + i, segments + j, np.full(segments, top)], 1),
-    ]).astype(np.int32)
+    faces = np.concatenate(
+        [
+            np.stack([i, j, segments + i], 1),
+            np.stack([j, segments + j, segments + i], 1),
+            np.stack([segments + i, segments + j, np.full(segments, top)], 1),
+        ]
+    ).astype(np.int32)
     return verts, faces
 
 
@@ -241,22 +260,27 @@ def _materials(rng: np.random.Generator, n_tiles: int, n: int = 14) -> tuple[Mat
     return (floor, ceiling, *walls, *furniture)
 
 
-def _occupancy(boxes: list[Box], cylinders: list[Cylinder], bounds: _Rect, res: float) -> tuple[np.ndarray, tuple[float, float]]:
+def _occupancy(
+    boxes: list[Box], cylinders: list[Cylinder], bounds: _Rect, res: float
+) -> tuple[np.ndarray, tuple[float, float]]:
     pad = 0.5
     ox, oy = bounds.x0 - pad, bounds.y0 - pad
     cols = int(np.ceil((bounds.x1 - bounds.x0 + 2 * pad) / res))
     rows = int(np.ceil((bounds.y1 - bounds.y0 + 2 * pad) / res))
     xs = ox + (np.arange(cols) + 0.5) * res
     ys = oy + (np.arange(rows) + 0.5) * res
-    inside = ((xs[None, :] > bounds.x0) & (xs[None, :] < bounds.x1)
-              & (ys[:, None] > bounds.y0) & (ys[:, None] < bounds.y1))
+    inside = (
+        (xs[None, :] > bounds.x0) & (xs[None, :] < bounds.x1) & (ys[:, None] > bounds.y0) & (ys[:, None] < bounds.y1)
+    )
     free = inside.copy()
     for b in boxes:
         if b.lo[2] > 1.0:  # door lintels are above the agent
             continue
-        free &= ~((xs[None, :] >= b.lo[0]) & (xs[None, :] <= b.hi[0]) & (ys[:, None] >= b.lo[1]) & (ys[:, None] <= b.hi[1]))
+        free &= ~(
+            (xs[None, :] >= b.lo[0]) & (xs[None, :] <= b.hi[0]) & (ys[:, None] >= b.lo[1]) & (ys[:, None] <= b.hi[1])
+        )
     for c in cylinders:
-        free &= (xs[None, :] - c.x) ** 2 + (ys[:, None] - c.y) ** 2 > c.radius ** 2
+        free &= (xs[None, :] - c.x) ** 2 + (ys[:, None] - c.y) ** 2 > c.radius**2
     return free, (ox, oy)
 
 
@@ -266,8 +290,8 @@ def _without_slivers(navigable: np.ndarray, width: float = 0.1) -> np.ndarray:
     from scipy.ndimage import binary_opening
 
     r = int(round(width / 2 / GRID_RESOLUTION))
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    return binary_opening(navigable, structure=(xx ** 2 + yy ** 2) <= r * r)
+    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+    return binary_opening(navigable, structure=(xx**2 + yy**2) <= r * r)
 
 
 def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 12) -> Scene:

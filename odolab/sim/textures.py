@@ -7,6 +7,7 @@ structure (bricks, planks, panels, speckles, veins), histogram-equalised to full
 near and far. :func:`mip_levels` prefilters each tile into a pyramid (2 x 2 box filter per level),
 from which the renderer samples at the level matching a pixel's footprint: no aliasing at distance.
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -22,10 +23,13 @@ def _normalise(f: np.ndarray) -> np.ndarray:
     return (f - f.min()) / (np.ptp(f) + 1e-9)
 
 
-def _octaves(rng: np.random.Generator, n: int, sigmas=(1.0, 3.0, 9.0, 27.0), weights=(0.15, 0.25, 0.3, 0.3)) -> np.ndarray:
+def _octaves(
+    rng: np.random.Generator, n: int, sigmas=(1.0, 3.0, 9.0, 27.0), weights=(0.15, 0.25, 0.3, 0.3)
+) -> np.ndarray:
     """Sum of wrapped Gaussian-filtered noise octaves, normalised to [0, 1]."""
-    f = sum(w * _normalise(gaussian_filter(rng.standard_normal((n, n)), s, mode="wrap"))
-            for s, w in zip(sigmas, weights))
+    f = sum(
+        w * _normalise(gaussian_filter(rng.standard_normal((n, n)), s, mode="wrap")) for s, w in zip(sigmas, weights)
+    )
     return _normalise(f)
 
 

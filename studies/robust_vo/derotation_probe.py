@@ -10,6 +10,7 @@ of the nominal 30 degree rotation, K R^T K^-1, so that the network sees only the
     python -m studies.robust_vo.derotation_probe --samples 30304              # as the pairs are
     python -m studies.robust_vo.derotation_probe --samples 30304 --derotate   # warped first
 """
+
 from __future__ import annotations
 
 import time
@@ -50,10 +51,15 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = ArgumentParser(prog="python -m studies.robust_vo.derotation_probe", description=__doc__.split("\n")[0])
     ap.add_argument("--config", type=path_arg("--config"), default="studies/robust_vo/shipped.toml")
-    ap.add_argument("--seconds", type=number("--seconds", float, 1.0, 86_400.0), default=300.0,
-                    help="training budget (wall clock)")
-    ap.add_argument("--samples", type=number("--samples", int, 0, 10**8), default=0,
-                    help="training budget in samples instead (0: use --seconds)")
+    ap.add_argument(
+        "--seconds", type=number("--seconds", float, 1.0, 86_400.0), default=300.0, help="training budget (wall clock)"
+    )
+    ap.add_argument(
+        "--samples",
+        type=number("--samples", int, 0, 10**8),
+        default=0,
+        help="training budget in samples instead (0: use --seconds)",
+    )
     ap.add_argument("--derotate", action="store_true", help="warp the current frame by the commanded turn")
     args = ap.parse_args(argv)
     try:
@@ -86,11 +92,13 @@ def main(argv: list[str] | None = None) -> int:
         out = net(x)
     mae = ((out - y).abs().mean(0) * 100).numpy()
     prior = ((y - torch.from_numpy(mean).float()).abs().mean(0) * 100).numpy()
-    print(f"{'derotated' if args.derotate else 'as they are'}: {seen} training samples in "
-          f"{time.monotonic() - start:.0f} s; "
-          f"val turn_left error x 1e-2 (dx, dz, dyaw) {[round(float(v), 2) for v in mae]}, "
-          f"action prior {[round(float(v), 2) for v in prior]}, "
-          f"spread of the outputs {[round(float(v), 4) for v in out.std(0)]}")
+    print(
+        f"{'derotated' if args.derotate else 'as they are'}: {seen} training samples in "
+        f"{time.monotonic() - start:.0f} s; "
+        f"val turn_left error x 1e-2 (dx, dz, dyaw) {[round(float(v), 2) for v in mae]}, "
+        f"action prior {[round(float(v), 2) for v in prior]}, "
+        f"spread of the outputs {[round(float(v), 4) for v in out.std(0)]}"
+    )
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ On the val pairs of the shipped recipe's data (made by its training command), fo
 
 Mean and median absolute errors are in 1e-2 m and 1e-2 rad, as everywhere in the README.
 """
+
 from __future__ import annotations
 
 import sys
@@ -48,15 +49,20 @@ def passes(data: TrainingData, idx: np.ndarray, n: int) -> list[np.ndarray]:
     errors: list[list[np.ndarray]] = [[] for _ in range(n)]
     with torch.no_grad():
         for s in range(0, len(idx), BATCH):
-            b = data.pair_batch(idx[s:s + BATCH])
+            b = data.pair_batch(idx[s : s + BATCH])
             T = nominal_transforms(b["action"])
             for k in range(n):
                 rgb, depth = _warped_depth(b, T, data)
-                x = pair_channels(torch.stack([torch.from_numpy(b["rgb"][:, 0]).float(), rgb], 1),
-                                  torch.stack([torch.from_numpy(b["depth"][:, 0]), depth], 1), data.intrinsics, cfg)
+                x = pair_channels(
+                    torch.stack([torch.from_numpy(b["rgb"][:, 0]).float(), rgb], 1),
+                    torch.stack([torch.from_numpy(b["depth"][:, 0]), depth], 1),
+                    data.intrinsics,
+                    cfg,
+                )
                 out = predict(nets, cfg, x, b["action"]).numpy().astype(np.float64)
-                motion = np.stack([T[j].numpy().astype(np.float64) @ undo @ planar_to_transform(*out[j])
-                                   for j in range(len(out))])
+                motion = np.stack(
+                    [T[j].numpy().astype(np.float64) @ undo @ planar_to_transform(*out[j]) for j in range(len(out))]
+                )
                 errors[k].append(np.abs(np.stack([transform_to_planar(m) for m in motion]) - b["planar"]))
                 T = torch.from_numpy(motion.astype(np.float32))
     return [np.concatenate(e) for e in errors]
@@ -68,7 +74,7 @@ def residual(data: TrainingData, idx: np.ndarray, sigma: float, seed: int = 0) -
     rng = np.random.default_rng(seed)
     out = []
     for s in range(0, len(idx), BATCH):
-        b = data.pair_batch(idx[s:s + BATCH])
+        b = data.pair_batch(idx[s : s + BATCH])
         guess = b["planar"].copy()
         guess[:, 1] = FORWARD_STEP
         guess[:, [0, 2]] += rng.normal(0.0, sigma, (len(guess), 2))
@@ -85,11 +91,19 @@ def main(argv: list[str] | None = None) -> int:
     from odolab.cli import ArgumentParser, UsageError, check_output_dir, number, path_arg
 
     ap = ArgumentParser(prog="python -m studies.robust_vo.forward_dz_probe", description=__doc__.split("\n")[0])
-    ap.add_argument("--config", type=path_arg("--config"), default=Path("studies/robust_vo/shipped.toml"),
-                    help="recipe whose val data is read (made by its training command; the network probed is "
-                         "always the shipped model, so the data must be of its size)")
-    ap.add_argument("--passes", type=number("--passes", int, 1, 10), default=2,
-                    help="passes of the shipped network, 1-10 (default 2)")
+    ap.add_argument(
+        "--config",
+        type=path_arg("--config"),
+        default=Path("studies/robust_vo/shipped.toml"),
+        help="recipe whose val data is read (made by its training command; the network probed is "
+        "always the shipped model, so the data must be of its size)",
+    )
+    ap.add_argument(
+        "--passes",
+        type=number("--passes", int, 1, 10),
+        default=2,
+        help="passes of the shipped network, 1-10 (default 2)",
+    )
     ap.add_argument("--out", type=path_arg("--out"), default=None, help="also write the report to this text file")
     args = ap.parse_args(argv)
     if args.out is not None:  # found now, not after the work
@@ -103,19 +117,26 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if (data.config.width, data.config.height) != (shipped.width, shipped.height):
-        raise UsageError(f"{args.config}: its val data is {data.config.width} x {data.config.height} px, the shipped "
-                         f"model takes {shipped.width} x {shipped.height}")
+        raise UsageError(
+            f"{args.config}: its val data is {data.config.width} x {data.config.height} px, the shipped "
+            f"model takes {shipped.width} x {shipped.height}"
+        )
     idx = data.select([Action.MOVE_FORWARD])
     torch.set_num_threads(1)
-    lines = [f"move_forward val pairs: {len(idx)} ({cfg.data_folder(cfg.val_data)})",
-             "mean |error| (median) x 1e-2: dx m, dz m, dyaw rad", ""]
+    lines = [
+        f"move_forward val pairs: {len(idx)} ({cfg.data_folder(cfg.val_data)})",
+        "mean |error| (median) x 1e-2: dx m, dz m, dyaw rad",
+        "",
+    ]
     for k, e in enumerate(passes(data, idx, args.passes)):
         mean, med = 100 * e.mean(axis=0), 100 * np.median(e, axis=0)
         lines.append(f"shipped network, pass {k + 1}: " + ", ".join(f"{a:.2f} ({m:.2f})" for a, m in zip(mean, med)))
     lines.append("")
     for sigma in (0.0, 0.01, 0.02):
         e = 100 * residual(data, idx, sigma)
-        lines.append(f"median depth residual, dx and dyaw true + N(0, {sigma:g}): dz {np.nanmean(e):.2f} ({np.nanmedian(e):.2f})")
+        lines.append(
+            f"median depth residual, dx and dyaw true + N(0, {sigma:g}): dz {np.nanmean(e):.2f} ({np.nanmedian(e):.2f})"
+        )
     text = "\n".join(lines) + "\n"
     print(text, end="")
     if args.out is not None:

@@ -9,6 +9,7 @@ samples per run. Every run is saved under
 ``runs/robust-vo/precision/`` and resumes; the tables go to ``--out``: ``runs.csv`` (one row per
 precision, seed, action and component) and ``comparison.md``.
 """
+
 from __future__ import annotations
 
 import csv
@@ -34,12 +35,19 @@ PRECISIONS = ("fp32", "bf16")
 def short_recipe(seed: int, precision: str) -> TrainConfig:
     """The shipped recipe cut short (module docstring), at ``seed`` in ``precision``."""
     base = load_train_config(str(ROOT / "studies" / "robust_vo" / "shipped.toml"))
-    stages = (StageConfig("forward", ("move_forward",), 3, lr=5e-4, batch=32),
-              StageConfig("turns", ("turn_left", "turn_right"), 2, lr=5e-4, batch=32, data_aug=True))
-    return dataclasses.replace(base, stages=stages, seed=seed, val_pairs=1000,
-                               train_data=dataclasses.replace(base.train_data, episodes=100),
-                               val_data=dataclasses.replace(base.val_data, episodes=16),
-                               compute=ComputeConfig(precision=precision, loader_workers=1))
+    stages = (
+        StageConfig("forward", ("move_forward",), 3, lr=5e-4, batch=32),
+        StageConfig("turns", ("turn_left", "turn_right"), 2, lr=5e-4, batch=32, data_aug=True),
+    )
+    return dataclasses.replace(
+        base,
+        stages=stages,
+        seed=seed,
+        val_pairs=1000,
+        train_data=dataclasses.replace(base.train_data, episodes=100),
+        val_data=dataclasses.replace(base.val_data, episodes=16),
+        compute=ComputeConfig(precision=precision, loader_workers=1),
+    )
 
 
 def last_val_rows(reports: Path) -> list[dict]:
@@ -56,15 +64,25 @@ def main(argv: list[str] | None = None) -> int:
     from odolab.cli import ArgumentParser, UsageError, check_report_dir, path_arg
 
     ap = ArgumentParser(prog="python -m studies.robust_vo.precision_check", description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=path_arg("--out"), default=Path("reports") / "robust-vo" / "precision",
-                    help="where runs.csv and comparison.md go (default reports/robust-vo/precision)")
-    ap.add_argument("--work", type=path_arg("--work"), default=Path("runs") / "robust-vo" / "precision",
-                    help="training states, one folder per run (default runs/robust-vo/precision)")
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("reports") / "robust-vo" / "precision",
+        help="where runs.csv and comparison.md go (default reports/robust-vo/precision)",
+    )
+    ap.add_argument(
+        "--work",
+        type=path_arg("--work"),
+        default=Path("runs") / "robust-vo" / "precision",
+        help="training states, one folder per run (default runs/robust-vo/precision)",
+    )
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="at least two seeds (default 0 1)")
     args = ap.parse_args(argv)
     if len(set(args.seeds)) < 2 or any(not 0 <= s < 2**32 for s in args.seeds):
-        raise UsageError(f"--seeds: expected at least two different seeds in [0, 2^32) (their spread is the noise), "
-                         f"got {' '.join(map(str, args.seeds))}")
+        raise UsageError(
+            f"--seeds: expected at least two different seeds in [0, 2^32) (their spread is the noise), "
+            f"got {' '.join(map(str, args.seeds))}"
+        )
     check_report_dir(args.out, "--out", manifest="runs.csv")  # before hours of training, not after
     table: list[dict] = []
     speed: list[str] = []
@@ -72,21 +90,42 @@ def main(argv: list[str] | None = None) -> int:
         for seed in args.seeds:
             cfg = short_recipe(seed, precision)
             run = args.work / f"{precision}-seed{seed}"
-            trainer.run(cfg, work=run / "work", reports=run / "reports", export=run / "model.pt",
-                        device=torch.device("cpu"), hours=None, command=f"precision_check {precision} seed {seed}")
+            trainer.run(
+                cfg,
+                work=run / "work",
+                reports=run / "reports",
+                export=run / "model.pt",
+                device=torch.device("cpu"),
+                hours=None,
+                command=f"precision_check {precision} seed {seed}",
+            )
             stages = json.loads((run / "reports" / "training.json").read_text(encoding="utf-8"))["stages"].values()
             pairs, hours = sum(st["pairs_seen"] for st in stages), sum(st["hours"] for st in stages)
             speed.append(f"| {precision} | {seed} | {pairs:,} | {hours:.3f} | {pairs / max(hours * 3600, 1e-9):.0f} |")
             for r in last_val_rows(run / "reports"):
-                table.append({"precision": precision, "seed": seed, "action": r["action"], "component": r["component"],
-                              "mae": float(r["mae"]), "prior_mae": float(r["prior_mae"])})
+                table.append(
+                    {
+                        "precision": precision,
+                        "seed": seed,
+                        "action": r["action"],
+                        "component": r["component"],
+                        "mae": float(r["mae"]),
+                        "prior_mae": float(r["prior_mae"]),
+                    }
+                )
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(table[0]), lineterminator="\n")
     w.writeheader()
     w.writerows(table)
     write_text_atomic(args.out / "runs.csv", buf.getvalue())
     text = comparison(table, args.seeds) + "\n".join(
-        ["| precision | seed | samples seen | hours (training and validation) | samples/s |", "|---|---|---|---|---|", *speed, ""])
+        [
+            "| precision | seed | samples seen | hours (training and validation) | samples/s |",
+            "|---|---|---|---|---|",
+            *speed,
+            "",
+        ]
+    )
     write_text_atomic(args.out / "comparison.md", text)
     print(text)
     return 0
@@ -96,27 +135,42 @@ def comparison(table: list[dict], seeds: list[int]) -> str:
     """Markdown: per action and component, each precision's mean MAE over seeds (x 1e-2), the
     precision gap and the seed spread (largest minus smallest over seeds, within a precision)."""
     keys = list(dict.fromkeys((r["action"], r["component"]) for r in table))
-    lines = [f"Validation MAE (x 1e-2) after the short recipe of `studies/robust_vo/precision_check.py`, "
-             f"seeds {', '.join(map(str, seeds))}; machine: {platform.machine()}, {torch.get_num_threads()} torch threads, "
-             f"torch {torch.__version__}, Python {platform.python_version()}.", "",
-             "| action | component | action prior | fp32 (mean) | bf16 (mean) | bf16 - fp32 | seed spread fp32 | seed spread bf16 |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        (
+            f"Validation MAE (x 1e-2) after the short recipe of `studies/robust_vo/precision_check.py`, "
+            f"seeds {', '.join(map(str, seeds))}; machine: {platform.machine()}, {torch.get_num_threads()} torch threads, "
+            f"torch {torch.__version__}, Python {platform.python_version()}."
+        ),
+        "",
+        "| action | component | action prior | fp32 (mean) | bf16 (mean) | bf16 - fp32 | seed spread fp32 | seed spread bf16 |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     gaps, spreads, worst = [], [], []
     for action, comp in keys:
-        by = {p: [r["mae"] * 100 for r in table if (r["action"], r["component"], r["precision"]) == (action, comp, p)]
-              for p in PRECISIONS}
+        by = {
+            p: [r["mae"] * 100 for r in table if (r["action"], r["component"], r["precision"]) == (action, comp, p)]
+            for p in PRECISIONS
+        }
         prior = next(r["prior_mae"] for r in table if (r["action"], r["component"]) == (action, comp)) * 100
         gap = np.mean(by["bf16"]) - np.mean(by["fp32"])
         spread = {p: max(v) - min(v) for p, v in by.items()}
         gaps.append(abs(gap))
         spreads += list(spread.values())
         worst.append(max(spread.values()))
-        lines.append(f"| {action} | {comp} | {prior:.2f} | {np.mean(by['fp32']):.2f} | {np.mean(by['bf16']):.2f} | "
-                     f"{gap:+.2f} | {spread['fp32']:.2f} | {spread['bf16']:.2f} |")
+        lines.append(
+            f"| {action} | {comp} | {prior:.2f} | {np.mean(by['fp32']):.2f} | {np.mean(by['bf16']):.2f} | "
+            f"{gap:+.2f} | {spread['fp32']:.2f} | {spread['bf16']:.2f} |"
+        )
     within = sum(g <= s for g, s in zip(gaps, worst))
-    lines += ["", f"Largest |bf16 - fp32| gap: {max(gaps):.2f}; largest seed spread: {max(spreads):.2f} (x 1e-2). "
-                  f"In {within} of {len(gaps)} components the gap is at most the larger of the two precisions' seed "
-                  "spreads (with two seeds a spread is a rough measure of the noise).", ""]
+    lines += [
+        "",
+        (
+            f"Largest |bf16 - fp32| gap: {max(gaps):.2f}; largest seed spread: {max(spreads):.2f} (x 1e-2). "
+            f"In {within} of {len(gaps)} components the gap is at most the larger of the two precisions' seed "
+            "spreads (with two seeds a spread is a rough measure of the noise)."
+        ),
+        "",
+    ]
     return "\n".join(lines)
 
 
