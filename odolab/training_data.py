@@ -43,7 +43,7 @@ from tqdm.auto import tqdm
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_episode
 from odolab.geometry import invert, transform_to_planar
 from odolab.io.atomic import atomic_open, write_bytes_atomic
-from odolab.io.npz_mmap import mmap_npz_member
+from odolab.io.npz_mmap import NpzRows
 from odolab.sim.camera import CameraSpec
 from odolab.sim.scenes import SPLITS
 from odolab.types import MOTION_ACTIONS, Action, Intrinsics
@@ -416,29 +416,42 @@ class TrainingData:
             verify_shard(self.root / self.shards[s], self._entries[s])
             self._verified.add(s)
 
-    def _shard(self, s: int) -> dict[str, np.ndarray]:
-        """The frames of shard ``s``, mapped; the first time in this object (and process), after
-        :func:`verify_shard`."""
+    def _shard(self, s: int) -> dict[str, NpzRows]:
+        """The frame arrays of shard ``s``, opened for reading rows; the first time in this object
+        (and process), after :func:`verify_shard`. Rows are read one ``pread`` each, without
+        readahead: the data may be larger than memory and are read in random order."""
         if s not in self._maps:
             path = self.root / self.shards[s]
             if s not in self._verified:
                 verify_shard(path, self._entries[s])
                 self._verified.add(s)
-            self._maps[s] = {k: mmap_npz_member(path, k) for k in ("rgb", "depth_mm")}
+            self._maps[s] = {k: NpzRows(path, k) for k in ("rgb", "depth_mm")}
         return self._maps[s]
+
+    def _locate(self, frame_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(shard, row within the shard) of global frames."""
+        shard = np.searchsorted(self._start, frame_indices, side="right") - 1
+        return shard, frame_indices - self._start[shard]
 
     def frames(self, frame_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """RGB (N, h, w, 3) uint8 and depth (N, h, w) float32 metres of global frames, in order."""
         frame_indices = np.asarray(frame_indices, np.int64).ravel()
         rgb = np.empty((len(frame_indices), self.config.height, self.config.width, 3), np.uint8)
         depth = np.empty((len(frame_indices), self.config.height, self.config.width), np.float32)
-        shard = np.searchsorted(self._start, frame_indices, side="right") - 1
-        for k, (s, f) in enumerate(zip(shard, frame_indices)):
+        for k, (s, row) in enumerate(zip(*self._locate(frame_indices))):
             m = self._shard(int(s))
-            local = int(f - self._start[s])
-            rgb[k] = m["rgb"][local]
-            depth[k] = m["depth_mm"][local] * np.float32(0.001)
+            rgb[k] = m["rgb"].read(int(row))
+            depth[k] = m["depth_mm"].read(int(row)) * np.float32(0.001)
         return rgb, depth
+
+    def prefetch(self, frame_indices: np.ndarray) -> None:
+        """Start reading global frames that :meth:`frames` will be asked for soon (the disk reads them
+        while the caller computes; see :meth:`NpzRows.advise`)."""
+        shard, rows = self._locate(np.unique(np.asarray(frame_indices, np.int64).ravel()))
+        for s in np.unique(shard):
+            m = self._shard(int(s))
+            for arr in m.values():
+                arr.advise(rows[shard == s])
 
     def pair_batch(self, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Pairs ``idx`` (indices into the pair arrays): ``rgb`` (B, 2, h, w, 3) uint8, ``depth``

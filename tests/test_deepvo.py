@@ -326,3 +326,22 @@ def test_the_shipped_deepvo_is_registered_and_runs_in_a_comparison():
     row = next(r for r in result.rows if r.odometer == "deepvo")
     assert row.steps == 6 and row.failure_share == 0.0
     assert all(np.isfinite(getattr(row, c)) for c in ("dx", "dz", "dyaw"))
+
+
+def test_a_model_too_large_for_float32_is_stored_in_float16_and_answers_alike(trained, recipe, tmp_path, monkeypatch):
+    from baselines.deepvo.odometer import save_model
+    from odolab.learning import checkpoints
+
+    model, net, info = load_model(trained / "model.pt")
+    assert torch.load(trained / "model.pt", weights_only=True)["weights_dtype"] == "float32"
+    monkeypatch.setattr(checkpoints, "MAX_MODEL_BYTES", 1000)  # this tiny model counts as too large
+    save_model(tmp_path / "half.pt", recipe, net, info["training"])
+    doc = torch.load(tmp_path / "half.pt", weights_only=True)
+    assert doc["weights_dtype"] == "float16"
+    assert {v.dtype for v in doc["networks"]["deepvo"].values() if v.is_floating_point()} == {torch.float16}
+    _, half, _ = load_model(tmp_path / "half.pt")
+    assert {p.dtype for p in half.parameters()} == {torch.float32}  # cast back on loading
+    x = torch.rand(1, 3, model.frame_channels, H, W)
+    with torch.no_grad():
+        a, b = net(x)[0], half(x)[0]
+    assert torch.allclose(a, b, rtol=1e-2, atol=1e-3) and not torch.equal(a, b)

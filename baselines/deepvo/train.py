@@ -54,6 +54,10 @@ class WindowBatches:
     def __call__(self, starts: np.ndarray) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
         return window_batch(self.data, starts, self.window, self.cfg)
 
+    def advise(self, starts: np.ndarray) -> None:
+        """Start reading the frames of the windows at ``starts`` (see :meth:`TrainingData.prefetch`)."""
+        self.data.prefetch(self.data.pairs[starts][:, None] + np.arange(self.window)[None])
+
 
 def disjoint(starts: np.ndarray, pairs: int) -> np.ndarray:
     """Window starts (sorted pair indices) thinned so that windows of ``pairs`` pairs do not overlap."""

@@ -122,13 +122,20 @@ def check_export(export: Path, recipe: Path, states: dict[str, Path], kind: str 
             )
 
 
+#: Model files whose float32 weights would be larger than this store them in float16 (the project's
+#: limit on a shipped model is 20 MB; the rest of the file is a few kilobytes).
+MAX_MODEL_BYTES = 19_000_000
+
+
 def save_model(
     path: str | os.PathLike, kind: str, recipe: Any, networks: dict[str, torch.nn.Module], training: dict[str, Any]
 ) -> None:
     """A trained model file: the recipe (a dataclass with a ``model`` field; its ``model`` part is what
     loading needs), each network's weights (on the CPU) and the training status, all plain data.
-    An existing file at ``path`` that is not a model odolab exported is never replaced
-    (:class:`CheckpointError`, see :func:`what_file`)."""
+    Floating-point weights are stored in float32, or in float16 where float32 would pass
+    :data:`MAX_MODEL_BYTES` (loading casts them back to the network's float32; the file's
+    ``weights_dtype`` says which). An existing file at ``path`` that is not a model odolab exported is
+    never replaced (:class:`CheckpointError`, see :func:`what_file`)."""
     import dataclasses
     import json
 
@@ -138,6 +145,13 @@ def save_model(
             "not replaced (export the model elsewhere)"
         )
     doc = json.loads(json.dumps(dataclasses.asdict(recipe)))
+    weights = {name: {k: v.detach().cpu() for k, v in net.state_dict().items()} for name, net in networks.items()}
+    dtype = torch.float32
+    if sum(v.numel() * 4 for w in weights.values() for v in w.values() if v.is_floating_point()) > MAX_MODEL_BYTES:
+        dtype = torch.float16
+    weights = {
+        name: {k: v.to(dtype) if v.is_floating_point() else v for k, v in w.items()} for name, w in weights.items()
+    }
     save_checkpoint(
         path,
         kind,
@@ -146,9 +160,8 @@ def save_model(
             "model": doc["model"],
             "recipe": doc,
             "training": json.loads(json.dumps(training)),
-            "networks": {
-                name: {k: v.detach().cpu() for k, v in net.state_dict().items()} for name, net in networks.items()
-            },
+            "weights_dtype": str(dtype).removeprefix("torch."),
+            "networks": weights,
         },
     )
 

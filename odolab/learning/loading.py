@@ -25,10 +25,11 @@ class BatchList(Dataset):
 def prefetched(parts: list[Any], make: Callable[[Any], Any], workers: int = 1, ahead: int = 2) -> Iterable[Any]:
     """``make(p)`` for each ``p`` of ``parts``, in order. With ``workers`` > 0 they are made in that
     many worker processes (torch's DataLoader, one torch thread each), up to ``ahead`` batches per
-    worker in advance; 0 makes them here, on demand. ``make`` and its closure must pickle where the
-    platform spawns processes (Linux forks)."""
+    worker in advance; 0 makes them here, on demand, after ``make.advise(part)`` (where ``make`` has
+    it) told the data which part comes ``ahead`` batches later, so its reads overlap the computing.
+    ``make`` and its closure must pickle where the platform spawns processes (Linux forks)."""
     if workers <= 0 or len(parts) <= 1:
-        return (make(p) for p in parts)
+        return _here(parts, make, ahead)
     return _Loader(
         DataLoader(
             BatchList(parts, make),
@@ -40,6 +41,17 @@ def prefetched(parts: list[Any], make: Callable[[Any], Any], workers: int = 1, a
             collate_fn=_keep,
         )
     )
+
+
+def _here(parts: list[Any], make: Callable[[Any], Any], ahead: int) -> Iterator[Any]:
+    advise = getattr(make, "advise", None)
+    if advise is not None:
+        for p in parts[:ahead]:
+            advise(p)
+    for k, p in enumerate(parts):
+        if advise is not None and k + ahead < len(parts):
+            advise(parts[k + ahead])
+        yield make(p)
 
 
 def _keep(item: Any) -> Any:

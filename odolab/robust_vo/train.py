@@ -70,6 +70,11 @@ class StepBatches:
         other = make_batch(self.data, samples, self.cfg, cpu, swap_all=True) if self.geoinv else None
         return batch, other
 
+    def advise(self, samples: Samples) -> None:
+        """Start reading the frames of ``samples`` (see :meth:`TrainingData.prefetch`)."""
+        f = self.data.pairs[samples.pair]
+        self.data.prefetch(np.concatenate([f, f + 1]))
+
 
 class StageRunner:
     """One stage: its samples, optimiser, epoch function and validation."""
