@@ -1,0 +1,221 @@
+"""How far is the learned odometer's training budget from where it would cross the classical ones?
+Validation error per action and component against samples seen and training hours, for one or more
+robust-VO training runs, with the classical odometers' test errors as horizontal lines.
+
+    python -m studies.robust_vo.scaling [--runs reports/robust-vo/shipped reports/robust-vo/shipped-341]
+        [--classical reports/compare-test-20x100/table_per_action.csv] [--out reports/robust-vo/scaling]
+
+Reads only committed reports: each run's ``curves.csv`` (written by ``python -m
+odolab.robust_vo.train``) and a comparison's ``table_per_action.csv`` (``python -m odolab.compare``).
+Samples seen count every stage's training pairs up to that validation, in the order the stages ran;
+hours are the training epochs' wall-clock (pairs / pairs per second), validation left out. The
+lines are test-split errors (as used), the curves validation-split errors: two splits of the same
+simulator, disjoint scenes. Writes ``scaling.png`` and ``scaling.csv`` (the plotted points).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+ACTIONS = ("move_forward", "turn_left", "turn_right")
+COMPONENTS = ("dx", "dz", "dyaw")
+UNITS = {"dx": "m", "dz": "m", "dyaw": "rad"}
+CLASSICAL = ("action-prior", "icp", "feature-essential", "open3d-rgbd")
+
+
+@dataclass(frozen=True)
+class Point:
+    """One validation result of a run: after ``pairs`` training samples and ``hours`` of training."""
+
+    run: str
+    stage: str
+    epoch: int
+    pairs: int
+    hours: float
+    action: str
+    component: str
+    mae: float
+    prior_mae: float
+
+
+def read_curves(folder: Path) -> list[Point]:
+    """The validation points of the run whose reports are in ``folder`` (its ``curves.csv``), each
+    with the samples seen and training hours up to it. ``ValueError`` names the file and field."""
+    path = folder / "curves.csv"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    rows = list(csv.DictReader(io.StringIO(text)))
+    wanted = {"epoch", "split", "stage", "pairs", "pairs_per_s", "action", "component", "mae", "prior_mae"}
+    if not rows or not wanted <= set(rows[0]):
+        raise ValueError(f"{path}: expected a training curves file with columns {', '.join(sorted(wanted))}")
+    points, pairs, hours = [], 0, 0.0
+    for k, r in enumerate(rows):
+        try:
+            if r["split"] == "train":
+                pairs += int(r["pairs"])
+                hours += int(r["pairs"]) / float(r["pairs_per_s"]) / 3600
+            elif r["split"] == "val":
+                points.append(
+                    Point(
+                        folder.name,
+                        r["stage"],
+                        int(r["epoch"]),
+                        pairs,
+                        hours,
+                        r["action"],
+                        r["component"],
+                        float(r["mae"]),
+                        float(r["prior_mae"]),
+                    )
+                )
+        except (TypeError, ValueError, ZeroDivisionError):
+            raise ValueError(f"{path}: row {k + 2}: expected numbers in pairs, pairs_per_s, mae, prior_mae") from None
+    return points
+
+
+def read_classical(path: Path, odometers: tuple[str, ...] = CLASSICAL) -> dict[tuple[str, str, str], float]:
+    """(odometer, action, component) -> test error in metres or radians, from ``table_per_action.csv``
+    (which holds x 1e-2)."""
+    try:
+        rows = list(csv.DictReader(io.StringIO(path.read_text(encoding="utf-8"))))
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not rows or not {"odometer", "action", *COMPONENTS} <= set(rows[0]):
+        raise ValueError(f"{path}: expected a compare table_per_action.csv (odometer, action, dx, dz, dyaw)")
+    out = {}
+    for r in rows:
+        if r["odometer"] in odometers and r["action"] in ACTIONS:
+            for c in COMPONENTS:
+                out[(r["odometer"], r["action"], c)] = float(r[c]) * 1e-2
+    return out
+
+
+def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path: Path, x: str = "pairs") -> None:
+    """A 3 x 3 grid (actions x components) of validation error against ``x``: samples seen
+    (``"pairs"``) or training hours (``"hours"``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib import ticker
+
+    runs = list(dict.fromkeys(p.run for p in points))
+    odometers = list(dict.fromkeys(k[0] for k in classical))
+    fig, axes = plt.subplots(3, 3, figsize=(13, 10), sharex=True)
+    colours = plt.get_cmap("tab10")
+    for i, action in enumerate(ACTIONS):
+        for j, comp in enumerate(COMPONENTS):
+            ax = axes[i, j]
+            for r, run in enumerate(runs):
+                mine = sorted(
+                    (p for p in points if (p.run, p.action, p.component) == (run, action, comp)), key=lambda p: p.pairs
+                )
+                if mine:
+                    ax.plot(
+                        [getattr(p, x) for p in mine],
+                        [p.mae * 100 for p in mine],
+                        "o-",
+                        ms=3,
+                        color=colours(r),
+                        label=f"robust-vo {run} (val)",
+                    )
+            for k, odo in enumerate(odometers):
+                if (odo, action, comp) in classical:
+                    ax.axhline(
+                        classical[(odo, action, comp)] * 100,
+                        ls="--",
+                        lw=1,
+                        color=colours(len(runs) + k),
+                        label=f"{odo} (test)",
+                    )
+            ax.set_title(f"{action}: {comp}")
+            ax.set_ylabel(f"mean abs. error ({UNITS[comp]} x 1e-2)")
+            if x == "pairs":
+                ax.set_xscale("log")
+                ax.xaxis.set_major_formatter(ticker.FuncFormatter(_count))
+                ax.xaxis.set_minor_formatter(ticker.NullFormatter())
+            ax.grid(alpha=0.3)
+            if i == 2:
+                ax.set_xlabel(
+                    "training samples seen (all stages so far)" if x == "pairs" else "training hours (2-core CPU)"
+                )
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), frameon=False)
+    what = "samples seen" if x == "pairs" else "training hours"
+    fig.suptitle(f"robust-vo validation error against {what}; the classical rows' test errors as lines")
+    fig.tight_layout(rect=(0, 0.05, 1, 0.97))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _count(v: float, _pos: int) -> str:
+    return f"{v / 1e6:g}M" if v >= 1e6 else f"{v / 1e3:g}k"
+
+
+def write_points(points: list[Point], path: Path) -> None:
+    from odolab.io.atomic import write_text_atomic
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["run", "stage", "epoch", "pairs_seen", "hours", "action", "component", "mae", "prior_mae"])
+    for p in points:
+        w.writerow(
+            [
+                p.run,
+                p.stage,
+                p.epoch,
+                p.pairs,
+                f"{p.hours:.3f}",
+                p.action,
+                p.component,
+                f"{p.mae:.6g}",
+                f"{p.prior_mae:.6g}",
+            ]
+        )
+    write_text_atomic(path, buf.getvalue())
+
+
+def main(argv: list[str] | None = None) -> int:
+    from odolab.cli import ArgumentParser, check_report_dir, path_arg
+
+    ap = ArgumentParser(prog="python -m studies.robust_vo.scaling", description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--runs",
+        type=path_arg("--runs"),
+        nargs="+",
+        default=[Path("reports/robust-vo/shipped"), Path("reports/robust-vo/shipped-341")],
+        help="training report folders, each with a curves.csv (default: the shipped recipes' runs)",
+    )
+    ap.add_argument(
+        "--classical",
+        type=path_arg("--classical"),
+        default=Path("reports/compare-test-20x100/table_per_action.csv"),
+        help="a compare run's table_per_action.csv (default reports/compare-test-20x100/...)",
+    )
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("reports/robust-vo/scaling"),
+        help="where scaling.png, scaling-hours.png and scaling.csv go (default reports/robust-vo/scaling)",
+    )
+    args = ap.parse_args(argv)
+    check_report_dir(args.out, "--out", manifest="scaling.csv")
+    points = [p for folder in args.runs for p in read_curves(folder)]
+    classical = read_classical(args.classical)
+    args.out.mkdir(parents=True, exist_ok=True)
+    draw(points, classical, args.out / "scaling.png", "pairs")
+    draw(points, classical, args.out / "scaling-hours.png", "hours")
+    write_points(points, args.out / "scaling.csv")
+    print(f"{len(points)} validation points of {len(args.runs)} runs -> {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    from odolab.cli import run_cli
+
+    raise SystemExit(run_cli(main, "python -m studies.robust_vo.scaling"))
