@@ -123,39 +123,7 @@ def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0,
     return ActionPrior(means, counts, src)
 
 
-def _main(argv=None) -> int:
-    from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_output_file, file_arg, number, seed
-    from odolab.io.atomic import write_text_atomic
+if __name__ == "__main__":  # python -m odolab.action_prior: the command line is odolab.cli.action_prior's
+    import runpy
 
-    ap = ArgumentParser(prog="python -m odolab.action_prior", description=__doc__.split("\n")[0])
-    ap.add_argument(
-        "--episodes", type=number("--episodes", int, 1, 100_000), default=400, help="train episodes, 1-100000 (400)"
-    )
-    ap.add_argument(
-        "--max-steps", type=number("--max-steps", int, 1, 2000), default=500, help="steps each, 1-2000 (500)"
-    )
-    ap.add_argument("--seed", type=seed(), default=0, help=f"seed, 0-{MAX_SEED} (0)")
-    ap.add_argument("--out", type=file_arg("--out"), default=None, help="write JSON here (atomic); default: print")
-    args = ap.parse_args(argv)
-    if args.out is not None:
-        check_output_file(args.out, "--out")  # its folder must exist: nothing is created on a typo
-    prior = fit_action_prior(args.episodes, args.max_steps, args.seed)
-    unseen = [a.label for a, n in prior.samples.items() if n == 0]
-    if unseen:
-        raise UsageError(
-            f"no {' or '.join(unseen)} step in {args.episodes} episodes of at most {args.max_steps} "
-            "steps: a mean of nothing is no prior; use more --episodes or --max-steps"
-        )
-    text = json.dumps(prior.to_json(), indent=2) + "\n"
-    if args.out is None:
-        print(text, end="")
-        return 0
-    write_text_atomic(args.out, text)
-    print(f"wrote {args.out}")
-    return 0
-
-
-if __name__ == "__main__":
-    from odolab.cli import run_cli
-
-    raise SystemExit(run_cli(_main, "python -m odolab.action_prior"))
+    runpy.run_module("odolab.cli.action_prior", run_name="__main__", alter_sys=True)

@@ -1,65 +1,11 @@
-"""The ``odolab`` command: one entry point whose subcommands are the ``python -m`` commands.
+"""The ``odolab`` console script (``odolab.commands:main`` in pyproject.toml): it lives in
+:mod:`odolab.cli.commands`."""
 
-    odolab compare [options]        = python -m odolab.compare [options]
-    odolab --help                   lists them
-
-Each subcommand imports its module only when it runs, so ``odolab --help`` is quick and a command
-that needs torch is the only one that loads it.
-"""
-
-from __future__ import annotations
-
-import importlib
 import sys
-from collections.abc import Sequence
 
-#: subcommand -> (module, its main function, one line of help)
-COMMANDS: dict[str, tuple[str, str, str]] = {
-    "compare": (
-        "odolab.compare",
-        "main",
-        "run odometers on simulator episodes or TUM folders; tables, figures, report",
-    ),
-    "evaluate": ("odolab.evaluate", "main", "ATE, RPE and KITTI t_rel/r_rel of trajectory files (TUM or KITTI format)"),
-    "navigate": ("odolab.navigate", "main", "PointGoal navigation with each odometer; success, SPL, report"),
-    "navigation-diff": ("odolab.navigation.diff", "main", "compare two navigation runs episode by episode"),
-    "simcard": ("odolab.simcard", "main", "the simulator's statistics beside the paper's"),
-    "bench": ("odolab.bench", "main", "speed of the simulator, odometers, navigation, evaluation and training"),
-    "training-data": ("odolab.training_data", "main", "render episodes into training shards (resumable, on Ray)"),
-    "train-robust-vo": ("odolab.robust_vo.train", "main", "train the robust VO from a TOML recipe (resumable)"),
-    "train-deepvo": ("baselines.deepvo.train", "main", "train DeepVO from a TOML recipe (resumable)"),
-    "calibrate-fusion": (
-        "odolab.fusion.calibrate",
-        "main",
-        "calibrate the noise models of fused(...) on the val split",
-    ),
-}
+from odolab.cli.commands import COMMANDS, main, usage
 
-
-def usage() -> str:
-    """The subcommand list."""
-    width = max(map(len, COMMANDS))
-    lines = ["usage: odolab COMMAND [options]   (odolab COMMAND --help for a command's options)", "", "commands:"]
-    lines += [f"  {name:<{width}}  {text}  (python -m {module})" for name, (module, _, text) in COMMANDS.items()]
-    return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``odolab COMMAND ...``; exit code 2 with the list for an unknown or missing command."""
-    from odolab.cli import run_cli
-
-    args = list(sys.argv[1:] if argv is None else argv)
-    if not args or args[0] in ("-h", "--help", "help"):
-        print(usage())
-        return 0 if args else 2
-    name, rest = args[0], args[1:]
-    if name not in COMMANDS:
-        print(f"odolab: unknown command {name!r}; expected one of {', '.join(COMMANDS)}", file=sys.stderr)
-        return 2
-    module, function, _ = COMMANDS[name]
-    entry = getattr(importlib.import_module(module), function)
-    return run_cli(entry, f"odolab {name}", rest)
-
+__all__ = ["COMMANDS", "main", "usage"]
 
 if __name__ == "__main__":
     sys.exit(main())

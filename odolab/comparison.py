@@ -69,7 +69,8 @@ class ComparisonConfig:
     instead of the simulator, its depth PNG values per metre ``tum_depth_scale`` (None: TUM's 5000)
     and its camera ``tum_intrinsics`` ``(fx, fy, cx, cy)`` (None: the TUM camera its name says).
     ``ray_address`` / ``parallel``: how missing episodes are generated;
-    ``progress``: show progress bars while generating."""
+    ``progress``: show progress bars while generating. ``command``: the command line that asked
+    (its caller's words, recorded in the notes), or None."""
 
     odometers: list[str] | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -85,6 +86,7 @@ class ComparisonConfig:
     ray_address: str | None = None
     parallel: bool = True
     progress: bool = True
+    command: str | None = None
 
 
 @dataclass(frozen=True)
@@ -321,12 +323,8 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
             f"Noise multipliers: RGB {noise.rgb:g}, depth {noise.depth:g}, actuation {noise.actuation:g} "
             "(the action prior was fitted at 1, 1, 0.5)."
         ),
-        (
-            f"Command: python -m odolab.compare --episodes {config.episodes} --seed {config.seed} "
-            f"--split {config.split} --max-steps {config.max_steps} --rgb-noise {noise.rgb:g} "
-            f"--depth-noise {noise.depth:g} --actuation-noise {noise.actuation:g}"
-        ),
     ]
+    notes += [f"Command: {config.command}"] if config.command else []
     notes += _options_note(config)
     plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"

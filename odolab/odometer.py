@@ -31,6 +31,7 @@ from importlib.metadata import entry_points
 
 import numpy as np
 
+from odolab.errors import InputError
 from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence, as_action  # noqa: F401
 
 __all__ = [
@@ -39,6 +40,7 @@ __all__ = [
     "REGISTRY",
     "IncompleteOdometerError",
     "Odometer",
+    "OdometerListError",
     "OdometerRegistry",
     "OracleInputError",
     "UnknownOdometerError",
@@ -62,7 +64,9 @@ class Odometer:
     runner hands to :meth:`step_batch` at once; 1 = one :meth:`step` per pair), ``threads``
     (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`),
     ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
-    network per action: it is refused on real data, which has no actions), ``weights`` (a digest of
+    network per action: it is refused on real data, which has no actions), ``composite`` (True for an
+    odometer built on others, named with its inputs as ``head(a,b)``: it is never part of "every
+    odometer"; a class whose constructor takes ``inputs`` counts as one when it does not say), ``weights`` (a digest of
     what its answers depend on besides code: a learned odometer's model file, a baseline's
     configuration, a fused one's inputs' digests and its calibration; or None: studies that keep
     results per odometer redo them when it changes).
@@ -73,6 +77,7 @@ class Odometer:
     needs_action: bool = False
     batch_size: int = 1
     threads: int | None = None
+    composite: bool = False
     weights: str | None = None
     _intrinsics: Intrinsics | None = None
 
@@ -295,26 +300,35 @@ def split_odometer_names(text: str, keep_empty: bool = False) -> list[str]:
     return names if keep_empty else [n for n in names if n]
 
 
+class OdometerListError(InputError):
+    """A list of odometer names that cannot be run (empty, a name twice, a composite with an empty
+    or repeated input); ``named("--odometers")`` words it after a command line's option."""
+
+    subject = "odometer list"
+
+
 def parse_odometer_list(text: str) -> list[str]:
-    """A command line's ``--odometers`` value: :func:`split_odometer_names`, refusing an empty list
-    and a name given twice (``ValueError`` naming the problem)."""
+    """A list of odometer names such as a command line's ``--odometers``: :func:`split_odometer_names`,
+    refusing an empty list, a name given twice and a composite with an empty or repeated input
+    (:class:`OdometerListError`; ``ValueError`` for unbalanced parentheses)."""
     names = split_odometer_names(text)
     if not names:
-        raise ValueError("--odometers is empty")
+        raise OdometerListError("is empty")
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
-        raise ValueError(f"--odometers names {twice[0]!r} twice")
+        raise OdometerListError(f"names {twice[0]!r} twice")
     for name in names:
         match = COMPOSITE.fullmatch(name)
         if match:
             parts = split_odometer_names(match["inputs"], keep_empty=True)  # fused(fused(a,b),c): 2 inputs
             if any(not part for part in parts):
-                raise ValueError(
-                    f"--odometers: {name!r} has an empty input; name its inputs inside the parentheses, "
-                    "e.g. fused(icp,open3d-rgbd) or manhattan(icp)"
+                raise OdometerListError(
+                    f"{name!r} has an empty input; name its inputs inside the parentheses, "
+                    "e.g. fused(icp,open3d-rgbd) or manhattan(icp)",
+                    joiner=": ",
                 )
             if len(set(parts)) < len(parts):
-                raise ValueError(f"--odometers: {name!r}: an input is named twice")
+                raise OdometerListError(f"{name!r}: an input is named twice", joiner=": ")
     return names
 
 
@@ -437,13 +451,31 @@ def available_odometers() -> list[str]:
     return REGISTRY.names()
 
 
-#: Odometers built on others: never part of "every odometer", named with their inputs.
-COMPOSITES = frozenset({"fused", "manhattan"})
+def is_composite(factory: Callable[..., Odometer]) -> bool:
+    """Whether ``factory`` makes an odometer built on others: its class declares ``composite = True``,
+    or (declaring nothing) its constructor takes ``inputs``, which only a composite's name gives."""
+    declared = getattr(factory, "composite", None)
+    if isinstance(declared, bool) and (declared or "composite" in vars(factory)):
+        return declared
+    try:
+        return "inputs" in inspect.signature(factory).parameters
+    except (TypeError, ValueError):  # a callable without a signature
+        return False
 
 
 def standalone_odometers() -> list[str]:
-    """:func:`available_odometers` without the composites: what "every odometer" means."""
-    return [n for n in REGISTRY.names() if n not in COMPOSITES]
+    """:func:`available_odometers` without the composites (:func:`is_composite`): what "every
+    odometer" means. Each name's class is imported to ask it; one that cannot be is kept (loading
+    it then says why)."""
+    names = []
+    for name in REGISTRY.names():
+        try:
+            composite = is_composite(REGISTRY.resolve(name))
+        except UnknownOdometerError:
+            composite = False
+        if not composite:
+            names.append(name)
+    return names
 
 
 def unknown_odometer(name: str) -> str | None:

@@ -15,20 +15,31 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
+from odolab.errors import InputError
+
 #: Seconds to wait for a cluster's address to accept a connection before giving up.
 CONNECT_TIMEOUT = 3.0
 _ADDRESS = re.compile(r"^(?:ray://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):(?P<port>[0-9]{1,5})$")
 
 
+class RayAddressError(InputError):
+    """A Ray cluster address that is malformed, or where no cluster answers (``problem`` names the
+    address). Its ``str()`` still begins with ``--ray-address``: :mod:`odolab.learning.cli` rewrites
+    that name for the ``RAY_ADDRESS`` variable (to become ``"Ray address"`` once the trainers'
+    command line moves into :mod:`odolab.cli`)."""
+
+    subject = "--ray-address"
+
+
 def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     """Check a Ray cluster address (``host:port``, ``ray://host:port`` or ``auto``) before use:
     malformed, or nothing accepting connections there within ``timeout`` seconds, raises
-    ``ValueError`` with one line naming the address (instead of Ray's minutes-long retries)."""
+    :class:`RayAddressError` with one line naming the address (instead of Ray's minutes-long retries)."""
     if address == "auto":
         return
     match = _ADDRESS.match(address)
     if match is None or not 0 < int(match["port"]) < 65536:
-        raise ValueError(f"--ray-address {address!r} is not an address; expected host:port, ray://host:port or auto")
+        raise RayAddressError(f"{address!r} is not an address; expected host:port, ray://host:port or auto")
     host = match["host"].strip("[]")
     try:
         with socket.create_connection((host, int(match["port"])), timeout=timeout):
@@ -37,22 +48,7 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
         reason = (
             f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc)).lower()
         )
-        raise ValueError(f"--ray-address {address}: no Ray cluster there ({reason})") from None
-
-
-def check_ray_option(address: str | None, serial: bool = False) -> None:
-    """A command line's ``--ray-address``, checked before any work: :class:`odolab.cli.UsageError`
-    with one line when it is malformed or unreachable, or given with ``--serial`` (no Ray then)."""
-    from odolab.cli import UsageError
-
-    if address is None:
-        return
-    if serial:
-        raise UsageError("--ray-address and --serial exclude each other (--serial runs without Ray); drop one")
-    try:
-        check_ray_address(address)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+        raise RayAddressError(f"{address}: no Ray cluster there ({reason})") from None
 
 
 #: The logger of Ray's token-authentication notices (warnings printed as ``ray.init`` starts).
@@ -111,7 +107,7 @@ def fan_out(
     e.g. to write it to disk at once so finished work survives an interruption; results are then
     handed to it and not kept (the returned list holds None), so large results can stream.
     ``ray_address``: None starts (or reuses) a local instance; otherwise e.g. "ray://host:10001"
-    (checked first by :func:`check_ray_address`: ``ValueError`` within seconds if unreachable).
+    (checked first by :func:`check_ray_address`: :class:`RayAddressError` within seconds if unreachable).
     """
     results: list[Any] = [None] * len(items)
     bar = tqdm(total=len(items), desc=desc, disable=not progress or not items, leave=False)

@@ -22,13 +22,10 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-
-from odolab.cli import MAX_SEED, ArgumentParser, UsageError, check_report_dir, number, path_arg, run_cli, seed
 
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
 PAPER_MIX = {"move_forward": 57.32, "turn_left": 21.34, "turn_right": 21.33}  # % of 1,000,000 steps
@@ -357,94 +354,35 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     folder.finish()
 
 
-def build_parser() -> ArgumentParser:
-    ap = ArgumentParser(prog="python -m odolab.simcard", description=__doc__.splitlines()[0])
-    ap.add_argument("--split", default="train", choices=["train", "val", "test"], help="scene split (default train)")
-    ap.add_argument(
-        "--episodes",
-        type=number("--episodes", int, 1, 100_000),
-        default=400,
-        help="rollouts for the motion statistics, 1-100000 (default 400)",
-    )
-    ap.add_argument(
-        "--rendered",
-        type=number("--rendered", int, 1, 1000),
-        default=24,
-        help="episodes rendered for the image statistics, 1-1000 (default 24)",
-    )
-    ap.add_argument(
-        "--frames",
-        type=number("--frames", int, 1, 500),
-        default=30,
-        help="frames per rendered episode, 1-500 (default 30)",
-    )
-    ap.add_argument(
-        "--max-steps",
-        type=number("--max-steps", int, 1, 2000),
-        default=500,
-        help="steps per episode, 1-2000 (default 500)",
-    )
-    ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
-    ap.add_argument(
-        "--out", type=path_arg("--out"), default=Path("runs/simcard"), help="output folder (default runs/simcard)"
-    )
-    ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
-    ap.add_argument("--serial", action="store_true", help="no Ray: everything in this process")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    return ap
-
-
-def main(argv: Sequence[str] | None = None) -> int:
+def measure(
+    split: str,
+    episodes: int,
+    rendered: int,
+    frames: int,
+    max_steps: int,
+    seed: int,
+    *,
+    parallel: bool = True,
+    ray_address: str | None = None,
+    progress: bool = True,
+) -> tuple[dict, ImageStats, list[tuple]]:
+    """The card's numbers: the motion summary of ``episodes`` rollouts, the image statistics of
+    ``rendered`` episodes of ``frames`` frames, and the sample frames of the first four (for the
+    contact sheet); as Ray tasks (:func:`odolab.parallel.fan_out`) unless ``parallel`` is False."""
     from odolab.episodes import EpisodeSpec
     from odolab.parallel import fan_out
-    from odolab.sim.redwood import default_table
 
-    args = build_parser().parse_args(argv)
-    check_report_dir(args.out, "--out")  # a folder of the user's own files is refused, as compare refuses it
-    from odolab.io.owned import UnsafeOutputError
-    from odolab.report import MANIFEST, ManifestError, OutputFolder
-
-    try:
-        OutputFolder.check(args.out, files=(*CARD_FILES, MANIFEST), owner="simcard", names=CARD_NAMES)
-    except ManifestError as exc:
-        raise UsageError(f"--out {exc}") from None
-    except UnsafeOutputError as exc:
-        raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
-    try:
-        source = default_table().source  # a bad ODOLAB_REDWOOD_TABLE is one line, before any work
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if args.ray_address is not None and not args.serial:
-        from odolab.parallel import check_ray_address
-
-        try:
-            check_ray_address(args.ray_address)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-    specs = [
-        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)
-    ]
-    run = {"parallel": not args.serial, "ray_address": args.ray_address, "progress": not args.quiet}
+    specs = [EpisodeSpec(split=split, index=i, seed=seed, max_steps=max_steps) for i in range(episodes)]
+    run = {"parallel": parallel, "ray_address": ray_address, "progress": progress}
     motion = summarize_motion(fan_out(motion_stats, specs, desc="rollouts", **run))
-    rendered = [
-        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.frames) for i in range(args.rendered)
-    ]
+    shown = [EpisodeSpec(split=split, index=i, seed=seed, max_steps=frames) for i in range(rendered)]
     parts = fan_out(
         _render_part,
-        [(s, args.frames, 1 if i < 4 else 0) for i, s in enumerate(rendered)],
+        [(s, frames, 1 if i < 4 else 0) for i, s in enumerate(shown)],
         desc="rendered episodes",
         **run,
     )
-    images = merge_images([p for p, _ in parts])
-    samples = [s for _, ss in parts for s in ss]
-    command = (
-        f"python -m odolab.simcard --split {args.split} --episodes {args.episodes} --rendered {args.rendered} "
-        f"--frames {args.frames} --max-steps {args.max_steps} --seed {args.seed}"
-    )
-    write_card(args.out, motion, images, samples, source, command)
-    print((args.out / "card.md").read_text())
-    print(f"wrote {args.out / 'card.md'}, card.json, motion.png, depth.png, frames.png")
-    return 0
+    return motion, merge_images([p for p, _ in parts]), [s for _, ss in parts for s in ss]
 
 
 def _render_part(job: tuple) -> tuple[ImageStats, list[tuple]]:
@@ -452,5 +390,7 @@ def _render_part(job: tuple) -> tuple[ImageStats, list[tuple]]:
     return render_stats(spec, frames, keep)
 
 
-if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "python -m odolab.simcard"))
+if __name__ == "__main__":  # python -m odolab.simcard: the command line is odolab.cli.simcard's
+    import runpy
+
+    runpy.run_module("odolab.cli.simcard", run_name="__main__", alter_sys=True)

@@ -486,7 +486,7 @@ def test_fused_names_and_bad_options(calibration):
 
 def _calibrate(argv):
     from odolab.cli import run_cli
-    from odolab.fusion.calibrate import main
+    from odolab.cli.calibrate_fusion import main
 
     return run_cli(main, "python -m odolab.fusion.calibrate", argv)
 
@@ -504,8 +504,8 @@ def test_calibrate_writes_a_file_that_check_reads(tmp_path, capsys):
 
 
 def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
-    from odolab.bench import main as bench_main
     from odolab.cli import run_cli
+    from odolab.cli.bench import main as bench_main
 
     (tmp_path / "file").write_text("x")
     cases = [

@@ -26,8 +26,10 @@ def one_line_error(module: str, *args: str, words: str) -> None:
     import importlib
     import io
 
-    mod = importlib.import_module(module)
-    main = getattr(mod, "main", None) or mod._main
+    from odolab.cli.commands import COMMANDS
+
+    command = {m: c for m, c, _ in COMMANDS.values()} | {"odolab.action_prior": "odolab.cli.action_prior"}
+    main = importlib.import_module(command.get(module, module)).main
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         code = run_cli(main, module, [str(a) for a in args])
@@ -451,6 +453,7 @@ def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
     import json
 
     from odolab import bench
+    from odolab.cli.bench import main
 
     out = tmp_path / "b.json"
     out.write_text('{"old": "a complete earlier run", "parts_pending": []}')
@@ -464,7 +467,7 @@ def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
 
     monkeypatch.setattr(bench, "bench_odometers", odometers)
     with pytest.raises(KeyboardInterrupt):
-        bench.main(["--only", "odometers", "--only", "evaluate", "--odometers", "action-prior,icp", "--json", str(out)])
+        main(["--only", "odometers", "--only", "evaluate", "--odometers", "action-prior,icp", "--json", str(out)])
     saved = json.loads(out.read_text())
     assert "old" not in saved and saved == seen[0]
     assert saved["odometers"] == [{"odometer": "action-prior", "steps_per_s": 1.0}]

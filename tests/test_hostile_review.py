@@ -292,7 +292,7 @@ def test_the_derotation_probe_bounds_its_options_before_work(argv, capsys):
 
 
 def test_trainers_and_training_data_refuse_a_folder_of_the_users_files(tmp_path):
-    from odolab.training_data import main as make_data
+    from odolab.cli.training_data import main as make_data
 
     mine = tmp_path / "mine"
     mine.mkdir()

@@ -148,20 +148,27 @@ def test_the_cut_short_march_gives_the_full_march_times_to_the_bit(clutter):
 
 
 def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
+    from odolab.cli.navigate import SETTING_OPTIONS
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import _policy_changes, _policy_to_match
 
+    def changes(saved, policy):  # as the command line words them
+        return [c.named(SETTING_OPTIONS) for c in _policy_changes(saved, policy)]
+
+    def to_match(saved, policy):
+        return " ".join(m.named(SETTING_OPTIONS) for m in _policy_to_match(saved, policy)) or None
+
     old = {k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k != "fallback_radius"}
-    assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.0))) == []
-    assert _policy_changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.1))) == [
+    assert changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.0))) == []
+    assert changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.1))) == [
         "--policy fallback_radius (not recorded there, so 0.0: that folder predates this parameter, 0.1 now)"
     ]
-    assert _policy_to_match(old, dataclasses.asdict(PolicyConfig())) == "--policy fallback_radius=0.0"
-    assert _policy_to_match({**old, "cell": 5.0}, dataclasses.asdict(PolicyConfig())) is None  # out of range
-    assert _policy_to_match({**old, "cell": "0.05"}, dataclasses.asdict(PolicyConfig())) is None  # not a number
-    assert _policy_to_match({**old, "nonsense": 1}, dataclasses.asdict(PolicyConfig())) is None
+    assert to_match(old, dataclasses.asdict(PolicyConfig())) == "--policy fallback_radius=0.0"
+    assert to_match({**old, "cell": 5.0}, dataclasses.asdict(PolicyConfig())) is None  # out of range
+    assert to_match({**old, "cell": "0.05"}, dataclasses.asdict(PolicyConfig())) is None  # not a number
+    assert to_match({**old, "nonsense": 1}, dataclasses.asdict(PolicyConfig())) is None
     for hand_edited, there in (("0.0", "'0.0' there"), (False, "False there"), ("x" * 99, "there")):
-        said = _policy_changes({**old, "fallback_radius": hand_edited}, dataclasses.asdict(PolicyConfig()))
+        said = changes({**old, "fallback_radius": hand_edited}, dataclasses.asdict(PolicyConfig()))
         assert len(said) == 1 and there in said[0] and said[0].endswith(", 0.1 now)") and len(said[0]) < 120
 
 
@@ -517,7 +524,7 @@ def test_policy_values_and_reports_are_checked_and_escaped():
         PolicyConfig(stride=4.0)
     cfg = PolicyConfig(cell=np.float32(0.25), margin=-0.0)
     assert type(cfg.cell) is float and str(cfg.margin) == "0.0"
-    said = _policy_changes({"cell": 0.05}, {"cell": 0.05, "new_one": 0.1})
+    said = [c.named({"policy": "--policy"}) for c in _policy_changes({"cell": 0.05}, {"cell": 0.05, "new_one": 0.1})]
     assert said == ["--policy new_one (not recorded there: that folder predates this parameter, 0.1 now)"]
     page = _html([], [], "python -m odolab.navigate --out 'x<i>y&z'")
     assert "x&lt;i&gt;y&amp;z" in page and "<i>" not in page

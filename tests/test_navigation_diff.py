@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from odolab.cli import run_cli
-from odolab.navigation.diff import diff_runs, main, markdown, read_episodes, setting_notes, unpaired
+from odolab.cli.navigation_diff import main
+from odolab.navigation.diff import diff_runs, markdown, read_episodes, setting_notes, unpaired
 
 HEAD = "odometer,episode,split,seed,d0,d_end,path,stopped,steps,collisions,success,spl,soft_spl,failed_steps\n"
 

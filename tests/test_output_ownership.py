@@ -112,7 +112,7 @@ def test_compare_refuses_a_linked_or_misplaced_folder_before_any_work(tmp_path, 
 
 
 def test_simcard_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
-    from odolab.simcard import main
+    from odolab.cli.simcard import main
 
     out = tmp_path / "mine"
     out.mkdir()

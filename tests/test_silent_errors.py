@@ -93,7 +93,7 @@ def test_a_composite_that_hides_ground_truth_from_its_oracle_input_is_refused(or
 
 @pytest.mark.slow
 def test_the_calibration_command_names_an_oracle_input(tmp_path, capsys, oracle_calibration):
-    from odolab.fusion import calibrate
+    from odolab.cli import calibrate_fusion as calibrate
 
     calibrate.main(
         [

@@ -4,7 +4,8 @@ import json
 
 import numpy as np
 
-from odolab.simcard import ImageStats, main
+from odolab.cli.simcard import main
+from odolab.simcard import ImageStats
 
 
 def test_image_stats_count_holes_and_depth_error_per_bin():

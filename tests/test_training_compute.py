@@ -141,7 +141,7 @@ def test_bench_training_prints_and_writes_one_row_per_recipe(tmp_path, capsys):
     """``python -m odolab.bench --only training --recipe R --json F`` on a tiny recipe."""
     import json
 
-    from odolab import bench
+    from odolab.cli import bench
 
     recipe = tmp_path / "tiny.toml"
     recipe.write_text(

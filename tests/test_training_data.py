@@ -107,6 +107,7 @@ def test_bad_data_configs_name_the_field():
 
 def test_the_cli_makes_data_and_refuses_bad_options(tmp_path, capsys):
     from odolab.cli import run_cli
+    from odolab.cli.training_data import main as make_data
 
     out = tmp_path / "d"
     args = [
@@ -124,9 +125,9 @@ def test_the_cli_makes_data_and_refuses_bad_options(tmp_path, capsys):
         "--out",
         str(out),
     ]
-    assert run_cli(td.main, "python -m odolab.training_data", args) == 0
+    assert run_cli(make_data, "python -m odolab.training_data", args) == 0
     assert "pairs" in capsys.readouterr().out
-    assert run_cli(td.main, "python -m odolab.training_data", args[:-2] + ["--width", "500", "--out", str(out)]) == 2
+    assert run_cli(make_data, "python -m odolab.training_data", args[:-2] + ["--width", "500", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "--width" in err and "Traceback" not in err
 

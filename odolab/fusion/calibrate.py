@@ -18,44 +18,15 @@ calibrated like any other, and named as one: a fused odometer using it is an ora
 
 from __future__ import annotations
 
-import shlex
-import sys
 from collections.abc import Sequence
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.api import EpisodeSpec, load_episodes
-from odolab.cli import (
-    MAX_SEED,
-    ArgumentParser,
-    UsageError,
-    check_output_dir,
-    check_output_file,
-    file_arg,
-    given_options,
-    number,
-    path_arg,
-    run_cli,
-)
-from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
-from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
-from odolab.fusion.calibration import (
-    MAX_NEAR_DEPTH,
-    NEAR,
-    Calibration,
-    debiased,
-    ellipsoid_share,
-    fit_input,
-    view_is_near,
-)
+from odolab.fusion.calibration import Calibration, debiased, ellipsoid_share, view_is_near
 from odolab.fusion.graph import residual, right_covariance
-from odolab.odometer import parse_odometer_list, standalone_odometers
-from odolab.parallel import check_ray_option
-from odolab.progress import StepProgressBar
-from odolab.runner import failure_reason, run
-from odolab.sim.scenes import SPLITS
-from odolab.types import MOTION_ACTIONS
+from odolab.runner import failure_reason
+from odolab.types import MOTION_ACTIONS, Action
 
 
 def near_views(episodes, near_depth: float) -> dict[str, np.ndarray]:
@@ -90,159 +61,36 @@ def steps_of(
     )
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    ap = ArgumentParser(prog="python -m odolab.fusion.calibrate", description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--odometers",
-        default="action-prior,icp,open3d-rgbd,robust-vo",
-        help="comma-separated inputs to calibrate (default: %(default)s)",
-    )
-    ap.add_argument(
-        "--check", type=path_arg("--check"), default=None, help="check this calibration instead of fitting one"
-    )
-    ap.add_argument(
-        "--out",
-        type=file_arg("--out"),
-        default=Path("runs/fusion/calibration.json"),
-        help="calibration file to write (default %(default)s; its folder is created)",
-    )
-    ap.add_argument(
-        "--near-depth",
-        type=number("--near-depth", float, 0.0, MAX_NEAR_DEPTH),
-        default=1.0,
-        help="views whose median depth is below this many metres get their own entries (default %(default)s; 0: none)",
-    )
-    ap.add_argument("--split", default="val", help=f"{' | '.join(SPLITS)} (default val)")
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
-    ap.add_argument(
-        "--max-steps",
-        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
-        default=100,
-        help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 100)",
-    )
-    ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
-    ap.add_argument(
-        "--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})"
-    )
-    ap.add_argument("--ray-address", default=None)
-    ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    args = ap.parse_args(argv)
-    if args.split not in SPLITS:
-        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
-    try:
-        names = parse_odometer_list(args.odometers)
-        odometer_names(names)  # unknown names are named first
-    except (ValueError, ComparisonError) as exc:
-        raise UsageError(str(exc)) from None
-    if any(n.startswith("fused(") or n == "fused" for n in names):
-        raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
-    calibration = None
-    if args.check is not None:
-        given = given_options(argv, ["--out", "--odometers", "--near-depth"])
-        if "--out" in given:
-            raise UsageError("--out is for a new calibration; --check only prints (redirect it to keep it)")
-        if "--near-depth" in given:
-            raise UsageError("--near-depth is for a new calibration; --check uses the near_depth of the file it checks")
-        try:
-            calibration = Calibration.load(args.check)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-        if "--odometers" not in given:  # all the file calibrates; named ones must all be in it
-            names = sorted(calibration.inputs)
-            known = set(standalone_odometers())
-            stranger = next((n for n in names if n not in known), None)
-            if stranger is not None:  # a data file never makes odolab import a module or build a composite
-                raise UsageError(
-                    f"{args.check}: input {stranger!r} is not a registered odometer (known: "
-                    f"{', '.join(sorted(known))}); to check it, name the inputs with --odometers"
-                )
-        missing = [n for n in names if n not in calibration.inputs]
-        if missing:
-            raise UsageError(
-                f"{args.check}: no calibration for {missing[0]!r} (it has {', '.join(sorted(calibration.inputs))})"
-            )
-    else:
-        if "action-prior" not in names:
-            raise UsageError("--odometers must include action-prior: fusion falls back on it")
-        if args.episodes * args.max_steps < 30:
-            raise UsageError(
-                f"--episodes x --max-steps = {args.episodes * args.max_steps} steps: too few to calibrate "
-                "(at least 10 valid steps of an action are needed; use hundreds)"
-            )
-        if args.out.suffix.lower() != ".json":  # before its folder is made
-            raise UsageError(f"--out {args.out}: unknown file type {args.out.suffix or '(no extension)'!r}; use .json")
-        try:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"--out {args.out}: cannot make its folder ({exc.strerror or exc})") from None
-        check_output_file(args.out, "--out", suffixes=[".json"])
-    check_output_dir(args.cache, "--cache")
-    check_ray_option(args.ray_address, args.serial)
-    try:
-        odometers = load_odometers(names)
-    except ComparisonError as exc:
-        raise UsageError(str(exc)) from None
-    specs = [
-        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)
-    ]
-    episodes = load_episodes(
-        specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial, progress=not args.quiet
-    )
-    results = run(odometers, episodes, observer=StepProgressBar(disable=args.quiet))
-    near_depth = calibration.near_depth if calibration is not None else args.near_depth
-    near = near_views(episodes, near_depth)
-    fitted = {}
-    for name in names:
-        xi, actions, own, _, close = steps_of([r for r in results if r.odometer == name], near)
-        if calibration is not None:
-            cal = calibration.for_input(name)
-            for a in MOTION_ACTIONS:
-                for is_near in (False, True):
-                    rows = np.flatnonzero((actions == a.value) & (close == is_near))
-                    if not len(rows):
-                        continue
-                    covs = np.stack([cal.covariance(a, own[k], is_near) for k in rows])
-                    xi[rows] = debiased(xi[rows], cal.bias_of(a, is_near))
-                    note = "" if len(rows) >= 20 else "  (too few steps to judge)"
-                    label = a.label + (NEAR if is_near else "")
-                    entry = cal.label(a, is_near)
-                    used = f"entry {entry}" if entry else "no entry: the input's largest sigmas"
-                    print(
-                        f"{name:>24} {label:>17}: {ellipsoid_share(xi[rows], covs):.3f} of {len(rows)} valid steps "
-                        f"inside the 95 % ellipsoid ({used}){note}"
-                    )
-            continue
-        try:
-            fitted[name] = fit_input(xi, actions, own, close)
-        except ValueError as exc:
-            raise UsageError(f"{name}: {exc}; use more --episodes or --max-steps") from None
-        cal = fitted[name]
-        gives_own = any(c is not None for c in own)
+@dataclass(frozen=True)
+class EntryCheck:
+    """How one calibration entry carries over: ``share`` of the ``steps`` valid bias-corrected steps of
+    ``action`` (near views or not) inside its 95 % ellipsoid; ``entry`` the entry used (None: the
+    input's largest sigmas)."""
 
-        def own_note(a: str, cal: Calibration = cal, gives_own: bool = gives_own) -> str:
-            if cal.own_scale.get(a):
-                return f" (own covariance x {cal.own_scale[a]:.3g})"
-            return " (own covariance fits worse than the fixed one: not used)" if gives_own else ""
-
-        said = ", ".join(f"{a} {n} steps{own_note(a)}" for a, n in cal.steps.items())
-        left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]  # no plain entry: no near one either
-        oracle = (
-            " (an oracle: it reads ground truth, and a fused odometer using it is marked oracle)"
-            if getattr(odometers[name], "oracle", False)
-            else ""
-        )
-        print(
-            f"{name}{oracle}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else "")
-        )
-    if calibration is None:
-        command = "python -m odolab.fusion.calibrate " + " ".join(
-            shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])
-        )
-        Calibration(fitted, source=command, near_depth=args.near_depth).save(args.out)
-        print(f"wrote {args.out}")
-    return 0
+    action: Action
+    near: bool
+    share: float
+    steps: int
+    entry: str | None
 
 
-if __name__ == "__main__":
-    sys.exit(run_cli(main, "python -m odolab.fusion.calibrate"))
+def check_input(
+    cal: Calibration, xi: np.ndarray, actions: np.ndarray, own: Sequence[np.ndarray | None], close: np.ndarray
+) -> list[EntryCheck]:
+    """One input's calibration ``cal`` checked on its steps (:func:`steps_of`), per action and view."""
+    checks = []
+    for a in MOTION_ACTIONS:
+        for is_near in (False, True):
+            rows = np.flatnonzero((actions == a.value) & (close == is_near))
+            if not len(rows):
+                continue
+            covs = np.stack([cal.covariance(a, own[k], is_near) for k in rows])
+            share = ellipsoid_share(debiased(xi[rows], cal.bias_of(a, is_near)), covs)
+            checks.append(EntryCheck(a, is_near, share, len(rows), cal.label(a, is_near)))
+    return checks
+
+
+if __name__ == "__main__":  # python -m odolab.fusion.calibrate: the command line is odolab.cli.calibrate_fusion's
+    import runpy
+
+    runpy.run_module("odolab.cli.calibrate_fusion", run_name="__main__", alter_sys=True)

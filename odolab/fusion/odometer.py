@@ -49,7 +49,7 @@ from odolab.fusion.graph import (
     smooth,
 )
 from odolab.geometry import planar_to_transform
-from odolab.odometer import Odometer, split_odometer_names
+from odolab.odometer import COMPOSITE, REGISTRY, Odometer, UnknownOdometerError, split_odometer_names
 from odolab.runner import failure_reason
 from odolab.types import Action, Estimate, Frame, Intrinsics
 
@@ -60,6 +60,8 @@ PRIOR = "action-prior"
 
 class FusedOdometer(Odometer):
     """Pose-graph fusion of ``inputs`` (comma-separated odometer names); see the module docstring."""
+
+    composite = True
 
     def __init__(
         self,
@@ -78,7 +80,7 @@ class FusedOdometer(Odometer):
             )
         if len(set(names)) != len(names):
             raise ValueError(f"fused: an input is named twice in {names}")
-        if any(n.startswith("fused") for n in names):
+        if any(map(is_fused, names)):
             raise ValueError("fused: an input cannot itself be fused(...)")
         if kernel not in KERNELS:
             raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
@@ -202,3 +204,14 @@ class FusedOdometer(Odometer):
         return smooth(
             self._graph.n, self._measurements, guess=self._graph.poses(), kernel=self.kernel, k=self.kernel_width
         )
+
+
+def is_fused(name: str) -> bool:
+    """Whether odometer ``name`` (or the head of a composite ``head(a,b)``) is a fused odometer,
+    whatever name its class is registered under; False for a name that names no odometer."""
+    composite = COMPOSITE.fullmatch(name)
+    try:
+        factory = REGISTRY.resolve(composite["head"] if composite else name)
+    except (UnknownOdometerError, ValueError):
+        return False
+    return isinstance(factory, type) and issubclass(factory, FusedOdometer)

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from odolab.errors import InputError
 from odolab.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap_angle
 from odolab.types import FORWARD_STEP, Action, Intrinsics
 
@@ -142,7 +143,7 @@ class PolicyConfig:
 
     @classmethod
     def from_assignments(cls, items: list[str]) -> PolicyConfig:
-        """The default policy with ``key=value`` changes (``heading_tolerance=30``); ``ValueError``
+        """The default policy with ``key=value`` changes (``heading_tolerance=30``); :class:`PolicyError`
         naming the item for an unknown key, a value that is not a number of the field's kind, or a
         value out of range."""
         kinds = {f.name: f.type for f in dataclasses.fields(cls)}
@@ -153,26 +154,33 @@ class PolicyConfig:
             key, sep, text = item.partition("=")
             key, shown = key.strip(), short.repr(item)
             if not sep or key not in kinds:
-                raise ValueError(f"--policy {shown}: expected key=value with key one of {', '.join(kinds)}")
+                raise PolicyError(f"{shown}: expected key=value with key one of {', '.join(kinds)}")
             if key in changes:
-                raise ValueError(f"--policy {shown}: {key} is given twice")
+                raise PolicyError(f"{shown}: {key} is given twice")
             whole = kinds[key] in ("int", int)
             kind = f"{'a whole number' if whole else 'a number'} in {range_text(key)}"
             if len(text.strip()) > 40:  # no parameter needs 40 digits; Python refuses 4300
-                raise ValueError(f"--policy {shown}: {key} takes {kind}; this value is too long to read")
+                raise PolicyError(f"{shown}: {key} takes {kind}; this value is too long to read")
             try:
                 if not text.isascii() or "_" in text:  # Python reads "١" and "1_0" as numbers too
                     raise ValueError(text)
                 value = int(text) if whole else float(text)
             except ValueError:
-                raise ValueError(f"--policy {shown}: {key} takes {kind}") from None
+                raise PolicyError(f"{shown}: {key} takes {kind}") from None
             if not np.isfinite(float(value)) or not _in_range(key, value):
-                raise ValueError(f"--policy {shown}: {key} must be in {range_text(key)}")
+                raise PolicyError(f"{shown}: {key} must be in {range_text(key)}")
             changes[key] = value
         try:
             return cls(**changes)
         except ValueError as exc:
-            raise ValueError(f"--policy: {exc}") from None
+            raise PolicyError(str(exc), joiner=": ") from None
+
+
+class PolicyError(InputError):
+    """``key=value`` changes of :class:`PolicyConfig` that cannot be made; ``named("--policy")`` words
+    it after a command line's option."""
+
+    subject = "policy"
 
 
 def in_agent_frame(point: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:

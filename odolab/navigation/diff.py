@@ -16,12 +16,9 @@ import csv
 import io
 import math
 import re
-import sys
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from odolab.cli import ArgumentParser, UsageError, path_arg, run_cli
 from odolab.io.inputs import read_input_bytes, read_input_json
 from odolab.navigation.agent import with_old_behaviour
 from odolab.navigation.report import markdown_cell
@@ -37,6 +34,13 @@ COLUMNS: dict[str, tuple[type, float, float]] = {
     "collisions": (int, 0, 10**6),
     "steps": (int, 0, 10**6),
 }
+
+
+class EpisodesTableError(ValueError):
+    """An ``episodes.csv`` that cannot be read as a navigation run's table; the message names the file
+    (and the line and column)."""
+
+
 _WHOLE = re.compile(r"-?[0-9]+")  # ASCII digits only: not "1_0", "1.0" or other scripts' digits
 
 
@@ -78,26 +82,26 @@ def _value(text: str, kind: type, low: float, high: float) -> str | int | float:
 
 
 def read_episodes(folder: Path) -> dict[tuple[str, str, int, int], dict]:
-    """``episodes.csv`` of a navigation folder keyed by (odometer, split, seed, episode); ``UsageError``
+    """``episodes.csv`` of a navigation folder keyed by (odometer, split, seed, episode); ``EpisodesTableError``
     naming the file, line and column for a missing or unreadable file, a missing column, a short or
     long row or a value out of its range (:data:`COLUMNS`)."""
     path = Path(folder) / "episodes.csv"
     try:
         text = read_input_bytes(path, "episodes table").decode("utf-8-sig")
     except UnicodeDecodeError as exc:  # a ValueError too: before the next clause
-        raise UsageError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        raise EpisodesTableError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except ValueError as exc:  # it names the file
-        raise UsageError(f"{exc} (expected the episodes.csv of python -m odolab.navigate)") from None
+        raise EpisodesTableError(f"{exc} (expected the episodes.csv of python -m odolab.navigate)") from None
     reader = csv.reader(io.StringIO(text), strict=True)
     rows: dict[tuple[str, str, int, int], dict] = {}
     try:
         header = next(reader, None)
         if header is None:
-            raise UsageError(f"{path}: empty; expected the episodes.csv of python -m odolab.navigate")
+            raise EpisodesTableError(f"{path}: empty; expected the episodes.csv of python -m odolab.navigate")
         twice = sorted({h for h in header if header.count(h) > 1})
         missing = [c for c in COLUMNS if c not in header]
         if twice or missing:
-            raise UsageError(
+            raise EpisodesTableError(
                 f"{path}: "
                 + (f"column {', '.join(twice)} appears twice" if twice else f"no column {', '.join(missing)}")
                 + " (expected the episodes.csv of python -m odolab.navigate)"
@@ -108,7 +112,7 @@ def read_episodes(folder: Path) -> dict[tuple[str, str, int, int], dict]:
             if not raw:
                 continue
             if len(raw) != len(header):
-                raise UsageError(f"{path}, line {line}: {len(raw)} fields, the header has {len(header)}")
+                raise EpisodesTableError(f"{path}, line {line}: {len(raw)} fields, the header has {len(header)}")
             row = {}
             for name, (kind, low, high) in COLUMNS.items():
                 try:
@@ -121,20 +125,20 @@ def read_episodes(folder: Path) -> dict[tuple[str, str, int, int], dict]:
                         if kind is int
                         else f"a number in [{low:g}, {high:g}]"
                     )
-                    raise UsageError(
+                    raise EpisodesTableError(
                         f"{path}, line {line}: {name} must be {what}, got {raw[where[name]][:40]!r}"
                     ) from None
             key = (row["odometer"], row["split"], row["seed"], row["episode"])
             if key in rows:
-                raise UsageError(
+                raise EpisodesTableError(
                     f"{path}, line {line}: episode {row['episode']} of {row['odometer'][:60]!r} "
                     f"({row['split']}, seed {row['seed']}) appears twice"
                 )
             rows[key] = row
     except csv.Error as exc:  # an unclosed quote, a field over the csv module's limit
-        raise UsageError(f"{path}, line {reader.line_num}: not CSV ({exc})") from None
+        raise EpisodesTableError(f"{path}, line {reader.line_num}: not CSV ({exc})") from None
     if not rows:
-        raise UsageError(f"{path}: holds no episodes")
+        raise EpisodesTableError(f"{path}: holds no episodes")
     return rows
 
 
@@ -239,23 +243,7 @@ def markdown(diffs: list[RowDiff]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    ap = ArgumentParser(prog="python -m odolab.navigation.diff", description=__doc__.splitlines()[0])
-    ap.add_argument("before", type=path_arg("before"), help="a navigation folder (python -m odolab.navigate --out)")
-    ap.add_argument("after", type=path_arg("after"), help="another one, of the same episodes")
-    args = ap.parse_args(argv)
-    before, after = read_episodes(args.before), read_episodes(args.after)
-    diffs = diff_runs(before, after)
-    for note in unpaired(before, after) + setting_notes(args.before, args.after):
-        print(f"note: {note}", file=sys.stderr)
-    if not diffs:
-        raise UsageError(
-            f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "
-            "and odometer names are needed)"
-        )
-    print(markdown(diffs), end="")
-    return 0
+if __name__ == "__main__":  # python -m odolab.navigation.diff: the command line is odolab.cli.navigation_diff's
+    import runpy
 
-
-if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "python -m odolab.navigation.diff"))
+    runpy.run_module("odolab.cli.navigation_diff", run_name="__main__", alter_sys=True)

@@ -19,6 +19,7 @@ import json
 import re
 import reprlib
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,46 @@ from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
 from odolab.io.owned import check_owned_path, owned_path
 from odolab.navigation.agent import PolicyConfig, with_old_behaviour
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting a folder's results were made with, in the library's words: ``text`` follows the
+    setting's name ``setting`` (``"seed"``, ``"(0 there, 1 now)"``), or stands alone (``setting`` None:
+    ``"options of icp (...)"``)."""
+
+    setting: str | None
+    text: str
+
+    def named(self, names: Mapping[str, str] | None = None) -> str:
+        """The setting worded with ``names`` (e.g. a command line's options: ``{"seed": "--seed"}``)."""
+        if self.setting is None:
+            return self.text
+        return f"{(names or {}).get(self.setting, self.setting)} {self.text}"
+
+
+class RunFolderError(ValueError):
+    """A folder (or a file in it) where navigation cannot keep its results. ``problem`` names it;
+    ``advice`` says what to do, ``{folder}`` standing for whatever named the folder. A folder of
+    results made with other settings lists them (``changes``) and, when some policy
+    values would make this run the folder's, those (``to_match``). :meth:`named` words it with a
+    command line's option and setting names; ``str()`` with the library's own."""
+
+    def __init__(
+        self, problem: str, advice: str, changes: tuple[Setting, ...] = (), to_match: tuple[Setting, ...] = ()
+    ) -> None:
+        self.problem, self.advice, self.changes, self.to_match = problem, advice, changes, to_match
+        super().__init__(self.named("output folder"))
+
+    def named(self, folder: str, settings: Mapping[str, str] | None = None) -> str:
+        """The message with the folder called ``folder`` and the settings called ``settings``."""
+        problem = self.problem
+        if self.changes:
+            problem += f" ({', '.join(c.named(settings) for c in self.changes)})"
+        match = " ".join(m.named(settings) for m in self.to_match)
+        return (
+            f"{problem}; " + (f"to add to it, pass {match}; or " if match else "") + self.advice.format(folder=folder)
+        )
 
 
 @dataclass(frozen=True)
@@ -233,19 +274,19 @@ def read_row(
     damaged or not ``task``'s (:func:`row_problem`), so that the episode is run again (such a file
     is appended to ``rejected`` and its reason put in ``reasons``, for the caller's note)."""
     if path.is_symlink():  # navigate writes no links; writing the rerun's result would go through it
-        raise ValueError(
-            f"{path} is a symbolic link where an episode's result file belongs; delete it or choose another --out"
+        raise RunFolderError(
+            f"{path} is a symbolic link where an episode's result file belongs", "delete it or choose another {folder}"
         )
     if not path.exists():
         return None
     if path.is_dir():  # a note and a rerun would end in "Is a directory" when the result is written
-        raise ValueError(
-            f"{path} is a folder where an episode's result file belongs; delete it or choose another --out"
+        raise RunFolderError(
+            f"{path} is a folder where an episode's result file belongs", "delete it or choose another {folder}"
         )
     if not path.is_file():  # a pipe or device (or a link to one): the rerun's result could not replace it
-        raise ValueError(
-            f"{path} is not a regular file (a pipe, device or link to one) where an episode's result "
-            "file belongs; delete it or choose another --out"
+        raise RunFolderError(
+            f"{path} is not a regular file (a pipe, device or link to one) where an episode's result file belongs",
+            "delete it or choose another {folder}",
         )
     try:
         row = read_input_json(path, "navigation result")  # size-capped, duplicate keys refused
@@ -270,17 +311,18 @@ def read_row(
     return row
 
 
-def _episode_changes(saved: Any, episodes: list[dict]) -> list[str]:
-    """Which command-line settings make ``episodes`` differ from a folder's saved ones."""
+def _episode_changes(saved: Any, episodes: list[dict]) -> list[Setting]:
+    """Which settings (``episodes``, ``seed``, ``split``, ``max_steps``) make ``episodes`` differ from a
+    folder's saved ones."""
     if saved == episodes:
         return []
     if not isinstance(saved, list) or not saved or not all(isinstance(e, dict) for e in saved):
-        return ["the episodes"]
-    said = [f"--episodes ({len(saved)} there, {len(episodes)} now)"] if len(saved) != len(episodes) else []
-    for key, option in (("seed", "--seed"), ("split", "--split"), ("max_steps", "--max-steps")):
+        return [Setting(None, "the episodes")]
+    said = [Setting("episodes", f"({len(saved)} there, {len(episodes)} now)")] if len(saved) != len(episodes) else []
+    for key in ("seed", "split", "max_steps"):
         if saved[0].get(key) != episodes[0].get(key):
-            said.append(f"{option} ({saved[0].get(key)} there, {episodes[0].get(key)} now)")
-    return said or ["the episodes' noise or camera"]
+            said.append(Setting(key, f"({saved[0].get(key)} there, {episodes[0].get(key)} now)"))
+    return said or [Setting(None, "the episodes' noise or camera")]
 
 
 def _saved_policy(saved: dict, policy: dict) -> tuple[dict, list[str]]:
@@ -294,10 +336,10 @@ def _saved_policy(saved: dict, policy: dict) -> tuple[dict, list[str]]:
     ]
 
 
-def _policy_changes(saved: Any, policy: dict) -> list[str]:
-    """Which ``--policy`` parameters make ``policy`` differ from a folder's saved one."""
+def _policy_changes(saved: Any, policy: dict) -> list[Setting]:
+    """Which ``policy`` parameters make ``policy`` differ from a folder's saved one."""
     if not isinstance(saved, dict):
-        return ["the policy"] if saved != policy else []
+        return [Setting(None, "the policy")] if saved != policy else []
     full, differ = _saved_policy(saved, policy)
     if not differ:
         return []
@@ -314,30 +356,30 @@ def _policy_changes(saved: Any, policy: dict) -> list[str]:
             else "not recorded there: that folder predates this parameter"
         )
         now = f"{policy[k]!r} now" if k in policy else "no such parameter now"
-        return f"--policy {k} ({there}, {now})"
+        return Setting("policy", f"{k} ({there}, {now})")
 
     return [said(k) for k in differ]
 
 
-def _policy_to_match(saved: Any, policy: dict) -> str | None:
-    """The ``--policy key=value`` arguments that make ``policy`` the folder's saved one (``None``
-    when the saved policy is not a plain set of this version's numeric parameters)."""
+def _policy_to_match(saved: Any, policy: dict) -> list[Setting]:
+    """The ``policy key=value`` changes that make ``policy`` the folder's saved one (none when the
+    saved policy is not a plain set of this version's numeric parameters)."""
     if not isinstance(saved, dict):
-        return None
+        return []
     full, diff = _saved_policy(saved, policy)
     if not diff or not all(
         k in full and k in policy and type(full[k]) is type(policy[k]) and type(full[k]) in (int, float) for k in diff
     ):
-        return None
+        return []
     try:  # a hand-edited value out of range is not suggested
         PolicyConfig(**{**policy, **{k: full[k] for k in diff}})
     except (TypeError, ValueError):
-        return None
-    return " ".join(f"--policy {k}={full[k]!r}" for k in diff)
+        return []
+    return [Setting("policy", f"{k}={full[k]!r}") for k in diff]
 
 
 def _option_changes(odometer: str, saved: Any, options: dict) -> str:
-    """Which ``--odometer-option`` values of ``odometer`` differ from a folder's saved ones."""
+    """Which constructor options of ``odometer`` differ from a folder's saved ones."""
     if not isinstance(saved, dict):
         return f"options of {odometer}"
     short = reprlib.Repr()
@@ -364,20 +406,22 @@ def run_navigation(
     parallel: bool = True,
     progress: bool = True,
 ) -> list[dict]:
-    """Run the tasks whose results ``out`` lacks; returns every task's row, in task order."""
+    """Run the tasks whose results ``out`` lacks; returns every task's row, in task order.
+    :class:`RunFolderError` for a folder (or a file in it) that cannot take them: another's files,
+    results made with other settings, a link or a file where a result belongs."""
     from odolab.parallel import fan_out
 
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "config.json"
     if not cfg_path.exists() and any(out.iterdir()):
-        raise ValueError(
-            f"{out} holds files that odolab navigate did not write (no config.json); choose an empty or new --out"
+        raise RunFolderError(
+            f"{out} holds files that odolab navigate did not write (no config.json)", "choose an empty or new {folder}"
         )
     if cfg_path.exists():
         try:
             saved = read_input_json(cfg_path, "navigation config")  # its errors name the file
         except ValueError as exc:
-            raise ValueError(f"{exc}; choose another --out") from None
+            raise RunFolderError(str(exc), "choose another {folder}") from None
         problem = (
             "not a JSON object"
             if not isinstance(saved, dict)
@@ -386,28 +430,29 @@ def run_navigation(
             else None
         )
         if problem:
-            raise ValueError(f"{cfg_path}: not a navigation config ({problem}); choose another --out")
+            raise RunFolderError(f"{cfg_path}: not a navigation config ({problem})", "choose another {folder}")
         episodes = _episode_changes(saved.get("episodes"), config["episodes"])
         policy = _policy_changes(saved.get("policy"), config.get("policy"))
         options = [
-            _option_changes(n, saved["options"][n], o)
+            Setting(None, _option_changes(n, saved["options"][n], o))
             for n, o in config["options"].items()
             if n in saved.get("options", {}) and saved["options"][n] != o
         ]
         if episodes or policy or options:
-            match = None if episodes or options else _policy_to_match(saved.get("policy"), config.get("policy"))
-            raise ValueError(
-                f"{out} holds navigation results made with other settings "
-                f"({', '.join(episodes + policy + options)}); "
-                + (f"to add to it, pass {match}; or " if match else "")
-                + "choose another --out or delete it"
+            match = [] if episodes or options else _policy_to_match(saved.get("policy"), config.get("policy"))
+            raise RunFolderError(
+                f"{out} holds navigation results made with other settings",
+                "choose another {folder} or delete it",
+                changes=tuple(episodes + policy + options),
+                to_match=tuple(match),
             )
         config = {**config, "options": {**saved.get("options", {}), **config["options"]}}
     for folder in {result_path(out, t.odometer, t.spec.index).parent for t in tasks}:
         for p in (folder.parent, folder):  # checked before any episode runs, not when its result is written
             if p.exists() and not p.is_dir() and not p.is_symlink():
-                raise ValueError(
-                    f"{p} is a file where navigate keeps a folder of episode results; delete it or choose another --out"
+                raise RunFolderError(
+                    f"{p} is a file where navigate keeps a folder of episode results",
+                    "delete it or choose another {folder}",
                 )
     check_owned_path(out, "config.json")  # no link on the way to any file this run writes
     for t in tasks:

@@ -127,6 +127,21 @@ def file_arg(option: str) -> Callable[[str], Path]:
     return parse
 
 
+def check_ray_option(address: str | None, serial: bool = False) -> None:
+    """A command line's ``--ray-address``, checked before any work: :class:`UsageError` with one line
+    when it is malformed or unreachable, or given with ``--serial`` (no Ray then)."""
+    from odolab.parallel import RayAddressError, check_ray_address
+
+    if address is None:
+        return
+    if serial:
+        raise UsageError("--ray-address and --serial exclude each other (--serial runs without Ray); drop one")
+    try:
+        check_ray_address(address)
+    except RayAddressError as exc:
+        raise UsageError(exc.named("--ray-address")) from None
+
+
 def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") -> None:
     """:func:`check_output_dir`, and refuse a folder holding files that no odolab run wrote there
     (no ``manifest`` file): a report must not overwrite a user's own files. A symbolic link

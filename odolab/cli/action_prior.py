@@ -1,0 +1,45 @@
+"""``python -m odolab.action_prior``: fit the action prior, the train split's mean motion per action
+(:func:`odolab.action_prior.fit_action_prior`), and print or write it."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+
+from odolab import action_prior
+from odolab.cli.args import MAX_SEED, ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli, seed
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.io.atomic import write_text_atomic
+
+    ap = ArgumentParser(prog="python -m odolab.action_prior", description=action_prior.__doc__.split("\n")[0])
+    ap.add_argument(
+        "--episodes", type=number("--episodes", int, 1, 100_000), default=400, help="train episodes, 1-100000 (400)"
+    )
+    ap.add_argument(
+        "--max-steps", type=number("--max-steps", int, 1, 2000), default=500, help="steps each, 1-2000 (500)"
+    )
+    ap.add_argument("--seed", type=seed(), default=0, help=f"seed, 0-{MAX_SEED} (0)")
+    ap.add_argument("--out", type=file_arg("--out"), default=None, help="write JSON here (atomic); default: print")
+    args = ap.parse_args(argv)
+    if args.out is not None:
+        check_output_file(args.out, "--out")  # its folder must exist: nothing is created on a typo
+    prior = action_prior.fit_action_prior(args.episodes, args.max_steps, args.seed)
+    unseen = [a.label for a, n in prior.samples.items() if n == 0]
+    if unseen:
+        raise UsageError(
+            f"no {' or '.join(unseen)} step in {args.episodes} episodes of at most {args.max_steps} "
+            "steps: a mean of nothing is no prior; use more --episodes or --max-steps"
+        )
+    text = json.dumps(prior.to_json(), indent=2) + "\n"
+    if args.out is None:
+        print(text, end="")
+        return 0
+    write_text_atomic(args.out, text)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_cli(main, "python -m odolab.action_prior"))

@@ -1,0 +1,192 @@
+"""``python -m odolab.fusion.calibrate``: calibrate the covariances of fusion inputs on held-out
+episodes, or check a calibration (:mod:`odolab.fusion.calibrate`, :mod:`odolab.fusion.calibration`).
+
+    python -m odolab.fusion.calibrate --odometers action-prior,icp,open3d-rgbd,robust-vo \
+        --split val --episodes 20 --max-steps 100 --out odolab/data/fusion/calibration.json   # the shipped one
+    python -m odolab.fusion.calibrate --check odolab/data/fusion/calibration.json --split test --episodes 20
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from odolab.api import EpisodeSpec, load_episodes
+from odolab.cli.args import (
+    MAX_SEED,
+    ArgumentParser,
+    UsageError,
+    check_output_dir,
+    check_output_file,
+    check_ray_option,
+    file_arg,
+    given_options,
+    number,
+    path_arg,
+    run_cli,
+)
+from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
+from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
+from odolab.fusion import calibrate
+from odolab.fusion.calibrate import check_input, near_views, steps_of
+from odolab.fusion.calibration import MAX_NEAR_DEPTH, NEAR, Calibration, fit_input
+from odolab.fusion.odometer import is_fused
+from odolab.odometer import OdometerListError, parse_odometer_list, standalone_odometers
+from odolab.progress import StepProgressBar
+from odolab.runner import run
+from odolab.sim.scenes import SPLITS
+from odolab.types import MOTION_ACTIONS
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = ArgumentParser(prog="python -m odolab.fusion.calibrate", description=calibrate.__doc__.splitlines()[0])
+    ap.add_argument(
+        "--odometers",
+        default="action-prior,icp,open3d-rgbd,robust-vo",
+        help="comma-separated inputs to calibrate (default: %(default)s)",
+    )
+    ap.add_argument(
+        "--check", type=path_arg("--check"), default=None, help="check this calibration instead of fitting one"
+    )
+    ap.add_argument(
+        "--out",
+        type=file_arg("--out"),
+        default=Path("runs/fusion/calibration.json"),
+        help="calibration file to write (default %(default)s; its folder is created)",
+    )
+    ap.add_argument(
+        "--near-depth",
+        type=number("--near-depth", float, 0.0, MAX_NEAR_DEPTH),
+        default=1.0,
+        help="views whose median depth is below this many metres get their own entries (default %(default)s; 0: none)",
+    )
+    ap.add_argument("--split", default="val", help=f"{' | '.join(SPLITS)} (default val)")
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
+        default=100,
+        help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 100)",
+    )
+    ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
+    ap.add_argument(
+        "--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})"
+    )
+    ap.add_argument("--ray-address", default=None)
+    ap.add_argument("--serial", action="store_true", help="generate episodes in this process (no Ray)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = ap.parse_args(argv)
+    if args.split not in SPLITS:
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    try:
+        names = parse_odometer_list(args.odometers)
+        odometer_names(names)  # unknown names are named first
+    except OdometerListError as exc:
+        raise UsageError(exc.named("--odometers")) from None
+    except (ValueError, ComparisonError) as exc:
+        raise UsageError(str(exc)) from None
+    if any(map(is_fused, names)):
+        raise UsageError("--odometers: a fused odometer is not an input of fusion; calibrate its inputs")
+    calibration = None
+    if args.check is not None:
+        given = given_options(argv, ["--out", "--odometers", "--near-depth"])
+        if "--out" in given:
+            raise UsageError("--out is for a new calibration; --check only prints (redirect it to keep it)")
+        if "--near-depth" in given:
+            raise UsageError("--near-depth is for a new calibration; --check uses the near_depth of the file it checks")
+        try:
+            calibration = Calibration.load(args.check)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if "--odometers" not in given:  # all the file calibrates; named ones must all be in it
+            names = sorted(calibration.inputs)
+            known = set(standalone_odometers())
+            stranger = next((n for n in names if n not in known), None)
+            if stranger is not None:  # a data file never makes odolab import a module or build a composite
+                raise UsageError(
+                    f"{args.check}: input {stranger!r} is not a registered odometer (known: "
+                    f"{', '.join(sorted(known))}); to check it, name the inputs with --odometers"
+                )
+        missing = [n for n in names if n not in calibration.inputs]
+        if missing:
+            raise UsageError(
+                f"{args.check}: no calibration for {missing[0]!r} (it has {', '.join(sorted(calibration.inputs))})"
+            )
+    else:
+        if "action-prior" not in names:
+            raise UsageError("--odometers must include action-prior: fusion falls back on it")
+        if args.episodes * args.max_steps < 30:
+            raise UsageError(
+                f"--episodes x --max-steps = {args.episodes * args.max_steps} steps: too few to calibrate "
+                "(at least 10 valid steps of an action are needed; use hundreds)"
+            )
+        if args.out.suffix.lower() != ".json":  # before its folder is made
+            raise UsageError(f"--out {args.out}: unknown file type {args.out.suffix or '(no extension)'!r}; use .json")
+        try:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"--out {args.out}: cannot make its folder ({exc.strerror or exc})") from None
+        check_output_file(args.out, "--out", suffixes=[".json"])
+    check_output_dir(args.cache, "--cache")
+    check_ray_option(args.ray_address, args.serial)
+    try:
+        odometers = load_odometers(names)
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
+    specs = [
+        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)
+    ]
+    episodes = load_episodes(
+        specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial, progress=not args.quiet
+    )
+    results = run(odometers, episodes, observer=StepProgressBar(disable=args.quiet))
+    near_depth = calibration.near_depth if calibration is not None else args.near_depth
+    near = near_views(episodes, near_depth)
+    fitted = {}
+    for name in names:
+        xi, actions, own, _, close = steps_of([r for r in results if r.odometer == name], near)
+        if calibration is not None:
+            for c in check_input(calibration.for_input(name), xi, actions, own, close):
+                note = "" if c.steps >= 20 else "  (too few steps to judge)"
+                label = c.action.label + (NEAR if c.near else "")
+                used = f"entry {c.entry}" if c.entry else "no entry: the input's largest sigmas"
+                print(
+                    f"{name:>24} {label:>17}: {c.share:.3f} of {c.steps} valid steps "
+                    f"inside the 95 % ellipsoid ({used}){note}"
+                )
+            continue
+        try:
+            fitted[name] = fit_input(xi, actions, own, close)
+        except ValueError as exc:
+            raise UsageError(f"{name}: {exc}; use more --episodes or --max-steps") from None
+        cal = fitted[name]
+        gives_own = any(c is not None for c in own)
+
+        def own_note(a: str, cal: Calibration = cal, gives_own: bool = gives_own) -> str:
+            if cal.own_scale.get(a):
+                return f" (own covariance x {cal.own_scale[a]:.3g})"
+            return " (own covariance fits worse than the fixed one: not used)" if gives_own else ""
+
+        said = ", ".join(f"{a} {n} steps{own_note(a)}" for a, n in cal.steps.items())
+        left = [a.label for a in MOTION_ACTIONS if a.label not in cal.steps]  # no plain entry: no near one either
+        oracle = (
+            " (an oracle: it reads ground truth, and a fused odometer using it is marked oracle)"
+            if getattr(odometers[name], "oracle", False)
+            else ""
+        )
+        print(
+            f"{name}{oracle}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else "")
+        )
+    if calibration is None:
+        command = "python -m odolab.fusion.calibrate " + " ".join(
+            shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])
+        )
+        Calibration(fitted, source=command, near_depth=args.near_depth).save(args.out)
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(main, "python -m odolab.fusion.calibrate"))

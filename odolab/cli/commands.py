@@ -1,0 +1,89 @@
+"""The ``odolab`` command: one entry point whose subcommands are the ``python -m`` commands.
+
+    odolab compare [options]        = python -m odolab.compare [options]
+    odolab --help                   lists them
+
+Each subcommand imports its module only when it runs, so ``odolab --help`` is quick and a command
+that needs torch is the only one that loads it.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Sequence
+
+#: subcommand -> (its ``python -m`` module, the module of its ``main``, one line of help)
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "compare": (
+        "odolab.compare",
+        "odolab.cli.compare",
+        "run odometers on simulator episodes or TUM folders; tables, figures, report",
+    ),
+    "evaluate": (
+        "odolab.evaluate",
+        "odolab.cli.evaluate",
+        "ATE, RPE and KITTI t_rel/r_rel of trajectory files (TUM or KITTI format)",
+    ),
+    "navigate": (
+        "odolab.navigate",
+        "odolab.cli.navigate",
+        "PointGoal navigation with each odometer; success, SPL, report",
+    ),
+    "navigation-diff": (
+        "odolab.navigation.diff",
+        "odolab.cli.navigation_diff",
+        "compare two navigation runs episode by episode",
+    ),
+    "simcard": ("odolab.simcard", "odolab.cli.simcard", "the simulator's statistics beside the paper's"),
+    "bench": (
+        "odolab.bench",
+        "odolab.cli.bench",
+        "speed of the simulator, odometers, navigation, evaluation and training",
+    ),
+    "training-data": (
+        "odolab.training_data",
+        "odolab.cli.training_data",
+        "render episodes into training shards (resumable, on Ray)",
+    ),
+    "train-robust-vo": (
+        "odolab.robust_vo.train",
+        "odolab.robust_vo.train",
+        "train the robust VO from a TOML recipe (resumable)",
+    ),
+    "train-deepvo": ("baselines.deepvo.train", "baselines.deepvo.train", "train DeepVO from a TOML recipe (resumable)"),
+    "calibrate-fusion": (
+        "odolab.fusion.calibrate",
+        "odolab.cli.calibrate_fusion",
+        "calibrate the noise models of fused(...) on the val split",
+    ),
+}
+
+
+def usage() -> str:
+    """The subcommand list."""
+    width = max(map(len, COMMANDS))
+    lines = ["usage: odolab COMMAND [options]   (odolab COMMAND --help for a command's options)", "", "commands:"]
+    lines += [f"  {name:<{width}}  {text}  (python -m {module})" for name, (module, _, text) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``odolab COMMAND ...``; exit code 2 with the list for an unknown or missing command."""
+    from odolab.cli.args import run_cli
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0] in ("-h", "--help", "help"):
+        print(usage())
+        return 0 if args else 2
+    name, rest = args[0], args[1:]
+    if name not in COMMANDS:
+        print(f"odolab: unknown command {name!r}; expected one of {', '.join(COMMANDS)}", file=sys.stderr)
+        return 2
+    _, module, _ = COMMANDS[name]
+    entry = importlib.import_module(module).main
+    return run_cli(entry, f"odolab {name}", rest)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

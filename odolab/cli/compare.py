@@ -1,0 +1,300 @@
+"""``python -m odolab.compare``: run odometers side by side on identical episodes (or a TUM folder).
+
+With no arguments: every available odometer on 5 test-split episodes of at most 60 steps, seed 0,
+written to ``runs/compare`` (table.csv, report.html, figures, trajectories). Episodes are cached
+(``--cache``) and generated as parallel Ray tasks (``--ray-address`` for a cluster).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from odolab.cli.args import (
+    MAX_SEED,
+    ArgumentParser,
+    UsageError,
+    check_output_dir,
+    check_ray_option,
+    check_report_dir,
+    given_options,
+    number,
+    path_arg,
+    pinhole,
+    run_cli,
+    seed,
+)
+from odolab.comparison import (
+    DEFAULT_CACHE,
+    ComparisonConfig,
+    ComparisonError,
+    failure_reasons,
+    odometer_names,
+    run_comparison,
+)
+from odolab.episodes import MAX_EPISODE_STEPS
+from odolab.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
+from odolab.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
+from odolab.sim.scenes import SPLITS
+
+#: Documented ranges of the numeric options (enforced with one line by odolab.cli.args.number).
+MAX_EPISODES = 1000
+#: --depth-scale: PNG values per metre, from metres to micrometres (odolab.io.tum_rgbd.DEPTH_SCALE_RANGE).
+DEPTH_SCALE_RANGE = (1.0, 1e6)
+MAX_NOISE = 10.0
+#: Options that choose simulator episodes; with --tum they would be silently meaningless.
+SIMULATOR_OPTIONS = (
+    "--episodes",
+    "--seed",
+    "--split",
+    "--max-steps",
+    "--rgb-noise",
+    "--depth-noise",
+    "--actuation-noise",
+    "--cache",
+    "--no-cache",
+    "--ray-address",
+    "--serial",
+)
+
+
+#: Stands for the list of every odometer in --odometers' help until the help is shown.
+_EVERY = "<every odometer>"
+
+
+class _Parser(ArgumentParser):
+    """Lists every odometer in ``--help`` only when the help is shown: telling the composites apart
+    imports each odometer's class (:func:`odolab.odometer.standalone_odometers`)."""
+
+    def format_help(self) -> str:
+        for action in self._actions:
+            if action.help and _EVERY in action.help:
+                action.help = action.help.replace(_EVERY, ", ".join(standalone_odometers()))
+        return super().format_help()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = _Parser(prog="python -m odolab.compare", description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--odometers",
+        default=None,
+        help="comma-separated names, module:Class or path/to/file.py:Class, or fused(a,b,...) of "
+        f"several (default: all of {_EVERY})",
+    )
+    ap.add_argument(
+        "--episodes",
+        type=number("--episodes", int, 1, MAX_EPISODES),
+        default=5,
+        help=f"number of episodes, 1-{MAX_EPISODES} (default 5)",
+    )
+    ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
+    ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
+        default=60,
+        help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 60)",
+    )
+    for kind, default, what in (
+        ("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"),
+        ("depth", 1.0, "Redwood depth"),
+        ("actuation", 0.5, "PyRobot actuation"),
+    ):
+        ap.add_argument(
+            f"--{kind}-noise",
+            type=number(f"--{kind}-noise", float, 0, MAX_NOISE),
+            default=default,
+            metavar="M",
+            help=f"{what} noise multiplier, 0-{MAX_NOISE:g}, 0 = none (default {default:g})",
+        )
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("runs/compare"),
+        help="output folder (default runs/compare); files a previous run wrote there are replaced",
+    )
+    ap.add_argument(
+        "--tum",
+        type=path_arg("--tum"),
+        default=None,
+        help="run on a TUM RGB-D folder instead of the simulator (simulator options are then refused)",
+    )
+    ap.add_argument(
+        "--depth-scale",
+        type=number("--depth-scale", float, *DEPTH_SCALE_RANGE),
+        default=None,
+        metavar="S",
+        help="--tum: depth PNG values per metre (default TUM's 5000; millimetres: 1000)",
+    )
+    ap.add_argument(
+        "--intrinsics",
+        type=pinhole("--intrinsics"),
+        default=None,
+        metavar="FX,FY,CX,CY",
+        help="--tum: the camera's pinhole in pixels (default: the TUM camera fr1/fr2/fr3 the folder's name says)",
+    )
+    ap.add_argument(
+        "--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})"
+    )
+    ap.add_argument("--no-cache", action="store_true", help="do not read or write the episode cache")
+    ap.add_argument(
+        "--ray-address",
+        default=None,
+        help="Ray cluster address host:port or ray://host:port (default: a local instance)",
+    )
+    ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    ap.add_argument(
+        "--odometer-option",
+        action="append",
+        default=[],
+        metavar="NAME.key=value",
+        help="constructor option of one odometer, e.g. icp.max_depth=4.0 or "
+        "examples.tiny_learned:TinyLearnedOdometer.checkpoint=runs/tiny.pt (repeatable)",
+    )
+    ap.add_argument(
+        "--config",
+        type=path_arg("--config"),
+        default=None,
+        metavar="FILE.toml",
+        help='odometer options from a TOML file: [odometers."NAME"] key = value (--odometer-option overrides it)',
+    )
+    return ap
+
+
+def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
+    """Every check that can fail on the user's input, done before any episode or odometer runs."""
+    if args.split not in SPLITS:
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    if args.tum is None:
+        for option in given_options(argv, ("--depth-scale", "--intrinsics")):
+            raise UsageError(f"{option} describes a TUM folder's images; it needs --tum")
+    if args.tum is not None:
+        from odolab.io.tum_rgbd import tum_camera_for
+
+        if args.intrinsics is None and tum_camera_for(args.tum) is None:
+            raise UsageError(
+                f"--tum {args.tum}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
+                "in it); give it with --intrinsics fx,fy,cx,cy (pixels)"
+            )
+        ignored = given_options(argv, SIMULATOR_OPTIONS)
+        if ignored:
+            raise UsageError(
+                f"{', '.join(ignored)}: simulator option{'s' if len(ignored) > 1 else ''}, "
+                "meaningless with --tum (a TUM folder is one real recording); drop "
+                f"{'them' if len(ignored) > 1 else 'it'}"
+            )
+    else:
+        if args.no_cache and given_options(argv, ["--cache"]):
+            raise UsageError("--cache and --no-cache contradict each other; give one of them")
+        if not args.no_cache:
+            check_output_dir(args.cache, "--cache")
+        check_ray_option(args.ray_address, args.serial)
+    check_report_dir(args.out, "--out")
+    from odolab.io.owned import UnsafeOutputError
+    from odolab.report import MANIFEST, ManifestError, OutputFolder
+
+    try:  # what the previous run wrote, and this run's fixed files, can be replaced without leaving --out
+        OutputFolder.check(
+            args.out,
+            files=("table.csv", "table_per_action.csv", "errors.png", "report.html", MANIFEST),
+            folders=("trajectories",),
+        )
+    except ManifestError as exc:
+        raise UsageError(f"--out {exc}") from None
+    except UnsafeOutputError as exc:
+        raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
+
+
+def _config(args: argparse.Namespace) -> ComparisonConfig:
+    from odolab.episodes import NoiseConfig
+
+    try:
+        options = merge_options(
+            read_options_file(args.config) if args.config else {}, parse_assignments(args.odometer_option)
+        )
+    except OptionError as exc:
+        raise UsageError(str(exc)) from None
+    names = None
+    if args.odometers is not None:
+        try:
+            names = parse_odometer_list(args.odometers)
+        except ValueError as exc:
+            said = exc.named("--odometers") if isinstance(exc, OdometerListError) else str(exc)
+            raise UsageError(f"{said}; available: {', '.join(available_odometers())}") from None
+    try:
+        if names is not None:  # None: every available odometer (those needing actions left out on real data)
+            names = odometer_names(names)
+    except ComparisonError as exc:
+        raise UsageError(str(exc)) from None
+    return ComparisonConfig(
+        odometers=names,
+        options=options,
+        episodes=args.episodes,
+        seed=args.seed,
+        split=args.split,
+        max_steps=args.max_steps,
+        noise=NoiseConfig(rgb=args.rgb_noise, depth=args.depth_noise, actuation=args.actuation_noise),
+        tum=args.tum,
+        tum_depth_scale=args.depth_scale,
+        tum_intrinsics=args.intrinsics,
+        cache=None if args.no_cache else args.cache,
+        ray_address=args.ray_address,
+        parallel=not args.serial,
+        progress=not args.quiet,
+        command=None if args.tum is not None else _command(args),
+    )
+
+
+def _command(args: argparse.Namespace) -> str:
+    """The simulator episodes' settings as this command line's options, for the report's notes."""
+    return (
+        f"python -m odolab.compare --episodes {args.episodes} --seed {args.seed} "
+        f"--split {args.split} --max-steps {args.max_steps} --rgb-noise {args.rgb_noise:g} "
+        f"--depth-noise {args.depth_noise:g} --actuation-noise {args.actuation_noise:g}"
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse, check, run the comparison (:func:`odolab.comparison.run_comparison`), print and write."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    config = _config(args)
+    _check_before_work(args, argv)
+    from odolab.progress import StepProgressBar
+    from odolab.report import format_table, write_report
+    from odolab.summary import every_step_failed
+
+    try:
+        result = run_comparison(config, observer=StepProgressBar(disable=args.quiet))
+    except ComparisonError as exc:
+        raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
+    for warning in result.warnings:
+        print(f"note: {warning}", file=sys.stderr)
+    print(result.title)  # the table first: nothing that follows can lose it
+    print(format_table(result.rows, real_data=args.tum is not None))
+    write_report(
+        args.out,
+        result.rows,
+        result.action_rows,
+        result.results,
+        result.title,
+        result.notes,
+        result.plans,
+        result.configs,
+    )
+    for r in result.results:
+        for e in r.errors[:1]:
+            print(f"note: {r.odometer} raised on {r.sequence}: {e}")
+    for line in every_step_failed(result.rows):
+        print(f"note: {line}")
+    for name, reasons in failure_reasons(result.results).items():
+        print(f"note: {name} failed steps by reason: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
+    print(f"wrote {args.out / 'table.csv'} and {args.out / 'report.html'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_cli(main, "python -m odolab.compare"))

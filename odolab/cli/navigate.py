@@ -1,0 +1,154 @@
+"""``python -m odolab.navigate``: PointGoal navigation with each odometer as the agent's only sense of
+its own motion; success, SPL, SoftSPL and the final belief error per odometer with 95 % intervals.
+
+    python -m odolab.navigate --odometers ground-truth,action-prior,robust-vo --episodes 100 --out reports/navigation
+
+Every odometer drives the same episodes (same scenes, starts, goals and noise laws; --seed), one Ray
+task per (odometer, episode) on a local instance or the cluster at --ray-address. Each finished
+episode is saved at once; the same command resumes. Writes nav.csv, nav.md, episodes.csv, metrics.png,
+belief.png, paths-*.png and report.html under --out (see odolab.navigation.study).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from odolab.cli.args import (
+    MAX_SEED,
+    ArgumentParser,
+    UsageError,
+    check_ray_option,
+    check_report_dir,
+    number,
+    path_arg,
+    run_cli,
+)
+from odolab.sim.scenes import SPLITS
+
+#: The options that set what the library calls a navigation run's settings (odolab.navigation.study.Setting).
+SETTING_OPTIONS = {
+    "episodes": "--episodes",
+    "seed": "--seed",
+    "split": "--split",
+    "max_steps": "--max-steps",
+    "policy": "--policy",
+}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.comparison import ComparisonError, load_odometers
+    from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
+    from odolab.io.owned import UnsafeOutputError, check_owned_path
+    from odolab.navigation.agent import PolicyConfig, PolicyError, range_text
+    from odolab.navigation.report import output_files, write_outputs
+    from odolab.navigation.study import NavTask, RunFolderError, config_doc, run_navigation
+    from odolab.odometer import REGISTRY, OdometerListError, parse_odometer_list
+    from odolab.options import (
+        OptionError,
+        merge_options,
+        naming_the_file,
+        parse_assignments,
+        read_options_file,
+        without_defaults,
+    )
+    from odolab.summary import failed_steps_text
+
+    ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
+    ap.add_argument(
+        "--odometers",
+        default="ground-truth,action-prior",
+        help="comma-separated odometers, fused(a,b) included (default: %(default)s)",
+    )
+    ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=10, help="episodes (default 10)")
+    ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
+    ap.add_argument("--split", default="test", help=f"{' | '.join(SPLITS)} (default test)")
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
+        default=MAX_EPISODE_STEPS,
+        help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {MAX_EPISODE_STEPS}, the Challenge's)",
+    )
+    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
+    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
+    ap.add_argument(
+        "--policy",
+        action="append",
+        default=[],
+        metavar="key=value",
+        help="a parameter of the map-and-plan policy (odolab.navigation.agent.PolicyConfig), "
+        "e.g. heading_tolerance=45 (repeatable). Keys, defaults and ranges: "
+        + "; ".join(f"{f.name} {f.default} {range_text(f.name)}" for f in dataclasses.fields(PolicyConfig))
+        + " (fallback_radius below agent_radius; 0 turns the fallback off). Results made before "
+        "fallback_radius existed were made with fallback_radius=0",
+    )
+    ap.add_argument(
+        "--config", type=path_arg("--config"), default=None, metavar="FILE.toml", help='[odometers."NAME"] key = value'
+    )
+    ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
+    ap.add_argument("--serial", action="store_true", help="run the episodes in this process, without Ray")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    if args.split not in SPLITS:
+        raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    try:
+        policy = PolicyConfig.from_assignments(args.policy)
+        names = parse_odometer_list(args.odometers)
+        options = merge_options(
+            read_options_file(args.config) if args.config else {}, parse_assignments(args.odometer_option)
+        )
+    except PolicyError as exc:
+        raise UsageError(exc.named("--policy")) from None
+    except OdometerListError as exc:
+        raise UsageError(exc.named("--odometers")) from None
+    except (ValueError, OptionError) as exc:
+        raise UsageError(str(exc)) from None
+    check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
+    check_ray_option(args.ray_address, args.serial)
+    try:
+        loaded = load_odometers(names, options)  # every name and option checked here, before any episode runs
+    except ComparisonError as exc:
+        raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
+    options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
+    noise = NoiseConfig()
+    specs = [
+        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
+        for i in range(args.episodes)
+    ]
+    tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].weights) for n in names for s in specs]
+    try:
+        for name in output_files(specs):  # the report's files, found unusable now rather than after every episode
+            check_owned_path(args.out, name)
+        rows = run_navigation(
+            args.out,
+            tasks,
+            config_doc(names, options, specs, policy),
+            ray_address=args.ray_address,
+            parallel=not args.serial,
+            progress=not args.quiet,
+        )
+    except UnsafeOutputError as exc:
+        raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
+    except RunFolderError as exc:
+        raise UsageError(exc.named("--out", SETTING_OPTIONS)) from None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    command = "python -m odolab.navigate " + " ".join(
+        shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])
+    )
+    table = write_outputs(args.out, rows, names, specs, command, policy=dataclasses.asdict(policy))
+    for r in table:
+        print(
+            f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
+            f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "
+            f"{failed_steps_text(r['failed_steps'], r['steps'] * r['episodes'])}  ({r['episodes']} episodes)"
+        )
+    print(f"wrote {args.out}/report.html")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(main, "python -m odolab.navigate"))

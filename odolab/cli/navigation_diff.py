@@ -1,0 +1,38 @@
+"""``python -m odolab.navigation.diff``: two navigation runs compared episode by episode
+(:mod:`odolab.navigation.diff`).
+
+    python -m odolab.navigation.diff reports/navigation runs/nav-new
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+
+from odolab.cli.args import ArgumentParser, UsageError, path_arg, run_cli
+from odolab.navigation import diff
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = ArgumentParser(prog="python -m odolab.navigation.diff", description=diff.__doc__.splitlines()[0])
+    ap.add_argument("before", type=path_arg("before"), help="a navigation folder (python -m odolab.navigate --out)")
+    ap.add_argument("after", type=path_arg("after"), help="another one, of the same episodes")
+    args = ap.parse_args(argv)
+    try:
+        before, after = diff.read_episodes(args.before), diff.read_episodes(args.after)
+    except diff.EpisodesTableError as exc:
+        raise UsageError(str(exc)) from None
+    diffs = diff.diff_runs(before, after)
+    for note in diff.unpaired(before, after) + diff.setting_notes(args.before, args.after):
+        print(f"note: {note}", file=sys.stderr)
+    if not diffs:
+        raise UsageError(
+            f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "
+            "and odometer names are needed)"
+        )
+    print(diff.markdown(diffs), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_cli(main, "python -m odolab.navigation.diff"))

@@ -1,0 +1,97 @@
+"""``python -m odolab.simcard``: the simulator in numbers, beside the paper's and Habitat's
+(:mod:`odolab.simcard` measures and writes the card)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from odolab import simcard
+from odolab.cli.args import MAX_SEED, ArgumentParser, UsageError, check_report_dir, number, path_arg, run_cli, seed
+
+
+def build_parser() -> ArgumentParser:
+    ap = ArgumentParser(prog="python -m odolab.simcard", description=simcard.__doc__.splitlines()[0])
+    ap.add_argument("--split", default="train", choices=["train", "val", "test"], help="scene split (default train)")
+    ap.add_argument(
+        "--episodes",
+        type=number("--episodes", int, 1, 100_000),
+        default=400,
+        help="rollouts for the motion statistics, 1-100000 (default 400)",
+    )
+    ap.add_argument(
+        "--rendered",
+        type=number("--rendered", int, 1, 1000),
+        default=24,
+        help="episodes rendered for the image statistics, 1-1000 (default 24)",
+    )
+    ap.add_argument(
+        "--frames",
+        type=number("--frames", int, 1, 500),
+        default=30,
+        help="frames per rendered episode, 1-500 (default 30)",
+    )
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, 2000),
+        default=500,
+        help="steps per episode, 1-2000 (default 500)",
+    )
+    ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
+    ap.add_argument(
+        "--out", type=path_arg("--out"), default=Path("runs/simcard"), help="output folder (default runs/simcard)"
+    )
+    ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
+    ap.add_argument("--serial", action="store_true", help="no Ray: everything in this process")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.sim.redwood import default_table
+
+    args = build_parser().parse_args(argv)
+    check_report_dir(args.out, "--out")  # a folder of the user's own files is refused, as compare refuses it
+    from odolab.io.owned import UnsafeOutputError
+    from odolab.report import MANIFEST, ManifestError, OutputFolder
+
+    try:
+        OutputFolder.check(args.out, files=(*simcard.CARD_FILES, MANIFEST), owner="simcard", names=simcard.CARD_NAMES)
+    except ManifestError as exc:
+        raise UsageError(f"--out {exc}") from None
+    except UnsafeOutputError as exc:
+        raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
+    try:
+        source = default_table().source  # a bad ODOLAB_REDWOOD_TABLE is one line, before any work
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.ray_address is not None and not args.serial:
+        from odolab.parallel import RayAddressError, check_ray_address
+
+        try:
+            check_ray_address(args.ray_address)
+        except RayAddressError as exc:
+            raise UsageError(exc.named("--ray-address")) from None
+    motion, images, samples = simcard.measure(
+        args.split,
+        args.episodes,
+        args.rendered,
+        args.frames,
+        args.max_steps,
+        args.seed,
+        parallel=not args.serial,
+        ray_address=args.ray_address,
+        progress=not args.quiet,
+    )
+    command = (
+        f"python -m odolab.simcard --split {args.split} --episodes {args.episodes} --rendered {args.rendered} "
+        f"--frames {args.frames} --max-steps {args.max_steps} --seed {args.seed}"
+    )
+    simcard.write_card(args.out, motion, images, samples, source, command)
+    print((args.out / "card.md").read_text())
+    print(f"wrote {args.out / 'card.md'}, card.json, motion.png, depth.png, frames.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_cli(main, "python -m odolab.simcard"))

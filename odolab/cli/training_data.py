@@ -1,0 +1,101 @@
+"""``python -m odolab.training_data``: render simulator episodes into memory-mappable training shards
+(:func:`odolab.training_data.make_training_data`; resumable).
+
+    python -m odolab.training_data --split train --episodes 1200 --width 170 --height 96 --out data/vo/train
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+
+from odolab.cli.args import ArgumentParser, check_report_dir, number, path_arg, run_cli, seed
+from odolab.episodes import MAX_EPISODE_STEPS
+from odolab.sim.scenes import SPLITS
+from odolab.training_data import (
+    MANIFEST,
+    MAX_EPISODE_INDEX,
+    MAX_EPISODES,
+    MAX_EPISODES_PER_SHARD,
+    DataConfig,
+    TrainingData,
+    make_training_data,
+)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.parallel import RayAddressError, check_ray_address
+
+    ap = ArgumentParser(
+        prog="python -m odolab.training_data",
+        description="Render simulator episodes into memory-mappable training shards (resumable).",
+    )
+    d = DataConfig()
+    ap.add_argument("--split", choices=SPLITS, default=d.split, help=f"scene pool (default {d.split})")
+    ap.add_argument(
+        "--episodes",
+        type=number("--episodes", int, 1, MAX_EPISODES),
+        default=d.episodes,
+        help=f"episodes, 1-{MAX_EPISODES} (default {d.episodes})",
+    )
+    ap.add_argument(
+        "--first",
+        type=number("--first", int, 0, MAX_EPISODE_INDEX),
+        default=0,
+        help="index of the first episode; the last one's is at most 2^31 - 1 (default 0)",
+    )
+    ap.add_argument("--seed", type=seed(), default=0, help="episode seed (default 0)")
+    ap.add_argument(
+        "--max-steps",
+        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
+        default=d.max_steps,
+        help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {d.max_steps})",
+    )
+    ap.add_argument("--width", type=number("--width", int, 8, 341), default=d.width, help=f"pixels (default {d.width})")
+    ap.add_argument(
+        "--height", type=number("--height", int, 8, 192), default=d.height, help=f"pixels (default {d.height})"
+    )
+    ap.add_argument(
+        "--episodes-per-shard",
+        type=number("--episodes-per-shard", int, 1, MAX_EPISODES_PER_SHARD),
+        default=d.episodes_per_shard,
+        help=f"1-{MAX_EPISODES_PER_SHARD} (default {d.episodes_per_shard})",
+    )
+    ap.add_argument("--out", type=path_arg("--out"), required=True, help="folder (created; reused to resume)")
+    ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
+    ap.add_argument("--serial", action="store_true", help="render in this process, without Ray")
+    args = ap.parse_args(argv)
+    if args.first + args.episodes - 1 > MAX_EPISODE_INDEX:
+        ap.error(
+            f"--first {args.first} + --episodes {args.episodes}: the last episode's index would be "
+            f"{args.first + args.episodes - 1}, above 2^31 - 1; use a smaller --first"
+        )
+    cfg = DataConfig(
+        split=args.split,
+        episodes=args.episodes,
+        seed=args.seed,
+        first=args.first,
+        max_steps=args.max_steps,
+        width=args.width,
+        height=args.height,
+        episodes_per_shard=args.episodes_per_shard,
+    )
+    check_report_dir(args.out, "--out", manifest=MANIFEST)  # a folder of the user's own files is refused
+    try:
+        if args.ray_address is not None and not args.serial:
+            check_ray_address(args.ray_address)
+        make_training_data(cfg, args.out, ray_address=args.ray_address, parallel=not args.serial)
+        data = TrainingData(args.out)
+    except RayAddressError as exc:
+        ap.error(exc.named("--ray-address"))
+    except ValueError as exc:
+        ap.error(str(exc))
+    counts = ", ".join(f"{k} {v}" for k, v in data.counts().items())
+    print(
+        f"{args.out}: {len(data)} pairs ({counts}) from {cfg.episodes} {cfg.split} episodes at {cfg.width}x{cfg.height}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(main, "python -m odolab.training_data"))
