@@ -1,0 +1,220 @@
+"""Study: every odometer's per-step error on test episodes, mean and spread over seeds, beside the
+paper's Table S4 (E1 feature matching, E2 feature matching with the true rotation, E3 the robust VO).
+
+    python -m studies.e_table [--scale ci|cpu|paper] [--out reports/e-table] [--ray-address ADDR] [--redraw]
+
+One unit of work is one odometer on one seed's episodes (``python -m odolab.compare`` on the test
+split, the challenge's noise); its result is saved as it finishes and reused while the odometer's
+model or settings (its ``weights`` digest) and the scale's episodes stay the same. Errors are mean
+absolute errors of (dx m, dz m, dyaw rad) x 1e-2, as used (a failed step scored with the action
+prior that replaced it) and on the odometer's own answered steps; the spread is the standard
+deviation over seeds. The paper's numbers are on its validation set (50,000 pairs, its own
+simulator data), ours on test episodes: the ordering is what compares, not the values.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from studies import framework
+
+COMPONENTS = ("dx", "dz", "dyaw")
+ACTIONS = ("all", "move_forward", "turn_left", "turn_right")
+#: The paper's Table S4 (x 1e-2, its validation set) and which of our odometers each row is.
+PAPER = {
+    "feature-essential": ("E1", (15.9, 21.3, 8.51)),
+    "feature-essential-oracle-rot": ("E2", (3.97, 10.6, 0.00)),
+    "robust-vo": ("E3", (1.22, 0.86, 0.66)),
+}
+
+
+def unit_result(key: dict[str, Any]) -> dict[str, Any]:
+    """Run one odometer on one seed's test episodes: per action ("all" included) its errors as used
+    and own (x 1e-2), steps and failure share."""
+    from odolab.api import ComparisonConfig, run_comparison
+
+    result = run_comparison(
+        ComparisonConfig(
+            odometers=[key["odometer"]],
+            episodes=key["episodes"],
+            max_steps=key["max_steps"],
+            seed=key["seed"],
+            split="test",
+            parallel=False,
+            progress=False,
+        )
+    )
+    out: dict[str, Any] = {}
+    for r in result.rows:
+        if r.odometer == key["odometer"]:
+            out["all"] = _numbers(r, r.steps, r.failure_share)
+    for a in result.action_rows:
+        if a.odometer == key["odometer"] and a.action in ACTIONS:
+            out[a.action] = _numbers(a, a.steps, a.failures / a.steps if a.steps else 0.0)
+    return out
+
+
+def _numbers(row: Any, steps: int, failure_share: float) -> dict[str, float]:
+    own = {f"{c}_own": _finite(getattr(row, f"{c}_own")) for c in COMPONENTS}
+    return {
+        **{c: float(getattr(row, c)) for c in COMPONENTS},
+        **own,
+        "steps": int(steps),
+        "failure_share": failure_share,
+    }
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None  # JSON has no NaN: an odometer that never answered
+
+
+def units(params: dict[str, Any], weights: dict[str, str | None]) -> list[framework.Unit]:
+    """One unit per (odometer, seed); its key holds everything its result depends on."""
+    return [
+        framework.Unit(
+            f"{odo} seed {seed}",
+            {
+                "odometer": odo,
+                "weights": weights[odo],
+                "seed": seed,
+                "episodes": params["episodes"],
+                "max_steps": params["max_steps"],
+            },
+        )
+        for odo in params["odometers"]
+        for seed in params["seeds"]
+    ]
+
+
+def table(params: dict[str, Any], results: dict[str, Any]) -> list[dict[str, Any]]:
+    """Rows odometer x action: mean and standard deviation over the seeds that have a result."""
+    rows = []
+    for odo in params["odometers"]:
+        for action in ACTIONS:
+            got = [
+                results[f"{odo} seed {s}"][action]
+                for s in params["seeds"]
+                if action in results.get(f"{odo} seed {s}", {})
+            ]
+            if not got:
+                continue
+            row: dict[str, Any] = {"odometer": odo, "action": action, "seeds": len(got)}
+            for c in (*COMPONENTS, *(f"{c}_own" for c in COMPONENTS), "failure_share"):
+                values = np.array([np.nan if g[c] is None else g[c] for g in got], float)
+                row[c] = float(np.mean(values))
+                row[f"{c}_sd"] = float(np.std(values)) if len(values) > 1 else float("nan")
+            row["steps"] = int(sum(g["steps"] for g in got))
+            paper = PAPER.get(odo)
+            row["paper"] = f"{paper[0]} ({', '.join(f'{v:g}' for v in paper[1])})" if paper and action == "all" else ""
+            rows.append(row)
+    return rows
+
+
+COLUMNS = [
+    "odometer", "action", "seeds", "steps", "dx", "dx_sd", "dz", "dz_sd", "dyaw", "dyaw_sd",
+    "dx_own", "dz_own", "dyaw_own", "failure_share", "paper",
+]  # fmt: skip
+
+
+def findings(rows: list[dict[str, Any]]) -> list[str]:
+    """Per component, whether our E1 / E2 / E3 come in the paper's order, with mean +- sd over seeds."""
+    overall = {r["odometer"]: r for r in rows if r["action"] == "all"}
+    have = [o for o in PAPER if o in overall]
+    out = []
+    for k, c in enumerate(COMPONENTS):
+        paper_order = sorted(have, key=lambda o: PAPER[o][1][k])
+        ours = sorted(have, key=lambda o: overall[o][c])
+        said = ", ".join(f"{PAPER[o][0]} {overall[o][c]:.2f} +- {overall[o][f'{c}_sd']:.2f}" for o in ours)
+        verdict = "agrees with" if ours == paper_order else "differs from"
+        paper_said = " < ".join(PAPER[o][0] for o in paper_order)
+        out.append(f"{c}: ours {said} (x 1e-2, lowest first); {verdict} the paper's order {paper_said}")
+    return out
+
+
+def draw(rows: list[dict[str, Any]], path: Path) -> None:
+    """Bars of each odometer's error per component (all steps), with the spread over seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    overall = [r for r in rows if r["action"] == "all"]
+    fig, axes = plt.subplots(1, 3, figsize=(14, 0.45 * len(overall) + 2), sharey=True)
+    y = np.arange(len(overall))
+    for ax, c, unit in zip(axes, COMPONENTS, ("m", "m", "rad")):
+        ax.barh(
+            y,
+            [r[c] for r in overall],
+            xerr=[0 if r[f"{c}_sd"] != r[f"{c}_sd"] else r[f"{c}_sd"] for r in overall],
+            color="tab:blue",
+            alpha=0.8,
+        )
+        ax.set_xlabel(f"{c}: mean abs. error ({unit} x 1e-2)")
+        ax.grid(axis="x", alpha=0.3)
+    axes[0].set_yticks(y, [r["odometer"] for r in overall])
+    axes[0].invert_yaxis()
+    fig.suptitle("Per-step error as used, all test steps: bars are the mean over seeds, lines one standard deviation")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.api import load_odometer
+    from odolab.cli import UsageError
+
+    config = framework.load_study("e_table")
+    ap = framework.study_arguments("python -m studies.e_table", config)
+    args = ap.parse_args(argv)
+    params = config.at(args.scale)
+    out = args.out or Path("reports") / "e-table"
+    framework.check_out(out, config)
+    weights = {o: load_odometer(o).weights for o in params["odometers"]}
+    todo = units(params, weights)
+    outcome = framework.run_units(
+        unit_result,
+        todo,
+        framework.ResultStore(out / "results"),
+        redraw=args.redraw,
+        ray_address=args.ray_address,
+        parallel=not args.serial,
+        progress=not args.quiet,
+    )
+    if not outcome.results:
+        raise UsageError(
+            f"--redraw: no saved results in {out / 'results'} for --scale {args.scale}; run without --redraw"
+        )
+    rows = table(params, outcome.results)
+    report = framework.Report(
+        title=config.title,
+        intro=[
+            __doc__.split("\n\n")[2].replace("\n", " ").replace("``", ""),
+            f"Scale {args.scale}: seeds {', '.join(map(str, params['seeds']))}, {params['episodes']} test episodes "
+            f"of at most {params['max_steps']} steps each per seed."
+            + (f" Missing (not computed): {', '.join(outcome.missing)}." if outcome.missing else ""),
+        ],
+        columns=COLUMNS,
+        rows=rows,
+        figures={
+            "errors.png": ("Per-step error of each odometer (all steps, mean over seeds)", lambda p: draw(rows, p))
+        },
+        findings=findings(rows),
+        command=framework.command_line("python -m studies.e_table", argv),
+        machine=framework.machine(),
+        cpu_hours=outcome.seconds / 3600,
+    )
+    framework.write_report(report, out, owner="study e_table")
+    print(framework.table_md(COLUMNS[:10], rows))
+    print(f"{len(outcome.computed)} units computed, {len(rows)} rows -> {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    from odolab.cli import run_cli
+
+    raise SystemExit(run_cli(main, "python -m studies.e_table"))

@@ -1,0 +1,77 @@
+"""studies.framework (definitions, saved results keyed by what they depend on, reports) and the
+e_table study at its ci scale."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from odolab.cli import UsageError
+from studies import e_table, framework
+
+
+def test_a_result_is_reused_only_for_the_same_key(tmp_path: Path):
+    store = framework.ResultStore(tmp_path / "results")
+    unit = framework.Unit("a", {"odometer": "icp", "seed": 0})
+    assert store.get(unit) is None
+    store.put(unit, {"value": 1.5})
+    assert store.get(unit) == {"value": 1.5}
+    other = framework.Unit("a", {"odometer": "icp", "seed": 1})
+    assert store.get(other) is None
+    path = tmp_path / "results" / f"{unit.digest}.json"
+    doc = json.loads(path.read_text())
+    doc["key"]["seed"] = 7  # a file whose key does not match its name: not this unit's result
+    path.write_text(json.dumps(doc))
+    assert store.get(unit) is None
+    path.write_text("{not json")
+    assert store.get(unit) is None
+
+
+def test_units_run_once_and_redraw_computes_nothing(tmp_path: Path):
+    store = framework.ResultStore(tmp_path)
+    units = [framework.Unit(f"u{k}", {"k": k}) for k in range(3)]
+    first = framework.run_units(_square, units, store, parallel=False, progress=False)
+    assert first.results == {"u0": 0, "u1": 1, "u2": 4} and sorted(first.computed) == ["u0", "u1", "u2"]
+    again = framework.run_units(
+        _square, [*units, framework.Unit("u3", {"k": 3})], store, parallel=False, progress=False, redraw=True
+    )
+    assert again.computed == [] and again.missing == ["u3"] and again.results["u2"] == 4
+
+
+def _square(key: dict) -> int:
+    return key["k"] ** 2
+
+
+def test_study_definitions_are_checked(tmp_path: Path):
+    (tmp_path / "s.toml").write_text('title = "t"\n[scales.ci]\na = 1\n[scales.cpu]\na = 2\n')
+    with pytest.raises(ValueError, match=r"s.toml: scales: expected the tables ci, cpu, paper"):
+        framework.load_study("s", tmp_path)
+    (tmp_path / "s.toml").write_text('title = "t"\n[scales.ci]\na = 1\n[scales.cpu]\na = 2\n[scales.paper]\nb = 3\n')
+    with pytest.raises(ValueError, match=r"scales.paper: expected the keys a"):
+        framework.load_study("s", tmp_path)
+    assert framework.load_study("e_table").at("ci")["seeds"] == [0, 1]
+
+
+def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
+    out = tmp_path / "e"
+    args = ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]
+    assert e_table.main(args) == 0
+    assert {"index.html", "table.csv", "table.md", "errors.png", "manifest.txt", "results"} <= {
+        p.name for p in out.iterdir()
+    }
+    rows = (out / "table.csv").read_text().splitlines()
+    assert rows[0].startswith("odometer,action,seeds,steps,dx,dx_sd") and len(rows) > 3
+    assert "6 units computed" in capsys.readouterr().out
+    assert e_table.main(args) == 0  # everything saved: nothing computed again
+    assert "0 units computed" in capsys.readouterr().out
+    html = (out / "index.html").read_text()
+    assert "E1 (15.9, 21.3, 8.51)" in html and "Against the paper" in html
+
+
+def test_a_folder_of_the_users_own_files_is_refused(tmp_path: Path):
+    (tmp_path / "thesis.docx").write_text("mine")
+    with pytest.raises(UsageError, match="holds files odolab did not write"):
+        e_table.main(["--scale", "ci", "--out", str(tmp_path), "--serial", "--quiet"])
+    assert (tmp_path / "thesis.docx").read_text() == "mine"
