@@ -614,3 +614,32 @@ def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path
     assert all(np.isfinite(odo.step(*p).transform).all() for p in pairs)
     rows = (tmp_path / "r" / "curves.csv").read_text()
     assert "turn_right" in rows  # right turns are still validated, through the mirrored network
+
+
+def test_a_start_from_another_input_size_keeps_the_convolutions_and_a_fresh_head(recipe, trained, tmp_path):
+    from odolab.robust_vo.checkpoint import apply_start, load_model, load_start, resized_start
+    from odolab.robust_vo.model import build_networks
+
+    _, small, _ = load_model(trained / "model.pt")
+    size = {"width": 64, "height": 40}
+    bigger = dataclasses.replace(
+        recipe,
+        model=dataclasses.replace(recipe.model, **size),
+        train_data=dataclasses.replace(recipe.train_data, **size),
+        val_data=dataclasses.replace(recipe.val_data, **size),
+        init=str(trained / "model.pt"),
+    )
+    start, _ = load_start(bigger.init, bigger, tmp_path / "export.pt")
+    assert resized_start(start)
+    nets = build_networks(bigger.model)
+    apply_start(nets, start)
+    for name, net in nets.items():
+        old = small[name].state_dict()
+        for key, value in net.state_dict().items():
+            if key.startswith("head."):
+                assert key == "head.1.weight" or value.shape == old[key].shape
+            else:
+                assert torch.equal(value, old[key]), key
+        assert not net.head[-1].weight.any()  # a fresh head: the last layer at zero, as a new network's
+    same, _ = load_start(str(trained / "model.pt"), dataclasses.replace(recipe, init="x"), tmp_path / "e.pt")
+    assert not resized_start(same)

@@ -31,8 +31,10 @@ def load_model(path: str | os.PathLike) -> tuple[ModelConfig, nn.ModuleDict, dic
     return cfg, nn.ModuleDict(nets).eval(), info
 
 
-#: Fields in which a recipe's model may differ from the model it starts from (``init``): inputs only.
-INIT_MAY_DIFFER = ("depth_residual",)
+#: Fields in which a recipe's model may differ from the model it starts from (``init``): its inputs,
+#: and the input size, from which every convolution carries over (the head, whose first layer reads
+#: the feature map at that size, then starts afresh).
+INIT_MAY_DIFFER = ("depth_residual", "width", "height")
 #: Entries that grow with the pair's input channels (dimension 1 of the stem, 0 of the normaliser).
 _INPUT_ENTRIES = {"encoder.stem.0.weight": 1, "norm.mean": 0, "norm.var": 0}
 
@@ -42,7 +44,9 @@ def load_start(init: str, cfg: TrainConfig, export: str | os.PathLike) -> tuple[
 
     The exported model must be the recipe's except in :data:`INIT_MAY_DIFFER`, and may have fewer
     input channels; channels it lacks start with zero stem weights and an identity normaliser (mean
-    0, variance 1), so the network at the start answers exactly as the one it came from."""
+    0, variance 1), so the network at the start answers exactly as the one it came from. A model of
+    another input size gives its normaliser, encoder and compression layer and no head entries: the
+    head starts as a fresh network's (:func:`resized_start`)."""
     model, nets, digest = load_init(init, export, load_model)
     changed = [
         f.name
@@ -56,7 +60,16 @@ def load_start(init: str, cfg: TrainConfig, export: str | os.PathLike) -> tuple[
             f"init = {init!r}: it has depth_residual = {model.depth_residual}, this recipe "
             f"{cfg.model.depth_residual}; a start may only add the residual channel (from 0)"
         )
-    return {name: net.state_dict() for name, net in nets.items()}, digest
+    resized = (model.width, model.height) != (cfg.model.width, cfg.model.height)
+    return {
+        name: {k: v for k, v in net.state_dict().items() if not (resized and k.startswith("head."))}
+        for name, net in nets.items()
+    }, digest
+
+
+def resized_start(start: dict[str, dict]) -> bool:
+    """Whether :func:`load_start`'s weights come from a model of another input size (no head)."""
+    return any(not any(k.startswith("head.") for k in sd) for sd in start.values())
 
 
 def apply_start(nets: nn.ModuleDict, start: dict[str, dict]) -> None:
@@ -65,6 +78,8 @@ def apply_start(nets: nn.ModuleDict, start: dict[str, dict]) -> None:
     with torch.no_grad():
         for name, net in nets.items():
             for key, value in net.state_dict().items():
+                if key not in start[name] and key.startswith("head."):
+                    continue  # a start of another input size: the head stays as built
                 old = start[name][key]
                 if old.shape == value.shape:
                     value.copy_(old)

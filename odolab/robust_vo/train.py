@@ -29,7 +29,7 @@ from odolab.learning.epochs import EpochTracker
 from odolab.learning.loading import prefetched
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Batch, Samples, make_batch, stage_samples
-from odolab.robust_vo.checkpoint import apply_start, load_start, save_model
+from odolab.robust_vo.checkpoint import apply_start, load_start, resized_start, save_model
 from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config
 from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
@@ -301,7 +301,8 @@ def train_stages(job: dict) -> dict:
     last_trained: dict[str, str] = {}  # network -> last stage that trained it
     if start is not None:
         apply_start(nets, start)
-        last_trained = {name: "init" for name in nets}
+        if not resized_start(start):  # a fresh head gets the mean motion as its bias, as a fresh network
+            last_trained = {name: "init" for name in nets}
     compute.prepare(nets)
     all_rows: list[dict] = []
     status = {
