@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from odolab.config import ConfigError, Setting, assign, check, describe, range_text, setting
 from odolab.geometry import (
     integrate,
     invert,
@@ -50,6 +51,8 @@ __all__ = [
     "ComparisonConfig",
     "ComparisonError",
     "ComparisonResult",
+    # configs: fields with ranges and descriptions (odolab.config)
+    "ConfigError",
     # episodes and training data (loaded on first use)
     "EpisodeCache",
     "EpisodeSpec",
@@ -64,12 +67,16 @@ __all__ = [
     "PairDataset",
     "Sequence",
     "SequenceResult",
+    "Setting",
     "Trajectory",
     "UnknownCameraError",
     "UnknownOdometerError",
     "as_action",
+    "assign",
     "available_odometers",
+    "check",
     "check_threads",
+    "describe",
     "episode_specs",
     "evaluate_trajectory",
     "failure_reason",
@@ -84,9 +91,11 @@ __all__ = [
     "nominal_planar",
     "pair_trajectories",
     "planar_to_transform",
+    "range_text",
     "register_odometer",
     "run_comparison",
     "run_odometers",
+    "setting",
     "split_odometer_names",
     "stream_episodes",
     "transform_to_planar",

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from odolab.learning import ComputeConfig, DataConfig, dataclass_from_toml
-from odolab.learning.configs import check_ranges
+from odolab.learning import check, dataclass_from_toml, setting
+from odolab.learning.configs import RecipeConfig
 
 #: The original encoder (FlowNetSimple's 9 convolutions): (output channels, kernel, stride).
 FLOWNET_LAYERS = (
@@ -31,28 +31,18 @@ class DeepVOModel:
     each pair's image features, as the robot knows what it commanded (the robust VO picks its
     network by it)."""
 
-    width: int = 170
-    height: int = 96
-    width_scale: float = 0.125
-    depth: bool = False
-    hidden: int = 256
-    layers: int = 2
-    dropout: float = 0.2
-    max_depth: float = 10.0
-    actions: bool = False
+    width: int = setting(170, range=(8, 2048), doc="input width, px (frames are resized to it)")
+    height: int = setting(96, range=(8, 2048), doc="input height, px")
+    width_scale: float = setting(0.125, range=(1e-3, 4.0), doc="multiple of FlowNetSimple's channel widths")
+    depth: bool = setting(False, doc="depth / max_depth as a fourth channel")
+    hidden: int = setting(256, range=(1, 8192), doc="LSTM units per layer")
+    layers: int = setting(2, range=(1, 16), doc="LSTM layers")
+    dropout: float = setting(0.2, range=(0.0, 0.99), doc="dropout")
+    max_depth: float = setting(10.0, range=(0.1, 100.0), doc="depth scale of the depth channel, m")
+    actions: bool = setting(False, doc="the action taken (one-hot) enters the LSTM beside the image features")
 
     def __post_init__(self) -> None:
-        check_ranges(
-            "",
-            self,
-            width=(8, 2048),
-            height=(8, 2048),
-            width_scale=(1e-3, 4.0),
-            hidden=(1, 8192),
-            layers=(1, 16),
-            dropout=(0.0, 0.99),
-            max_depth=(0.1, 100.0),
-        )
+        check(self)
 
     @property
     def channels(self) -> tuple[int, ...]:
@@ -64,48 +54,27 @@ class DeepVOModel:
 
 
 @dataclass(frozen=True)
-class DeepVOTraining:
-    """The recipe: windows of ``window`` frames (``window - 1`` pairs) cut from the data, ``batch``
-    windows per step, Adam at ``lr``, loss MSE(dx, dz) + ``rotation_weight`` x MSE(dyaw).
-    ``init``: start from the weights of this exported DeepVO model (same ``model``; a path from the
-    working directory), e.g. a first stage trained with another rotation weight; "" = fresh weights.
-    ``compute``: precision, memory format and batch-making workers (not part of the run's identity)."""
+class DeepVOTraining(RecipeConfig):
+    """The recipe (data, seed, ``init`` and ``compute`` as every learned recipe,
+    :class:`~odolab.learning.configs.RecipeConfig`): windows of ``window`` frames (``window - 1``
+    pairs) cut from the data, ``batch`` windows per step, Adam at ``lr``, loss MSE(dx, dz) +
+    ``rotation_weight`` x MSE(dyaw). ``init``: start from the weights of this exported DeepVO model
+    (same ``model``; a path from the working directory), e.g. a first stage trained with another
+    rotation weight; "" = fresh weights. ``compute``: precision, memory format and batch-making
+    workers (not part of the run's identity)."""
 
-    model: DeepVOModel = field(default_factory=DeepVOModel)
-    train_data: DataConfig = field(default_factory=DataConfig)
-    val_data: DataConfig = field(default_factory=lambda: DataConfig(split="val", episodes=64))
-    data_root: str = "data"
-    window: int = 6
-    batch: int = 8
-    epochs: int = 4
-    lr: float = 5e-4
-    rotation_weight: float = 100.0
-    windows_per_epoch: int = 0
-    val_windows: int = 500
-    seed: int = 0
-    init: str = ""
-    compute: ComputeConfig = field(default_factory=ComputeConfig)
+    model: DeepVOModel = setting(default_factory=DeepVOModel, doc="the network")
+    window: int = setting(6, range=(2, 64), doc="frames per window (window - 1 pairs)")
+    batch: int = setting(8, range=(1, 65_536), doc="windows per step")
+    epochs: int = setting(4, range=(1, 100_000), doc="epochs")
+    lr: float = setting(5e-4, range=(1e-12, 1.0), doc="Adam's learning rate")
+    rotation_weight: float = setting(100.0, range=(0.0, 1e6), doc="weight of MSE(dyaw) against MSE(dx, dz)")
+    windows_per_epoch: int = setting(0, range=(0, 10**9), doc="windows per epoch; 0: every window once")
+    val_windows: int = setting(500, range=(1, 10**7), doc="validation windows at most")
 
     def __post_init__(self) -> None:
-        check_ranges(
-            "recipe",
-            self,
-            window=(2, 64),
-            batch=(1, 65_536),
-            epochs=(1, 100_000),
-            lr=(1e-12, 1.0),
-            rotation_weight=(0.0, 1e6),
-            windows_per_epoch=(0, 10**9),
-            val_windows=(1, 10**7),
-            seed=(0, 2**32 - 1),
-        )
-        for data in (self.train_data, self.val_data):
-            data.require_size(self.model.width, self.model.height)
-
-    def data_folder(self, data: DataConfig) -> str:
-        """Where a data set lives (:meth:`DataConfig.folder` under ``data_root``; the robust VO's
-        data of the same config is shared)."""
-        return str(data.folder(self.data_root))
+        super().__post_init__()
+        self.require_data_size(self.model.width, self.model.height)
 
 
 def load_training(path: str) -> DeepVOTraining:

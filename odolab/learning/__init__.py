@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from odolab.learning.checkpoints import CheckpointError, load_checkpoint, load_init, save_checkpoint
 from odolab.learning.compute import Compute, ComputeConfig, choose_compute
-from odolab.learning.configs import ConfigError, dataclass_from_toml, read_toml
+from odolab.learning.configs import ConfigError, check, dataclass_from_toml, describe, read_toml, setting
 from odolab.learning.curves import Curves
 from odolab.learning.device import pick_device
 from odolab.learning.epochs import EpochLoop, StopRequested, require_finite
@@ -26,8 +26,10 @@ __all__ = [
     "EpochLoop",
     "StopRequested",
     "TrainingData",
+    "check",
     "choose_compute",
     "dataclass_from_toml",
+    "describe",
     "load_checkpoint",
     "load_init",
     "make_training_data",
@@ -37,4 +39,5 @@ __all__ = [
     "require_finite",
     "resize_frame",
     "save_checkpoint",
+    "setting",
 ]

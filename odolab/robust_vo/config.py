@@ -4,13 +4,12 @@ recipe, as frozen dataclasses read from TOML (see ``studies/robust_vo/*.toml``).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 from odolab.api import MOTION_ACTIONS, Action
-from odolab.learning import DataConfig, dataclass_from_toml
-from odolab.learning.compute import ComputeConfig
-from odolab.learning.configs import check_ranges
+from odolab.learning import dataclass_from_toml
+from odolab.learning.configs import RecipeConfig, check, setting
 
 ACTION_BY_LABEL = {a.label: a for a in MOTION_ACTIONS}
 STAGE_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
@@ -39,38 +38,35 @@ class ModelConfig:
     0 is off.
     """
 
-    kind: Literal["sepact", "unified", "actembed"] = "sepact"
-    visual: Literal["rgb", "depth", "rgbd"] = "rgbd"
-    dd_bins: int = 10
-    sproj: bool = True
-    width: int = 170
-    height: int = 96
-    base_planes: int = 32
-    groups: int = 16
-    compress_channels: int = 31
-    dropout: float = 0.2
-    hidden: int = 512
-    embed_dim: int = 32
-    max_depth: float = 10.0
-    sproj_rows: float = 100 / 192  # central share of image rows projected (the reference keeps 100 of 192)
-    warp: Literal["none", "nominal"] = "none"
-    mirror_turns: bool = False
-    depth_residual: float = 0.0
+    kind: Literal["sepact", "unified", "actembed"] = setting(
+        "sepact", doc="sepact: one network per action; unified: one, no action; actembed: one with an action embedding"
+    )
+    visual: Literal["rgb", "depth", "rgbd"] = setting("rgbd", doc="which images enter")
+    dd_bins: int = setting(10, range=(0, 64), doc="one-hot discretised depth channels per frame (0: off)")
+    sproj: bool = setting(True, doc="the soft top-down projection channel")
+    width: int = setting(170, range=(8, 2048), doc="input width, px (frames are resized to it)")
+    height: int = setting(96, range=(8, 2048), doc="input height, px")
+    base_planes: int = setting(32, doc="ResNet-18 width (a multiple of groups)")
+    groups: int = setting(16, range=(1, 4096), doc="GroupNorm groups")
+    compress_channels: int = setting(31, range=(1, 4096), doc="outputs of the 3x3 compression conv")
+    dropout: float = setting(0.2, range=(0.0, 1.0), open_high=True, doc="dropout before each FC layer")
+    hidden: int = setting(512, range=(1, 4096), doc="units of each FC layer")
+    embed_dim: int = setting(32, range=(1, 4096), doc="action embedding size (actembed)")
+    max_depth: float = setting(10.0, range=(0.0, 100.0), open_low=True, doc="depth range of dd_bins and sproj, m")
+    sproj_rows: float = setting(
+        100 / 192,
+        range=(0.0, 1.0),
+        open_low=True,
+        doc="central share of image rows projected (the reference: 100 of 192)",
+    )
+    warp: Literal["none", "nominal"] = setting("none", doc="nominal: the current frame warped by the commanded motion")
+    mirror_turns: bool = setting(False, doc="right turns through the mirrored left-turn network (sepact)")
+    depth_residual: float = setting(0.0, doc="> 0: a warped-depth residual channel over this many m; 0: off")
 
     def __post_init__(self) -> None:
-        for name in ("groups", "compress_channels", "hidden", "embed_dim"):
-            if not 1 <= getattr(self, name) <= 4096:
-                raise ValueError(f"{name} must be in [1, 4096], got {getattr(self, name)}")
-        if self.dd_bins < 0 or self.dd_bins > 64:
-            raise ValueError(f"dd_bins must be in [0, 64], got {self.dd_bins}")
-        if not (8 <= self.width <= 2048 and 8 <= self.height <= 2048):
-            raise ValueError(f"width and height must be in [8, 2048], got {self.width} x {self.height}")
+        check(self)
         if self.base_planes < 1 or self.base_planes % self.groups:
             raise ValueError(f"base_planes ({self.base_planes}) must be a positive multiple of groups ({self.groups})")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
-        if not 0.0 < self.sproj_rows <= 1.0:
-            raise ValueError(f"sproj_rows must be in (0, 1], got {self.sproj_rows}")
         if self.mirror_turns and self.kind != "sepact":
             raise ValueError(f"mirror_turns needs kind = 'sepact' (one network per action), got {self.kind!r}")
         if self.warp not in ("none", "nominal"):
@@ -79,8 +75,6 @@ class ModelConfig:
             raise ValueError(f"depth_residual must be 0 (off) or in (0, 10] m, got {self.depth_residual}")
         if self.depth_residual and self.warp != "nominal":
             raise ValueError("depth_residual needs warp = 'nominal' (the residual is the deviation from the command)")
-        if not 0 < self.max_depth <= 100:
-            raise ValueError(f"max_depth must be in (0, 100] m, got {self.max_depth}")
 
     @property
     def channels_per_frame(self) -> int:
@@ -122,16 +116,16 @@ class StageConfig:
     once per epoch.
     """
 
-    name: str
-    actions: tuple[str, ...]
-    epochs: int
-    lr: float = 2.5e-4
-    batch: int = 128
-    data_aug: bool = False
-    mirror: bool = False
-    geoinv: bool = False
-    pairs_per_epoch: int = 0
-    blocked_repeat: int = 1
+    name: str = setting(doc="the stage's name (it names a file): letters, digits, '-' or '_'")
+    actions: tuple[str, ...] = setting(doc="the actions whose pairs it trains on")
+    epochs: int = setting(range=(1, 100_000), doc="epochs of this stage")
+    lr: float = setting(2.5e-4, range=(1e-12, 1.0), doc="Adam's learning rate")
+    batch: int = setting(128, range=(1, 65_536), doc="pairs per step")
+    data_aug: bool = setting(False, doc="also train on swapped pairs (turns only)")
+    mirror: bool = setting(False, doc="also train on mirrored pairs")
+    geoinv: bool = setting(False, doc="the geometric-invariance loss between turn pairs and their swaps")
+    pairs_per_epoch: int = setting(0, range=(0, 10**9), doc="pairs per epoch; 0: every pair once")
+    blocked_repeat: int = setting(1, range=(1, 1000), doc="times each blocked forward pair is repeated")
 
     def __post_init__(self) -> None:
         if not STAGE_NAME.fullmatch(self.name):
@@ -141,15 +135,7 @@ class StageConfig:
             raise ValueError(
                 f"stage {self.name!r}: actions must be some of {', '.join(ACTION_BY_LABEL)}, got {list(self.actions)}"
             )
-        check_ranges(
-            f"stage {self.name!r}",
-            self,
-            epochs=(1, 100_000),
-            batch=(1, 65_536),
-            lr=(1e-12, 1.0),
-            pairs_per_epoch=(0, 10**9),
-            blocked_repeat=(1, 1000),
-        )
+        check(self, f"stage {self.name!r}: ")
         if self.blocked_repeat > 1 and "move_forward" not in self.actions:
             raise ValueError(
                 f"stage {self.name!r}: blocked_repeat repeats forward pairs; this stage has no move_forward"
@@ -163,36 +149,25 @@ class StageConfig:
 
 
 @dataclass(frozen=True)
-class TrainConfig:
-    """A whole recipe: data (made when missing), model, stages in order, validation size, seed.
-    ``init``: start every network from this exported robust-VO model (a path from the working
-    directory; the same model but for added inputs, :func:`odolab.robust_vo.checkpoint.load_start`);
-    "" = fresh weights. ``compute``: precision, memory format and batch-making workers (not part of
-    the run's identity)."""
+class TrainConfig(RecipeConfig):
+    """A whole recipe: data (made when missing), model, stages in order, validation size, seed
+    (:class:`~odolab.learning.configs.RecipeConfig`, which DeepVO's recipe shares). ``init``: start
+    every network from this exported robust-VO model (a path from the working directory; the same
+    model but for added inputs, :func:`odolab.robust_vo.checkpoint.load_start`); "" = fresh weights.
+    ``compute``: precision, memory format and batch-making workers (not part of the run's identity)."""
 
-    model: ModelConfig = field(default_factory=ModelConfig)
-    stages: tuple[StageConfig, ...] = ()
-    train_data: DataConfig = field(default_factory=DataConfig)
-    val_data: DataConfig = field(default_factory=lambda: DataConfig(split="val", episodes=64))
-    data_root: str = "data"
-    val_pairs: int = 3000
-    seed: int = 0
-    init: str = ""
-    compute: ComputeConfig = field(default_factory=ComputeConfig)
+    model: ModelConfig = setting(default_factory=ModelConfig, doc="the network and its inputs")
+    stages: tuple[StageConfig, ...] = setting((), doc="the training stages, in order ([[stages]] tables)")
+    val_pairs: int = setting(3000, range=(0, 10**7), doc="validation pairs drawn from the validation data")
 
     def __post_init__(self) -> None:
-        check_ranges("recipe", self, val_pairs=(0, 10**7), seed=(0, 2**32 - 1))
+        super().__post_init__()
         if not self.stages:
             raise ValueError("a training config needs at least one [[stages]] table")
         names = [s.name for s in self.stages]
         if len(set(names)) != len(names):
             raise ValueError(f"stage names must be unique, got {names}")
-        for data in (self.train_data, self.val_data):
-            data.require_size(self.model.width, self.model.height)
-
-    def data_folder(self, data: DataConfig) -> str:
-        """Where a data set lives (:meth:`DataConfig.folder` under ``data_root``)."""
-        return str(data.folder(self.data_root))
+        self.require_data_size(self.model.width, self.model.height)
 
 
 def load_train_config(path: str) -> TrainConfig:

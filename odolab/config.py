@@ -1,0 +1,364 @@
+"""The one way to configure: frozen dataclasses whose fields carry their valid range and a one-line
+description, built from TOML (read with :mod:`tomllib`, never evaluated) plus ``key=value`` changes,
+checked by one function and printed from the same source.
+
+A field declares itself with :func:`setting`::
+
+    @dataclass(frozen=True)
+    class Example:
+        cell: float = setting(0.05, range=(0.02, 1.0), doc="map cell edge, m")
+        stride: int = setting(4, range=(1, 64), doc="every n-th depth pixel")
+
+        def __post_init__(self) -> None:
+            check(self)  # every field with a range: a number of its kind, inside it
+
+- :func:`check` refuses a value that is not a number of the field's kind (an ``int`` field wants a
+  whole number; a bool, text or NaN is no number) or lies outside its range, with one line:
+  ``cell must be a number in [0.02, 1], got 'x'`` or ``cell must be in [0.02, 1], got 5.0``; numpy
+  scalars become Python's, ``-0.0`` becomes ``0.0``.
+- :func:`build` (:func:`from_toml` for a file, whose top-level ``base = "other.toml"`` starts from
+  another document) builds a config from a dict, checking names and types; :class:`ConfigError`
+  names the file and the field.
+- :func:`assign` applies ``key=value`` changes (``heading_tolerance=30``) to a config.
+- :func:`describe` lists every field with its value, range and description (what reports and
+  ``--help`` print).
+
+The field metadata leaves ``dataclasses.asdict``, equality and pickling as they were: a config's
+contents, and every digest or identity made from them, do not depend on it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+import os
+import reprlib
+import types
+import typing
+from collections.abc import Iterable
+from typing import Any, TypeVar
+
+import numpy as np
+import tomllib
+
+from odolab.errors import InputError
+from odolab.io.tomlfile import read_toml as read_toml_document
+
+__all__ = [
+    "ConfigError",
+    "Setting",
+    "assign",
+    "build",
+    "check",
+    "describe",
+    "from_toml",
+    "range_text",
+    "read_toml",
+    "setting",
+]
+
+T = TypeVar("T")
+
+#: Longest chain of ``base =`` files one TOML document may start from.
+MAX_BASE_CHAIN = 16
+#: Deepest nesting of tables that two documents of a ``base =`` chain are merged through.
+MAX_TABLE_DEPTH = 32
+#: Longest ``key=value`` value read as a number: no setting needs 40 digits (Python refuses 4300).
+MAX_NUMBER_CHARS = 40
+
+_RANGE, _OPEN, _DOC = "odolab.range", "odolab.open", "odolab.doc"
+
+
+class ConfigError(ValueError):
+    """A config that cannot be used; the message names the file and field."""
+
+
+# ---------------------------------------------------------------------------------------- fields
+
+
+def setting(
+    default: Any = dataclasses.MISSING,
+    *,
+    range: tuple[float, float] | None = None,
+    doc: str = "",
+    open_low: bool = False,
+    open_high: bool = False,
+    default_factory: Any = dataclasses.MISSING,
+) -> Any:
+    """A dataclass field with its valid range ``(low, high)`` (closed, unless ``open_low`` /
+    ``open_high``; None: no range) and a one-line description ``doc``."""
+    metadata: dict[str, Any] = {_DOC: doc}
+    if range is not None:
+        low, high = range
+        metadata[_RANGE] = (low, high)
+        metadata[_OPEN] = (bool(open_low), bool(open_high))
+    return dataclasses.field(default=default, default_factory=default_factory, metadata=metadata)
+
+
+def _field(cls_or_config: Any, name: str) -> dataclasses.Field:
+    for f in dataclasses.fields(cls_or_config):
+        if f.name == name:
+            return f
+    raise KeyError(name)
+
+
+def _type_parts(f: dataclasses.Field) -> list[str]:
+    """``"int | None"`` -> ``["int", "None"]`` (the annotation as written, or its type's name)."""
+    kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+    return [p.strip() for p in str(kind).split("|")]
+
+
+def _whole(f: dataclasses.Field) -> bool:
+    return "int" in _type_parts(f) and "float" not in _type_parts(f)
+
+
+def _show(bound: float) -> str:
+    return f"{bound:d}" if isinstance(bound, int) else f"{bound:g}"
+
+
+def range_text(cls_or_config: Any, name: str) -> str:
+    """``[1, 1000000]``, ``(0, 1]``: the range of field ``name`` as a user may type its ends."""
+    f = _field(cls_or_config, name)
+    (low, high), (open_low, open_high) = f.metadata[_RANGE], f.metadata[_OPEN]
+    return f"{'(' if open_low else '['}{_show(low)}, {_show(high)}{')' if open_high else ']'}"
+
+
+def in_range(cls_or_config: Any, name: str, value: float) -> bool:
+    """Whether number ``value`` lies in field ``name``'s range (NaN never does)."""
+    f = _field(cls_or_config, name)
+    (low, high), (open_low, open_high) = f.metadata[_RANGE], f.metadata[_OPEN]
+    return low <= value <= high and not (open_low and value == low) and not (open_high and value == high)
+
+
+def _noun(f: dataclasses.Field) -> str:
+    return "a whole number" if _whole(f) else "a number"
+
+
+def check(config: Any, prefix: str = "") -> None:
+    """``ValueError`` (led by ``prefix``, e.g. ``"stage 'f': "``) for the first field of ``config``
+    with a range whose value is not a number of its kind or lies outside it; each such value is
+    stored as a Python ``int`` or ``float``. Call it from ``__post_init__``."""
+    for f in dataclasses.fields(config):
+        if _RANGE not in f.metadata:
+            continue
+        value = getattr(config, f.name)
+        if value is None and "None" in _type_parts(f):
+            continue
+        whole = _whole(f)
+        if (
+            isinstance(value, (bool, np.bool_))
+            or not isinstance(value, numbers.Integral if whole else numbers.Real)
+            or (not isinstance(value, numbers.Integral) and math.isnan(value))
+        ):
+            raise ValueError(f"{prefix}{f.name} must be {_noun(f)} in {range_text(config, f.name)}, got {value!r:.80}")
+        try:
+            value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
+        except OverflowError:  # an integer past float's range: out of every range
+            raise ValueError(f"{prefix}{f.name} must be in {range_text(config, f.name)}, got {value!r:.80}") from None
+        object.__setattr__(config, f.name, value)
+        if not in_range(config, f.name, value):
+            raise ValueError(f"{prefix}{f.name} must be in {range_text(config, f.name)}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One field of a config as :func:`describe` lists it: ``range`` is ``""`` for a field without one."""
+
+    name: str
+    value: Any
+    range: str
+    doc: str
+
+
+def describe(config: Any) -> list[Setting]:
+    """Every field of ``config`` (a dataclass or its class, which gives the defaults), in order,
+    with its value, range and description: what ``--help`` and reports print."""
+    out = []
+    for f in dataclasses.fields(config):
+        if isinstance(config, type):
+            if f.default is not dataclasses.MISSING:
+                value = f.default
+            elif f.default_factory is not dataclasses.MISSING:
+                value = f.default_factory()
+            else:
+                value = None
+        else:
+            value = getattr(config, f.name)
+        shown = range_text(config, f.name) if _RANGE in f.metadata else ""
+        out.append(Setting(f.name, value, shown, f.metadata.get(_DOC, "")))
+    return out
+
+
+# ---------------------------------------------------------------------------------- TOML -> config
+
+
+def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The TOML document at ``path``; :class:`ConfigError` when missing or malformed.
+
+    A top-level ``base = "other.toml"`` (relative to this file) starts from that document: tables
+    are merged key by key, anything else (numbers, strings, lists such as ``[[stages]]``) replaces
+    the base's value. So a variant of a recipe states only what it changes. A chain of more than
+    :data:`MAX_BASE_CHAIN` bases is refused.
+    """
+    if len(_seen) >= MAX_BASE_CHAIN:
+        raise ConfigError(
+            f"{path}: reached through a chain of {len(_seen)} base files (from {_seen[0]}); at most {MAX_BASE_CHAIN}"
+        )
+    doc = _read_toml_file(path)
+    base = doc.pop("base", None)
+    if base is None:
+        return doc
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"{path}: base must be the path of another TOML file, got {base!r}")
+    base_path = os.path.join(os.path.dirname(os.path.abspath(path)), base)
+    if os.path.abspath(base_path) in _seen or os.path.abspath(path) == os.path.abspath(base_path):
+        raise ConfigError(f"{path}: base {base!r} leads back to itself")
+    if not os.path.isfile(base_path):
+        raise ConfigError(f"{path}: its base {base!r} is not a file ({base_path})")
+    merged = read_toml(base_path, (*_seen, os.path.abspath(path)))
+    try:
+        return _merge(merged, doc)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any], where: str = "", depth: int = 0) -> dict[str, Any]:
+    """``over`` merged into ``base`` table by table; :class:`ConfigError` past :data:`MAX_TABLE_DEPTH` levels."""
+    if depth > MAX_TABLE_DEPTH:
+        raise ConfigError(f"{where}: tables nested more than {MAX_TABLE_DEPTH} deep")
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value, f"{where}.{key}" if where else key, depth + 1)
+        else:
+            out[key] = value
+    return out
+
+
+def _read_toml_file(path: str | os.PathLike) -> dict[str, Any]:
+    try:
+        return read_toml_document(path, "config file")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _check(value: Any, annotation: Any, where: str) -> Any:
+    origin = typing.get_origin(annotation)
+    if annotation is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        for option in typing.get_args(annotation):
+            if option is type(None) and value is None:
+                return None
+            try:
+                return _check(value, option, where)
+            except ConfigError:
+                continue
+        raise ConfigError(f"{where}: expected {annotation}, got {value!r}")
+    if origin is typing.Literal:
+        if value not in typing.get_args(annotation):
+            raise ConfigError(
+                f"{where}: expected one of {', '.join(map(repr, typing.get_args(annotation)))}, got {value!r}"
+            )
+        return value
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        args = typing.get_args(annotation)
+        item = args[0] if args else Any
+        return tuple(_check(v, item, f"{where}[{k}]") for k, v in enumerate(value))
+    if dataclasses.is_dataclass(annotation):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a table, got {value!r}")
+        return build(annotation, value, where)
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if annotation in (bool, str) and not isinstance(value, annotation):
+        raise ConfigError(f"{where}: expected {annotation.__name__}, got {value!r}")
+    return value
+
+
+def build(cls: type[T], doc: dict[str, Any], where: str) -> T:
+    """Build dataclass ``cls`` from ``doc``, checking names and types; ``where`` prefixes errors."""
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(doc) - known)
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown field(s) {', '.join(unknown)}; expected some of {', '.join(sorted(known))}"
+        )
+    values = {k: _check(v, hints[k], f"{where}.{k}" if where else k) for k, v in doc.items()}
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def from_toml(cls: type[T], path: str | os.PathLike) -> T:
+    """Read ``path`` and build ``cls`` from it (see :func:`build`)."""
+    return build(cls, read_toml(path), str(path))
+
+
+# -------------------------------------------------------------------------------- key=value changes
+
+
+def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigError, base: T | None = None) -> T:
+    """``base`` (default ``cls()``) with ``key=value`` changes (``heading_tolerance=30``); ``error``
+    (e.g. a subclass of :class:`odolab.errors.InputError`) naming the item, cut short, for an
+    unknown key, a key given twice, a value that is not of the field's kind or out of its range;
+    the config's own checks (two fields together) raise ``error(message, joiner=": ")`` when
+    ``error`` takes a joiner, else ``error(message)``. A field with a range takes a number typed
+    plainly (ASCII digits, no ``_``); any other field a TOML value (``true``, ``"text"``, ``[1, 2]``),
+    or plain text."""
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    short = reprlib.Repr()  # items are echoed cut short: a 5000-digit value is not printed whole
+    short.maxstring = 60
+    changes: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key, shown = key.strip(), short.repr(item)
+        if not sep or key not in names:
+            raise error(f"{shown}: expected key=value with key one of {', '.join(names)}")
+        if key in changes:
+            raise error(f"{shown}: {key} is given twice")
+        f = _field(cls, key)
+        if _RANGE in f.metadata:
+            kind = f"{_noun(f)} in {range_text(cls, key)}"
+            if len(text.strip()) > MAX_NUMBER_CHARS:
+                raise error(f"{shown}: {key} takes {kind}; this value is too long to read")
+            try:
+                if not text.isascii() or "_" in text:  # Python reads "١" and "1_0" as numbers too
+                    raise ValueError(text)
+                value = int(text) if _whole(f) else float(text)
+            except ValueError:
+                raise error(f"{shown}: {key} takes {kind}") from None
+            if not math.isfinite(float(value)) or not in_range(cls, key, value):
+                raise error(f"{shown}: {key} must be in {range_text(cls, key)}")
+        else:
+            try:
+                value = _check(_toml_value(text.strip()), hints[key], key)
+            except ConfigError as exc:
+                raise error(f"{shown}: {exc}") from None
+        changes[key] = value
+    try:
+        return dataclasses.replace(base, **changes) if base is not None else cls(**changes)
+    except ValueError as exc:
+        if issubclass(error, InputError):
+            raise error(str(exc), joiner=": ") from None
+        raise error(str(exc)) from None
+
+
+def _toml_value(text: str) -> Any:
+    """``text`` as a TOML value when it is one (``3``, ``true``, ``"x"``), else as plain text."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except (tomllib.TOMLDecodeError, ValueError, RecursionError):
+        return text

@@ -1,0 +1,84 @@
+"""odolab.config: fields that carry their range and description, one check, one builder, key=value."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from odolab.config import ConfigError, assign, build, check, describe, from_toml, range_text, setting
+from odolab.errors import InputError
+
+
+@dataclass(frozen=True)
+class Example:
+    cell: float = setting(0.05, range=(0.02, 1.0), doc="map cell edge, m")
+    stride: int = setting(4, range=(1, 64), doc="every n-th pixel")
+    speed: float = setting(0.5, range=(0.0, 1.0), open_low=True, doc="relative speed")
+    reach: float | None = setting(None, range=(0.0, 10.0), doc="None: unbounded")
+    name: str = setting("x", doc="a label")
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
+class ExampleError(InputError):
+    subject = "example"
+
+
+def test_ranges_and_kinds_are_checked_with_one_line():
+    for bad, said in (
+        ({"cell": "0.1"}, "cell must be a number in [0.02, 1], got '0.1'"),
+        ({"cell": True}, "cell must be a number in [0.02, 1], got True"),
+        ({"cell": float("nan")}, "cell must be a number in [0.02, 1], got nan"),
+        ({"cell": float("inf")}, "cell must be in [0.02, 1], got inf"),
+        ({"cell": 5}, "cell must be in [0.02, 1], got 5.0"),
+        ({"stride": 4.0}, "stride must be a whole number in [1, 64], got 4.0"),
+        ({"stride": 10**400}, "stride must be in [1, 64], got 1000"),
+        ({"speed": 0}, "speed must be in (0, 1], got 0.0"),
+    ):
+        with pytest.raises(ValueError) as info:
+            Example(**bad)
+        assert str(info.value).startswith(said), (bad, str(info.value))
+    cfg = Example(cell=np.float32(0.25), stride=np.int64(8), speed=1, reach=None)
+    assert type(cfg.cell) is float and type(cfg.stride) is int and type(cfg.speed) is float
+    assert str(Example(speed=-0.0 + 1.0, cell=0.02).cell) == "0.02"
+    assert range_text(Example, "speed") == "(0, 1]" and range_text(Example, "stride") == "[1, 64]"
+
+
+def test_metadata_leaves_the_contents_as_they_were():
+    assert dataclasses.asdict(Example()) == {"cell": 0.05, "stride": 4, "speed": 0.5, "reach": None, "name": "x"}
+    rows = describe(Example)
+    assert [(r.name, r.value, r.range, r.doc) for r in rows][:2] == [
+        ("cell", 0.05, "[0.02, 1]", "map cell edge, m"),
+        ("stride", 4, "[1, 64]", "every n-th pixel"),
+    ]
+    assert describe(Example(stride=2))[1].value == 2 and rows[-1].range == ""
+
+
+def test_built_from_toml_and_key_value_changes(tmp_path):
+    base = tmp_path / "base.toml"
+    base.write_text("cell = 0.1\nstride = 2\n")
+    child = tmp_path / "child.toml"
+    child.write_text('base = "base.toml"\nstride = 8\n')
+    assert from_toml(Example, child) == Example(cell=0.1, stride=8)
+    with pytest.raises(ConfigError, match=r"f: unknown field\(s\) bogus"):
+        build(Example, {"bogus": 1}, "f")
+    with pytest.raises(ConfigError, match=r"f: stride must be in \[1, 64\], got 0"):
+        build(Example, {"stride": 0}, "f")
+    assert assign(Example, ["stride=8", "name=y", "cell=1"]) == Example(cell=1.0, stride=8, name="y")
+    for items, said in (
+        (["stride=1.5"], "example 'stride=1.5': stride takes a whole number in [1, 64]"),
+        (["stride=1_0"], "example 'stride=1_0': stride takes a whole number in [1, 64]"),
+        (["cell=nan"], "example 'cell=nan': cell must be in [0.02, 1]"),
+        (["stride=2", "stride=3"], "example 'stride=3': stride is given twice"),
+        (["nope=1"], "example 'nope=1': expected key=value with key one of cell, stride, speed, reach, name"),
+        (["name=[1]"], "example 'name=[1]': name: expected str, got [1]"),
+    ):
+        with pytest.raises(ExampleError) as info:
+            assign(Example, items, error=ExampleError)
+        assert str(info.value) == said
+    with pytest.raises(ConfigError, match="stride takes"):
+        assign(Example, ["stride=x"])
