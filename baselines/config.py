@@ -2,7 +2,8 @@
 
 Every odometer in ``baselines/`` takes one frozen config dataclass (``ICPConfig``,
 ``Open3DRGBDConfig``, ``FeatureEssentialConfig``, ``PlanarDepthConfig``), derived from
-:class:`OdometerConfig`, and keeps it as ``odometer.config`` (``dataclasses.asdict`` writes it
+:class:`OdometerConfig`, its fields declared with :func:`odolab.api.setting` (a range, checked by
+:func:`odolab.api.check`, and a one-line description), and keeps it as ``odometer.config`` (``dataclasses.asdict`` writes it
 out). Keyword options override single fields wherever they sit: ``load_odometer("icp", max_depth=3.0, voxel=0.05)`` sets
 ``config.depth.max_depth`` and ``config.voxel``.
 """
@@ -113,12 +114,6 @@ def _as_floats(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [_as_floats(v) for v in value]
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else value
-
-
-def check_range(name: str, value: object, low: float, high: float) -> None:
-    """``ValueError`` unless ``value`` (of option ``name``) is a number in ``[low, high]`` (NaN fails)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-        raise ValueError(f"{name} must be in [{low:g}, {high:g}], got {value!r}")
 
 
 def check_choice(name: str, value: object, choices: Iterable[object]) -> None:

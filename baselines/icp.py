@@ -41,13 +41,13 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, check_range, config_digest, configure, options_signature
+from baselines.config import OdometerConfig, check_choice, config_digest, configure, options_signature
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
 from baselines.open3d_threads import one_thread
 from baselines.verification import first_verified
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check, setting
 
 __all__ = ["ICPConfig", "ICPOdometer"]
 
@@ -61,55 +61,32 @@ class ICPConfig(OdometerConfig):
     :class:`~baselines.config.OdometerConfig`; the 4 m depth cut: beyond it the depth is coarsely
     quantised on a Kinect and in the simulator's Redwood model, >5 cm steps)."""
 
-    #: ``"colored"`` (depth + texture) or ``"point_to_plane"``.
-    variant: str = "colored"
-    #: Back-project every n-th pixel row and column.
-    pixel_stride: int = 2
-    #: Finest voxel edge, metres.
-    voxel: float = 0.04
+    variant: str = setting("colored", doc='"colored" (depth + texture) or "point_to_plane"')
+    pixel_stride: int = setting(2, range=(1, 64), doc="back-project every n-th pixel row and column")
+    voxel: float = setting(0.04, range=(1e-4, 1.0), doc="finest voxel edge, m")
     #: Per level, coarse to fine: (voxel as a multiple of ``voxel``, correspondence reach as a
     #: multiple of that level's voxel).
-    levels: tuple[tuple[float, float], ...] = ((2.0, 2.0), (1.0, 1.5))
-    #: Normals from neighbours within this many voxels of a level ...
-    normal_radius: float = 2.0
-    #: ... and at most this many of them.
-    normal_neighbours: int = 15
-    #: ICP iterations per level.
-    max_iterations: int = 10
-    #: Relative change of fitness and RMSE that ends a level.
-    tolerance: float = 1e-5
-    #: Colored ICP's weight of the geometric term against the colour term (Open3D's default).
-    geometric_weight: float = 0.968
-    #: Tukey robust kernel width, metres; None = plain least squares.
-    tukey_k: float | None = 0.05
-    #: Initial guesses tried (:func:`~baselines.motion_search.initial_guesses`, best first).
-    max_starts: int = 2
-    #: Fewer points in a frame's finest cloud = invalid step ...
-    min_cloud_points: int = 200
-    #: ... or fewer in its coarsest cloud.
-    min_coarse_points: int = 20
-    #: Point-to-plane only: either frame's surfaces must constrain translation this well (0 to 1/3,
-    #: :func:`~baselines.depth_geometry.normal_constraint`).
-    min_normal_constraint: float = 0.02
+    levels: tuple[tuple[float, float], ...] = setting(
+        ((2.0, 2.0), (1.0, 1.5)), doc="per level, coarse to fine: (voxel multiple, reach multiple of the level's voxel)"
+    )
+    normal_radius: float = setting(2.0, range=(0.1, 100.0), doc="normals from neighbours within this many voxels ...")
+    normal_neighbours: int = setting(15, range=(3, 1000), doc="... and at most this many of them")
+    max_iterations: int = setting(10, range=(1, 10_000), doc="ICP iterations per level")
+    tolerance: float = setting(1e-5, range=(0.0, 1.0), doc="relative change of fitness and RMSE that ends a level")
+    geometric_weight: float = setting(
+        0.968, range=(0.0, 1.0), doc="colored ICP's weight of the geometric term against the colour term"
+    )
+    tukey_k: float | None = setting(0.05, range=(1e-4, 10.0), doc="Tukey kernel width, m; None: least squares")
+    max_starts: int = setting(2, range=(1, 100), doc="initial guesses tried, best first")
+    min_cloud_points: int = setting(200, range=(3, 10**7), doc="fewer points in the finest cloud: invalid step ...")
+    min_coarse_points: int = setting(20, range=(3, 10**7), doc="... or fewer in the coarsest cloud")
+    min_normal_constraint: float = setting(
+        0.02, range=(0.0, 1.0), doc="point-to-plane: how well the surfaces must constrain translation (0 to 1/3)"
+    )
 
     def __post_init__(self) -> None:
         check_choice("variant", self.variant, _VARIANTS)
-        for name, low, high in (
-            ("pixel_stride", 1, 64),
-            ("voxel", 1e-4, 1.0),
-            ("normal_radius", 0.1, 100.0),
-            ("normal_neighbours", 3, 1000),
-            ("max_iterations", 1, 10_000),
-            ("tolerance", 0.0, 1.0),
-            ("geometric_weight", 0.0, 1.0),
-            ("max_starts", 1, 100),
-            ("min_cloud_points", 3, 10**7),
-            ("min_coarse_points", 3, 10**7),
-            ("min_normal_constraint", 0.0, 1.0),
-        ):
-            check_range(name, getattr(self, name), low, high)
-        if self.tukey_k is not None:
-            check_range("tukey_k", self.tukey_k, 1e-4, 10.0)
+        check(self)
         try:
             levels = tuple((float(a), float(b)) for a, b in self.levels)
         except (TypeError, ValueError):

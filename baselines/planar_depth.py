@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from baselines.config import OdometerConfig, check_range, config_digest, configure, options_signature
+from baselines.config import OdometerConfig, config_digest, configure, options_signature
 from baselines.depth_geometry import DepthRange, FrameMemo, backproject, backproject_pixels, depth_mask
 from baselines.motion_search import initial_guesses
 from baselines.verification import VerifyConfig, verify
@@ -69,8 +69,10 @@ from odolab.api import (
     Frame,
     Intrinsics,
     Odometer,
+    check,
     nominal_motion,
     planar_to_transform,
+    setting,
     transform_to_planar,
 )
 
@@ -85,42 +87,32 @@ class PlanarDepthConfig(OdometerConfig):
     depth: DepthRange = DepthRange(max_depth=6.0, noise_growth=0.015)
     #: No grey-level test: only the bounds and the depth agreement (NCC >= -1 always holds).
     verify: VerifyConfig = field(default_factory=lambda: VerifyConfig(min_ncc=-1.0))
-    #: Fit every n-th current pixel row and column.
-    pixel_stride: int = 4
-    #: Normals of the previous surface from neighbours this many pixels away on each side.
-    normal_step: int = 2
-    #: Gauss-Newton iterations per start at most.
-    iterations: int = 20
-    #: Tukey kernel width as a multiple of the depth noise tolerance at each point's depth.
-    tukey: float = 3.0
-    #: Sigma (metres) of the prior on the translation around the action's nominal motion.
-    prior_sigma: float = 0.1
-    #: Sigma (rad, m) given to the components held at zero (roll, pitch, height).
-    out_of_plane_sigma: float = 1e-3
-    #: Sigma (m) added to each planar translation's: the depth's scale error (uncorrected
-    #: distortion) moves the walls by centimetres, which the fit's own statistics cannot see.
-    translation_floor: float = 0.015
-    #: Fewer fitted points than this = invalid step.
-    min_points: int = 200
-    #: A previous view whose median depth (metres; over its usable pixels with a normal) is beyond
-    #: this = invalid step: far views bend under the depth distortion (see the module docstring).
-    max_median_depth: float = 2.0
-    #: The fitted normals are taken as one plane (a single wall) when the smaller eigenvalue of
-    #: their (x, z) scatter is below this fraction of the sum; the slide along it is then the
-    #: prior's. 0 = never (the default; the module docstring says why).
-    one_plane_ratio: float = 0.0
+    pixel_stride: int = setting(4, range=(1, 64), doc="fit every n-th current pixel row and column")
+    normal_step: int = setting(2, range=(1, 16), doc="normals of the previous surface from neighbours n px away")
+    iterations: int = setting(20, range=(1, 1000), doc="Gauss-Newton iterations per start at most")
+    tukey: float = setting(3.0, range=(0.5, 100.0), doc="Tukey kernel width, multiple of the depth tolerance")
+    prior_sigma: float = setting(0.1, range=(1e-3, 10.0), doc="sigma (m) of the prior round the nominal motion")
+    out_of_plane_sigma: float = setting(
+        1e-3, range=(1e-6, 1.0), doc="sigma (rad, m) of the components held at zero (roll, pitch, height)"
+    )
+    #: The depth's scale error (uncorrected distortion) moves the walls by centimetres, which the
+    #: fit's own statistics cannot see.
+    translation_floor: float = setting(0.015, range=(0.0, 1.0), doc="sigma (m) added to each planar translation's")
+    min_points: int = setting(200, range=(3, 10**7), doc="fewer fitted points: invalid step")
+    #: Far views bend under the depth distortion (see the module docstring).
+    max_median_depth: float = setting(
+        2.0, range=(0.0, 1000.0), doc="a previous view whose median depth (m) is beyond this: invalid step"
+    )
+    #: The slide along a single wall is then the prior's. 0 = never (the default; the module
+    #: docstring says why).
+    one_plane_ratio: float = setting(
+        0.0,
+        range=(0.0, 0.5),
+        doc="normals taken as one plane when the (x, z) scatter's smaller eigenvalue is below this share",
+    )
 
     def __post_init__(self) -> None:
-        check_range("pixel_stride", self.pixel_stride, 1, 64)
-        check_range("normal_step", self.normal_step, 1, 16)
-        check_range("iterations", self.iterations, 1, 1000)
-        check_range("tukey", self.tukey, 0.5, 100.0)
-        check_range("prior_sigma", self.prior_sigma, 1e-3, 10.0)
-        check_range("out_of_plane_sigma", self.out_of_plane_sigma, 1e-6, 1.0)
-        check_range("translation_floor", self.translation_floor, 0.0, 1.0)
-        check_range("min_points", self.min_points, 3, 10**7)
-        check_range("max_median_depth", self.max_median_depth, 0.0, 1000.0)
-        check_range("one_plane_ratio", self.one_plane_ratio, 0.0, 0.5)
+        check(self)
         if self.max_median_depth <= self.depth.min_depth:
             raise ValueError(
                 f"max_median_depth ({self.max_median_depth:g} m) must exceed min_depth "

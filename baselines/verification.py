@@ -15,22 +15,10 @@ import numpy as np
 
 from baselines.depth_geometry import DepthRange, backproject_pixels, blurred_grey, depth_mask, pixel_grid
 from baselines.motion_search import nominal_motion
-from odolab.api import Action, Frame, Intrinsics, transform_to_planar
+from odolab.api import Action, Frame, Intrinsics, check, setting, transform_to_planar
 
 #: Moved points nearer than this (metres) to the previous camera's plane land nowhere.
 _IN_FRONT = 1e-6
-
-
-def _check_number(name: str, value: object, low: float, high: float) -> None:
-    """``ValueError`` unless ``value`` is a number (not a bool, not NaN) in ``[low, high]``.
-    (:func:`baselines.config.check_range` does the same for the odometers' own options; this module
-    cannot import it: ``baselines.config`` imports this one.)"""
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float, np.integer, np.floating))
-        or not low <= value <= high
-    ):
-        raise ValueError(f"{name} must be a number in [{low:g}, {high:g}], got {value!r:.80}")
 
 
 @dataclass(frozen=True)
@@ -147,21 +135,20 @@ class MotionBounds:
     0.24 rad forward, 0.22 rad turning; lateral 0.25 m forward, 0.10 m turning), plus margin.
     """
 
-    max_height: float = 0.03
-    max_tilt_deg: float = 2.0
-    max_yaw_error: float = 0.3
-    max_lateral: float = 0.3
-    forward_range: tuple[float, float] = (-0.05, 0.42)
-    max_turn_translation: float = 0.15
+    max_height: float = setting(0.03, range=(0.0, np.inf), doc="|ty| at most, m: the camera stays at its height")
+    max_tilt_deg: float = setting(2.0, range=(0.0, np.inf), doc="roll and pitch at most, degrees")
+    max_yaw_error: float = setting(0.3, range=(0.0, np.inf), doc="yaw within this of the action's nominal one, rad")
+    max_lateral: float = setting(0.3, range=(0.0, np.inf), doc="move_forward: |dx| at most, m")
+    forward_range: tuple[float, float] = setting((-0.05, 0.42), doc="move_forward: dz in [lowest, highest], m")
+    max_turn_translation: float = setting(0.15, range=(0.0, np.inf), doc="turns: |dx| and |dz| at most, m")
 
     def __post_init__(self) -> None:
-        for name in ("max_height", "max_tilt_deg", "max_yaw_error", "max_lateral", "max_turn_translation"):
-            _check_number(name, getattr(self, name), 0.0, np.inf)
+        check(self)
         r = self.forward_range
         if isinstance(r, (str, bytes)) or not hasattr(r, "__len__") or len(r) != 2:
             raise ValueError(f"forward_range: expected two numbers [lowest, highest] in metres, got {r!r:.80}")
-        for x in r:
-            _check_number("forward_range", x, -np.inf, np.inf)
+        if any(isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)) for x in r):
+            raise ValueError(f"forward_range: expected two numbers [lowest, highest] in metres, got {r!r:.80}")
         if not r[0] < r[1]:
             raise ValueError(f"forward_range: expected lowest < highest, got {list(r)!r:.80}")
         object.__setattr__(self, "forward_range", (float(r[0]), float(r[1])))
@@ -200,24 +187,18 @@ class VerifyConfig:
     (dx) while rejecting 4 of 175 good ones.
     """
 
-    bounds: MotionBounds | None = MotionBounds()
-    min_points_in_view: int = 200
-    min_agreement: float = 0.8
-    min_ncc: float = 0.85
-    check_stride: int = 2
-    ncc_blur_sigma: float = 1.5
-    min_ncc_points: int = 100
+    bounds: MotionBounds | None = setting(MotionBounds(), doc="the motions the action can make (None: unbounded)")
+    min_points_in_view: int = setting(
+        200, range=(0, np.inf), doc="current depth points that must land on a usable previous depth pixel"
+    )
+    min_agreement: float = setting(0.8, range=(0.0, 1.0), doc="share of them that must agree in depth")
+    min_ncc: float = setting(0.85, range=(-1.0, 1.0), doc="NCC of their blurred grey levels at least")
+    check_stride: int = setting(2, range=(1, 64), doc="every n-th row and column checked")
+    ncc_blur_sigma: float = setting(1.5, range=(0.0, 100.0), doc="Gaussian blur before the NCC, px")
+    min_ncc_points: int = setting(100, range=(0, np.inf), doc="fewer agreeing points: NCC 0")
 
     def __post_init__(self) -> None:
-        for name, low, high in (
-            ("min_points_in_view", 0, np.inf),
-            ("min_agreement", 0.0, 1.0),
-            ("min_ncc", -1.0, 1.0),
-            ("check_stride", 1, 64),
-            ("ncc_blur_sigma", 0.0, 100.0),
-            ("min_ncc_points", 0, np.inf),
-        ):
-            _check_number(name, getattr(self, name), low, high)
+        check(self)
 
 
 def verify(

@@ -585,5 +585,7 @@ def test_calibrate_and_bench_refuse_mistakes_in_one_line(tmp_path, capsys):
 def test_an_options_file_value_its_input_refuses_names_the_file_and_the_input(tmp_path):
     f = tmp_path / "o.toml"
     f.write_text('[odometers."planar-depth"]\none_plane_ratio = nan\n')
-    with pytest.raises(ValueError, match=r'o.toml: \[odometers."planar-depth"\] one_plane_ratio must be in'):
+    with pytest.raises(
+        ValueError, match=r'o.toml: \[odometers."planar-depth"\] one_plane_ratio must be a number in \[0, 0.5\]'
+    ):
         REGISTRY.load("fused(planar-depth)", options_file=str(f))
