@@ -41,9 +41,10 @@ SETTING_OPTIONS = {
 
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.comparison import ComparisonError, load_odometers
+    from odolab.config import describe
     from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
     from odolab.io.owned import UnsafeOutputError, check_owned_path
-    from odolab.navigation.agent import PolicyConfig, PolicyError, range_text
+    from odolab.navigation.agent import PolicyConfig, PolicyError
     from odolab.navigation.report import output_files, write_outputs
     from odolab.navigation.study import NavTask, RunFolderError, config_doc, run_navigation
     from odolab.odometer import REGISTRY, OdometerListError, parse_odometer_list
@@ -81,7 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="key=value",
         help="a parameter of the map-and-plan policy (odolab.navigation.agent.PolicyConfig), "
         "e.g. heading_tolerance=45 (repeatable). Keys, defaults and ranges: "
-        + "; ".join(f"{f.name} {f.default} {range_text(f.name)}" for f in dataclasses.fields(PolicyConfig))
+        + "; ".join(f"{s.name} {s.value} {s.range}" for s in describe(PolicyConfig))
         + " (fallback_radius below agent_radius; 0 turns the fallback off). Results made before "
         "fallback_radius existed were made with fallback_radius=0",
     )

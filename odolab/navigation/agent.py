@@ -31,40 +31,16 @@ goal is nearer than ``stop_distance``.
 
 from __future__ import annotations
 
-import dataclasses
-import numbers
-import reprlib
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from odolab.config import assign, check, setting
 from odolab.errors import InputError
 from odolab.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap_angle
 from odolab.types import FORWARD_STEP, Action, Intrinsics
 
-#: The range of each policy parameter (m, degrees, counts); the map is a grid of up to
-#: (2 x (30 m + extent) / cell)^2 cells, so cell and extent are bounded together with the rest.
-POLICY_BOUNDS: dict[str, tuple[float, float]] = {
-    "cell": (0.02, 1.0),
-    "stride": (1, 64),
-    "min_height": (0.0, 3.0),
-    "max_height": (0.0, 3.0),
-    "max_range": (0.1, 10.0),
-    "votes": (1, 1000),
-    "agent_radius": (0.0, 1.0),
-    "margin": (0.0, 1.0),
-    "margin_speed": (0.0, 1.0),
-    "heading_tolerance": (0.0, 180.0),
-    "stop_distance": (0.01, 10.0),
-    "stuck_distance": (0.0, 1.0),
-    "extent": (0.5, 20.0),
-    "plan_margin": (0.5, 20.0),
-    "memory": (1, 10**6),
-    "obstacle_gap": (0.0, 0.5),
-    "own_clearance": (0.0, 0.5),
-    "fallback_radius": (0.0, 1.0),
-}
 #: The value of each parameter added after results were first saved that gives the behaviour from
 #: before it: a saved policy without the parameter was made with this value.
 POLICY_BEFORE: dict[str, float] = {"fallback_radius": 0.0}
@@ -76,61 +52,43 @@ def with_old_behaviour(saved: dict) -> dict:
     return {**{k: v for k, v in POLICY_BEFORE.items() if k not in saved}, **saved}
 
 
-OPEN_BELOW = {"margin_speed", "max_height"}  # these must be above their lower bound
-OPEN_ABOVE = {"heading_tolerance", "fallback_radius"}  # and these below their upper one
-
-
-def _in_range(name: str, value: float) -> bool:
-    lo, hi = POLICY_BOUNDS[name]
-    return lo <= value <= hi and not (name in OPEN_BELOW and value == lo) and not (name in OPEN_ABOVE and value == hi)
-
-
-def range_text(name: str) -> str:
-    """``[1, 1000000]``, ``(0, 1]``: the range of a policy parameter as the user may type its ends."""
-    lo, hi = POLICY_BOUNDS[name]
-    left, right = ("(" if name in OPEN_BELOW else "["), (")" if name in OPEN_ABOVE else "]")
-    return f"{left}{lo if isinstance(lo, int) else f'{lo:g}'}, {hi if isinstance(hi, int) else f'{hi:g}'}{right}"
-
-
 @dataclass(frozen=True)
 class PolicyConfig:
     """The map-and-plan policy's parameters (module docstring); lengths in m, angles in degrees."""
 
-    cell: float = 0.05
-    stride: int = 4
-    min_height: float = 0.15
-    max_height: float = 1.2
-    max_range: float = 3.0
-    votes: int = 2
-    agent_radius: float = 0.18
-    margin: float = 0.05
-    margin_speed: float = 0.5  # relative speed through the margin band round obstacles
-    heading_tolerance: float = 15.0
-    stop_distance: float = 0.2
-    stuck_distance: float = 0.05
-    extent: float = 8.0  # map margin beyond the box around start and goal
-    plan_margin: float = 5.0  # planning window margin around the agent and the goal
-    memory: int = 1000  # steps an obstacle is remembered without being seen again
-    obstacle_gap: float = 0.05  # a forward step's straight path keeps this far from obstacle cells
-    own_clearance: float = 0.1  # obstacle cells this near the believed position are ignored by that check
-    fallback_radius: float = 0.1  # the narrower agent planned for when no way fits the full one; 0: off
+    cell: float = setting(0.05, range=(0.02, 1.0), doc="map cell edge, m")
+    stride: int = setting(4, range=(1, 64), doc="every n-th depth pixel row and column is back-projected")
+    min_height: float = setting(0.15, range=(0.0, 3.0), doc="lowest obstacle point above the floor, m")
+    max_height: float = setting(1.2, range=(0.0, 3.0), open_low=True, doc="highest obstacle point above the floor, m")
+    max_range: float = setting(3.0, range=(0.1, 10.0), doc="depth readings beyond this are not mapped, m")
+    votes: int = setting(2, range=(1, 1000), doc="votes that make a cell an obstacle")
+    agent_radius: float = setting(0.18, range=(0.0, 1.0), doc="cells nearer than this to an obstacle are blocked, m")
+    margin: float = setting(0.05, range=(0.0, 1.0), doc="a further band round obstacles passed at margin_speed, m")
+    margin_speed: float = setting(
+        0.5, range=(0.0, 1.0), open_low=True, doc="relative speed through the margin band round obstacles"
+    )
+    heading_tolerance: float = setting(
+        15.0, range=(0.0, 180.0), open_high=True, doc="move forward when the best heading is this near, degrees"
+    )
+    stop_distance: float = setting(0.2, range=(0.01, 10.0), doc="call STOP when the believed goal is nearer, m")
+    stuck_distance: float = setting(
+        0.05, range=(0.0, 1.0), doc="a forward step moving the belief less marks the cell ahead an obstacle, m"
+    )
+    extent: float = setting(8.0, range=(0.5, 20.0), doc="map margin beyond the box round start and goal, m")
+    plan_margin: float = setting(5.0, range=(0.5, 20.0), doc="planning window margin round the agent and the goal, m")
+    memory: int = setting(1000, range=(1, 10**6), doc="steps an obstacle is remembered without being seen again")
+    obstacle_gap: float = setting(
+        0.05, range=(0.0, 0.5), doc="a forward step's straight path keeps this far from obstacle cells, m"
+    )
+    own_clearance: float = setting(
+        0.1, range=(0.0, 0.5), doc="obstacle cells this near the believed position are ignored by that check, m"
+    )
+    fallback_radius: float = setting(
+        0.1, range=(0.0, 1.0), open_high=True, doc="the narrower agent planned for when no way fits; 0: off"
+    )
 
     def __post_init__(self) -> None:
-        kinds = {f.name: f.type for f in dataclasses.fields(self)}
-        for name in POLICY_BOUNDS:  # a 1e-6 m cell or a 1e6 m map would not fit in memory
-            value, whole = getattr(self, name), kinds[name] in ("int", int)
-            if (
-                isinstance(value, (bool, np.bool_))
-                or not isinstance(value, numbers.Integral if whole else numbers.Real)
-                or not np.isfinite(float(value))
-            ):
-                raise ValueError(
-                    f"{name} must be {'a whole number' if whole else 'a number'} in {range_text(name)}, got {value!r}"
-                )
-            value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
-            object.__setattr__(self, name, value)
-            if not _in_range(name, value):
-                raise ValueError(f"{name} must be in {range_text(name)}, got {value:g}")
+        check(self)  # a 1e-6 m cell or a 1e6 m map would not fit in memory
         if not self.min_height < self.max_height:
             raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
         if self.fallback_radius >= self.agent_radius and self.fallback_radius != 0:
@@ -145,35 +103,8 @@ class PolicyConfig:
     def from_assignments(cls, items: list[str]) -> PolicyConfig:
         """The default policy with ``key=value`` changes (``heading_tolerance=30``); :class:`PolicyError`
         naming the item for an unknown key, a value that is not a number of the field's kind, or a
-        value out of range."""
-        kinds = {f.name: f.type for f in dataclasses.fields(cls)}
-        short = reprlib.Repr()  # items are echoed cut short: a 5000-digit value is not printed whole
-        short.maxstring = 60
-        changes: dict[str, float | int] = {}
-        for item in items:
-            key, sep, text = item.partition("=")
-            key, shown = key.strip(), short.repr(item)
-            if not sep or key not in kinds:
-                raise PolicyError(f"{shown}: expected key=value with key one of {', '.join(kinds)}")
-            if key in changes:
-                raise PolicyError(f"{shown}: {key} is given twice")
-            whole = kinds[key] in ("int", int)
-            kind = f"{'a whole number' if whole else 'a number'} in {range_text(key)}"
-            if len(text.strip()) > 40:  # no parameter needs 40 digits; Python refuses 4300
-                raise PolicyError(f"{shown}: {key} takes {kind}; this value is too long to read")
-            try:
-                if not text.isascii() or "_" in text:  # Python reads "١" and "1_0" as numbers too
-                    raise ValueError(text)
-                value = int(text) if whole else float(text)
-            except ValueError:
-                raise PolicyError(f"{shown}: {key} takes {kind}") from None
-            if not np.isfinite(float(value)) or not _in_range(key, value):
-                raise PolicyError(f"{shown}: {key} must be in {range_text(key)}")
-            changes[key] = value
-        try:
-            return cls(**changes)
-        except ValueError as exc:
-            raise PolicyError(str(exc), joiner=": ") from None
+        value out of range (:func:`odolab.config.assign`)."""
+        return assign(cls, items, error=PolicyError)
 
 
 class PolicyError(InputError):
