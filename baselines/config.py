@@ -101,7 +101,7 @@ def options_signature(config_cls: type) -> inspect.Signature:
 
 def config_digest(config: object) -> str:
     """SHA-256 of every field of ``config`` (nested ones too) as sorted JSON: what a baseline's
-    answers depend on besides its code. Baselines keep it as ``Odometer.weights``, so that studies
+    answers depend on besides its code. Baselines keep it as ``Odometer.identity_digest``, so that studies
     which keep results per odometer redo them when a default or an option changes."""
     return hashlib.sha256(json.dumps(_as_floats(asdict(config)), sort_keys=True, default=repr).encode()).hexdigest()
 

@@ -194,7 +194,7 @@ class FeatureEssentialOdometer(Odometer):
 
     def __init__(self, config: FeatureEssentialConfig | None = None, **overrides) -> None:
         self.config = configure(FeatureEssentialConfig, config, **overrides)
-        self.weights = config_digest(self.config)  # results kept per odometer follow its settings
+        self.identity_digest = config_digest(self.config)  # results kept per odometer follow its settings
         self._features: FrameMemo[_Features] = FrameMemo()
         self.last_path: str | None = None
 

@@ -126,7 +126,7 @@ class ICPOdometer(Odometer):
 
     def __init__(self, config: ICPConfig | None = None, **overrides) -> None:
         self.config = configure(ICPConfig, config, **overrides)
-        self.weights = config_digest(self.config)  # results kept per odometer follow its settings
+        self.identity_digest = config_digest(self.config)  # results kept per odometer follow its settings
         self._clouds: FrameMemo[_Pyramid | None] = FrameMemo()
 
     def reset(self, intrinsics: Intrinsics) -> None:

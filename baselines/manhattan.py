@@ -151,6 +151,8 @@ class ManhattanOdometer(Odometer):
     ``max_depth`` (m, of the wall samples); ``options_file``: the inner odometer's options (TOML,
     ``[odometers."icp"]``)."""
 
+    composite = True
+
     def __init__(
         self,
         inputs: str = "",
@@ -198,12 +200,12 @@ class ManhattanOdometer(Odometer):
         self.threads = self.inner.threads
         sigmas = ";".join(str(float(v)) for v in (step_sigma_deg, prior_sigma_deg, wall_sigma_deg))  # 1 and 1.0 alike
         settings = (
-            f"{names[0]}={self.inner.weights};{sigmas};"
+            f"{names[0]}={self.inner.identity_digest};{sigmas};"
             f"{anchor_steps};{relock_views};{float(relock_spread_deg)};{float(relock_support)};"
             f"{float(min_support)};{float(max_depth)};"
             f"anchor-consensus-{ANCHOR_DEG}"
         )
-        self.weights = hashlib.sha256(settings.encode()).hexdigest()
+        self.identity_digest = hashlib.sha256(settings.encode()).hexdigest()
         self._reset_state()
 
     def _reset_state(self) -> None:

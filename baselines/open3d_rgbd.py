@@ -155,7 +155,7 @@ class Open3DRGBDOdometer(Odometer):
 
     def __init__(self, config: Open3DRGBDConfig | None = None, **overrides) -> None:
         self.config = configure(Open3DRGBDConfig, config, **overrides)
-        self.weights = config_digest(self.config)  # results kept per odometer follow its settings
+        self.identity_digest = config_digest(self.config)  # results kept per odometer follow its settings
         self._images: FrameMemo[o3d.geometry.RGBDImage | None] = FrameMemo()
 
     def reset(self, intrinsics: Intrinsics) -> None:

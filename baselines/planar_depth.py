@@ -203,7 +203,7 @@ class PlanarDepthOdometer(Odometer):
 
     def __init__(self, config: PlanarDepthConfig | None = None, **overrides) -> None:
         self.config = configure(PlanarDepthConfig, config, **overrides)
-        self.weights = config_digest(self.config)
+        self.identity_digest = config_digest(self.config)
         self._surfaces: FrameMemo[_Surface] = FrameMemo()
 
     def reset(self, intrinsics: Intrinsics) -> None:

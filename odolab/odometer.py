@@ -66,7 +66,7 @@ class Odometer:
     ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
     network per action: it is refused on real data, which has no actions), ``composite`` (True for an
     odometer built on others, named with its inputs as ``head(a,b)``: it is never part of "every
-    odometer"; a class whose constructor takes ``inputs`` counts as one when it does not say), ``weights`` (a digest of
+    odometer"; a class whose constructor takes ``inputs`` counts as one when it does not say), ``identity_digest`` (a digest of
     what its answers depend on besides code: a learned odometer's model file, a baseline's
     configuration, a fused one's inputs' digests and its calibration; or None: studies that keep
     results per odometer redo them when it changes).
@@ -78,7 +78,7 @@ class Odometer:
     batch_size: int = 1
     threads: int | None = None
     composite: bool = False
-    weights: str | None = None
+    identity_digest: str | None = None
     _intrinsics: Intrinsics | None = None
 
     def __init_subclass__(cls, **kwargs) -> None:

@@ -42,9 +42,9 @@ DEFAULT_ODOMETERS = "action-prior,feature-essential,icp,open3d-rgbd,robust-vo,de
 
 
 def _weights(odometers: list[str], options: dict) -> dict[str, str | None]:
-    """Name -> ``Odometer.weights``: the digest of its model file or settings, else None."""
+    """Name -> ``Odometer.identity_digest``: the digest of its model file or settings, else None."""
     loaded = {n: load_odometer(n, **options.get(n, {})) for n in odometers}
-    return {n: o.weights for n, o in loaded.items()}
+    return {n: o.identity_digest for n, o in loaded.items()}
 
 
 ROW_KEYS = ("level", "odometer", "steps", *COMPONENTS, *(f"{c}_own" for c in COMPONENTS), "failure_share", "ate_m")

@@ -188,10 +188,10 @@ def run_study(
     cfg["options"], cfg["weights"] = dict(cfg.get("options", {})), dict(cfg.get("weights", {}))
     done: dict[str, int] = {}  # name -> scenes already saved
     for n, o in loaded.items():
-        rows, why = reusable(doc, n, options.get(n, {}), o.weights, per_scene, total)
+        rows, why = reusable(doc, n, options.get(n, {}), o.identity_digest, per_scene, total)
         if why:  # said even when quiet: results are replaced
             print(f"note: {n}: {why}; running its {total} pairs again", file=sys.stderr, flush=True)
-        doc["pairs"][n], cfg["options"][n], cfg["weights"][n] = rows, options.get(n, {}), o.weights
+        doc["pairs"][n], cfg["options"][n], cfg["weights"][n] = rows, options.get(n, {}), o.identity_digest
         done[n] = len(rows) // per_scene
     first = min(done.values(), default=scenes)
     todo = sum(scenes - d for d in done.values()) * per_scene

@@ -321,7 +321,7 @@ def test_the_shipped_deepvo_is_registered_and_runs_in_a_comparison():
     from odolab.api import ComparisonConfig, load_odometer, run_comparison
 
     odo = load_odometer("deepvo")
-    assert odo.weights and odo.cfg.width == 170  # the shipped file, reduced resolution
+    assert odo.identity_digest and odo.cfg.width == 170  # the shipped file, reduced resolution
     result = run_comparison(ComparisonConfig(odometers=["deepvo"], episodes=1, max_steps=6, parallel=False))
     row = next(r for r in result.rows if r.odometer == "deepvo")
     assert row.steps == 6 and row.failure_share == 0.0

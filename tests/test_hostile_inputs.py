@@ -752,8 +752,8 @@ def test_equal_settings_give_equal_digests():
     """6 and 6.0 set the same depth cut: a rerun with either reuses the other's episodes."""
     from odolab.odometer import load_odometer
 
-    assert load_odometer("open3d-rgbd", max_depth=6).weights == load_odometer("open3d-rgbd").weights
-    assert load_odometer("open3d-rgbd", max_depth=5).weights != load_odometer("open3d-rgbd").weights
+    assert load_odometer("open3d-rgbd", max_depth=6).identity_digest == load_odometer("open3d-rgbd").identity_digest
+    assert load_odometer("open3d-rgbd", max_depth=5).identity_digest != load_odometer("open3d-rgbd").identity_digest
 
 
 def test_a_pasted_20000_character_name_is_not_echoed_whole(tmp_path):

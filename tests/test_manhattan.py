@@ -104,7 +104,7 @@ def test_the_walls_hold_a_random_walking_heading(episode):
         odo = load_odometer("manhattan(noisy-truth)")
         held.append(_final_heading_error(odo, episode))
         assert _final_heading_error(odo, episode) == pytest.approx(held[-1], abs=1e-12)  # reset clears it
-    assert odo.oracle and odo.weights
+    assert odo.oracle and odo.identity_digest
     assert np.mean(held) < 0.35 * np.mean(plain) and max(held) < 2.0
 
 
@@ -173,7 +173,9 @@ def test_the_inner_odometer_gets_its_options_from_a_file_and_names_are_checked(t
     f.write_text('[odometers."icp"]\nvoxel = 0.05\n')
     odo = ManhattanOdometer("icp", options_file=str(f))
     assert odo.inner.config.voxel == 0.05
-    assert odo.weights != ManhattanOdometer("icp").weights  # another inner configuration, another digest
+    assert (
+        odo.identity_digest != ManhattanOdometer("icp").identity_digest
+    )  # another inner configuration, another digest
     f.write_text('[odometers."icp"]\nvoxel = -1.0\n')
     with pytest.raises(ValueError, match="o.toml"):
         ManhattanOdometer("icp", options_file=str(f))

@@ -321,11 +321,18 @@ def test_a_saved_episode_of_another_model_file_is_run_again(tmp_path, capsys):
     with pytest.raises(ValueError, match="0004.json is a folder where an episode's result file belongs"):
         read_row(folder, NavTask("robust-vo", {}, spec, PolicyConfig(), "a" * 64))
     # the odometers say which model file or settings they use; a fused one through its inputs
-    assert load_odometer("robust-vo").weights and load_odometer("action-prior").weights is None
-    assert load_odometer("icp").weights == load_odometer("icp").weights != load_odometer("icp", voxel=0.05).weights
-    assert load_odometer("fused(icp,robust-vo)").weights not in (None, load_odometer("robust-vo").weights)
-    fused = load_odometer("fused(icp,robust-vo)").weights
-    assert load_odometer("fused(icp,robust-vo)", options_file=_icp_options(tmp_path)).weights != fused
+    assert load_odometer("robust-vo").identity_digest and load_odometer("action-prior").identity_digest is None
+    assert (
+        load_odometer("icp").identity_digest
+        == load_odometer("icp").identity_digest
+        != load_odometer("icp", voxel=0.05).identity_digest
+    )
+    assert load_odometer("fused(icp,robust-vo)").identity_digest not in (
+        None,
+        load_odometer("robust-vo").identity_digest,
+    )
+    fused = load_odometer("fused(icp,robust-vo)").identity_digest
+    assert load_odometer("fused(icp,robust-vo)", options_file=_icp_options(tmp_path)).identity_digest != fused
 
 
 def _icp_options(folder) -> str:

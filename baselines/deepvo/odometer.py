@@ -46,7 +46,7 @@ class DeepVOOdometer(Odometer):
     def __init__(self, checkpoint: str = "", threads: int = 1, device: str = "") -> None:
         threads = check_threads(threads)
         self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
-        self.weights = self.info["sha256"]
+        self.identity_digest = self.info["sha256"]
         self.device = pick_device(device or "cpu")
         self.net.to(self.device)
         self.threads = int(threads)

@@ -119,7 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
         for i in range(args.episodes)
     ]
-    tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].weights) for n in names for s in specs]
+    tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].identity_digest) for n in names for s in specs]
     try:
         for name in output_files(specs):  # the report's files, found unusable now rather than after every episode
             check_owned_path(args.out, name)

@@ -116,8 +116,10 @@ class FusedOdometer(Odometer):
         # an input that reads ground truth makes this an oracle: the runner then hands the frames' gt_pose on
         self.oracle = any(o.oracle for o in self.inputs.values())
         # what its answers depend on besides code: its inputs' model files or settings and the calibration
-        parts = [f"{n}={o.weights}" for n, o in self.inputs.items() if o.weights]
-        self.weights = hashlib.sha256(";".join(parts + [f"calibration={self.calibration.digest}"]).encode()).hexdigest()
+        parts = [f"{n}={o.identity_digest}" for n, o in self.inputs.items() if o.identity_digest]
+        self.identity_digest = hashlib.sha256(
+            ";".join(parts + [f"calibration={self.calibration.digest}"]).encode()
+        ).hexdigest()
         #: seconds spent in the graph alone (not in the inputs), and steps, over this object's life
         self.fusion_seconds, self.fused_steps = 0.0, 0
         self._graph: OnlineGraph | None = None

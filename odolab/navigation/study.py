@@ -81,7 +81,9 @@ class NavTask:
     options: dict
     spec: EpisodeSpec
     policy: PolicyConfig
-    weights: str | None = None  # Odometer.weights: a retrained model's or changed setting's episodes rerun
+    identity_digest: str | None = (
+        None  # Odometer.identity_digest: a retrained model's or changed setting's episodes rerun
+    )
 
     def key(self) -> str:
         """SHA-256 of everything the run's result depends on: odometer, its options and weights,
@@ -89,7 +91,7 @@ class NavTask:
         doc = {
             "odometer": self.odometer,
             "options": self.options,
-            "weights": self.weights,
+            "weights": self.identity_digest,  # the key saved results were made with
             "spec": dataclasses.asdict(self.spec),
             "policy": dataclasses.asdict(self.policy),
         }
@@ -118,7 +120,7 @@ def run_task(task: NavTask) -> dict[str, Any]:
         "spl": o.spl,
         "soft_spl": o.soft_spl,
         "failed_steps": run.failed_steps,
-        "weights": task.weights,
+        "weights": task.identity_digest,
         "goal": list(run.goal),
         "true_xy": run.true_xy.round(4).tolist(),
         "believed_xy": run.believed_xy.round(4).tolist(),
@@ -233,7 +235,7 @@ def row_problem(row: dict, task: NavTask) -> str | None:
         and _same(row["episode"], spec.index)
         and row["split"] == spec.split
         and _same(row["seed"], spec.seed)
-        and row.get("weights") == task.weights
+        and row.get("weights") == task.identity_digest
     ):
         return "made for another odometer, episode, split, seed, model file or setting"
     if "max_steps" in row and row["max_steps"] != spec.max_steps:

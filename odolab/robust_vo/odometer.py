@@ -64,7 +64,7 @@ class RobustVOOdometer(Odometer):
         if not isinstance(mirror_tta, (bool, np.bool_)):
             raise ValueError(f"mirror_tta must be true or false, got {mirror_tta!r}")
         self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
-        self.weights = self.info["sha256"]
+        self.identity_digest = self.info["sha256"]
         self.device = pick_device(device or "cpu")
         self.nets.to(self.device)
         self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
