@@ -89,7 +89,7 @@ class ComparisonConfig:
     command: str | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ComparisonResult:
     """Per-sequence results, the summary tables, a title and notes for reports, floor plans
     (sequence name -> :class:`~odolab.report.FloorPlan`, simulator only) and warnings."""
@@ -288,7 +288,14 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
         ]
         warnings = ([left_out] if any(dropped.values()) else []) + ([depth_warning] if depth_warning else [])
         return ComparisonResult(
-            results, summary.summarize(results), [], title, notes, None, warnings, odometer_configs(odometers)
+            results=results,
+            rows=summary.summarize(results),
+            action_rows=[],
+            title=title,
+            notes=notes,
+            plans=None,
+            warnings=warnings,
+            configs=odometer_configs(odometers),
         )
 
     from odolab.datasets import episode_specs
@@ -329,11 +336,11 @@ def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None
     plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
     return ComparisonResult(
-        results,
-        summary.summarize(results),
-        summary.summarize_actions(results),
-        title,
-        notes,
-        plans,
+        results=results,
+        rows=summary.summarize(results),
+        action_rows=summary.summarize_actions(results),
+        title=title,
+        notes=notes,
+        plans=plans,
         configs=odometer_configs(odometers),
     )

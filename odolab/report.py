@@ -631,6 +631,7 @@ tbody tr:nth-child(even){background:#f8f9fb} code{background:#f2f2f2;padding:0 3
 
 def write_report(
     out: Path,
+    *,
     rows: list[Row],
     action_rows: list[ActionRow],
     results: list[SequenceResult],
@@ -640,7 +641,7 @@ def write_report(
     configs: dict[str, str] | None = None,
 ) -> None:
     """Write the tables, figures, trajectories and ``report.html`` into ``out`` (layout: module
-    docstring); files of the previous run into ``out`` that this one did not write are removed."""
+    docstring), the fields of a :class:`~odolab.comparison.ComparisonResult` given by name; files of the previous run into ``out`` that this one did not write are removed."""
     from odolab.summary import __doc__ as summary_doc
 
     folder = OutputFolder(out)

@@ -59,7 +59,7 @@ FAILURE_REASONS = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SequenceResult:
     """One odometer on one sequence of N + 1 frames (N steps).
 
@@ -259,21 +259,21 @@ def run_sequence(
     poses = integrate(estimates, start=gt_poses[0] if has_gt else None)
     collisions = seq.collisions
     return SequenceResult(
-        name,
-        seq.name,
-        oracle,
-        estimates,
-        truth,
-        poses,
-        gt_poses,
-        actions,
-        valid,
-        log.seconds,
-        None if collisions is None else np.asarray(collisions),
-        np.array(stamps),
-        log.errors,
-        tuple(log.raw),
-        dict(Counter(r for r in log.reasons if r is not None)),
+        odometer=name,
+        sequence=seq.name,
+        oracle=oracle,
+        estimates=estimates,
+        truth=truth,
+        poses=poses,
+        gt_poses=gt_poses,
+        actions=actions,
+        valid=valid,
+        step_seconds=log.seconds,
+        collisions=None if collisions is None else np.asarray(collisions),
+        timestamps=np.array(stamps),
+        errors=log.errors,
+        raw=tuple(log.raw),
+        failure_reasons=dict(Counter(r for r in log.reasons if r is not None)),
     )
 
 

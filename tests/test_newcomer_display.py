@@ -119,16 +119,16 @@ def test_top_down_trajectories_never_take_the_obstacles_grey_and_show_start_end_
         mine = poses.copy()
         mine[:, 1, 3] = shift * np.arange(n + 1)
         return SequenceResult(
-            name,
-            "seq",
-            False,
-            np.tile(np.eye(4), (n, 1, 1)),
-            None,
-            mine,
-            poses,
-            np.zeros(n, np.int8),
-            np.ones(n, bool),
-            np.zeros(n),
+            odometer=name,
+            sequence="seq",
+            oracle=False,
+            estimates=np.tile(np.eye(4), (n, 1, 1)),
+            truth=None,
+            poses=mine,
+            gt_poses=poses,
+            actions=np.zeros(n, np.int8),
+            valid=np.ones(n, bool),
+            step_seconds=np.zeros(n),
         )
 
     plan = report.FloorPlan(np.ones((40, 40), bool), (-1.0, -1.0), 0.1, goal=(20.0, 0.0))

@@ -277,13 +277,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(format_table(result.rows, real_data=args.tum is not None))
     write_report(
         args.out,
-        result.rows,
-        result.action_rows,
-        result.results,
-        result.title,
-        result.notes,
-        result.plans,
-        result.configs,
+        rows=result.rows,
+        action_rows=result.action_rows,
+        results=result.results,
+        title=result.title,
+        notes=result.notes,
+        plans=result.plans,
+        configs=result.configs,
     )
     for r in result.results:
         for e in r.errors[:1]:
