@@ -321,3 +321,36 @@ def test_an_export_that_is_a_dangling_link_is_named_as_one(tmp_path):
     (tmp_path / "model.pt").symlink_to(tmp_path / "nowhere.pt")
     with pytest.raises(ValueError, match="link to nothing"):
         check_export(tmp_path / "model.pt", tmp_path / "r.toml", {})
+
+
+def test_an_output_file_that_is_a_link_to_nothing_is_refused_before_work(tmp_path, capsys):
+    """``action_prior --out dead`` (dead -> /somewhere/new) wrote a file wherever the link pointed."""
+    from odolab.cli.action_prior import main
+
+    dead = tmp_path / "dead.json"
+    dead.symlink_to(tmp_path / "elsewhere" / "created.json")
+    argv = ["--episodes", "1", "--max-steps", "5", "--out", str(dead)]
+    assert run_cli(main, "python -m odolab.action_prior", argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "is a link to nothing" in err and "--out" in err
+    assert not (tmp_path / "elsewhere").exists()
+
+
+def test_navigation_diff_given_a_file_names_the_folder_it_expects(tmp_path, capsys):
+    from odolab.cli.navigation_diff import main
+
+    (tmp_path / "episodes.csv").write_text("odometer\n")
+    argv = [str(tmp_path / "episodes.csv"), str(tmp_path)]
+    assert run_cli(main, "python -m odolab.navigation.diff", argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"before {tmp_path}/episodes.csv: is a file" in err
+    assert f"({tmp_path})" in err
+
+
+def test_calibrate_fusion_out_naming_a_folder_says_so(tmp_path, capsys):
+    from odolab.cli.calibrate_fusion import main
+
+    argv = ["--episodes", "1", "--max-steps", "100", "--out", str(tmp_path), "--serial"]
+    assert run_cli(main, "python -m odolab.fusion.calibrate", argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--out {tmp_path}: is a folder, not a file" in err

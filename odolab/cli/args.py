@@ -189,9 +189,16 @@ def check_output_dir(path: Path, option: str) -> None:
 
 def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = None) -> None:
     """Check that file ``path`` can be written (its folder exists and is writable, it is not a
-    folder, device, pipe or socket; a symbolic link is written through) and, when ``suffixes`` is given, that its extension is one of them; else
-    :class:`UsageError` naming ``option``. Nothing is left behind."""
+    folder, device, pipe or socket; a symbolic link to a file is written through, a link to nothing
+    is refused: writing through it would create its target wherever it points) and, when
+    ``suffixes`` is given, that its extension is one of them; else :class:`UsageError` naming
+    ``option``. Nothing is left behind."""
     path = Path(path)
+    if path.is_symlink() and not path.exists():  # writing through it would create its target anywhere
+        raise UsageError(
+            f"{option} {path}: is a link to nothing ({os.readlink(path)} does not exist, or a loop of "
+            f"links), not a file; remove it or choose another {option}"
+        )
     if path.is_dir():
         raise UsageError(f"{option} {path}: is a folder, not a file")
     if path.exists() and not path.is_file():

@@ -122,6 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"--episodes x --max-steps = {args.episodes * args.max_steps} steps: too few to calibrate "
                 "(at least 10 valid steps of an action are needed; use hundreds)"
             )
+        if args.out.is_dir():  # not "unknown file type": the folder itself is the mistake
+            raise UsageError(f"--out {args.out}: is a folder, not a file; give a .json file's name")
         if args.out.suffix.lower() != ".json":  # before its folder is made
             raise UsageError(f"--out {args.out}: unknown file type {args.out.suffix or '(no extension)'!r}; use .json")
         try:

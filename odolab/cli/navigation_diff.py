@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Sequence
 
@@ -18,6 +19,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("before", type=path_arg("before"), help="a navigation folder (python -m odolab.navigate --out)")
     ap.add_argument("after", type=path_arg("after"), help="another one, of the same episodes")
     args = ap.parse_args(argv)
+    for name, folder in (("before", args.before), ("after", args.after)):
+        if os.path.isfile(folder):  # e.g. the episodes.csv itself (False, not OSError, on a 300-char name)
+            raise UsageError(
+                f"{name} {folder}: is a file; expected the folder python -m odolab.navigate --out wrote"
+                + (f" ({folder.parent})" if folder.name == "episodes.csv" else "")
+            )
     try:
         before, after = diff.read_episodes(args.before), diff.read_episodes(args.after)
     except diff.EpisodesTableError as exc:
