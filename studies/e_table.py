@@ -15,6 +15,7 @@ simulator data), ours on test episodes: the ordering is what compares, not the v
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,23 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
         if a.odometer == key["odometer"] and a.action in ACTIONS:
             out[a.action] = _numbers(a, a.steps, a.failures / a.steps if a.steps else 0.0)
     return out
+
+
+def valid_result(value: Any) -> bool:
+    """Whether a saved ``value`` has :func:`unit_result`'s shape (a results file edited or damaged by
+    hand is computed again rather than breaking the table)."""
+    numbers = (*COMPONENTS, *(f"{c}_own" for c in COMPONENTS), "failure_share")
+    return (
+        isinstance(value, dict)
+        and "all" in value
+        and all(
+            isinstance(value[a], dict)
+            and isinstance(value[a].get("steps"), int)
+            and all(c in value[a] and (value[a][c] is None or isinstance(value[a][c], (int, float))) for c in numbers)
+            for a in value
+            if a in ACTIONS
+        )
+    )
 
 
 def _numbers(row: Any, steps: int, failure_share: float) -> dict[str, float]:
@@ -173,8 +191,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     params = config.at(args.scale)
     out = args.out or Path("reports") / "e-table"
-    framework.check_out(out, config)
-    weights = {o: load_odometer(o).weights for o in params["odometers"]}
+    framework.check_options(args, out, config)
+    # the units' key keeps its name "weights": results saved before the rename stay valid
+    weights = {o: load_odometer(o).identity_digest for o in params["odometers"]}
     todo = units(params, weights)
     outcome = framework.run_units(
         unit_result,
@@ -184,6 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ray_address=args.ray_address,
         parallel=not args.serial,
         progress=not args.quiet,
+        valid=valid_result,
     )
     if not outcome.results:
         raise UsageError(
@@ -211,6 +231,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     framework.write_report(report, out, owner="study e_table")
     print(framework.table_md(COLUMNS[:10], rows))
     print(f"{len(outcome.computed)} units computed, {len(rows)} rows -> {out}")
+    if outcome.missing:
+        print(f"note: no saved result (left out of the table): {', '.join(outcome.missing)}", file=sys.stderr)
     return 0
 
 

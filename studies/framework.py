@@ -134,6 +134,13 @@ class Outcome:
     seconds: float = 0.0
 
 
+def _accepts(valid: Callable[[Any], bool], value: Any) -> bool:
+    try:
+        return bool(valid(value))
+    except (TypeError, ValueError, KeyError, AttributeError, IndexError):
+        return False
+
+
 def _timed(job: tuple[Callable[[dict], Any], dict]) -> tuple[Any, float]:
     fn, key = job
     t0 = time.perf_counter()
@@ -150,17 +157,20 @@ def run_units(
     ray_address: str | None = None,
     parallel: bool = True,
     progress: bool = True,
+    valid: Callable[[Any], bool] | None = None,
 ) -> Outcome:
     """``fn(unit.key)`` for every unit without a saved result, as Ray tasks (a local instance, or the
     cluster at ``ray_address``), each result saved as it finishes; with ``redraw`` nothing is computed.
-    Results must be plain JSON data. Computing seconds are saved beside each result."""
+    Results must be plain JSON data. Computing seconds are saved beside each result. A saved result
+    that ``valid`` refuses (a file edited or damaged by hand) counts as not saved: computed again,
+    or missing with ``redraw``."""
     from odolab.parallel import fan_out
 
     out = Outcome()
     todo = []
     for u in units:
         saved = store.get(u)
-        if isinstance(saved, dict) and "value" in saved:
+        if isinstance(saved, dict) and "value" in saved and (valid is None or _accepts(valid, saved["value"])):
             out.results[u.label] = saved["value"]
             out.seconds += float(saved.get("seconds", 0.0))
         elif redraw:
@@ -328,7 +338,26 @@ def check_out(out: Path, config: StudyConfig) -> None:
     try:
         OutputFolder.check(out, folders=("results",), owner=f"study {config.name}", names=REPORT_NAMES)
     except (UnsafeOutputError, ManifestError) as exc:
-        raise UsageError(f"--out {out}: {exc}") from None
+        said = str(exc).removeprefix(f"{out}: ")  # the path once
+        raise UsageError(f"--out {out}: {said}") from None
+
+
+def check_options(args, out: Path, config: StudyConfig) -> None:
+    """Everything a study's command line can get wrong, found before any work and before ``out`` is
+    made: ``--ray-address`` (malformed, unreachable, or with ``--serial``), ``--redraw`` with no saved
+    results to draw from, and the ``--out`` folder (:func:`check_out`)."""
+    from odolab.cli import UsageError, check_ray_option
+
+    check_ray_option(args.ray_address, args.serial)
+    if args.redraw:
+        if args.ray_address is not None:
+            raise UsageError("--redraw computes nothing; --ray-address is for computing units: drop one")
+        if out.is_dir():  # another command's or a user's folder is said as such first
+            check_out(out, config)
+        results = out / "results"
+        if not results.is_dir() or not any(results.glob("*.json")):
+            raise UsageError(f"--redraw: no saved results in {results}; run without --redraw first")
+    check_out(out, config)
 
 
 def write_reports_index(reports: Path) -> Path:

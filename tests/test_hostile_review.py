@@ -354,3 +354,52 @@ def test_calibrate_fusion_out_naming_a_folder_says_so(tmp_path, capsys):
     assert run_cli(main, "python -m odolab.fusion.calibrate", argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and f"--out {tmp_path}: is a folder, not a file" in err
+
+
+def test_a_study_checks_ray_address_and_redraw_before_making_its_folder(tmp_path, capsys):
+    """A dead --ray-address was a traceback after --out was made; with --serial it was ignored; --redraw
+    on a new folder made it, empty."""
+    from studies.e_table import main
+
+    out = tmp_path / "e"
+    for argv, words in [
+        (["--ray-address", "127.0.0.1:1"], "--ray-address 127.0.0.1:1: no Ray cluster there"),
+        (["--ray-address", "127.0.0.1:1", "--serial"], "exclude each other"),
+        (["--redraw"], "--redraw: no saved results in"),
+    ]:
+        assert run_cli(main, "python -m studies.e_table", ["--scale", "ci", "--out", str(out), *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and words in err, err
+        assert not out.exists()
+
+
+def test_a_study_names_another_commands_folder_once(tmp_path, capsys):
+    from studies.e_table import main
+
+    (tmp_path / "manifest.txt").write_text("# odolab compare\ntable.csv\n")
+    (tmp_path / "table.csv").write_text("x")
+    assert run_cli(main, "python -m studies.e_table", ["--scale", "ci", "--out", str(tmp_path), "--redraw"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds the results of odolab compare" in err and err.count(str(tmp_path)) == 1, err
+
+
+def test_a_saved_study_result_of_the_wrong_shape_is_computed_again(tmp_path):
+    from studies import e_table, framework
+
+    store = framework.ResultStore(tmp_path)
+    unit = framework.Unit("u", {"k": 2})
+    store.put(unit, {"value": {"all": "oops"}, "seconds": 1.0})  # a results file edited by hand
+    calls = []
+
+    def fn(key):
+        calls.append(key)
+        return {"all": {c: 1.0 for c in ("dx", "dz", "dyaw", "dx_own", "dz_own", "dyaw_own", "failure_share")}}
+
+    def shaped(value):
+        return e_table.valid_result({"all": {**value["all"], "steps": 3}})
+
+    redrawn = framework.run_units(fn, [unit], store, redraw=True, parallel=False, progress=False, valid=shaped)
+    assert redrawn.missing == ["u"] and not calls
+    again = framework.run_units(fn, [unit], store, parallel=False, progress=False, valid=shaped)
+    assert again.computed == ["u"] and calls == [{"k": 2}]
+    assert not e_table.valid_result({"all": {"dx": 1.0}}) and not e_table.valid_result([1])
