@@ -35,7 +35,7 @@ def test_bad_files_are_named(tmp_path: Path):
     with pytest.raises(ValueError, match="expected a training curves file"):
         scaling.read_curves(run)
     (run / "curves.csv").write_text(CURVES.replace("1000,10", "many,10"))
-    with pytest.raises(ValueError, match="row 2: expected numbers"):
+    with pytest.raises(ValueError, match="row 2: expected whole numbers"):
         scaling.read_curves(run)
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,57 +42,101 @@ class Point:
     prior_mae: float
 
 
-def read_curves(folder: Path) -> list[Point]:
-    """The validation points of the run whose reports are in ``folder`` (its ``curves.csv``), each
-    with the samples seen and training hours up to it. ``ValueError`` names the file and field."""
-    path = folder / "curves.csv"
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    """The rows of CSV file ``path``; ``ValueError`` naming it when it cannot be read as text."""
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a CSV file")
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    rows = list(csv.DictReader(io.StringIO(text)))
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file (not UTF-8)") from None
+    try:
+        return list(csv.DictReader(io.StringIO(text)))
+    except csv.Error as exc:
+        raise ValueError(f"{path}: not a CSV file ({exc})") from None
+
+
+def _count_field(r: dict[str, str], name: str) -> int:
+    value = int(r[name])
+    if value < 0:
+        raise ValueError(name)
+    return value
+
+
+def _finite_field(r: dict[str, str], name: str, positive: bool = False) -> float:
+    value = float(r[name])
+    if not math.isfinite(value) or value < 0 or (positive and value == 0):
+        raise ValueError(name)
+    return value
+
+
+def curves_file(run: Path) -> Path:
+    """A run's ``curves.csv``: ``run`` is its report folder, or the file itself."""
+    return run if run.name == "curves.csv" and run.is_file() else run / "curves.csv"
+
+
+def read_curves(folder: Path, name: str | None = None) -> list[Point]:
+    """The validation points of the run whose reports are in ``folder`` (its ``curves.csv``; the
+    file itself may be given), each with the samples seen and training hours up to it, labelled
+    ``name`` (default: the folder's name). ``ValueError`` names the file, row and field."""
+    path = curves_file(folder)
+    if path.parent.is_file() or (path.parent.exists() and not path.parent.is_dir()):
+        raise ValueError(f"{folder}: is a file; expected a training report folder holding a curves.csv")
+    name = name or path.parent.name
+    rows = _read_csv(path)
     wanted = {"epoch", "split", "stage", "pairs", "pairs_per_s", "action", "component", "mae", "prior_mae"}
     if not rows or not wanted <= set(rows[0]):
-        raise ValueError(f"{path}: expected a training curves file with columns {', '.join(sorted(wanted))}")
+        raise ValueError(
+            f"{path}: expected a training curves file (python -m odolab.robust_vo.train) with a header and "
+            f"rows, columns {', '.join(sorted(wanted))}"
+        )
     points, pairs, hours = [], 0, 0.0
     for k, r in enumerate(rows):
         try:
             if r["split"] == "train":
-                pairs += int(r["pairs"])
-                hours += int(r["pairs"]) / float(r["pairs_per_s"]) / 3600
+                seen = _count_field(r, "pairs")
+                pairs += seen
+                hours += seen / _finite_field(r, "pairs_per_s", positive=True) / 3600
             elif r["split"] == "val":
                 points.append(
                     Point(
-                        folder.name,
+                        name,
                         r["stage"],
-                        int(r["epoch"]),
+                        _count_field(r, "epoch"),
                         pairs,
                         hours,
                         r["action"],
                         r["component"],
-                        float(r["mae"]),
-                        float(r["prior_mae"]),
+                        _finite_field(r, "mae"),
+                        _finite_field(r, "prior_mae"),
                     )
                 )
-        except (TypeError, ValueError, ZeroDivisionError):
-            raise ValueError(f"{path}: row {k + 2}: expected numbers in pairs, pairs_per_s, mae, prior_mae") from None
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"{path}: row {k + 2}: expected whole numbers >= 0 in epoch and pairs, a number > 0 in pairs_per_s "
+                "and numbers >= 0 in mae and prior_mae (no NaN or infinity)"
+            ) from None
+    if not points:
+        raise ValueError(f"{path}: no validation rows (split = val): nothing to plot")
     return points
 
 
 def read_classical(path: Path, odometers: tuple[str, ...] = CLASSICAL) -> dict[tuple[str, str, str], float]:
     """(odometer, action, component) -> test error in metres or radians, from ``table_per_action.csv``
     (which holds x 1e-2)."""
-    try:
-        rows = list(csv.DictReader(io.StringIO(path.read_text(encoding="utf-8"))))
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    rows = _read_csv(path)
     if not rows or not {"odometer", "action", *COMPONENTS} <= set(rows[0]):
         raise ValueError(f"{path}: expected a compare table_per_action.csv (odometer, action, dx, dz, dyaw)")
     out = {}
-    for r in rows:
+    for k, r in enumerate(rows):
         if r["odometer"] in odometers and r["action"] in ACTIONS:
             for c in COMPONENTS:
-                out[(r["odometer"], r["action"], c)] = float(r[c]) * 1e-2
+                try:
+                    out[(r["odometer"], r["action"], c)] = _finite_field(r, c) * 1e-2
+                except (TypeError, ValueError):
+                    raise ValueError(f"{path}: row {k + 2}: {c}: expected a number >= 0, got {r[c]!r:.40}") from None
     return out
 
 
@@ -181,7 +226,7 @@ def write_points(points: list[Point], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, check_report_dir, path_arg
+    from odolab.cli import ArgumentParser, UsageError, check_report_dir, path_arg
 
     ap = ArgumentParser(prog="python -m studies.robust_vo.scaling", description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -204,10 +249,24 @@ def main(argv: list[str] | None = None) -> int:
         help="where scaling.png, scaling-hours.png and scaling.csv go (default reports/robust-vo/scaling)",
     )
     args = ap.parse_args(argv)
-    check_report_dir(args.out, "--out", manifest="scaling.csv")
-    points = [p for folder in args.runs for p in read_curves(folder)]
-    classical = read_classical(args.classical)
-    args.out.mkdir(parents=True, exist_ok=True)
+    if args.out.exists() and not args.out.is_dir():
+        check_report_dir(args.out, "--out", manifest="scaling.csv")  # its one-line refusal
+    files = [curves_file(folder).resolve() for folder in args.runs]
+    twice = next((r for r, f in zip(args.runs, files) if files.count(f) > 1), None)
+    if twice is not None:
+        raise UsageError(f"--runs {twice}: given twice")
+    names = [curves_file(folder).parent.name for folder in args.runs]
+    if len(set(names)) < len(names):  # two folders of one name: their curves must not merge
+        names = [str(curves_file(folder).parent) for folder in args.runs]
+    try:
+        points = [p for folder, name in zip(args.runs, names) for p in read_curves(folder, name)]
+    except ValueError as exc:
+        raise UsageError(f"--runs: {exc}") from None
+    try:
+        classical = read_classical(args.classical)
+    except ValueError as exc:
+        raise UsageError(f"--classical: {exc}") from None
+    check_report_dir(args.out, "--out", manifest="scaling.csv")  # inputs read first: nothing made on a typo
     draw(points, classical, args.out / "scaling.png", "pairs")
     draw(points, classical, args.out / "scaling-hours.png", "hours")
     write_points(points, args.out / "scaling.csv")
