@@ -453,3 +453,27 @@ def test_scaling_names_a_bad_classical_table_and_keeps_same_named_runs_apart(tmp
     assert run_cli(main, "scaling", [*runs, "--classical", str(table), *out]) == 0
     labels = {line.split(",")[0] for line in (tmp_path / "out" / "scaling.csv").read_text().splitlines()[1:]}
     assert labels == {str(tmp_path / "a" / "run"), str(tmp_path / "b" / "run")}
+
+
+def test_the_odolab_command_help_version_and_near_names(capsys):
+    from odolab.cli.commands import main
+
+    assert main([]) == 2  # a usage error: the list goes to stderr, not into a pipe's data
+    got = capsys.readouterr()
+    assert not got.out and "commands:" in got.err
+    with pytest.raises(SystemExit) as exit_:
+        main(["help", "evaluate"])  # = odolab evaluate --help, not the general list
+    assert exit_.value.code == 0 and "ground-truth trajectory file" in capsys.readouterr().out
+    assert main(["--version"]) == 0 and capsys.readouterr().out.startswith("odolab ")
+    assert main(["navigation_diff"]) == 2
+    assert "did you mean 'navigation-diff'?" in capsys.readouterr().err
+
+
+def test_a_reader_that_goes_away_is_no_traceback(capsys):
+    """``odolab help | head -1`` ended in a BrokenPipeError traceback."""
+
+    def main(argv):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    assert run_cli(main, "python -m odolab.evaluate", []) == 141
+    assert capsys.readouterr().err == ""

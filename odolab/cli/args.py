@@ -252,3 +252,16 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away (``... | head -1``): no traceback
+        quiet_broken_pipe()
+        return 141  # what a shell reports for a command ended by SIGPIPE
+
+
+def quiet_broken_pipe() -> None:
+    """Point stdout at /dev/null, so that Python's flush at exit does not report the broken pipe
+    again (the recipe of Python's documentation on SIGPIPE)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass  # stdout is not a file (a test's capture): nothing is flushed to a pipe at exit

@@ -1,7 +1,8 @@
 """The ``odolab`` command: one entry point whose subcommands are the ``python -m`` commands.
 
     odolab compare [options]        = python -m odolab.compare [options]
-    odolab --help                   lists them
+    odolab --help                   lists them (odolab help compare = odolab compare --help)
+    odolab --version                the installed version
 
 Each subcommand imports its module only when it runs, so ``odolab --help`` is quick and a command
 that needs torch is the only one that loads it.
@@ -73,16 +74,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.cli.args import run_cli
 
     args = list(sys.argv[1:] if argv is None else argv)
+    if args[:1] == ["help"] and len(args) > 1:  # odolab help compare = odolab compare --help
+        args = [args[1], "--help"]
     if not args or args[0] in ("-h", "--help", "help"):
-        print(usage())
-        return 0 if args else 2
+        return _print(usage(), sys.stdout if args else sys.stderr, 0 if args else 2)
+    if args[0] in ("-V", "--version"):
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            return _print(f"odolab {version('odolab')}", sys.stdout, 0)
+        except PackageNotFoundError:
+            return _print("odolab (version unknown: not installed as a package)", sys.stdout, 0)
     name, rest = args[0], args[1:]
     if name not in COMMANDS:
-        print(f"odolab: unknown command {name!r}; expected one of {', '.join(COMMANDS)}", file=sys.stderr)
+        import difflib
+
+        near = difflib.get_close_matches(name.lower().replace("_", "-"), COMMANDS, n=1, cutoff=0.6)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        print(f"odolab: unknown command {name!r}; expected one of {', '.join(COMMANDS)}{hint}", file=sys.stderr)
         return 2
     _, module, _ = COMMANDS[name]
     entry = importlib.import_module(module).main
     return run_cli(entry, f"odolab {name}", rest)
+
+
+def _print(text: str, stream, code: int) -> int:
+    """``text`` on ``stream``; a reader that went away (``odolab --help | head -1``) is no error."""
+    from odolab.cli.args import quiet_broken_pipe
+
+    try:
+        print(text, file=stream, flush=True)
+    except BrokenPipeError:
+        quiet_broken_pipe()
+    return code
 
 
 if __name__ == "__main__":
