@@ -477,3 +477,21 @@ def test_a_reader_that_goes_away_is_no_traceback(capsys):
 
     assert run_cli(main, "python -m odolab.evaluate", []) == 141
     assert capsys.readouterr().err == ""
+
+
+def test_compare_tum_that_is_not_a_folder_is_said_so_before_the_camera(tmp_path, capsys):
+    """A file, a missing path or a dead link given to --tum read 'cannot tell the camera from the
+    folder's name', or 'no such folder' for a file."""
+    from odolab.cli.compare import main
+
+    (tmp_path / "rgbd_fr1.txt").write_text("x")
+    (tmp_path / "dead_fr1").symlink_to(tmp_path / "nowhere")
+    for name, words in [
+        ("rgbd_fr1.txt", "is a file, not a folder"),
+        ("missing", "no such folder"),
+        ("dead_fr1", "is a link to nothing"),
+    ]:
+        argv = ["--tum", str(tmp_path / name), "--out", str(tmp_path / "out")]
+        assert run_cli(main, "python -m odolab.compare", argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and f"--tum {tmp_path / name}: {words}" in err, err

@@ -174,6 +174,15 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
     if args.tum is not None:
         from odolab.io.tum_rgbd import tum_camera_for
 
+        if not args.tum.is_dir():  # before the folder's name is read for its camera
+            what = (
+                "is a link to nothing"
+                if args.tum.is_symlink() and not args.tum.exists()
+                else "is a file, not a folder"
+                if args.tum.exists()
+                else "no such folder"
+            )
+            raise UsageError(f"--tum {args.tum}: {what}; expected a TUM RGB-D sequence folder (rgb.txt, depth.txt)")
         if args.intrinsics is None and tum_camera_for(args.tum) is None:
             raise UsageError(
                 f"--tum {args.tum}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
