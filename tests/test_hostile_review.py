@@ -495,3 +495,17 @@ def test_compare_tum_that_is_not_a_folder_is_said_so_before_the_camera(tmp_path,
         assert run_cli(main, "python -m odolab.compare", argv) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and f"--tum {tmp_path / name}: {words}" in err, err
+
+
+@pytest.mark.parametrize("command", ["compare", "navigate"])
+def test_an_unusable_options_file_is_named_under_config(tmp_path, capsys, command):
+    """'--config DIR' read '/x: is a folder; ...' without the option's name."""
+    import importlib
+
+    main = importlib.import_module(f"odolab.cli.{command}").main
+    (tmp_path / "bad.toml").write_text("[odometers.icp\n")
+    for path, words in [(tmp_path, "is a folder"), (tmp_path / "none.toml", "no such"), (tmp_path / "bad.toml", "")]:
+        argv = ["--config", str(path), "--episodes", "1", "--max-steps", "5", "--out", str(tmp_path / "out")]
+        assert run_cli(main, f"python -m odolab.{command}", argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and f"error: --config {path}" in err and words in err, err

@@ -221,9 +221,11 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
     from odolab.episodes import NoiseConfig
 
     try:
-        options = merge_options(
-            read_options_file(args.config) if args.config else {}, parse_assignments(args.odometer_option)
-        )
+        from_file = read_options_file(args.config) if args.config else {}
+    except OptionError as exc:
+        raise UsageError(f"--config {exc}") from None  # the file's problem, under the option that named it
+    try:
+        options = merge_options(from_file, parse_assignments(args.odometer_option))
     except OptionError as exc:
         raise UsageError(str(exc)) from None
     names = None

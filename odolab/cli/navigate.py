@@ -96,11 +96,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.split not in SPLITS:
         raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     try:
+        from_file = read_options_file(args.config) if args.config else {}
+    except OptionError as exc:
+        raise UsageError(f"--config {exc}") from None  # the file's problem, under the option that named it
+    try:
         policy = PolicyConfig.from_assignments(args.policy)
         names = parse_odometer_list(args.odometers)
-        options = merge_options(
-            read_options_file(args.config) if args.config else {}, parse_assignments(args.odometer_option)
-        )
+        options = merge_options(from_file, parse_assignments(args.odometer_option))
     except PolicyError as exc:
         raise UsageError(exc.named("--policy")) from None
     except OdometerListError as exc:
