@@ -334,12 +334,38 @@ def check_out(out: Path, config: StudyConfig) -> None:
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import ManifestError, OutputFolder
 
+    owner = f"study {config.name}"
+    if _interrupted_first_run(out):  # results saved, killed before its report: the study's own folder
+        _claim(out, owner)
     check_report_dir(out, "--out")
     try:
-        OutputFolder.check(out, folders=("results",), owner=f"study {config.name}", names=REPORT_NAMES)
+        OutputFolder.check(out, folders=("results",), owner=owner, names=REPORT_NAMES)
     except (UnsafeOutputError, ManifestError) as exc:
         said = str(exc).removeprefix(f"{out}: ")  # the path once
         raise UsageError(f"--out {out}: {said}") from None
+    if not (out / "manifest.txt").exists():
+        _claim(out, owner)  # before any unit's result is saved: an interrupted run is resumed, not refused
+
+
+def _claim(out: Path, owner: str) -> None:
+    """Mark ``out`` as ``owner``'s with a manifest naming no report file yet."""
+    from odolab.io.atomic import write_text_atomic
+    from odolab.io.owned import owned_path
+
+    write_text_atomic(owned_path(out, "manifest.txt"), f"# odolab {owner}\n")
+
+
+def _interrupted_first_run(out: Path) -> bool:
+    """Whether ``out`` holds only a ``results`` folder of result files and no manifest: what a
+    study's first run left when it was stopped before its report (before manifests were written first)."""
+    try:
+        if not out.is_dir() or out.is_symlink() or (out / "manifest.txt").exists() or os.listdir(out) != ["results"]:
+            return False
+        results = out / "results"
+        entries = list(results.iterdir()) if results.is_dir() and not results.is_symlink() else []
+    except OSError:
+        return False
+    return bool(entries) and all(e.suffix == ".json" and e.is_file() and not e.is_symlink() for e in entries)
 
 
 def check_options(args, out: Path, config: StudyConfig) -> None:

@@ -509,3 +509,25 @@ def test_an_unusable_options_file_is_named_under_config(tmp_path, capsys, comman
         assert run_cli(main, f"python -m odolab.{command}", argv) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and f"error: --config {path}" in err and words in err, err
+
+
+def test_a_study_stopped_before_its_report_resumes_instead_of_refusing_its_folder(tmp_path, monkeypatch, capsys):
+    """Killed after some units, before its report: the rerun read 'holds files odolab did not
+    write (no manifest.txt)' and could neither resume nor redraw."""
+    from studies import e_table, framework
+
+    out = tmp_path / "e"
+    config = framework.load_study("e_table")
+
+    def stopped(fn, units, store, **kw):
+        store.put(units[0], {"value": {"all": {}}, "seconds": 0.0})  # one unit saved, then Ctrl-C
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(framework, "run_units", stopped)
+    argv = ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]
+    assert run_cli(e_table.main, "python -m studies.e_table", argv) == 130
+    assert (out / "manifest.txt").read_text() == "# odolab study e_table\n"
+    framework.check_out(out, config)  # the rerun may use its folder
+    (out / "manifest.txt").unlink()  # a folder left by a run from before the manifest came first
+    framework.check_out(out, config)
+    assert (out / "manifest.txt").is_file() and len(list((out / "results").iterdir())) == 1
