@@ -531,3 +531,15 @@ def test_a_study_stopped_before_its_report_resumes_instead_of_refusing_its_folde
     (out / "manifest.txt").unlink()  # a folder left by a run from before the manifest came first
     framework.check_out(out, config)
     assert (out / "manifest.txt").is_file() and len(list((out / "results").iterdir())) == 1
+
+
+@pytest.mark.parametrize("text", ["1_0", "\uff15", "1\u0660"])
+def test_numbers_are_plain_ascii_digits(text):
+    """'--rgb-noise 1_0' ran at ten times the noise, '--episodes ５' (a full-width 5) as 5."""
+    import argparse
+
+    from odolab.cli import number
+
+    with pytest.raises(argparse.ArgumentTypeError, match="must be a number"):
+        number("--rgb-noise", float, 0, 10)(text)
+    assert number("--rgb-noise", float, 0, 10)(" 2.5e0 ") == 2.5 and number("--episodes", int, 1)("+3") == 3

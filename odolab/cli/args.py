@@ -51,6 +51,8 @@ def number(
     def parse(text: str):
         noun = "an integer" if kind is int else "a number"
         try:
+            if "_" in text or not text.isascii():  # Python reads "1_0" as 10 and "５" as 5: a typo, not a number
+                raise ValueError(text)
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be {noun}, got {text!r}") from None
