@@ -151,7 +151,7 @@ def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path
 
     runs = list(dict.fromkeys(p.run for p in points))
     odometers = list(dict.fromkeys(k[0] for k in classical))
-    fig, axes = plt.subplots(3, 3, figsize=(13, 10), sharex=True)
+    fig, axes = plt.subplots(3, 3, figsize=(13, 10.5), sharex=True)
     colours = plt.get_cmap("tab10")
     for i, action in enumerate(ACTIONS):
         for j, comp in enumerate(COMPONENTS):
@@ -190,10 +190,10 @@ def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path
                     "training samples seen (all stages so far)" if x == "pairs" else "training hours (2-core CPU)"
                 )
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), frameon=False)
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), frameon=False)
     what = "samples seen" if x == "pairs" else "training hours"
     fig.suptitle(f"robust-vo validation error against {what}; the classical rows' test errors as lines")
-    fig.tight_layout(rect=(0, 0.05, 1, 0.97))
+    fig.tight_layout(rect=(0, 0.08, 1, 0.97))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
