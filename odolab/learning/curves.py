@@ -84,6 +84,9 @@ class Curves:
                 ax.grid(alpha=0.3)
                 values = [r[c] * factor for r in cell for c in series if r.get(c) not in (None, "")]
                 ax.set_ylim(0, 1.15 * max(values) if values and max(values) > 0 else 1)
+                xs_all = [r[x] for r in cell if r.get(x) not in (None, "")]
+                if xs_all and min(xs_all) == max(xs_all):  # one epoch: whole-number ticks around it
+                    ax.set_xlim(min(xs_all) - 1, max(xs_all) + 1)
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
                 if i == 0 and j == 0:
                     ax.legend(fontsize=7)
