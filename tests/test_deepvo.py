@@ -170,7 +170,7 @@ def test_bad_checkpoints_and_recipes_are_named(trained, tmp_path):
         load_model(tmp_path / "none.pt")
     robust_like = tmp_path / "x.pt"
     torch.save({"kind": "odolab-robust-vo", "format": 1}, robust_like)
-    with pytest.raises(CheckpointError, match="expected a 'odolab-deepvo' checkpoint"):
+    with pytest.raises(CheckpointError, match="expected a checkpoint of kind 'odolab-deepvo'"):
         load_model(robust_like)
     bad = tmp_path / "r.toml"
     bad.write_text("window = 1\n")

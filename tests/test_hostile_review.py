@@ -543,3 +543,20 @@ def test_numbers_are_plain_ascii_digits(text):
     with pytest.raises(argparse.ArgumentTypeError, match="must be a number"):
         number("--rgb-noise", float, 0, 10)(text)
     assert number("--rgb-noise", float, 0, 10)(" 2.5e0 ") == 2.5 and number("--episodes", int, 1)("+3") == 3
+
+
+def test_an_init_that_is_a_dead_link_or_absolute_is_named_as_such(tmp_path):
+    from odolab.learning.checkpoints import load_init
+
+    def never(path):
+        raise AssertionError("not to be loaded")
+
+    dead = tmp_path / "model.pt"
+    dead.symlink_to(tmp_path / "gone.pt")
+    with pytest.raises(ValueError, match=r"is a link to nothing"):
+        load_init(str(dead), tmp_path / "export.pt", never)
+    with pytest.raises(ValueError) as caught:
+        load_init(str(tmp_path / "none.pt"), tmp_path / "export.pt", never)
+    assert "no such model file;" in str(caught.value) and "relative to" not in str(caught.value)
+    with pytest.raises(ValueError, match=r"relative to"):
+        load_init("no/such/model.pt", tmp_path / "export.pt", never)

@@ -395,7 +395,7 @@ def test_checkpoint_errors_name_the_file(trained, tmp_path):
         load_model(tmp_path / "missing.pt")
     other = tmp_path / "other.pt"
     torch.save({"kind": "something-else", "format": 1}, other)
-    with pytest.raises(CheckpointError, match="expected a 'odolab-robust-vo' checkpoint"):
+    with pytest.raises(CheckpointError, match="expected a checkpoint of kind 'odolab-robust-vo'"):
         load_model(other)
     doc = torch.load(trained / "model.pt", weights_only=True)
     doc["model"]["base_planes"] = 16

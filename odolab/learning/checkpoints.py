@@ -49,7 +49,7 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str
         ) from None
     if not isinstance(doc, dict) or doc.get("kind") != kind:
         got = doc.get("kind") if isinstance(doc, dict) else type(doc).__name__
-        raise CheckpointError(f"{path}: expected a {kind!r} checkpoint, got {got!r}")
+        raise CheckpointError(f"{path}: expected a checkpoint of kind {kind!r}, got {got!r}")
     if doc.get("format") != format:
         raise CheckpointError(
             f"{path}: {kind} checkpoint of format {doc.get('format')!r}; this odolab reads format {format}"
@@ -203,15 +203,16 @@ def load_init(
     path = Path(init)
     if path.is_dir():
         raise ValueError(f"init = {init!r} is a folder; give the exported model file (e.g. <work>/model.pt)")
+    if path.is_symlink() and not path.exists():
+        raise ValueError(f"init = {init!r} is a link to nothing ({os.readlink(path)}); give the exported model file")
     if not path.is_file():
-        raise ValueError(
-            f"init = {init!r}: no such model file (relative to {Path.cwd()}; "
-            "train the first stage first, see the recipe)"
-        )
+        where = "" if path.is_absolute() else f" (relative to {Path.cwd()})"
+        raise ValueError(f"init = {init!r}: no such model file{where}; train the first stage first, see the recipe")
     if path.resolve() == Path(export).resolve():
         raise ValueError(f"init = {init!r} is this run's --export, which would overwrite it; export elsewhere")
     try:
         model, nets, info = load(path)
     except ValueError as exc:
-        raise ValueError(f"init = {init!r}: {exc}") from None
+        said = str(exc).removeprefix(f"{path}: ")  # the message names the file once
+        raise ValueError(f"init = {init!r}: {said}") from None
     return model, nets, info["sha256"]
