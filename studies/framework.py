@@ -19,7 +19,6 @@ import io
 import json
 import math
 import os
-import platform
 import re
 import sys
 import time
@@ -198,20 +197,19 @@ def run_units(
 
 
 def machine() -> str:
-    """The machine a report ran on, in one line (CPU model, cores, Python, torch)."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
+    """The machine a report ran on, in one line (CPU model, cores, Python, torch), from
+    :func:`odolab.bench.machine`, as the benchmarks record it."""
+    from odolab.bench import machine as measured
+
+    m = measured()
     try:
         import torch
 
         torch_version = f", torch {torch.__version__}"
     except ImportError:
         torch_version = ""
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}{torch_version}"
+    cpu = m["processor"] if m["cpu_model"] == "unknown" else m["cpu_model"]
+    return f"{cpu}, {m['cpus']} cores, Python {m['python']}{torch_version}"
 
 
 def _cell(v: Any) -> str:

@@ -315,7 +315,6 @@ def test_a_meaningless_manifest_line_is_named(tmp_path):
 
 
 def test_an_export_that_is_a_dangling_link_is_named_as_one(tmp_path):
-    pytest.importorskip("torch")
     from odolab.learning.checkpoints import check_export
 
     (tmp_path / "model.pt").symlink_to(tmp_path / "nowhere.pt")
