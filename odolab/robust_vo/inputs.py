@@ -30,7 +30,10 @@ def top_down_projection(
     the points are counted in an H x W grid spanning x in [-x_max, x_max] (x_max: the image edge at
     ``max_depth``) left to right and z in [min_depth, max_depth] bottom (near) to top (far). Counts
     are divided by each image's largest count. Only the central rows and their neighbours are
-    filtered (the same numbers as filtering the whole image).
+    filtered (the same numbers as filtering the whole image). The filter is average pooling of the
+    band padded left and right: kornia's ``box_blur`` (``replicate`` border) on the band gives these
+    numbers within 2e-6 m (depths to 10 m; to the bit from 2^22 elements, where it pools too), but below
+    that size a CPU with oneDNN convolves, measured 2.9x (one pair) to 3.6x (8 pairs) this filter's time.
     """
     b, h, w = depth.shape
     keep = max(1, int(round(rows * h)))
