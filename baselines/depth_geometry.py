@@ -6,7 +6,6 @@ Conventions are odolab's (:mod:`odolab.api`): camera axes x right, y down, z for
 
 from __future__ import annotations
 
-import reprlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -14,7 +13,7 @@ from typing import Generic, TypeVar
 import cv2
 import numpy as np
 
-from odolab.api import Intrinsics
+from odolab.api import Intrinsics, check, setting
 
 #: The farthest depth cut a baseline accepts, metres (no sensor reads beyond; infinity is a typo).
 MAX_DEPTH_LIMIT = 1000.0
@@ -33,21 +32,20 @@ class DepthRange:
     grows with z^2 (about 4 cm at 4 m).
     """
 
-    min_depth: float = 0.1
-    max_depth: float = 4.0
-    noise_floor: float = 0.01
-    noise_growth: float = 0.01
+    min_depth: float = setting(
+        0.1, range=(0.0, MAX_DEPTH_LIMIT), open_high=True, doc="readings at or below this are not trusted, m"
+    )
+    max_depth: float = setting(
+        4.0, range=(0.0, MAX_DEPTH_LIMIT), open_low=True, doc="readings beyond this are not trusted, m"
+    )
+    noise_floor: float = setting(0.01, range=(0.0, MAX_NOISE), doc="readings of one surface agree within this, m ...")
+    noise_growth: float = setting(0.01, range=(0.0, MAX_NOISE), doc="... plus this times depth squared, 1/m")
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.min_depth < self.max_depth <= MAX_DEPTH_LIMIT:
+        check(self)
+        if not self.min_depth < self.max_depth:
             raise ValueError(
-                f"need 0 <= min_depth < max_depth <= {MAX_DEPTH_LIMIT:g} m, got min_depth "
-                f"{self.min_depth}, max_depth {self.max_depth}"
-            )
-        if not (0.0 <= self.noise_floor <= MAX_NOISE and 0.0 <= self.noise_growth <= MAX_NOISE):
-            raise ValueError(
-                f"need 0 <= noise_floor <= {MAX_NOISE:g} m and 0 <= noise_growth <= {MAX_NOISE:g} 1/m, "
-                f"got {reprlib.repr(self.noise_floor)}, {reprlib.repr(self.noise_growth)}"
+                f"need min_depth < max_depth, got min_depth {self.min_depth:g}, max_depth {self.max_depth:g}"
             )
 
     def tolerance(self, z: np.ndarray) -> np.ndarray:

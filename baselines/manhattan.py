@@ -53,10 +53,12 @@ from odolab.api import (
     Frame,
     Intrinsics,
     Odometer,
+    check,
     failure_reason,
     load_inputs,
     load_odometer,
     planar_to_transform,
+    setting,
     split_odometer_names,
 )
 
@@ -144,27 +146,44 @@ def anchor_direction(views: list[tuple[float, int]]) -> float:
     return float(np.angle(np.sum(weights[group] * np.exp(4j * angles[group]))) / 4)
 
 
+@dataclass(frozen=True)
+class ManhattanConfig:
+    """The heading filter of :class:`ManhattanOdometer` (module docstring); its constructor's keyword
+    arguments of the same names. Angles in degrees."""
+
+    step_sigma_deg: float = setting(0.3, range=(1e-3, 45.0), doc="heading noise of an answered step, deg")
+    prior_sigma_deg: float = setting(3.5, range=(1e-3, 45.0), doc="heading noise of a failed step (action prior), deg")
+    wall_sigma_deg: float = setting(1.0, range=(1e-3, 45.0), doc="noise of a view's wall direction, deg")
+    anchor_steps: int = setting(5, range=(1, 1000), doc="first views that fix the world's wall direction")
+    relock_views: int = setting(5, range=(0, 1000), doc="agreeing views beyond the gate that re-lock it (0: off)")
+    relock_spread_deg: float = setting(2.0, range=(0.0, 45.0), doc="... agreeing within this of each other, deg")
+    relock_support: float = setting(0.9, range=(0.0, 1.0), doc="... each with this share of samples on the walls")
+    min_support: float = setting(0.3, range=(0.0, 1.0), doc="a view's share of samples on the walls to count at all")
+    max_depth: float = setting(4.0, range=(0.5, 20.0), doc="wall samples beyond this are not used, m")
+
+    def __post_init__(self) -> None:
+        check(self, "manhattan: ")
+
+
 class ManhattanOdometer(Odometer):
     """``inner``'s answers with its heading held to the walls (module docstring). Options: the
-    filter's ``step_sigma_deg``, ``prior_sigma_deg``, ``wall_sigma_deg``, ``anchor_steps``,
-    ``relock_views`` (0: off), ``relock_spread_deg`` and ``relock_support``, ``min_support`` and
-    ``max_depth`` (m, of the wall samples); ``options_file``: the inner odometer's options (TOML,
-    ``[odometers."icp"]``)."""
+    fields of :class:`ManhattanConfig` (kept as ``config``); ``options_file``: the inner odometer's
+    options (TOML, ``[odometers."icp"]``)."""
 
     composite = True
 
     def __init__(
         self,
         inputs: str = "",
-        step_sigma_deg: float = 0.3,
-        prior_sigma_deg: float = 3.5,
-        wall_sigma_deg: float = 1.0,
-        anchor_steps: int = 5,
-        relock_views: int = 5,
-        relock_spread_deg: float = 2.0,
-        relock_support: float = 0.9,
-        min_support: float = 0.3,
-        max_depth: float = 4.0,
+        step_sigma_deg: float = ManhattanConfig.step_sigma_deg,
+        prior_sigma_deg: float = ManhattanConfig.prior_sigma_deg,
+        wall_sigma_deg: float = ManhattanConfig.wall_sigma_deg,
+        anchor_steps: int = ManhattanConfig.anchor_steps,
+        relock_views: int = ManhattanConfig.relock_views,
+        relock_spread_deg: float = ManhattanConfig.relock_spread_deg,
+        relock_support: float = ManhattanConfig.relock_support,
+        min_support: float = ManhattanConfig.min_support,
+        max_depth: float = ManhattanConfig.max_depth,
         options_file: str = "",
     ) -> None:
         names = split_odometer_names(inputs) if isinstance(inputs, str) else []
@@ -175,34 +194,31 @@ class ManhattanOdometer(Odometer):
             )
         if names[0].startswith("manhattan"):
             raise ValueError(f"manhattan({names[0]}) would hold the heading to the walls twice; use one manhattan(...)")
-        for key, value, lo, hi in (
-            ("step_sigma_deg", step_sigma_deg, 1e-3, 45.0),
-            ("prior_sigma_deg", prior_sigma_deg, 1e-3, 45.0),
-            ("wall_sigma_deg", wall_sigma_deg, 1e-3, 45.0),
-            ("relock_spread_deg", relock_spread_deg, 0.0, 45.0),
-            ("relock_support", relock_support, 0.0, 1.0),
-            ("min_support", min_support, 0.0, 1.0),
-            ("max_depth", max_depth, 0.5, 20.0),
-        ):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= float(value) <= hi:
-                raise ValueError(f"manhattan: {key} must be a number in [{lo:g}, {hi:g}], got {value!r}")
-        for key, value, lo in (("anchor_steps", anchor_steps, 1), ("relock_views", relock_views, 0)):
-            if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= 1000:
-                raise ValueError(f"manhattan: {key} must be an integer in [{lo}, 1000], got {value!r}")
+        self.config = cfg = ManhattanConfig(
+            step_sigma_deg=step_sigma_deg,
+            prior_sigma_deg=prior_sigma_deg,
+            wall_sigma_deg=wall_sigma_deg,
+            anchor_steps=anchor_steps,
+            relock_views=relock_views,
+            relock_spread_deg=relock_spread_deg,
+            relock_support=relock_support,
+            min_support=min_support,
+            max_depth=max_depth,
+        )
         self.inner = load_inputs("manhattan", names, options_file)[names[0]]
         self.prior = load_odometer("action-prior")
-        self.step_var, self.prior_var = np.radians(step_sigma_deg) ** 2, np.radians(prior_sigma_deg) ** 2
-        self.wall_var = np.radians(wall_sigma_deg) ** 2
-        self.anchor_steps, self.min_support, self.max_depth = anchor_steps, float(min_support), float(max_depth)
-        self.relock_views, self.relock_spread = relock_views, np.radians(relock_spread_deg)
-        self.relock_support = float(relock_support)
+        self.step_var, self.prior_var = np.radians(cfg.step_sigma_deg) ** 2, np.radians(cfg.prior_sigma_deg) ** 2
+        self.wall_var = np.radians(cfg.wall_sigma_deg) ** 2
+        self.anchor_steps, self.min_support, self.max_depth = cfg.anchor_steps, cfg.min_support, cfg.max_depth
+        self.relock_views, self.relock_spread = cfg.relock_views, np.radians(cfg.relock_spread_deg)
+        self.relock_support = cfg.relock_support
         self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
         self.threads = self.inner.threads
-        sigmas = ";".join(str(float(v)) for v in (step_sigma_deg, prior_sigma_deg, wall_sigma_deg))  # 1 and 1.0 alike
+        sigmas = ";".join(str(v) for v in (cfg.step_sigma_deg, cfg.prior_sigma_deg, cfg.wall_sigma_deg))  # floats
         settings = (
             f"{names[0]}={self.inner.identity_digest};{sigmas};"
-            f"{anchor_steps};{relock_views};{float(relock_spread_deg)};{float(relock_support)};"
-            f"{float(min_support)};{float(max_depth)};"
+            f"{cfg.anchor_steps};{cfg.relock_views};{cfg.relock_spread_deg};{cfg.relock_support};"
+            f"{cfg.min_support};{cfg.max_depth};"
             f"anchor-consensus-{ANCHOR_DEG}"
         )
         self.identity_digest = hashlib.sha256(settings.encode()).hexdigest()

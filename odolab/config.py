@@ -15,13 +15,16 @@ A field declares itself with :func:`setting`::
 - :func:`check` refuses a value that is not a number of the field's kind (an ``int`` field wants a
   whole number; a bool, text or NaN is no number) or lies outside its range, with one line:
   ``cell must be a number in [0.02, 1], got 'x'`` or ``cell must be in [0.02, 1], got 5.0``; numpy
-  scalars become Python's, ``-0.0`` becomes ``0.0``.
+  scalars become Python's, ``-0.0`` becomes ``0.0``. A field annotated with ``Literal[...]`` takes
+  its choices (``precision: Literal["fp32", "bf16"]``: ``precision must be one of 'fp32', 'bf16',
+  got 'fp16'``); with a range too, a choice or a number (``workers: int | Literal["auto"]``:
+  ``workers must be 'auto' or in [0, 64], got -1``).
 - :func:`build` (:func:`from_toml` for a file, whose top-level ``base = "other.toml"`` starts from
   another document) builds a config from a dict, checking names and types; :class:`ConfigError`
   names the file and the field.
 - :func:`assign` applies ``key=value`` changes (``heading_tolerance=30``) to a config.
-- :func:`describe` lists every field with its value, range and description (what reports and
-  ``--help`` print).
+- :func:`describe` lists every field with its value, range (or choices) and description (what
+  reports and ``--help`` print).
 
 The field metadata leaves ``dataclasses.asdict``, equality and pickling as they were: a config's
 contents, and every digest or identity made from them, do not depend on it.
@@ -30,6 +33,7 @@ contents, and every digest or identity made from them, do not depend on it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 import os
@@ -51,11 +55,13 @@ __all__ = [
     "assign",
     "build",
     "check",
+    "choices",
     "describe",
     "from_toml",
     "range_text",
     "read_toml",
     "setting",
+    "valid_text",
 ]
 
 T = TypeVar("T")
@@ -135,35 +141,93 @@ def _noun(f: dataclasses.Field) -> str:
     return "a whole number" if _whole(f) else "a number"
 
 
+@functools.cache
+def _choices_of(cls: type) -> dict[str, tuple[Any, ...]]:
+    """Field name -> the values its ``Literal[...]`` annotation allows (in a union too); fields
+    without one are left out, as are all of a class whose annotations do not resolve at run time."""
+    try:
+        hints = typing.get_type_hints(cls)
+    except (NameError, TypeError):
+        return {}
+    out: dict[str, tuple[Any, ...]] = {}
+    for f in dataclasses.fields(cls):
+        annotation = hints.get(f.name)
+        options = [annotation] if typing.get_origin(annotation) is typing.Literal else []
+        if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+            options = [a for a in typing.get_args(annotation) if typing.get_origin(a) is typing.Literal]
+        values = tuple(v for option in options for v in typing.get_args(option))
+        if values:
+            out[f.name] = values
+    return out
+
+
+def choices(cls_or_config: Any, name: str) -> tuple[Any, ...]:
+    """The values field ``name``'s ``Literal[...]`` annotation allows; ``()`` for a field without one."""
+    return _choices_of(cls_or_config if isinstance(cls_or_config, type) else type(cls_or_config)).get(name, ())
+
+
+def _is_choice(value: Any, options: tuple[Any, ...]) -> bool:
+    """Whether ``value`` is one of ``options``, of its kind too (``True`` is no ``1``, ``1.0`` no ``1``)."""
+    return any(
+        (type(value) is type(c) or isinstance(value, str) and isinstance(c, str)) and value == c for c in options
+    )
+
+
+def _choices_text(options: tuple[Any, ...]) -> str:
+    """``'auto'`` or ``one of 'fp32', 'bf16'``."""
+    return repr(options[0]) if len(options) == 1 else f"one of {', '.join(map(repr, options))}"
+
+
+def valid_text(cls_or_config: Any, name: str) -> str:
+    """What field ``name`` takes as a user may type it: ``[1, 64]``, ``one of 'fp32', 'bf16'``,
+    ``'auto' or [0, 64]``; ``""`` for a field with neither range nor choices."""
+    f = _field(cls_or_config, name)
+    parts = [_choices_text(c)] if (c := choices(cls_or_config, name)) else []
+    if _RANGE in f.metadata:
+        parts.append(range_text(cls_or_config, name))
+    return " or ".join(parts)
+
+
 def check(config: Any, prefix: str = "") -> None:
     """``ValueError`` (led by ``prefix``, e.g. ``"stage 'f': "``) for the first field of ``config``
-    with a range whose value is not a number of its kind or lies outside it; each such value is
+    with a range whose value is not a number of its kind or lies outside it, or with ``Literal[...]``
+    choices whose value is none of them (nor, with a range too, such a number); each number is
     stored as a Python ``int`` or ``float``. Call it from ``__post_init__``."""
     for f in dataclasses.fields(config):
-        if _RANGE not in f.metadata:
+        options = choices(config, f.name)
+        if _RANGE not in f.metadata and not options:
             continue
         value = getattr(config, f.name)
-        if value is None and "None" in _type_parts(f):
+        if value is None and "None" in _type_parts(f) or options and _is_choice(value, options):
             continue
+        if _RANGE not in f.metadata:
+            raise ValueError(f"{prefix}{f.name} must be {_choices_text(options)}, got {value!r:.80}")
+        either = f"{_choices_text(options)} or " if options else ""  # 'auto' or in [0, 64]
         whole = _whole(f)
         if (
             isinstance(value, (bool, np.bool_))
             or not isinstance(value, numbers.Integral if whole else numbers.Real)
             or (not isinstance(value, numbers.Integral) and math.isnan(value))
         ):
-            raise ValueError(f"{prefix}{f.name} must be {_noun(f)} in {range_text(config, f.name)}, got {value!r:.80}")
+            raise ValueError(
+                f"{prefix}{f.name} must be {either}{_noun(f)} in {range_text(config, f.name)}, got {value!r:.80}"
+            )
         try:
             value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
         except OverflowError:  # an integer past float's range: out of every range
-            raise ValueError(f"{prefix}{f.name} must be in {range_text(config, f.name)}, got {value!r:.80}") from None
+            raise ValueError(
+                f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {value!r:.80}"
+            ) from None
         object.__setattr__(config, f.name, value)
         if not in_range(config, f.name, value):
-            raise ValueError(f"{prefix}{f.name} must be in {range_text(config, f.name)}, got {value!r}")
+            raise ValueError(f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)
 class Setting:
-    """One field of a config as :func:`describe` lists it: ``range`` is ``""`` for a field without one."""
+    """One field of a config as :func:`describe` lists it: ``range`` is what it takes
+    (:func:`valid_text`: ``[1, 64]``, ``one of 'fp32', 'bf16'``, ``'auto' or [0, 64]``), ``""`` for a
+    field with neither range nor choices."""
 
     name: str
     value: Any
@@ -173,7 +237,7 @@ class Setting:
 
 def describe(config: Any) -> list[Setting]:
     """Every field of ``config`` (a dataclass or its class, which gives the defaults), in order,
-    with its value, range and description: what ``--help`` and reports print."""
+    with its value, range (or choices) and description: what ``--help`` and reports print."""
     out = []
     for f in dataclasses.fields(config):
         if isinstance(config, type):
@@ -185,8 +249,7 @@ def describe(config: Any) -> list[Setting]:
                 value = None
         else:
             value = getattr(config, f.name)
-        shown = range_text(config, f.name) if _RANGE in f.metadata else ""
-        out.append(Setting(f.name, value, shown, f.metadata.get(_DOC, "")))
+        out.append(Setting(f.name, value, valid_text(config, f.name), f.metadata.get(_DOC, "")))
     return out
 
 
@@ -315,8 +378,8 @@ def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigE
     unknown key, a key given twice, a value that is not of the field's kind or out of its range;
     the config's own checks (two fields together) raise ``error(message, joiner=": ")`` when
     ``error`` takes a joiner, else ``error(message)``. A field with a range takes a number typed
-    plainly (ASCII digits, no ``_``); any other field a TOML value (``true``, ``"text"``, ``[1, 2]``),
-    or plain text."""
+    plainly (ASCII digits, no ``_``) or one of its choices (``loader_workers=auto``); any other field
+    a TOML value (``true``, ``"text"``, ``[1, 2]``), or plain text."""
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls) if f.init]
     short = reprlib.Repr()  # items are echoed cut short: a 5000-digit value is not printed whole
@@ -330,8 +393,12 @@ def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigE
         if key in changes:
             raise error(f"{shown}: {key} is given twice")
         f = _field(cls, key)
-        if _RANGE in f.metadata:
-            kind = f"{_noun(f)} in {range_text(cls, key)}"
+        options = choices(cls, key)
+        if _RANGE in f.metadata and options and _is_choice(word := _toml_value(text.strip()), options):
+            value = word  # loader_workers=auto
+        elif _RANGE in f.metadata:
+            either = f"{_choices_text(options)} or " if options else ""
+            kind = f"{either}{_noun(f)} in {range_text(cls, key)}"
             if len(text.strip()) > MAX_NUMBER_CHARS:
                 raise error(f"{shown}: {key} takes {kind}; this value is too long to read")
             try:
@@ -341,7 +408,7 @@ def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigE
             except ValueError:
                 raise error(f"{shown}: {key} takes {kind}") from None
             if not math.isfinite(float(value)) or not in_range(cls, key, value):
-                raise error(f"{shown}: {key} must be in {range_text(cls, key)}")
+                raise error(f"{shown}: {key} must be {either}in {range_text(cls, key)}")
         else:
             try:
                 value = _check(_toml_value(text.strip()), hints[key], key)

@@ -20,12 +20,14 @@ from odolab.api import (
     Action,
     Frame,
     Intrinsics,
+    describe,
     invert,
     load_odometer,
     load_tum_sequence,
     planar_to_transform,
     transform_to_planar,
 )
+from odolab.parallel import SERIAL
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 ODOMETERS = ["feature-essential", "icp", "open3d-rgbd"]
@@ -265,6 +267,34 @@ def test_options_are_checked():
     assert load_odometer("feature-essential", n_features=None, max_depth=3).config.depth.max_depth == 3
 
 
+def test_a_depth_range_says_what_each_field_takes():
+    """Its ranges come from the fields, for errors and :func:`odolab.api.describe` alike; the two
+    depths together are checked after them."""
+    assert [(r.name, r.range) for r in describe(DepthRange)] == [
+        ("min_depth", "[0, 1000)"),
+        ("max_depth", "(0, 1000]"),
+        ("noise_floor", "[0, 1]"),
+        ("noise_growth", "[0, 1]"),
+    ]
+    assert all(r.doc for r in describe(DepthRange()))
+    for bad, said in (
+        ({"max_depth": float("inf")}, "max_depth must be in (0, 1000], got inf"),
+        ({"min_depth": -0.5}, "min_depth must be in [0, 1000), got -0.5"),
+        ({"noise_growth": "x"}, "noise_growth must be a number in [0, 1], got 'x'"),
+        ({"noise_floor": 2}, "noise_floor must be in [0, 1], got 2.0"),
+        ({"min_depth": 4, "max_depth": 4}, "need min_depth < max_depth, got min_depth 4, max_depth 4"),
+    ):
+        with pytest.raises(ValueError) as info:
+            DepthRange(**bad)
+        assert str(info.value) == said
+    assert dataclasses.asdict(DepthRange(max_depth=6.0)) == {
+        "min_depth": 0.1,
+        "max_depth": 6.0,
+        "noise_floor": 0.01,
+        "noise_growth": 0.01,
+    }
+
+
 @pytest.mark.parametrize("name", [*ODOMETERS, "feature-essential-oracle-rot"])
 def test_config_is_a_frozen_dataclass_with_nested_keyword_overrides(name):
     default = load_odometer(name).config
@@ -373,7 +403,7 @@ def short_sim_episodes():
     from odolab.episodes import EpisodeSpec, load_episodes
 
     specs = [EpisodeSpec(split="val", index=i, max_steps=25) for i in (2, 4, 5, 6)]
-    return load_episodes(specs, parallel=False, progress=False)
+    return load_episodes(specs, execution=SERIAL)
 
 
 @pytest.mark.slow

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import pytest
 
-from odolab.config import ConfigError, assign, build, check, describe, from_toml, range_text, setting
+from odolab.config import ConfigError, assign, build, check, choices, describe, from_toml, range_text, setting
 from odolab.errors import InputError
 
 
@@ -82,3 +83,47 @@ def test_built_from_toml_and_key_value_changes(tmp_path):
         assert str(info.value) == said
     with pytest.raises(ConfigError, match="stride takes"):
         assign(Example, ["stride=x"])
+
+
+@dataclass(frozen=True)
+class Choosing:
+    precision: Literal["auto", "fp32", "bf16"] = setting("auto", doc="numeric precision")
+    workers: int | Literal["auto"] = setting("auto", range=(0, 64), doc="batch-making processes")
+    mode: Literal[1, 2] | None = setting(None, doc="None: off")
+
+    def __post_init__(self) -> None:
+        check(self, "c: ")
+
+
+def test_literal_choices_are_checked_described_built_and_assigned(tmp_path):
+    assert Choosing(precision="bf16", workers=np.int64(3), mode=2).workers == 3
+    assert Choosing(workers="auto") == Choosing() and dataclasses.asdict(Choosing())["workers"] == "auto"
+    for bad, said in (
+        ({"precision": "fp16"}, "c: precision must be one of 'auto', 'fp32', 'bf16', got 'fp16'"),
+        ({"workers": -1}, "c: workers must be 'auto' or in [0, 64], got -1"),
+        ({"workers": "many"}, "c: workers must be 'auto' or a whole number in [0, 64], got 'many'"),
+        ({"workers": True}, "c: workers must be 'auto' or a whole number in [0, 64], got True"),
+        ({"mode": True}, "c: mode must be one of 1, 2, got True"),  # True == 1, but no choice
+        ({"mode": 1.0}, "c: mode must be one of 1, 2, got 1.0"),
+    ):
+        with pytest.raises(ValueError) as info:
+            Choosing(**bad)
+        assert str(info.value) == said
+    assert [(r.name, r.range) for r in describe(Choosing)] == [
+        ("precision", "one of 'auto', 'fp32', 'bf16'"),
+        ("workers", "'auto' or [0, 64]"),
+        ("mode", "one of 1, 2"),
+    ]
+    assert choices(Choosing, "workers") == ("auto",) and choices(Example(), "cell") == ()
+    assert build(Choosing, {"workers": 2, "precision": "fp32"}, "f") == Choosing(precision="fp32", workers=2)
+    with pytest.raises(ConfigError, match=r"f.precision: expected one of 'auto', 'fp32', 'bf16', got 'fp16'"):
+        build(Choosing, {"precision": "fp16"}, "f")
+    assert assign(Choosing, ["workers=auto", "precision=fp32"]) == Choosing(precision="fp32")
+    assert assign(Choosing, ['workers="auto"']).workers == "auto" and assign(Choosing, ["workers=8"]).workers == 8
+    for items, said in (
+        (["workers=x"], "'workers=x': workers takes 'auto' or a whole number in [0, 64]"),
+        (["workers=65"], "'workers=65': workers must be 'auto' or in [0, 64]"),
+    ):
+        with pytest.raises(ConfigError) as info:
+            assign(Choosing, items)
+        assert str(info.value) == said

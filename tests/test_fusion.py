@@ -432,6 +432,38 @@ def test_graph_inputs_that_are_not_poses_or_covariances_are_named():
             REGISTRY.load("fused(icp)", **{key: value})
 
 
+def test_the_fused_options_are_a_config_that_says_what_each_takes(calibration):
+    """The constructor's options besides its inputs are :class:`FusionConfig`'s fields (kept as
+    ``config``), whose ranges and choices :func:`odolab.config.describe` lists."""
+    from typing import get_args
+
+    from odolab.config import describe
+    from odolab.fusion.graph import KERNELS
+    from odolab.fusion.odometer import FusionConfig, Kernel
+
+    assert get_args(Kernel) == KERNELS
+    assert [(r.name, r.range) for r in describe(FusionConfig)] == [
+        ("calibration", ""),
+        ("kernel", "one of 'huber', 'cauchy', 'none'"),
+        ("kernel_width", "[0.1, 100]"),
+        ("span", "[1, 10]"),
+        ("span_inputs", ""),
+        ("options_file", ""),
+    ]
+    assert all(r.doc for r in describe(FusionConfig()))
+    odo = REGISTRY.load("fused(test-fixed)", calibration=calibration, kernel_width=2)
+    assert odo.config == FusionConfig(calibration=calibration, kernel_width=2.0) and odo.kernel_width == 2.0
+    for bad, said in (
+        ({"kernel_width": 200}, "kernel_width must be in [0.1, 100], got 200.0"),
+        ({"span": 2.7}, "span must be a whole number in [1, 10], got 2.7"),
+        ({"kernel": "tukey"}, "kernel must be one of 'huber', 'cauchy', 'none', got 'tukey'"),
+        ({"span_inputs": "test-fixed"}, "span_inputs needs span >= 2 (factors over more than one step), got span 1"),
+    ):
+        with pytest.raises(ValueError) as info:
+            FusionConfig(**bad)
+        assert str(info.value) == said
+
+
 def test_a_fused_odometer_digest_changes_with_its_calibration(calibration, tmp_path):
     first = REGISTRY.load("fused(test-fixed)", calibration=calibration).identity_digest
     assert first == REGISTRY.load("fused(test-fixed)", calibration=calibration).identity_digest

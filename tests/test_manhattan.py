@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baselines.manhattan import ManhattanOdometer, anchor_direction, wall_direction, wrap_quarter
+from baselines.manhattan import ManhattanConfig, ManhattanOdometer, anchor_direction, wall_direction, wrap_quarter
 from odolab.api import (
     Action,
     Estimate,
     Frame,
     Intrinsics,
     Odometer,
+    describe,
     invert,
     load_odometer,
     planar_to_transform,
@@ -123,6 +124,34 @@ def test_bad_options_are_named(options, field):
         ManhattanOdometer("ground-truth", **options)
     with pytest.raises(ValueError, match="one inner odometer"):
         ManhattanOdometer("")
+
+
+def test_the_filter_settings_are_a_config_that_says_what_each_takes():
+    """The constructor's numeric options are :class:`ManhattanConfig`'s fields (kept as ``config``),
+    whose ranges :func:`odolab.api.describe` lists and whose errors name the field in one line."""
+    assert [(r.name, r.range) for r in describe(ManhattanConfig)] == [
+        ("step_sigma_deg", "[0.001, 45]"),
+        ("prior_sigma_deg", "[0.001, 45]"),
+        ("wall_sigma_deg", "[0.001, 45]"),
+        ("anchor_steps", "[1, 1000]"),
+        ("relock_views", "[0, 1000]"),
+        ("relock_spread_deg", "[0, 45]"),
+        ("relock_support", "[0, 1]"),
+        ("min_support", "[0, 1]"),
+        ("max_depth", "[0.5, 20]"),
+    ]
+    assert all(r.doc for r in describe(ManhattanConfig()))
+    odo = ManhattanOdometer("ground-truth", wall_sigma_deg=2, relock_views=0)
+    assert odo.config == ManhattanConfig(wall_sigma_deg=2.0, relock_views=0)
+    assert odo.identity_digest != ManhattanOdometer("ground-truth").identity_digest
+    assert odo.identity_digest == ManhattanOdometer("ground-truth", wall_sigma_deg=2.0, relock_views=0).identity_digest
+    for bad, said in (
+        ({"step_sigma_deg": 0}, "manhattan: step_sigma_deg must be in [0.001, 45], got 0.0"),
+        ({"anchor_steps": 2.5}, "manhattan: anchor_steps must be a whole number in [1, 1000], got 2.5"),
+    ):
+        with pytest.raises(ValueError) as info:
+            ManhattanOdometer("ground-truth", **bad)
+        assert str(info.value) == said
 
 
 class Misbehaving(Odometer):

@@ -56,6 +56,26 @@ def test_a_bad_compute_table_is_refused_in_one_line():
             ComputeConfig(**bad)
 
 
+def test_a_compute_table_says_what_each_field_takes():
+    """Its choices and range come from the fields, for errors and :func:`odolab.config.describe` alike."""
+    from odolab.config import describe
+
+    assert [(r.name, r.value, r.range) for r in describe(ComputeConfig)] == [
+        ("precision", "auto", "one of 'auto', 'fp32', 'bf16'"),
+        ("memory_format", "auto", "one of 'auto', 'contiguous', 'channels_last'"),
+        ("loader_workers", "auto", "'auto' or [0, 64]"),
+    ]
+    assert all(r.doc for r in describe(ComputeConfig()))
+    for bad, said in (
+        ({"precision": "fp16"}, "precision must be one of 'auto', 'fp32', 'bf16', got 'fp16'"),
+        ({"loader_workers": 65}, "loader_workers must be 'auto' or in [0, 64], got 65"),
+        ({"loader_workers": 1.0}, "loader_workers must be 'auto' or a whole number in [0, 64], got 1.0"),
+    ):
+        with pytest.raises(ValueError) as info:
+            ComputeConfig(**bad)
+        assert str(info.value) == said
+
+
 def test_loader_workers_auto_is_none_on_two_cores_and_one_on_more():
     assert ComputeConfig().resolve(CPU, cores=2).loader_workers == 0
     assert ComputeConfig().resolve(CPU, cores=8).loader_workers == 1

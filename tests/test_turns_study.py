@@ -35,7 +35,7 @@ def test_the_study_refuses_bad_input_in_one_line(tmp_path, capsys):
     for args, said in (
         (["--odometers", "nope"], "unknown odometer 'nope'"),
         (["--odometer-option", "icp.max_depth=3"], "options given for 'icp', which is not among the odometers"),
-        (["--odometer-option", "open3d-rgbd.noise_growth=" + "1" * 320], "noise_growth <= 1 1/m"),
+        (["--odometer-option", "open3d-rgbd.noise_growth=" + "1" * 320], "noise_growth must be in [0, 1]"),
         (["--odometer-option", "open3d-rgbd.bogus=1"], "has no option 'bogus'"),
         (["--scenes", "0"], "--scenes"),
     ):

@@ -8,7 +8,7 @@ with the input's calibrated covariance for the action (the near-view entry when 
 frame's median depth is below the calibration's ``near_depth``: a wall ahead)
 (:mod:`odolab.fusion.calibration`; file: option ``calibration``, default the shipped one) inside a
 robust kernel (``kernel``: huber, cauchy or none; ``kernel_width`` in whitened sigmas), so one
-wild answer cannot pull the result. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
+wild answer cannot pull the result. These options are the fields of :class:`FusionConfig`. With ``span`` k > 1 the inputs named in ``span_inputs`` (those
 that can register frames further apart, e.g. icp) also measure pose t-k+1..t-2 -> t without an
 action, which ties the graph across steps (span factors are not bias-corrected: a bias is
 calibrated per action, and a span has none). iSAM2 solves it online, each step started from the
@@ -32,15 +32,17 @@ from __future__ import annotations
 import hashlib
 import time
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.composites import load_inputs
+from odolab.config import check, setting
 from odolab.fusion.calibration import Calibration, view_is_near
 from odolab.fusion.graph import (
-    KERNELS,
     Measurement,
     OnlineGraph,
     check_covariance,
@@ -58,20 +60,45 @@ SHIPPED_CALIBRATION = Path(__file__).resolve().parent.parent / "data" / "fusion"
 PRIOR = "action-prior"
 
 
+#: The robust kernels of :mod:`odolab.fusion.graph` (its ``KERNELS``).
+Kernel = Literal["huber", "cauchy", "none"]
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """The options of a fused odometer besides its inputs (module docstring); its constructor's
+    keyword arguments of the same names."""
+
+    calibration: str | Path = setting("", doc="calibration file of the inputs' biases and covariances ('': shipped)")
+    kernel: Kernel = setting("huber", doc="robust kernel round every factor")
+    kernel_width: float = setting(1.345, range=(0.1, 100.0), doc="width of the robust kernel, whitened sigmas")
+    span: int = setting(1, range=(1, 10), doc="factors reach this many steps back (1: consecutive steps only)")
+    span_inputs: str = setting("", doc="comma-separated inputs that also measure the span factors")
+    options_file: str = setting("", doc='the inputs\' own options (TOML, [odometers."icp"] tables)')
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.calibration, (str, Path)):
+            raise ValueError(f"calibration must be a file path, got {self.calibration!r:.40}")
+        check(self)
+        if split_odometer_names(self.span_inputs) and self.span < 2:
+            raise ValueError(f"span_inputs needs span >= 2 (factors over more than one step), got span {self.span}")
+
+
 class FusedOdometer(Odometer):
-    """Pose-graph fusion of ``inputs`` (comma-separated odometer names); see the module docstring."""
+    """Pose-graph fusion of ``inputs`` (comma-separated odometer names); the other keyword arguments
+    are the fields of :class:`FusionConfig`, kept as ``config``. See the module docstring."""
 
     composite = True
 
     def __init__(
         self,
         inputs: str = "",
-        calibration: str = "",
-        kernel: str = "huber",
-        kernel_width: float = 1.345,
-        span: int = 1,
-        span_inputs: str = "",
-        options_file: str = "",
+        calibration: str = FusionConfig.calibration,
+        kernel: str = FusionConfig.kernel,
+        kernel_width: float = FusionConfig.kernel_width,
+        span: int = FusionConfig.span,
+        span_inputs: str = FusionConfig.span_inputs,
+        options_file: str = FusionConfig.options_file,
     ) -> None:
         names = split_odometer_names(inputs)
         if not names:
@@ -82,34 +109,28 @@ class FusedOdometer(Odometer):
             raise ValueError(f"fused: an input is named twice in {names}")
         if any(map(is_fused, names)):
             raise ValueError("fused: an input cannot itself be fused(...)")
-        if kernel not in KERNELS:
-            raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
-        if isinstance(kernel_width, bool) or not isinstance(kernel_width, (int, float)):
-            raise ValueError(f"kernel_width must be a number of sigmas, got {kernel_width!r:.40}")
-        if isinstance(span, bool) or not isinstance(span, int):
-            raise ValueError(f"span must be a whole number of steps, got {span!r:.40}")
-        if not isinstance(calibration, (str, Path)):
-            raise ValueError(f"calibration must be a file path, got {calibration!r:.40}")
-        if not 0.1 <= float(kernel_width) <= 100:
-            raise ValueError(f"kernel_width must be in [0.1, 100] sigmas, got {kernel_width}")
-        if not 1 <= int(span) <= 10:
-            raise ValueError(f"span must be in [1, 10] steps, got {span}")
-        spanning = split_odometer_names(span_inputs)
-        if spanning and int(span) < 2:
-            raise ValueError(f"span_inputs needs span >= 2 (factors over more than one step), got span {span}")
+        self.config = cfg = FusionConfig(
+            calibration=calibration,
+            kernel=kernel,
+            kernel_width=kernel_width,
+            span=span,
+            span_inputs=span_inputs,
+            options_file=options_file,
+        )
+        spanning = split_odometer_names(cfg.span_inputs)
         if [n for n in spanning if n not in names]:
             raise ValueError(f"span_inputs must be among the inputs {names}, got {spanning}")
-        if not calibration and not SHIPPED_CALIBRATION.exists():
+        if not cfg.calibration and not SHIPPED_CALIBRATION.exists():
             raise ValueError(
                 "odolab ships no fusion calibration here; make one with python -m odolab.fusion.calibrate "
                 "and pass it as the option calibration=FILE"
             )
-        self.calibration = Calibration.load(calibration or SHIPPED_CALIBRATION)
+        self.calibration = Calibration.load(cfg.calibration or SHIPPED_CALIBRATION)
         self.input_calibration = {n: self.calibration.for_input(n) for n in names}
         self.prior_calibration = self.calibration.for_input(PRIOR)
-        self.inputs: dict[str, Odometer] = load_inputs("fused", names, options_file)
+        self.inputs: dict[str, Odometer] = load_inputs("fused", names, cfg.options_file)
         self.spanning = spanning
-        self.kernel, self.kernel_width, self.span = kernel, float(kernel_width), int(span)
+        self.kernel, self.kernel_width, self.span = cfg.kernel, cfg.kernel_width, cfg.span
         self.prior = ActionPrior.shipped()
         # an input that needs actions would answer nothing without them: say so, as that input would
         self.needs_action = any(o.needs_action for o in self.inputs.values())

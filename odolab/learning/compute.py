@@ -14,14 +14,18 @@ import dataclasses
 import platform
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Literal, get_args
 
 import torch
 
+from odolab.config import check, setting
+
 Precision = Literal["auto", "fp32", "bf16"]
 MemoryFormat = Literal["auto", "contiguous", "channels_last"]
-PRECISIONS = ("auto", "fp32", "bf16")
-MEMORY_FORMATS = ("auto", "contiguous", "channels_last")
+PRECISIONS: tuple[str, ...] = get_args(Precision)
+MEMORY_FORMATS: tuple[str, ...] = get_args(MemoryFormat)
+#: Most batch-making processes a recipe may ask for.
+MAX_LOADER_WORKERS = 64
 
 
 def cpu_flags(cpuinfo: str | None = None) -> set[str]:
@@ -97,21 +101,16 @@ class ComputeConfig:
     only competes with the network for them and costs a copy of every batch, else 1). None of it is
     part of a run's identity: a run resumes on another machine with that machine's choice."""
 
-    precision: Precision = "auto"
-    memory_format: MemoryFormat = "auto"
-    loader_workers: int | Literal["auto"] = "auto"
+    precision: Precision = setting("auto", doc="numeric precision of a step (auto: bf16 where native, else fp32)")
+    memory_format: MemoryFormat = setting("auto", doc="memory layout of the inputs (auto: contiguous)")
+    loader_workers: int | Literal["auto"] = setting(
+        "auto",
+        range=(0, MAX_LOADER_WORKERS),
+        doc="processes making batches ahead of the step (auto: 0 on <= 2 cores, else 1)",
+    )
 
     def __post_init__(self) -> None:
-        if self.precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
-        if self.memory_format not in MEMORY_FORMATS:
-            raise ValueError(f"memory_format must be one of {', '.join(MEMORY_FORMATS)}, got {self.memory_format!r}")
-        if self.loader_workers != "auto" and (
-            isinstance(self.loader_workers, bool)
-            or not isinstance(self.loader_workers, int)
-            or not 0 <= self.loader_workers <= 64
-        ):
-            raise ValueError(f"loader_workers must be 'auto' or in [0, 64], got {self.loader_workers!r}")
+        check(self)
 
     def resolve(self, device: torch.device, cores: int | None = None) -> Compute:
         """The :class:`Compute` of this config on ``device`` (``cores``: the machine's, by default
