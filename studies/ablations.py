@@ -1,0 +1,769 @@
+"""Study: the paper's Table 2. Each row's odometer is trained, scored per step on test episodes and
+driven through PointGoal navigation, and its numbers are set beside the paper's.
+
+    python -m studies.ablations [--scale ci|cpu|paper] [--out reports/ablations] [--ray-address ADDR] [--redraw]
+
+A row is DeepVO (row 0), the robust VO with the paper's switches (rows 1-18: a recipe with
+``path=value`` changes, see ``studies/ablations.toml``) or ground truth (row 20); row 19 is left out
+(it fine-tunes the paper's learned policy; odolab's policy is a classical one). Three phases of
+units, each a Ray task whose result is saved as it finishes and reused while its key (everything it
+depends on) stays the same: training a row's model (``<out>/models/<row>/model.pt``), its per-step
+error on each seed's test episodes (``run_comparison``, the challenge's noise), and its navigation
+of each episode (success, SPL, distance to the goal at the end d_G, SoftSPL). The error and
+navigation keys hold the model file's SHA-256, so a retrained model is evaluated again. Errors are
+mean absolute errors of (dx m, dz m, dyaw rad) x 1e-2 on open-loop test episodes, the paper's on its
+navigation steps; our models are trained on a small budget on our simulator: the rows' order against
+row 18 is what compares, not the values.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import hashlib
+import json
+import math
+import sys
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from studies import framework
+
+if TYPE_CHECKING:
+    from baselines.deepvo.config import DeepVOTraining
+    from odolab.parallel import Execution
+    from odolab.robust_vo.config import TrainConfig
+
+NAME = "ablations"
+DEFINITION = framework.HERE / f"{NAME}.toml"
+#: The repository's root, which the recipe paths of the definition start from.
+ROOT = framework.HERE.parent
+COMPONENTS = ("dx", "dz", "dyaw")
+#: Folders under ``<out>`` the study writes besides its results and report.
+FOLDERS = ("models", "work", "training", "data")
+#: The row the others are compared with (the paper's full model without policy tuning).
+REFERENCE_ROW = 18
+#: The study's three phases, in the order they run.
+PHASES = ("training", "error", "navigation")
+VISUAL = {"RGB": "rgb", "D": "depth", "RGB-D": "rgbd"}
+ACTINFO = {"none": "unified", "Embed": "actembed", "SepAct": "sepact"}
+
+
+# ------------------------------------------------------------------------------------ definition
+
+
+@dataclass(frozen=True)
+class Switches:
+    """A robust-VO row's switches as the paper's columns name them."""
+
+    visual: Literal["RGB", "D", "RGB-D"]
+    dd: int
+    sproj: bool
+    dropout: bool
+    actinfo: Literal["none", "Embed", "SepAct"]
+    data_aug: bool
+    geoinv: bool
+
+    def text(self) -> str:
+        """``RGB-D, DD 10, S-proj, Dropout, SepAct, DataAug, GeoInv``: the switches that are on."""
+        parts = [self.visual, f"DD {self.dd}" if self.dd else ""]
+        parts += [name for name, on in (("S-proj", self.sproj), ("Dropout", self.dropout)) if on]
+        parts += [self.actinfo if self.actinfo != "none" else ""]
+        parts += [name for name, on in (("DataAug", self.data_aug), ("GeoInv", self.geoinv)) if on]
+        return ", ".join(p for p in parts if p)
+
+
+@dataclass(frozen=True)
+class Paper:
+    """The paper's numbers for a row: success, SPL and SoftSPL in %, d_G in m, the per-step error
+    (dx m, dz m, dyaw rad) x 1e-2 (none for ground truth), #param in M as the paper writes it."""
+
+    success: float
+    spl: float
+    d_g: float
+    soft_spl: float
+    params: str
+    error: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class Row:
+    """One row of the table: its ``odometer``; for the robust VO its ``switches`` and the recipe
+    ``changes`` that set them (``wide``: also the scale's ``wide_changes``); ``model_of``: use that
+    row's model instead of training one; ``options``: odometer options beyond the model file;
+    ``note``: where odolab's row is not the paper's exactly."""
+
+    row: int
+    paper: Paper
+    odometer: Literal["robust-vo", "deepvo", "ground-truth"] = "robust-vo"
+    switches: Switches | None = None
+    changes: tuple[str, ...] = ()
+    wide: bool = False
+    model_of: int | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+    note: str = ""
+
+    def setting(self) -> str:
+        """The row's setting in words: ``DeepVO``, the switches, ``Ground truth``."""
+        if self.odometer == "deepvo":
+            return "DeepVO"
+        if self.switches is None:
+            return "Ground truth"
+        extra = " (rnd10)" if self.options.get("mc_samples") == 10 else ""
+        return self.switches.text() + extra + (" (2x wide)" if self.wide else "")
+
+
+@dataclass(frozen=True)
+class Scale:
+    """One scale's parameters (see ``studies/ablations.toml``). ``data_root`` "" is ``<out>/data``;
+    ``device`` "" is a GPU where the unit sees one, else the CPU; ``train_threads`` 0 leaves torch's
+    thread count as it is."""
+
+    rows: tuple[int, ...]
+    robust_vo_recipe: str
+    robust_vo_changes: tuple[str, ...]
+    sepact_stages: tuple[dict[str, Any], ...]
+    single_stages: tuple[dict[str, Any], ...]
+    wide_changes: tuple[str, ...]
+    deepvo_recipe: str
+    deepvo_changes: tuple[str, ...]
+    data_root: str
+    device: str
+    train_threads: int
+    seeds: tuple[int, ...]
+    episodes: int
+    max_steps: int
+    nav_seeds: tuple[int, ...]
+    nav_episodes: int
+    nav_max_steps: int
+
+
+@dataclass(frozen=True)
+class Definition:
+    """The study: its framework definition (name, title, scales as plain TOML), the changes every
+    robust-VO row starts from (``blank``), the rows by number and each scale's parameters."""
+
+    study: framework.StudyConfig
+    blank: tuple[str, ...]
+    rows: dict[int, Row]
+    scales: dict[str, Scale]
+
+
+def load_definition(path: Path = DEFINITION) -> Definition:
+    """Read ``studies/ablations.toml``: ``title``, ``blank``, ``[scales.*]`` and ``[[rows]]``.
+    :class:`odolab.config.ConfigError` names the file and the field. (The rows are the same at every
+    scale, so they sit beside the scales rather than in them, where ``framework.load_study`` reads.)"""
+    from odolab.config import ConfigError, build, read_toml
+
+    doc = read_toml(path)
+    fields = {"title", "blank", "scales", "rows"}
+    if set(doc) != fields:
+        raise ConfigError(f"{path}: expected the fields {', '.join(sorted(fields))}, got {', '.join(sorted(doc))}")
+    raw = doc["scales"]
+    if not isinstance(raw, dict) or sorted(raw) != sorted(framework.SCALES):
+        raise ConfigError(f"{path}: scales: expected the tables {', '.join(framework.SCALES)}")
+    scales = {s: build(Scale, raw[s], f"{path}: scales.{s}") for s in framework.SCALES}
+    if not isinstance(doc["rows"], list) or not doc["rows"]:
+        raise ConfigError(f"{path}: rows: expected [[rows]] tables")
+    rows = [build(Row, r, f"{path}: rows[{k}]") for k, r in enumerate(doc["rows"])]
+    by_number = {r.row: r for r in rows}
+    if len(by_number) != len(rows):
+        raise ConfigError(f"{path}: rows: two rows of one number")
+    for r in rows:
+        if (r.odometer == "robust-vo") != (r.switches is not None):
+            raise ConfigError(f"{path}: row {r.row}: switches are for robust-VO rows, and every one has them")
+        if r.model_of is not None and (r.model_of not in by_number or by_number[r.model_of].model_of is not None):
+            raise ConfigError(f"{path}: row {r.row}: model_of {r.model_of} is no row that trains a model")
+    for s, scale in scales.items():
+        unknown = sorted(set(scale.rows) - set(by_number))
+        if unknown:
+            raise ConfigError(f"{path}: scales.{s}.rows: no such row {unknown[0]}")
+    header = build(Header, {"title": doc["title"], "blank": doc["blank"]}, str(path))
+    return Definition(framework.StudyConfig(NAME, header.title, raw), header.blank, by_number, scales)
+
+
+@dataclass(frozen=True)
+class Header:
+    """The study's one-line title and the changes every robust-VO row starts from."""
+
+    title: str
+    blank: tuple[str, ...]
+
+
+# ---------------------------------------------------------------------------------------- recipes
+
+
+def model_row(row: Row) -> int | None:
+    """The row whose model ``row`` runs (its own, or ``model_of``); None for ground truth."""
+    if row.odometer == "ground-truth":
+        return None
+    return row.row if row.model_of is None else row.model_of
+
+
+def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -> TrainConfig | DeepVOTraining:
+    """The training recipe of row ``number`` at ``scale`` (a robust-VO ``TrainConfig`` or DeepVO's
+    ``DeepVOTraining``), its data under ``data_root``: the scale's recipe read as a TOML document
+    (for the robust VO with the scale's stage schedule in place of its stages), with the scale's,
+    the blank row's and the row's changes applied in order, then built and checked."""
+    from odolab.config import build, change_document, read_toml
+
+    row = definition.rows[number]
+    if row.odometer == "deepvo":
+        from baselines.deepvo.config import DeepVOTraining
+
+        path, cls, changes = scale.deepvo_recipe, DeepVOTraining, (*scale.deepvo_changes, *row.changes)
+        doc = read_toml(ROOT / path)
+    else:
+        from odolab.robust_vo.config import TrainConfig
+
+        assert row.switches is not None
+        path, cls = scale.robust_vo_recipe, TrainConfig
+        changes = (*scale.robust_vo_changes, *definition.blank, *(scale.wide_changes if row.wide else ()), *row.changes)
+        doc = read_toml(ROOT / path)
+        doc["stages"] = list(scale.sepact_stages if row.switches.actinfo == "SepAct" else scale.single_stages)
+    doc["data_root"] = str(data_root)
+    return build(cls, change_document(doc, changes), f"{path} (row {number})")
+
+
+def recipe_identity(cfg: TrainConfig | DeepVOTraining) -> dict[str, Any]:
+    """What a model depends on: the whole recipe but where its data live and how it computes."""
+    doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    del doc["data_root"], doc["compute"]
+    return doc
+
+
+def data_root(scale: Scale, out: Path) -> Path:
+    """The folder of the scale's training data: its ``data_root``, or ``<out>/data`` for ""."""
+    return out / "data" if scale.data_root == "" else Path(scale.data_root)
+
+
+# ------------------------------------------------------------------------------------------ units
+
+
+@contextlib.contextmanager
+def torch_threads(threads: int) -> Iterator[None]:
+    """torch on ``threads`` threads for the block (0: as it is), restored after: two threads beside
+    other busy processes on two cores wait on each other far more than one works alone."""
+    import torch
+
+    before = torch.get_num_threads()
+    if threads:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def train_row(
+    key: dict[str, Any], *, out: Path, recipes: dict[int, TrainConfig | DeepVOTraining], device: str, threads: int
+) -> dict[str, Any]:
+    """Train (or resume, or only export) row ``key["row"]``'s model with its family's own trainer:
+    work states under ``<out>/work/<row>/<key digest>``, curves under ``<out>/training/<row>``, the
+    model at ``<out>/models/<row>/model.pt``; returns :func:`model_summary`."""
+    from odolab.learning import pick_device
+    from odolab.parallel import SERIAL
+
+    number = key["row"]
+    cfg = recipes[number]
+    if recipe_identity(cfg) != key["recipe"]:
+        raise ValueError(f"row {number}: the recipe handed over is not the unit's")
+    if key["family"] == "deepvo":
+        from baselines.deepvo.train import run
+    else:
+        from odolab.robust_vo.train import run
+    export = out / model_file(number)
+    with torch_threads(threads):
+        done = run(
+            cfg,
+            work=out / "work" / str(number) / framework.Unit("", key).digest,
+            reports=out / "training" / str(number),
+            export=export,
+            device=pick_device(device or None),
+            hours=None,
+            execution=SERIAL,
+        )
+    if not done:
+        raise RuntimeError(f"row {number}: training stopped before its last epoch")
+    return model_summary(export, key["family"], out)
+
+
+def model_file(number: int) -> str:
+    """Where row ``number``'s model lives, relative to the study's folder."""
+    return f"models/{number}/model.pt"
+
+
+def model_summary(path: Path, family: str, out: Path) -> dict[str, Any]:
+    """A model file's SHA-256, parameters (all networks) and networks, the pairs its training saw
+    (a DeepVO window of n frames counts n - 1) and the hours it took."""
+    if family == "deepvo":
+        from baselines.deepvo.odometer import load_model
+
+        _, net, info = load_model(path)
+        nets = [net]
+        training = info["training"]
+        pairs = int(training.get("windows_seen", 0)) * (int(info["recipe"]["window"]) - 1)
+        hours = float(training.get("hours", 0.0))
+    else:
+        from odolab.robust_vo.checkpoint import load_model
+
+        _, modules, info = load_model(path)
+        nets = list(modules.values())
+        stages = info["training"].get("stages", {}).values()
+        pairs = int(sum(s.get("pairs_seen", 0) for s in stages))
+        hours = float(sum(s.get("hours", 0.0) for s in stages))
+    return {
+        "model": path.relative_to(out).as_posix(),
+        "sha256": info["sha256"],
+        "parameters": int(sum(p.numel() for n in nets for p in n.parameters())),
+        "networks": len(nets),
+        "pairs_seen": pairs,
+        "training_hours": hours,
+    }
+
+
+def valid_model(value: Any, *, out: Path, check_file: bool) -> bool:
+    """Whether a saved training result has :func:`model_summary`'s shape and, with ``check_file``,
+    its model file is still there with that SHA-256 (otherwise it is exported or trained again)."""
+    ok = (
+        isinstance(value, dict)
+        and isinstance(value.get("sha256"), str)
+        and isinstance(value.get("model"), str)
+        and all(isinstance(value.get(k), int) for k in ("parameters", "networks", "pairs_seen"))
+        and _number(value.get("training_hours"))
+    )
+    if not ok or not check_file:
+        return ok
+    path = out / value["model"]
+    return path.is_file() and not path.is_symlink() and _sha256(path) == value["sha256"]
+
+
+def _sha256(path: Path) -> str:
+    """A file's SHA-256 (as the odometers' ``identity_digest``)."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _number(v: Any) -> bool:
+    """An int or float that is no bool and no NaN."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+
+
+def _odometer(key: dict[str, Any], out: Path) -> tuple[str, dict[str, Any]]:
+    """The odometer of an error or navigation unit and its options (the model file's path added),
+    refused when the model file is not the one the key names."""
+    from odolab.api import load_odometer
+
+    options = dict(key["options"])
+    if key["model"]:
+        options["checkpoint"] = str(out / key["model"])
+    digest = load_odometer(key["odometer"], **options).identity_digest
+    if digest != key["sha256"]:
+        raise ValueError(f"row {key['row']}: {key['model']} is not the model this unit was made for; run again")
+    return key["odometer"], options
+
+
+def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
+    """One row's odometer on one seed's test episodes: mean absolute error of (dx, dz, dyaw) x 1e-2
+    over every step (a failed step scored with the action prior that replaced it), steps, failure share."""
+    from odolab.api import SERIAL, ComparisonConfig, run_comparison
+    from odolab.episodes import NoiseConfig
+
+    name, options = _odometer(key, out)
+    result = run_comparison(
+        ComparisonConfig(
+            odometers=[name],
+            options={name: options},
+            episodes=key["episodes"],
+            max_steps=key["max_steps"],
+            seed=key["seed"],
+            split="test",
+            noise=NoiseConfig(**key["noise"]),
+            execution=SERIAL,
+        )
+    )
+    (row,) = [r for r in result.rows if r.odometer == name]
+    return {
+        **{c: float(getattr(row, c)) for c in COMPONENTS},
+        "steps": int(row.steps),
+        "failure_share": float(row.failure_share),
+    }
+
+
+def valid_errors(value: Any) -> bool:
+    """Whether a saved error result has :func:`step_errors`' shape."""
+    return (
+        isinstance(value, dict)
+        and all(_number(value.get(c)) for c in (*COMPONENTS, "failure_share"))
+        and isinstance(value.get("steps"), int)
+    )
+
+
+def navigate_episode(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
+    """One row's odometer as the agent's only sense of its motion in one test episode (the default
+    policy, the challenge's noise): success (0/1), SPL, SoftSPL, d_G (geodesic distance to the goal
+    at the end, m), steps, collisions and failed steps."""
+    from odolab.api import load_odometer
+    from odolab.episodes import EpisodeSpec, NoiseConfig
+    from odolab.navigation.agent import PolicyConfig
+    from odolab.navigation.episode import navigate
+
+    name, options = _odometer(key, out)
+    spec = EpisodeSpec(
+        split="test",
+        index=key["episode"],
+        seed=key["seed"],
+        max_steps=key["max_steps"],
+        noise=NoiseConfig(**key["noise"]),
+    )
+    run = navigate(spec, load_odometer(name, **options), PolicyConfig(**key["policy"]))
+    o = run.outcome
+    return {
+        "success": o.success,
+        "spl": o.spl,
+        "soft_spl": o.soft_spl,
+        "d_g": o.d_end,
+        "steps": o.steps,
+        "collisions": o.collisions,
+        "failed_steps": run.failed_steps,
+    }
+
+
+def valid_navigation(value: Any) -> bool:
+    """Whether a saved navigation result has :func:`navigate_episode`'s shape."""
+    return (
+        isinstance(value, dict)
+        and value.get("success") in (0, 1)
+        and all(_number(value.get(k)) for k in ("spl", "soft_spl", "d_g"))
+        and all(isinstance(value.get(k), int) for k in ("steps", "collisions", "failed_steps"))
+    )
+
+
+def train_units(
+    definition: Definition, scale: Scale, recipes: dict[int, TrainConfig | DeepVOTraining]
+) -> list[framework.Unit]:
+    """One unit per model the scale's rows run; its key is the whole recipe (data location and
+    compute settings aside)."""
+    return [
+        framework.Unit(
+            f"train row {n}",
+            {"row": n, "family": definition.rows[n].odometer, "recipe": recipe_identity(cfg)},
+        )
+        for n, cfg in recipes.items()
+    ]
+
+
+def odometer_key(row: Row, models: dict[str, Any]) -> dict[str, Any] | None:
+    """What a row's evaluations depend on: its odometer, options and model (file and SHA-256); None
+    while the model it runs has no training result."""
+    number = model_row(row)
+    if number is None:
+        return {"row": row.row, "odometer": row.odometer, "options": row.options, "model": "", "sha256": None}
+    trained = models.get(f"train row {number}")
+    if trained is None:
+        return None
+    return {
+        "row": row.row,
+        "odometer": row.odometer,
+        "options": row.options,
+        "model": trained["model"],
+        "sha256": trained["sha256"],
+    }
+
+
+def evaluation_units(
+    definition: Definition, scale: Scale, models: dict[str, Any]
+) -> tuple[list[framework.Unit], list[framework.Unit], list[str]]:
+    """The error units (row x seed) and navigation units (row x seed x episode) of every row whose
+    model is trained, and the rows left out for want of one."""
+    from odolab.episodes import NoiseConfig
+    from odolab.navigation.agent import PolicyConfig
+
+    noise = dataclasses.asdict(NoiseConfig())
+    policy = dataclasses.asdict(PolicyConfig())
+    errors, navigation, untrained = [], [], []
+    for number in scale.rows:
+        odometer = odometer_key(definition.rows[number], models)
+        if odometer is None:
+            untrained.append(f"row {number}")
+            continue
+        for seed in scale.seeds:
+            key = {**odometer, "seed": seed, "episodes": scale.episodes, "max_steps": scale.max_steps, "noise": noise}
+            errors.append(framework.Unit(f"errors row {number} seed {seed}", key))
+        for seed in scale.nav_seeds:
+            for episode in range(scale.nav_episodes):
+                key = {
+                    **odometer,
+                    "seed": seed,
+                    "episode": episode,
+                    "max_steps": scale.nav_max_steps,
+                    "noise": noise,
+                    "policy": policy,
+                }
+                navigation.append(framework.Unit(f"navigate row {number} seed {seed} episode {episode}", key))
+    return errors, navigation, untrained
+
+
+# ------------------------------------------------------------------------------------------ table
+
+
+COLUMNS = [
+    "row", "setting", "params_M", "paper_params_M", "S", "paper_S", "SPL", "paper_SPL", "d_G", "paper_d_G",
+    "SoftSPL", "paper_SoftSPL", "dx", "dz", "dyaw", "paper_error", "S_vs_18", "error_vs_18", "nav_episodes",
+    "pairs_seen", "train_h",
+]  # fmt: skip
+
+
+def _params_text(trained: dict[str, Any] | None) -> str:
+    """``3x0.58`` (networks x M each) or ``0.58``, as the paper writes #param."""
+    if not trained:
+        return ""
+    each = trained["parameters"] / trained["networks"] / 1e6
+    return f"{trained['networks']}x{each:.2f}" if trained["networks"] > 1 else f"{each:.2f}"
+
+
+def table(
+    definition: Definition, scale: Scale, models: dict[str, Any], errors: dict[str, Any], navigation: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """One line per row of the scale: our numbers (errors: mean over seeds; navigation: mean over
+    every seed's episodes, in % and m as the paper), the paper's beside them, and whether the row's
+    order against row 18 agrees with the paper's."""
+    lines = []
+    for number in scale.rows:
+        row = definition.rows[number]
+        trained = models.get(f"train row {model_row(row)}")
+        got = [errors[label] for s in scale.seeds if (label := f"errors row {number} seed {s}") in errors]
+        nav = [
+            navigation[label]
+            for s in scale.nav_seeds
+            for e in range(scale.nav_episodes)
+            if (label := f"navigate row {number} seed {s} episode {e}") in navigation
+        ]
+        line: dict[str, Any] = {
+            "row": number,
+            "setting": row.setting(),
+            "params_M": "" if model_row(row) is None else _params_text(trained),
+            "paper_params_M": row.paper.params,
+            "paper_S": row.paper.success,
+            "paper_SPL": row.paper.spl,
+            "paper_d_G": row.paper.d_g,
+            "paper_SoftSPL": row.paper.soft_spl,
+            "paper_error": f"({', '.join(f'{v:.2f}' for v in row.paper.error)})" if row.paper.error else "",
+            "paper_error_mean": float(np.mean(row.paper.error)) if row.paper.error else float("nan"),
+            "nav_episodes": len(nav),
+            "pairs_seen": trained["pairs_seen"] if trained and row.model_of is None else "",
+            "train_h": trained["training_hours"] if trained and row.model_of is None else "",
+        }
+        for c in COMPONENTS:
+            line[c] = float(np.mean([g[c] for g in got])) if got else float("nan")
+        for column, k, scale_by in (("S", "success", 100), ("SPL", "spl", 100), ("SoftSPL", "soft_spl", 100)):
+            line[column] = float(np.mean([n[k] for n in nav])) * scale_by if nav else float("nan")
+        line["d_G"] = float(np.mean([n["d_g"] for n in nav])) if nav else float("nan")
+        lines.append(line)
+    reference = next((line for line in lines if line["row"] == REFERENCE_ROW), None)
+    paper_reference = definition.rows[REFERENCE_ROW].paper
+    for line in lines:
+        row = definition.rows[line["row"]]
+        line["S_vs_18"] = _order(line["S"], reference and reference["S"], row.paper.success, paper_reference.success)
+        line["error_vs_18"] = _order(
+            -_mean_error(line),
+            reference and -_mean_error(reference),
+            -line["paper_error_mean"] if row.paper.error else None,
+            -float(np.mean(paper_reference.error)),
+        )
+        if line["row"] == REFERENCE_ROW:
+            line["S_vs_18"] = line["error_vs_18"] = ""
+    return lines
+
+
+def _mean_error(line: dict[str, Any]) -> float:
+    """The mean of a line's three error components (x 1e-2)."""
+    return float(np.mean([line[c] for c in COMPONENTS]))
+
+
+def _order(ours: float, ours_ref: float | None, paper: float | None, paper_ref: float) -> str:
+    """Whether ours is above, below or level with row 18 as the paper's is (higher is better):
+    ``agrees``, ``differs``, ``tie`` (ours level with row 18's, the paper's not), or "" without numbers."""
+    if paper is None or ours_ref is None or not (math.isfinite(ours) and math.isfinite(ours_ref)):
+        return ""
+    mine, theirs = np.sign(ours - ours_ref), np.sign(paper - paper_ref)
+    if mine == 0 and theirs != 0:
+        return "tie"
+    return "agrees" if mine == theirs else "differs"
+
+
+def findings(lines: list[dict[str, Any]]) -> list[str]:
+    """Per measure, which rows come on the same side of row 18 as in the paper."""
+    out = []
+    for column, measure in (("S_vs_18", "Success"), ("error_vs_18", "Per-step error (mean of dx, dz, dyaw)")):
+        said = {v: [str(line["row"]) for line in lines if line[column] == v] for v in ("agrees", "differs", "tie")}
+        judged = sum(map(len, said.values()))
+        if not judged:
+            out.append(f"{measure}: no row to set against row 18 (row 18 or the numbers are missing)")
+            continue
+        out.append(
+            f"{measure} against row 18: ours on the paper's side in {len(said['agrees'])} of {judged} rows"
+            f" ({', '.join(said['agrees']) or 'none'}); the other side in {', '.join(said['differs']) or 'none'}; "
+            f"level with row 18 in {', '.join(said['tie']) or 'none'}"
+        )
+    return out
+
+
+def draw(lines: list[dict[str, Any]], path: Path) -> None:
+    """Navigation success against per-step error, one point per row, ours and the paper's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8.5, 6))
+    for who, color, marker in (("ours", "tab:blue", "o"), ("paper", "tab:orange", "s")):
+        points = []
+        for line in lines:
+            x, y = (_mean_error(line), line["S"]) if who == "ours" else (line["paper_error_mean"], line["paper_S"])
+            if math.isfinite(x) and math.isfinite(y):
+                points.append((x, y, line["row"]))
+        if not points:
+            continue
+        xs, ys, _ = zip(*points)
+        ax.scatter(xs, ys, color=color, marker=marker, label=f"{who} (row number beside each point)")
+        for x, y, n in points:
+            ax.annotate(str(n), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=8, color=color)
+    ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
+    ax.set_ylabel("navigation success (%)")
+    ax.set_title("Navigation success against per-step VO error, per row of Table 2")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# -------------------------------------------------------------------------------------------- main
+
+
+def check_folders(out: Path) -> None:
+    """Refuse an ``out`` whose model, work, training or data folder is a link or a file."""
+    from odolab.cli import UsageError
+    from odolab.io.owned import UnsafeOutputError, check_owned_folder
+
+    for name in FOLDERS:
+        try:
+            check_owned_folder(out, name)
+        except UnsafeOutputError as exc:
+            raise UsageError(f"--out {out}: {exc}") from None
+
+
+def make_data(recipes: dict[int, TrainConfig | DeepVOTraining], execution: Execution) -> None:
+    """Every data set the recipes train on, made here (once each) before the training units start,
+    so that no two units make the same folder at once."""
+    from odolab.training_data import make_training_data
+
+    made = set()
+    for cfg in recipes.values():
+        for data in (cfg.train_data, cfg.val_data):
+            folder = cfg.data_folder(data)
+            if folder not in made:
+                make_training_data(data, folder, execution=execution)
+                made.add(folder)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.cli import UsageError, execution_of
+    from odolab.config import ConfigError
+
+    definition = load_definition()
+    ap = framework.study_arguments(f"python -m studies.{NAME}", definition.study)
+    args = ap.parse_args(argv)
+    scale = definition.scales[args.scale]
+    out = args.out or Path("reports") / NAME
+    framework.check_options(args, out, definition.study)
+    check_folders(out)
+    out = out.resolve()  # the units run elsewhere (Ray workers): every path they get is absolute
+    try:
+        wanted = sorted({n for r in scale.rows if (n := model_row(definition.rows[r])) is not None})
+        recipes = {n: recipe(definition, scale, n, data_root(scale, out)) for n in wanted}
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None
+    execution = execution_of(args)
+    store = framework.ResultStore(out / "results")
+    if not args.redraw:
+        make_data(recipes, execution)
+    trained = framework.run_units(
+        functools.partial(train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads),
+        train_units(definition, scale, recipes),
+        store,
+        redraw=args.redraw,
+        execution=execution,
+        valid=functools.partial(valid_model, out=out, check_file=not args.redraw),
+    )
+    error_todo, nav_todo, untrained = evaluation_units(definition, scale, trained.results)
+    errors = framework.run_units(
+        functools.partial(step_errors, out=out),
+        error_todo,
+        store,
+        redraw=args.redraw,
+        execution=execution,
+        valid=valid_errors,
+    )
+    navigation = framework.run_units(
+        functools.partial(navigate_episode, out=out),
+        nav_todo,
+        store,
+        redraw=args.redraw,
+        execution=execution,
+        valid=valid_navigation,
+    )
+    outcomes = (trained, errors, navigation)
+    if not any(o.results for o in outcomes):
+        raise UsageError(
+            f"--redraw: no saved results in {out / 'results'} for --scale {args.scale}; run without --redraw"
+        )
+    lines = table(definition, scale, trained.results, errors.results, navigation.results)
+    missing = [*untrained, *(label for o in outcomes for label in o.missing)]
+    report = framework.Report(
+        title=definition.study.title,
+        intro=[
+            " ".join(__doc__.split("\n\n")[2].split()).replace("``", ""),
+            f"Scale {args.scale}: rows {', '.join(map(str, scale.rows))}; per-step error on "
+            f"{scale.episodes} test episodes of at most {scale.max_steps} steps for each of the seeds "
+            f"{', '.join(map(str, scale.seeds))}; navigation on {scale.nav_episodes} test episodes of at most "
+            f"{scale.nav_max_steps} steps for each of the seeds {', '.join(map(str, scale.nav_seeds))}. "
+            "Row 19 is left out: it fine-tunes the paper's learned navigation policy to the VO, and odolab's "
+            "policy is a classical map-and-plan one with nothing to tune. S, SPL, SoftSPL in %, d_G in m, "
+            "errors x 1e-2; S_vs_18 and error_vs_18 say whether the row lies on the same side of row 18 as "
+            "in the paper." + (f" Missing (not computed): {', '.join(missing)}." if missing else ""),
+            *(f"Row {r}: {definition.rows[r].note}" for r in scale.rows if definition.rows[r].note),
+        ],
+        columns=COLUMNS,
+        rows=lines,
+        figures={
+            "success-vs-error.png": (
+                "Navigation success (%) against per-step error (mean of the three components, x 1e-2), "
+                + "one point per row, ours and the paper's",
+                lambda p: draw(lines, p),
+            )
+        },
+        findings=findings(lines),
+        command=framework.command_line(f"python -m studies.{NAME}", argv),
+        machine=framework.machine(),
+        cpu_hours=sum(o.seconds for o in outcomes) / 3600,
+    )
+    framework.write_report(report, out, owner=f"study {NAME}")
+    print(framework.table_md(["row", "setting", "S", "paper_S", "SPL", "d_G", "dx", "dz", "dyaw", "S_vs_18"], lines))
+    computed = sum(len(o.computed) for o in outcomes)
+    print(f"{computed} units computed ({', '.join(f'{len(o.computed)} {n}' for o, n in zip(outcomes, PHASES))})")
+    print(f"{len(lines)} rows -> {out}")
+    if missing:
+        print(f"note: no saved result (left out of the table): {', '.join(missing)}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    from odolab.cli import run_cli
+
+    raise SystemExit(run_cli(main, f"python -m studies.{NAME}"))

@@ -1,0 +1,147 @@
+"""studies.ablations (the paper's Table 2): each row's changes give the recipe of its switches, and
+the ci scale trains, evaluates and navigates every configured row, reuses its saved results and
+redraws from them alone."""
+
+from __future__ import annotations
+
+import csv
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from odolab.config import ConfigError
+from studies import ablations
+
+DEFINITION = ablations.load_definition()
+
+
+def _recipes(scale: str, root: Path) -> dict[int, object]:
+    """Every row's recipe at ``scale`` (a row without a model of its own: the model it runs)."""
+    s = DEFINITION.scales[scale]
+    return {
+        n: ablations.recipe(DEFINITION, s, m, root)
+        for n, row in DEFINITION.rows.items()
+        if (m := ablations.model_row(row)) is not None
+    }
+
+
+@pytest.mark.parametrize("scale", ["ci", "cpu", "paper"])
+def test_each_rows_changes_give_the_recipe_of_its_switches(scale: str, tmp_path: Path):
+    from baselines.deepvo.config import DeepVOTraining
+    from odolab.robust_vo.config import TrainConfig
+
+    recipes = _recipes(scale, tmp_path)
+    assert 19 not in DEFINITION.rows and {0, 20} <= set(DEFINITION.rows)
+    assert isinstance(recipes[0], DeepVOTraining) and 20 not in recipes
+    for n, cfg in recipes.items():
+        switches = DEFINITION.rows[n].switches
+        if switches is None:
+            continue
+        assert isinstance(cfg, TrainConfig)
+        m = cfg.model
+        assert m.visual == ablations.VISUAL[switches.visual], n
+        assert m.dd_bins == switches.dd and m.sproj == switches.sproj, n
+        assert (m.dropout > 0) == switches.dropout, n
+        assert m.kind == ablations.ACTINFO[switches.actinfo], n
+        assert any(s.data_aug for s in cfg.stages) == switches.data_aug, n
+        assert any(s.geoinv for s in cfg.stages) == switches.geoinv, n
+        assert (m.warp, m.mirror_turns, m.depth_residual) == ("none", False, 0.0), n  # the paper's input
+        assert cfg.data_root == str(tmp_path)
+    one = recipes[1].model
+    assert (one.visual, one.dd_bins, one.sproj, one.kind) == ("rgb", 0, False, "unified")  # RGB only
+    assert recipes[17].model.dd_bins == 0 and recipes[17].model.kind == "sepact"  # SepAct without DD
+    assert [s.name for s in recipes[17].stages] == ["forward", "turns"]
+    assert recipes[18].model.dd_bins == 10 and recipes[18].model.sproj
+    assert recipes[6].model.base_planes == recipes[7].model.base_planes == 2 * recipes[4].model.base_planes
+    assert recipes[5] == recipes[4] and DEFINITION.rows[5].options == {"mc_samples": 10}
+
+
+def test_the_cpu_scale_keeps_to_its_budget(tmp_path: Path):
+    """At most 20 CPU-hours even at 20 pairs/s: the training passes (a GeoInv pair counts twice)
+    the wide rows' extra (0.4 hours) and the evaluations' estimate in studies/ablations.toml (6.3
+    hours) fit."""
+    passes = 0
+    for n, cfg in _recipes("cpu", tmp_path).items():
+        if n != ablations.model_row(DEFINITION.rows[n]):
+            continue
+        if n == 0:
+            passes += cfg.epochs * cfg.windows_per_epoch * (cfg.window - 1)
+        else:
+            passes += sum(s.epochs * s.pairs_per_epoch * (2 if s.geoinv else 1) for s in cfg.stages)
+    assert passes / 20 / 3600 + 0.4 + 6.3 <= 20
+    scale = DEFINITION.scales["cpu"]
+    assert len(scale.seeds) == 3 and scale.episodes == 20 and scale.nav_episodes * len(scale.nav_seeds) >= 50
+
+
+def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
+    text = ablations.DEFINITION.read_text(encoding="utf-8").replace("rows = [0, 1, 4,", "rows = [0, 99, 4,", 1)
+    (tmp_path / "a.toml").write_text(text)
+    with pytest.raises(ConfigError, match=r"a.toml: scales.ci.rows: no such row 99"):
+        ablations.load_definition(tmp_path / "a.toml")
+
+
+@pytest.fixture(scope="module")
+def ci_run(tmp_path_factory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("ablations") / "out"
+    assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+    return out, (out / "table.csv").read_text()
+
+
+def _units(scale: ablations.Scale) -> int:
+    models = {ablations.model_row(DEFINITION.rows[r]) for r in scale.rows} - {None}
+    per_row = len(scale.seeds) + len(scale.nav_seeds) * scale.nav_episodes
+    return len(models) + len(scale.rows) * per_row
+
+
+def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
+    out, table = ci_run
+    assert {"index.html", "table.csv", "table.md", "success-vs-error.png", "manifest.txt", "results"} <= {
+        p.name for p in out.iterdir()
+    }
+    scale = DEFINITION.scales["ci"]
+    rows = list(csv.DictReader(table.splitlines()))
+    assert [int(r["row"]) for r in rows] == list(scale.rows)
+    for r in rows:
+        for column in ("S", "SPL", "d_G", "SoftSPL", "dx", "dz", "dyaw"):
+            assert math.isfinite(float(r[column])), (r["row"], column)
+        assert float(r["paper_S"]) == DEFINITION.rows[int(r["row"])].paper.success
+    by_row = {int(r["row"]): r for r in rows}
+    assert by_row[20]["dx"] == "0.0" and by_row[18]["S_vs_18"] == ""
+    assert by_row[18]["params_M"].startswith("3x") and by_row[18]["paper_error"] == "(1.10, 0.84, 0.68)"
+    assert by_row[5]["params_M"] == by_row[4]["params_M"]  # row 4's model, run with 10 dropout passes
+    for n in {ablations.model_row(DEFINITION.rows[r]) for r in scale.rows} - {None}:
+        assert (out / ablations.model_file(n)).is_file()
+    assert len(list((out / "results").glob("*.json"))) == _units(scale)
+    html = (out / "index.html").read_text()
+    assert "Row 19 is left out" in html and "Against the paper" in html
+
+
+def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
+    out, table = ci_run
+    models = {p: p.stat().st_mtime_ns for p in (out / "models").rglob("model.pt")}
+    assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+    assert "0 units computed" in capsys.readouterr().out
+    assert {p: p.stat().st_mtime_ns for p in (out / "models").rglob("model.pt")} == models
+    assert (out / "table.csv").read_text() == table
+
+
+def test_redraw_needs_only_the_saved_results(ci_run, tmp_path: Path, capsys):
+    out, table = ci_run
+    copy = tmp_path / "copy"
+    shutil.copytree(out / "results", copy / "results")
+    shutil.copy(out / "manifest.txt", copy / "manifest.txt")  # no models, data or work folders
+    assert ablations.main(["--scale", "ci", "--out", str(copy), "--redraw", "--quiet"]) == 0
+    assert "0 units computed" in capsys.readouterr().out
+    assert (copy / "table.csv").read_text() == table and (copy / "success-vs-error.png").is_file()
+
+
+def test_a_changed_model_file_is_not_taken_for_its_result(ci_run, tmp_path: Path):
+    out, _ = ci_run
+    value = ablations.model_summary(out / ablations.model_file(18), "robust-vo", out)
+    assert ablations.valid_model(value, out=out, check_file=True)
+    shutil.copytree(out / "models", tmp_path / "models")
+    (tmp_path / ablations.model_file(18)).write_bytes(b"other weights")
+    assert not ablations.valid_model(value, out=tmp_path, check_file=True)
+    assert ablations.valid_model(value, out=tmp_path, check_file=False)  # --redraw reads numbers only
