@@ -30,6 +30,7 @@ from torch import nn
 from odolab.api import (
     DEFAULT_CACHE,
     MOTION_ACTIONS,
+    SERIAL,
     Action,
     EpisodeCache,
     Estimate,
@@ -200,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     specs = episode_specs("train", args.episodes, seed=args.seed, max_steps=args.max_steps)
     cache = EpisodeCache(args.cache)
-    generate_episodes(specs, cache, parallel=False, progress=False)
+    generate_episodes(specs, cache, execution=SERIAL)
     dataset = PairDataset(specs, cache)
     cfg = TinyConfig()
     net = train(dataset, cfg, args.iterations, seed=args.seed)

@@ -25,6 +25,7 @@ from odolab.odometer import (
     split_odometer_names,
 )
 from odolab.options import whole_number
+from odolab.parallel import SERIAL, Execution
 from odolab.threads import check_threads
 from odolab.types import (
     FORWARD_STEP,
@@ -44,6 +45,7 @@ __all__ = [
     "DEFAULT_CACHE",
     "FORWARD_STEP",
     "MOTION_ACTIONS",
+    "SERIAL",
     "SPLITS",
     "TURN_ANGLE",
     "Action",
@@ -59,6 +61,8 @@ __all__ = [
     "Estimate",
     # evaluating trajectories (the library behind python -m odolab.evaluate)
     "Evaluation",
+    # where fan-out work runs (a local Ray instance, a cluster, or serially here)
+    "Execution",
     "Frame",
     "Intrinsics",
     "NoiseConfig",

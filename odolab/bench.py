@@ -100,11 +100,11 @@ def bench_odometers(
     from odolab import runner, summary
     from odolab.episodes import EpisodeSpec, load_episodes
     from odolab.odometer import load_odometer
+    from odolab.parallel import SERIAL
 
     eps = load_episodes(
         [EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps) for i in range(episodes)],
-        parallel=False,
-        progress=False,
+        execution=SERIAL,
     )
     out = [] if rows is None else rows
     for name in names:

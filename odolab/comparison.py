@@ -33,6 +33,7 @@ from odolab.odometer import (
     unknown_odometer,
 )
 from odolab.options import OptionError, check_options
+from odolab.parallel import Execution
 from odolab.report import FloorPlan
 from odolab.runner import RunObserver, SequenceResult
 from odolab.sim.scenes import SPLITS
@@ -68,8 +69,8 @@ class ComparisonConfig:
     episode cache folder, or None to keep episodes in memory only. ``tum``: a TUM RGB-D folder
     instead of the simulator, its depth PNG values per metre ``tum_depth_scale`` (None: TUM's 5000)
     and its camera ``tum_intrinsics`` ``(fx, fy, cx, cy)`` (None: the TUM camera its name says).
-    ``ray_address`` / ``parallel``: how missing episodes are generated;
-    ``progress``: show progress bars while generating. ``command``: the command line that asked
+    ``execution``: where missing episodes are generated, and whether with progress bars
+    (:class:`~odolab.parallel.Execution`). ``command``: the command line that asked
     (its caller's words, recorded in the notes), or None."""
 
     odometers: list[str] | None = None
@@ -83,9 +84,7 @@ class ComparisonConfig:
     tum_depth_scale: float | None = None
     tum_intrinsics: tuple[float, float, float, float] | None = None
     cache: Path | None = DEFAULT_CACHE
-    ray_address: str | None = None
-    parallel: bool = True
-    progress: bool = True
+    execution: Execution = Execution()
     command: str | None = None
 
 
@@ -201,11 +200,10 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     are generated first and each is read back when its turn comes, so memory holds one."""
     from odolab.episodes import EpisodeCache, generate_episodes, load_episodes, stream_episodes
 
-    make = {"ray_address": config.ray_address, "parallel": config.parallel, "progress": config.progress}
     if config.cache is None:
-        return iter(load_episodes(specs, None, **make)), None
+        return iter(load_episodes(specs, None, execution=config.execution)), None
     cache = EpisodeCache(config.cache)
-    generate_episodes(specs, cache, **make)
+    generate_episodes(specs, cache, execution=config.execution)
     return stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
 
 
@@ -234,15 +232,22 @@ def _options_note(config: ComparisonConfig) -> list[str]:
 
 
 def odometer_configs(odometers: dict) -> dict[str, str]:
-    """Name -> settings (flattened ``key=value`` list) of each odometer exposing a dataclass ``config``."""
+    """Name -> settings (flattened ``key=value`` list, :func:`odolab.config.describe` of each nested
+    config) of each odometer exposing a dataclass ``config``."""
     import dataclasses
 
-    def flat(prefix: str, value) -> list[str]:
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            return [
-                item for f in dataclasses.fields(value) for item in flat(f"{prefix}{f.name}.", getattr(value, f.name))
-            ]
-        return [f"{prefix[:-1]}={value!r}"]
+    from odolab.config import describe
+
+    def flat(prefix: str, config) -> list[str]:
+        return [
+            item
+            for s in describe(config)
+            for item in (
+                flat(f"{prefix}{s.name}.", s.value)
+                if dataclasses.is_dataclass(s.value) and not isinstance(s.value, type)
+                else [f"{prefix}{s.name}={s.value!r}"]
+            )
+        ]
 
     return {
         name: ", ".join(flat("", odo.config))

@@ -32,6 +32,7 @@ contents, and every digest or identity made from them, do not depend on it.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import math
@@ -50,10 +51,12 @@ from odolab.errors import InputError
 from odolab.io.tomlfile import read_toml as read_toml_document
 
 __all__ = [
+    "ChangeError",
     "ConfigError",
     "Setting",
     "assign",
     "build",
+    "change_document",
     "check",
     "choices",
     "describe",
@@ -78,6 +81,11 @@ _RANGE, _OPEN, _DOC = "odolab.range", "odolab.open", "odolab.doc"
 
 class ConfigError(ValueError):
     """A config that cannot be used; the message names the file and field."""
+
+
+class ChangeError(ConfigError):
+    """A ``path=value`` change (:func:`change_document`) that cannot be applied; the message starts
+    with the item."""
 
 
 # ---------------------------------------------------------------------------------------- fields
@@ -364,9 +372,61 @@ def build(cls: type[T], doc: dict[str, Any], where: str) -> T:
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def from_toml(cls: type[T], path: str | os.PathLike) -> T:
-    """Read ``path`` and build ``cls`` from it (see :func:`build`)."""
-    return build(cls, read_toml(path), str(path))
+def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()) -> T:
+    """Read ``path``, apply ``changes`` (:func:`change_document`: ``model.width=341``) and build
+    ``cls`` from it (see :func:`build`)."""
+    return build(cls, change_document(read_toml(path), changes), str(path))
+
+
+def change_document(doc: dict[str, Any], items: Iterable[str]) -> dict[str, Any]:
+    """A copy of TOML document ``doc`` with ``path=value`` changes, each applied in turn.
+
+    ``path`` is dotted: a table's key (``seed``, ``model.width``; a missing key or table is added,
+    and :func:`build` then checks the name against the config); an array of tables is entered by
+    position from 0 or by an entry's ``name`` (``stages.0.lr``, ``stages.forward.lr``). ``value``
+    is a TOML value (``341``, ``1e-4``, ``true``, ``"text"``, ``[1, 2]``) or else plain text.
+    :class:`ChangeError` names the item for a malformed one or a path through a value that is not
+    a table (``seed.x``) or past an array's end."""
+    out = copy.deepcopy(doc)
+    short = reprlib.Repr()
+    short.maxstring = 60
+    for item in items:
+        path, sep, text = item.partition("=")
+        keys = [k.strip() for k in path.split(".")]
+        if not sep or not all(keys):
+            raise ChangeError(f"{short.repr(item)}: expected path=value, e.g. model.width=341 or stages.0.lr=1e-4")
+        node: Any = out
+        for depth, key in enumerate(keys[:-1]):
+            where = ".".join(keys[: depth + 1])
+            if isinstance(node, list):
+                node = _entry(node, key, where, short.repr(item))
+            elif isinstance(node, dict):
+                node = node.setdefault(key, {})
+            else:
+                raise ChangeError(f"{short.repr(item)}: {'.'.join(keys[:depth])} is a value, not a table")
+        last = keys[-1]
+        if isinstance(node, list):
+            raise ChangeError(f"{short.repr(item)}: {'.'.join(keys)} names an entry of a list, not a value in it")
+        if not isinstance(node, dict):
+            raise ChangeError(f"{short.repr(item)}: {'.'.join(keys[:-1])} is a value, not a table")
+        node[last] = _toml_value(text.strip())
+    return out
+
+
+def _entry(entries: list, key: str, where: str, shown: str) -> Any:
+    """The entry of an array of tables that ``key`` names: a position from 0, or an entry's ``name``."""
+    if key.isdigit() and key.isascii():
+        if int(key) < len(entries):
+            return entries[int(key)]
+        raise ChangeError(f"{shown}: {where}: the list has {len(entries)} entries (0 to {len(entries) - 1})")
+    named = [e for e in entries if isinstance(e, dict) and e.get("name") == key]
+    if len(named) == 1:
+        return named[0]
+    names = [str(e.get("name")) for e in entries if isinstance(e, dict) and "name" in e]
+    raise ChangeError(
+        f"{shown}: {where}: no entry named {key!r}; give a position from 0"
+        + (f" or one of {', '.join(names)}" if names else "")
+    )
 
 
 # -------------------------------------------------------------------------------- key=value changes

@@ -26,6 +26,7 @@ import numpy as np
 from odolab.environment import PointNavEnv, Sensors
 from odolab.geometry import camera_pose_from_agent
 from odolab.io.atomic import atomic_open
+from odolab.parallel import Execution, fan_out
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
 from odolab.sim.noise import ActuationNoise
@@ -373,14 +374,11 @@ def generate_episodes(
     specs: list[EpisodeSpec],
     cache: EpisodeCache | None = None,
     *,
-    ray_address: str | None = None,
-    parallel: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
 ) -> dict[int, Episode]:
     """Generate the episodes of ``specs`` that ``cache`` lacks (all without a cache), as Ray tasks
-    when ``parallel`` and more than one is missing. With a cache each is written as it finishes and
+    when ``execution.parallel`` and more than one is missing. With a cache each is written as it finishes and
     not kept in memory; without one they are returned, by index into ``specs``."""
-    from odolab.parallel import fan_out
 
     missing = [i for i, s in enumerate(specs) if cache is None or not cache.has(s)]
     kept: dict[int, Episode] = {}
@@ -395,9 +393,7 @@ def generate_episodes(
         render_episode,
         [specs[i] for i in missing],
         on_result=done,
-        parallel=parallel,
-        ray_address=ray_address,
-        progress=progress,
+        execution=execution,
         desc="episodes",
     )
     return kept
@@ -407,25 +403,21 @@ def load_episodes(
     specs: list[EpisodeSpec],
     cache: EpisodeCache | None = None,
     *,
-    ray_address: str | None = None,
-    parallel: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
 ) -> list[Episode]:
     """All episodes of ``specs`` in memory, in order (generated where the cache lacks them)."""
-    return list(stream_episodes(specs, cache, ray_address=ray_address, parallel=parallel, progress=progress))
+    return list(stream_episodes(specs, cache, execution=execution))
 
 
 def stream_episodes(
     specs: list[EpisodeSpec],
     cache: EpisodeCache | None = None,
     *,
-    ray_address: str | None = None,
-    parallel: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
 ) -> Iterator[Episode]:
     """The episodes of ``specs`` in order, one at a time: the missing ones are generated first; with
     a cache, each is then read back only when its turn comes, so memory holds one episode."""
-    fresh = generate_episodes(specs, cache, ray_address=ray_address, parallel=parallel, progress=progress)
+    fresh = generate_episodes(specs, cache, execution=execution)
     for i, spec in enumerate(specs):
         ep = fresh.pop(i, None) or (cache.get(spec) if cache is not None else None)
         if ep is None:  # the cache lost it meanwhile (damaged, another process, a full disk): make it again

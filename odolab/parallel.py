@@ -11,11 +11,27 @@ import os
 import re
 import socket
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from tqdm.auto import tqdm
 
 from odolab.errors import InputError
+
+
+@dataclass(frozen=True)
+class Execution:
+    """Where and how fan-out work runs: on the Ray cluster at ``ray_address`` (None: a local
+    instance, started when needed), or serially in this process when ``parallel`` is False (tests,
+    debugging); ``progress``: show progress bars. Results never depend on it."""
+
+    ray_address: str | None = None
+    parallel: bool = True
+    progress: bool = True
+
+
+#: In this process, without progress bars (tests, work inside a task).
+SERIAL = Execution(parallel=False, progress=False)
 
 #: Seconds to wait for a cluster's address to accept a connection before giving up.
 CONNECT_TIMEOUT = 3.0
@@ -96,19 +112,19 @@ def fan_out(
     items: Sequence[Any],
     *,
     on_result: Callable[[int, Any], None] | None = None,
-    parallel: bool = True,
-    ray_address: str | None = None,
-    progress: bool = True,
+    execution: Execution = Execution(),
     desc: str = "tasks",
 ) -> list[Any]:
-    """``[fn(item) for item in items]``, as Ray tasks when ``parallel`` and there are 2+ items.
+    """``[fn(item) for item in items]``, as Ray tasks when ``execution.parallel`` and there are 2+ items.
 
     ``on_result(k, result)`` is called in the driver as each item finishes (in completion order),
     e.g. to write it to disk at once so finished work survives an interruption; results are then
     handed to it and not kept (the returned list holds None), so large results can stream.
-    ``ray_address``: None starts (or reuses) a local instance; otherwise e.g. "ray://host:10001"
-    (checked first by :func:`check_ray_address`: :class:`RayAddressError` within seconds if unreachable).
+    ``execution.ray_address``: None starts (or reuses) a local instance; otherwise e.g.
+    "ray://host:10001" (checked first by :func:`check_ray_address`: :class:`RayAddressError` within
+    seconds if unreachable).
     """
+    parallel, ray_address, progress = execution.parallel, execution.ray_address, execution.progress
     results: list[Any] = [None] * len(items)
     bar = tqdm(total=len(items), desc=desc, disable=not progress or not items, leave=False)
 

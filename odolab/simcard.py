@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from odolab.parallel import Execution, fan_out
+
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
 PAPER_MIX = {"move_forward": 57.32, "turn_left": 21.34, "turn_right": 21.33}  # % of 1,000,000 steps
 DEPTH_BINS = np.arange(0.0, 10.5, 1.0)  # m, edges of the clean-depth bins
@@ -362,25 +364,21 @@ def measure(
     max_steps: int,
     seed: int,
     *,
-    parallel: bool = True,
-    ray_address: str | None = None,
-    progress: bool = True,
+    execution: Execution = Execution(),
 ) -> tuple[dict, ImageStats, list[tuple]]:
     """The card's numbers: the motion summary of ``episodes`` rollouts, the image statistics of
     ``rendered`` episodes of ``frames`` frames, and the sample frames of the first four (for the
-    contact sheet); as Ray tasks (:func:`odolab.parallel.fan_out`) unless ``parallel`` is False."""
+    contact sheet); as Ray tasks (:func:`odolab.parallel.fan_out`) unless ``execution.parallel`` is False."""
     from odolab.episodes import EpisodeSpec
-    from odolab.parallel import fan_out
 
     specs = [EpisodeSpec(split=split, index=i, seed=seed, max_steps=max_steps) for i in range(episodes)]
-    run = {"parallel": parallel, "ray_address": ray_address, "progress": progress}
-    motion = summarize_motion(fan_out(motion_stats, specs, desc="rollouts", **run))
+    motion = summarize_motion(fan_out(motion_stats, specs, desc="rollouts", execution=execution))
     shown = [EpisodeSpec(split=split, index=i, seed=seed, max_steps=frames) for i in range(rendered)]
     parts = fan_out(
         _render_part,
         [(s, frames, 1 if i < 4 else 0) for i, s in enumerate(shown)],
         desc="rendered episodes",
-        **run,
+        execution=execution,
     )
     return motion, merge_images([p for p, _ in parts]), [s for _, ss in parts for s in ss]
 

@@ -32,17 +32,19 @@ import os
 import zipfile
 import zlib
 from collections.abc import Sequence as Seq
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
+from odolab.config import build, check, setting
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_episode
 from odolab.geometry import invert, transform_to_planar
 from odolab.io.atomic import atomic_open, write_bytes_atomic
 from odolab.io.npz_mmap import NpzRows
+from odolab.parallel import Execution, fan_out
 from odolab.sim.camera import CameraSpec
 from odolab.sim.scenes import SPLITS
 from odolab.types import MOTION_ACTIONS, Action, Intrinsics
@@ -64,6 +66,7 @@ MAX_EPISODE_INDEX = 2**31 - 1
 #: Documented ranges of the integer settings (a data set of more episodes is several folders).
 MAX_EPISODES = 1_000_000
 MAX_EPISODES_PER_SHARD = 1000
+_CAMERA = CameraSpec()
 _ARRAYS = ("rgb", "depth_mm", "poses", "actions", "collisions", "episode")
 
 
@@ -130,47 +133,24 @@ class DataConfig:
     """What a training-data folder holds: episodes ``first .. first + episodes - 1`` of ``split``
     from ``seed`` (at most ``max_steps`` actions each), frames resized to ``width`` x ``height`` px."""
 
-    split: str = "train"
-    episodes: int = 1200
-    seed: int = 0
-    first: int = 0
-    max_steps: int = 500
-    width: int = 170
-    height: int = 96
-    episodes_per_shard: int = 8
-    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    split: str = setting("train", doc=f"episode split: one of {', '.join(SPLITS)}")
+    episodes: int = setting(1200, range=(1, MAX_EPISODES), doc="episodes in the data set")
+    seed: int = setting(0, range=(0, 2**32 - 1), doc="seed of the episodes")
+    first: int = setting(0, range=(0, MAX_EPISODE_INDEX), doc="index of the first episode")
+    max_steps: int = setting(500, range=(1, MAX_EPISODE_STEPS), doc="at most this many actions per episode")
+    width: int = setting(170, range=(1, _CAMERA.width), doc="stored frame width, px (resized from the camera's)")
+    height: int = setting(96, range=(1, _CAMERA.height), doc="stored frame height, px")
+    episodes_per_shard: int = setting(8, range=(1, MAX_EPISODES_PER_SHARD), doc="episodes per shard file")
+    noise: NoiseConfig = setting(default_factory=NoiseConfig, doc="noise multipliers of the episodes")
 
     def __post_init__(self) -> None:
+        check(self)
         if self.split not in SPLITS:
             raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r}")
-        for name, top in (
-            ("episodes", MAX_EPISODES),
-            ("max_steps", MAX_EPISODE_STEPS),
-            ("width", None),
-            ("height", None),
-            ("episodes_per_shard", MAX_EPISODES_PER_SHARD),
-        ):
-            value = getattr(self, name)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, (int, np.integer))
-                or value < 1
-                or (top is not None and value > top)
-            ):
-                most = f" and at most {top}" if top is not None else ""
-                raise ValueError(f"{name} must be >= 1{most} (an integer), got {value!r}")
-        if not 0 <= self.seed <= 2**32 - 1:
-            raise ValueError(f"seed must be in [0, 2^32 - 1], got {self.seed}")
-        if not 0 <= self.first <= MAX_EPISODE_INDEX - self.episodes + 1:
+        if self.first > MAX_EPISODE_INDEX - self.episodes + 1:
             raise ValueError(
                 f"first must be in [0, {MAX_EPISODE_INDEX - self.episodes + 1}] (the last episode's index "
                 f"at most 2^31 - 1), got {self.first}"
-            )
-        camera = CameraSpec()
-        if self.width > camera.width or self.height > camera.height:
-            raise ValueError(
-                f"width x height must be at most the camera's {camera.width} x {camera.height}, "
-                f"got {self.width} x {self.height}"
             )
 
     @property
@@ -210,22 +190,8 @@ class DataConfig:
 
     @classmethod
     def from_dict(cls, doc: dict, source: str) -> DataConfig:
-        """Inverse of ``asdict``; ``ValueError`` names ``source`` and the bad field."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(doc) - known)
-        if unknown:
-            raise ValueError(
-                f"{source}: unknown data field(s) {', '.join(unknown)}; expected {', '.join(sorted(known))}"
-            )
-        doc = dict(doc)
-        if "noise" in doc:
-            if not isinstance(doc["noise"], dict):
-                raise ValueError(f"{source}: field 'noise' must be a table, got {doc['noise']!r}")
-            doc["noise"] = NoiseConfig(**doc["noise"])
-        try:
-            return cls(**doc)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{source}: {exc}") from None
+        """Inverse of ``asdict`` (:func:`odolab.config.build`); ``ValueError`` names ``source`` and the bad field."""
+        return build(cls, doc, source)
 
 
 def _render_shard(job: tuple[DataConfig, list[EpisodeSpec]]) -> dict[str, np.ndarray]:
@@ -273,15 +239,12 @@ def make_training_data(
     cfg: DataConfig,
     root: str | os.PathLike,
     *,
-    ray_address: str | None = None,
-    parallel: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
 ) -> dict:
     """Render the shards of ``cfg`` that ``root`` lacks (as Ray tasks), each written atomically as it
     finishes, with ``dataset.json`` updated after each: an interrupted run resumes where it stopped.
     A folder made with another config is refused (``ValueError`` naming the differing fields).
     Returns the manifest."""
-    from odolab.parallel import fan_out
 
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
@@ -323,9 +286,7 @@ def make_training_data(
         _render_shard,
         [(cfg, groups[i]) for i in todo],
         on_result=done,
-        parallel=parallel,
-        ray_address=ray_address,
-        progress=progress,
+        execution=execution,
         desc=f"{cfg.split} shards",
     )
     stale = set(doc["shards"]) - set(names)

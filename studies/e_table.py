@@ -37,7 +37,7 @@ PAPER = {
 def unit_result(key: dict[str, Any]) -> dict[str, Any]:
     """Run one odometer on one seed's test episodes: per action ("all" included) its errors as used
     and own (x 1e-2), steps and failure share."""
-    from odolab.api import ComparisonConfig, run_comparison
+    from odolab.api import SERIAL, ComparisonConfig, run_comparison
 
     result = run_comparison(
         ComparisonConfig(
@@ -46,8 +46,7 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
             max_steps=key["max_steps"],
             seed=key["seed"],
             split="test",
-            parallel=False,
-            progress=False,
+            execution=SERIAL,
         )
     )
     out: dict[str, Any] = {}
@@ -184,7 +183,7 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.api import load_odometer
-    from odolab.cli import UsageError
+    from odolab.cli import UsageError, execution_of
 
     config = framework.load_study("e_table")
     ap = framework.study_arguments("python -m studies.e_table", config)
@@ -200,9 +199,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         todo,
         framework.ResultStore(out / "results"),
         redraw=args.redraw,
-        ray_address=args.ray_address,
-        parallel=not args.serial,
-        progress=not args.quiet,
+        execution=execution_of(args),
         valid=valid_result,
     )
     if not outcome.results:

@@ -29,6 +29,8 @@ from typing import Any
 
 import tomllib
 
+from odolab.parallel import Execution, fan_out
+
 SCALES = ("ci", "cpu", "paper")
 HERE = Path(__file__).resolve().parent
 #: The files a study's report consists of (what its manifest may list and a rerun replaces).
@@ -153,17 +155,14 @@ def run_units(
     store: ResultStore,
     *,
     redraw: bool = False,
-    ray_address: str | None = None,
-    parallel: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
     valid: Callable[[Any], bool] | None = None,
 ) -> Outcome:
     """``fn(unit.key)`` for every unit without a saved result, as Ray tasks (a local instance, or the
-    cluster at ``ray_address``), each result saved as it finishes; with ``redraw`` nothing is computed.
+    cluster at ``execution.ray_address``), each result saved as it finishes; with ``redraw`` nothing is computed.
     Results must be plain JSON data. Computing seconds are saved beside each result. A saved result
     that ``valid`` refuses (a file edited or damaged by hand) counts as not saved: computed again,
     or missing with ``redraw``."""
-    from odolab.parallel import fan_out
 
     out = Outcome()
     todo = []
@@ -188,9 +187,7 @@ def run_units(
         _timed,
         [(fn, u.key) for u in todo],
         on_result=done,
-        parallel=parallel,
-        ray_address=ray_address,
-        progress=progress,
+        execution=execution,
         desc="study units",
     )
     return out

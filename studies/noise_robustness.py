@@ -28,6 +28,7 @@ import numpy as np
 
 from odolab.api import (
     ComparisonConfig,
+    Execution,
     NoiseConfig,
     load_odometer,
     run_comparison,
@@ -91,9 +92,8 @@ def run_study(
     episodes: int,
     max_steps: int,
     options: dict | None = None,
-    parallel: bool = True,
+    execution: Execution = Execution(),
     weights: dict[str, str | None] | None = None,
-    quiet: bool = False,
 ) -> dict:
     """Run what ``out/results.json`` lacks; returns ``{"config": ..., "results": {"<level>/<odometer>": row}}``."""
     path = out / "results.json"
@@ -117,8 +117,7 @@ def run_study(
                     episodes=episodes,
                     max_steps=max_steps,
                     noise=NoiseConfig(rgb=level, depth=level),
-                    parallel=parallel,
-                    progress=not quiet,
+                    execution=execution,
                 )
             )
             row = next(r for r in result.rows if r.odometer == name)
@@ -133,7 +132,7 @@ def run_study(
                 "weights": weights[name],
             }
             write_json_atomic(owned_path(out, "results.json"), doc)  # NaN (no own error) as null; never through a link
-            if not quiet:
+            if execution.progress:
                 print(
                     f"level {level:g} {name}: " + ", ".join(f"{c} {getattr(row, c):.2f}" for c in COMPONENTS),
                     flush=True,
@@ -241,7 +240,7 @@ def growth_figure(doc: dict, odometers: list[str], level: float, path: Path) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, check_report_dir, number, path_arg
+    from odolab.cli import ArgumentParser, UsageError, check_report_dir, execution_of, number, path_arg
     from odolab.comparison import ComparisonError, odometer_names
     from odolab.odometer import parse_odometer_list
 
@@ -317,9 +316,8 @@ def main(argv: list[str] | None = None) -> int:
                 levels,
                 args.episodes,
                 args.max_steps,
-                parallel=not args.serial,
+                execution=execution_of(args),
                 weights=weights,
-                quiet=args.quiet,
             )
     except ValueError as exc:
         raise UsageError(str(exc)) from None

@@ -88,7 +88,7 @@ def test_a_training_data_config_refuses_an_episode_index_its_shards_cannot_store
 
     with pytest.raises(ValueError, match=r"first must be in \[0, 2147483646\]"):
         DataConfig(first=2**31 - 1, episodes=2)
-    with pytest.raises(ValueError, match="max_steps must be >= 1 and at most 500"):
+    with pytest.raises(ValueError, match=r"max_steps must be in \[1, 500\]"):
         DataConfig(max_steps=10**9)
 
 

@@ -7,6 +7,7 @@ import pytest
 from odolab import api
 from odolab.cli import run_cli
 from odolab.compare import main
+from odolab.parallel import SERIAL
 
 
 def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
@@ -17,8 +18,7 @@ def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
         max_steps=8,
         seed=5,
         cache=None,
-        parallel=False,
-        progress=False,
+        execution=SERIAL,
     )
     result = api.run_comparison(config)
     assert list(tmp_path.iterdir()) == []
@@ -77,8 +77,7 @@ def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
         max_steps=60,
         seed=1,
         cache=None,
-        parallel=False,
-        progress=False,
+        execution=SERIAL,
     )
     result = api.run_comparison(config)
     prior = [r for r in result.results if r.odometer == "action-prior"]

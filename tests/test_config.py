@@ -127,3 +127,27 @@ def test_literal_choices_are_checked_described_built_and_assigned(tmp_path):
         with pytest.raises(ConfigError) as info:
             assign(Choosing, items)
         assert str(info.value) == said
+
+
+def test_change_document_sets_dotted_paths_and_leaves_the_original_alone():
+    from odolab.config import ChangeError, change_document
+
+    doc = {"seed": 0, "model": {"width": 170}, "stages": [{"name": "forward", "lr": 1e-3}, {"name": "turns"}]}
+    out = change_document(
+        doc, ["seed=3", "model.width=341", "stages.turns.lr=2e-4", "stages.0.epochs=2", "new.key=true", "tag=x y"]
+    )
+    assert out == {
+        "seed": 3,
+        "model": {"width": 341},
+        "stages": [{"name": "forward", "lr": 1e-3, "epochs": 2}, {"name": "turns", "lr": 2e-4}],
+        "new": {"key": True},
+        "tag": "x y",
+    }
+    assert doc["model"]["width"] == 170 and "lr" not in doc["stages"][1]
+    for bad in ("=1", "a..b=1", "seed.x=1", "stages=[1]", "stages.2.lr=1", "stages.x.lr=1", "stages.0=1"):
+        if bad == "stages=[1]":
+            assert change_document(doc, [bad])["stages"] == [1]  # a whole value is replaced; build judges it
+            continue
+        with pytest.raises(ChangeError) as info:
+            change_document(doc, [bad])
+        assert str(info.value).startswith(repr(bad))

@@ -16,6 +16,7 @@ from baselines.deepvo.model import DeepVONet
 from baselines.deepvo.odometer import DeepVOOdometer, load_model
 from odolab.api import Action, integrate, invert, planar_to_transform
 from odolab.learning import CheckpointError, DataConfig, TrainingData, make_training_data
+from odolab.parallel import SERIAL, Execution
 
 W, H = 48, 32
 NAME = "baselines.deepvo.odometer:DeepVOOdometer"
@@ -45,7 +46,7 @@ def _recipe(root, **kw) -> DeepVOTraining:
 def recipe(tmp_path_factory) -> DeepVOTraining:
     cfg = _recipe(tmp_path_factory.mktemp("deepvo-data"))
     for dc in (cfg.train_data, cfg.val_data):
-        make_training_data(dc, cfg.data_folder(dc), parallel=False, progress=False)
+        make_training_data(dc, cfg.data_folder(dc), execution=SERIAL)
     return cfg
 
 
@@ -59,8 +60,7 @@ def trained(recipe, tmp_path_factory):
         export=root / "model.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     return root
 
@@ -126,8 +126,7 @@ def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
         export=tmp_path / "one.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     assert trainer.run(
         recipe,
@@ -136,8 +135,7 @@ def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
         export=tmp_path / "two.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     a = torch.load(trained / "model.pt", weights_only=True)["networks"]["deepvo"]
     b = torch.load(tmp_path / "two.pt", weights_only=True)["networks"]["deepvo"]
@@ -157,8 +155,7 @@ def test_compare_runs_deepvo_with_finite_errors(trained, tmp_path):
             max_steps=6,
             cache=None,
             options={NAME: {"checkpoint": str(trained / "model.pt")}},
-            parallel=False,
-            progress=False,
+            execution=SERIAL,
         )
     )
     row = next(r for r in result.rows if r.odometer == NAME)
@@ -190,8 +187,7 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
         export=tmp_path / "m.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     _, net, _ = load_model(tmp_path / "m.pt")
     for a, b in zip(first_net.parameters(), net.parameters()):  # lr 1e-12: barely moved (BatchNorm's
@@ -206,8 +202,7 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
             export=tmp_path / "m2.pt",
             device=torch.device("cpu"),
             hours=None,
-            parallel_data=False,
-            progress=False,
+            execution=SERIAL,
         )
     with pytest.raises(ValueError, match="is this run's --export, which would overwrite it"):
         trainer.run(
@@ -217,8 +212,7 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
             export=first,
             device=torch.device("cpu"),
             hours=None,
-            parallel_data=False,
-            progress=False,
+            execution=SERIAL,
         )
     with pytest.raises(ValueError, match="is a folder"):
         trainer.run(
@@ -228,8 +222,7 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
             export=tmp_path / "m5.pt",
             device=torch.device("cpu"),
             hours=None,
-            parallel_data=False,
-            progress=False,
+            execution=SERIAL,
         )
     wider = dataclasses.replace(second, model=dataclasses.replace(recipe.model, hidden=8))
     with pytest.raises(ValueError, match="differs from this recipe's in hidden"):
@@ -240,8 +233,7 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
             export=tmp_path / "m3.pt",
             device=torch.device("cpu"),
             hours=None,
-            parallel_data=False,
-            progress=False,
+            execution=SERIAL,
         )
 
 
@@ -271,8 +263,7 @@ def test_a_model_gains_an_input_and_answers_alike(trained, recipe, tmp_path, gai
         export=tmp_path / "grown.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     back = dataclasses.replace(recipe, init=str(tmp_path / "grown.pt"))
     with pytest.raises(ValueError, match="not lose it"):
@@ -296,8 +287,7 @@ def test_a_deepvo_with_actions_needs_them(trained, recipe, tmp_path):
         export=tmp_path / "a.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     _, net, _ = load_model(tmp_path / "a.pt")
     with pytest.raises(ValueError, match="takes the action of each pair"):
@@ -322,7 +312,9 @@ def test_the_shipped_deepvo_is_registered_and_runs_in_a_comparison():
 
     odo = load_odometer("deepvo")
     assert odo.identity_digest and odo.cfg.width == 170  # the shipped file, reduced resolution
-    result = run_comparison(ComparisonConfig(odometers=["deepvo"], episodes=1, max_steps=6, parallel=False))
+    result = run_comparison(
+        ComparisonConfig(odometers=["deepvo"], episodes=1, max_steps=6, execution=Execution(parallel=False))
+    )
     row = next(r for r in result.rows if r.odometer == "deepvo")
     assert row.steps == 6 and row.failure_share == 0.0
     assert all(np.isfinite(getattr(row, c)) for c in ("dx", "dz", "dyaw"))

@@ -13,6 +13,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("ray.train.torch")
 
 from odolab.learning import ComputeConfig, make_training_data
+from odolab.parallel import SERIAL, Execution
 from odolab.robust_vo import train as trainer
 from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
 from odolab.training_data import DataConfig
@@ -46,11 +47,11 @@ def _recipe(root) -> TrainConfig:
 def recipe(tmp_path_factory) -> TrainConfig:
     cfg = _recipe(tmp_path_factory.mktemp("dp-data"))
     for data in (cfg.train_data, cfg.val_data):
-        make_training_data(data, cfg.data_folder(data), parallel=False, progress=False)
+        make_training_data(data, cfg.data_folder(data), execution=SERIAL)
     return cfg
 
 
-def _train(cfg: TrainConfig, root, **kw) -> dict:
+def _train(cfg: TrainConfig, root, ray_address: str | None = None, **kw) -> dict:
     done = trainer.run(
         cfg,
         work=root / "work",
@@ -58,8 +59,7 @@ def _train(cfg: TrainConfig, root, **kw) -> dict:
         export=root / "model.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=Execution(ray_address=ray_address, parallel=False, progress=False),
         **kw,
     )
     assert done and (root / "model.pt").is_file()

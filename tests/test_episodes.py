@@ -8,6 +8,7 @@ import pytest
 from odolab import episodes
 from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, load_episodes, render_episode, rollout
 from odolab.geometry import invert, transform_to_planar
+from odolab.parallel import SERIAL, Execution
 from odolab.types import Action, Sequence
 
 
@@ -85,7 +86,7 @@ def test_cache_round_trip_and_atomic_files(tmp_path, small_spec):
 def test_load_episodes_uses_the_cache(tmp_path, small_spec, monkeypatch):
     specs = [small_spec, dataclasses.replace(small_spec, index=1)]
     cache = EpisodeCache(tmp_path)
-    first = load_episodes(specs, cache, parallel=False, progress=False)
+    first = load_episodes(specs, cache, execution=SERIAL)
     assert len(list(tmp_path.glob("*.npz"))) == 2
 
     def no_second_generation(*args, **kwargs):
@@ -93,15 +94,15 @@ def test_load_episodes_uses_the_cache(tmp_path, small_spec, monkeypatch):
 
     # generation is deterministic, so equal episodes alone would not show the cache was read
     monkeypatch.setattr(episodes, "render_episode", no_second_generation)
-    again = load_episodes(specs, cache, parallel=False, progress=False)
+    again = load_episodes(specs, cache, execution=SERIAL)
     assert all(np.array_equal(a.rgb, b.rgb) for a, b in zip(first, again))
 
 
 @pytest.mark.slow
 def test_ray_tasks_give_the_same_episodes(tmp_path, small_spec):
     specs = [small_spec, dataclasses.replace(small_spec, index=1)]
-    serial = load_episodes(specs, None, parallel=False, progress=False)
-    parallel = load_episodes(specs, EpisodeCache(tmp_path), parallel=True, progress=False)
+    serial = load_episodes(specs, None, execution=SERIAL)
+    parallel = load_episodes(specs, EpisodeCache(tmp_path), execution=Execution(progress=False))
     assert all(np.array_equal(a.depth, b.depth) for a, b in zip(serial, parallel))
 
 

@@ -11,6 +11,7 @@ pytest.importorskip("torch")  # a declared dependency; skip only where it is tru
 from odolab.api import Action
 from odolab.episodes import NoiseConfig
 from odolab.learning import DataConfig, TrainingData, make_training_data
+from odolab.parallel import SERIAL
 from studies.robust_vo.forward_dz_probe import residual
 
 
@@ -26,7 +27,7 @@ def data(tmp_path_factory) -> TrainingData:
         noise=NoiseConfig(rgb=0.0, depth=0.0, actuation=0.5),
     )
     root = tmp_path_factory.mktemp("dz-probe") / "data"
-    make_training_data(cfg, root, parallel=False, progress=False)
+    make_training_data(cfg, root, execution=SERIAL)
     return TrainingData(root)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from odolab.cli import run_cli
+from odolab.parallel import SERIAL, Execution
 
 ROOT = Path(__file__).resolve().parents[1]
 TUM_OK = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 1 1 0 0 0 0 1\n4.0 0 1 1 0 0 0 1\n"
@@ -211,7 +212,7 @@ def test_damaged_cache_entry_is_named_and_regenerated(tmp_path, small_spec, caps
         good[: len(good) // 2] if damage == "truncated" else good[:k] + bytes([good[k] ^ 0xFF]) + good[k + 1 :]
     )
     capsys.readouterr()
-    (ep,) = load_episodes([small_spec], cache, parallel=False, progress=False)
+    (ep,) = load_episodes([small_spec], cache, execution=SERIAL)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0] and "damaged" in err[0]
     assert path.read_bytes() == good  # regenerated, bit for bit, and written back
@@ -305,7 +306,7 @@ def test_fan_out_checks_the_address_before_starting_ray():
 
     start = time.monotonic()
     with pytest.raises(ValueError, match="no Ray cluster there"):
-        fan_out(abs, [1, 2], ray_address="127.0.0.1:1", progress=False)
+        fan_out(abs, [1, 2], execution=Execution(ray_address="127.0.0.1:1", progress=False))
     assert time.monotonic() - start < 10
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from odolab.cli import UsageError, run_cli
+from odolab.parallel import SERIAL
 from tests.test_output_ownership import ROBUST_RECIPE
 
 RECIPE = ROBUST_RECIPE.replace("{stage}", "forward")  # parsed only: no data is made
@@ -397,9 +398,9 @@ def test_a_saved_study_result_of_the_wrong_shape_is_computed_again(tmp_path):
     def shaped(value):
         return e_table.valid_result({"all": {**value["all"], "steps": 3}})
 
-    redrawn = framework.run_units(fn, [unit], store, redraw=True, parallel=False, progress=False, valid=shaped)
+    redrawn = framework.run_units(fn, [unit], store, redraw=True, execution=SERIAL, valid=shaped)
     assert redrawn.missing == ["u"] and not calls
-    again = framework.run_units(fn, [unit], store, parallel=False, progress=False, valid=shaped)
+    again = framework.run_units(fn, [unit], store, execution=SERIAL, valid=shaped)
     assert again.computed == ["u"] and calls == [{"k": 2}]
     assert not e_table.valid_result({"all": {"dx": 1.0}}) and not e_table.valid_result([1])
 
@@ -559,3 +560,38 @@ def test_an_init_that_is_a_dead_link_or_absolute_is_named_as_such(tmp_path):
     assert "no such model file;" in str(caught.value) and "relative to" not in str(caught.value)
     with pytest.raises(ValueError, match=r"relative to"):
         load_init("no/such/model.pt", tmp_path / "export.pt", never)
+
+
+def test_set_changes_the_recipe_and_its_mistakes_are_one_line(tmp_path):
+    job = _job(tmp_path, "--set", "seed=7", "--set", "stages.forward.lr=0.0005", "--set", "model.groups=4")
+    assert job.config.seed == 7 and job.config.stages[0].lr == 0.0005 and job.config.model.groups == 4
+    assert "--set seed=7" in job.command  # the record says how the run differs from its recipe
+    for bad, said in (
+        ("seed", "--set 'seed': expected path=value"),
+        ("model.width.x=1", "--set 'model.width.x=1': model.width is a value, not a table"),
+        ("seed.x=1", "seed: expected an integer"),  # a default, not in the file: the recipe's check refuses it
+        ("stages.9.lr=1", "--set 'stages.9.lr=1': stages.9: the list has 1 entries (0 to 0)"),
+        ("stages.turns.lr=1", "no entry named 'turns'; give a position from 0 or one of forward"),
+        ("stages=1", "stages"),  # the whole list replaced by a number: the recipe's check refuses it
+    ):
+        with pytest.raises(UsageError) as info:
+            _job(tmp_path, "--set", bad)
+        assert said in str(info.value), str(info.value)
+        assert "\n" not in str(info.value)
+    with pytest.raises(UsageError, match="unknown field"):
+        _job(tmp_path, "--set", "model.widht=341")
+
+
+def test_a_link_to_nothing_is_named_as_one(tmp_path, capsys):
+    from odolab.cli.evaluate import main as evaluate
+    from odolab.io.inputs import check_regular_file
+
+    dead = tmp_path / "est.txt"
+    dead.symlink_to(tmp_path / "gone.txt")
+    assert run_cli(evaluate, "python -m odolab.evaluate", [str(dead), str(dead)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"{dead}: is a link to nothing ({tmp_path / 'gone.txt'} does not exist)"), err
+    with pytest.raises(ValueError, match="is a link to nothing"):
+        check_regular_file(dead)
+    with pytest.raises(ValueError, match="no such file"):
+        check_regular_file(tmp_path / "never.txt")

@@ -11,6 +11,7 @@ from odolab.cli import run_cli
 from odolab.compare import main
 from odolab.io.npz_mmap import mmap_npz_member
 from odolab.options import OptionError, parse_assignments, read_options_file
+from odolab.parallel import SERIAL
 from odolab.sim.camera import CameraSpec
 
 
@@ -21,7 +22,7 @@ def cached(tmp_path_factory):
         api.EpisodeSpec(split="train", index=i, max_steps=8, camera=CameraSpec(width=64, height=36)) for i in range(2)
     ]
     cache = api.EpisodeCache(root)
-    api.generate_episodes(specs, cache, parallel=False, progress=False)
+    api.generate_episodes(specs, cache, execution=SERIAL)
     return specs, cache
 
 

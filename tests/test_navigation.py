@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import html
 import json
 import os
 
@@ -13,6 +14,7 @@ from odolab.api import Action, invert, load_odometer
 from odolab.episodes import EpisodeSpec, render_episode, rollout
 from odolab.navigation.agent import MapPlanAgent, in_agent_frame
 from odolab.navigation.episode import navigate
+from odolab.parallel import SERIAL
 
 
 def test_the_goal_follows_the_true_relative_goal_when_the_odometry_is_true():
@@ -147,7 +149,7 @@ def test_the_cut_short_march_gives_the_full_march_times_to_the_bit(clutter):
     assert np.isinf(window[(r < m.to_cell(0.0, 0.0)[0] - 25) | (c < m.to_cell(0.0, 0.0)[1] - 25)]).all()
 
 
-def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
+def test_a_saved_policy_without_a_parameter_differs_and_gets_no_suggestion():
     from odolab.cli.navigate import SETTING_OPTIONS
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import _policy_changes, _policy_to_match
@@ -158,18 +160,28 @@ def test_a_folder_from_before_a_policy_parameter_counts_as_its_old_behaviour():
     def to_match(saved, policy):
         return " ".join(m.named(SETTING_OPTIONS) for m in _policy_to_match(saved, policy)) or None
 
-    old = {k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k != "fallback_radius"}
-    assert changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.0))) == []
-    assert changes(old, dataclasses.asdict(PolicyConfig(fallback_radius=0.1))) == [
-        "--policy fallback_radius (not recorded there, so 0.0: that folder predates this parameter, 0.1 now)"
-    ]
-    assert to_match(old, dataclasses.asdict(PolicyConfig())) == "--policy fallback_radius=0.0"
-    assert to_match({**old, "cell": 5.0}, dataclasses.asdict(PolicyConfig())) is None  # out of range
-    assert to_match({**old, "cell": "0.05"}, dataclasses.asdict(PolicyConfig())) is None  # not a number
-    assert to_match({**old, "nonsense": 1}, dataclasses.asdict(PolicyConfig())) is None
+    full = dataclasses.asdict(PolicyConfig())
+    lacking = {k: v for k, v in full.items() if k != "fallback_radius"}
+    assert changes(full, full) == []
+    assert changes(lacking, full) == ["--policy fallback_radius (not recorded there, 0.1 now)"]
+    assert to_match(lacking, full) is None  # nothing to set: that folder was made by another version
+    assert to_match({**full, "cell": 0.1}, full) == "--policy cell=0.1"
+    assert to_match({**full, "cell": 5.0}, full) is None  # out of range
+    assert to_match({**full, "cell": "0.05"}, full) is None  # not a number
+    assert to_match({**full, "nonsense": 1}, full) is None
     for hand_edited, there in (("0.0", "'0.0' there"), (False, "False there"), ("x" * 99, "there")):
-        said = changes({**old, "fallback_radius": hand_edited}, dataclasses.asdict(PolicyConfig()))
+        said = changes({**full, "fallback_radius": hand_edited}, full)
         assert len(said) == 1 and there in said[0] and said[0].endswith(", 0.1 now)") and len(said[0]) < 120
+
+
+def test_a_folder_of_another_format_is_refused_with_how_to_run_it_again(tmp_path, capsys):
+    out = tmp_path / "nav"
+    out.mkdir()
+    (out / "config.json").write_text('{"options": {}, "episodes": [], "policy": {}}')
+    code = _navigate(["--odometers", "action-prior", "--episodes", "1", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "format None; this odolab writes format 1" in err and "delete the folder" in err
+    assert len(err.strip().splitlines()) == 1
 
 
 def _navigate(argv):
@@ -186,7 +198,7 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     a = (tmp_path / "a" / "nav.csv").read_text()
     assert a == (tmp_path / "b" / "nav.csv").read_text() and a.count("\n") == 3
     assert (tmp_path / "a" / "metrics.png").stat().st_size > 10_000
-    assert "fallback_radius=0.1</code>" in (tmp_path / "a" / "report.html").read_text()  # the policy, defaults included
+    assert "<code>fallback_radius</code></td><td>0.1</td>" in (tmp_path / "a" / "report.html").read_text()  # the policy, defaults included
     done = sorted((tmp_path / "a" / "episodes").rglob("*.json"))
     assert len(done) == 4
     done[2].unlink()  # an interrupted run: one episode missing
@@ -358,16 +370,16 @@ def test_navigate_refuses_a_file_where_its_result_folders_belong(tmp_path):
         (out / where).write_text("x")
         (out / "config.json").write_text(json.dumps(config))
         with pytest.raises(ValueError, match=f"{where} is a file where navigate keeps a folder"):
-            run_navigation(out, [task], config, parallel=False, progress=False)
+            run_navigation(out, [task], config, execution=SERIAL)
     out = tmp_path / "cfg"
     out.mkdir()
     (out / "config.json").write_text(json.dumps({**config, "options": []}))
     with pytest.raises(ValueError, match="not a navigation config"):
-        run_navigation(out, [task], config, parallel=False, progress=False)
+        run_navigation(out, [task], config, execution=SERIAL)
     (out / "config.json").unlink()
     os.mkfifo(out / "config.json")  # read, it would block for ever
     with pytest.raises(ValueError, match="config.json: is a pipe, device or socket"):
-        run_navigation(out, [task], config, parallel=False, progress=False)
+        run_navigation(out, [task], config, execution=SERIAL)
 
 
 def test_a_saved_episode_with_infinities_is_run_again_and_a_pipe_refused(tmp_path, capsys):
@@ -532,9 +544,15 @@ def test_policy_values_and_reports_are_checked_and_escaped():
     cfg = PolicyConfig(cell=np.float32(0.25), margin=-0.0)
     assert type(cfg.cell) is float and str(cfg.margin) == "0.0"
     said = [c.named({"policy": "--policy"}) for c in _policy_changes({"cell": 0.05}, {"cell": 0.05, "new_one": 0.1})]
-    assert said == ["--policy new_one (not recorded there: that folder predates this parameter, 0.1 now)"]
+    assert said == ["--policy new_one (not recorded there, 0.1 now)"]
     page = _html([], [], "python -m odolab.navigate --out 'x<i>y&z'")
     assert "x&lt;i&gt;y&amp;z" in page and "<i>" not in page
+    from odolab.config import describe, range_text
+
+    page = _html([], [], "cmd", PolicyConfig(cell=0.1))
+    for s in describe(PolicyConfig):  # every parameter, with its range and meaning, from the config itself
+        assert f"<code>{s.name}</code>" in page and html.escape(s.doc) in page
+    assert f"<td><code>cell</code></td><td>0.1</td><td>{range_text(PolicyConfig, 'cell')}</td>" in page
 
 
 def test_the_navigation_benchmark_accounts_for_its_time():

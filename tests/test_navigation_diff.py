@@ -59,7 +59,7 @@ def test_runs_made_with_other_settings_are_pointed_out(tmp_path):
         )
 
     before, after = _folder(tmp_path, "a", [("x", 0, 1, 10, 2)]), _folder(tmp_path, "b", [("x", 0, 1, 10, 2)])
-    config(before, {"cell": 0.05})  # from before fallback_radius existed: it counts as 0.0
+    config(before, {"cell": 0.05, "fallback_radius": 0.0})
     config(after, {"cell": 0.05, "fallback_radius": 0.0})
     assert setting_notes(before, after) == []
     config(after, {"cell": 0.05, "fallback_radius": 0.1}, max_steps=12)
@@ -67,6 +67,8 @@ def test_runs_made_with_other_settings_are_pointed_out(tmp_path):
         "the policies differ: fallback_radius 0.0 -> 0.1",
         "the episodes' max_steps differ: 500 -> 12",
     ]
+    config(before, {"cell": 0.05})  # a parameter only one folder records
+    assert setting_notes(before, after)[0] == "the policies differ: fallback_radius '-' -> 0.1"
     (after / "config.json").write_text("{")
     assert setting_notes(before, after) == [f"no readable config.json in {after}: the runs' settings were not compared"]
 

@@ -34,9 +34,9 @@ def _captured_figure(monkeypatch, module) -> list:
 
 def test_a_local_ray_start_prints_no_token_notice():
     code = (
-        "from odolab.parallel import fan_out\n"
+        "from odolab.parallel import Execution, fan_out\n"
         "def neg(x):\n    return -x\n"
-        "assert fan_out(neg, [1, 2], progress=True) == [-1, -2]\n"
+        "assert fan_out(neg, [1, 2], execution=Execution(progress=True)) == [-1, -2]\n"
     )
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_AUTH_MODE", "RAY_ADDRESS")}
     proc = subprocess.run(

@@ -3,10 +3,11 @@
 import json
 
 import studies.noise_robustness as study
+from odolab.parallel import SERIAL
 
 
 def test_noise_study_resumes_and_reruns_changed_weights(tmp_path, monkeypatch):
-    doc = study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, parallel=False)
+    doc = study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, execution=SERIAL)
     assert set(doc["results"]) == {"1/action-prior", "2/action-prior"}
     assert doc["results"]["1/action-prior"]["weights"] is None  # not a learned odometer
     calls = []
@@ -17,13 +18,13 @@ def test_noise_study_resumes_and_reruns_changed_weights(tmp_path, monkeypatch):
         return real(config)
 
     monkeypatch.setattr(study, "run_comparison", counting)
-    study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, parallel=False)
+    study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, execution=SERIAL)
     assert calls == []  # everything was done
     path = tmp_path / "results.json"
     saved = json.loads(path.read_text())
     saved["results"]["2/action-prior"]["weights"] = "0" * 64  # as if made by another model file
     path.write_text(json.dumps(saved))
-    again = study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, parallel=False)
+    again = study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, execution=SERIAL)
     assert calls == [2.0]
     assert again["results"]["2/action-prior"]["weights"] is None
 

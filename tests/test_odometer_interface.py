@@ -6,6 +6,7 @@ import pytest
 from odolab import api, runner, summary
 from odolab.action_prior import ActionPrior, fit_action_prior
 from odolab.episodes import EpisodeSpec, load_episodes
+from odolab.parallel import SERIAL
 from odolab.sim.camera import CameraSpec
 
 
@@ -13,7 +14,7 @@ from odolab.sim.camera import CameraSpec
 def episodes():
     camera = CameraSpec(width=96, height=54)
     specs = [EpisodeSpec(split="test", index=i, max_steps=40, camera=camera) for i in range(3)]
-    return load_episodes(specs, None, parallel=False, progress=False)
+    return load_episodes(specs, None, execution=SERIAL)
 
 
 class ConstantForward(api.Odometer):

@@ -15,6 +15,7 @@ torch = pytest.importorskip("torch")  # a declared dependency; skip only where i
 from odolab.api import Action, Intrinsics, invert, load_odometer, transform_to_planar
 from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
 from odolab.learning import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
+from odolab.parallel import SERIAL
 from odolab.robust_vo import train as trainer
 from odolab.robust_vo.batches import Samples, make_batch, stage_samples
 from odolab.robust_vo.checkpoint import load_model, save_model
@@ -53,7 +54,7 @@ def _recipe(root, stages=None, **model) -> TrainConfig:
 def recipe(tmp_path_factory) -> TrainConfig:
     cfg = _recipe(tmp_path_factory.mktemp("vo-data"))
     for data in (cfg.train_data, cfg.val_data):
-        make_training_data(data, cfg.data_folder(data), parallel=False, progress=False)
+        make_training_data(data, cfg.data_folder(data), execution=SERIAL)
     return cfg
 
 
@@ -73,8 +74,7 @@ def trained(recipe, tmp_path_factory):
         export=root / "model.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     assert done
     return root
@@ -303,8 +303,7 @@ def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_pat
         export=tmp_path / "first.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     stopped = trainer.run(
         recipe,
@@ -313,8 +312,7 @@ def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_pat
         export=tmp_path / "m.pt",
         device=torch.device("cpu"),
         hours=1e-9,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     assert not stopped and not (tmp_path / "m.pt").exists()
     assert trainer.run(
@@ -324,8 +322,7 @@ def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_pat
         export=tmp_path / "m.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     a, b = torch.load(trained / "model.pt", weights_only=True), torch.load(tmp_path / "m.pt", weights_only=True)
     for name in a["networks"]:
@@ -343,8 +340,7 @@ def test_a_changed_recipe_does_not_continue_an_old_run(trained, recipe):
             export=trained / "x.pt",
             device=torch.device("cpu"),
             hours=None,
-            parallel_data=False,
-            progress=False,
+            execution=SERIAL,
         )
 
 
@@ -558,19 +554,21 @@ def test_a_resumed_state_names_what_changed(trained, recipe):
             export=trained / "y.pt",
             device=torch.device("cpu"),
             hours=None,
-            parallel_data=False,
-            progress=False,
+            execution=SERIAL,
         )
 
 
-def test_blocked_repeat_of_one_keeps_the_identity_of_recipes_written_before_it(recipe):
+def test_the_identity_holds_every_recipe_key_and_a_changed_one_is_another_run(recipe):
     k = next(i for i, s in enumerate(recipe.stages) if "move_forward" in s.actions)
     stage = recipe.stages[k]
     identity = trainer._identity(recipe, recipe.stages[-1])
-    assert "blocked_repeat" not in identity["stage"] and all("blocked_repeat" not in s for s in identity["before"])
-    more = dataclasses.replace(stage, blocked_repeat=4)
+    assert identity["stage"]["blocked_repeat"] == recipe.stages[-1].blocked_repeat
+    assert all("blocked_repeat" in s for s in identity["before"])
+    assert identity["model"]["depth_residual"] == recipe.model.depth_residual
+    more = dataclasses.replace(stage, blocked_repeat=stage.blocked_repeat + 3)
     changed = dataclasses.replace(recipe, stages=(*recipe.stages[:k], more, *recipe.stages[k + 1 :]))
-    assert trainer._identity(changed, more)["stage"]["blocked_repeat"] == 4
+    assert trainer._identity(changed, more)["stage"]["blocked_repeat"] == stage.blocked_repeat + 3
+    assert trainer._identity(changed, more) != trainer._identity(recipe, stage)
 
 
 def test_text_or_corrupt_checkpoints_are_refused_without_unsafe_advice(tmp_path):
@@ -603,8 +601,7 @@ def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path
         export=tmp_path / "m.pt",
         device=torch.device("cpu"),
         hours=None,
-        parallel_data=False,
-        progress=False,
+        execution=SERIAL,
     )
     cfg, nets, _ = load_model(tmp_path / "m.pt")
     assert cfg.mirror_turns and set(nets) == {"move_forward", "turn_left"}

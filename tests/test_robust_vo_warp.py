@@ -13,6 +13,7 @@ torch = pytest.importorskip("torch")  # a declared dependency; skip only where i
 from odolab.api import Action, invert, load_odometer, nominal_motion
 from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
 from odolab.learning import DataConfig, TrainingData, make_training_data
+from odolab.parallel import SERIAL
 from odolab.robust_vo.batches import Samples, make_batch
 from odolab.robust_vo.checkpoint import save_model
 from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
@@ -93,7 +94,7 @@ def recipe(tmp_path_factory) -> TrainConfig:
         val_data=data,
         data_root=str(tmp_path_factory.mktemp("warp-data")),
     )
-    make_training_data(data, cfg.data_folder(data), parallel=False, progress=False)
+    make_training_data(data, cfg.data_folder(data), execution=SERIAL)
     return cfg
 
 

@@ -9,6 +9,7 @@ import pytest
 from odolab import api, runner
 from odolab.action_prior import ActionPrior
 from odolab.episodes import EpisodeSpec, load_episodes
+from odolab.parallel import SERIAL
 from odolab.sim.camera import CameraSpec
 
 PRIOR = ActionPrior.shipped()
@@ -17,7 +18,7 @@ PRIOR = ActionPrior.shipped()
 @pytest.fixture(scope="module")
 def episode():
     spec = EpisodeSpec(split="test", index=1, max_steps=12, camera=CameraSpec(width=64, height=36))
-    return load_episodes([spec], None, parallel=False, progress=False)[0]
+    return load_episodes([spec], None, execution=SERIAL)[0]
 
 
 class Vandal(api.Odometer):

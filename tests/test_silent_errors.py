@@ -14,6 +14,7 @@ from odolab import runner
 from odolab.action_prior import ActionPrior
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, planar_to_transform, register_odometer
 from odolab.odometer import REGISTRY, IncompleteOdometerError, OracleInputError, load_odometer
+from odolab.parallel import SERIAL, Execution
 from tests.test_hostile_inputs import one_line_error
 
 INTRINSICS = Intrinsics.from_hfov(8, 6, 79.0)
@@ -153,8 +154,7 @@ def test_an_odometer_failing_every_step_is_said_on_the_compare_console():
             episodes=1,
             max_steps=3,
             cache=None,
-            parallel=False,
-            progress=False,
+            execution=SERIAL,
         )
     )
     assert every_step_failed(result.rows) == [
@@ -275,7 +275,11 @@ def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale
 
     def run(scale):
         config = ComparisonConfig(
-            odometers=["ground-truth"], tum=millimetre_folder, tum_depth_scale=scale, tum_intrinsics=FR1, progress=False
+            odometers=["ground-truth"],
+            tum=millimetre_folder,
+            tum_depth_scale=scale,
+            tum_intrinsics=FR1,
+            execution=Execution(progress=False),
         )
         return run_comparison(config)
 
@@ -393,8 +397,7 @@ def shards(tmp_path_factory) -> Path:
     make_training_data(
         DataConfig(split="train", episodes=2, max_steps=4, width=24, height=16, episodes_per_shard=1),
         root,
-        parallel=False,
-        progress=False,
+        execution=SERIAL,
     )
     return root
 

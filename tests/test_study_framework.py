@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from odolab.cli import UsageError
+from odolab.parallel import SERIAL
 from studies import e_table, framework
 
 
@@ -32,11 +33,9 @@ def test_a_result_is_reused_only_for_the_same_key(tmp_path: Path):
 def test_units_run_once_and_redraw_computes_nothing(tmp_path: Path):
     store = framework.ResultStore(tmp_path)
     units = [framework.Unit(f"u{k}", {"k": k}) for k in range(3)]
-    first = framework.run_units(_square, units, store, parallel=False, progress=False)
+    first = framework.run_units(_square, units, store, execution=SERIAL)
     assert first.results == {"u0": 0, "u1": 1, "u2": 4} and sorted(first.computed) == ["u0", "u1", "u2"]
-    again = framework.run_units(
-        _square, [*units, framework.Unit("u3", {"k": 3})], store, parallel=False, progress=False, redraw=True
-    )
+    again = framework.run_units(_square, [*units, framework.Unit("u3", {"k": 3})], store, execution=SERIAL, redraw=True)
     assert again.computed == [] and again.missing == ["u3"] and again.results["u2"] == 4
 
 

@@ -37,7 +37,7 @@ def checkpoint(tmp_path_factory):
 
 
 def _pair():
-    ep = api.load_episodes(api.episode_specs("test", 1, max_steps=3), None, parallel=False, progress=False)[0]
+    ep = api.load_episodes(api.episode_specs("test", 1, max_steps=3), None, execution=api.SERIAL)[0]
     return ep[0], ep[1], ep.action(0)
 
 
@@ -144,7 +144,7 @@ def test_the_runner_applies_an_odometers_torch_threads_and_restores_them():
             self.seen.add(torch.get_num_threads())
             return api.Estimate(np.eye(4))
 
-    ep = api.load_episodes(api.episode_specs("test", 1, max_steps=3), None, parallel=False, progress=False)[0]
+    ep = api.load_episodes(api.episode_specs("test", 1, max_steps=3), None, execution=api.SERIAL)[0]
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:

@@ -83,16 +83,16 @@ def test_loader_workers_auto_is_none_on_two_cores_and_one_on_more():
 
 
 def test_a_compute_table_is_read_from_toml(tmp_path):
-    from odolab.learning import dataclass_from_toml
+    from odolab.learning import from_toml
 
     path = tmp_path / "c.toml"
     path.write_text('precision = "fp32"\nloader_workers = "auto"\n')
-    assert dataclass_from_toml(ComputeConfig, path) == ComputeConfig(precision="fp32")
+    assert from_toml(ComputeConfig, path) == ComputeConfig(precision="fp32")
     path.write_text("loader_workers = 2\n")
-    assert dataclass_from_toml(ComputeConfig, path).loader_workers == 2
+    assert from_toml(ComputeConfig, path).loader_workers == 2
     path.write_text('loader_workers = "two"\n')
     with pytest.raises(ValueError, match="loader_workers"):
-        dataclass_from_toml(ComputeConfig, path)
+        from_toml(ComputeConfig, path)
 
 
 def test_bf16_autocast_runs_a_step_and_returns_fp32_losses():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from odolab import training_data as td
+from odolab.parallel import SERIAL
 from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 CFG = DataConfig(split="train", episodes=3, max_steps=6, width=40, height=24, episodes_per_shard=2)
@@ -17,7 +18,7 @@ CFG = DataConfig(split="train", episodes=3, max_steps=6, width=40, height=24, ep
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
     root = tmp_path_factory.mktemp("data") / "train"
-    make_training_data(CFG, root, parallel=False, progress=False)
+    make_training_data(CFG, root, execution=SERIAL)
     return root
 
 
@@ -38,7 +39,7 @@ def test_an_interrupted_run_makes_only_the_missing_shard(folder, monkeypatch):
     rendered = []
     real = td._render_shard
     monkeypatch.setattr(td, "_render_shard", lambda job: rendered.append(len(job[1])) or real(job))
-    make_training_data(CFG, folder, parallel=False, progress=False)
+    make_training_data(CFG, folder, execution=SERIAL)
     assert rendered == [1]  # the third episode only
     assert {p.name: p.read_bytes() for p in sorted(folder.glob("shard-*.npz"))} == before  # same bytes again
 
@@ -48,8 +49,7 @@ def test_a_folder_made_otherwise_is_refused(folder):
         make_training_data(
             DataConfig(split="train", episodes=3, max_steps=6, width=64, height=24, episodes_per_shard=2),
             folder,
-            parallel=False,
-            progress=False,
+            execution=SERIAL,
         )
 
 
@@ -97,11 +97,13 @@ def test_resize_keeps_holes_as_holes_and_averages_readings():
 def test_bad_data_configs_name_the_field():
     with pytest.raises(ValueError, match="split must be one of"):
         DataConfig(split="holdout")
-    with pytest.raises(ValueError, match="episodes must be >= 1"):
+    with pytest.raises(ValueError, match=r"episodes must be in \[1, 1000000\], got 0"):
         DataConfig(episodes=0)
-    with pytest.raises(ValueError, match="at most the camera's 341 x 192"):
+    with pytest.raises(ValueError, match=r"episodes must be a whole number in \[1, 1000000\], got 1.5"):
+        DataConfig(episodes=1.5)
+    with pytest.raises(ValueError, match=r"width must be in \[1, 341\], got 400"):  # the camera's width
         DataConfig(width=400)
-    with pytest.raises(ValueError, match="unknown data field"):
+    with pytest.raises(ValueError, match="x.json: unknown field"):
         DataConfig.from_dict({"colour": 1}, "x.json")
 
 
@@ -139,8 +141,8 @@ def test_a_killed_runs_leftovers_are_cleared_and_a_bad_manifest_named(folder, tm
     shutil.copytree(folder, copy)
     orphan = copy / ".shard-00001-abc.npz.xyz.tmp"
     orphan.write_bytes(b"half a shard")
-    make_training_data(CFG, copy, parallel=False, progress=False)
+    make_training_data(CFG, copy, execution=SERIAL)
     assert not orphan.exists()
     (copy / td.MANIFEST).write_text('{"format": 1, "shards": {}}')
     with pytest.raises(ValueError, match="no config or shards"):
-        make_training_data(CFG, copy, parallel=False, progress=False)
+        make_training_data(CFG, copy, execution=SERIAL)

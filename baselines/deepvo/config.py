@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-from odolab.learning import check, dataclass_from_toml, setting
+from odolab.learning import check, from_toml, setting
 from odolab.learning.configs import RecipeConfig
 
 #: The original encoder (FlowNetSimple's 9 convolutions): (output channels, kernel, stride).
@@ -77,6 +78,7 @@ class DeepVOTraining(RecipeConfig):
         self.require_data_size(self.model.width, self.model.height)
 
 
-def load_training(path: str) -> DeepVOTraining:
-    """Read a recipe from TOML; :class:`~odolab.learning.ConfigError` names the file and field."""
-    return dataclass_from_toml(DeepVOTraining, path)
+def load_training(path: str, changes: Sequence[str] = ()) -> DeepVOTraining:
+    """Read a recipe from TOML with ``path=value`` ``changes`` (``lr=1e-4``, ``model.width_scale=0.25``);
+    :class:`~odolab.learning.ConfigError` names the file and field."""
+    return from_toml(DeepVOTraining, path, changes)

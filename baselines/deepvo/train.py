@@ -26,7 +26,15 @@ from tqdm.auto import tqdm
 from baselines.deepvo.config import DeepVOTraining, load_training
 from baselines.deepvo.model import ACTION_INPUTS, DeepVONet, frame_tensor
 from baselines.deepvo.odometer import load_model, save_model
-from odolab.learning import EpochLoop, TrainingData, load_init, make_training_data, prefetched, require_finite
+from odolab.learning import (
+    EpochLoop,
+    Execution,
+    TrainingData,
+    load_init,
+    make_training_data,
+    prefetched,
+    require_finite,
+)
 from odolab.learning.distributed import Team, run_on_ray
 from odolab.learning.epochs import EpochTracker
 from odolab.learning.validation import error_rows, write_report
@@ -123,9 +131,7 @@ def run(
     export: Path,
     device: torch.device,
     hours: float | None,
-    ray_address: str | None = None,
-    parallel_data: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
     command: str = "",
     workers: int = 1,
     gpus_per_worker: float = 0.0,
@@ -134,15 +140,15 @@ def run(
     ``workers`` > 1, data-parallel on Ray Train (:mod:`odolab.learning.distributed`)."""
     first_stage(cfg, export)  # checked before any data is made
     for dc in (cfg.train_data, cfg.val_data):
-        make_training_data(dc, cfg.data_folder(dc), ray_address=ray_address, parallel=parallel_data, progress=progress)
-        TrainingData(cfg.data_folder(dc)).verify(progress)
+        make_training_data(dc, cfg.data_folder(dc), execution=execution)
+        TrainingData(cfg.data_folder(dc)).verify(execution.progress)
     job = {
         "cfg": cfg,
         "work": work,
         "reports": reports,
         "export": export,
         "hours": hours,
-        "progress": progress,
+        "progress": execution.progress,
         "command": command,
         "device": device,
     }
@@ -154,7 +160,7 @@ def run(
         workers=workers,
         work=work,
         export=export,
-        ray_address=ray_address,
+        ray_address=execution.ray_address,
         gpus_per_worker=gpus_per_worker,
     )
 
@@ -188,8 +194,6 @@ def train_windows(job: dict) -> dict:
     net = compute.prepare(DeepVONet(cfg.model))
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
     identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init", "compute")}
-    if not cfg.model.actions:  # recipes written before the switch existed resume
-        del identity["model"]["actions"]
     if start is not None:
         net.load_state_dict(start[0])
         identity["init_sha256"] = start[1]

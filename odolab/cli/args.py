@@ -16,6 +16,8 @@ import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
+from odolab.parallel import Execution
+
 #: Largest accepted seed (seeds feed numpy's SeedSequence; 2^32 - 1 keeps them portable).
 MAX_SEED = 2**32 - 1
 
@@ -127,6 +129,16 @@ def file_arg(option: str) -> Callable[[str], Path]:
         return path
 
     return parse
+
+
+def execution_of(args: argparse.Namespace) -> Execution:
+    """Where a command's fan-out work runs, from its ``--ray-address``, ``--serial`` and ``--quiet``
+    (an option the command lacks counts as not given)."""
+    return Execution(
+        ray_address=getattr(args, "ray_address", None),
+        parallel=not getattr(args, "serial", False),
+        progress=not getattr(args, "quiet", False),
+    )
 
 
 def check_ray_option(address: str | None, serial: bool = False) -> None:

@@ -21,6 +21,7 @@ from odolab.cli.args import (
     check_output_dir,
     check_output_file,
     check_ray_option,
+    execution_of,
     file_arg,
     given_options,
     number,
@@ -140,9 +141,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     specs = [
         EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)
     ]
-    episodes = load_episodes(
-        specs, EpisodeCache(args.cache), ray_address=args.ray_address, parallel=not args.serial, progress=not args.quiet
-    )
+    episodes = load_episodes(specs, EpisodeCache(args.cache), execution=execution_of(args))
     results = run(odometers, episodes, observer=StepProgressBar(disable=args.quiet))
     near_depth = calibration.near_depth if calibration is not None else args.near_depth
     near = near_views(episodes, near_depth)

@@ -19,6 +19,7 @@ from odolab.cli.args import (
     check_output_dir,
     check_ray_option,
     check_report_dir,
+    execution_of,
     given_options,
     number,
     path_arg,
@@ -252,9 +253,7 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
         tum_depth_scale=args.depth_scale,
         tum_intrinsics=args.intrinsics,
         cache=None if args.no_cache else args.cache,
-        ray_address=args.ray_address,
-        parallel=not args.serial,
-        progress=not args.quiet,
+        execution=execution_of(args),
         command=None if args.tum is not None else _command(args),
     )
 

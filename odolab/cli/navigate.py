@@ -11,7 +11,6 @@ belief.png, paths-*.png and report.html under --out (see odolab.navigation.study
 
 from __future__ import annotations
 
-import dataclasses
 import shlex
 import sys
 from collections.abc import Sequence
@@ -23,6 +22,7 @@ from odolab.cli.args import (
     UsageError,
     check_ray_option,
     check_report_dir,
+    execution_of,
     number,
     path_arg,
     run_cli,
@@ -129,9 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.out,
             tasks,
             config_doc(names, options, specs, policy),
-            ray_address=args.ray_address,
-            parallel=not args.serial,
-            progress=not args.quiet,
+            execution=execution_of(args),
         )
     except UnsafeOutputError as exc:
         raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
@@ -142,7 +140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = "python -m odolab.navigate " + " ".join(
         shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])
     )
-    table = write_outputs(args.out, rows, names, specs, command, policy=dataclasses.asdict(policy))
+    table = write_outputs(args.out, rows, names, specs, command, policy=policy)
     for r in table:
         print(
             f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "

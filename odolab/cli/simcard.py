@@ -7,7 +7,17 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from odolab import simcard
-from odolab.cli.args import MAX_SEED, ArgumentParser, UsageError, check_report_dir, number, path_arg, run_cli, seed
+from odolab.cli.args import (
+    MAX_SEED,
+    ArgumentParser,
+    UsageError,
+    check_report_dir,
+    execution_of,
+    number,
+    path_arg,
+    run_cli,
+    seed,
+)
 
 
 def build_parser() -> ArgumentParser:
@@ -79,9 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.frames,
         args.max_steps,
         args.seed,
-        parallel=not args.serial,
-        ray_address=args.ray_address,
-        progress=not args.quiet,
+        execution=execution_of(args),
     )
     command = (
         f"python -m odolab.simcard --split {args.split} --episodes {args.episodes} --rendered {args.rendered} "

@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from odolab.cli.args import ArgumentParser, check_report_dir, number, path_arg, run_cli, seed
+from odolab.cli.args import ArgumentParser, check_report_dir, execution_of, number, path_arg, run_cli, seed
 from odolab.episodes import MAX_EPISODE_STEPS
 from odolab.sim.scenes import SPLITS
 from odolab.training_data import (
@@ -84,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.ray_address is not None and not args.serial:
             check_ray_address(args.ray_address)
-        make_training_data(cfg, args.out, ray_address=args.ray_address, parallel=not args.serial)
+        make_training_data(cfg, args.out, execution=execution_of(args))
         data = TrainingData(args.out)
     except RayAddressError as exc:
         ap.error(exc.named("--ray-address"))

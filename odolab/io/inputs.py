@@ -12,13 +12,21 @@ from typing import Any
 MAX_INPUT_BYTES = 16 * 2**20
 
 
+def missing(path: str | os.PathLike, what: str = "file") -> str:
+    """Why ``path`` cannot be opened though named: ``no such <what>``, or, for a symbolic link whose
+    target does not exist, ``is a link to nothing (<target> does not exist)``."""
+    if os.path.islink(path):
+        return f"is a link to nothing ({os.readlink(path)} does not exist)"
+    return f"no such {what}"
+
+
 def check_regular_file(path: str | os.PathLike, what: str = "file") -> None:
     """Raise ``ValueError("<path>: ...")`` unless ``path`` is (a link to) a regular file: missing
     ("no such <what>"), a folder, a pipe, a device or a socket."""
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
-        raise ValueError(f"{path}: no such {what}") from None
+        raise ValueError(f"{path}: {missing(path, what)}") from None
     except OSError as exc:  # a link loop, a name too long, no permission on a folder on the way
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if stat.S_ISDIR(mode):

@@ -8,6 +8,7 @@ import os
 import numpy as np
 
 from odolab.io.errors import FileFormatError
+from odolab.io.inputs import missing
 
 
 def read_lines(path: str | os.PathLike) -> list[str]:
@@ -17,7 +18,7 @@ def read_lines(path: str | os.PathLike) -> list[str]:
         with open(path, encoding="utf-8-sig") as f:
             return f.read().splitlines()
     except FileNotFoundError:
-        raise FileFormatError(path, None, "no such file") from None
+        raise FileFormatError(path, None, missing(path)) from None
     except IsADirectoryError:
         raise FileFormatError(path, None, "is a directory, not a file") from None
     except UnicodeDecodeError as exc:

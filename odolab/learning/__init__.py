@@ -9,14 +9,16 @@ from __future__ import annotations
 
 from odolab.learning.checkpoints import CheckpointError, load_checkpoint, load_init, save_checkpoint
 from odolab.learning.compute import Compute, ComputeConfig, choose_compute
-from odolab.learning.configs import ConfigError, check, dataclass_from_toml, describe, read_toml, setting
+from odolab.learning.configs import ConfigError, check, describe, from_toml, read_toml, setting
 from odolab.learning.curves import Curves
 from odolab.learning.device import pick_device
 from odolab.learning.epochs import EpochLoop, StopRequested, require_finite
 from odolab.learning.loading import prefetched
+from odolab.parallel import SERIAL, Execution
 from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 __all__ = [
+    "SERIAL",
     "CheckpointError",
     "Compute",
     "ComputeConfig",
@@ -24,12 +26,13 @@ __all__ = [
     "Curves",
     "DataConfig",
     "EpochLoop",
+    "Execution",
     "StopRequested",
     "TrainingData",
     "check",
     "choose_compute",
-    "dataclass_from_toml",
     "describe",
+    "from_toml",
     "load_checkpoint",
     "load_init",
     "make_training_data",

@@ -172,11 +172,11 @@ def load_model(
     """Read a model file of ``kind``: (``model_cls`` config, networks built by ``build(config)`` with
     their weights, in eval mode, ``{"recipe": ..., "training": ..., "sha256": file digest}``). :class:`CheckpointError`
     names the file when it is not such a file or its weights do not fit its config."""
-    from odolab.learning.configs import dataclass_from_dict
+    from odolab.config import build as build_config
 
     doc = load_checkpoint(path, kind, MODEL_FORMAT)
     try:
-        cfg = dataclass_from_dict(model_cls, doc["model"], f"{path}: model")
+        cfg = build_config(model_cls, doc["model"], f"{path}: model")
         nets = build(cfg)
         missing = sorted(set(nets) - set(doc["networks"]))
         if missing:

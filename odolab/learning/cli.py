@@ -23,6 +23,8 @@ from odolab.cli import (
     path_arg,
     run_cli,
 )
+from odolab.config import ChangeError
+from odolab.parallel import Execution
 
 __all__ = [
     "TrainingJob",
@@ -38,7 +40,8 @@ __all__ = [
 class TrainingJob:
     """What a training command was asked to do: the recipe (``config``), the torch device, where the
     per-epoch states (``work``), the curves (``reports``) and the finished model (``export``) go, the
-    time budget in hours (None: no limit), and the command line that asked (for the record)."""
+    time budget in hours (None: no limit), where data are made and whether with progress bars
+    (``execution``), and the command line that asked (for the record)."""
 
     config: Any
     device: Any
@@ -46,8 +49,7 @@ class TrainingJob:
     reports: Path
     export: Path
     hours: float | None
-    ray_address: str | None
-    progress: bool
+    execution: Execution
     command: str
     workers: int = 1
     gpus_per_worker: float = 0.0
@@ -58,6 +60,14 @@ def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
     ``reports/<family>/<recipe name>``)."""
     ap = ArgumentParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", type=path_arg("--config"), required=True, help="TOML recipe")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="PATH=VALUE",
+        help="change one recipe value, e.g. --set seed=1 --set model.width=341 --set stages.forward.lr=1e-4 "
+        "(a changed recipe is another run: give it its own --work)",
+    )
     ap.add_argument(
         "--work",
         type=path_arg("--work"),
@@ -125,10 +135,11 @@ def stage_states(config: Any, work: Path) -> dict[str, Path]:
 def parse_training_command(
     ap: ArgumentParser,
     argv: Sequence[str] | None,
-    load_config: Callable[[str], Any],
+    load_config: Callable[[str, Sequence[str]], Any],
     state_files: StateFiles | None = None,
 ) -> TrainingJob:
-    """Parse, read the recipe with ``load_config`` (its ``ValueError`` becomes a usage error), pick
+    """Parse, read the recipe with ``load_config(path, --set changes)`` (its ``ValueError`` becomes a
+    usage error), pick
     the device, set the thread count and check every output path before any work: ``--export``
     must not be the recipe, a training state (``state_files``, default :func:`stage_states`) or a
     file that is not a model odolab exported."""
@@ -139,8 +150,10 @@ def parse_training_command(
 
     args = ap.parse_args(argv)
     try:
-        config = load_config(str(args.config))
+        config = load_config(str(args.config), args.set)
         device = pick_device(args.device)
+    except ChangeError as exc:
+        raise UsageError(f"--set {exc}") from None
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     name = args.config.stem
@@ -185,8 +198,7 @@ def parse_training_command(
         reports,
         export,
         args.hours,
-        args.ray_address,
-        not args.quiet,
+        Execution(ray_address=args.ray_address, progress=not args.quiet),
         " ".join([ap.prog, *argv]),
         args.workers,
         args.gpus_per_worker,
@@ -284,12 +296,13 @@ def training_main(
     prog: str,
     description: str,
     family: str,
-    load_config: Callable[[str], Any],
+    load_config: Callable[[str, Sequence[str]], Any],
     run: Callable[..., bool],
     state_files: StateFiles | None = None,
 ) -> int:
     """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
-    ``run(config, work=, reports=, export=, device=, hours=, ray_address=, progress=, command=)``
+    ``run(config, work=, reports=, export=, device=, hours=, execution=, command=, workers=,
+    gpus_per_worker=)``
     (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
     ap = training_parser(prog, description, family)
     job = parse_training_command(ap, argv, load_config, state_files)
@@ -301,8 +314,7 @@ def training_main(
             export=job.export,
             device=job.device,
             hours=job.hours,
-            ray_address=job.ray_address,
-            progress=job.progress,
+            execution=job.execution,
             command=job.command,
             workers=job.workers,
             gpus_per_worker=job.gpus_per_worker,

@@ -23,10 +23,6 @@ from odolab.config import (
 from odolab.learning.compute import ComputeConfig
 from odolab.training_data import DataConfig
 
-#: The names recipes were built with before :mod:`odolab.config`.
-dataclass_from_dict = build
-dataclass_from_toml = from_toml
-
 
 @dataclass(frozen=True)
 class RecipeConfig:
@@ -70,8 +66,6 @@ __all__ = [
     "assign",
     "build",
     "check",
-    "dataclass_from_dict",
-    "dataclass_from_toml",
     "describe",
     "from_toml",
     "range_text",

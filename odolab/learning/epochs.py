@@ -20,7 +20,8 @@ from odolab.learning.curves import Curves
 from odolab.learning.distributed import Team
 
 STATE_KIND = "odolab-training-state"
-STATE_FORMAT = 1
+#: The layout of a saved state, its identity included; a state of another format is refused.
+STATE_FORMAT = 2
 
 
 _ABSENT = object()

@@ -41,16 +41,6 @@ from odolab.errors import InputError
 from odolab.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap_angle
 from odolab.types import FORWARD_STEP, Action, Intrinsics
 
-#: The value of each parameter added after results were first saved that gives the behaviour from
-#: before it: a saved policy without the parameter was made with this value.
-POLICY_BEFORE: dict[str, float] = {"fallback_radius": 0.0}
-
-
-def with_old_behaviour(saved: dict) -> dict:
-    """A saved policy's parameters, each one it predates given the value of its old behaviour
-    (:data:`POLICY_BEFORE`)."""
-    return {**{k: v for k, v in POLICY_BEFORE.items() if k not in saved}, **saved}
-
 
 @dataclass(frozen=True)
 class PolicyConfig:

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from odolab.io.inputs import read_input_bytes, read_input_json
-from odolab.navigation.agent import with_old_behaviour
 from odolab.navigation.report import markdown_cell
 
 #: The columns of ``episodes.csv`` this reads: (kind, lowest, highest); ``bool``: 0 or 1.
@@ -192,9 +191,8 @@ def unpaired(before: dict, after: dict) -> list[str]:
 
 
 def setting_notes(before: Path, after: Path) -> list[str]:
-    """Notes on how the two folders' ``config.json`` settings differ: policy parameters (a folder
-    from before a parameter existed counts as its old value, ``with_old_behaviour``) and the episodes'
-    step limit and noise; or that a config could not be read, so settings were not compared."""
+    """Notes on how the two folders' ``config.json`` settings differ: policy parameters (one only one
+    folder records shows as ``-`` in the other) and the episodes' step limit and noise; or that a config could not be read, so settings were not compared."""
     docs = []
     for folder in (before, after):
         try:
@@ -208,7 +206,7 @@ def setting_notes(before: Path, after: Path) -> list[str]:
         ):
             return [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
         docs.append(doc)
-    policies = [with_old_behaviour(d["policy"]) for d in docs]
+    policies = [d["policy"] for d in docs]
     changed = [
         f"{k} {policies[0].get(k, '-')!r} -> {policies[1].get(k, '-')!r}"
         for k in sorted(set(policies[0]) | set(policies[1]))

@@ -21,9 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from odolab.config import describe
 from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.owned import owned_path
+from odolab.navigation.agent import PolicyConfig
 from odolab.navigation.metrics import belief_error, mean_ci
 
 METRICS = ("success", "spl", "soft_spl", "d_end", "belief_error")
@@ -230,10 +232,10 @@ def write_outputs(
     specs: list[EpisodeSpec],
     command: str,
     sample_episodes: int = 2,
-    policy: dict | None = None,
+    policy: PolicyConfig | None = None,
 ) -> list[dict]:
-    """Tables, figures and ``report.html`` under ``out`` (``policy``: the policy's parameters, shown
-    in the report, since a command's defaults change between versions), each through
+    """Tables, figures and ``report.html`` under ``out`` (``policy``: the policy, whose parameters the
+    report lists with their ranges and meanings, since a command's defaults change between versions), each through
     :func:`odolab.io.owned.owned_path` (never through a link); returns the per-odometer table."""
     rows = [{**r, "belief_error": belief_error(r)} for r in rows]
     table = summarize(rows, odometers)
@@ -325,7 +327,21 @@ def markdown_table(table: list[dict], oracle: str = "ground-truth") -> str:
     return head + "".join(lines)
 
 
-def _html(table: list[dict], figures: list[str], command: str, policy: dict | None = None) -> str:
+def _policy_html(policy: PolicyConfig) -> str:
+    """The policy's parameters as a table: name, value, valid values and meaning (:func:`odolab.config.describe`)."""
+    rows = "".join(
+        f"<tr><td><code>{html.escape(s.name)}</code></td><td>{html.escape(repr(s.value))}</td>"
+        f"<td>{html.escape(s.range)}</td><td>{html.escape(s.doc)}</td></tr>"
+        for s in describe(policy)
+    )
+    return (
+        "<details><summary>Policy (<code>PolicyConfig</code>; change one with <code>--policy key=value</code>)"
+        f"</summary><table><tr><th>parameter</th><th>value</th><th>valid</th><th>meaning</th></tr>{rows}</table>"
+        "</details>"
+    )
+
+
+def _html(table: list[dict], figures: list[str], command: str, policy: PolicyConfig | None = None) -> str:
     head = (
         "<tr>"
         + "".join(
@@ -378,12 +394,7 @@ def _html(table: list[dict], figures: list[str], command: str, policy: dict | No
         "border-bottom:1px solid #ccc}img{max-width:100%}</style></head><body>"
         "<h1>PointGoal navigation with each odometer</h1>"
         f"<p><code>{html.escape(command)}</code></p>"
-        + (
-            f"<p>Policy (<code>PolicyConfig</code>): <code>{html.escape(' '.join(f'{k}={v}' for k, v in policy.items()))}"
-            "</code></p>"
-            if policy
-            else ""
-        )
+        + (_policy_html(policy) if policy is not None else "")
         + "<p>Means with 95 % intervals (Wilson for success, Student t otherwise). "
         "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
         "Final belief error: the distance between the agent's true and believed positions when the episode "

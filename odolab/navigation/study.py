@@ -30,7 +30,8 @@ from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
 from odolab.io.owned import check_owned_path, owned_path
-from odolab.navigation.agent import PolicyConfig, with_old_behaviour
+from odolab.navigation.agent import PolicyConfig
+from odolab.parallel import Execution, fan_out
 
 
 @dataclass(frozen=True)
@@ -135,6 +136,10 @@ def _safe(name: str) -> str:
     clean = re.sub(r"[^A-Za-z0-9_.-]", "_", name)
     return clean if clean == name else f"{clean}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
+
+#: The layout of a run folder (``config.json`` and the episode files); a folder of another format is
+#: refused, and is run again once deleted.
+FORMAT = 1
 
 ROW_KEYS = (
     "odometer",
@@ -327,14 +332,13 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[Setting]:
     return said or [Setting(None, "the episodes' noise or camera")]
 
 
-def _saved_policy(saved: dict, policy: dict) -> tuple[dict, list[str]]:
-    """A folder's saved policy as made (a parameter it predates at its old behaviour, where this
-    version has it), and the parameters, sorted, whose value or kind differ from ``policy``'s."""
-    full = {k: v for k, v in with_old_behaviour(saved).items() if k in saved or k in policy}
-    return full, [
+def _differing(saved: dict, policy: dict) -> list[str]:
+    """The parameters, sorted, whose value or kind differ between a folder's saved policy and ``policy``
+    (one only one of them records included)."""
+    return [
         k
-        for k in sorted(set(full) | set(policy))
-        if k not in full or k not in policy or full[k] != policy[k] or type(full[k]) is not type(policy[k])
+        for k in sorted(set(saved) | set(policy))
+        if k not in saved or k not in policy or saved[k] != policy[k] or type(saved[k]) is not type(policy[k])
     ]
 
 
@@ -342,21 +346,14 @@ def _policy_changes(saved: Any, policy: dict) -> list[Setting]:
     """Which ``policy`` parameters make ``policy`` differ from a folder's saved one."""
     if not isinstance(saved, dict):
         return [Setting(None, "the policy")] if saved != policy else []
-    full, differ = _saved_policy(saved, policy)
+    differ = _differing(saved, policy)
     if not differ:
         return []
-    before = {k: v for k, v in full.items() if k not in saved}
     short = reprlib.Repr()
     short.maxstring, short.maxother = 30, 30
 
     def said(k: str) -> str:
-        there = (
-            f"not recorded there, so {before[k]!r}: that folder predates this parameter"
-            if k in before
-            else f"{short.repr(saved[k])} there"
-            if k in saved
-            else "not recorded there: that folder predates this parameter"
-        )
+        there = f"{short.repr(saved[k])} there" if k in saved else "not recorded there"
         now = f"{policy[k]!r} now" if k in policy else "no such parameter now"
         return Setting("policy", f"{k} ({there}, {now})")
 
@@ -368,16 +365,17 @@ def _policy_to_match(saved: Any, policy: dict) -> list[Setting]:
     saved policy is not a plain set of this version's numeric parameters)."""
     if not isinstance(saved, dict):
         return []
-    full, diff = _saved_policy(saved, policy)
+    diff = _differing(saved, policy)
     if not diff or not all(
-        k in full and k in policy and type(full[k]) is type(policy[k]) and type(full[k]) in (int, float) for k in diff
+        k in saved and k in policy and type(saved[k]) is type(policy[k]) and type(saved[k]) in (int, float)
+        for k in diff
     ):
         return []
     try:  # a hand-edited value out of range is not suggested
-        PolicyConfig(**{**policy, **{k: full[k] for k in diff}})
+        PolicyConfig(**{**policy, **{k: saved[k] for k in diff}})
     except (TypeError, ValueError):
         return []
-    return [Setting("policy", f"{k}={full[k]!r}") for k in diff]
+    return [Setting("policy", f"{k}={saved[k]!r}") for k in diff]
 
 
 def _option_changes(odometer: str, saved: Any, options: dict) -> str:
@@ -404,14 +402,11 @@ def run_navigation(
     tasks: list[NavTask],
     config: dict,
     *,
-    ray_address: str | None = None,
-    parallel: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
 ) -> list[dict]:
     """Run the tasks whose results ``out`` lacks; returns every task's row, in task order.
     :class:`RunFolderError` for a folder (or a file in it) that cannot take them: another's files,
     results made with other settings, a link or a file where a result belongs."""
-    from odolab.parallel import fan_out
 
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "config.json"
@@ -433,6 +428,12 @@ def run_navigation(
         )
         if problem:
             raise RunFolderError(f"{cfg_path}: not a navigation config ({problem})", "choose another {folder}")
+        if saved.get("format") != FORMAT:
+            raise RunFolderError(
+                f"{cfg_path}: navigation results of format {reprlib.repr(saved.get('format'))}; "
+                f"this odolab writes format {FORMAT}",
+                "delete the folder to run them again, or choose another {folder}",
+            )
         episodes = _episode_changes(saved.get("episodes"), config["episodes"])
         policy = _policy_changes(saved.get("policy"), config.get("policy"))
         options = [
@@ -484,18 +485,17 @@ def run_navigation(
         run_task,
         todo,
         on_result=done,
-        parallel=parallel,
-        ray_address=ray_address,
-        progress=progress,
+        execution=execution,
         desc="navigation episodes",
     )
     return [json.loads(result_path(out, t.odometer, t.spec.index).read_text(encoding="utf-8")) for t in tasks]
 
 
 def config_doc(odometers: list[str], options: dict, specs: list[EpisodeSpec], policy: PolicyConfig) -> dict:
-    """What the results depend on (compared with a folder's ``config.json`` before reuse: the same
+    """The folder's layout (``format``) and what the results depend on (compared with a folder's ``config.json`` before reuse: the same
     episodes and policy, and the same options for an odometer run before; new odometers may join)."""
     return {
+        "format": FORMAT,
         "options": {n: options.get(n, {}) for n in odometers},
         "episodes": [dataclasses.asdict(s) for s in specs],
         "policy": dataclasses.asdict(policy),

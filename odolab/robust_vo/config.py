@@ -4,11 +4,12 @@ recipe, as frozen dataclasses read from TOML (see ``studies/robust_vo/*.toml``).
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 from odolab.api import MOTION_ACTIONS, Action
-from odolab.learning import dataclass_from_toml
+from odolab.learning import from_toml
 from odolab.learning.configs import RecipeConfig, check, setting
 
 ACTION_BY_LABEL = {a.label: a for a in MOTION_ACTIONS}
@@ -69,8 +70,6 @@ class ModelConfig:
             raise ValueError(f"base_planes ({self.base_planes}) must be a positive multiple of groups ({self.groups})")
         if self.mirror_turns and self.kind != "sepact":
             raise ValueError(f"mirror_turns needs kind = 'sepact' (one network per action), got {self.kind!r}")
-        if self.warp not in ("none", "nominal"):
-            raise ValueError(f"warp must be 'none' or 'nominal', got {self.warp!r}")
         if not (self.depth_residual == 0 or 0 < self.depth_residual <= 10):
             raise ValueError(f"depth_residual must be 0 (off) or in (0, 10] m, got {self.depth_residual}")
         if self.depth_residual and self.warp != "nominal":
@@ -170,6 +169,7 @@ class TrainConfig(RecipeConfig):
         self.require_data_size(self.model.width, self.model.height)
 
 
-def load_train_config(path: str) -> TrainConfig:
-    """Read a recipe from TOML; :class:`~odolab.learning.ConfigError` names the file and field."""
-    return dataclass_from_toml(TrainConfig, path)
+def load_train_config(path: str, changes: Sequence[str] = ()) -> TrainConfig:
+    """Read a recipe from TOML with ``path=value`` ``changes`` (``stages.forward.lr=1e-4``,
+    :func:`odolab.config.change_document`); :class:`~odolab.learning.ConfigError` names the file and field."""
+    return from_toml(TrainConfig, path, changes)

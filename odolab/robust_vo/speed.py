@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from odolab.learning import Compute, EpochLoop, TrainingData, make_training_data
+from odolab.learning import SERIAL, Compute, EpochLoop, TrainingData, make_training_data
 from odolab.learning.epochs import EpochTracker
 from odolab.robust_vo.config import TrainConfig
 from odolab.robust_vo.model import VONet
@@ -69,7 +69,7 @@ def inference_steps_per_s(cfg: TrainConfig, compute: Compute, steps: int = 20) -
 def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 20) -> TrainingData:
     """A few val episodes at the recipe's size, made in ``folder`` (in this process)."""
     small = dataclasses.replace(cfg.val_data, episodes=episodes)
-    make_training_data(small, folder, parallel=False, progress=False)
+    make_training_data(small, folder, execution=SERIAL)
     return TrainingData(folder)
 
 

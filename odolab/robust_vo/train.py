@@ -22,7 +22,7 @@ import torch
 from tqdm.auto import tqdm
 
 from odolab.api import Action
-from odolab.learning import EpochLoop, TrainingData, make_training_data, require_finite
+from odolab.learning import EpochLoop, Execution, TrainingData, make_training_data, require_finite
 from odolab.learning.compute import Compute
 from odolab.learning.distributed import Team
 from odolab.learning.epochs import EpochTracker
@@ -35,16 +35,14 @@ from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
 
 
-def open_data(
-    cfg: TrainConfig, *, ray_address: str | None = None, parallel: bool = True, progress: bool = True
-) -> tuple[TrainingData, TrainingData]:
+def open_data(cfg: TrainConfig, *, execution: Execution = Execution()) -> tuple[TrainingData, TrainingData]:
     """The recipe's train and val data, made first where missing."""
     out = []
     for data in (cfg.train_data, cfg.val_data):
         folder = cfg.data_folder(data)
-        make_training_data(data, folder, ray_address=ray_address, parallel=parallel, progress=progress)
+        make_training_data(data, folder, execution=execution)
         out.append(TrainingData(folder))
-        out[-1].verify(progress)
+        out[-1].verify(execution.progress)
     return out[0], out[1]
 
 
@@ -188,17 +186,11 @@ class StageRunner:
 def _identity(cfg: TrainConfig, stage: StageConfig, init_sha256: str = "") -> dict:
     """What a saved stage state must match to be resumed: everything but this stage's number of
     epochs, the earlier stages included (a stage trained on top of other weights is another run);
-    a stage without turns leaves out ``mirror_turns``, which only decides the turn networks, and a
-    ``blocked_repeat`` of 1, a ``depth_residual`` of 0 and an empty ``init`` are left out (recipes
-    written before they existed resume); a start from ``init`` is identified by its file's digest."""
+    a stage without turns leaves out ``mirror_turns``, which only decides the turn networks; a start
+    from ``init`` is identified by its file's digest (``init_sha256``)."""
     doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    if not doc["model"]["depth_residual"]:
-        del doc["model"]["depth_residual"]
     if not {Action.TURN_LEFT, Action.TURN_RIGHT} & set(stage.action_set):
         del doc["model"]["mirror_turns"]  # which network answers right turns cannot change this stage
-    for stage_doc in doc["stages"]:
-        if stage_doc["blocked_repeat"] == 1:
-            del stage_doc["blocked_repeat"]
     k = cfg.stages.index(stage)
     stage_doc = {key: v for key, v in doc["stages"][k].items() if key != "epochs"}
     out = {
@@ -237,26 +229,25 @@ def run(
     export: Path,
     device: torch.device,
     hours: float | None,
-    ray_address: str | None = None,
-    parallel_data: bool = True,
-    progress: bool = True,
+    execution: Execution = Execution(),
     command: str = "",
     workers: int = 1,
     gpus_per_worker: float = 0.0,
 ) -> bool:
     """Run (or resume) every stage; export when all are done. Returns True when finished. With
     ``workers`` > 1, data-parallel on Ray Train (:mod:`odolab.learning.distributed`); the data are
-    made first, here."""
+    made first, here. ``execution``: where the data are made (and the workers run), and whether
+    with progress bars."""
     if cfg.init:
         load_start(cfg.init, cfg, export)  # checked before any data is made
-    train, val = open_data(cfg, ray_address=ray_address, parallel=parallel_data, progress=progress)
+    train, val = open_data(cfg, execution=execution)
     job = {
         "cfg": cfg,
         "work": work,
         "reports": reports,
         "export": export,
         "hours": hours,
-        "progress": progress,
+        "progress": execution.progress,
         "command": command,
     }
     if workers == 1:
@@ -269,7 +260,7 @@ def run(
         workers=workers,
         work=work,
         export=export,
-        ray_address=ray_address,
+        ray_address=execution.ray_address,
         gpus_per_worker=gpus_per_worker,
     )
 

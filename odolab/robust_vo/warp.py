@@ -10,6 +10,12 @@ hole get RGB 0 and depth 0 (a hole). If the robot moved as commanded, the warped
 previous one up to noise and occlusions, so the network sees only the deviation from the command
 (what it must predict beyond the action prior). For a pure rotation the warp does not depend on the
 depth at all: it is the homography K R^T K^-1.
+
+The back-projection is kornia's ``depth_to_3d_v2`` (integer pixel centres, as
+:class:`odolab.types.Intrinsics` has them), to the bit the plain d * ((u - cx) / fx, (v - cy) / fy, 1).
+The rigid transform, the projection and the sampled point's ray are written out: kornia's
+``transform_points`` with ``project_points`` measured 1.7x this warp's time (32 pairs at 341 x 192,
+one CPU thread) and round differently, and its ``unproject_points`` measured 1.8x the time of that ray.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 import torch.nn.functional as F
+from kornia.geometry.depth import depth_to_3d_v2
 
 from odolab.api import Action, Intrinsics, nominal_motion
 
@@ -47,11 +54,10 @@ def warp_current(
     """
     _b, h, w = depth.shape
     K = intrinsics
-    v, u = torch.meshgrid(torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij")
-    ray = torch.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, torch.ones_like(u)], dim=-1)  # (H, W, 3)
     d = prev_depth.to(torch.float32)
     d = torch.where(d > 0, d, torch.full_like(d, fallback_depth))
-    points = d[..., None] * ray  # previous camera, (B, H, W, 3)
+    camera = torch.as_tensor(K.matrix, dtype=torch.float32, device=d.device)[None]  # (1, 3, 3): one ray grid
+    points = depth_to_3d_v2(d, camera)  # previous camera, (B, H, W, 3): d * ((u - cx) / fx, (v - cy) / fy, 1)
     R, t = T_prev_cur[:, :3, :3].to(torch.float32), T_prev_cur[:, :3, 3].to(torch.float32)
     in_cur = torch.einsum("bji,bhwj->bhwi", R, points - t[:, None, None, :])  # R^T (P - t)
     z = in_cur[..., 2]
