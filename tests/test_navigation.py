@@ -198,7 +198,9 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     a = (tmp_path / "a" / "nav.csv").read_text()
     assert a == (tmp_path / "b" / "nav.csv").read_text() and a.count("\n") == 3
     assert (tmp_path / "a" / "metrics.png").stat().st_size > 10_000
-    assert "<code>fallback_radius</code></td><td>0.1</td>" in (tmp_path / "a" / "report.html").read_text()  # the policy, defaults included
+    assert (
+        "<code>fallback_radius</code></td><td>0.1</td>" in (tmp_path / "a" / "report.html").read_text()
+    )  # the policy, defaults included
     done = sorted((tmp_path / "a" / "episodes").rglob("*.json"))
     assert len(done) == 4
     done[2].unlink()  # an interrupted run: one episode missing
