@@ -613,6 +613,25 @@ def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path
     assert "turn_right" in rows  # right turns are still validated, through the mirrored network
 
 
+def test_a_run_from_an_init_records_the_start_and_its_training(recipe, trained, tmp_path):
+    """training.json names the model a run started from and that model's own stages, which the
+    scaling study adds to the run's samples seen and hours."""
+    started = dataclasses.replace(recipe, init=str(trained / "model.pt"))
+    assert trainer.run(
+        started,
+        work=tmp_path / "w",
+        reports=tmp_path / "r",
+        export=tmp_path / "m.pt",
+        device=torch.device("cpu"),
+        hours=None,
+        execution=SERIAL,
+    )
+    status = json.loads((tmp_path / "r" / "training.json").read_text())
+    before = json.loads((trained / "reports" / "training.json").read_text())["stages"]
+    assert status["init"]["path"] == started.init and len(status["init"]["sha256"]) == 64
+    assert status["init"]["stages"] == before and before["forward"]["pairs_seen"] > 0
+
+
 def test_a_start_from_another_input_size_keeps_the_convolutions_and_a_fresh_head(recipe, trained, tmp_path):
     from odolab.robust_vo.checkpoint import apply_start, load_model, load_start, resized_start
     from odolab.robust_vo.model import build_networks

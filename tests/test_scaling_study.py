@@ -1,5 +1,6 @@
 """studies.robust_vo.scaling: samples seen and hours accumulate over stages; bad files are one line."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,25 @@ def test_points_count_every_earlier_stage(tmp_path: Path):
     assert [(p.stage, p.pairs) for p in points] == [("forward", 1000), ("forward", 2000), ("turns", 2500)]
     assert points[-1].hours == pytest.approx((100 + 50 + 10) / 3600)
     assert points[0].run == "run-a" and points[1].mae == 0.03
+
+
+def test_a_run_from_a_trained_model_starts_after_that_models_training(tmp_path: Path):
+    run = tmp_path / "warm"
+    run.mkdir()
+    (run / "curves.csv").write_text(CURVES)
+    init = {
+        "path": "m.pt",
+        "sha256": "0" * 64,
+        "stages": {"a": {"pairs_seen": 700, "hours": 0.5}, "b": {"pairs_seen": 300, "hours": 0.25}},
+    }
+    (run / "training.json").write_text(json.dumps({"stages": {}, "init": init}))
+    points = scaling.read_curves(run)
+    assert [p.pairs for p in points] == [2000, 3000, 3500]
+    assert points[-1].hours == pytest.approx(0.75 + 160 / 3600)
+    init["stages"]["b"]["hours"] = float("nan")
+    (run / "training.json").write_text(json.dumps({"init": init}))
+    with pytest.raises(ValueError, match=r"training.json: init.stages: expected"):
+        scaling.read_curves(run)
 
 
 def test_bad_files_are_named(tmp_path: Path):

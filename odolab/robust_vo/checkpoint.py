@@ -31,6 +31,13 @@ def load_model(path: str | os.PathLike) -> tuple[ModelConfig, nn.ModuleDict, dic
     return cfg, nn.ModuleDict(nets).eval(), info
 
 
+def init_stages(path: str | os.PathLike) -> dict[str, dict]:
+    """The training stages recorded in the exported model at ``path`` (stage -> ``epochs_done``,
+    ``hours``, ``pairs_seen``...; empty when it records none)."""
+    stages = load_model(path)[2].get("training", {}).get("stages", {})
+    return stages if isinstance(stages, dict) else {}
+
+
 #: Fields in which a recipe's model may differ from the model it starts from (``init``): its inputs,
 #: and the input size, from which every convolution carries over (the head, whose first layer reads
 #: the feature map at that size, then starts afresh).

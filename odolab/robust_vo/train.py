@@ -29,7 +29,7 @@ from odolab.learning.epochs import EpochTracker
 from odolab.learning.loading import prefetched
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Batch, Samples, make_batch, stage_samples
-from odolab.robust_vo.checkpoint import apply_start, load_start, resized_start, save_model
+from odolab.robust_vo.checkpoint import apply_start, init_stages, load_start, resized_start, save_model
 from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config
 from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import geoinv_loss
@@ -303,6 +303,8 @@ def train_stages(job: dict) -> dict:
         "val_pairs": val.counts(),
         "stages": {},
     }
+    if cfg.init:  # where the networks started: the scaling study counts the start's own training
+        status["init"] = {"path": cfg.init, "sha256": init_sha256, "stages": init_stages(cfg.init)}
     finished = True
     for stage in cfg.stages:
         runner = StageRunner(cfg, stage, train, val, nets, compute, progress, team)

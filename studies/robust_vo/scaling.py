@@ -7,7 +7,8 @@ robust-VO training runs, with the classical odometers' test errors as horizontal
 
 Reads only committed reports: each run's ``curves.csv`` (written by ``python -m
 odolab.robust_vo.train``) and a comparison's ``table_per_action.csv`` (``python -m odolab.compare``).
-Samples seen count every stage's training pairs up to that validation, in the order the stages ran;
+Samples seen count every stage's training pairs up to that validation, in the order the stages ran,
+after those of the model the run started from (its ``init``, as its ``training.json`` records it);
 hours are the training epochs' wall-clock (pairs / pairs per second), validation left out. The
 lines are test-split errors (as used), the curves validation-split errors: two splits of the same
 simulator, disjoint scenes. Writes ``scaling.png`` and ``scaling.csv`` (the plotted points).
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,10 +79,33 @@ def curves_file(run: Path) -> Path:
     return run if run.name == "curves.csv" and run.is_file() else run / "curves.csv"
 
 
+def init_offset(status: Path) -> tuple[int, float]:
+    """The samples seen and training hours of the model a run started from (``init``), as its
+    ``training.json`` records them (every stage of that model's own training); (0, 0.0) for a run
+    that started afresh or a folder without the file. ``ValueError`` names the file and field."""
+    if not status.is_file():
+        return 0, 0.0
+    try:
+        doc = json.loads(status.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"{status}: not a readable training status ({exc})") from None
+    stages = doc.get("init", {}).get("stages", {}) if isinstance(doc, dict) else {}
+    try:
+        pairs = sum(_count_field({"n": s["pairs_seen"]}, "n") for s in stages.values())
+        hours = sum(_finite_field({"h": s["hours"]}, "h") for s in stages.values())
+    except (AttributeError, KeyError, TypeError, ValueError):
+        raise ValueError(
+            f"{status}: init.stages: expected stage -> {{pairs_seen: whole number >= 0, hours: number >= 0}}"
+        ) from None
+    return pairs, hours
+
+
 def read_curves(folder: Path, name: str | None = None) -> list[Point]:
     """The validation points of the run whose reports are in ``folder`` (its ``curves.csv``; the
     file itself may be given), each with the samples seen and training hours up to it, labelled
-    ``name`` (default: the folder's name). ``ValueError`` names the file, row and field."""
+    ``name`` (default: the folder's name). A run that started from a trained model (``init`` in
+    its ``training.json``) counts that model's samples and hours first. ``ValueError`` names the
+    file, row and field."""
     path = curves_file(folder)
     if path.parent.is_file() or (path.parent.exists() and not path.parent.is_dir()):
         raise ValueError(f"{folder}: is a file; expected a training report folder holding a curves.csv")
@@ -92,7 +117,8 @@ def read_curves(folder: Path, name: str | None = None) -> list[Point]:
             f"{path}: expected a training curves file (python -m odolab.robust_vo.train) with a header and "
             f"rows, columns {', '.join(sorted(wanted))}"
         )
-    points, pairs, hours = [], 0, 0.0
+    points = []
+    pairs, hours = init_offset(path.parent / "training.json")
     for k, r in enumerate(rows):
         try:
             if r["split"] == "train":
