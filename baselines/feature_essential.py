@@ -1,46 +1,18 @@
 """Feature matching + essential matrix + depth scale: the paper's E1 (and E2 with oracle rotation).
 
-Zhao et al. (ICCV 2021), appendix "Estimate Relative Pose from Depth": match features between the
-two RGB frames, recover the rotation and the translation *direction* with OpenCV's
-``findEssentialMat`` (RANSAC) and ``recoverPose``, then fix the scale from depth: back-project the
-inliers in both frames, rotate one set with the estimated rotation and take a robust average of
-their offsets along the direction.
-
-Where the essential matrix cannot tell the direction
-----------------------------------------------------
-An essential matrix needs parallax: for a turn in place or a baseline that is tiny next to the
-scene depth (1-2 cm at 1-2 m on TUM fr1/xyz) the translation direction it yields is noise (measured
-on TUM: 12-130 degrees off; on a synthetic 3.6 cm step at ~1.5 m it was still 35 mm off). So the
-essential matrix is used only when (a) ``recoverPose`` keeps at least ``min_cheirality`` (50%)
-of the RANSAC inliers (it drops matches that do not triangulate in front of both cameras within
-50 baselines: few survive a turn in place) and (b) the depth-scaled translation is at least
-``min_parallax`` (5%) of the median inlier depth (e.g. 10 cm at 2 m; a 0.25 m PointNav step
-usually qualifies). Otherwise this odometer solves the pose from the matched features and the
-current frame's depth: ``cv2.solvePnPRansac`` (3D points of the current frame, their pixels in
-the previous one, which gives ``T_prev_cur`` directly), refined with Levenberg-Marquardt on its
-inliers. On the 10 TUM frames every pair takes this path.
-
-Features: SIFT (opencv-contrib) with Lowe's ratio test. On the TUM frames SIFT beat ORB by about
-1 mm (4.6 vs 5.3 mm with PnP; 7.4 vs 6.9 mm through the essential matrix, where both fail). The
-simulator's images are small (341x192) and carry strong RGB noise (sigma = 25 grey levels), which
-leaves SIFT with ~300 keypoints and ~40 matches per pair at OpenCV's defaults; a 1 px Gaussian
-pre-blur and half the default contrast threshold raise that to ~100 matches (valid steps on
-three test episodes: 37 -> 51 of 71) and leave TUM unchanged (4.6 mm).
-
-Validity: the simulator's repetitive textures (bricks, tiles) make most ratio-test matches wrong
-(on turns often 5-25 true matches among 40-160), and a pose from a bad RANSAC consensus used to
-pass as valid (errors up to 2 m). Every estimate is now checked against the images by
-:func:`~baselines.verification.verify` (motion bounds of the action, depth agreement,
-grey-level correlation): on the val split the valid steps' mean error fell from (6.0, 2.1, 2.2)
-to (1.7, 0.6, 0.7) x 1e-2 (m, m, rad), at the price of more steps declared invalid.
-
-With a known action (a robot on a floor), two more steps (val, 12 episodes, 472 steps: valid
-139 -> 339, valid-step error (1.55, 0.61, 0.70) -> (0.82, 0.34, 0.33)): matches are searched only
-where :func:`~baselines.motion_search.planar_search`'s motion puts each keypoint (``guide_px``,
-see :meth:`FeatureEssentialOdometer._guided_match`; alone 139 -> 166), and the result is made
-planar by a least-squares fit of the final 3D inlier pairs seen from above (the essential
-matrix's out-of-plane error, 3 cm of height or 2 degrees of tilt, failed the motion bounds on a
-third of the otherwise correct steps). ``planar=False`` keeps the 6-DoF result.
+After Zhao et al. (ICCV 2021), appendix "Estimate Relative Pose from Depth": SIFT matches between
+the two RGB frames (Lowe's ratio test), the rotation and the translation *direction* from OpenCV's
+``findEssentialMat`` (RANSAC) and ``recoverPose``, the scale from depth (the inliers back-projected
+in both frames, one set rotated by the estimate, a robust average of their offsets along the
+direction). The direction needs parallax, so the essential matrix is used only when ``recoverPose``
+keeps ``min_cheirality`` (50 %) of the inliers and the scaled translation is ``min_parallax`` (5 %)
+of the median inlier depth; otherwise ``cv2.solvePnPRansac`` on the current frame's depth gives
+``T_prev_cur`` (refined with Levenberg-Marquardt). With a known action, matches are searched only
+where :func:`~baselines.motion_search.planar_search` puts each keypoint (``guide_px``) and the
+result is fitted in the plane (``planar=False`` keeps 6-DoF). Each result is checked against the
+images (``verify``, :func:`~baselines.verification.verify`): repetitive textures make wrong RANSAC
+consensus common. Measurements behind these choices:
+docs/odometers.md#feature-essential-the-papers-e1-and-feature-essential-oracle-rot-e2.
 """
 
 from __future__ import annotations
@@ -157,7 +129,7 @@ class FeatureEssentialConfig(OdometerConfig):
     guide_ratio: float = 0.9
     #: Essential-matrix RANSAC threshold, pixels ...
     ransac_px: float = 1.0
-    #: ... and iteration cap (OpenCV's 1000 took 28 ms a pair on the simulator's outlier-heavy matches).
+    #: ... and iteration cap (OpenCV's 1000 is slow on the simulator's outlier-heavy matches).
     ransac_iterations: int = 200
     #: PnP (and oracle-rotation translation) RANSAC threshold, pixels (the 3D points add depth noise) ...
     pnp_px: float = 2.0
@@ -281,9 +253,7 @@ class FeatureEssentialOdometer(Odometer):
 
     def _n_features(self) -> int:
         """``n_features``, or by default ``AUTO_FEATURES`` per 341x192 image area, at most
-        ``MAX_AUTO_FEATURES``: at the simulator's size 800 keeps the accuracy of 2000 and saves a
-        third of the time; on 640x480 TUM frames 2000 (800 costs precision: 0.50 vs 0.45 degrees
-        on a synthetic forward step)."""
+        ``MAX_AUTO_FEATURES`` (why: docs/odometers.md, feature-essential's keypoints)."""
         if self.config.n_features is not None:
             return int(self.config.n_features)
         area = self.intrinsics.width * self.intrinsics.height / SIM_IMAGE_AREA

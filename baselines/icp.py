@@ -1,37 +1,18 @@
 """Point-cloud ICP odometry with Open3D: colored ICP (depth + texture), coarse to fine.
 
-Each frame's depth (every 2nd pixel row and column) is back-projected (odolab camera axes), cut
-to ``[min_depth, max_depth]`` and voxel-downsampled at two levels (2, 1 x ``voxel``, 4 cm by
-default: 8, 4 cm; correspondences up to 16 and 6 cm) with normals and mean colours; the clouds are
-built once per frame and reused by the next step. The current cloud is registered onto the
-previous one, so the result is ``T_prev_cur`` directly, starting from the first ``max_starts`` (2)
-of :func:`~baselines.motion_search.initial_guesses` (the two best motions of a planar search
-scored on the images) until :func:`~baselines.verification.verify` accepts
-(:func:`~baselines.verification.first_verified`).
+Each frame's depth (every ``pixel_stride``-th pixel row and column, 2) is back-projected (odolab
+camera axes, metres), cut to ``[min_depth, max_depth]`` and voxel-downsampled at two ``levels`` (2
+and 1 x ``voxel``, 4 cm: 8 and 4 cm; correspondences up to 16 and 6 cm) with normals and mean
+colours; the clouds are built once per frame and reused by the next step. The current cloud is
+registered onto the previous one under a Tukey kernel (``tukey_k``), so the result is ``T_prev_cur``
+directly, from the first ``max_starts`` (2) of :func:`~baselines.motion_search.initial_guesses`
+until :func:`~baselines.verification.verify` accepts one
+(:func:`~baselines.verification.first_verified`); ICP's own fitness is not trusted.
 
-Why the search and no 16 cm level (val, 12 episodes, 472 steps): started even from the *true*
-motion, the former three levels (16 cm top, 64 cm reach) without a robust kernel diverged (tilt,
-height) on ~100 steps; a Tukey kernel (``tukey_k`` 5 cm) and two levels from the searched start
-raise the valid steps from 346 to ~405 (valid-step error (0.63, 0.64, 0.15) instead of (0.87, 0.71,
-0.29) x 1e-2 m, m, rad) and pay for the search.
-
-Why colored ICP and 4 cm: the simulator's rooms show a single textured wall in many frames;
-point-to-plane ICP slides along it (val, 8 episodes: 154/320 invalid steps at 4 cm), while the
-colour term pins it (87/320). Voxel-averaged colours also cancel the RGB noise (sigma 25 grey
-levels; a 4 cm voxel at 1 m averages ~100 pixels). 2 cm voxels with four levels (the former
-default) ran at 9.5 steps/s; 4 cm / three levels / pixel stride 2 run at ~25 at 341x192, with the
-same accuracy on the simulator. On the 10 TUM fr1/xyz frames: colored 4 cm 5.2 mm / 0.32 deg,
-point-to-plane 4 cm 3.2 mm / 0.40 deg, point-to-plane 2 cm 3.5 mm (``variant="point_to_plane"``
-remains available; it also refuses frames whose surfaces do not constrain translation, see
-:func:`~baselines.depth_geometry.normal_constraint`).
-
-Speed (test split, 5 episodes, 124 steps, ``python -m odolab.compare --odometers icp``): normals
-from 15 instead of 30 neighbours and 10 instead of 15 iterations per level took ICP from 22.0 to
-23.5 steps/s with the same errors ((1.27, 0.81, 1.46) -> (1.27, 0.78, 1.40) x 1e-2, 24 -> 22 failed).
-
-Validity is judged on the images, not on ICP's own fitness (which stays above 0.25 for wrong
-alignments of indoor scenes): see :func:`~baselines.verification.verify` (motion bounds of
-the action, depth agreement, grey-level correlation).
+Why: the colour term pins a slide along a single textured wall, where point-to-plane ICP
+(``variant="point_to_plane"``) slides; the searched starts, two levels and the kernel keep it from
+diverging; 4 cm voxels average out the RGB noise at a fraction of 2 cm's cost (measurements:
+docs/odometers.md#icp).
 """
 
 from __future__ import annotations

@@ -1,43 +1,19 @@
 """``manhattan(inner)``: another odometer's heading held to the walls of a Manhattan world.
 
-Most indoor walls meet at right angles, so the direction of the walls a depth image sees, modulo
-90 degrees, is an absolute heading cue that does not drift (the "Manhattan frame" of structured-scene
-VO, e.g. Kim et al., ICRA 2018, who decouple drift-free rotation from translation this way). This
-odometer runs ``inner`` unchanged and corrects only its yaw, with a one-state Kalman filter on the
-heading since the sequence start:
+Runs ``inner`` unchanged and corrects only its yaw, with a one-state Kalman filter on the heading
+since the sequence start (radians, counter-clockwise): each step predicts by the inner odometer's
+yaw (the action prior's where the inner step fails) and measures :func:`wall_direction` of the
+current depth image, modulo 90 degrees. The first ``anchor_steps`` views fix the world's wall
+direction (:func:`anchor_direction`); later views within 3 sigma of the prediction correct the
+heading, and ``relock_views`` agreeing views beyond that gate re-lock it (the inner odometer, not
+the walls, is taken to have jumped). The answer is the inner transform followed by the correction's
+rotation about the vertical axis; a correction due on a failed step goes to the next answered one.
 
-- predict: the heading moves by the inner odometer's yaw (the action prior's, as the runner would
-  substitute it, when the inner step fails: ``valid=False``, not a rigid motion, or an exception,
-  which is raised on after the heading is updated); its variance grows by ``step_sigma_deg`` squared, or
-  ``prior_sigma_deg`` squared after a failed step;
-- measure: :func:`wall_direction` of the current depth image (vertical surfaces within
-  ``max_depth``; ``min_support`` of them must agree within 10 degrees). The first ``anchor_steps``
-  views fix the world's wall direction, from the inner odometer's early headings, which have not
-  drifted yet: the mean of the largest group of them that agree within :data:`ANCHOR_DEG`, each
-  weighted by its sample count (a plain mean let one view of clutter, 26 degrees off, set the
-  world 6 degrees wrong for a whole episode); later views within 3 sigma of the prediction (the
-  filter's and ``wall_sigma_deg``) correct the heading by the Kalman gain. Views beyond that gate
-  are set aside. When the last ``relock_views`` set-aside views with at least ``relock_support`` of
-  their samples on the wall direction agree (within ``relock_spread_deg`` of each other), with no
-  view accepted in between (views of less support, or with no walls, neither count nor break the
-  run), the inner odometer, not the walls, is taken to have jumped (a single answer several
-  degrees off, which the filter's step sigma does not expect): the heading's variance is raised to
-  their mean innovation squared and the latest view corrects it. Without the support threshold, a
-  re-lock did worse in navigation (README, "Navigate"): three views of furniture can agree, and a
-  wrong re-lock of 13 degrees then lost an agent; ``relock_views = 0`` turns it off;
-- the step's answer is the inner transform followed by the correction's rotation about the
-  vertical axis; a correction due on a failed step is added to the next answered one.
-
-The yaw is only corrected modulo 90 degrees, so an error beyond 45 degrees cannot be undone, and a
-view of a wall that is not at right angles to the others pulls the heading wrong (the gate limits
-how far). It assumes a level camera on a robot moving in the plane: on a hand-held recording
-(``--tum``) the camera's roll and pitch tilt the walls it sees, and it makes the heading worse
-(``manhattan(icp)`` on the TUM frames: 0.43 degrees of rotation error against icp's 0.34).
-**odolab's procedural scenes are exactly Manhattan** (axis-aligned boxes): what this
-odometer gains here is an upper bound of what it would gain in a real building.
+Why: most indoor walls meet at right angles, so their direction is a heading cue that does not
+drift (the "Manhattan frame" of structured-scene VO, e.g. Kim et al., ICRA 2018). It assumes a
+level camera moving in the plane (details and measurements: docs/odometers.md#manhattaninner).
 
     python -m odolab.compare --odometers 'open3d-rgbd,manhattan(open3d-rgbd)'
-    python -m odolab.navigate --odometers 'manhattan(fused(open3d-rgbd,robust-vo,planar-depth))' --episodes 100
 """
 
 from __future__ import annotations
@@ -148,8 +124,9 @@ def anchor_direction(views: list[tuple[float, int]]) -> float:
 
 @dataclass(frozen=True)
 class ManhattanConfig:
-    """The heading filter of :class:`ManhattanOdometer` (module docstring); its constructor's keyword
-    arguments of the same names. Angles in degrees."""
+    """The heading filter of :class:`ManhattanOdometer` (module docstring; in full:
+    docs/odometers.md#manhattaninner); its constructor's keyword arguments of the same names. Angles
+    in degrees."""
 
     step_sigma_deg: float = setting(0.3, range=(1e-3, 45.0), doc="heading noise of an answered step, deg")
     prior_sigma_deg: float = setting(3.5, range=(1e-3, 45.0), doc="heading noise of a failed step (action prior), deg")

@@ -1,64 +1,18 @@
 """Open3D's dense RGB-D odometry (``compute_rgbd_odometry``; Steinbruecker's photometric term by default).
 
-The peer a user would reach for (docs/reference-facts.md section 6: 4.43 mm / 0.241 deg on the TUM frames with
-default options and a 4 m depth cut). Called with the current frame as *source* and the previous
-one as *target*, Open3D returns the motion mapping source points into the target camera, i.e.
-``T_prev_cur``; checked against ground truth on TUM and on synthetic views with known motion.
+The peer a user would reach for (with Open3D's own defaults on the TUM frames:
+docs/reference-facts.md section 6). Called with the current frame as *source* and the previous one
+as *target*, Open3D returns the motion mapping source points into the target camera, i.e.
+``T_prev_cur``. It is started from each of :func:`~baselines.motion_search.initial_guesses` with
+``iterations`` per pyramid level and, only when none of those is accepted, with
+``fallback_iterations``. Open3D reports success on frames that do not overlap, so
+:func:`~baselines.verification.verify` (motion bounds, depth agreement, grey-level correlation)
+decides as well as the flag.
 
-Open3D reports success on frames that do not overlap (Open3D issue 3781; measured here too: a
-blank depth image and an unrelated view both came back "successful"), so validity is judged on
-the images (:func:`baselines.verification.verify`: motion bounds of the action, depth
-agreement, grey-level correlation) as well as on the flag.
-
-Simulator tuning (val split, 12 episodes of <= 60 steps, 472 steps): started from the action's
-nominal motion, Open3D converged on only 337 steps (the actuation noise is up to 0.23 m lateral and
-14 degrees of yaw), and even from the *true* motion its former set-up (five pyramid levels, 7 cm
-gate) diverged on 57: the 21x12-pixel top level throws it off. It is now started from
-:func:`~baselines.motion_search.planar_search` (a brute-force planar search scored on depth and
-grey levels, ~3 ms, within 2 degrees of the true yaw on 84% of steps), then from the nominal motion
-and the blocked step (:func:`~baselines.motion_search.initial_guesses`), with four levels and
-Open3D's default 3 cm gate: 448/472 valid, valid-step error (0.36, 0.23, 0.21) x 1e-2 (m, m, rad);
-TUM frames 4.56 mm. (A 5 cm gate: 452 valid, (0.41, 0.26, 0.20), but worse on the test episodes.)
-
-Photometric term, two levels (val split, 12 episodes x 60 steps: ``python -m odolab.compare --split
-val --episodes 12 --max-steps 60 --odometers open3d-rgbd --odometer-option open3d-rgbd.term=T
---odometer-option open3d-rgbd.iterations=[...]``): the hybrid term's geometric residual compares
-the two depth images, and the simulator's Redwood distortion (a depth scale that changes across the
-image) makes them disagree wherever the view shifts, most on turns; the photometric term uses depth
-only to warp, where a few percent of depth error moves a pixel by a fraction of a pixel. With four
-pyramid levels it diverged (more than 5 degrees off) on 77 of 141 steps started within 2 degrees
-(the coarsest level, 21 x 12 pixels, has too little texture); with two on 7. Per-step error as
-used (dx, dz, dyaw x 1e-2; failed steps take the prior), failed share: hybrid, 4 levels (1.68, 0.75,
-1.14), 7.1 %; hybrid, 2 levels (1.58, 0.72, 1.09), 6.4 %; photometric, 1 level (0.76, 0.42, 0.79),
-7.7 %; 3 levels (0.63, 0.37, 0.65), 7.9 %; 2 levels of 10 and 5 iterations (0.58, 0.34, 0.49), 5.1 %;
-of 20 and 5 (0.59, 0.34, 0.51), 5.1 %. The default is 20 and 5: started from no motion (no action,
-so no planar search; a real sequence), 10 coarse iterations left a synthetic 3-degree view of a TUM
-frame 2.3 cm off, 15 or more find it to 0.6 mm (``tests/test_baselines.py``). On the TUM frames:
-4.44 mm, 0.196 degrees (the hybrid set-up: 4.62 mm, 0.255 degrees).
-
-Where it still failed, in navigation (81 steps of five fused-odometry test episodes the agent lost
-its way in, replayed): in large rooms most pixels lay beyond the 4 m cut (median depth 4.5 m, a
-quarter of the pixels left), and near walls (median depth 0.2-1 m) every start diverged from
-turns the planar search misjudged by 10-18 cm, though the true motion passes the checks. Trusting
-depth to 6 m answered 26 of the 81 (median yaw error 0.07 degrees), and a three-level schedule
-(20, 10, 5) tried only after the two-level one failed, 14 more (``fallback_iterations``; four levels:
-5 more). On the val split (12 x 60, the command above): 4 m (0.59, 0.34, 0.51), ATE 0.276 m, drift
-0.418 m, 5.1 % failed; 5 m (0.55, 0.32, 0.47), 0.276 m, 5.0 %; 6 m (0.53, 0.32, 0.45), 0.238 m,
-4.3 %; 8 m (0.55, 0.32, 0.51), 0.279 m, 5.8 %; 6 m with the fallback (0.54, 0.32, 0.42), 0.224 m,
-drift 0.345 m, 3.8 %: the default.
-
-Far views failed the image check, not the alignment (``python -m studies.turns_by_depth``: 400
-turns from random poses of 20 val scenes, binned by median depth): Open3D's answer was within 0.2
-degrees of the truth, and the image check refused it: the simulator's depth noise outgrows the
-shared tolerance 0.01 + 0.01 z^2 m beyond 3 m, so that fewer than the required 80 % of the points
-agree in depth even for the true motion (it failed the check in 6 of the first 8 views of that
-study reaching past 4.5 m: ``tests/test_turns_study.py``). With 0.01 + 0.015 z^2, turns beyond
-4 m fail 14.6 % of the time (56.2 %), at 2-4 m 0.9 % (5.3 %), all 5.5 % (12.7 %), at the same
-accuracy; on the val split (12 x 60, the command above): (0.51, 0.31, 0.35), ATE 0.152 m, drift
-0.238 m, 2.6 % failed (0.02 z^2: the same to 0.003 m). Near walls (median depth below 1 m) 11.6 %
-of turns still fail: there the grey levels of even the true motion correlate poorly (a blurred,
-magnified texture under 25 grey levels of noise), and the check cannot rule out a slide along
-the wall.
+Why the defaults (photometric term, two pyramid levels, depth to 6 m, a three-level fallback, a
+wider depth tolerance): the simulator's depth distortion pulls a depth-to-depth residual, so depth
+only warps; a 341 x 192 frame's coarser levels have too little texture; large rooms leave few
+pixels within 4 m (measurements: docs/odometers.md#open3d-rgbd).
 """
 
 from __future__ import annotations
@@ -94,10 +48,10 @@ MAX_LEVELS, MAX_ITERATIONS = 6, 1000
 class Open3DRGBDConfig(OdometerConfig):
     """Options of :class:`Open3DRGBDOdometer` (besides ``verify``, see
     :class:`~baselines.config.OdometerConfig`). Depth is trusted to 6 m, not the 4 m of Open3D's own
-    default and of the other baselines: the photometric term uses depth only to warp (module
-    docstring); the TUM reference figure used 4 m. Two readings of a surface z m away agree within
-    0.01 + 0.015 z^2 m (the other baselines: 0.01 + 0.01 z^2), which the simulator's depth noise needs
-    beyond 3 m (module docstring)."""
+    default and of the other baselines: the photometric term uses depth only to warp; the TUM
+    reference figure used 4 m. Two readings of a surface z m away agree within 0.01 + 0.015 z^2 m
+    (the other baselines: 0.01 + 0.01 z^2), which the simulator's depth noise needs beyond 3 m
+    (measurements: docs/odometers.md#open3d-rgbd)."""
 
     depth: DepthRange = DepthRange(max_depth=6.0, noise_growth=0.015)
 

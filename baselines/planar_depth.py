@@ -1,56 +1,20 @@
 """Planar depth alignment: a ground robot's motion (dx, dz, dyaw) fitted to the depth images alone.
 
 A 3-degree-of-freedom projective point-to-plane ICP: every ``pixel_stride``-th current depth pixel
-is moved by the candidate motion into the previous camera, projected, and compared with the
-previous depth surface there (its point and normal, from the organised depth image) along that
-normal. Gauss-Newton on (yaw, lateral, forward) with a Tukey kernel, from each of
-:func:`~baselines.motion_search.initial_guesses`; the start that ends with the lowest robust cost
-wins, and :func:`~baselines.verification.verify` checks it (motion bounds, depth agreement; no
-grey-level test by default: the fit itself uses depth only, though the planar search that gives
-its starts scores grey levels too, and in a direction the depth leaves free the start and the
-prior decide). It needs the action (``needs_action``): the prior and the starts come from it, and
-hand-held data need not move in the plane.
+is moved by the candidate motion into the previous camera, projected, and compared along the normal
+with the previous depth surface there (point and normal from the organised depth image).
+Gauss-Newton on (yaw, lateral, forward) with a Tukey kernel (``tukey`` times the depth tolerance)
+and a weak prior on the translation round the action's nominal motion (``prior_sigma``), from each
+of :func:`~baselines.motion_search.initial_guesses`; the lowest robust cost wins and
+:func:`~baselines.verification.verify` checks it (bounds and depth agreement; no grey-level test).
+Its covariance is ``inv(H)`` of that system (so it scales with ``tukey`` squared) plus
+``translation_floor`` on each planar translation; the out-of-plane components are held at zero
+with ``out_of_plane_sigma`` (conventions: :mod:`odolab.api`). It needs the action
+(``needs_action``) and refuses views whose median depth is beyond ``max_median_depth``.
 
-Why: the robot moves in the plane, and facing a wall (median depth below 1 m) the views of a turn
-show one or two planes. Their normals fix the yaw and the distance to each wall exactly, while a
-slide along a single wall leaves depth unchanged; the photometric and coloured solvers diverge
-there or are refused (``python -m studies.turns_by_depth``: open3d-rgbd fails 11.6 % of near-wall
-turns, icp 61 %). So the fit carries a weak prior on the translation, centred on the action's
-nominal motion (``prior_sigma``, metres), which decides only the directions the depth leaves free,
-and the covariance says so: ``inv(H)`` of the Gauss-Newton system, each residual weighted by its
-Tukey weight over the kernel width squared (``tukey`` times the depth noise model's tolerance,
-:class:`~baselines.depth_geometry.DepthRange`; so the covariance scales with ``tukey`` squared, and
-the fusion calibration's factor holds for the ``tukey`` it was fitted with), so a slide along a wall
-keeps much of the prior's sigma while the yaw is pinned (fusion takes each direction from the input
-that knows it). On noisy depth the normals of one wall scatter, and their scatter alone would give
-the fit information along the wall that the geometry does not have (a synthetic wall 0.8 m ahead
-with 0.2 % depth noise: the slide's sigma 1.6 cm instead of the prior's 10 cm, the answer 9 sigmas
-off a true 15 cm slide). The switch ``one_plane_ratio`` removes the data's information along the
-wall when the weighted scatter of the fitted normals' floor-plane parts (x, z) is that of one plane
-(its smaller eigenvalue below that fraction of the sum; facing one wall it is 0.003-0.03 in the val
-scenes, at corners 0.15-0.48), so that the prior alone decides that direction (that synthetic wall:
-10.1 cm at 0.05). It is off (0) by default: on the val split's steps (20 episodes x 100 from index
-20) at 0.05 it moved 156 of the answers by more than 0.1 degrees, lost 12 of 595, and made them
-worse: forward steps' yaw 0.38 degrees RMS instead of 0.22, 25 instead of 20 answers more than 2
-degrees off, as a view dominated by one wall still holds other structure whose information it threw
-away. Independent pixel noise much above 0.2 % scatters the normals past the test anyway.
-To that covariance ``translation_floor`` (1.5 cm) is added on each planar translation: the
-simulator's depth distortion (a depth scale that varies across the image) moves a wall by
-centimetres, which the fit's residuals cannot show. Without it, on the val split's near-view turns
-(20 x 100 steps), the covariance's translation sigmas were 1.4-2.6 times too small (whitened RMS)
-while its yaw sigma was right (0.74-1.18), and the fusion calibration preferred its fixed
-covariance on half the entries; with it, 0.74-1.18 on every component, and the calibration uses the
-odometer's own covariance (scaled by 0.37-2.5) on all six.
-
-Only views facing something near: when the median depth of the previous view's usable pixels with
-a normal (those within its trusted range) is beyond ``max_median_depth`` (2 m), it refuses the step. The same
-distortion makes it overestimate every turn, by 0.6 degrees at 0-1 m, 1.0 at 1-2 m and 1.6 at 2-4 m
-(400 turns of the turns study; the scatter about that grows from 0.4 to 1.7 degrees), and the fusion
-calibration removes one bias per action and view class.
-
-Conventions: :mod:`odolab.api` (``T_prev_cur``; covariance over (rx, ry, rz, tx, ty, tz), a small
-motion applied on the left in the previous camera frame). The out-of-plane components are held
-at zero and get ``out_of_plane_sigma``.
+Why: facing a wall, where the photometric and coloured solvers fail, the walls' normals fix the
+yaw and the distance to each wall, and the prior decides only the slide the depth leaves free
+(measurements: docs/odometers.md#planar-depth).
 """
 
 from __future__ import annotations
@@ -99,12 +63,12 @@ class PlanarDepthConfig(OdometerConfig):
     #: fit's own statistics cannot see.
     translation_floor: float = setting(0.015, range=(0.0, 1.0), doc="sigma (m) added to each planar translation's")
     min_points: int = setting(200, range=(3, 10**7), doc="fewer fitted points: invalid step")
-    #: Far views bend under the depth distortion (see the module docstring).
+    #: Far views bend under the depth distortion (docs/odometers.md#planar-depth).
     max_median_depth: float = setting(
         2.0, range=(0.0, 1000.0), doc="a previous view whose median depth (m) is beyond this: invalid step"
     )
-    #: The slide along a single wall is then the prior's. 0 = never (the default; the module
-    #: docstring says why).
+    #: The slide along a single wall is then the prior's. 0 = never (the default; why:
+    #: docs/odometers.md#planar-depth).
     one_plane_ratio: float = setting(
         0.0,
         range=(0.0, 0.5),

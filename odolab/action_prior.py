@@ -2,7 +2,7 @@
 
 This is the paper's ``sys_error`` reference (always predict the training mean of each action) and
 the runner's fallback when an odometer fails. The shipped table ``odolab/data/action_prior.json``
-was made by::
+is made by::
 
     python -m odolab.action_prior --episodes 400 --out odolab/data/action_prior.json
 

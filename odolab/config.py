@@ -26,7 +26,7 @@ A field declares itself with :func:`setting`::
 - :func:`describe` lists every field with its value, range (or choices) and description (what
   reports and ``--help`` print).
 
-The field metadata leaves ``dataclasses.asdict``, equality and pickling as they were: a config's
+The field metadata does not enter ``dataclasses.asdict``, equality or pickling: a config's
 contents, and every digest or identity made from them, do not depend on it.
 """
 

@@ -19,9 +19,9 @@ episode) or windows of consecutive frames, reading only the frames asked for. No
 
 Each shard's CRC-32 (of the whole file) is written in ``dataset.json`` when the shard is made, and
 checked the first time a :class:`TrainingData` object maps the shard's frames (once per shard and
-process: one read of the file, which the frames are read from anyway); a shard made before
-checksums were kept is checked against its zip archive's own CRC-32 of each array instead. A
-damaged shard raises :class:`DamagedShardError` naming it.
+process: one read of the file, which the frames are read from anyway); a shard whose entry has no
+``crc32`` is checked against its zip archive's own CRC-32 of each array instead. A damaged shard
+raises :class:`DamagedShardError` naming it.
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def file_crc32(path: str | os.PathLike, chunk: int = 1 << 24) -> int:
 
 def verify_shard(path: Path, entry: dict) -> None:
     """:class:`DamagedShardError` unless shard ``path`` holds the bytes its manifest ``entry``'s
-    ``crc32`` says; an entry without one (a shard made before checksums were kept) is checked
+    ``crc32`` says; an entry without one is checked
     against the zip archive's CRC-32 of each member."""
     advice = "delete it and run the python -m odolab.training_data command again"
     expected = entry.get("crc32")

@@ -1,6 +1,6 @@
 """Calibrate the covariances of fusion inputs on held-out episodes, or check a calibration.
 
-    python -m odolab.fusion.calibrate --odometers action-prior,icp,open3d-rgbd,robust-vo \
+    python -m odolab.fusion.calibrate --odometers action-prior,icp,open3d-rgbd,robust-vo,planar-depth \
         --split val --episodes 20 --max-steps 100 --out odolab/data/fusion/calibration.json   # the shipped one
     python -m odolab.fusion.calibrate --check odolab/data/fusion/calibration.json --split test --episodes 20
 

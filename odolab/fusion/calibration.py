@@ -1,47 +1,25 @@
 """Calibrated covariances of each fused input, per action, fitted on held-out steps.
 
-An odometer's own covariance (Gauss-Newton on dense correspondences, MC-dropout spread) treats
-correlated errors as independent and is usually far too small; many odometers give none. For each
-input and action, from its valid steps on the val split (raw estimates against the true motions):
+For each input and action, from its valid raw steps against the true motions (residuals rx, ry, rz
+rad, tx, ty, tz m; right perturbation, :mod:`odolab.fusion.graph`):
 
-* ``bias``: the input's systematic error, six numbers (rx, ry, rz rad, tx, ty, tz m; right
-  perturbation, :mod:`odolab.fusion.graph`): the mean residual over the steps whose every component
-  lies within 3 robust sigmas (1.4826 x median absolute deviation, at least the sigma floor) of the
-  component's median, so the few wild steps do not set it. Fusion corrects each answer by it,
-  ``T @ exp(bias)``, before it enters the graph. (Depth noise that varies across the image makes
-  the classical odometers overestimate every turn by 0.5-1.1 degrees and slide it 1.5-4 cm
-  sideways, the same way each time: a bias, which adds up along a path where random errors partly
-  cancel.)
-* ``fixed``: six sigmas, the RMS of each component of the residual less the bias over those same
-  steps (floored at :data:`SIGMA_FLOOR`), all scaled by one factor so that 95 % of all the steps
-  fall inside the 95 % ellipsoid of the chi-square law with 6 degrees of freedom; with
-  ``correlation`` (6 x 6, the correlation matrix of those steps' residuals; components at the floor
-  uncorrelated) the covariance ``D R D`` used for steps without a covariance of their own. (A learned odometer trades sideways
-  motion for yaw: its dx and dyaw errors correlate at about -0.7.)
+* ``bias``: the mean residual of the steps whose every component lies within 3 robust sigmas
+  (1.4826 x median absolute deviation, at least :data:`SIGMA_FLOOR`) of its median; fusion corrects
+  each answer by it, ``T @ exp(bias)``.
+* ``fixed``: six sigmas, the RMS of each component of those steps' debiased residuals (at least the
+  floor), all scaled by one factor so that 95 % of all the steps fall inside the 95 % ellipsoid
+  (chi-square, 6 degrees of freedom) of ``D R D``, with ``correlation`` R their correlation matrix
+  (components at the floor uncorrelated): the covariance of steps that bring none of their own.
 * ``own_scale``: the factor that does the same to the odometer's own covariances; None when it
-  gives none, or when the scaled own covariances explain the residuals less well (higher mean
-  Gaussian negative log-likelihood) than the fixed covariance does. (On the shipped calibration
-  the Gauss-Newton covariances of icp and open3d-rgbd lose on every action of views that are not
-  near: their shape misses the trade between turn yaw and sideways motion that the fixed
-  correlation captures. On two near entries each they win, scaled by 400-10,000: fits of 19-51
-  steps, where the 95 % quantile rests on two or three of them.)
+  gives none, or when they explain the residuals less well (mean Gaussian negative log-likelihood).
 
-Near views get their own calibration. A view is *near* when the median of its depth readings is
-below ``near_depth`` (metres; a file-level number, absent or 0 = no near class): then the previous
-frame faces a wall, and the inputs behave differently there (``python -m studies.turns_by_depth``:
-robust-vo's turn yaw is 2.5 degrees RMS off below 1 m against 0.5-0.8 beyond 2 m; open3d-rgbd and
-icp fail far more often; planar-depth answers only such views). Each input and action with at least
-10 valid near steps and at least 10 other ones gets a second entry, labelled ``"<action>@near"``
-(e.g. ``turn_left@near``), fitted on the near steps alone, and its plain entry is fitted on the
-other steps; otherwise the plain entry covers every step of that action. A file may not hold a near
-entry without its plain one, nor near entries with no ``near_depth``. A step of a near view uses the ``@near`` entry when there is one.
-
-``bias`` and ``correlation`` may be absent (files written before they existed): no bias, no
-correlation.
-
-So "calibrated" means: the 95 % confidence ellipsoid holds 95 % of the val steps (a quantile fit,
-robust to the heavy tails that would make a variance fit meaningless). :func:`ellipsoid_share`
-checks it on other data.
+A view is *near* when its median depth reading is below the file's ``near_depth`` (m; absent or 0:
+none is); an input and action with at least 10 valid near steps and 10 others gets a second entry,
+``"<action>@near"``, fitted on the near steps and used for near views (the plain entry is then
+fitted on the others, else on all). ``bias`` and ``correlation`` may be absent from a file: no
+bias, no correlation. A quantile fit, because the residuals have heavy tails; :func:`ellipsoid_share`
+checks it on other data. Why each part, and what the shipped calibration holds:
+docs/fusion.md#calibration.
 """
 
 from __future__ import annotations
