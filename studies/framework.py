@@ -33,6 +33,8 @@ from odolab.parallel import Execution, fan_out
 
 SCALES = ("ci", "cpu", "paper")
 HERE = Path(__file__).resolve().parent
+#: Where reports go by default (relative to the working folder); its ``index.html`` lists them.
+DEFAULT_REPORTS = Path("reports")
 #: The files a study's report consists of (what its manifest may list and a rerun replaces).
 REPORT_NAMES = re.compile(r"(index\.html|table\.csv|table\.md|[A-Za-z0-9_.-]+\.png)")
 
@@ -40,11 +42,12 @@ REPORT_NAMES = re.compile(r"(index\.html|table\.csv|table\.md|[A-Za-z0-9_.-]+\.p
 @dataclass(frozen=True)
 class StudyConfig:
     """A study's definition: ``name``, a one-line ``title`` and, per scale, its parameters (plain TOML
-    values: numbers, strings, lists)."""
+    values: numbers, strings, lists); ``path``, the file it was read from (named in errors)."""
 
     name: str
     title: str
     scales: dict[str, dict[str, Any]]
+    path: Path | None = None
 
     def at(self, scale: str) -> dict[str, Any]:
         """The parameters of ``scale`` (one of :data:`SCALES`)."""
@@ -75,7 +78,77 @@ def load_study(name: str, folder: Path = HERE) -> StudyConfig:
     stray = sorted(set(doc) - {"title", "scales"})
     if stray:
         raise ValueError(f"{path}: {stray[0]}: not a study field (expected title and scales)")
-    return StudyConfig(name, title, {s: dict(scales[s]) for s in SCALES})
+    return StudyConfig(name, title, {s: dict(scales[s]) for s in SCALES}, path)
+
+
+def checked(config: StudyConfig, scale: str, key: str, ok: Callable[[Any], bool], expected: str) -> Any:
+    """``config.at(scale)[key]`` when ``ok`` accepts it; else ``ValueError`` naming the file, the field,
+    what was expected and what it got."""
+    value = config.at(scale).get(key)
+    if not _accepts(ok, value):
+        raise ValueError(f"{config.path or config.name}: scales.{scale}.{key}: expected {expected}, got {value!r}")
+    return value
+
+
+def integer(config: StudyConfig, scale: str, key: str, low: int, high: int) -> int:
+    """An integer field in ``[low, high]`` (:func:`checked`)."""
+    return checked(config, scale, key, lambda v: type(v) is int and low <= v <= high, f"an integer in [{low}, {high}]")
+
+
+def number_list(config: StudyConfig, scale: str, key: str, low: float, high: float) -> tuple[float, ...]:
+    """A non-empty list of distinct numbers in ``[low, high]``, as floats (:func:`checked`)."""
+
+    def ok(v: Any) -> bool:
+        return (
+            isinstance(v, list)
+            and len(v) > 0
+            and all(type(x) in (int, float) and low <= x <= high for x in v)
+            and len({float(x) for x in v}) == len(v)
+        )
+
+    return tuple(
+        float(x) for x in checked(config, scale, key, ok, f"a list of distinct numbers in [{low:g}, {high:g}]")
+    )
+
+
+def name_list(config: StudyConfig, scale: str, key: str, empty: bool = False) -> tuple[str, ...]:
+    """A list of distinct non-empty strings (odometer names), empty only with ``empty`` (:func:`checked`)."""
+
+    def ok(v: Any) -> bool:
+        return (
+            isinstance(v, list)
+            and (empty or len(v) > 0)
+            and all(isinstance(x, str) and x.strip() == x != "" for x in v)
+            and len(set(v)) == len(v)
+        )
+
+    return tuple(checked(config, scale, key, ok, "a list of distinct names" + ("" if empty else ", at least one")))
+
+
+def identities(
+    config: StudyConfig, scale: str, odometers: Sequence[str], options: dict[str, dict[str, Any]] | None = None
+) -> dict[str, str | None]:
+    """Name -> ``Odometer.identity_digest`` (its model file's or settings' digest, None for neither) of
+    each odometer loaded with its ``options``: what a unit's key holds so that a retrained model's or
+    changed setting's results are computed again. ``ValueError`` naming the file and field for a name
+    or an option the odometer refuses."""
+    from odolab.api import load_odometer
+
+    out = {}
+    for name in odometers:
+        try:
+            out[name] = load_odometer(name, **(options or {}).get(name, {})).identity_digest
+        except (ValueError, KeyError, TypeError, ImportError) as exc:
+            said = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+            field = "options" if (options or {}).get(name) else "odometers"
+            raise ValueError(f"{config.path or config.name}: scales.{scale}.{field}: {name}: {said}") from None
+    return out
+
+
+def default_out(config: StudyConfig) -> Path:
+    """The report folder of a study run without ``--out``: ``reports/<name with dashes>`` (relative
+    to the working folder, as every odolab command's default output)."""
+    return DEFAULT_REPORTS / config.name.replace("_", "-")
 
 
 @dataclass(frozen=True)
@@ -105,12 +178,14 @@ class ResultStore:
 
     def get(self, unit: Unit) -> Any | None:
         """The saved result of ``unit``, or None (none saved, unreadable, or saved for another key)."""
+        from odolab.io.inputs import read_input_json
+
         path = self.folder / f"{unit.digest}.json"
         if not path.is_file() or path.is_symlink():
             return None
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        try:  # a regular file of a sane size and nesting: else not saved, whatever it holds
+            doc = read_input_json(path, "study result")
+        except ValueError:
             return None
         if not isinstance(doc, dict) or doc.get("key") != json.loads(json.dumps(unit.key)):
             return None
@@ -138,8 +213,17 @@ class Outcome:
 def _accepts(valid: Callable[[Any], bool], value: Any) -> bool:
     try:
         return bool(valid(value))
-    except (TypeError, ValueError, KeyError, AttributeError, IndexError):
+    except (TypeError, ValueError, KeyError, AttributeError, IndexError, OverflowError):
         return False
+
+
+def _seconds(value: Any) -> float:
+    """A saved computing time in seconds, 0 when it is not a finite number >= 0 (edited by hand)."""
+    try:
+        seconds = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return 0.0
+    return seconds if math.isfinite(seconds) and seconds >= 0 else 0.0
 
 
 def _timed(job: tuple[Callable[[dict], Any], dict]) -> tuple[Any, float]:
@@ -170,7 +254,7 @@ def run_units(
         saved = store.get(u)
         if isinstance(saved, dict) and "value" in saved and (valid is None or _accepts(valid, saved["value"])):
             out.results[u.label] = saved["value"]
-            out.seconds += float(saved.get("seconds", 0.0))
+            out.seconds += _seconds(saved.get("seconds", 0.0))
         elif redraw:
             out.missing.append(u.label)
         else:
@@ -289,7 +373,30 @@ figure{{margin:1.5em 0}}</style></head><body>
 """
     write_text_atomic(folder.path("index.html"), page)
     folder.finish()
+    reports = DEFAULT_REPORTS.resolve()
+    if reports in Path(out).resolve().parents:  # a report among the default ones: the index lists it
+        write_reports_index(reports)
     return folder.written
+
+
+def outcome_note(outcome: Outcome) -> str:
+    """For a report's intro: the units left out because no result was saved ("" when none)."""
+    return f" Missing (not computed): {', '.join(outcome.missing)}." if outcome.missing else ""
+
+
+def require_results(outcome: Outcome, out: Path, scale: str) -> None:
+    """``UsageError`` when there is nothing to report: ``--redraw`` found no saved result of ``scale``."""
+    from odolab.cli import UsageError
+
+    if not outcome.results:
+        raise UsageError(f"--redraw: no saved results in {out / 'results'} for --scale {scale}; run without --redraw")
+
+
+def say_done(outcome: Outcome, rows: int, out: Path) -> None:
+    """Print how many units were computed and rows written; name the missing units on stderr."""
+    print(f"{len(outcome.computed)} units computed, {rows} rows -> {out}")
+    if outcome.missing:
+        print(f"note: no saved result (left out of the table): {', '.join(outcome.missing)}", file=sys.stderr)
 
 
 def command_line(prog: str, argv: Sequence[str] | None) -> str:
@@ -381,24 +488,131 @@ def check_options(args, out: Path, config: StudyConfig) -> None:
     check_out(out, config)
 
 
-def write_reports_index(reports: Path) -> Path:
-    """``reports/index.html``: a link to every report page under ``reports`` (``*/index.html`` and
-    ``*/report.html``), with its title."""
-    from odolab.io.atomic import write_text_atomic
+@dataclass(frozen=True)
+class StudyRun:
+    """One run of a study as asked: its definition, the parsed command line (``args``), the checked
+    parameters of the asked scale (``scale``), the report folder ``out`` and each odometer's
+    identity digest (``identity``, :func:`identities`)."""
 
-    items = []
-    for page in sorted([*reports.glob("*/index.html"), *reports.glob("*/report.html")]):
-        if page.is_symlink():
-            continue
-        text = page.read_text(encoding="utf-8", errors="replace")
-        m = re.search(r"<title>(.*?)</title>", text, flags=re.DOTALL)
-        title = html.unescape(m.group(1).strip()) if m else page.parent.name
-        rel = page.relative_to(reports).as_posix()
-        items.append(f'<li><a href="{html.escape(rel)}">{html.escape(page.parent.name)}</a>: {html.escape(title)}</li>')
+    config: StudyConfig
+    prog: str
+    argv: Sequence[str] | None
+    args: Any
+    scale: Any
+    out: Path
+    identity: dict[str, str | None]
+
+    def run(self, fn: Callable[[dict[str, Any]], Any], units: Sequence[Unit], valid: Callable[[Any], bool]) -> Outcome:
+        """:func:`run_units` into ``out/results`` as the command line asks (``--redraw``, where the
+        units run); ``UsageError`` when ``--redraw`` finds nothing saved for this scale."""
+        from odolab.cli import execution_of
+
+        store = ResultStore(self.out / "results")
+        outcome = run_units(fn, units, store, redraw=self.args.redraw, execution=execution_of(self.args), valid=valid)
+        require_results(outcome, self.out, self.args.scale)
+        return outcome
+
+    def publish(
+        self,
+        outcome: Outcome,
+        intro: list[str],
+        columns: list[str],
+        rows: list[dict[str, Any]],
+        figures: dict[str, tuple[str, Callable[[Path], None]]],
+        findings: list[str],
+    ) -> None:
+        """Write the report (:func:`write_report`; the missing units named in its intro), then print
+        its table and what was computed."""
+        report = Report(
+            title=self.config.title,
+            intro=[*intro[:-1], intro[-1] + outcome_note(outcome)] if intro else [outcome_note(outcome)],
+            columns=columns,
+            rows=rows,
+            figures=figures,
+            findings=findings,
+            command=command_line(self.prog, self.argv),
+            machine=machine(),
+            cpu_hours=outcome.seconds / 3600,
+        )
+        write_report(report, self.out, owner=f"study {self.config.name}")
+        print(table_md(columns, rows))
+        say_done(outcome, len(rows), self.out)
+
+
+def begin(name: str, prog: str, argv: Sequence[str] | None, scale_of: Callable[[StudyConfig, str], Any]) -> StudyRun:
+    """Everything a study checks before any work: ``<name>.toml``, the command line, the asked
+    scale's parameters (``scale_of(config, scale)``, which has ``odometers`` and may have
+    ``options``), the odometers (loaded for their identity digests) and the ``--out`` folder. Bad
+    input is one ``UsageError`` line naming the file and field or the option."""
+    from odolab.cli import UsageError
+
+    try:
+        config = load_study(name)
+        args = study_arguments(prog, config).parse_args(argv)
+        scale = scale_of(config, args.scale)
+        identity = identities(config, args.scale, scale.odometers, getattr(scale, "options", None))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    out = args.out or default_out(config)
+    check_options(args, out, config)
+    return StudyRun(config, prog, argv, args, scale, out, identity)
+
+
+#: Files named so are report pages; what a report folder holds besides them is listed when it has none.
+PAGE_NAMES = ("index.html", "report.html")
+
+
+def _report_files(reports: Path) -> list[Path]:
+    """Every regular file under ``reports`` (relative), reached through folders only (no links)."""
+    found = []
+    for root, dirs, files in os.walk(reports):
+        dirs[:] = sorted(d for d in dirs if not (Path(root) / d).is_symlink())
+        found += [(Path(root) / f).relative_to(reports) for f in sorted(files) if (Path(root) / f).is_file()]
+    return [f for f in found if not (Path(reports) / f).is_symlink()]
+
+
+def _page_title(page: Path) -> str:
+    """The ``<title>`` of an HTML page (the folder's name when it has none or cannot be read)."""
+    try:
+        text = page.read_text(encoding="utf-8", errors="replace")[:100_000]
+    except OSError:
+        return page.parent.name
+    m = re.search(r"<title>(.*?)</title>", text, flags=re.DOTALL | re.IGNORECASE)
+    return " ".join(html.unescape(m.group(1)).split()) if m and m.group(1).strip() else page.parent.name
+
+
+def write_reports_index(reports: Path) -> Path:
+    """``reports/index.html``: a link to every report page under ``reports`` at any depth
+    (``index.html`` or ``report.html``) with its title; then each top-level folder with no page,
+    linking its Markdown files."""
+    from odolab.io.atomic import write_text_atomic
+    from odolab.io.owned import owned_path
+
+    reports = Path(reports)
+    files = _report_files(reports)
+    pages = [f for f in files if f.name in PAGE_NAMES and f != Path("index.html")]
+    items = [
+        f'<li><a href="{html.escape(f.as_posix())}">{html.escape(f.parent.as_posix())}</a>: '
+        f"{html.escape(_page_title(reports / f))}</li>"
+        for f in pages
+    ]
+    with_page = {f.parts[0] for f in pages}
+    bare = sorted({f.parts[0] for f in files if len(f.parts) > 1} - with_page)
+    others = []
+    for top in bare:
+        notes = [f for f in files if f.parts[0] == top and f.suffix == ".md"]
+        links = ", ".join(
+            f'<a href="{html.escape(f.as_posix())}">{html.escape(f.relative_to(top).as_posix())}</a>' for f in notes
+        )
+        others.append(f'<li><a href="{html.escape(top)}/">{html.escape(top)}</a>{": " + links if links else ""}</li>')
     page = (
         '<!doctype html>\n<html lang="en"><head><meta charset="utf-8"><title>odolab reports</title>'
-        "<style>body{font-family:sans-serif;max-width:900px;margin:2em auto}</style></head><body>"
-        "<h1>odolab reports</h1><ul>" + "".join(items) + "</ul></body></html>\n"
+        "<style>body{font-family:sans-serif;max-width:900px;margin:2em auto;padding:0 1em}li{margin:.3em 0}</style>"
+        "</head><body><h1>odolab reports</h1><h2>Report pages</h2><ul>"
+        + "".join(items)
+        + "</ul>"
+        + (f"<h2>Folders without a page</h2><ul>{''.join(others)}</ul>" if others else "")
+        + "</body></html>\n"
     )
-    write_text_atomic(reports / "index.html", page)
+    write_text_atomic(owned_path(reports, "index.html"), page)
     return reports / "index.html"

@@ -77,10 +77,8 @@ def test_the_export_is_never_one_of_the_reports_the_run_writes(tmp_path, monkeyp
     assert _job(tmp_path, "--export", str(tmp_path / "reports" / "model.pt")).export.name == "model.pt"
 
 
-def _noise_doc() -> dict:
-    row = {
-        "level": 1.0,
-        "odometer": "icp",
+def _noise_row() -> dict:
+    return {
         "steps": 10,
         "dx": 1.0,
         "dz": 1.0,
@@ -91,18 +89,16 @@ def _noise_doc() -> dict:
         "failure_share": 0.1,
         "ate_m": 0.2,
     }
-    return {
-        "config": {"episodes": 1, "max_steps": 3, "split": "test", "seed": 0},
-        "results": {"1/icp": row, "2/icp": {**row, "level": 2.0}},
-    }
 
 
 def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, capsys):
-    """A row with an integer of 400 digits, a bool, a negative error or a share above 1 is damage (the
-    row is rerun, or --redraw names it), and JSON nested 100,000 deep is one line, not a traceback."""
+    """A result with an integer of 400 digits, a bool, a negative error or a share above 1 is damage
+    (the unit is computed again, or missing with --redraw), and results files of JSON nested 100,000
+    deep or of 400-digit numbers are one line, not a traceback."""
     import studies.noise_robustness as noise
+    from studies import framework
 
-    assert noise._whole(_noise_doc()["results"]["1/icp"])
+    assert noise.valid_result(_noise_row())
     for key, value in (
         ("dx", 10**400),
         ("dz", True),
@@ -110,63 +106,45 @@ def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, caps
         ("failure_share", 1.5),
         ("dx_own", 10**400),
         ("ate_m", float("nan")),
+        ("steps", 1.5),
     ):
-        assert not noise._whole({**_noise_doc()["results"]["1/icp"], key: value}), key
-
-    def cli(out: Path) -> int:
-        return run_cli(
-            noise.main,
-            "python -m studies.noise_robustness",
-            ["--odometers", "icp", "--episodes", "1", "--max-steps", "3", "--redraw", "--quiet", "--out", str(out)],
-        )
-
-    ok = tmp_path / "ok"
-    ok.mkdir()
-    (ok / "results.json").write_text(json.dumps(_noise_doc()))
-    assert cli(ok) == 0
-    big = tmp_path / "big"
-    big.mkdir()
-    (big / "results.json").write_text(json.dumps(_noise_doc()).replace('"dx": 1.0', '"dx": 1' + "0" * 400, 1))
-    deep = tmp_path / "deep"
-    deep.mkdir()
-    (deep / "results.json").write_text('{"a":' * 100_000)
-    capsys.readouterr()
-    for out, said in ((big, "has no result for 1/icp"), (deep, "not a valid results file of this study")):
-        assert cli(out) == 2
+        assert not noise.valid_result({**_noise_row(), key: value}), key
+    scale = noise.scale_of(framework.load_study("noise_robustness"), "ci")
+    unit = noise.units(scale, {o: None for o in scale.odometers})[0]
+    out = tmp_path / "n"
+    (out / "results").mkdir(parents=True)
+    (out / "manifest.txt").write_text("# odolab study noise_robustness\n")
+    doc = {"label": unit.label, "key": unit.key, "result": {"value": _noise_row(), "seconds": 10**400}}
+    (out / "results" / f"{unit.digest}.json").write_text(json.dumps(doc))
+    argv = ["--scale", "ci", "--redraw", "--quiet", "--out", str(out)]
+    assert run_cli(noise.main, noise.PROG, argv) == 0  # its seconds damaged: counted as none
+    big = json.dumps(doc).replace('"dx": 1.0', '"dx": 1' + "0" * 400, 1)
+    for text in (big, '{"a":' * 100_000):
+        (out / "results" / f"{unit.digest}.json").write_text(text)
+        capsys.readouterr()
+        assert run_cli(noise.main, noise.PROG, argv) == 2
         err = capsys.readouterr().err
-        assert err.count("\n") == 1 and "Traceback" not in err and said in err, err
+        assert err.count("\n") == 1 and "Traceback" not in err and "no saved results in" in err, err
 
 
-def test_the_turns_study_names_damage_and_other_options_apart(tmp_path, capsys):
+def test_the_turns_study_keeps_results_of_other_options_and_damage_apart(tmp_path):
+    """Options are part of a unit's key: turns computed with other options are never taken for
+    these; a saved scene with a damaged turn is not a result."""
     import studies.turns_by_depth as turns
+    from studies import framework
 
-    assert turns._row_ok([1.5, True, 0.3]) and not turns._row_ok([10**400, True, 0.3])
-    assert not turns._row_ok([1.5, True, 10**400])
-    pairs = [[1.0, True, 0.5]] * 4
-    doc = {
-        "config": {
-            "split": "val",
-            "seed": 7,
-            "scenes": 2,
-            "per_scene": 2,
-            "options": {"icp": {"max_iter": 3}},
-            "weights": {},
-        },
-        "pairs": {"icp": pairs},
-    }
-    out = tmp_path / "t"
-    out.mkdir()
-    (out / "results.json").write_text(json.dumps(doc))
-    argv = ["--odometers", "icp", "--scenes", "2", "--per-scene", "2", "--redraw", "--quiet", "--out", str(out)]
-    assert run_cli(turns.main, "python -m studies.turns_by_depth", argv) == 2
-    err = capsys.readouterr().err
-    assert "icp's pairs were computed with other options ({'max_iter': 3}, not {})" in err, err
-    doc["config"]["options"] = {}
-    doc["pairs"]["icp"] = pairs[:3] + [[10**400, True, 0.5]]
-    (out / "results.json").write_text(json.dumps(doc))
-    assert run_cli(turns.main, "python -m studies.turns_by_depth", argv) == 2
-    err = capsys.readouterr().err
-    assert "icp has 3 of 4 pairs" in err and "Traceback" not in err, err
+    assert turns.row_ok([1.5, True, 0.3]) and not turns.row_ok([10**400, True, 0.3])
+    assert not turns.row_ok([1.5, True, 10**400]) and not turns.row_ok([1.5, False, 0.3])
+    scale = turns.Scale("val", 7, 2, 2, ("icp",), {})
+    other = turns.Scale("val", 7, 2, 2, ("icp",), {"icp": {"max_iter": 3}})
+    store = framework.ResultStore(tmp_path)
+    [first, _] = turns.units(other, {"icp": "a"})
+    store.put(first, {"value": [[1.0, True, 0.5]] * 2, "seconds": 1.0})
+    mine = turns.units(scale, {"icp": "a"})[0]
+    assert mine.label == first.label and store.get(mine) is None  # same odometer and scene, other options
+    assert turns.valid_result([[1.0, True, 0.5]] * 2, per_scene=2)
+    assert not turns.valid_result([[1.0, True, 0.5], [10**400, True, 0.5]], per_scene=2)
+    assert not turns.valid_result([[1.0, True, 0.5]] * 3, per_scene=2)
 
 
 def test_a_manifest_naming_a_users_file_never_deletes_it(tmp_path):

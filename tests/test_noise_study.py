@@ -1,103 +1,124 @@
-"""The noise-robustness study resumes what it finished, and reruns rows whose model file changed."""
+"""studies.noise_robustness: the ci scale end to end (every level and odometer, the report), a
+second run reusing every saved result, a changed model's and a damaged file's units computed again,
+the findings against the paper's claim, and a bad definition refused in one line."""
 
+from __future__ import annotations
+
+import csv
 import json
+import shutil
+from pathlib import Path
 
-import studies.noise_robustness as study
-from odolab.parallel import SERIAL
+import pytest
 
+import studies.noise_robustness as noise
+from odolab.cli import run_cli
+from studies import framework
 
-def test_noise_study_resumes_and_reruns_changed_weights(tmp_path, monkeypatch):
-    doc = study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, execution=SERIAL)
-    assert set(doc["results"]) == {"1/action-prior", "2/action-prior"}
-    assert doc["results"]["1/action-prior"]["weights"] is None  # not a learned odometer
-    calls = []
-    real = study.run_comparison
-
-    def counting(config):
-        calls.append(config.noise.rgb)
-        return real(config)
-
-    monkeypatch.setattr(study, "run_comparison", counting)
-    study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, execution=SERIAL)
-    assert calls == []  # everything was done
-    path = tmp_path / "results.json"
-    saved = json.loads(path.read_text())
-    saved["results"]["2/action-prior"]["weights"] = "0" * 64  # as if made by another model file
-    path.write_text(json.dumps(saved))
-    again = study.run_study(tmp_path, ["action-prior"], [2.0], episodes=1, max_steps=3, execution=SERIAL)
-    assert calls == [2.0]
-    assert again["results"]["2/action-prior"]["weights"] is None
+CONFIG = framework.load_study("noise_robustness")
+CI = noise.scale_of(CONFIG, "ci")
 
 
-def test_noise_study_command_line_levels_and_refusals(tmp_path, capsys):
-    """Only-base levels are refused in one line; a figure is named after its level; another run's
-    folder is refused naming the settings as options, not as a dict."""
-    from odolab.cli import run_cli
-
-    def cli(*args):
-        return run_cli(study.main, "python -m studies.noise_robustness", [str(a) for a in args])
-
-    assert cli("--levels", "1", "--out", tmp_path / "a") == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "besides 1" in err[0]
-    out = tmp_path / "b"
-    assert (
-        cli(
-            "--levels",
-            "0,1,0",
-            "--odometers",
-            "action-prior",
-            "--episodes",
-            1,
-            "--max-steps",
-            3,
-            "--serial",
-            "--quiet",
-            "--out",
-            out,
-        )
-        == 0
-    )
-    printed = capsys.readouterr().out
-    assert "level 0" not in printed and "| action-prior |" in printed  # quiet: the table only
-    assert sorted(p.name for p in out.glob("*.png")) == ["growth.png"]
-    assert (
-        cli("--levels", "2", "--odometers", "action-prior", "--episodes", 2, "--max-steps", 3, "--serial", "--out", out)
-        == 2
-    )
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--episodes 1" in err[0] and "--episodes 2" in err[0] and "{" not in err[0]
+def _args(out: Path, *more: str) -> list[str]:
+    return ["--scale", "ci", "--out", str(out), "--serial", "--quiet", *more]
 
 
-def test_noise_study_levels_are_one_per_printed_key_and_nan_rows_run_again(tmp_path, capsys, monkeypatch):
-    from odolab.cli import run_cli
+@pytest.fixture(scope="module")
+def ci_run(tmp_path_factory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("noise") / "out"
+    assert noise.main(_args(out)) == 0
+    return out, (out / "table.csv").read_text()
 
-    seen = []
-    monkeypatch.setattr(
-        study, "run_study", lambda out, odometers, levels, *a, **k: seen.append(levels) or {"config": {}, "results": {}}
-    )
-    monkeypatch.setattr(study, "growth_table", lambda *a: "table")
-    monkeypatch.setattr(study, "growth_figure", lambda *a: None)
-    assert (
-        run_cli(
-            study.main,
-            "s",
-            ["--levels", "2,2.0000001,-0,0", "--odometers", "action-prior", "--out", str(tmp_path / "o")],
-        )
-        == 0
-    )
-    assert seen == [[2.0, 0.0]] and str(seen[0][1]) == "0.0"  # not -0.0
-    row = {
-        "level": 1.0,
-        "odometer": "x",
-        "steps": 3,
-        "dx": 1.0,
-        "dz": 1.0,
-        "dyaw": 1.0,
-        "dx_own": None,
-        "dz_own": 1.0,
-        "dyaw_own": 1.0,
-        "failure_share": 0.0,
-        "ate_m": 0.1,
+
+def test_the_ci_scale_reports_every_level_and_odometer(ci_run):
+    out, table = ci_run
+    assert {"index.html", "table.csv", "table.md", "errors.png", "growth.png", "manifest.txt", "results"} <= {
+        p.name for p in out.iterdir()
     }
-    assert study._whole(row) and not study._whole(row | {"dx": float("nan")})
+    rows = list(csv.DictReader(table.splitlines()))
+    assert [(r["odometer"], float(r["level"])) for r in rows] == [
+        (o, v) for o in CI.odometers for v in CI.levels
+    ] and len(CI.levels) >= 4
+    for r in rows:
+        if float(r["level"]) == 1.0:
+            assert [float(r[f"growth_{c}"]) for c in noise.COMPONENTS] == [1.0, 1.0, 1.0]
+    prior = [r for r in rows if r["odometer"] == "action-prior"]
+    assert len({(r["dx"], r["dz"], r["dyaw"]) for r in prior}) == 1  # it does not read the frames
+    assert len(list((out / "results").glob("*.json"))) == len(CI.levels) * len(CI.odometers)
+    page = (out / "index.html").read_text()
+    assert "Against the paper" in page and "section 5" in page and 'src="errors.png"' in page
+    assert "action-prior: the same error at every level" in page
+
+
+def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
+    out, table = ci_run
+    capsys.readouterr()
+    assert noise.main(_args(out)) == 0
+    assert "0 units computed" in capsys.readouterr().out
+    assert (out / "table.csv").read_text() == table
+
+
+def test_a_changed_model_and_a_damaged_result_are_computed_again(ci_run, tmp_path, monkeypatch, capsys):
+    out, table = ci_run
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    store = framework.ResultStore(copy / "results")
+    unit = next(u for u in noise.units(CI, {o: None for o in CI.odometers}) if u.label == "action-prior x2")
+    path = copy / "results" / f"{unit.digest}.json"
+    doc = json.loads(path.read_text())
+    doc["result"]["value"]["dx"] = -1.0  # edited by hand: not a result
+    path.write_text(json.dumps(doc))
+    assert store.get(unit) is not None and not noise.valid_result(store.get(unit)["value"])
+    real = framework.identities
+
+    def retrained(config, scale, odometers, options=None):  # as if icp's settings had changed
+        return {**real(config, scale, odometers, options), "icp": "0" * 64}
+
+    monkeypatch.setattr(framework, "identities", retrained)
+    capsys.readouterr()
+    assert noise.main(_args(copy)) == 0
+    assert f"{1 + len(CI.levels)} units computed" in capsys.readouterr().out  # icp at every level, and the damaged one
+    assert (copy / "table.csv").read_text() == table  # the same numbers: only the key changed
+
+
+def _rows(growth: dict[str, float]) -> list[dict]:
+    """Rows at x1 and x3 whose dx, dz, dyaw grow by ``growth[odometer]``."""
+    results = {}
+    for odo, g in growth.items():
+        for level, factor in ((1.0, 1.0), (3.0, g)):
+            results[noise.label(odo, level)] = {
+                "steps": 10,
+                **{c: 2.0 * factor for c in noise.COMPONENTS},
+                **{f"{c}_own": None for c in noise.COMPONENTS},
+                "failure_share": 0.0,
+                "ate_m": 0.1,
+            }
+    return results
+
+
+def test_the_findings_say_where_the_papers_claim_holds():
+    scale = noise.Scale((1.0, 3.0), 1, 6, ("action-prior", "icp", "robust-vo"), ("robust-vo",))
+    holds = noise.findings(scale, noise.table(scale, _rows({"action-prior": 1.0, "icp": 1.3, "robust-vo": 1.01})))
+    assert holds[0].startswith("dx at noise x3") and "agrees with the paper's claim" in holds[0]
+    assert "agrees in 3 of 3 components" in holds[3] and holds[4].startswith("action-prior: the same error")
+    fails = noise.findings(scale, noise.table(scale, _rows({"action-prior": 1.0, "icp": 1.3, "robust-vo": 1.5})))
+    assert "differs from the paper's claim" in fails[0] and "agrees in 0 of 3" in fails[3]
+    untested = noise.findings(CI, [])
+    assert "not tested at this scale" in untested[0]
+
+
+def test_a_bad_definition_is_refused_naming_file_and_field(tmp_path, monkeypatch, capsys):
+    text = (framework.HERE / "noise_robustness.toml").read_text()
+    real = framework.load_study
+    monkeypatch.setattr(framework, "load_study", lambda name: real(name, tmp_path))
+    for old, new, said in (
+        ("levels = [1, 1.5, 2, 3]\nepisodes = 1\n", "levels = [1.5, 2]\nepisodes = 1\n", "a list holding 1"),
+        ("learned = []\n\n# cpu", 'learned = ["deepvo"]\n\n# cpu', "learned: expected names among the odometers"),
+        ('odometers = ["action-prior", "icp"]', 'odometers = ["action-prior", "nope"]', "odometers: nope: unknown"),
+    ):
+        assert old in text, old
+        (tmp_path / "noise_robustness.toml").write_text(text.replace(old, new, 1))
+        assert run_cli(noise.main, noise.PROG, _args(tmp_path / "out")) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"{tmp_path / 'noise_robustness.toml'}: scales.ci." in err and said in err, err
+    assert not (tmp_path / "out").exists()  # refused before any folder was made

@@ -174,11 +174,12 @@ def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys
     out.mkdir()
     (out / "results.json").write_text(json.dumps({"my": "own results"}))
     (out / "table.md").write_text("my table")
-    argv = ["--odometers", "action-prior", "--scenes", "1", "--per-scene", "1", "--quiet", "--out", str(out)]
-    assert run_cli(study.main, "python -m studies.turns_by_depth", argv) == 2
-    _one_line(capsys, "results.json: not a results file of this study")
+    argv = ["--scale", "ci", "--serial", "--quiet", "--out", str(out)]
+    assert run_cli(study.main, study.PROG, argv) == 2
+    _one_line(capsys, "holds files odolab did not write")
     assert (out / "table.md").read_text() == "my table"
     assert json.loads((out / "results.json").read_text()) == {"my": "own results"}
+    assert sorted(p.name for p in out.iterdir()) == ["results.json", "table.md"]
 
 
 # --- the trainers' --export ---------------------------------------------------------------------

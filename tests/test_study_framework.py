@@ -74,3 +74,55 @@ def test_a_folder_of_the_users_own_files_is_refused(tmp_path: Path):
     with pytest.raises(UsageError, match="holds files odolab did not write"):
         e_table.main(["--scale", "ci", "--out", str(tmp_path), "--serial", "--quiet"])
     assert (tmp_path / "thesis.docx").read_text() == "mine"
+
+
+def _page(path: Path, title: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f"<!doctype html><html><head><title>{title}</title></head><body></body></html>")
+
+
+def test_the_reports_index_lists_every_page_at_any_depth(tmp_path: Path):
+    reports = tmp_path / "reports"
+    _page(reports / "e-table" / "index.html", "Errors &amp; seeds")
+    _page(reports / "navigation" / "report.html", "odolab navigation")
+    _page(reports / "fusion" / "classical" / "report.html", "odolab compare")
+    (reports / "simcard").mkdir()
+    (reports / "simcard" / "card.md").write_text("# card")
+    _page(tmp_path / "elsewhere" / "index.html", "not a report here")
+    (reports / "linked").symlink_to(tmp_path / "elsewhere")
+    page = framework.write_reports_index(reports).read_text()
+    assert '<a href="e-table/index.html">e-table</a>: Errors &amp; seeds' in page
+    assert '<a href="navigation/report.html">navigation</a>: odolab navigation' in page
+    assert '<a href="fusion/classical/report.html">fusion/classical</a>: odolab compare' in page
+    assert '<a href="simcard/card.md">card.md</a>' in page and "Folders without a page" in page
+    assert "not a report here" not in page and 'href="index.html"' not in page  # no link, not itself
+    assert framework.write_reports_index(reports).read_text() == page  # its own index is no report
+
+
+def test_a_report_among_the_default_reports_refreshes_their_index(tmp_path: Path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    report = framework.Report("A study", [], ["a"], [{"a": 1.5}], {}, [], "cmd", "machine", 0.0)
+    framework.write_report(report, tmp_path / "elsewhere" / "s", owner="study s")
+    assert not (tmp_path / "elsewhere" / "index.html").exists()  # nothing outside --out
+    framework.write_report(report, framework.DEFAULT_REPORTS / "s", owner="study s")
+    assert '<a href="s/index.html">s</a>: A study' in (tmp_path / "reports" / "index.html").read_text()
+
+
+def test_the_reports_index_command(tmp_path: Path, capsys):
+    from odolab.cli import run_cli
+    from studies import reports_index
+
+    _page(tmp_path / "n" / "report.html", "odolab navigation")
+    assert run_cli(reports_index.main, reports_index.PROG, ["--reports", str(tmp_path)]) == 0
+    assert "odolab navigation" in (tmp_path / "index.html").read_text()
+    assert run_cli(reports_index.main, reports_index.PROG, ["--reports", str(tmp_path / "none")]) == 2
+    assert "not a folder" in capsys.readouterr().err
+
+
+def test_the_committed_index_links_every_committed_report_page():
+    reports = framework.HERE.parent / "reports"
+    index = (reports / "index.html").read_text()
+    pages = [p for name in framework.PAGE_NAMES for p in reports.rglob(name) if p != reports / "index.html"]
+    assert pages and (reports / "navigation" / "report.html") in pages
+    for p in pages:
+        assert f'href="{p.relative_to(reports).as_posix()}"' in index, f"run python -m studies.reports_index: {p}"

@@ -1,21 +1,22 @@
 """The studies resume from their saved results (keyed by what they depend on) and redraw their
-tables and figures from them without computing anything (issue 42)."""
+reports from them without computing anything (issue 42)."""
 
 from __future__ import annotations
 
-import json
+import shutil
 
 import pytest
 
 import studies.noise_robustness as noise
 import studies.turns_by_depth as turns
 from odolab.cli import run_cli
+from studies import framework
 
-TURNS = ["--odometers", "ground-truth,action-prior", "--scenes", "2", "--per-scene", "2", "--quiet"]
+CI = ["--scale", "ci", "--serial", "--quiet"]
 
 
-def _turns(args) -> int:
-    return run_cli(turns.main, "python -m studies.turns_by_depth", [str(a) for a in args])
+def _turns(*args) -> int:
+    return run_cli(turns.main, turns.PROG, [*CI, *map(str, args)])
 
 
 def _counting(monkeypatch) -> list[str]:
@@ -33,61 +34,60 @@ def _counting(monkeypatch) -> list[str]:
 
 def test_the_turns_study_resumes_scene_by_scene_and_redraws_without_computing(tmp_path, monkeypatch, capsys):
     out = tmp_path / "t"
+    scale = turns.scale_of(framework.load_study("turns_by_depth"), "ci")
+    per_run = len(scale.odometers) * scale.scenes * scale.per_scene
     calls = _counting(monkeypatch)
-    assert _turns(TURNS + ["--out", out]) == 0
-    assert len(calls) == 8  # 2 odometers x 2 scenes x 2 turns
-    whole = json.loads((out / "results.json").read_text())
-    table = (out / "table.md").read_text()
+    assert _turns("--out", out) == 0
+    assert len(calls) == per_run
+    table = (out / "table.csv").read_text()
     calls.clear()
-    assert _turns(TURNS + ["--out", out]) == 0
-    assert calls == [] and (out / "table.md").read_text() == table  # all saved: nothing computed
-    cut = json.loads((out / "results.json").read_text())
-    cut["pairs"]["action-prior"] = cut["pairs"]["action-prior"][:2]  # interrupted after its first scene
-    (out / "results.json").write_text(json.dumps(cut))
-    assert _turns(TURNS + ["--out", out]) == 0
-    assert len(calls) == 2 and json.loads((out / "results.json").read_text()) == whole  # only its second scene
+    assert _turns("--out", out) == 0
+    assert calls == [] and (out / "table.csv").read_text() == table  # all saved: nothing computed
+    unit = turns.units(scale, {o: None for o in scale.odometers})[-1]  # interrupted before the last scene
+    (out / "results" / f"{unit.digest}.json").unlink()
+    assert _turns("--out", out) == 0
+    assert len(calls) == scale.per_scene and (out / "table.csv").read_text() == table  # only that scene
     calls.clear()
-    changed = json.loads((out / "results.json").read_text())
-    changed["config"]["weights"]["ground-truth"] = "0" * 64  # as if made with another model file
-    (out / "results.json").write_text(json.dumps(changed))
-    assert _turns(TURNS + ["--out", out]) == 0
-    assert len(calls) == 4 and json.loads((out / "results.json").read_text()) == whole
-    assert "note: ground-truth: saved with another model file or settings" in capsys.readouterr().err
+    real = framework.identities
+    monkeypatch.setattr(  # as if ground-truth's settings had changed
+        framework, "identities", lambda *a: {**real(*a), "ground-truth": "0" * 64}
+    )
+    assert _turns("--out", out) == 0
+    assert len(calls) == scale.scenes * scale.per_scene and (out / "table.csv").read_text() == table
+    monkeypatch.setattr(framework, "identities", real)
     calls.clear()
-    # --redraw: table and figure from results.json alone, no odometer even loaded
-    (out / "table.md").unlink()
-    (out / "turns.png").unlink()
-    monkeypatch.setattr("odolab.comparison.load_odometers", lambda *a, **k: pytest.fail("loaded an odometer"))
-    assert _turns(TURNS + ["--redraw", "--out", out]) == 0
-    assert calls == [] and (out / "table.md").read_text() == table and (out / "turns.png").stat().st_size > 10_000
-    assert _turns(["--odometers", "ground-truth", "--scenes", "2", "--per-scene", "2", "--redraw", "--out", out]) == 0
-    assert "action-prior" not in (out / "table.md").read_text()  # the odometers named, only
+    # --redraw: the report from the saved results alone, in a folder holding nothing else
+    copy = tmp_path / "copy"
+    shutil.copytree(out / "results", copy / "results")
+    shutil.copy(out / "manifest.txt", copy / "manifest.txt")
+    monkeypatch.setattr(turns, "unit_result", lambda key: pytest.fail("computed a unit"))
     capsys.readouterr()
-    assert _turns(TURNS + ["--scenes", "3", "--redraw", "--out", out]) == 2
+    assert _turns("--redraw", "--out", copy) == 0
+    assert "0 units computed" in capsys.readouterr().out
+    assert calls == [] and (copy / "table.csv").read_text() == table and (copy / "turns.png").stat().st_size > 10_000
+    assert run_cli(turns.main, turns.PROG, ["--scale", "ci", "--redraw", "--out", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err
-    assert "made with --split val --seed 7 --scenes 2 --per-scene 2, not --split val --seed 7 --scenes 3" in err
-    assert _turns(["--odometers", "icp", "--scenes", "2", "--per-scene", "2", "--redraw", "--out", out]) == 2
-    assert "icp has 0 of 4 pairs" in capsys.readouterr().err
-    assert _turns(TURNS + ["--redraw", "--out", tmp_path / "none"]) == 2
-    assert "no such results file" in capsys.readouterr().err
+    assert "no saved results in" in err and err.count("\n") == 1
 
 
 def test_the_noise_study_redraws_from_its_results_without_computing(tmp_path, monkeypatch, capsys):
     def cli(*args) -> int:
-        return run_cli(noise.main, "python -m studies.noise_robustness", [str(a) for a in args])
+        return run_cli(noise.main, noise.PROG, [*CI, *map(str, args)])
 
     out = tmp_path / "n"
-    args = ["--odometers", "action-prior", "--episodes", 1, "--max-steps", 3, "--serial", "--quiet", "--out", out]
-    assert cli(*args) == 0
-    table = (out / "table.md").read_text()
-    (out / "table.md").unlink()
-    (out / "growth.png").unlink()
-    monkeypatch.setattr(noise, "run_comparison", lambda *a, **k: pytest.fail("computed a comparison"))
-    monkeypatch.setattr(noise, "load_odometer", lambda *a, **k: pytest.fail("loaded an odometer"))
+    assert cli("--out", out) == 0
+    table = (out / "table.csv").read_text()
+    for name in ("table.md", "table.csv", "errors.png", "growth.png", "index.html"):
+        (out / name).unlink()
+    monkeypatch.setattr(noise, "unit_result", lambda key: pytest.fail("computed a unit"))
     capsys.readouterr()
-    assert cli(*args, "--redraw") == 0
-    assert (out / "table.md").read_text() == table and (out / "growth.png").stat().st_size > 10_000
-    assert cli(*args, "--redraw", "--levels", "3") == 2
-    assert "has no result for 3/action-prior" in capsys.readouterr().err
-    assert cli("--odometers", "action-prior", "--episodes", 2, "--max-steps", 3, "--redraw", "--out", out) == 2
-    assert "--episodes 1" in capsys.readouterr().err
+    assert cli("--out", out, "--redraw") == 0
+    assert "0 units computed" in capsys.readouterr().out
+    assert (out / "table.csv").read_text() == table and (out / "errors.png").stat().st_size > 10_000
+    victim = min((out / "results").glob("*.json"))
+    victim.write_text('{"a":' * 100_000)  # damaged: left out, and said so
+    assert cli("--out", out, "--redraw") == 0
+    captured = capsys.readouterr()
+    assert "note: no saved result (left out of the table):" in captured.err
+    assert "Missing (not computed):" in (out / "index.html").read_text()
+    assert len((out / "table.csv").read_text().splitlines()) == len(table.splitlines()) - 1

@@ -2,46 +2,72 @@
 
 from __future__ import annotations
 
-import json
+import csv
 
 import studies.turns_by_depth as study
 from odolab.api import invert, load_odometer
+from studies import framework
+
+CONFIG = framework.load_study("turns_by_depth")
+CI = study.scale_of(CONFIG, "ci")
 
 
-def _run(args):
+def _run(args) -> int:
     from odolab.cli import run_cli
 
-    return run_cli(study.main, "python -m studies.turns_by_depth", [str(a) for a in args])
+    return run_cli(study.main, study.PROG, [str(a) for a in args])
 
 
-def test_the_study_scores_every_odometer_on_the_same_turns(tmp_path, capsys):
+def test_the_ci_scale_scores_every_odometer_on_the_same_turns(tmp_path):
     out = tmp_path / "t"
-    assert (
-        _run(["--odometers", "ground-truth,action-prior", "--scenes", "1", "--per-scene", "3", "--out", out, "--quiet"])
-        == 0
-    )
-    doc = json.loads((out / "results.json").read_text())
-    truth, prior = doc["pairs"]["ground-truth"], doc["pairs"]["action-prior"]
-    assert [r[0] for r in truth] == [r[0] for r in prior] and len(truth) == 3  # the same pairs, same depths
+    assert _run(["--scale", "ci", "--out", out, "--serial", "--quiet"]) == 0
+    assert {"index.html", "table.csv", "table.md", "turns.png", "manifest.txt", "results"} <= {
+        p.name for p in out.iterdir()
+    }
+    assert len(list((out / "results").glob("*.json"))) == CI.scenes * len(CI.odometers)
+    units = study.units(CI, {o: None for o in CI.odometers})
+    saved = {u.label: framework.ResultStore(out / "results").get(u)["value"] for u in units}
+    turns = study.turns_of(CI, saved)
+    truth, prior = turns["ground-truth"], turns["action-prior"]
+    assert [r[0] for r in truth] == [r[0] for r in prior] and len(truth) == CI.scenes * CI.per_scene  # same depths
     assert all(ok and err < 1e-6 for _, ok, err in truth)
     assert all(ok for _, ok, _ in prior) and max(err for *_, err in prior) > 0.01
-    assert "| ground-truth | all | 3 | 0.0 % | 0.00 |" in (out / "table.md").read_text()
+    rows = list(csv.DictReader((out / "table.csv").open()))
+    assert [r["bin"] for r in rows[:5]] == ["0-1 m", "1-2 m", "2-4 m", "> 4 m", "all"]
+    whole = next(r for r in rows if r["odometer"] == "ground-truth" and r["bin"] == "all")
+    assert (whole["turns"], float(whole["failed_share"])) == (str(CI.scenes * CI.per_scene), 0.0)
     assert (out / "turns.png").stat().st_size > 10_000
-    assert _run(["--scenes", "1", "--per-scene", "1", "--out", tmp_path, "--quiet"]) == 2  # holds "t", not its own
-    assert "holds files odolab did not write" in capsys.readouterr().err
+    page = (out / "index.html").read_text()
+    assert "The paper has no table of turns by depth" in page and "ground-truth: answers every turn" in page
 
 
-def test_the_study_refuses_bad_input_in_one_line(tmp_path, capsys):
-    for args, said in (
-        (["--odometers", "nope"], "unknown odometer 'nope'"),
-        (["--odometer-option", "icp.max_depth=3"], "options given for 'icp', which is not among the odometers"),
-        (["--odometer-option", "open3d-rgbd.noise_growth=" + "1" * 320], "noise_growth must be in [0, 1]"),
-        (["--odometer-option", "open3d-rgbd.bogus=1"], "has no option 'bogus'"),
-        (["--scenes", "0"], "--scenes"),
+def test_a_bad_definition_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    text = (framework.HERE / "turns_by_depth.toml").read_text()
+    real = framework.load_study
+    monkeypatch.setattr(framework, "load_study", lambda name: real(name, tmp_path))
+    ci = 'odometers = ["ground-truth", "action-prior"]\noptions = {}\n'
+    assert ci in text
+    for new, said in (
+        ('odometers = ["nope"]\noptions = {}\n', "scales.ci.odometers: nope: unknown odometer 'nope'"),
+        ('odometers = ["icp"]\noptions = { "open3d-rgbd" = { noise_growth = 0.01 } }\n', "scales.ci.options: expected"),
+        (
+            'odometers = ["open3d-rgbd"]\noptions = { "open3d-rgbd" = { noise_growth = 2.0 } }\n',
+            "scales.ci.options: open3d-rgbd: noise_growth must be in [0, 1]",
+        ),
+        ('odometers = ["open3d-rgbd"]\noptions = { "open3d-rgbd" = { bogus = 1 } }\n', "has no option 'bogus'"),
+        (
+            'odometers = ["icp"]\noptions = {}\nscenes = 0\n',
+            "scales.ci.scenes: expected an integer in [1, 1000], got 0",
+        ),
     ):
-        assert _run([*args, "--out", tmp_path / "x"]) == 2
+        changed = text.replace(ci, new, 1)
+        if "scenes = 0" in new:
+            changed = changed.replace("scenes = 2\n", "", 1)
+        (tmp_path / "turns_by_depth.toml").write_text(changed)
+        assert _run(["--scale", "ci", "--out", tmp_path / "x", "--quiet"]) == 2
         err = capsys.readouterr().err
-        assert said in err and "Traceback" not in err and err.count("\n") == 1
+        assert said in err and "Traceback" not in err and err.count("\n") == 1, err
+    assert not (tmp_path / "x").exists()
 
 
 def test_open3d_rgbd_accepts_the_true_turn_of_a_far_view():
