@@ -57,7 +57,8 @@ class Scene:
     into ``materials``. ``free`` (rows, cols) bool: cell (r, c) covers world
     x in [origin_x + c * res, +res), y in [origin_y + r * res, +res), True = no obstacle at any height
     the agent occupies. ``navigable`` = free cells whose centre is at least ``agent_radius`` from
-    any obstacle.
+    any obstacle. ``scale``: the floor plan's linear scale (:func:`generate_scene`; 1 in every
+    episode's scene).
     """
 
     seed: int
@@ -70,6 +71,7 @@ class Scene:
     origin: tuple[float, float]
     resolution: float
     agent_radius: float
+    scale: float = 1.0
 
     def world_to_cell(self, x: np.ndarray | float, y: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """(row, col) integer indices of world points (not clipped)."""
@@ -294,15 +296,28 @@ def _without_slivers(navigable: np.ndarray, width: float = 0.1) -> np.ndarray:
     return binary_opening(navigable, structure=(xx**2 + yy**2) <= r * r)
 
 
-def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 12) -> Scene:
+def scale_depth(scale: float) -> int:
+    """Extra levels of room division for a floor plan ``scale`` times as long and as wide: the area
+    grows by ``scale**2`` and each level doubles the rooms, so ``round(2 log2 scale)`` levels keep
+    rooms about their default size (0 at scale 1)."""
+    return int(round(2.0 * np.log2(scale)))
+
+
+def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 12, scale: float = 1.0) -> Scene:
     """Build the scene of ``seed`` (deterministic): a 7-18 m x 6-14 m floor plan of 2-16 rooms and
-    corridors, walls with doorways, furniture."""
+    corridors, walls with doorways, furniture. ``scale`` (1-10) multiplies both sides of the plan
+    and divides it :func:`scale_depth` levels deeper (rooms keep their sizes, doorways join them
+    all), for routes longer than an episode; at 1 the scene is the default one, bit for bit."""
     from scipy.ndimage import distance_transform_edt
 
+    if not 1.0 <= float(scale) <= 10.0:
+        raise ValueError(f"generate_scene: scale: expected a number in [1, 10], got {scale!r}")
     rng = np.random.default_rng(np.random.SeedSequence([0x5CE7E, int(seed)]))
-    bounds = _Rect(0.0, 0.0, float(rng.uniform(7.0, 18.0)), float(rng.uniform(6.0, 14.0)))
+    # the same draws at every scale: at 1 the sides are multiplied by exactly 1.0 and no level is added
+    bounds = _Rect(0.0, 0.0, float(rng.uniform(7.0, 18.0)) * scale, float(rng.uniform(6.0, 14.0)) * scale)
     walls, doors = [], []
-    rooms = _divide(bounds, rng, depth=int(rng.integers(2, 5)), walls=walls, doors=doors)
+    depth = int(rng.integers(2, 5)) + scale_depth(scale)
+    rooms = _divide(bounds, rng, depth=depth, walls=walls, doors=doors)
     materials = _materials(rng, n_tiles)
     t = WALL_THICKNESS
     outer = [
@@ -337,4 +352,5 @@ def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 12) -> 
         origin=origin,
         resolution=GRID_RESOLUTION,
         agent_radius=agent_radius,
+        scale=float(scale),
     )
