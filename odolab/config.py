@@ -374,8 +374,38 @@ def build(cls: type[T], doc: dict[str, Any], where: str) -> T:
 
 def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()) -> T:
     """Read ``path``, apply ``changes`` (:func:`change_document`: ``model.width=341``) and build
-    ``cls`` from it (see :func:`build`)."""
-    return build(cls, change_document(read_toml(path), changes), str(path))
+    ``cls`` from it (see :func:`build`). A value refused only because of a change raises
+    :class:`ChangeError` naming that change (``'seed=abc': seed: expected an integer, got 'abc'``)."""
+    changes = list(changes)
+    doc = read_toml(path)
+    try:
+        return build(cls, change_document(doc, changes), str(path))
+    except ChangeError:
+        raise
+    except ConfigError as exc:
+        said = str(exc).removeprefix(f"{path}.").removeprefix(f"{path}: ")
+        blamed = _blamed(said, changes)
+        if blamed is None:
+            try:
+                build(cls, doc, str(path))
+            except ConfigError:
+                raise exc from None  # the file itself is refused: name the file
+            blamed = changes[-1] if len(changes) == 1 else "; ".join(changes)
+        raise ChangeError(f"{_SHORT.repr(blamed)}: {said}") from None
+
+
+def _blamed(said: str, changes: list[str]) -> str | None:
+    """The last of ``changes`` whose path the message ``said`` (``field.path: ...``) is about."""
+    field = said.partition(":")[0].strip()
+    for item in reversed(changes):
+        path = ".".join(k.strip() for k in item.partition("=")[0].split("."))
+        if path == field or path.startswith(f"{field}.") or field.startswith(f"{path}."):
+            return item
+    return None
+
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = 60
 
 
 def change_document(doc: dict[str, Any], items: Iterable[str]) -> dict[str, Any]:
@@ -388,8 +418,7 @@ def change_document(doc: dict[str, Any], items: Iterable[str]) -> dict[str, Any]
     :class:`ChangeError` names the item for a malformed one or a path through a value that is not
     a table (``seed.x``) or past an array's end."""
     out = copy.deepcopy(doc)
-    short = reprlib.Repr()
-    short.maxstring = 60
+    short = _SHORT
     for item in items:
         path, sep, text = item.partition("=")
         keys = [k.strip() for k in path.split(".")]

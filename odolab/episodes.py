@@ -20,9 +20,11 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
+from odolab.config import check, setting
 from odolab.environment import PointNavEnv, Sensors
 from odolab.geometry import camera_pose_from_agent
 from odolab.io.atomic import atomic_open
@@ -49,10 +51,15 @@ _DAMAGE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.err
 class NoiseConfig:
     """Noise multipliers (0 = noiseless): RGB (sigma 0.1 x rgb), Redwood depth, PyRobot actuation."""
 
-    rgb: float = 1.0
-    depth: float = 1.0
-    actuation: float = 0.5
-    controller: str = "proportional"
+    rgb: float = setting(1.0, range=(0.0, 10.0), doc="RGB noise multiplier (sigma 0.1 x rgb; 0: none)")
+    depth: float = setting(1.0, range=(0.0, 10.0), doc="Redwood depth noise multiplier (0: none)")
+    actuation: float = setting(0.5, range=(0.0, 10.0), doc="PyRobot actuation noise multiplier (the challenge: 0.5)")
+    controller: Literal["ilqr", "proportional", "movebase"] = setting(
+        "proportional", doc="PyRobot controller whose actuation noise is drawn"
+    )
+
+    def __post_init__(self) -> None:
+        check(self, "noise: ")
 
 
 @dataclass(frozen=True)

@@ -247,7 +247,10 @@ def make_training_data(
     Returns the manifest."""
 
     root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"{root}: cannot make the data folder ({exc.strerror or exc})") from None
     config = json.loads(json.dumps(asdict(cfg)))
     doc = _read_manifest(root) or {"format": FORMAT, "config": config, "shards": {}}
     if doc["config"] != config:
@@ -257,7 +260,8 @@ def make_training_data(
             if doc["config"].get(k) != v
         ]
         raise ValueError(
-            f"{root} holds training data made with another config: {'; '.join(diff)}; choose another folder"
+            f"{root} holds training data made with another config: {'; '.join(diff)}; choose another "
+            "folder (a recipe's data_root, or --out)"
         )
     groups = cfg.shard_specs()
     names = [cfg.shard_name(i, g) for i, g in enumerate(groups)]

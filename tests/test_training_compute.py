@@ -239,3 +239,12 @@ def test_the_projection_filters_only_its_band_with_the_same_numbers():
 
     for rows in (100 / 192, 1.0, 0.01):
         assert torch.equal(top_down_projection(depth, K, 10.0, rows), reference(depth, rows))
+
+
+def test_a_state_that_is_a_link_to_nothing_is_refused_not_written_through(tmp_path):
+    state = tmp_path / "work" / "forward.pt"
+    state.parent.mkdir()
+    state.symlink_to(tmp_path / "elsewhere.pt")
+    with pytest.raises(ValueError, match=r"forward.pt: is a link to nothing \(.*elsewhere.pt\); remove it"):
+        _toy_run(state, None, save_every=600.0)
+    assert not (tmp_path / "elsewhere.pt").exists()

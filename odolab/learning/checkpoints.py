@@ -207,7 +207,9 @@ def load_init(
         raise ValueError(f"init = {init!r} is a link to nothing ({os.readlink(path)}); give the exported model file")
     if not path.is_file():
         where = "" if path.is_absolute() else f" (relative to {Path.cwd()})"
-        raise ValueError(f"init = {init!r}: no such model file{where}; train the first stage first, see the recipe")
+        raise ValueError(
+            f"init = {init!r}: no such model file{where}; the recipe's comments name the command that makes it"
+        )
     if path.resolve() == Path(export).resolve():
         raise ValueError(f"init = {init!r} is this run's --export, which would overwrite it; export elsewhere")
     try:

@@ -45,6 +45,8 @@ class RecipeConfig:
 
     def __post_init__(self) -> None:
         check(self, "recipe: ")
+        if not self.data_root.strip():
+            raise ValueError(f"recipe: data_root must name a folder, got {self.data_root!r}")
 
     def require_data_size(self, width: int, height: int) -> None:
         """``ValueError`` unless both data sets hold frames of the model's ``width`` x ``height``."""

@@ -139,7 +139,10 @@ class EpochLoop:
         self._partial: dict[str, Any] | None = None  # the epoch in progress at the last save
 
     def resume(self) -> int:
-        """Load the saved state if there is one; returns the number of epochs already done."""
+        """Load the saved state if there is one; returns the number of epochs already done. A state
+        that is a link to nothing is refused (saving would write through it, outside the work folder)."""
+        if os.path.islink(self.path) and not os.path.exists(self.path):
+            raise ValueError(f"{self.path}: is a link to nothing ({os.readlink(self.path)}); remove it")
         if not os.path.exists(self.path):
             return 0
         try:
