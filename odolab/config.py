@@ -461,13 +461,25 @@ def _entry(entries: list, key: str, where: str, shown: str) -> Any:
 # -------------------------------------------------------------------------------- key=value changes
 
 
+def _whole_number(text: str) -> int:
+    """``text`` as a whole number: digits (``1000000``) or e-notation of a whole value (``1e6``);
+    ``ValueError`` for anything else (``1.5``, ``1e-3``)."""
+    try:
+        return int(text)
+    except ValueError:
+        value = float(text)  # ValueError for no number at all
+        if not (math.isfinite(value) and value.is_integer() and abs(value) < 2**53):
+            raise ValueError(text) from None
+        return int(value)
+
+
 def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigError, base: T | None = None) -> T:
     """``base`` (default ``cls()``) with ``key=value`` changes (``heading_tolerance=30``); ``error``
     (e.g. a subclass of :class:`odolab.errors.InputError`) naming the item, cut short, for an
     unknown key, a key given twice, a value that is not of the field's kind or out of its range;
     the config's own checks (two fields together) raise ``error(message, joiner=": ")`` when
     ``error`` takes a joiner, else ``error(message)``. A field with a range takes a number typed
-    plainly (ASCII digits, no ``_``) or one of its choices (``loader_workers=auto``); any other field
+    plainly (ASCII digits, no ``_``; a whole one also in e-notation, ``1e6``) or one of its choices (``loader_workers=auto``); any other field
     a TOML value (``true``, ``"text"``, ``[1, 2]``), or plain text."""
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls) if f.init]
@@ -493,7 +505,7 @@ def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigE
             try:
                 if not text.isascii() or "_" in text:  # Python reads "١" and "1_0" as numbers too
                     raise ValueError(text)
-                value = int(text) if _whole(f) else float(text)
+                value = _whole_number(text) if _whole(f) else float(text)
             except ValueError:
                 raise error(f"{shown}: {key} takes {kind}") from None
             if not math.isfinite(float(value)) or not in_range(cls, key, value):

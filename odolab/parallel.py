@@ -40,11 +40,17 @@ _ADDRESS = re.compile(r"^(?:ray://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+)
 
 class RayAddressError(InputError):
     """A Ray cluster address that is malformed, or where no cluster answers (``problem`` names the
-    address). Its ``str()`` still begins with ``--ray-address``: :mod:`odolab.learning.cli` rewrites
-    that name for the ``RAY_ADDRESS`` variable (to become ``"Ray address"`` once the trainers'
-    command line moves into :mod:`odolab.cli`)."""
+    address). Its ``str()`` begins with its ``subject``: ``--ray-address``, or :data:`ENVIRONMENT`
+    for the address in the ``RAY_ADDRESS`` variable (:func:`check_environment_ray_address`); the
+    command lines word it with ``named()``."""
 
     subject = "--ray-address"
+
+
+#: The environment variable ray.init() connects to when given no address, as it would to --ray-address.
+RAY_ADDRESS = "RAY_ADDRESS"
+#: The subject of a :class:`RayAddressError` about that variable's address.
+ENVIRONMENT = f"{RAY_ADDRESS} (environment)"
 
 
 def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
@@ -56,6 +62,11 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     match = _ADDRESS.match(address)
     if match is None or not 0 < int(match["port"]) < 65536:
         raise RayAddressError(f"{address!r} is not an address; expected host:port, ray://host:port or auto")
+    if address.startswith("ray://") and not has_ray_client():
+        raise RayAddressError(
+            f"{address}: a ray:// address needs Ray Client, which this installation lacks "
+            "(pip install 'ray[client]'); or give the cluster's host:port"
+        )
     host = match["host"].strip("[]")
     try:
         with socket.create_connection((host, int(match["port"])), timeout=timeout):
@@ -65,6 +76,26 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
             f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc)).lower()
         )
         raise RayAddressError(f"{address}: no Ray cluster there ({reason})") from None
+
+
+def has_ray_client() -> bool:
+    """Whether Ray Client, which ``ray://`` addresses need, is installed (Ray's own test: gRPC)."""
+    import importlib.util
+
+    return importlib.util.find_spec("grpc") is not None
+
+
+def check_environment_ray_address(timeout: float = CONNECT_TIMEOUT) -> None:
+    """Check the address in the ``RAY_ADDRESS`` variable, if any, as :func:`check_ray_address` checks
+    ``--ray-address``: Ray connects there when it is given no address. :class:`RayAddressError`'s
+    subject is then :data:`ENVIRONMENT`."""
+    address = os.environ.get(RAY_ADDRESS)
+    if not address:
+        return
+    try:
+        check_ray_address(address, timeout)
+    except RayAddressError as exc:
+        raise RayAddressError(exc.problem, exc.joiner, subject=ENVIRONMENT) from None
 
 
 #: The logger of Ray's token-authentication notices (warnings printed as ``ray.init`` starts).
@@ -93,16 +124,18 @@ def _token_notices_hidden(local: bool, quiet: bool) -> Iterator[None]:
 
 
 def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool = False) -> bool:
-    """Connect to the cluster at ``ray_address`` (checked first, :func:`check_ray_address`) or start
-    a local instance, unless Ray is already running in this process; returns whether it started
-    it (the caller then shuts it down)."""
+    """Connect to the cluster at ``ray_address`` (None: the one ``RAY_ADDRESS`` names, if any; either
+    checked first, :func:`check_ray_address`) or start a local instance, unless Ray is already running
+    in this process; returns whether it started it (the caller then shuts it down)."""
     import ray
 
     if ray.is_initialized():
         return False
     if ray_address is not None:
         check_ray_address(ray_address)
-    with _token_notices_hidden(local=ray_address is None and not os.environ.get("RAY_ADDRESS"), quiet=quiet):
+    else:  # ray.init() would connect to RAY_ADDRESS: a dead one hangs it, a malformed one is a traceback
+        check_environment_ray_address()
+    with _token_notices_hidden(local=ray_address is None and not os.environ.get(RAY_ADDRESS), quiet=quiet):
         ray.init(address=ray_address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
     return True
 

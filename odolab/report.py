@@ -121,7 +121,7 @@ class OutputFolder:
                     f"{root}: its {MANIFEST} cannot be read ({type(exc).__name__}), so what the last run "
                     "wrote is unknown; delete the folder's old results or choose another folder"
                 ) from None
-        said = _manifest_owner(root)
+        said = manifest_owner(root)
         if said is not None and said != owner:
             raise ManifestError(
                 f"{root}: holds the results of odolab {said} (its {MANIFEST} says so), not of "
@@ -182,7 +182,7 @@ class OutputFolder:
 _OWNER_LINE = "# odolab "
 
 
-def _manifest_owner(root: Path) -> str | None:
+def manifest_owner(root: Path) -> str | None:
     """The command a manifest's first line names (``# odolab compare``), or None."""
     try:
         with open(Path(root, MANIFEST), encoding="utf-8") as f:

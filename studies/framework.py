@@ -430,14 +430,18 @@ def study_arguments(prog: str, config: StudyConfig):
     return ap
 
 
-def check_out(out: Path, config: StudyConfig) -> None:
-    """Refuse an ``--out`` folder a study cannot own (a user's files, another command's report, links)."""
+def check_out(out: Path, config: StudyConfig, claim: bool = True) -> None:
+    """Refuse an ``--out`` folder a study cannot own (a user's files, another command's report,
+    links); then, when ``claim`` (the run will go on), make it and mark it as the study's. With
+    ``claim`` False only checked: a run that may still be refused writes nothing."""
     from odolab.cli import UsageError, check_report_dir
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import ManifestError, OutputFolder
 
     owner = f"study {config.name}"
     if _interrupted_first_run(out):  # results saved, killed before its report: the study's own folder
+        if not claim:
+            return
         _claim(out, owner)
     check_report_dir(out, "--out")
     try:
@@ -445,7 +449,7 @@ def check_out(out: Path, config: StudyConfig) -> None:
     except (UnsafeOutputError, ManifestError) as exc:
         said = str(exc).removeprefix(f"{out}: ")  # the path once
         raise UsageError(f"--out {out}: {said}") from None
-    if not (out / "manifest.txt").exists():
+    if claim and not (out / "manifest.txt").exists():
         _claim(out, owner)  # before any unit's result is saved: an interrupted run is resumed, not refused
 
 
@@ -472,16 +476,17 @@ def _interrupted_first_run(out: Path) -> bool:
 
 def check_options(args, out: Path, config: StudyConfig) -> None:
     """Everything a study's command line can get wrong, found before any work and before ``out`` is
-    made: ``--ray-address`` (malformed, unreachable, or with ``--serial``), ``--redraw`` with no saved
-    results to draw from, and the ``--out`` folder (:func:`check_out`)."""
+    made: ``--ray-address`` (malformed, unreachable, or with ``--serial``) and the ``RAY_ADDRESS``
+    variable (unless nothing is computed), ``--redraw`` with no saved results to draw from, and the
+    ``--out`` folder (:func:`check_out`), claimed only once every check has passed."""
     from odolab.cli import UsageError, check_ray_option
 
-    check_ray_option(args.ray_address, args.serial)
+    check_ray_option(args.ray_address, args.serial, starts_ray=not args.redraw)
     if args.redraw:
         if args.ray_address is not None:
             raise UsageError("--redraw computes nothing; --ray-address is for computing units: drop one")
         if out.is_dir():  # another command's or a user's folder is said as such first
-            check_out(out, config)
+            check_out(out, config, claim=False)
         results = out / "results"
         if not results.is_dir() or not any(results.glob("*.json")):
             raise UsageError(f"--redraw: no saved results in {results}; run without --redraw first")

@@ -551,6 +551,10 @@ def test_set_changes_the_recipe_and_its_mistakes_are_one_line(tmp_path):
         ("stages.9.lr=1", "--set 'stages.9.lr=1': stages.9: the list has 1 entries (0 to 0)"),
         ("stages.turns.lr=1", "no entry named 'turns'; give a position from 0 or one of forward"),
         ("stages=1", "stages"),  # the whole list replaced by a number: the recipe's check refuses it
+        ("seed=abc", "--set 'seed=abc': seed: expected an integer, got 'abc'"),  # the change, not the file
+        ("train_data.noise.rgb=-1", "--set 'train_data.noise.rgb=-1': train_data.noise: noise: rgb must be in [0, 10]"),
+        ("train_data.noise.controller=nosuch", "noise.controller: expected one of 'ilqr', 'proportional', 'movebase'"),
+        ("data_root=", "--set 'data_root=': recipe: data_root must name a folder, got ''"),
     ):
         with pytest.raises(UsageError) as info:
             _job(tmp_path, "--set", bad)
@@ -573,3 +577,18 @@ def test_a_link_to_nothing_is_named_as_one(tmp_path, capsys):
         check_regular_file(dead)
     with pytest.raises(ValueError, match="no such file"):
         check_regular_file(tmp_path / "never.txt")
+
+
+def test_a_trainer_refuses_the_reports_of_another_training(tmp_path):
+    reports = tmp_path / "reports"
+    reports.mkdir()
+    (reports / "training.json").write_text(
+        json.dumps({"command": "python -m baselines.deepvo.train --config studies/deepvo/shipped.toml"})
+    )
+    with pytest.raises(UsageError, match=r"--reports .*reports: .*training.json is the summary of another training"):
+        _job(tmp_path)
+    assert not (tmp_path / "work").exists()  # refused before anything was made
+    (reports / "training.json").write_text(
+        json.dumps({"command": f"python -m odolab.robust_vo.train --config {tmp_path / 'recipe.toml'} --quiet"})
+    )
+    assert _job(tmp_path, "--set", f"data_root={tmp_path / 'd'}").reports == reports  # the same recipe, elsewhere

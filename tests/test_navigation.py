@@ -180,7 +180,7 @@ def test_a_folder_of_another_format_is_refused_with_how_to_run_it_again(tmp_path
     (out / "config.json").write_text('{"options": {}, "episodes": [], "policy": {}}')
     code = _navigate(["--odometers", "action-prior", "--episodes", "1", "--out", str(out)])
     err = capsys.readouterr().err
-    assert code == 2 and "format None; this odolab writes format 1" in err and "delete the folder" in err
+    assert code == 2 and "with no format number; this odolab writes format 1" in err and "delete the folder" in err
     assert len(err.strip().splitlines()) == 1
 
 

@@ -3,6 +3,8 @@ the epoch loop's saves within an epoch."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -248,3 +250,25 @@ def test_a_state_that_is_a_link_to_nothing_is_refused_not_written_through(tmp_pa
     with pytest.raises(ValueError, match=r"forward.pt: is a link to nothing \(.*elsewhere.pt\); remove it"):
         _toy_run(state, None, save_every=600.0)
     assert not (tmp_path / "elsewhere.pt").exists()
+
+
+def test_reports_of_another_recipe_are_named(tmp_path):
+    from odolab.learning.validation import other_training
+
+    cmd = "python -m odolab.robust_vo.train --config studies/robust_vo/shipped.toml --set seed=1 --hours 2"
+    assert other_training(tmp_path, cmd) is None  # nothing there yet
+    (tmp_path / "training.json").write_text(json.dumps({"command": cmd.replace("--hours 2", "--quiet")}))
+    assert other_training(tmp_path, cmd) is None  # the same recipe, another chunk
+    for other in (
+        "python -m baselines.deepvo.train --config studies/deepvo/shipped.toml --set seed=1",
+        "python -m odolab.robust_vo.train --config=studies/robust_vo/shipped-341.toml --set seed=1",
+        "python -m odolab.robust_vo.train --config studies/robust_vo/shipped.toml",
+    ):
+        (tmp_path / "training.json").write_text(json.dumps({"command": other}))
+        assert "is the summary of another training" in other_training(tmp_path, cmd)
+    (tmp_path / "training.json").write_text("{")
+    assert "not a readable training summary" in other_training(tmp_path, cmd)
+    (tmp_path / "training.json").write_text(
+        json.dumps({"command": cmd + " --set data_root=/big/disk --set compute.precision=fp32"})
+    )
+    assert other_training(tmp_path, cmd) is None  # where and how it computed: the same training

@@ -141,12 +141,17 @@ def execution_of(args: argparse.Namespace) -> Execution:
     )
 
 
-def check_ray_option(address: str | None, serial: bool = False) -> None:
-    """A command line's ``--ray-address``, checked before any work: :class:`UsageError` with one line
-    when it is malformed or unreachable, or given with ``--serial`` (no Ray then)."""
+def check_ray_option(address: str | None, serial: bool = False, *, starts_ray: bool = True) -> None:
+    """A command line's ``--ray-address``, checked before any work and before any folder is made:
+    :class:`UsageError` with one line when it is malformed or unreachable, or given with ``--serial``
+    (no Ray then). Without it, the ``RAY_ADDRESS`` variable, which Ray heeds as it would the option,
+    is checked alike (:func:`check_ray_environment`), unless the run starts no Ray (``serial``, or
+    ``starts_ray`` False: e.g. a study's ``--redraw``)."""
     from odolab.parallel import RayAddressError, check_ray_address
 
     if address is None:
+        if starts_ray and not serial:
+            check_ray_environment()
         return
     if serial:
         raise UsageError("--ray-address and --serial exclude each other (--serial runs without Ray); drop one")
@@ -156,12 +161,32 @@ def check_ray_option(address: str | None, serial: bool = False) -> None:
         raise UsageError(exc.named("--ray-address")) from None
 
 
+def check_ray_environment() -> None:
+    """The ``RAY_ADDRESS`` environment variable, where Ray connects when given no ``--ray-address``:
+    :class:`UsageError` with one line naming it when it is malformed or nothing answers there (Ray
+    would hang or end in a traceback)."""
+    from odolab.parallel import ENVIRONMENT, RayAddressError, check_environment_ray_address
+
+    try:
+        check_environment_ray_address()
+    except RayAddressError as exc:
+        raise UsageError(f"{exc.named(ENVIRONMENT)}; unset it for a local instance") from None
+
+
 def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") -> None:
     """:func:`check_output_dir`, and refuse a folder holding files that no odolab run wrote there
     (no ``manifest`` file): a report must not overwrite a user's own files. A symbolic link
     anywhere inside is refused too (odolab writes and deletes nothing through a link), as are
     pipes and devices: found now, not when the results are written after the whole run."""
     if path.is_dir() and not (path / manifest).is_file() and any(path.iterdir()):
+        if (path / manifest).is_dir():
+            raise UsageError(
+                f"{option} {path}: its {manifest} is a folder, where odolab keeps a file; remove it or "
+                f"choose another {option}"
+            )
+        owner = folder_owner(path)
+        if owner is not None:
+            raise UsageError(f"{option} {path}: is {owner}; choose another {option}")
         raise UsageError(
             f"{option} {path}: holds files odolab did not write (no {manifest}); choose a new or empty folder"
         )
@@ -181,6 +206,41 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
                     "(a device, pipe or socket); remove it"
                 )
     check_output_dir(path, option)
+
+
+#: Folders of commands told apart by their manifest's first line (``# odolab compare``), in words.
+_OWNERS = {
+    "compare": "a comparison report folder (python -m odolab.compare)",
+    "simcard": "a simulator card folder (python -m odolab.simcard)",
+}
+
+
+def folder_owner(path: Path) -> str | None:
+    """Which odolab command's folder ``path`` is, in words ("a navigation results folder (python -m
+    odolab.navigate)"), told by the file that command keeps there: a ``manifest.txt`` naming its
+    owner (compare, simcard, a study), navigation's ``config.json`` or the training data's
+    ``dataset.json``; None when it has none of them."""
+    from odolab.io.inputs import read_input_json
+    from odolab.report import manifest_owner
+    from odolab.training_data import MANIFEST as DATASET
+
+    said = manifest_owner(path)
+    if said is not None and said.startswith("study "):
+        study = said.removeprefix("study ").strip()
+        return f"the report folder of study {study} (python -m studies.{study})"
+    if said is not None:
+        return _OWNERS.get(said, f"a folder of odolab {said}")
+    for name, keys, words in (
+        ("config.json", ("format", "episodes"), "a navigation results folder (python -m odolab.navigate)"),
+        (DATASET, ("format", "shards"), "a training data folder (python -m odolab.training_data)"),
+    ):
+        try:
+            doc = read_input_json(path / name, name) if (path / name).is_file() else None
+        except ValueError:  # unreadable: not recognised
+            doc = None
+        if isinstance(doc, dict) and all(k in doc for k in keys):
+            return words
+    return None
 
 
 def check_output_dir(path: Path, option: str) -> None:

@@ -32,13 +32,24 @@ from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, od
 from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
 from odolab.fusion import calibrate
 from odolab.fusion.calibrate import check_input, near_views, steps_of
-from odolab.fusion.calibration import MAX_NEAR_DEPTH, NEAR, Calibration, fit_input
+from odolab.fusion.calibration import (
+    COMMAND,
+    MAX_NEAR_DEPTH,
+    MIN_STEPS,
+    NEAR,
+    Calibration,
+    fit_input,
+    what_file,
+)
 from odolab.fusion.odometer import is_fused
 from odolab.odometer import OdometerListError, parse_odometer_list, standalone_odometers
 from odolab.progress import StepProgressBar
 from odolab.runner import run
 from odolab.sim.scenes import SPLITS
 from odolab.types import MOTION_ACTIONS
+
+#: Fewest steps (--episodes x --max-steps) worth calibrating on.
+MIN_RUN_STEPS = 30
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -118,22 +129,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         if "action-prior" not in names:
             raise UsageError("--odometers must include action-prior: fusion falls back on it")
-        if args.episodes * args.max_steps < 30:
+        steps = args.episodes * args.max_steps
+        if steps < MIN_RUN_STEPS:
             raise UsageError(
-                f"--episodes x --max-steps = {args.episodes * args.max_steps} steps: too few to calibrate "
-                "(at least 10 valid steps of an action are needed; use hundreds)"
+                f"--episodes {args.episodes} x --max-steps {args.max_steps} = {steps} steps: too few to "
+                f"calibrate, at least {MIN_RUN_STEPS} ({MIN_STEPS} valid steps of an action are needed; use hundreds)"
             )
         if args.out.is_dir():  # not "unknown file type": the folder itself is the mistake
             raise UsageError(f"--out {args.out}: is a folder, not a file; give a .json file's name")
         if args.out.suffix.lower() != ".json":  # before its folder is made
             raise UsageError(f"--out {args.out}: unknown file type {args.out.suffix or '(no extension)'!r}; use .json")
+        found = what_file(args.out) if args.out.is_file() else None
+        if found is not None:  # a navigation config, a study's result, a user's file: never replaced
+            raise UsageError(
+                f"--out {args.out}: expected a new file or a calibration this command wrote, found {found}; "
+                "odolab replaces only the calibrations it wrote: give --out another path"
+            )
+    check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before any folder is made
+    if calibration is None:
         try:
             args.out.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise UsageError(f"--out {args.out}: cannot make its folder ({exc.strerror or exc})") from None
         check_output_file(args.out, "--out", suffixes=[".json"])
     check_output_dir(args.cache, "--cache")
-    check_ray_option(args.ray_address, args.serial)
     try:
         odometers = load_odometers(names)
     except ComparisonError as exc:
@@ -181,9 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{name}{oracle}: {said}" + (f"; NOT calibrated (too few valid steps): {', '.join(left)}" if left else "")
         )
     if calibration is None:
-        command = "python -m odolab.fusion.calibrate " + " ".join(
-            shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])
-        )
+        command = f"{COMMAND} " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
         Calibration(fitted, source=command, near_depth=args.near_depth).save(args.out)
         print(f"wrote {args.out}")
     return 0

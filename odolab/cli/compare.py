@@ -199,9 +199,9 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
     else:
         if args.no_cache and given_options(argv, ["--cache"]):
             raise UsageError("--cache and --no-cache contradict each other; give one of them")
+        check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before any folder is made
         if not args.no_cache:
             check_output_dir(args.cache, "--cache")
-        check_ray_option(args.ray_address, args.serial)
     check_report_dir(args.out, "--out")
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import MANIFEST, ManifestError, OutputFolder

@@ -200,8 +200,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.plot:
         check_output_file(args.plot, "--plot", IMAGE_SUFFIXES)
-    if args.delta <= 0 or (args.delta_unit == "f" and args.delta != int(args.delta)):
-        raise UsageError(f"--delta must be positive (a whole number of frames for -u f), got {args.delta:g}")
+    if args.delta <= 0:
+        raise UsageError(f"--delta must be positive, got {args.delta:g}")
+    if args.delta_unit == "f" and args.delta != int(args.delta):
+        raise UsageError(
+            f"--delta must be a whole number of frames with --delta-unit f (the default), got {args.delta:g}; "
+            "for metres give --delta-unit m"
+        )
 
     from odolab.io.inputs import check_regular_file
 

@@ -109,8 +109,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError(exc.named("--odometers")) from None
     except (ValueError, OptionError) as exc:
         raise UsageError(str(exc)) from None
+    check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
     check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
-    check_ray_option(args.ray_address, args.serial)
     try:
         loaded = load_odometers(names, options)  # every name and option checked here, before any episode runs
     except ComparisonError as exc:

@@ -11,6 +11,7 @@ from odolab.cli.args import (
     MAX_SEED,
     ArgumentParser,
     UsageError,
+    check_ray_option,
     check_report_dir,
     execution_of,
     number,
@@ -61,6 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.sim.redwood import default_table
 
     args = build_parser().parse_args(argv)
+    check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
     check_report_dir(args.out, "--out")  # a folder of the user's own files is refused, as compare refuses it
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import MANIFEST, ManifestError, OutputFolder
@@ -75,13 +77,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         source = default_table().source  # a bad ODOLAB_REDWOOD_TABLE is one line, before any work
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if args.ray_address is not None and not args.serial:
-        from odolab.parallel import RayAddressError, check_ray_address
-
-        try:
-            check_ray_address(args.ray_address)
-        except RayAddressError as exc:
-            raise UsageError(exc.named("--ray-address")) from None
     motion, images, samples = simcard.measure(
         args.split,
         args.episodes,

@@ -24,7 +24,7 @@ from odolab.training_data import (
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.parallel import RayAddressError, check_ray_address
+    from odolab.cli.args import check_ray_option
 
     ap = ArgumentParser(
         prog="python -m odolab.training_data",
@@ -80,14 +80,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         height=args.height,
         episodes_per_shard=args.episodes_per_shard,
     )
+    check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
     check_report_dir(args.out, "--out", manifest=MANIFEST)  # a folder of the user's own files is refused
     try:
-        if args.ray_address is not None and not args.serial:
-            check_ray_address(args.ray_address)
         make_training_data(cfg, args.out, execution=execution_of(args))
         data = TrainingData(args.out)
-    except RayAddressError as exc:
-        ap.error(exc.named("--ray-address"))
     except ValueError as exc:
         ap.error(str(exc))
     counts = ", ".join(f"{k} {v}" for k, v in data.counts().items())

@@ -36,7 +36,7 @@ import gtsam
 import numpy as np
 
 from odolab.io.atomic import write_bytes_atomic
-from odolab.io.inputs import parse_input_json, read_input_bytes
+from odolab.io.inputs import parse_input_json, read_input_bytes, read_input_json
 from odolab.types import MOTION_ACTIONS, Action
 
 #: Sigmas outside this range (rad or m) are refused in a calibration file: their squares misbehave.
@@ -54,6 +54,8 @@ CHI2_6_95 = 12.591587243743977
 #: Smallest sigma per component (rad or m): planar odometers leave out-of-plane residuals near zero.
 SIGMA_FLOOR = 1e-3
 FORMAT = 1
+#: The command that writes calibration files: each one's ``source`` begins with it.
+COMMAND = "python -m odolab.fusion.calibrate"
 #: Suffix of the labels of near-view entries (``turn_left@near``).
 NEAR = "@near"
 #: Largest near_depth a file may give, metres.
@@ -345,6 +347,23 @@ class Calibration:
                     "near_depth is 0 or absent, so they would never be used; give near_depth in metres"
                 )
         return cls(inputs, doc.get("source", ""), float(near_depth), hashlib.sha256(data).hexdigest())
+
+
+def what_file(path: str | os.PathLike) -> str | None:
+    """None when existing file ``path`` is a calibration :data:`COMMAND` wrote (of any format: a new
+    calibration may replace it); else what it is, in words ("a JSON file that is not a fusion
+    calibration (...)"), for a refusal to replace it."""
+    try:
+        doc = read_input_json(path, "calibration file")
+    except ValueError:  # not JSON, not UTF-8, too large, not a regular file
+        return "a file that is not a fusion calibration (not a JSON document odolab reads)"
+    if not isinstance(doc, dict) or "format" not in doc or not isinstance(doc.get("inputs"), dict):
+        has = f"keys {reprlib.repr(sorted(doc))}" if isinstance(doc, dict) else "not a JSON object"
+        return f"a JSON file that is not a fusion calibration ({has}; a calibration has format, source, inputs)"
+    source = doc.get("source")
+    if not isinstance(source, str) or not source.startswith(COMMAND):
+        return f"a calibration that {COMMAND} did not write (its source is {reprlib.repr(source)})"
+    return None
 
 
 def _numbers(v: Any, n: int) -> list[float]:

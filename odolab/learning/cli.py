@@ -17,6 +17,7 @@ from odolab.cli import (
     UsageError,
     check_output_dir,
     check_output_file,
+    check_ray_option,
     check_report_dir,
     file_arg,
     number,
@@ -147,6 +148,7 @@ def parse_training_command(
 
     from odolab.learning.checkpoints import check_export
     from odolab.learning.device import pick_device
+    from odolab.learning.validation import other_training
 
     args = ap.parse_args(argv)
     try:
@@ -160,20 +162,7 @@ def parse_training_command(
     work = args.work or Path("runs") / args.family / name
     reports = args.reports or Path("reports") / args.family / name
     export = args.export or work / "model.pt"
-    address = args.ray_address if args.ray_address is not None else os.environ.get("RAY_ADDRESS") or None
-    if address is not None:  # Ray's ray.init() heeds RAY_ADDRESS as it would --ray-address: checked alike
-        from odolab.parallel import check_ray_address
-
-        try:
-            check_ray_address(address)
-        except ValueError as exc:
-            said = (
-                str(exc)
-                if args.ray_address is not None
-                else str(exc).replace("--ray-address", "RAY_ADDRESS (environment)", 1)
-                + "; unset it for a local instance"
-            )
-            raise UsageError(said) from None
+    check_ray_option(args.ray_address)  # and RAY_ADDRESS, which ray.init() heeds as it would --ray-address
     check_workers(args.workers, args.gpus_per_worker, args.device, device, args.ray_address)
     for kept in REPORT_FILES:  # the reports a run writes beside the model: found now, not after training
         if _same_path(export, reports / kept):
@@ -185,6 +174,9 @@ def parse_training_command(
         check_export(export, args.config, (state_files or stage_states)(config, work), kind=f"odolab-{args.family}")
     except ValueError as exc:
         raise UsageError(str(exc) if args.export else f"{exc} (the default --export is <work>/model.pt)") from None
+    other = other_training(reports, " ".join([ap.prog, *(list(argv) if argv is not None else sys.argv[1:])]))
+    if other:  # never over another training's reports
+        raise UsageError(f"--reports {reports}: {other}; choose another --reports")
     check_output_dir(work, "--work")  # made only once every check above has passed
     check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
     check_output_file(export, "--export")

@@ -72,3 +72,47 @@ def write_report(
         ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
     )
     write_bytes_atomic(folder / "training.json", json.dumps(status, indent=1).encode())
+
+
+def _recipe_of(command: str) -> tuple[str, tuple[str, ...]] | None:
+    """A training command's recipe: its ``--config`` as ``folder/name`` and its ``--set`` changes
+    (but those of :data:`_WHERE_NOT_WHAT`)."""
+    import shlex
+
+    try:
+        words = shlex.split(command)
+    except ValueError:
+        return None
+    config, changes = None, []
+    for k, word in enumerate(words):
+        value = word.split("=", 1)[1] if "=" in word and word.startswith("--") else None
+        if word.startswith("--config"):
+            config = value if value is not None else (words[k + 1] if k + 1 < len(words) else None)
+        elif word.startswith("--set"):
+            changes.append(value if value is not None else (words[k + 1] if k + 1 < len(words) else ""))
+    if config is None:
+        return None
+    path = Path(config)
+    kept = [c for c in changes if not c.split("=", 1)[0].strip().startswith(_WHERE_NOT_WHAT)]
+    return f"{path.parent.name}/{path.stem}", tuple(sorted(kept))
+
+
+#: ``--set`` paths that say where or how a run computes, not what it trains (not in its identity).
+_WHERE_NOT_WHAT = ("data_root", "compute")
+
+
+def other_training(reports: Path, command: str) -> str | None:
+    """Why ``reports`` holds the reports of another training than ``command``'s (its
+    ``training.json`` records another recipe: ``--config`` folder and name, ``--set`` changes), or
+    None (no summary there, or the same recipe)."""
+    path = Path(reports) / "training.json"
+    if not path.is_file():
+        return None
+    try:
+        status = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return f"{path}: not a readable training summary"
+    recorded = status.get("command") if isinstance(status, dict) else None
+    if not isinstance(recorded, str) or _recipe_of(recorded) != _recipe_of(command):
+        return f"{path} is the summary of another training ({str(recorded)[:120]!r})"
+    return None

@@ -324,7 +324,7 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[Setting]:
     if saved == episodes:
         return []
     if not isinstance(saved, list) or not saved or not all(isinstance(e, dict) for e in saved):
-        return [Setting(None, "the episodes")]
+        return [Setting(None, f"the episodes ({reprlib.repr(saved)} there, not a list of episodes)")]
     said = [Setting("episodes", f"({len(saved)} there, {len(episodes)} now)")] if len(saved) != len(episodes) else []
     for key in ("seed", "split", "max_steps"):
         if saved[0].get(key) != episodes[0].get(key):
@@ -345,7 +345,11 @@ def _differing(saved: dict, policy: dict) -> list[str]:
 def _policy_changes(saved: Any, policy: dict) -> list[Setting]:
     """Which ``policy`` parameters make ``policy`` differ from a folder's saved one."""
     if not isinstance(saved, dict):
-        return [Setting(None, "the policy")] if saved != policy else []
+        return (
+            [Setting(None, f"the policy ({reprlib.repr(saved)} there, not a table of parameters)")]
+            if saved != policy
+            else []
+        )
     differ = _differing(saved, policy)
     if not differ:
         return []
@@ -414,11 +418,15 @@ def run_navigation(
         raise RunFolderError(
             f"{out} holds files that odolab navigate did not write (no config.json)", "choose an empty or new {folder}"
         )
+    if cfg_path.is_dir():
+        raise RunFolderError(
+            f"{cfg_path} is a folder where navigate keeps its config file", "remove it or choose another {folder}"
+        )
     if cfg_path.exists():
         try:
             saved = read_input_json(cfg_path, "navigation config")  # its errors name the file
         except ValueError as exc:
-            raise RunFolderError(str(exc), "choose another {folder}") from None
+            raise RunFolderError(str(exc), "delete it or choose another {folder}") from None
         problem = (
             "not a JSON object"
             if not isinstance(saved, dict)
@@ -429,9 +437,16 @@ def run_navigation(
         if problem:
             raise RunFolderError(f"{cfg_path}: not a navigation config ({problem})", "choose another {folder}")
         if saved.get("format") != FORMAT:
+            made = f"of format {reprlib.repr(saved['format'])}" if "format" in saved else "with no format number"
             raise RunFolderError(
-                f"{cfg_path}: navigation results of format {reprlib.repr(saved.get('format'))}; "
-                f"this odolab writes format {FORMAT}",
+                f"{cfg_path}: navigation results {made}; this odolab writes format {FORMAT}",
+                "delete the folder to run them again, or choose another {folder}",
+            )
+        missing = [k for k in ("episodes", "policy") if k not in saved]  # every format-1 config has both
+        if missing:
+            raise RunFolderError(
+                f"{cfg_path}: not a whole navigation config (no {' and no '.join(map(repr, missing))} in it), "
+                "so what its results were made with is unknown",
                 "delete the folder to run them again, or choose another {folder}",
             )
         episodes = _episode_changes(saved.get("episodes"), config["episodes"])
