@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 
+import pytest
+
 import studies.turns_by_depth as study
 from odolab.api import invert, load_odometer
 from studies import framework
@@ -120,3 +122,23 @@ def _same(name, runs):
         for a, b in zip(runs[0], other):
             assert a.valid == b.valid and (a.transform == b.transform).all(), name
             assert a.covariance is None or (a.covariance == b.covariance).all(), name
+
+
+def test_the_ci_scale_runs_unchanged_on_a_two_node_ray_cluster(tmp_path):
+    """The study's units as Ray tasks on a local two-node cluster (ray.cluster_utils), through its
+    address: the same table as run one after another in this process."""
+    cluster_utils = pytest.importorskip("ray.cluster_utils")
+    assert _run(["--scale", "ci", "--serial", "--quiet", "--out", tmp_path / "serial"]) == 0
+    cluster = cluster_utils.Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        out = tmp_path / "cluster"
+        assert _run(["--scale", "ci", "--ray-address", cluster.address, "--quiet", "--out", out]) == 0
+    finally:
+        import ray
+
+        ray.shutdown()
+        cluster.shutdown()
+    assert (out / "table.csv").read_text() == (tmp_path / "serial" / "table.csv").read_text()
+    assert len(list((out / "results").glob("*.json"))) == len(list((tmp_path / "serial" / "results").glob("*.json")))
