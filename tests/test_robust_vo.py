@@ -592,17 +592,22 @@ def test_real_data_without_actions_is_refused_for_an_action_model_and_bad_seeds_
         RobustVOOdometer(seed=-1)
 
 
-def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path):
-    tied = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, mirror_turns=True))
-    assert trainer.run(
-        tied,
-        work=tmp_path / "w",
-        reports=tmp_path / "r",
-        export=tmp_path / "m.pt",
+def _train_in(cfg, folder) -> bool:
+    """Every stage of ``cfg``, serially, with work, reports and export under ``folder`` (w, r, m.pt)."""
+    return trainer.run(
+        cfg,
+        work=folder / "w",
+        reports=folder / "r",
+        export=folder / "m.pt",
         device=torch.device("cpu"),
         hours=None,
         execution=SERIAL,
     )
+
+
+def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path):
+    tied = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, mirror_turns=True))
+    assert _train_in(tied, tmp_path)
     cfg, nets, _ = load_model(tmp_path / "m.pt")
     assert cfg.mirror_turns and set(nets) == {"move_forward", "turn_left"}
     odo = RobustVOOdometer(checkpoint=str(tmp_path / "m.pt"))
@@ -617,15 +622,7 @@ def test_a_run_from_an_init_records_the_start_and_its_training(recipe, trained, 
     """training.json names the model a run started from and that model's own stages, which the
     scaling study adds to the run's samples seen and hours."""
     started = dataclasses.replace(recipe, init=str(trained / "model.pt"))
-    assert trainer.run(
-        started,
-        work=tmp_path / "w",
-        reports=tmp_path / "r",
-        export=tmp_path / "m.pt",
-        device=torch.device("cpu"),
-        hours=None,
-        execution=SERIAL,
-    )
+    assert _train_in(started, tmp_path)
     status = json.loads((tmp_path / "r" / "training.json").read_text())
     before = json.loads((trained / "reports" / "training.json").read_text())["stages"]
     assert status["init"]["path"] == started.init and len(status["init"]["sha256"]) == 64
