@@ -5,7 +5,7 @@ paper's Table S4 (E1 feature matching, E2 feature matching with the true rotatio
 
 One unit of work is one odometer on one seed's episodes (``python -m odolab.compare`` on the test
 split, the challenge's noise); its result is saved as it finishes and reused while the odometer's
-model or settings (its ``weights`` digest) and the scale's episodes stay the same. Errors are mean
+model or settings (its identity digest) and the scale's episodes stay the same. Errors are mean
 absolute errors of (dx m, dz m, dyaw rad) x 1e-2, as used (a failed step scored with the action
 prior that replaced it) and on the odometer's own answered steps; the spread is the standard
 deviation over seeds. The paper's numbers are on its validation set (50,000 pairs, its own
@@ -15,8 +15,8 @@ simulator data), ours on test episodes: the ordering is what compares, not the v
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +24,7 @@ import numpy as np
 
 from studies import framework
 
+PROG = "python -m studies.e_table"
 COMPONENTS = ("dx", "dz", "dyaw")
 ACTIONS = ("all", "move_forward", "turn_left", "turn_right")
 #: The paper's Table S4 (x 1e-2, its validation set) and which of our odometers each row is.
@@ -90,33 +91,59 @@ def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None  # JSON has no NaN: an odometer that never answered
 
 
-def units(params: dict[str, Any], weights: dict[str, str | None]) -> list[framework.Unit]:
+@dataclass(frozen=True)
+class Scale:
+    """A scale's parameters: the ``seeds`` (each draws other test episodes and other noise),
+    ``episodes`` test episodes of at most ``max_steps`` steps per seed, and the ``odometers``."""
+
+    seeds: tuple[int, ...]
+    episodes: int
+    max_steps: int
+    odometers: tuple[str, ...]
+
+
+def scale_of(config: framework.StudyConfig, scale: str) -> Scale:
+    """The checked parameters of ``scale``; ``ValueError`` naming the file, field, expected and got."""
+    seeds = framework.checked(
+        config,
+        scale,
+        "seeds",
+        lambda v: isinstance(v, list) and v and all(type(x) is int and x >= 0 for x in v) and len(set(v)) == len(v),
+        "a list of distinct integers >= 0",
+    )
+    return Scale(
+        seeds=tuple(seeds),
+        episodes=framework.integer(config, scale, "episodes", 1, 1000),
+        max_steps=framework.integer(config, scale, "max_steps", 1, 500),
+        odometers=framework.name_list(config, scale, "odometers"),
+    )
+
+
+def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]:
     """One unit per (odometer, seed); its key holds everything its result depends on."""
     return [
         framework.Unit(
             f"{odo} seed {seed}",
             {
                 "odometer": odo,
-                "weights": weights[odo],
+                "identity": identity[odo],
                 "seed": seed,
-                "episodes": params["episodes"],
-                "max_steps": params["max_steps"],
+                "episodes": scale.episodes,
+                "max_steps": scale.max_steps,
             },
         )
-        for odo in params["odometers"]
-        for seed in params["seeds"]
+        for odo in scale.odometers
+        for seed in scale.seeds
     ]
 
 
-def table(params: dict[str, Any], results: dict[str, Any]) -> list[dict[str, Any]]:
+def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
     """Rows odometer x action: mean and standard deviation over the seeds that have a result."""
     rows = []
-    for odo in params["odometers"]:
+    for odo in scale.odometers:
         for action in ACTIONS:
             got = [
-                results[f"{odo} seed {s}"][action]
-                for s in params["seeds"]
-                if action in results.get(f"{odo} seed {s}", {})
+                results[f"{odo} seed {s}"][action] for s in scale.seeds if action in results.get(f"{odo} seed {s}", {})
             ]
             if not got:
                 continue
@@ -160,6 +187,8 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from odolab.io.atomic import save_figure_atomic
+
     overall = [r for r in rows if r["action"] == "all"]
     fig, axes = plt.subplots(1, 3, figsize=(14, 0.45 * len(overall) + 2), sharey=True)
     y = np.arange(len(overall))
@@ -177,43 +206,23 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
     axes[0].invert_yaxis()
     fig.suptitle("Per-step error as used, all test steps: bars are the mean over seeds, lines one standard deviation")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure_atomic(fig, path)
     plt.close(fig)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.api import load_odometer
-    from odolab.cli import UsageError, execution_of
-
-    config = framework.load_study("e_table")
-    ap = framework.study_arguments("python -m studies.e_table", config)
-    args = ap.parse_args(argv)
-    params = config.at(args.scale)
-    out = args.out or Path("reports") / "e-table"
-    framework.check_options(args, out, config)
-    # the units' key keeps its name "weights": results saved before the rename stay valid
-    weights = {o: load_odometer(o).identity_digest for o in params["odometers"]}
-    todo = units(params, weights)
-    outcome = framework.run_units(
-        unit_result,
-        todo,
-        framework.ResultStore(out / "results"),
-        redraw=args.redraw,
-        execution=execution_of(args),
-        valid=valid_result,
-    )
-    if not outcome.results:
-        raise UsageError(
-            f"--redraw: no saved results in {out / 'results'} for --scale {args.scale}; run without --redraw"
-        )
-    rows = table(params, outcome.results)
-    report = framework.Report(
-        title=config.title,
+    study = framework.begin("e_table", PROG, argv, scale_of)
+    scale: Scale = study.scale
+    outcome = study.run(unit_result, units(scale, study.identity), valid_result)
+    rows = table(scale, outcome.results)
+    study.publish(
+        outcome,
         intro=[
-            __doc__.split("\n\n")[2].replace("\n", " ").replace("``", ""),
-            f"Scale {args.scale}: seeds {', '.join(map(str, params['seeds']))}, {params['episodes']} test episodes "
-            f"of at most {params['max_steps']} steps each per seed."
-            + (f" Missing (not computed): {', '.join(outcome.missing)}." if outcome.missing else ""),
+            " ".join(__doc__.split("\n\n")[2].split()).replace("``", ""),
+            (
+                f"Scale {study.args.scale}: seeds {', '.join(map(str, scale.seeds))}, {scale.episodes} test "
+                f"episodes of at most {scale.max_steps} steps each per seed."
+            ),
         ],
         columns=COLUMNS,
         rows=rows,
@@ -221,19 +230,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             "errors.png": ("Per-step error of each odometer (all steps, mean over seeds)", lambda p: draw(rows, p))
         },
         findings=findings(rows),
-        command=framework.command_line("python -m studies.e_table", argv),
-        machine=framework.machine(),
-        cpu_hours=outcome.seconds / 3600,
     )
-    framework.write_report(report, out, owner="study e_table")
-    print(framework.table_md(COLUMNS[:10], rows))
-    print(f"{len(outcome.computed)} units computed, {len(rows)} rows -> {out}")
-    if outcome.missing:
-        print(f"note: no saved result (left out of the table): {', '.join(outcome.missing)}", file=sys.stderr)
     return 0
 
 
 if __name__ == "__main__":
     from odolab.cli import run_cli
 
-    raise SystemExit(run_cli(main, "python -m studies.e_table"))
+    raise SystemExit(run_cli(main, PROG))

@@ -126,3 +126,19 @@ def test_the_committed_index_links_every_committed_report_page():
     assert pages and (reports / "navigation" / "report.html") in pages
     for p in pages:
         assert f'href="{p.relative_to(reports).as_posix()}"' in index, f"run python -m studies.reports_index: {p}"
+
+
+def test_e_table_scale_fields_are_checked():
+    base = framework.load_study("e_table")
+    for field, bad, words in [
+        ("seeds", [0, 0], "scales.ci.seeds: expected a list of distinct integers >= 0, got [0, 0]"),
+        ("episodes", 0, "scales.ci.episodes: expected an integer in [1, 1000], got 0"),
+        ("odometers", [], "scales.ci.odometers: expected a list of distinct names, at least one, got []"),
+    ]:
+        config = framework.StudyConfig(
+            base.name, base.title, {**base.scales, "ci": {**base.at("ci"), field: bad}}, base.path
+        )
+        with pytest.raises(ValueError) as exc:
+            e_table.scale_of(config, "ci")
+        assert str(exc.value) == f"{base.path}: {words}"
+    assert e_table.scale_of(base, "cpu").seeds == (0, 1, 2)
