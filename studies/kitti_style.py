@@ -600,7 +600,9 @@ def intro(scale_name: str, scale: Scale, rows: list[dict[str, Any]], note: str) 
             f"Trajectories: {TRAJECTORIES}/<route>/<odometer>.tum (world frame, frame i at i s) and .kitti (first "
             f"camera's frame), beside groundtruth.tum and .kitti. 'python -m odolab.evaluate "
             f"{TRAJECTORIES}/<route>/groundtruth.kitti {TRAJECTORIES}/<route>/<odometer>.kitti' prints a row's "
-            "t_rel, r_rel and ate_se3_m; with --align none, its ate_m. evo reads the same files."
+            "t_rel, r_rel and ate_se3_m; with --align none, its ate_m. evo reads the same files. The folder "
+            "keeps the files of every route and odometer ever computed into it, as results/ keeps their results; "
+            "this table's are the routes and odometers above."
         ),
     ]
 
