@@ -201,7 +201,10 @@ batch = 4
     assert bench.main(["--only", "training", "--recipe", str(recipe), "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["training"]
     assert len(rows) == 1 and rows[0]["config"] == "tiny"
-    for key in ("bare_pairs_per_s", "end_to_end_pairs_per_s", "fp32_bare_pairs_per_s"):
+    for key in (
+        "bare_pairs_per_s", "end_to_end_pairs_per_s", "fp32_bare_pairs_per_s", "normaliser_moments_ms",
+        "tensor_var_moments_ms",
+    ):  # fmt: skip
         assert rows[0][key] > 0
     assert rows[0]["precision"] in ("fp32", "bf16") and rows[0]["memory_format"] == "contiguous"
     assert "end_to_end_pairs_per_s" in capsys.readouterr().out

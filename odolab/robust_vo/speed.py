@@ -6,7 +6,8 @@ in fp32 beside it. ``end_to_end``: the trainer's own epoch (:meth:`StageRunner.t
 reads, swaps and mirrors, the nominal warp, psi, the batch made by the loader workers, the step) on a
 few real episodes, worker start-up included. The end-to-end rate over the bare one says how much the
 rest of training costs (at least 0.7 is wanted). Beside them, one network's forward pass at batch 1
-(what the odometer's speed is bound by) in fp32 and bf16.
+(what the odometer's speed is bound by) in fp32 and bf16, and the input normaliser's batch moments
+(:func:`odolab.robust_vo.model.batch_moments`) against ``Tensor.mean`` and ``Tensor.var``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import torch
 from odolab.learning import SERIAL, Compute, EpochLoop, TrainingData, make_training_data
 from odolab.learning.epochs import EpochTracker
 from odolab.robust_vo.config import TrainConfig
-from odolab.robust_vo.model import VONet
+from odolab.robust_vo.model import VONet, batch_moments
 
 
 def bare_pairs_per_s(cfg: TrainConfig, compute: Compute, steps: int = 6) -> float:
@@ -66,6 +67,24 @@ def inference_steps_per_s(cfg: TrainConfig, compute: Compute, steps: int = 20) -
     return 1.0 / float(np.median(times[2:]))
 
 
+def moments_ms(cfg: TrainConfig, repeats: int = 5) -> dict[str, float]:
+    """Milliseconds (median of ``repeats``) for one training batch's per-channel mean and variance:
+    the normaliser's ``batch_moments`` and ``Tensor.mean`` + ``Tensor.var``, on random inputs."""
+    model = cfg.model
+    x = torch.rand(cfg.stages[0].batch, model.input_channels, model.height, model.width)
+    ways = {
+        "normaliser_moments_ms": lambda: batch_moments(x),
+        "tensor_var_moments_ms": lambda: (x.mean(dim=(0, 2, 3)), x.var(dim=(0, 2, 3), unbiased=False)),
+    }
+    times: dict[str, list[float]] = {k: [] for k in ways}
+    for _ in range(repeats):
+        for k, way in ways.items():
+            started = time.perf_counter()
+            way()
+            times[k].append(time.perf_counter() - started)
+    return {k: 1e3 * float(np.median(t)) for k, t in times.items()}
+
+
 def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 20) -> TrainingData:
     """A few val episodes at the recipe's size, made in ``folder`` (in this process)."""
     small = dataclasses.replace(cfg.val_data, episodes=episodes)
@@ -103,6 +122,7 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         bare = fp32_bare if compute == fp32 else bare_pairs_per_s(cfg, compute)
         end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
         infer = {p: inference_steps_per_s(cfg, choose_compute(device, p)) for p in ("fp32", "bf16")}
+        moments = moments_ms(cfg)
     m = cfg.model
     return {
         "config": name,
@@ -120,4 +140,5 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         "params_per_network": sum(p.numel() for p in VONet(m).parameters()),
         "net_batch1_fp32_steps_per_s": infer["fp32"],
         "net_batch1_bf16_steps_per_s": infer["bf16"],
+        **moments,
     }
