@@ -58,7 +58,7 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     malformed, or nothing accepting connections there within ``timeout`` seconds, raises
     :class:`RayAddressError` with one line naming the address (instead of Ray's minutes-long retries)."""
     if address == "auto":
-        return
+        address = _local_cluster_address()
     match = _ADDRESS.match(address)
     if match is None or not 0 < int(match["port"]) < 65536:
         raise RayAddressError(f"{address!r} is not an address; expected host:port, ray://host:port or auto")
@@ -76,6 +76,23 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
             f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc)).lower()
         )
         raise RayAddressError(f"{address}: no Ray cluster there ({reason})") from None
+
+
+def _local_cluster_address() -> str:
+    """What ``auto`` means to Ray: the cluster this machine's last ``ray start`` made, or a running
+    one found among its processes; :class:`RayAddressError` when there is none (Ray would raise a
+    ConnectionError deep in its start-up)."""
+    from ray._private.services import get_ray_address_from_environment
+
+    try:
+        found = get_ray_address_from_environment("auto", None)
+    except ConnectionError:
+        found = None
+    if not found or found == "auto":
+        raise RayAddressError(
+            "auto: no running Ray cluster found on this machine; start one (ray start --head) or give host:port"
+        )
+    return found
 
 
 def has_ray_client() -> bool:

@@ -61,20 +61,25 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
 
 
 def valid_result(value: Any) -> bool:
-    """Whether a saved ``value`` has :func:`unit_result`'s shape (a results file edited or damaged by
-    hand is computed again rather than breaking the table)."""
-    numbers = (*COMPONENTS, *(f"{c}_own" for c in COMPONENTS), "failure_share")
-    return (
-        isinstance(value, dict)
-        and "all" in value
-        and all(
-            isinstance(value[a], dict)
-            and isinstance(value[a].get("steps"), int)
-            and all(c in value[a] and (value[a][c] is None or isinstance(value[a][c], (int, float))) for c in numbers)
-            for a in value
-            if a in ACTIONS
+    """Whether a saved ``value`` has :func:`unit_result`'s shape, its errors finite and >= 0 (the own
+    errors may be None: an odometer that never answered), its steps a count and its failure share in
+    [0, 1]: a results file edited or damaged by hand is computed again rather than breaking the table."""
+
+    def number(v: Any) -> bool:
+        return type(v) in (int, float) and math.isfinite(v) and v >= 0
+
+    def shaped(entry: Any) -> bool:
+        return (
+            isinstance(entry, dict)
+            and type(entry.get("steps")) is int
+            and entry["steps"] >= 0
+            and all(number(entry.get(c)) for c in COMPONENTS)
+            and all(entry.get(f"{c}_own") is None or number(entry.get(f"{c}_own")) for c in COMPONENTS)
+            and number(entry.get("failure_share"))
+            and entry["failure_share"] <= 1
         )
-    )
+
+    return isinstance(value, dict) and "all" in value and all(shaped(value[a]) for a in value if a in ACTIONS)
 
 
 def _numbers(row: Any, steps: int, failure_share: float) -> dict[str, float]:
@@ -108,8 +113,10 @@ def scale_of(config: framework.StudyConfig, scale: str) -> Scale:
         config,
         scale,
         "seeds",
-        lambda v: isinstance(v, list) and v and all(type(x) is int and x >= 0 for x in v) and len(set(v)) == len(v),
-        "a list of distinct integers >= 0",
+        lambda v: (
+            isinstance(v, list) and v and all(type(x) is int and 0 <= x < 2**32 for x in v) and len(set(v)) == len(v)
+        ),
+        "a list of distinct integers in [0, 4294967295]",
     )
     return Scale(
         seeds=tuple(seeds),
@@ -166,18 +173,26 @@ COLUMNS = [
 
 
 def findings(rows: list[dict[str, Any]]) -> list[str]:
-    """Per component, whether our E1 / E2 / E3 come in the paper's order, with mean +- sd over seeds."""
+    """Per component, whether our E1 / E2 / E3 come in the paper's order, with mean +- sd over seeds
+    (the sd "-" with one seed); a verdict needs two of them at least."""
     overall = {r["odometer"]: r for r in rows if r["action"] == "all"}
     have = [o for o in PAPER if o in overall]
+    if len(have) < 2:
+        named = ", ".join(f"{PAPER[o][0]} ({o})" for o in PAPER)
+        return [f"No order to compare: the paper's table ranks {named}; this table holds {len(have)} of them."]
     out = []
     for k, c in enumerate(COMPONENTS):
         paper_order = sorted(have, key=lambda o: PAPER[o][1][k])
         ours = sorted(have, key=lambda o: overall[o][c])
-        said = ", ".join(f"{PAPER[o][0]} {overall[o][c]:.2f} +- {overall[o][f'{c}_sd']:.2f}" for o in ours)
+        said = ", ".join(f"{PAPER[o][0]} {overall[o][c]:.2f} +- {_sd(overall[o][f'{c}_sd'])}" for o in ours)
         verdict = "agrees with" if ours == paper_order else "differs from"
         paper_said = " < ".join(PAPER[o][0] for o in paper_order)
         out.append(f"{c}: ours {said} (x 1e-2, lowest first); {verdict} the paper's order {paper_said}")
     return out
+
+
+def _sd(v: float) -> str:
+    return f"{v:.2f}" if math.isfinite(v) else "-"
 
 
 def draw(rows: list[dict[str, Any]], path: Path) -> None:

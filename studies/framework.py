@@ -35,6 +35,8 @@ SCALES = ("ci", "cpu", "paper")
 HERE = Path(__file__).resolve().parent
 #: Where reports go by default (relative to the working folder); its ``index.html`` lists them.
 DEFAULT_REPORTS = Path("reports")
+#: The name of a unit's saved result (:class:`ResultStore`): its digest.
+RESULT_NAME = re.compile(r"[0-9a-f]{16}\.json")
 #: The files a study's report consists of (what its manifest may list and a rerun replaces).
 REPORT_NAMES = re.compile(r"(index\.html|table\.csv|table\.md|[A-Za-z0-9_.-]+\.png)")
 
@@ -198,6 +200,28 @@ class ResultStore:
         doc = {"label": unit.label, "key": unit.key, "result": result}
         write_text_atomic(self._path(unit), json.dumps(doc, indent=1, allow_nan=True) + "\n")
 
+    def check_writable(self, units: Sequence[Unit]) -> None:
+        """Before computing ``units``: ``UsageError`` with one line when a result could not be saved
+        (the folder not writable, or a unit's file place taken by a folder or a link), so that no
+        unit's work is lost when it finishes."""
+        import tempfile
+
+        from odolab.cli import UsageError
+        from odolab.io.owned import UnsafeOutputError
+
+        for unit in units:
+            try:
+                path = self._path(unit)  # makes the folder
+            except (UnsafeOutputError, OSError) as exc:
+                raise UsageError(f"{exc}; remove it to save the unit's result there") from None
+            if path.exists() and not path.is_file():
+                raise UsageError(f"{path}: expected a result file or nothing, found a folder; remove it")
+        try:
+            with tempfile.NamedTemporaryFile(dir=self.folder, prefix=".write-check-"):
+                pass
+        except OSError as exc:
+            raise UsageError(f"{self.folder}: results cannot be saved there ({exc.strerror or exc})") from None
+
 
 @dataclass
 class Outcome:
@@ -259,6 +283,9 @@ def run_units(
             out.missing.append(u.label)
         else:
             todo.append(u)
+
+    if todo:
+        store.check_writable(todo)
 
     def done(k: int, value: tuple[Any, float]) -> None:
         result, seconds = value
@@ -336,6 +363,7 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
     """Write ``report`` into ``out`` (``index.html``, ``table.csv``, ``table.md``, the figures),
     replacing the previous run's report files (never its results); returns the files written."""
     from odolab.io.atomic import write_text_atomic
+    from odolab.io.owned import UnsafeOutputError
     from odolab.report import OutputFolder
 
     folder = OutputFolder(out, owner=owner, names=REPORT_NAMES)
@@ -375,7 +403,10 @@ figure{{margin:1.5em 0}}</style></head><body>
     folder.finish()
     reports = DEFAULT_REPORTS.resolve()
     if reports in Path(out).resolve().parents:  # a report among the default ones: the index lists it
-        write_reports_index(reports)
+        try:
+            write_reports_index(reports)
+        except (UnsafeOutputError, OSError) as exc:  # the report is written; a user's page stays
+            print(f"note: {reports / 'index.html'} not refreshed: {exc}", file=sys.stderr)
     return folder.written
 
 
@@ -471,25 +502,39 @@ def _interrupted_first_run(out: Path) -> bool:
         entries = list(results.iterdir()) if results.is_dir() and not results.is_symlink() else []
     except OSError:
         return False
-    return bool(entries) and all(e.suffix == ".json" and e.is_file() and not e.is_symlink() for e in entries)
+    return bool(entries) and all(_is_result_file(e) for e in entries)
+
+
+def _is_result_file(path: Path) -> bool:
+    """Whether ``path`` is a file :meth:`ResultStore.put` wrote: named by a unit's digest, a JSON
+    object holding a ``key`` and a ``result`` (a user's own JSON files are not)."""
+    if not (RESULT_NAME.fullmatch(path.name) and path.is_file() and not path.is_symlink()):
+        return False
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8")[:10_000_000])
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and {"key", "result"} <= set(doc)
 
 
 def check_options(args, out: Path, config: StudyConfig) -> None:
     """Everything a study's command line can get wrong, found before any work and before ``out`` is
     made: ``--ray-address`` (malformed, unreachable, or with ``--serial``) and the ``RAY_ADDRESS``
     variable (unless nothing is computed), ``--redraw`` with no saved results to draw from, and the
-    ``--out`` folder (:func:`check_out`), claimed only once every check has passed."""
+    ``--out`` folder (:func:`check_out`), claimed only once every check has passed (with ``--redraw``,
+    by the report it draws)."""
     from odolab.cli import UsageError, check_ray_option
 
+    if args.redraw and args.ray_address is not None:
+        raise UsageError("--redraw computes nothing; --ray-address is for computing units: drop one")
     check_ray_option(args.ray_address, args.serial, starts_ray=not args.redraw)
     if args.redraw:
-        if args.ray_address is not None:
-            raise UsageError("--redraw computes nothing; --ray-address is for computing units: drop one")
-        if out.is_dir():  # another command's or a user's folder is said as such first
+        if out.exists() or out.is_symlink():  # a file, a link, another command's or a user's folder first
             check_out(out, config, claim=False)
         results = out / "results"
         if not results.is_dir() or not any(results.glob("*.json")):
             raise UsageError(f"--redraw: no saved results in {results}; run without --redraw first")
+        return  # the report, once drawn, claims the folder: a redraw refused later writes nothing
     check_out(out, config)
 
 
@@ -544,6 +589,24 @@ class StudyRun:
         say_done(outcome, len(rows), self.out)
 
 
+def scale_params(config: StudyConfig, scale: str, scale_of: Callable[[StudyConfig, str], Any]) -> Any:
+    """``scale_of(config, scale)``, the study's checked parameters (a dataclass), and ``ValueError``
+    naming the file and field for a key of the scale's table that is none of its fields (a typo
+    would otherwise be ignored)."""
+    import dataclasses
+
+    params = scale_of(config, scale)
+    if dataclasses.is_dataclass(params):
+        fields = {f.name for f in dataclasses.fields(params)}
+        stray = sorted(set(config.at(scale)) - fields)
+        if stray:
+            raise ValueError(
+                f"{config.path or config.name}: scales.{scale}.{stray[0]}: not a field of this study "
+                f"(expected {', '.join(sorted(fields))})"
+            )
+    return params
+
+
 def begin(name: str, prog: str, argv: Sequence[str] | None, scale_of: Callable[[StudyConfig, str], Any]) -> StudyRun:
     """Everything a study checks before any work: ``<name>.toml``, the command line, the asked
     scale's parameters (``scale_of(config, scale)``, which has ``odometers`` and may have
@@ -554,7 +617,7 @@ def begin(name: str, prog: str, argv: Sequence[str] | None, scale_of: Callable[[
     try:
         config = load_study(name)
         args = study_arguments(prog, config).parse_args(argv)
-        scale = scale_of(config, args.scale)
+        scale = scale_params(config, args.scale, scale_of)
         identity = identities(config, args.scale, scale.odometers, getattr(scale, "options", None))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -563,6 +626,8 @@ def begin(name: str, prog: str, argv: Sequence[str] | None, scale_of: Callable[[
     return StudyRun(config, prog, argv, args, scale, out, identity)
 
 
+#: The title of the reports index: a page with another is a user's, never written over.
+INDEX_TITLE = "<title>odolab reports</title>"
 #: Files named so are report pages; what a report folder holds besides them is listed when it has none.
 PAGE_NAMES = ("index.html", "report.html")
 
@@ -591,7 +656,7 @@ def write_reports_index(reports: Path) -> Path:
     (``index.html`` or ``report.html``) with its title; then each top-level folder with no page,
     linking its Markdown files."""
     from odolab.io.atomic import write_text_atomic
-    from odolab.io.owned import owned_path
+    from odolab.io.owned import UnsafeOutputError, owned_path
 
     reports = Path(reports)
     files = _report_files(reports)
@@ -611,7 +676,7 @@ def write_reports_index(reports: Path) -> Path:
         )
         others.append(f'<li><a href="{html.escape(top)}/">{html.escape(top)}</a>{": " + links if links else ""}</li>')
     page = (
-        '<!doctype html>\n<html lang="en"><head><meta charset="utf-8"><title>odolab reports</title>'
+        f'<!doctype html>\n<html lang="en"><head><meta charset="utf-8">{INDEX_TITLE}'
         "<style>body{font-family:sans-serif;max-width:900px;margin:2em auto;padding:0 1em}li{margin:.3em 0}</style>"
         "</head><body><h1>odolab reports</h1><h2>Report pages</h2><ul>"
         + "".join(items)
@@ -619,5 +684,16 @@ def write_reports_index(reports: Path) -> Path:
         + (f"<h2>Folders without a page</h2><ul>{''.join(others)}</ul>" if others else "")
         + "</body></html>\n"
     )
-    write_text_atomic(owned_path(reports, "index.html"), page)
-    return reports / "index.html"
+    path = owned_path(reports, "index.html")
+    if path.exists() and not _is_reports_index(path):
+        raise UnsafeOutputError(path, "odolab's reports index", "another page, which is left alone")
+    write_text_atomic(path, page)
+    return path
+
+
+def _is_reports_index(path: Path) -> bool:
+    """Whether ``path`` is a page :func:`write_reports_index` wrote (its title), not a user's own."""
+    try:
+        return INDEX_TITLE in path.read_text(encoding="utf-8", errors="replace")[:2000]
+    except OSError:
+        return False

@@ -613,7 +613,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         config = framework.load_study("kitti_style")
         args = framework.study_arguments(PROG, config).parse_args(argv)
-        scale = scale_of(config, args.scale)
+        scale = framework.scale_params(config, args.scale, scale_of)
         identity = framework.identities(config, args.scale, scale.odometers)
     except ValueError as exc:
         raise UsageError(str(exc)) from None

@@ -3,7 +3,8 @@
     python -m studies.reports_index [--reports reports]
 
 Every study refreshes it when it writes a report there; this command refreshes it after any other
-command's report (compare, navigate) was written or removed.
+command's report (compare, navigate) was written or removed. A page there that odolab did not write
+(another title) is left alone.
 """
 
 from __future__ import annotations

@@ -62,11 +62,13 @@ def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
     }
     rows = (out / "table.csv").read_text().splitlines()
     assert rows[0].startswith("odometer,action,seeds,steps,dx,dx_sd") and len(rows) > 3
-    assert "6 units computed" in capsys.readouterr().out
+    assert "8 units computed" in capsys.readouterr().out
     assert e_table.main(args) == 0  # everything saved: nothing computed again
     assert "0 units computed" in capsys.readouterr().out
     html = (out / "index.html").read_text()
     assert "E1 (15.9, 21.3, 8.51)" in html and "Against the paper" in html
+    md = (out / "table.md").read_text()
+    assert md.count("the paper's order E2 < E1") == 3, md  # E2 (the true rotation) is lower in each component
 
 
 def test_a_folder_of_the_users_own_files_is_refused(tmp_path: Path):
@@ -131,7 +133,7 @@ def test_the_committed_index_links_every_committed_report_page():
 def test_e_table_scale_fields_are_checked():
     base = framework.load_study("e_table")
     for field, bad, words in [
-        ("seeds", [0, 0], "scales.ci.seeds: expected a list of distinct integers >= 0, got [0, 0]"),
+        ("seeds", [0, 0], "scales.ci.seeds: expected a list of distinct integers in [0, 4294967295], got [0, 0]"),
         ("episodes", 0, "scales.ci.episodes: expected an integer in [1, 1000], got 0"),
         ("odometers", [], "scales.ci.odometers: expected a list of distinct names, at least one, got []"),
     ]:
