@@ -75,6 +75,19 @@ def test_the_cpu_scale_keeps_to_its_budget(tmp_path: Path):
     assert len(scale.seeds) == 3 and scale.episodes == 20 and scale.nav_episodes * len(scale.nav_seeds) >= 50
 
 
+def test_the_row_18_recipes_of_the_warp_probe_are_the_studys_row_18_at_its_cpu_scale():
+    """studies/robust_vo/ablations/row18-cpu.toml trains what the study trains for row 18 at its cpu
+    scale; row18-cpu-warp.toml differs from it in the warp and the mirrored turns alone."""
+    from odolab.robust_vo.config import load_train_config
+
+    folder = ablations.ROOT / "studies" / "robust_vo" / "ablations"
+    study = ablations.recipe_identity(ablations.recipe(DEFINITION, DEFINITION.scales["cpu"], 18, Path("data")))
+    assert ablations.recipe_identity(load_train_config(str(folder / "row18-cpu.toml"))) == study
+    warp = ablations.recipe_identity(load_train_config(str(folder / "row18-cpu-warp.toml")))
+    assert warp["model"] == {**study["model"], "warp": "nominal", "mirror_turns": True}
+    assert {k: v for k, v in warp.items() if k != "model"} == {k: v for k, v in study.items() if k != "model"}
+
+
 def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
     text = ablations.DEFINITION.read_text(encoding="utf-8").replace("rows = [0, 1, 4,", "rows = [0, 99, 4,", 1)
     (tmp_path / "a.toml").write_text(text)
