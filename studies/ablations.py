@@ -50,6 +50,8 @@ FOLDERS = ("models", "work", "training", "data")
 REFERENCE_ROW = 18
 #: The study's three phases, in the order they run.
 PHASES = ("training", "error", "navigation")
+#: The paper's switch columns, in its order.
+SWITCH_COLUMNS = ("Visual", "DD", "S-proj", "Dropout", "ActInfo", "DataAug", "GeoInv")
 VISUAL = {"RGB": "rgb", "D": "depth", "RGB-D": "rgbd"}
 ACTINFO = {"none": "unified", "Embed": "actembed", "SepAct": "sepact"}
 
@@ -109,13 +111,28 @@ class Row:
     note: str = ""
 
     def setting(self) -> str:
-        """The row's setting in words: ``DeepVO``, the switches, ``Ground truth``."""
+        """The row's odometer in words: ``DeepVO``, ``robust VO`` (``rnd10``: ten dropout passes;
+        ``2x wide``), ``Ground truth``; its switches are :meth:`switch_cells`."""
         if self.odometer == "deepvo":
             return "DeepVO"
         if self.switches is None:
             return "Ground truth"
         extra = " (rnd10)" if self.options.get("mc_samples") == 10 else ""
-        return self.switches.text() + extra + (" (2x wide)" if self.wide else "")
+        return "robust VO" + extra + (" (2x wide)" if self.wide else "")
+
+    def switch_cells(self) -> dict[str, str]:
+        """The paper's switch columns (:data:`SWITCH_COLUMNS`): the visual input, the DD bins, the
+        action information and a check mark per switch that is on; empty for DeepVO and ground truth."""
+        s = self.switches
+        if s is None:
+            return dict.fromkeys(SWITCH_COLUMNS, "")
+        marks = {"S-proj": s.sproj, "Dropout": s.dropout, "DataAug": s.data_aug, "GeoInv": s.geoinv}
+        return {
+            "Visual": s.visual,
+            "DD": str(s.dd) if s.dd else "",
+            "ActInfo": "" if s.actinfo == "none" else s.actinfo,
+            **{k: "\u2713" if on else "" for k, on in marks.items()},
+        }
 
 
 @dataclass(frozen=True)
@@ -369,7 +386,8 @@ def _odometer(key: dict[str, Any], out: Path) -> tuple[str, dict[str, Any]]:
 
 def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     """One row's odometer on one seed's test episodes: mean absolute error of (dx, dz, dyaw) x 1e-2
-    over every step (a failed step scored with the action prior that replaced it), steps, failure share."""
+    over every step (a failed step scored with the action prior that replaced it), steps, failure
+    share, and steps per second of the odometer's own ``step`` calls (``fps``)."""
     from odolab.api import SERIAL, ComparisonConfig, run_comparison
     from odolab.episodes import NoiseConfig
 
@@ -391,15 +409,17 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
         **{c: float(getattr(row, c)) for c in COMPONENTS},
         "steps": int(row.steps),
         "failure_share": float(row.failure_share),
+        "fps": None if row.reference else float(row.fps),
     }
 
 
 def valid_errors(value: Any) -> bool:
-    """Whether a saved error result has :func:`step_errors`' shape."""
+    """Whether a saved error result has :func:`step_errors`' shape (``fps`` None: ground truth)."""
     return (
         isinstance(value, dict)
         and all(_number(value.get(c)) for c in (*COMPONENTS, "failure_share"))
         and isinstance(value.get("steps"), int)
+        and (value.get("fps") is None or _number(value.get("fps")))
     )
 
 
@@ -512,9 +532,10 @@ def evaluation_units(
 
 
 COLUMNS = [
-    "row", "setting", "params_M", "paper_params_M", "S", "paper_S", "SPL", "paper_SPL", "d_G", "paper_d_G",
-    "SoftSPL", "paper_SoftSPL", "dx", "dz", "dyaw", "paper_error", "S_vs_18", "error_vs_18", "nav_episodes",
-    "pairs_seen", "train_h",
+    "row", "setting", *SWITCH_COLUMNS, "params_M", "paper_params_M",
+    "S", "S_ci", "paper_S", "SPL", "SPL_ci", "paper_SPL", "d_G", "d_G_ci", "paper_d_G", "SoftSPL", "SoftSPL_ci",
+    "paper_SoftSPL", "dx", "dx_sd", "dz", "dz_sd", "dyaw", "dyaw_sd", "paper_error", "fps", "S_vs_18",
+    "error_vs_18", "nav_episodes", "pairs_seen", "train_h",
 ]  # fmt: skip
 
 
@@ -526,12 +547,23 @@ def _params_text(trained: dict[str, Any] | None) -> str:
     return f"{trained['networks']}x{each:.2f}" if trained["networks"] > 1 else f"{each:.2f}"
 
 
+def _interval(low: float, high: float) -> str:
+    """``[low, high]`` to one decimal, or "" where there is no interval (one value, or none)."""
+    return f"[{low:.1f}, {high:.1f}]" if math.isfinite(low) and math.isfinite(high) else ""
+
+
 def table(
     definition: Definition, scale: Scale, models: dict[str, Any], errors: dict[str, Any], navigation: dict[str, Any]
 ) -> list[dict[str, Any]]:
-    """One line per row of the scale: our numbers (errors: mean over seeds; navigation: mean over
-    every seed's episodes, in % and m as the paper), the paper's beside them, and whether the row's
-    order against row 18 agrees with the paper's."""
+    """One line per row of the scale, laid out as the paper's table (its switch columns first): our
+    numbers and the paper's beside them, and whether the row's order against row 18 agrees with the
+    paper's. Errors (x 1e-2): mean and standard deviation over the seeds; fps: steps per second of
+    the odometer alone, mean over the seeds; navigation (S, SPL, SoftSPL in %, d_G in m): mean over
+    every seed's episodes with its 95 % interval (Wilson's for success, Student's t for the others).
+    Each line also carries ``S_range`` (success's interval, %) and ``error_ci`` (the mean error's
+    interval over the seeds) for the verdicts and the figure."""
+    from odolab.navigation.metrics import mean_ci
+
     lines = []
     for number in scale.rows:
         row = definition.rows[number]
@@ -546,6 +578,7 @@ def table(
         line: dict[str, Any] = {
             "row": number,
             "setting": row.setting(),
+            **row.switch_cells(),
             "params_M": "" if model_row(row) is None else _params_text(trained),
             "paper_params_M": row.paper.params,
             "paper_S": row.paper.success,
@@ -559,25 +592,55 @@ def table(
             "train_h": trained["training_hours"] if trained and row.model_of is None else "",
         }
         for c in COMPONENTS:
-            line[c] = float(np.mean([g[c] for g in got])) if got else float("nan")
-        for column, k, scale_by in (("S", "success", 100), ("SPL", "spl", 100), ("SoftSPL", "soft_spl", 100)):
-            line[column] = float(np.mean([n[k] for n in nav])) * scale_by if nav else float("nan")
-        line["d_G"] = float(np.mean([n["d_g"] for n in nav])) if nav else float("nan")
+            values = [g[c] for g in got]
+            line[c] = float(np.mean(values)) if values else float("nan")
+            line[f"{c}_sd"] = float(np.std(values, ddof=1)) if len(values) > 1 else float("nan")
+        line["error_ci"] = mean_ci(np.array([np.mean([g[c] for c in COMPONENTS]) for g in got]))
+        speeds = [g["fps"] for g in got if g.get("fps") is not None]
+        line["fps"] = float(np.mean(speeds)) if speeds else float("nan")
+        for column, k, scale_by, binary in (
+            ("S", "success", 100, True),
+            ("SPL", "spl", 100, False),
+            ("SoftSPL", "soft_spl", 100, False),
+            ("d_G", "d_g", 1, False),
+        ):
+            ci = mean_ci(np.array([n[k] for n in nav], float), binary=binary)
+            line[column] = ci.mean * scale_by
+            line[f"{column}_ci"] = _interval(ci.low * scale_by, ci.high * scale_by)
+            if column == "S":
+                line["S_range"] = (ci.low * scale_by, ci.high * scale_by)
         lines.append(line)
     reference = next((line for line in lines if line["row"] == REFERENCE_ROW), None)
     paper_reference = definition.rows[REFERENCE_ROW].paper
     for line in lines:
         row = definition.rows[line["row"]]
-        line["S_vs_18"] = _order(line["S"], reference and reference["S"], row.paper.success, paper_reference.success)
+        line["S_vs_18"] = _order(
+            line["S"],
+            reference and reference["S"],
+            row.paper.success,
+            paper_reference.success,
+            overlap=reference is not None and _overlap(line["S_range"], reference["S_range"]),
+        )
         line["error_vs_18"] = _order(
             -_mean_error(line),
             reference and -_mean_error(reference),
             -line["paper_error_mean"] if row.paper.error else None,
             -float(np.mean(paper_reference.error)),
+            overlap=reference is not None
+            and _overlap(
+                (line["error_ci"].low, line["error_ci"].high), (reference["error_ci"].low, reference["error_ci"].high)
+            ),
         )
         if line["row"] == REFERENCE_ROW:
             line["S_vs_18"] = line["error_vs_18"] = ""
     return lines
+
+
+def _overlap(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    """Whether two intervals share a point; True when either is unknown (NaN: one value or none)."""
+    if not all(math.isfinite(v) for v in (*a, *b)):
+        return True
+    return a[0] <= b[1] and b[0] <= a[1]
 
 
 def _mean_error(line: dict[str, Any]) -> float:
@@ -585,22 +648,29 @@ def _mean_error(line: dict[str, Any]) -> float:
     return float(np.mean([line[c] for c in COMPONENTS]))
 
 
-def _order(ours: float, ours_ref: float | None, paper: float | None, paper_ref: float) -> str:
+def _order(ours: float, ours_ref: float | None, paper: float | None, paper_ref: float, overlap: bool = False) -> str:
     """Whether ours is above, below or level with row 18 as the paper's is (higher is better):
-    ``agrees``, ``differs``, ``tie`` (ours level with row 18's, the paper's not), or "" without numbers."""
+    ``agrees``, ``differs``, ``tie`` (ours level with row 18's, the paper's not), or "" without
+    numbers; `` (overlap)`` follows when our 95 % intervals of the two rows overlap (the order is
+    not settled at this sample size)."""
     if paper is None or ours_ref is None or not (math.isfinite(ours) and math.isfinite(ours_ref)):
         return ""
     mine, theirs = np.sign(ours - ours_ref), np.sign(paper - paper_ref)
     if mine == 0 and theirs != 0:
         return "tie"
-    return "agrees" if mine == theirs else "differs"
+    return ("agrees" if mine == theirs else "differs") + (" (overlap)" if overlap else "")
 
 
 def findings(lines: list[dict[str, Any]]) -> list[str]:
-    """Per measure, which rows come on the same side of row 18 as in the paper."""
+    """Per measure, which rows come on the same side of row 18 as in the paper, and of those which
+    are apart from row 18 by more than our 95 % intervals."""
     out = []
     for column, measure in (("S_vs_18", "Success"), ("error_vs_18", "Per-step error (mean of dx, dz, dyaw)")):
-        said = {v: [str(line["row"]) for line in lines if line[column] == v] for v in ("agrees", "differs", "tie")}
+        said = {
+            v: [str(line["row"]) for line in lines if line[column].split(" ")[0] == v]
+            for v in ("agrees", "differs", "tie")
+        }
+        clear = [str(line["row"]) for line in lines if line[column] in ("agrees", "differs")]
         judged = sum(map(len, said.values()))
         if not judged:
             out.append(f"{measure}: no row to set against row 18 (row 18 or the numbers are missing)")
@@ -608,7 +678,8 @@ def findings(lines: list[dict[str, Any]]) -> list[str]:
         out.append(
             f"{measure} against row 18: ours on the paper's side in {len(said['agrees'])} of {judged} rows"
             f" ({', '.join(said['agrees']) or 'none'}); the other side in {', '.join(said['differs']) or 'none'}; "
-            f"level with row 18 in {', '.join(said['tie']) or 'none'}"
+            f"level with row 18 in {', '.join(said['tie']) or 'none'}. Apart from row 18 beyond our 95 % "
+            f"intervals: {', '.join(clear) or 'none'}"
         )
     return out
 
@@ -620,6 +691,8 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from odolab.io.atomic import save_figure_atomic
+
     fig, ax = plt.subplots(figsize=(8.5, 6))
     for who, color, marker in (("ours", "tab:blue", "o"), ("paper", "tab:orange", "s")):
         points = []
@@ -629,17 +702,22 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
                 points.append((x, y, line["row"]))
         if not points:
             continue
-        xs, ys, _ = zip(*points)
+        xs, ys, numbers = zip(*points)
+        if who == "ours":  # our success's 95 % interval
+            ranges = {line["row"]: line["S_range"] for line in lines}
+            low = [max(0.0, y - ranges[n][0]) if math.isfinite(ranges[n][0]) else 0.0 for y, n in zip(ys, numbers)]
+            high = [max(0.0, ranges[n][1] - y) if math.isfinite(ranges[n][1]) else 0.0 for y, n in zip(ys, numbers)]
+            ax.errorbar(xs, ys, yerr=[low, high], fmt="none", ecolor=color, alpha=0.35, capsize=2)
         ax.scatter(xs, ys, color=color, marker=marker, label=f"{who} (row number beside each point)")
         for x, y, n in points:
             ax.annotate(str(n), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=8, color=color)
     ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
     ax.set_ylabel("navigation success (%)")
-    ax.set_title("Navigation success against per-step VO error, per row of Table 2")
+    ax.set_title("Navigation success against per-step VO error, per row of Table 2 (bars: our 95 % intervals)")
     ax.grid(alpha=0.3)
     ax.legend(loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure_atomic(fig, path)
     plt.close(fig)
 
 
@@ -735,8 +813,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{scale.nav_max_steps} steps for each of the seeds {', '.join(map(str, scale.nav_seeds))}. "
             "Row 19 is left out: it fine-tunes the paper's learned navigation policy to the VO, and odolab's "
             "policy is a classical map-and-plan one with nothing to tune. S, SPL, SoftSPL in %, d_G in m, "
-            "errors x 1e-2; S_vs_18 and error_vs_18 say whether the row lies on the same side of row 18 as "
-            "in the paper." + (f" Missing (not computed): {', '.join(missing)}." if missing else ""),
+            "errors x 1e-2 (mean and standard deviation over the seeds), fps in steps/s of the odometer alone; "
+            "*_ci: 95 % intervals (Wilson's for S, Student's t for the others). S_vs_18 and error_vs_18 say "
+            "whether the row lies on the same side of row 18 as in the paper, '(overlap)' where our intervals "
+            "of the two rows overlap (not settled at this sample size)."
+            + (f" Missing (not computed): {', '.join(missing)}." if missing else ""),
             *(f"Row {r}: {definition.rows[r].note}" for r in scale.rows if definition.rows[r].note),
         ],
         columns=COLUMNS,

@@ -119,9 +119,21 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
     for r in rows:
         for column in ("S", "SPL", "d_G", "SoftSPL", "dx", "dz", "dyaw"):
             assert math.isfinite(float(r[column])), (r["row"], column)
+        assert math.isnan(float(r["fps"])) if r["row"] == "20" else float(r["fps"]) > 0  # ground truth: no speed
         assert float(r["paper_S"]) == DEFINITION.rows[int(r["row"])].paper.success
     by_row = {int(r["row"]): r for r in rows}
     assert by_row[20]["dx"] == "0.0" and by_row[18]["S_vs_18"] == ""
+    assert [by_row[18][c] for c in ablations.SWITCH_COLUMNS] == [
+        "RGB-D",
+        "10",
+        "\u2713",
+        "\u2713",
+        "SepAct",
+        "\u2713",
+        "\u2713",
+    ]
+    assert by_row[1]["Visual"] == "RGB" and by_row[1]["ActInfo"] == "" and by_row[0]["setting"] == "DeepVO"
+    assert by_row[17]["S_vs_18"] in ("", "tie", "agrees (overlap)", "differs (overlap)")  # 1 episode: no interval
     assert by_row[18]["params_M"].startswith("3x") and by_row[18]["paper_error"] == "(1.10, 0.84, 0.68)"
     assert by_row[5]["params_M"] == by_row[4]["params_M"]  # row 4's model, run with 10 dropout passes
     for n in {ablations.model_row(DEFINITION.rows[r]) for r in scale.rows} - {None}:
