@@ -15,6 +15,8 @@ torch = pytest.importorskip("torch")  # a declared dependency; skip only where i
 from odolab.api import Action, Intrinsics, invert, load_odometer, transform_to_planar
 from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
 from odolab.learning import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
+from odolab.learning.checkpoints import load_checkpoint
+from odolab.learning.epochs import STATE_FORMAT, STATE_KIND
 from odolab.parallel import SERIAL
 from odolab.robust_vo import train as trainer
 from odolab.robust_vo.batches import Samples, make_batch, stage_samples
@@ -289,6 +291,9 @@ def test_training_writes_curves_and_a_model_that_loads(trained, recipe):
     cfg, nets, info = load_model(trained / "model.pt")
     assert cfg == recipe.model and set(nets) == {"move_forward", "turn_left", "turn_right"}
     assert info["recipe"]["seed"] == recipe.seed
+    # a stage that a later one follows keeps its networks, not Adam's moments; the last keeps both
+    states = [load_checkpoint(trained / "work" / f"{s.name}.pt", STATE_KIND, STATE_FORMAT) for s in recipe.stages]
+    assert ["optimizer" in d for d in states] == [False] * (len(states) - 1) + [True]
 
 
 def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_path):

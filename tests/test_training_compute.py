@@ -66,6 +66,7 @@ def test_a_compute_table_says_what_each_field_takes():
         ("precision", "auto", "one of 'auto', 'fp32', 'bf16'"),
         ("memory_format", "auto", "one of 'auto', 'contiguous', 'channels_last'"),
         ("loader_workers", "auto", "'auto' or [0, 64]"),
+        ("loader_thread", "auto", "one of 'auto', 'on', 'off'"),
     ]
     assert all(r.doc for r in describe(ComputeConfig()))
     for bad, said in (
@@ -113,8 +114,34 @@ def _square(k: int) -> int:
 
 
 @pytest.mark.parametrize("workers", [0, 1, 2])
-def test_prefetched_batches_come_in_order(workers):
-    assert list(prefetched(list(range(7)), _square, workers)) == [k * k for k in range(7)]
+@pytest.mark.parametrize("thread", [False, True])
+def test_prefetched_batches_come_in_order(workers, thread):
+    assert list(prefetched(list(range(7)), _square, workers, thread=thread)) == [k * k for k in range(7)]
+
+
+def test_a_loader_thread_runs_ahead_and_stops_with_an_abandoned_iteration():
+    import time
+
+    made: list[int] = []
+
+    def make(k: int) -> int:
+        made.append(k)
+        return k
+
+    it = iter(prefetched(list(range(100)), make, 0, ahead=2, thread=True))
+    assert next(it) == 0
+    waited = time.monotonic() + 10
+    while len(made) < 3 and time.monotonic() < waited:  # made ahead while the consumer holds batch 0
+        time.sleep(0.01)
+    it.close()  # the consumer stops (a deadline): nothing more is made
+    time.sleep(0.05)
+    assert made == [0, 1, 2]
+
+
+def test_loader_thread_auto_is_on_without_workers_and_off_with_them():
+    assert ComputeConfig().resolve(CPU, cores=2).loader_thread
+    assert not ComputeConfig().resolve(CPU, cores=8).loader_thread  # a worker process makes them
+    assert not ComputeConfig(loader_thread="off").resolve(CPU, cores=2).loader_thread
 
 
 def _toy_run(path, batches_before_kill: int | None, save_every: float) -> dict:
@@ -157,6 +184,29 @@ def test_a_run_killed_within_an_epoch_resumes_to_the_same_numbers(tmp_path):
         assert torch.equal(a, b)
     assert resumed["row"]["pairs"] == whole["row"]["pairs"] == 48
     assert resumed["row"]["loss"] == pytest.approx(whole["row"]["loss"], rel=1e-12)
+
+
+def test_a_compacted_state_keeps_the_networks_not_the_optimiser_and_still_resumes(tmp_path):
+    from odolab.learning.checkpoints import load_checkpoint, save_checkpoint
+    from odolab.learning.epochs import STATE_FORMAT, STATE_KIND
+
+    whole = _toy_run(tmp_path / "whole.pt", None, 600.0)
+    assert "optimizer" in load_checkpoint(tmp_path / "whole.pt", STATE_KIND, STATE_FORMAT)
+    net = torch.nn.Linear(1, 1)
+    EpochLoop(tmp_path / "whole.pt", {}, torch.optim.Adam(net.parameters()), 1, 3, {"toy": 1}).compact()
+    doc = load_checkpoint(tmp_path / "whole.pt", STATE_KIND, STATE_FORMAT)
+    assert "optimizer" not in doc and doc["epoch"] == 1
+    again = _toy_run(tmp_path / "whole.pt", None, 600.0)  # finished: loads, trains nothing more
+    for a, b in zip(whole["weights"], again["weights"]):
+        assert torch.equal(a, b)
+    assert again["row"] == whole["row"]
+    assert _toy_run(tmp_path / "split.pt", 4, 0.0) == {}
+    EpochLoop(tmp_path / "split.pt", {}, torch.optim.Adam(net.parameters()), 1, 3, {"toy": 1}).compact()
+    assert "optimizer" in load_checkpoint(tmp_path / "split.pt", STATE_KIND, STATE_FORMAT)  # not finished
+    doc["epoch"] = 0  # a compacted state cannot train on
+    save_checkpoint(tmp_path / "cut.pt", STATE_KIND, STATE_FORMAT, doc)
+    with pytest.raises(ValueError, match=r"cut.pt: field optimizer: expected the optimiser's state .*got none"):
+        _toy_run(tmp_path / "cut.pt", None, 600.0)
 
 
 def test_bench_training_prints_and_writes_one_row_per_recipe(tmp_path, capsys):

@@ -32,7 +32,6 @@ from odolab.learning import (
     TrainingData,
     load_init,
     make_training_data,
-    prefetched,
     require_finite,
 )
 from odolab.learning.distributed import Team, run_on_ray
@@ -224,9 +223,7 @@ def train_windows(job: dict) -> dict:
             disable=not (progress and team.leader),
             leave=False,
         )
-        made = prefetched(
-            [team.share(b) for b in batches], WindowBatches(train, cfg.window, cfg.model), compute.loader_workers
-        )
+        made = compute.batches([team.share(b) for b in batches], WindowBatches(train, cfg.window, cfg.model))
         for (x, target, actions), whole in zip(made, batches):
             with compute.autocast():
                 pred, _ = net(x.to(device), actions=torch.from_numpy(actions).to(device))
@@ -245,7 +242,7 @@ def train_windows(job: dict) -> dict:
     def validate(epoch: int) -> list[dict]:
         preds, truths, acts = [], [], []
         parts = [val_starts[k : k + 64] for k in range(0, len(val_starts), 64)]
-        for x, target, actions in prefetched(parts, WindowBatches(val, cfg.window, cfg.model), compute.loader_workers):
+        for x, target, actions in compute.batches(parts, WindowBatches(val, cfg.window, cfg.model)):
             preds.append(
                 net(x.to(device), actions=torch.from_numpy(actions).to(device))[0].cpu().numpy().reshape(-1, 3)
             )

@@ -12,16 +12,19 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import platform
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, get_args
+from typing import Any, Literal, get_args
 
 import torch
 
 from odolab.config import check, setting
+from odolab.learning.loading import prefetched
 
 Precision = Literal["auto", "fp32", "bf16"]
 MemoryFormat = Literal["auto", "contiguous", "channels_last"]
+LoaderThread = Literal["auto", "on", "off"]
 PRECISIONS: tuple[str, ...] = get_args(Precision)
 MEMORY_FORMATS: tuple[str, ...] = get_args(MemoryFormat)
 #: Most batch-making processes a recipe may ask for.
@@ -63,6 +66,7 @@ class Compute:
     precision: str
     memory_format: str
     loader_workers: int = 0
+    loader_thread: bool = False
 
     def autocast(self) -> contextlib.AbstractContextManager:
         """The autocast context of a forward pass (a no-op in fp32)."""
@@ -82,6 +86,11 @@ class Compute:
             module.to(memory_format=torch.channels_last)
         return module
 
+    def batches(self, parts: list[Any], make: Callable[[Any], Any]) -> Iterable[Any]:
+        """``make(p)`` for each ``p`` of ``parts``, in order, made ahead of the step as this compute
+        says (:func:`odolab.learning.loading.prefetched`)."""
+        return prefetched(parts, make, self.loader_workers, thread=self.loader_thread)
+
     def describe(self) -> dict[str, str]:
         """Plain data for reports."""
         return {
@@ -89,6 +98,7 @@ class Compute:
             "precision": self.precision,
             "memory_format": self.memory_format,
             "loader_workers": self.loader_workers,
+            "loader_thread": self.loader_thread,
             "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         }
 
@@ -96,10 +106,12 @@ class Compute:
 @dataclass(frozen=True)
 class ComputeConfig:
     """A recipe's ``[compute]`` table: ``precision`` and ``memory_format`` (``auto``: the module
-    docstring's rule) and ``loader_workers``, processes that make batches ahead of the step (0: in
-    the training process, between steps; ``auto``: 0 on a machine of at most 2 cores, where a worker
-    only competes with the network for them and costs a copy of every batch, else 1). None of it is
-    part of a run's identity: a run resumes on another machine with that machine's choice."""
+    docstring's rule), ``loader_workers``, processes that make batches ahead of the step (0: in
+    the training process; ``auto``: 0 on a machine of at most 2 cores, where a worker only competes
+    with the network for them and costs a copy of every batch, else 1) and ``loader_thread``, whether
+    the training process makes them in a thread beside the step rather than between steps (with no
+    worker; ``auto``: ``on``). None of it is part of a run's identity: a run resumes on another machine
+    with that machine's choice."""
 
     precision: Precision = setting("auto", doc="numeric precision of a step (auto: bf16 where native, else fp32)")
     memory_format: MemoryFormat = setting("auto", doc="memory layout of the inputs (auto: contiguous)")
@@ -107,6 +119,9 @@ class ComputeConfig:
         "auto",
         range=(0, MAX_LOADER_WORKERS),
         doc="processes making batches ahead of the step (auto: 0 on <= 2 cores, else 1)",
+    )
+    loader_thread: LoaderThread = setting(
+        "auto", doc="with no loader worker, make batches in a thread beside the step (auto: on)"
     )
 
     def __post_init__(self) -> None:
@@ -120,7 +135,11 @@ class ComputeConfig:
         workers = self.loader_workers
         if workers == "auto":
             workers = 0 if (cores or os.cpu_count() or 1) <= 2 else 1
-        return dataclasses.replace(choose_compute(device, self.precision, self.memory_format), loader_workers=workers)
+        return dataclasses.replace(
+            choose_compute(device, self.precision, self.memory_format),
+            loader_workers=workers,
+            loader_thread=self.loader_thread != "off" and workers == 0,
+        )
 
 
 def choose_compute(

@@ -157,8 +157,15 @@ class EpochLoop:
             )
         for name, module in self.modules.items():
             module.load_state_dict(doc["modules"][name])
-        self.optimizer.load_state_dict(doc["optimizer"])
         self.epoch, self.seconds = int(doc["epoch"]), float(doc["seconds"])
+        if "optimizer" in doc:
+            self.optimizer.load_state_dict(doc["optimizer"])
+        elif not self.finished:
+            raise ValueError(
+                f"{self.path}: field optimizer: expected the optimiser's state of a training to go on "
+                f"(epoch {self.epoch} of {self.epochs}), got none (a finished stage drops it once the next "
+                "stage starts); delete it and the later stages' states to train them again"
+            )
         self.curves = Curves(doc["curves"])
         self._partial = doc.get("partial")
         return self.epoch
@@ -178,6 +185,16 @@ class EpochLoop:
         if partial is not None:
             doc["partial"] = partial
         save_checkpoint(self.path, STATE_KIND, STATE_FORMAT, doc)
+
+    def compact(self) -> None:
+        """Rewrite a finished training's saved state without the optimiser's (Adam's moments, twice
+        the weights' size): for a stage that a later stage follows (the leader only). Its networks,
+        epochs and curves stay; it can no longer be trained on for more epochs."""
+        if not self.team.leader or not os.path.isfile(self.path) or os.path.islink(self.path):
+            return
+        doc = load_checkpoint(self.path, STATE_KIND, STATE_FORMAT)
+        if int(doc["epoch"]) >= self.epochs and "partial" not in doc and doc.pop("optimizer", None) is not None:
+            save_checkpoint(self.path, STATE_KIND, STATE_FORMAT, doc)
 
     @property
     def started(self) -> bool:

@@ -121,6 +121,8 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         fp32_bare = bare_pairs_per_s(cfg, fp32)
         bare = fp32_bare if compute == fp32 else bare_pairs_per_s(cfg, compute)
         end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
+        between = dataclasses.replace(compute, loader_thread=False)  # batches made between steps
+        end_to_end_between = end_to_end if between == compute else end_to_end_pairs_per_s(cfg, between, data, steps)
         infer = {p: inference_steps_per_s(cfg, choose_compute(device, p)) for p in ("fp32", "bf16")}
         moments = moments_ms(cfg)
     m = cfg.model
@@ -133,8 +135,10 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         "precision": compute.precision,
         "memory_format": compute.memory_format,
         "loader_workers": compute.loader_workers,
+        "loader_thread": compute.loader_thread,
         "bare_pairs_per_s": bare,
         "end_to_end_pairs_per_s": end_to_end,
+        "end_to_end_between_steps_pairs_per_s": end_to_end_between,
         "fp32_bare_pairs_per_s": fp32_bare,
         "end_to_end_over_bare": end_to_end / bare,
         "params_per_network": sum(p.numel() for p in VONet(m).parameters()),

@@ -26,7 +26,6 @@ from odolab.learning import EpochLoop, Execution, TrainingData, make_training_da
 from odolab.learning.compute import Compute
 from odolab.learning.distributed import Team
 from odolab.learning.epochs import EpochTracker
-from odolab.learning.loading import prefetched
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Batch, Samples, make_batch, stage_samples
 from odolab.robust_vo.checkpoint import apply_start, init_stages, load_start, resized_start, save_model
@@ -140,7 +139,7 @@ class StageRunner:
             leave=False,
         )
         c = self.compute
-        made = prefetched(parts, StepBatches(self.train, self.cfg.model, stage.geoinv), self.compute.loader_workers)
+        made = c.batches(parts, StepBatches(self.train, self.cfg.model, stage.geoinv))
         for (batch, other), whole in zip(made, batches):
             with c.autocast():
                 pred = predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action)
@@ -169,7 +168,7 @@ class StageRunner:
             for idx in np.array_split(self.val_pairs, max(1, -(-len(self.val_pairs) // 64)))
         ]
         c = self.compute
-        for batch, _ in prefetched(parts, StepBatches(self.val, self.cfg.model, False), self.compute.loader_workers):
+        for batch, _ in self.compute.batches(parts, StepBatches(self.val, self.cfg.model, False)):
             preds.append(predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action).cpu().numpy())
             targets.append(batch.target.cpu().numpy())
             actions.append(batch.action)
@@ -306,6 +305,7 @@ def train_stages(job: dict) -> dict:
     if cfg.init:  # where the networks started: the scaling study counts the start's own training
         status["init"] = {"path": cfg.init, "sha256": init_sha256, "stages": init_stages(cfg.init)}
     finished = True
+    previous: EpochLoop | None = None  # the stage before, compacted once this one has started
     for stage in cfg.stages:
         runner = StageRunner(cfg, stage, train, val, nets, compute, progress, team)
         loop = EpochLoop(
@@ -333,6 +333,9 @@ def train_stages(job: dict) -> dict:
 
             finished = loop.run(runner.train_epoch, runner.validate, deadline=deadline, after_epoch=after)
         status["stages"][stage.name] = _stage_status(loop)
+        if previous is not None and loop.started:
+            previous.compact()
+        previous = loop
         all_rows += loop.curves.rows
         for n in runner.names:
             last_trained[n] = stage.name
