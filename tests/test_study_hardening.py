@@ -121,3 +121,13 @@ def test_a_scale_key_that_is_no_field_is_refused():
         framework.scale_params(config, "ci", e_table.scale_of)
     assert str(exc.value).startswith(f"{base.path}: scales.ci.seed: not a field of this study (expected episodes")
     assert json.dumps(framework.scale_params(base, "ci", e_table.scale_of).seeds) == "[0, 1]"
+
+
+def test_an_out_folder_inside_another_runs_folder_is_refused(ci_run, capsys):
+    inner = ci_run / "results" / "mine"
+    rc, err = _run([*CI, "--out", str(inner)], capsys)
+    assert rc == 2 and err.endswith(
+        f"--out {inner}: lies inside the report folder of study e_table (python -m studies.e_table), "
+        f"{ci_run}; choose a folder outside it"
+    )
+    assert not inner.exists()

@@ -138,10 +138,10 @@ def test_a_loader_thread_runs_ahead_and_stops_with_an_abandoned_iteration():
     assert made == [0, 1, 2]
 
 
-def test_loader_thread_auto_is_on_without_workers_and_off_with_them():
-    assert ComputeConfig().resolve(CPU, cores=2).loader_thread
-    assert not ComputeConfig().resolve(CPU, cores=8).loader_thread  # a worker process makes them
-    assert not ComputeConfig(loader_thread="off").resolve(CPU, cores=2).loader_thread
+def test_a_loader_thread_is_made_only_when_asked_and_only_without_workers():
+    assert not ComputeConfig().resolve(CPU, cores=2).loader_thread
+    assert ComputeConfig(loader_thread="on").resolve(CPU, cores=2).loader_thread
+    assert not ComputeConfig(loader_thread="on").resolve(CPU, cores=8).loader_thread  # a worker process makes them
 
 
 def _toy_run(path, batches_before_kill: int | None, save_every: float) -> dict:
@@ -253,9 +253,14 @@ batch = 4
     assert len(rows) == 1 and rows[0]["config"] == "tiny"
     for key in (
         "bare_pairs_per_s", "end_to_end_pairs_per_s", "fp32_bare_pairs_per_s", "normaliser_moments_ms",
-        "tensor_var_moments_ms",
+        "tensor_var_moments_ms", "end_to_end_between_steps_pairs_per_s", "end_to_end_thread_pairs_per_s",
     ):  # fmt: skip
         assert rows[0][key] > 0
+    chosen = "thread" if rows[0]["loader_thread"] else "between_steps"  # the chosen way is one of the two timed
+    assert (
+        rows[0]["loader_workers"] > 0
+        or rows[0][f"end_to_end_{chosen}_pairs_per_s"] == rows[0]["end_to_end_pairs_per_s"]
+    )
     assert rows[0]["precision"] in ("fp32", "bf16") and rows[0]["memory_format"] == "contiguous"
     assert "end_to_end_pairs_per_s" in capsys.readouterr().out
 

@@ -177,7 +177,13 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
     """:func:`check_output_dir`, and refuse a folder holding files that no odolab run wrote there
     (no ``manifest`` file): a report must not overwrite a user's own files. A symbolic link
     anywhere inside is refused too (odolab writes and deletes nothing through a link), as are
-    pipes and devices: found now, not when the results are written after the whole run."""
+    pipes and devices: found now, not when the results are written after the whole run. A folder
+    inside another run's folder (one of its parents is a command's, :func:`folder_owner`) is
+    refused too: that run owns what lies within it."""
+    for parent in Path(os.path.abspath(path)).parents:
+        owner = folder_owner(parent) if parent.is_dir() else None
+        if owner is not None:
+            raise UsageError(f"{option} {path}: lies inside {owner}, {parent}; choose a folder outside it")
     if path.is_dir() and not (path / manifest).is_file() and any(path.iterdir()):
         if (path / manifest).is_dir():
             raise UsageError(

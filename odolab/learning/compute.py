@@ -110,7 +110,8 @@ class ComputeConfig:
     the training process; ``auto``: 0 on a machine of at most 2 cores, where a worker only competes
     with the network for them and costs a copy of every batch, else 1) and ``loader_thread``, whether
     the training process makes them in a thread beside the step rather than between steps (with no
-    worker; ``auto``: ``on``). None of it is part of a run's identity: a run resumes on another machine
+    worker; ``auto``: ``off``: on 2 cores the thread and the network's step compete for them and
+    it gained nothing in ``python -m odolab.bench --only training``). None of it is part of a run's identity: a run resumes on another machine
     with that machine's choice."""
 
     precision: Precision = setting("auto", doc="numeric precision of a step (auto: bf16 where native, else fp32)")
@@ -121,7 +122,7 @@ class ComputeConfig:
         doc="processes making batches ahead of the step (auto: 0 on <= 2 cores, else 1)",
     )
     loader_thread: LoaderThread = setting(
-        "auto", doc="with no loader worker, make batches in a thread beside the step (auto: on)"
+        "auto", doc="with no loader worker, make batches in a thread beside the step (auto: off)"
     )
 
     def __post_init__(self) -> None:
@@ -138,7 +139,7 @@ class ComputeConfig:
         return dataclasses.replace(
             choose_compute(device, self.precision, self.memory_format),
             loader_workers=workers,
-            loader_thread=self.loader_thread != "off" and workers == 0,
+            loader_thread=self.loader_thread == "on" and workers == 0,
         )
 
 

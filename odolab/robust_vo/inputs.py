@@ -47,12 +47,14 @@ def top_down_projection(
     u = torch.arange(w, dtype=depth.dtype, device=depth.device)
     x = (u - intrinsics.cx) / intrinsics.fx * z
     x_max = max_depth * (intrinsics.cx + 0.5) / intrinsics.fx
-    col = torch.floor((x + x_max) / (2 * x_max) * w).long()
-    row = (h - 1) - torch.floor((z - min_depth) / (max_depth - min_depth) * h).long()
+    col = torch.floor((x + x_max) / (2 * x_max) * w)
+    row = (h - 1) - torch.floor((z - min_depth) / (max_depth - min_depth) * h)
     ok = (z >= min_depth) & (z <= max_depth) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    image = torch.arange(b, device=depth.device)[:, None, None].expand_as(z)
-    flat = (image * h * w + row * w + col)[ok]
-    counts = torch.bincount(flat, minlength=b * h * w).reshape(b, h, w).to(depth.dtype)
+    # each image's cells, and one more where the points outside the grid go (no masked copy)
+    cell = torch.where(ok, row * w + col, float(h * w)).long()
+    image = torch.arange(b, device=depth.device)[:, None, None] * (h * w + 1)
+    counts = torch.bincount((cell + image).flatten(), minlength=b * (h * w + 1)).reshape(b, h * w + 1)
+    counts = counts[:, :-1].reshape(b, h, w).to(depth.dtype)
     return counts / counts.flatten(1).amax(dim=1).clamp_min(1.0)[:, None, None]
 
 

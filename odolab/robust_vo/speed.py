@@ -121,8 +121,11 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         fp32_bare = bare_pairs_per_s(cfg, fp32)
         bare = fp32_bare if compute == fp32 else bare_pairs_per_s(cfg, compute)
         end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
-        between = dataclasses.replace(compute, loader_thread=False)  # batches made between steps
-        end_to_end_between = end_to_end if between == compute else end_to_end_pairs_per_s(cfg, between, data, steps)
+        # the batches made in the training process, between steps and in a thread beside the step
+        ways = {t: dataclasses.replace(compute, loader_workers=0, loader_thread=t) for t in (False, True)}
+        in_process = {
+            t: end_to_end if c == compute else end_to_end_pairs_per_s(cfg, c, data, steps) for t, c in ways.items()
+        }
         infer = {p: inference_steps_per_s(cfg, choose_compute(device, p)) for p in ("fp32", "bf16")}
         moments = moments_ms(cfg)
     m = cfg.model
@@ -138,7 +141,8 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         "loader_thread": compute.loader_thread,
         "bare_pairs_per_s": bare,
         "end_to_end_pairs_per_s": end_to_end,
-        "end_to_end_between_steps_pairs_per_s": end_to_end_between,
+        "end_to_end_between_steps_pairs_per_s": in_process[False],
+        "end_to_end_thread_pairs_per_s": in_process[True],
         "fp32_bare_pairs_per_s": fp32_bare,
         "end_to_end_over_bare": end_to_end / bare,
         "params_per_network": sum(p.numel() for p in VONet(m).parameters()),
