@@ -185,6 +185,8 @@ _OWNER_LINE = "# odolab "
 def manifest_owner(root: Path) -> str | None:
     """The command a manifest's first line names (``# odolab compare``), or None."""
     try:
+        if not Path(root, MANIFEST).is_file():  # a pipe named so would block the read
+            return None
         with open(Path(root, MANIFEST), encoding="utf-8") as f:
             first = f.readline(200).strip()
     except (OSError, UnicodeDecodeError):

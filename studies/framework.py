@@ -465,11 +465,12 @@ def check_out(out: Path, config: StudyConfig, claim: bool = True) -> None:
     """Refuse an ``--out`` folder a study cannot own (a user's files, another command's report,
     links); then, when ``claim`` (the run will go on), make it and mark it as the study's. With
     ``claim`` False only checked: a run that may still be refused writes nothing."""
-    from odolab.cli import UsageError, check_report_dir
+    from odolab.cli import UsageError, check_not_nested, check_report_dir
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import ManifestError, OutputFolder
 
     owner = f"study {config.name}"
+    check_not_nested(out, "--out")  # before a stopped first run's folder is claimed
     if _interrupted_first_run(out):  # results saved, killed before its report: the study's own folder
         if not claim:
             return

@@ -131,3 +131,29 @@ def test_an_out_folder_inside_another_runs_folder_is_refused(ci_run, capsys):
         f"{ci_run}; choose a folder outside it"
     )
     assert not inner.exists()
+
+
+def test_nesting_is_found_through_links_and_before_a_stopped_run_is_claimed(ci_run, tmp_path, capsys):
+    link = tmp_path / "link"
+    link.symlink_to(ci_run / "results")
+    rc, err = _run([*CI, "--out", str(link / "x")], capsys)
+    assert (
+        rc == 2 and "lies inside the report folder of study e_table" in err and not (ci_run / "results" / "x").exists()
+    )
+    stopped = ci_run / "copy"  # what a stopped first run leaves, inside another run's folder
+    shutil.copytree(ci_run / "results", stopped / "results")
+    try:
+        rc, err = _run([*CI, "--out", str(stopped)], capsys)
+        assert rc == 2 and "lies inside" in err and not (stopped / "manifest.txt").exists()
+    finally:
+        shutil.rmtree(stopped)
+
+
+def test_a_pipe_named_manifest_in_a_parent_does_not_block(tmp_path, capsys):
+    import os
+
+    (tmp_path / "p").mkdir()
+    os.mkfifo(tmp_path / "p" / "manifest.txt")
+    from odolab.report import manifest_owner
+
+    assert manifest_owner(tmp_path / "p") is None  # returns, does not wait for a writer

@@ -140,8 +140,10 @@ def test_a_loader_thread_runs_ahead_and_stops_with_an_abandoned_iteration():
 
 def test_a_loader_thread_is_made_only_when_asked_and_only_without_workers():
     assert not ComputeConfig().resolve(CPU, cores=2).loader_thread
-    assert ComputeConfig(loader_thread="on").resolve(CPU, cores=2).loader_thread
-    assert not ComputeConfig(loader_thread="on").resolve(CPU, cores=8).loader_thread  # a worker process makes them
+    on = ComputeConfig(loader_thread="on").resolve(CPU, cores=8)
+    assert on.loader_thread and on.loader_workers == 0  # 'on' means the batches are made in this process
+    with pytest.raises(ValueError, match="expected loader_workers 0 or 'auto' with it, got 2"):
+        ComputeConfig(loader_thread="on", loader_workers=2)
 
 
 def _toy_run(path, batches_before_kill: int | None, save_every: float) -> dict:
@@ -203,6 +205,10 @@ def test_a_compacted_state_keeps_the_networks_not_the_optimiser_and_still_resume
     assert _toy_run(tmp_path / "split.pt", 4, 0.0) == {}
     EpochLoop(tmp_path / "split.pt", {}, torch.optim.Adam(net.parameters()), 1, 3, {"toy": 1}).compact()
     assert "optimizer" in load_checkpoint(tmp_path / "split.pt", STATE_KIND, STATE_FORMAT)  # not finished
+    _toy_run(tmp_path / "split.pt", None, 600.0)
+    (tmp_path / "split.pt").chmod(0o444)  # a read-only finished state is left as it is
+    EpochLoop(tmp_path / "split.pt", {}, torch.optim.Adam(net.parameters()), 1, 3, {"toy": 1}).compact()
+    assert "optimizer" in load_checkpoint(tmp_path / "split.pt", STATE_KIND, STATE_FORMAT)
     doc["epoch"] = 0  # a compacted state cannot train on
     save_checkpoint(tmp_path / "cut.pt", STATE_KIND, STATE_FORMAT, doc)
     with pytest.raises(ValueError, match=r"cut.pt: field optimizer: expected the optimiser's state .*got none"):

@@ -178,12 +178,8 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
     (no ``manifest`` file): a report must not overwrite a user's own files. A symbolic link
     anywhere inside is refused too (odolab writes and deletes nothing through a link), as are
     pipes and devices: found now, not when the results are written after the whole run. A folder
-    inside another run's folder (one of its parents is a command's, :func:`folder_owner`) is
-    refused too: that run owns what lies within it."""
-    for parent in Path(os.path.abspath(path)).parents:
-        owner = folder_owner(parent) if parent.is_dir() else None
-        if owner is not None:
-            raise UsageError(f"{option} {path}: lies inside {owner}, {parent}; choose a folder outside it")
+    inside another run's folder is refused too (:func:`check_not_nested`)."""
+    check_not_nested(path, option)
     if path.is_dir() and not (path / manifest).is_file() and any(path.iterdir()):
         if (path / manifest).is_dir():
             raise UsageError(
@@ -212,6 +208,15 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
                     "(a device, pipe or socket); remove it"
                 )
     check_output_dir(path, option)
+
+
+def check_not_nested(path: Path, option: str) -> None:
+    """:class:`UsageError` when folder ``path`` lies inside another run's folder (one of its real
+    parents, links followed, is a command's: :func:`folder_owner`): that run owns what lies within it."""
+    for parent in Path(os.path.realpath(path)).parents:
+        owner = folder_owner(parent) if parent.is_dir() else None
+        if owner is not None:
+            raise UsageError(f"{option} {path}: lies inside {owner}, {parent}; choose a folder outside it")
 
 
 #: Folders of commands told apart by their manifest's first line (``# odolab compare``), in words.

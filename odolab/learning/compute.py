@@ -109,10 +109,10 @@ class ComputeConfig:
     docstring's rule), ``loader_workers``, processes that make batches ahead of the step (0: in
     the training process; ``auto``: 0 on a machine of at most 2 cores, where a worker only competes
     with the network for them and costs a copy of every batch, else 1) and ``loader_thread``, whether
-    the training process makes them in a thread beside the step rather than between steps (with no
-    worker; ``auto``: ``off``: on 2 cores the thread and the network's step compete for them and
-    it gained nothing in ``python -m odolab.bench --only training``). None of it is part of a run's identity: a run resumes on another machine
-    with that machine's choice."""
+    the training process makes them in a thread beside the step rather than between steps (``on``
+    means no worker; ``auto``: ``off``: on 2 cores the thread and the network's step compete for
+    them and it gained nothing in ``python -m odolab.bench --only training``). None of it is part of
+    a run's identity: a run resumes on another machine with that machine's choice."""
 
     precision: Precision = setting("auto", doc="numeric precision of a step (auto: bf16 where native, else fp32)")
     memory_format: MemoryFormat = setting("auto", doc="memory layout of the inputs (auto: contiguous)")
@@ -127,6 +127,11 @@ class ComputeConfig:
 
     def __post_init__(self) -> None:
         check(self)
+        if self.loader_thread == "on" and self.loader_workers not in ("auto", 0):
+            raise ValueError(
+                f"loader_thread 'on' makes the batches in the training process: expected loader_workers 0 "
+                f"or 'auto' with it, got {self.loader_workers}"
+            )
 
     def resolve(self, device: torch.device, cores: int | None = None) -> Compute:
         """The :class:`Compute` of this config on ``device`` (``cores``: the machine's, by default
@@ -135,11 +140,11 @@ class ComputeConfig:
 
         workers = self.loader_workers
         if workers == "auto":
-            workers = 0 if (cores or os.cpu_count() or 1) <= 2 else 1
+            workers = 0 if self.loader_thread == "on" or (cores or os.cpu_count() or 1) <= 2 else 1
         return dataclasses.replace(
             choose_compute(device, self.precision, self.memory_format),
             loader_workers=workers,
-            loader_thread=self.loader_thread == "on" and workers == 0,
+            loader_thread=self.loader_thread == "on",
         )
 
 

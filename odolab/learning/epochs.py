@@ -189,8 +189,11 @@ class EpochLoop:
     def compact(self) -> None:
         """Rewrite a finished training's saved state without the optimiser's (Adam's moments, twice
         the weights' size): for a stage that a later stage follows (the leader only). Its networks,
-        epochs and curves stay; it can no longer be trained on for more epochs."""
+        epochs and curves stay; it can no longer be trained on for more epochs. A link or a read-only
+        file is left as it is."""
         if not self.team.leader or not os.path.isfile(self.path) or os.path.islink(self.path):
+            return
+        if not os.stat(self.path).st_mode & 0o222:  # a file made read-only is kept as it is
             return
         doc = load_checkpoint(self.path, STATE_KIND, STATE_FORMAT)
         if int(doc["epoch"]) >= self.epochs and "partial" not in doc and doc.pop("optimizer", None) is not None:
