@@ -323,6 +323,8 @@ def test_reports_of_another_recipe_are_named(tmp_path):
     assert other_training(tmp_path, cmd) is None  # nothing there yet
     (tmp_path / "training.json").write_text(json.dumps({"command": cmd.replace("--hours 2", "--quiet")}))
     assert other_training(tmp_path, cmd) is None  # the same recipe, another chunk
+    for longer in ("--set epochs=3", "--set stages.forward.epochs=8", "--set=stages.0.epochs=2"):
+        assert other_training(tmp_path, f"{cmd} {longer}") is None  # the same training, given more epochs
     for other in (
         "python -m baselines.deepvo.train --config studies/deepvo/shipped.toml --set seed=1",
         "python -m odolab.robust_vo.train --config=studies/robust_vo/shipped-341.toml --set seed=1",

@@ -76,7 +76,7 @@ def write_report(
 
 def _recipe_of(command: str) -> tuple[str, tuple[str, ...]] | None:
     """A training command's recipe: its ``--config`` as ``folder/name`` and its ``--set`` changes
-    (but those of :data:`_WHERE_NOT_WHAT`)."""
+    (but those of :data:`_WHERE_NOT_WHAT` and of epochs: more epochs go on with the same training)."""
     import shlex
 
     try:
@@ -93,7 +93,8 @@ def _recipe_of(command: str) -> tuple[str, tuple[str, ...]] | None:
     if config is None:
         return None
     path = Path(config)
-    kept = [c for c in changes if not c.split("=", 1)[0].strip().startswith(_WHERE_NOT_WHAT)]
+    keys = [c.split("=", 1)[0].strip() for c in changes]
+    kept = [c for c, k in zip(changes, keys) if not (k.startswith(_WHERE_NOT_WHAT) or k.split(".")[-1] == "epochs")]
     return f"{path.parent.name}/{path.stem}", tuple(sorted(kept))
 
 
