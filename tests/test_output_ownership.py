@@ -285,3 +285,55 @@ def test_the_deepvo_export_never_replaces_its_training_state_and_saving_never_re
     model = tmp_path / "m.pt"
     save_model(model, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})
     save_model(model, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})  # a model it exported: replaced
+
+
+def test_a_training_keeps_its_work_out_of_other_runs_folders_but_may_keep_it_in_its_own_reports(tmp_path):
+    """--work inside a study's folder, or a folder another command owns, is refused in one line; the
+    states in the training's own --reports folder (the shipped-341 layout) are fine."""
+    pytest.importorskip("torch")
+    from odolab.cli import UsageError
+
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "manifest.txt").write_text("# odolab study ablations\n")
+    with pytest.raises(UsageError, match=r"--work .*: lies inside the report folder of study ablations"):
+        _robust_job(tmp_path, "--work", str(study / "states"))
+    (tmp_path / "reports").mkdir()
+    same = f"python -m odolab.robust_vo.train --config {tmp_path / 'recipe.toml'}"  # this training's summary
+    (tmp_path / "reports" / "training.json").write_text(json.dumps({"command": same, "stages": []}))
+    job = _robust_job(tmp_path, "--work", str(tmp_path / "reports" / "state"))  # its own reports
+    assert job.work == tmp_path / "reports" / "state"
+    with pytest.raises(UsageError, match=r"--work .*: is a comparison report folder"):
+        compare = tmp_path / "compare"
+        compare.mkdir()
+        (compare / "manifest.txt").write_text("# odolab compare\n")
+        _robust_job(tmp_path, "--work", str(compare))
+
+
+def test_a_training_report_folder_is_a_run_folder_for_nesting(tmp_path, capsys):
+    """A compare --out inside a training's --reports folder is refused: the training owns it."""
+    from odolab.cli.compare import main
+
+    reports = tmp_path / "training"
+    reports.mkdir()
+    (reports / "training.json").write_text(json.dumps({"command": "python -m odolab.robust_vo.train", "stages": []}))
+    assert run_cli(main, "compare", ["--out", str(reports / "cmp"), "--episodes", "1"]) == 2
+    assert "lies inside a training's report folder" in capsys.readouterr().err
+    assert not (reports / "cmp").exists()
+
+
+def test_dotdot_after_a_link_is_refused_before_anything_is_made(tmp_path):
+    """``a/link/../z`` would be made beside the link's target, not in ``a``: refused in one line."""
+    from odolab.cli import UsageError, check_output_dir, check_output_file
+
+    (tmp_path / "far" / "target").mkdir(parents=True)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "link").symlink_to(tmp_path / "far" / "target")
+    odd = tmp_path / "a" / "link" / ".." / "z"
+    with pytest.raises(UsageError, match=r"found '\.\.' after the link .*link, which leads to .*far.z"):
+        check_output_dir(odd, "--out")
+    with pytest.raises(UsageError, match=r"'\.\.' after the link"):
+        check_output_file(odd / ".." / "f.json", "--json")
+    assert not (tmp_path / "far" / "z").exists() and not (tmp_path / "a" / "z").exists()
+    check_output_dir(tmp_path / "a" / ".." / "b", "--out")  # '..' after a real folder is fine
+    assert (tmp_path / "b").is_dir()

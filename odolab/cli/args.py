@@ -210,10 +210,14 @@ def check_report_dir(path: Path, option: str, manifest: str = "manifest.txt") ->
     check_output_dir(path, option)
 
 
-def check_not_nested(path: Path, option: str) -> None:
+def check_not_nested(path: Path, option: str, own: Path | None = None) -> None:
     """:class:`UsageError` when folder ``path`` lies inside another run's folder (one of its real
-    parents, links followed, is a command's: :func:`folder_owner`): that run owns what lies within it."""
+    parents, links followed, is a command's: :func:`folder_owner`): that run owns what lies within it.
+    ``own`` is the folder of this same run, which may hold it (a training's states in its reports)."""
+    mine = os.path.realpath(own) if own is not None else None
     for parent in Path(os.path.realpath(path)).parents:
+        if str(parent) == mine:
+            continue
         owner = folder_owner(parent) if parent.is_dir() else None
         if owner is not None:
             raise UsageError(f"{option} {path}: lies inside {owner}, {parent}; choose a folder outside it")
@@ -229,8 +233,8 @@ _OWNERS = {
 def folder_owner(path: Path) -> str | None:
     """Which odolab command's folder ``path`` is, in words ("a navigation results folder (python -m
     odolab.navigate)"), told by the file that command keeps there: a ``manifest.txt`` naming its
-    owner (compare, simcard, a study), navigation's ``config.json`` or the training data's
-    ``dataset.json``; None when it has none of them."""
+    owner (compare, simcard, a study), navigation's ``config.json``, a training's ``training.json``
+    or the training data's ``dataset.json``; None when it has none of them."""
     from odolab.io.inputs import read_input_json
     from odolab.report import manifest_owner
     from odolab.training_data import MANIFEST as DATASET
@@ -243,6 +247,7 @@ def folder_owner(path: Path) -> str | None:
         return _OWNERS.get(said, f"a folder of odolab {said}")
     for name, keys, words in (
         ("config.json", ("format", "episodes"), "a navigation results folder (python -m odolab.navigate)"),
+        ("training.json", ("command", "stages"), "a training's report folder (python -m odolab.<family>.train)"),
         (DATASET, ("format", "shards"), "a training data folder (python -m odolab.training_data)"),
     ):
         try:
@@ -254,9 +259,25 @@ def folder_owner(path: Path) -> str | None:
     return None
 
 
+def check_no_dotdot_after_link(path: Path, option: str) -> None:
+    """:class:`UsageError` when a ``..`` in ``path`` follows a symbolic link: the system takes it to
+    the parent of the link's target, not to the folder holding the link, so ``a/link/../z`` would be
+    written wherever the link points."""
+    parts = Path(path).parts
+    for i, part in enumerate(parts):
+        if part == ".." and i and Path(*parts[:i]).is_symlink():
+            link = Path(*parts[:i])
+            raise UsageError(
+                f"{option} {path}: expected a path whose '..' steps back from a folder, found '..' after "
+                f"the link {link}, which leads to {os.path.realpath(path)}; write the path without '..'"
+            )
+
+
 def check_output_dir(path: Path, option: str) -> None:
     """Create folder ``path`` if needed and prove it writable, or raise :class:`UsageError` naming
-    ``option`` (e.g. a path that is a file, or a read-only location)."""
+    ``option`` (e.g. a path that is a file, or a read-only location, or a ``..`` after a link:
+    :func:`check_no_dotdot_after_link`)."""
+    check_no_dotdot_after_link(path, option)
     if path.is_symlink() and not path.exists():
         raise UsageError(
             f"{option} {path}: is a link to nothing (or a loop of links), not a folder; "
@@ -279,6 +300,7 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
     ``suffixes`` is given, that its extension is one of them; else :class:`UsageError` naming
     ``option``. Nothing is left behind."""
     path = Path(path)
+    check_no_dotdot_after_link(path, option)
     if path.is_symlink() and not path.exists():  # writing through it would create its target anywhere
         raise UsageError(
             f"{option} {path}: is a link to nothing ({os.readlink(path)} does not exist, or a loop of "

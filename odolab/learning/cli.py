@@ -15,11 +15,13 @@ from typing import Any
 from odolab.cli import (
     ArgumentParser,
     UsageError,
+    check_not_nested,
     check_output_dir,
     check_output_file,
     check_ray_option,
     check_report_dir,
     file_arg,
+    folder_owner,
     number,
     path_arg,
     run_cli,
@@ -177,6 +179,10 @@ def parse_training_command(
     other = other_training(reports, " ".join([ap.prog, *(list(argv) if argv is not None else sys.argv[1:])]))
     if other:  # never over another training's reports
         raise UsageError(f"--reports {reports}: {other}; choose another --reports")
+    check_not_nested(work, "--work", own=reports)  # its states may sit in its own --reports
+    owner = folder_owner(work) if work.is_dir() else None
+    if owner is not None:
+        raise UsageError(f"--work {work}: is {owner}; choose another --work")
     check_output_dir(work, "--work")  # made only once every check above has passed
     check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
     check_output_file(export, "--export")
