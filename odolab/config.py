@@ -269,8 +269,11 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
 
     A top-level ``base = "other.toml"`` (relative to this file) starts from that document: tables
     are merged key by key, anything else (numbers, strings, lists such as ``[[stages]]``) replaces
-    the base's value. So a variant of a recipe states only what it changes. A chain of more than
-    :data:`MAX_BASE_CHAIN` bases is refused.
+    the base's value. So a variant of a recipe states only what it changes. Beside ``base``, a
+    top-level ``changes = ["path=value", ...]`` is applied to the merged document in order, as
+    ``--set`` would (:func:`change_document`: ``stages.forward.epochs=3`` changes one entry of an
+    array of tables without restating the array). A chain of more than :data:`MAX_BASE_CHAIN`
+    bases is refused.
     """
     if len(_seen) >= MAX_BASE_CHAIN:
         raise ConfigError(
@@ -287,9 +290,14 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
         raise ConfigError(f"{path}: base {base!r} leads back to itself")
     if not os.path.isfile(base_path):
         raise ConfigError(f"{path}: its base {base!r} is not a file ({base_path})")
+    changes = doc.pop("changes", [])
+    if not isinstance(changes, list) or not all(isinstance(c, str) for c in changes):
+        raise ConfigError(f'{path}: changes: expected a list of "path=value" strings, got {changes!r}')
     merged = read_toml(base_path, (*_seen, os.path.abspath(path)))
     try:
-        return _merge(merged, doc)
+        return change_document(_merge(merged, doc), changes)
+    except ChangeError as exc:
+        raise ConfigError(f"{path}: changes: {exc}") from None
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
 

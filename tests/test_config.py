@@ -65,6 +65,12 @@ def test_built_from_toml_and_key_value_changes(tmp_path):
     child = tmp_path / "child.toml"
     child.write_text('base = "base.toml"\nstride = 8\n')
     assert from_toml(Example, child) == Example(cell=0.1, stride=8)
+    child.write_text('base = "base.toml"\nchanges = ["stride=16", "cell=0.5"]\nstride = 8\n')
+    assert from_toml(Example, child) == Example(cell=0.5, stride=16)  # after the merge, in order
+    for changes, said in (('"stride"', "changes: expected a list"), ('["stride"]', "changes: 'stride': expected path=value")):
+        child.write_text(f'base = "base.toml"\nchanges = {changes}\n')
+        with pytest.raises(ConfigError, match=f"child.toml: {said}"):
+            from_toml(Example, child)
     with pytest.raises(ConfigError, match=r"f: unknown field\(s\) bogus"):
         build(Example, {"bogus": 1}, "f")
     with pytest.raises(ConfigError, match=r"f: stride must be in \[1, 64\], got 0"):
