@@ -188,7 +188,8 @@ class EpochLoop:
 
     def compact(self) -> None:
         """Rewrite a finished training's saved state without the optimiser's (Adam's moments, twice
-        the weights' size): for a stage that a later stage follows (the leader only). Its networks,
+        the weights' size): for a stage that a later stage follows, or the last one once the model is
+        exported (the leader only). Its networks,
         epochs and curves stay; it can no longer be trained on for more epochs. A link or a read-only
         file is left as it is."""
         if not self.team.leader or not os.path.isfile(self.path) or os.path.islink(self.path):

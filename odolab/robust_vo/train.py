@@ -345,6 +345,8 @@ def train_stages(job: dict) -> dict:
         _write_reports(reports, all_rows, status)
         if finished:
             save_model(export, cfg, nets, status)
+    if finished and previous is not None:  # the model is exported: no step reads the last stage's moments
+        previous.compact()
     return {"finished": finished}
 
 
