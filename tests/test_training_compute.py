@@ -254,9 +254,13 @@ batch = 4
         encoding="utf-8",
     )
     out = tmp_path / "bench.json"
-    assert bench.main(["--only", "training", "--recipe", str(recipe), "--json", str(out)]) == 0
+    import torch
+
+    threads = torch.get_num_threads()
+    assert bench.main(["--only", "training", "--recipe", str(recipe), "--json", str(out), "--train-threads", "1"]) == 0
     rows = json.loads(out.read_text())["training"]
     assert len(rows) == 1 and rows[0]["config"] == "tiny"
+    assert rows[0]["threads"] == 1 and torch.get_num_threads() == threads  # restored after the part
     for key in (
         "bare_pairs_per_s", "end_to_end_pairs_per_s", "fp32_bare_pairs_per_s", "normaliser_moments_ms",
         "tensor_var_moments_ms", "end_to_end_between_steps_pairs_per_s", "end_to_end_thread_pairs_per_s",

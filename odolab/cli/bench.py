@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from odolab import bench
-from odolab.cli.args import ArgumentParser, UsageError, check_output_file, file_arg, run_cli
+from odolab.cli.args import ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli
 
 
 def _table(rows: list[dict]) -> str:
@@ -48,6 +48,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         + " and ".join(bench.TRAINING_RECIPES)
         + ")",
     )
+    ap.add_argument(
+        "--train-threads",
+        type=number("--train-threads", int, 1, 256),
+        default=None,
+        metavar="N",
+        help="torch threads for the training part (default: torch's own choice; the ablations "
+        "study's cpu scale trains with 1 per unit)",
+    )
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
     ap.add_argument(
         "--json",
@@ -77,9 +85,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 load_train_config(str(r))
             except ConfigError as exc:
                 raise UsageError(f"--recipe: {exc}") from None
-    elif args.recipe:
+    elif args.recipe or args.train_threads:
+        option = "--recipe" if args.recipe else "--train-threads"
         raise UsageError(
-            f"--recipe chooses what the training part times; --only {' '.join(dict.fromkeys(parts))} does not run it"
+            f"{option} chooses how the training part runs; --only {' '.join(dict.fromkeys(parts))} does not run it"
         )
     if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
         raise UsageError(
@@ -158,7 +167,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(_table([report["evaluate"]]))
         save()
     if "training" in parts:
-        report["training"] = bench.bench_training(recipes)
+        report["training"] = bench.bench_training(recipes, threads=args.train_threads)
         print(
             "\n## Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
             "own epoch end to end; fp32 bare beside the chosen precision)\n"

@@ -135,6 +135,7 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         "base_planes": m.base_planes,
         "batch": cfg.stages[0].batch,
         "device": str(device),
+        "threads": torch.get_num_threads(),
         "precision": compute.precision,
         "memory_format": compute.memory_format,
         "loader_workers": compute.loader_workers,
