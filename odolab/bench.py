@@ -168,20 +168,13 @@ TRAINING_RECIPES = (
 def bench_training(recipes: Sequence[Path], device: str | None = None, threads: int | None = None) -> list[dict]:
     """Training throughput per robust-VO recipe (:mod:`odolab.robust_vo.speed`), with ``threads``
     torch threads (None: torch's own choice; the setting is restored afterwards)."""
-    import torch
-
-    from odolab.learning import pick_device
+    from odolab.learning import pick_device, torch_threads
     from odolab.robust_vo.config import load_train_config
     from odolab.robust_vo.speed import training_speed
 
     dev = pick_device(device)
-    before = torch.get_num_threads()
-    try:
-        if threads is not None:
-            torch.set_num_threads(threads)
+    with torch_threads(threads):
         return [training_speed(load_train_config(str(p)), p.stem, dev) for p in recipes]
-    finally:
-        torch.set_num_threads(before)
 
 
 def _cpu_model() -> str:

@@ -67,7 +67,10 @@ def test_built_from_toml_and_key_value_changes(tmp_path):
     assert from_toml(Example, child) == Example(cell=0.1, stride=8)
     child.write_text('base = "base.toml"\nchanges = ["stride=16", "cell=0.5"]\nstride = 8\n')
     assert from_toml(Example, child) == Example(cell=0.5, stride=16)  # after the merge, in order
-    for changes, said in (('"stride"', "changes: expected a list"), ('["stride"]', "changes: 'stride': expected path=value")):
+    for changes, said in (
+        ('"stride"', "changes: expected a list"),
+        ('["stride"]', "changes: 'stride': expected path=value"),
+    ):
         child.write_text(f'base = "base.toml"\nchanges = {changes}\n')
         with pytest.raises(ConfigError, match=f"child.toml: {said}"):
             from_toml(Example, child)

@@ -428,7 +428,9 @@ def test_absurd_thread_counts_are_refused_not_crashed_on():
 def test_bench_refuses_odometer_options_it_would_ignore():
     one_line_error("odolab.bench", "--only", "evaluate", "--odometers", "icp", words="does not run it")
     one_line_error("odolab.bench", "--only", "evaluate", "--train-threads", "1", words="--train-threads chooses")
-    one_line_error("odolab.bench", "--only", "training", "--train-threads", "0", words="--train-threads must be in [1, 256], got 0")
+    one_line_error(
+        "odolab.bench", "--only", "training", "--train-threads", "0", words="--train-threads must be in [1, 256], got 0"
+    )
     one_line_error("odolab.bench", "--only", "simulator", "--odometer-option", "icp.x=1", words="does not run it")
 
 
