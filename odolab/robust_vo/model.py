@@ -154,15 +154,23 @@ def predict(nets: nn.ModuleDict, cfg: ModelConfig, x: torch.Tensor, actions) -> 
     right, dx and dyaw of the answer negated)."""
     from odolab.api import Action
 
-    out = x.new_zeros((x.shape[0], 3))
     acts = [Action(int(a)) for a in actions]
     index = torch.tensor([a.value - 1 for a in acts], device=x.device)
     flip = torch.tensor([cfg.mirrored(a) for a in acts], device=x.device)
     if flip.any():
         x = torch.where(flip[:, None, None, None], x.flip(-1), x)
-    for name in dict.fromkeys(cfg.model_for(a) for a in acts):
+    names = dict.fromkeys(cfg.model_for(a) for a in acts)
+    if len(names) == 1:  # one network for the batch: no copy of its rows
+        return _unflip(nets[next(iter(names))](x, index).to(x.dtype), flip)  # autocast answers in bf16
+    out = x.new_zeros((x.shape[0], 3))
+    for name in names:
         rows = torch.tensor([k for k, a in enumerate(acts) if cfg.model_for(a) == name], device=x.device)
-        out[rows] = nets[name](x[rows], index[rows]).to(out.dtype)  # autocast answers in bf16
+        out[rows] = nets[name](x[rows], index[rows]).to(out.dtype)
+    return _unflip(out, flip)
+
+
+def _unflip(out: torch.Tensor, flip: torch.Tensor) -> torch.Tensor:
+    """Answers (B, 3) of mirrored inputs (``flip``, B) mirrored back: dx and dyaw negated."""
     if flip.any():
         out = torch.where(flip[:, None], out * out.new_tensor([-1.0, 1.0, -1.0]), out)
     return out

@@ -73,21 +73,31 @@ class RobustVOOdometer(Odometer):
         # SepAct and ActEmbed pick by action, the nominal warp moves by it
         self.needs_action = self.cfg.kind != "unified" or self.cfg.warp != "none"
         self._input_intrinsics: Intrinsics | None = None
+        # an NHWC network runs about 1.3x (170 x 96) to 2x (341 x 192) faster at batch 1 on a CPU
+        self.nets.to(memory_format=torch.channels_last)
         self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its psi)
+        self._sized: list[tuple[np.ndarray, tuple[torch.Tensor, torch.Tensor]]] = []  # the last frames resized
 
     def reset(self, intrinsics: Intrinsics) -> None:
         super().reset(intrinsics)
         self._input_intrinsics = intrinsics.resized(self.cfg.width, self.cfg.height)
         self._last = None
+        self._sized = []
         self._draws = 0
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         return self.step_batch([(prev, cur, action)])[0]
 
     def _resized(self, frame: Frame) -> tuple[torch.Tensor, torch.Tensor]:
-        """A frame's RGB (1, h, w, 3) and depth (1, h, w) at the model's size, as the training data was."""
+        """A frame's RGB (1, h, w, 3) and depth (1, h, w) at the model's size, as the training data was;
+        the last two frames' are kept (a step's current frame is the next step's previous one)."""
+        for pixels, sized in self._sized:
+            if pixels is frame.rgb:
+                return sized
         rgb, depth = resize_frame(frame.rgb, frame.depth, self.cfg.width, self.cfg.height)
-        return torch.from_numpy(rgb)[None], torch.from_numpy(depth)[None]
+        sized = torch.from_numpy(rgb)[None], torch.from_numpy(depth)[None]
+        self._sized = [*self._sized[-1:], (frame.rgb, sized)]
+        return sized
 
     def _frame_channels(self, frame: Frame) -> torch.Tensor:
         """psi of one frame (C, h, w); the previous step's current frame (the same arrays) is not
@@ -132,9 +142,8 @@ class RobustVOOdometer(Odometer):
                 todo.append(k)
         if todo:
             chosen = [pairs[k][2] or Action.MOVE_FORWARD for k in todo]  # a unified model may get no action
-            x = torch.stack([self._pair_channels(pairs[k][0], pairs[k][1], a) for k, a in zip(todo, chosen)]).to(
-                self.device
-            )
+            x = torch.stack([self._pair_channels(pairs[k][0], pairs[k][1], a) for k, a in zip(todo, chosen)])
+            x = x.to(self.device, memory_format=torch.channels_last)
             actions = np.array([a.value for a in chosen])
             with torch.inference_mode():
                 if self.mc_samples:
