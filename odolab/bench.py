@@ -101,6 +101,7 @@ def bench_odometers(
     from odolab.episodes import EpisodeSpec, load_episodes
     from odolab.odometer import load_odometer
     from odolab.parallel import SERIAL
+    from odolab.threads import odometer_threads
 
     eps = load_episodes(
         [EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps) for i in range(episodes)],
@@ -114,6 +115,11 @@ def bench_odometers(
         out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
         if hasattr(odo, "fusion_seconds"):  # a fused odometer: the graph's own share, its inputs excluded
             out[-1]["graph_ms_per_step"] = 1000.0 * odo.fusion_seconds / max(odo.fused_steps, 1)
+        if hasattr(odo, "network_steps_per_s"):  # a learned odometer: its network's pass alone, the limit
+            with odometer_threads(odo):
+                bare = odo.network_steps_per_s()
+            out[-1]["network_steps_per_s"] = bare
+            out[-1]["over_network"] = row.fps / bare
         if after_each is not None:
             after_each()
     return out

@@ -44,3 +44,15 @@ def _true_planar(ep):
     from odolab.api import invert, transform_to_planar
 
     return [transform_to_planar(invert(ep.poses[i]) @ ep.poses[i + 1]) for i in range(len(ep) - 1)]
+
+
+def test_the_odometer_bench_sets_a_learned_odometer_beside_its_network_alone():
+    """``--only odometers`` reports the robust VO's network pass alone (its limit) and the ratio."""
+    from odolab.bench import bench_odometers
+
+    (row,) = bench_odometers(["robust-vo"], episodes=1, max_steps=4)
+    assert row["steps"] > 0 and row["failures"] == 0
+    assert row["network_steps_per_s"] > 0
+    assert row["over_network"] == row["steps_per_s"] / row["network_steps_per_s"]
+    (classical,) = bench_odometers(["action-prior"], episodes=1, max_steps=4)
+    assert "network_steps_per_s" not in classical

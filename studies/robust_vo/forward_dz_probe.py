@@ -1,8 +1,9 @@
 """Probe: what limits the robust VO's forward dz? (README, "The robust VO", issue: dz behind icp)
 
-On the val pairs of the shipped recipe's data (made by its training command), for move_forward:
+On the val pairs of a recipe's data (made by its training command), for move_forward, with the
+shipped model or another of the same input size (``--checkpoint``):
 
-1. ``passes``: the shipped network applied again with the current frame warped by its own answer
+1. ``passes``: the network applied again with the current frame warped by its own answer
    instead of the commanded motion; the motion it then reads beyond the command corrects the answer
    (``T = T_warp inv(T_nominal) T_out``). If the network read only the warp's deviation, a second
    pass would refine dz; if it also reads the scene (how far the wall is, what a collision looks
@@ -11,7 +12,7 @@ On the val pairs of the shipped recipe's data (made by its training command), fo
    and the commanded dz, and take ``dz = 0.25 m - median(warped depth - previous depth)``; then the
    same with dx and dyaw off by Gaussian errors of a given sigma (m and rad), as a network's would be.
 
-    python -m studies.robust_vo.forward_dz_probe --out reports/robust-vo/forward-dz-probe.txt
+    python -m studies.robust_vo.forward_dz_probe --checkpoint reports/robust-vo/shipped/model.pt --out reports/robust-vo/forward-dz-probe.txt
 
 Mean and median absolute errors are in 1e-2 m and 1e-2 rad, as everywhere in the README.
 """
@@ -42,9 +43,9 @@ def _warped_depth(b: dict, T: torch.Tensor, data: TrainingData) -> tuple[torch.T
     return warp_current(rgb[:, 1], depth[:, 1], depth[:, 0], T, data.intrinsics)
 
 
-def passes(data: TrainingData, idx: np.ndarray, n: int) -> list[np.ndarray]:
-    """|error| (P, 3) of the shipped model's answer after each of ``n`` passes."""
-    cfg, nets, _ = load_model(SHIPPED)
+def passes(data: TrainingData, idx: np.ndarray, n: int, checkpoint: Path = SHIPPED) -> list[np.ndarray]:
+    """|error| (P, 3) of the model's answer after each of ``n`` passes."""
+    cfg, nets, _ = load_model(checkpoint)
     undo = np.linalg.inv(nominal_motion(Action.MOVE_FORWARD))
     errors: list[list[np.ndarray]] = [[] for _ in range(n)]
     with torch.no_grad():
@@ -95,14 +96,19 @@ def main(argv: list[str] | None = None) -> int:
         "--config",
         type=path_arg("--config"),
         default=Path("studies/robust_vo/shipped.toml"),
-        help="recipe whose val data is read (made by its training command; the network probed is "
-        "always the shipped model, so the data must be of its size)",
+        help="recipe whose val data is read (made by its training command; of the probed model's input size)",
+    )
+    ap.add_argument(
+        "--checkpoint",
+        type=path_arg("--checkpoint"),
+        default=SHIPPED,
+        help="robust-VO model file to probe (default: the shipped model)",
     )
     ap.add_argument(
         "--passes",
         type=number("--passes", int, 1, 10),
         default=2,
-        help="passes of the shipped network, 1-10 (default 2)",
+        help="passes of the network, 1-10 (default 2)",
     )
     ap.add_argument("--out", type=path_arg("--out"), default=None, help="also write the report to this text file")
     args = ap.parse_args(argv)
@@ -113,13 +119,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = load_train_config(str(args.config))
         data = TrainingData(cfg.data_folder(cfg.val_data))
-        shipped, _, _ = load_model(SHIPPED)
+        model, _, _ = load_model(args.checkpoint)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if (data.config.width, data.config.height) != (shipped.width, shipped.height):
+    if (data.config.width, data.config.height) != (model.width, model.height):
         raise UsageError(
-            f"{args.config}: its val data is {data.config.width} x {data.config.height} px, the shipped "
-            f"model takes {shipped.width} x {shipped.height}"
+            f"{args.config}: its val data is {data.config.width} x {data.config.height} px, the model "
+            f"{args.checkpoint} takes {model.width} x {model.height}"
         )
     idx = data.select([Action.MOVE_FORWARD])
     torch.set_num_threads(1)
@@ -128,9 +134,9 @@ def main(argv: list[str] | None = None) -> int:
         "mean |error| (median) x 1e-2: dx m, dz m, dyaw rad",
         "",
     ]
-    for k, e in enumerate(passes(data, idx, args.passes)):
+    for k, e in enumerate(passes(data, idx, args.passes, args.checkpoint)):
         mean, med = 100 * e.mean(axis=0), 100 * np.median(e, axis=0)
-        lines.append(f"shipped network, pass {k + 1}: " + ", ".join(f"{a:.2f} ({m:.2f})" for a, m in zip(mean, med)))
+        lines.append(f"network, pass {k + 1}: " + ", ".join(f"{a:.2f} ({m:.2f})" for a, m in zip(mean, med)))
     lines.append("")
     for sigma in (0.0, 0.01, 0.02):
         e = 100 * residual(data, idx, sigma)
