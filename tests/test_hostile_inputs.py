@@ -461,7 +461,7 @@ def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
     from odolab.cli.bench import main
 
     out = tmp_path / "b.json"
-    out.write_text('{"old": "a complete earlier run", "parts_pending": []}')
+    out.write_text('{"machine": {"cpus": 2}, "evaluate": {"old": "a complete earlier run"}, "parts_pending": []}')
     seen = []
 
     def odometers(names, options=None, rows=None, after_each=None):  # the 2nd odometer is interrupted
@@ -474,7 +474,7 @@ def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         main(["--only", "odometers", "--only", "evaluate", "--odometers", "action-prior,icp", "--json", str(out)])
     saved = json.loads(out.read_text())
-    assert "old" not in saved and saved == seen[0]
+    assert "evaluate" not in saved and saved == seen[0]
     assert saved["odometers"] == [{"odometer": "action-prior", "steps_per_s": 1.0}]
     assert saved["parts_pending"] == ["odometers", "evaluate"]
 

@@ -337,3 +337,49 @@ def test_dotdot_after_a_link_is_refused_before_anything_is_made(tmp_path):
     assert not (tmp_path / "far" / "z").exists() and not (tmp_path / "a" / "z").exists()
     check_output_dir(tmp_path / "a" / ".." / "b", "--out")  # '..' after a real folder is fine
     assert (tmp_path / "b").is_dir()
+
+
+def test_a_training_work_folder_of_other_files_is_refused_and_a_refusal_makes_no_folder(tmp_path):
+    """--work holding a user's files is refused (its states would be written among them), and a run
+    refused for its --reports or --export leaves no --work folder behind."""
+    pytest.importorskip("torch")
+    from odolab.cli import UsageError
+
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    with pytest.raises(
+        UsageError, match=r"--work .*user: expected a new folder or one of training states .*'notes.txt'"
+    ):
+        _robust_job(tmp_path, "--work", str(user))
+    with pytest.raises(UsageError, match=r"--reports .*user: holds files odolab did not write"):
+        _robust_job(tmp_path, "--work", str(tmp_path / "w" / "deep"), "--reports", str(user))
+    with pytest.raises(UsageError, match=r"--export .*: folder .*nodir does not exist"):
+        _robust_job(tmp_path, "--work", str(tmp_path / "w2"), "--export", str(tmp_path / "nodir" / "m.pt"))
+    assert not (tmp_path / "w").exists() and not (tmp_path / "w2").exists() and not (tmp_path / "reports").exists()
+    states = tmp_path / "states"
+    states.mkdir()
+    (states / "forward.pt").write_bytes(b"")  # a folder of states (and an atomic write's leftover) is fine
+    (states / ".forward.pt.x.tmp").write_bytes(b"")
+    assert _robust_job(tmp_path, "--work", str(states)).work == states
+
+
+def test_an_output_file_of_another_kind_is_never_replaced(tmp_path, capsys):
+    """bench --json replaces only a bench JSON; the forward-dz probe's --out only its own report;
+    both refuse before any work."""
+    pytest.importorskip("torch")
+    from odolab.cli.bench import main as bench_main
+    from studies.robust_vo.forward_dz_probe import main as probe_main
+
+    summary = tmp_path / "training.json"
+    summary.write_text(json.dumps({"command": "x", "stages": {}}))
+    assert run_cli(bench_main, "bench", ["--only", "evaluate", "--json", str(summary)]) == 2
+    assert "expected a new file or a bench JSON file" in _one_line(capsys)
+    assert json.loads(summary.read_text()) == {"command": "x", "stages": {}}
+    model = tmp_path / "model.pt"
+    model.write_bytes(b"\x80weights")
+    assert run_cli(probe_main, "probe", ["--out", str(model)]) == 2
+    assert "expected a new file or an earlier report of this probe" in _one_line(capsys)
+    assert model.read_bytes() == b"\x80weights"
+    assert run_cli(probe_main, "probe", ["--out", "/dev/null"]) == 2
+    assert "is not a regular file" in _one_line(capsys)

@@ -56,3 +56,19 @@ def test_the_odometer_bench_sets_a_learned_odometer_beside_its_network_alone():
     assert row["over_network"] == row["steps_per_s"] / row["network_steps_per_s"]
     (classical,) = bench_odometers(["action-prior"], episodes=1, max_steps=4)
     assert "network_steps_per_s" not in classical
+
+
+def test_a_model_file_with_non_finite_weights_is_refused_naming_the_entry(tmp_path):
+    import torch
+
+    from odolab.learning import CheckpointError
+    from odolab.robust_vo.checkpoint import load_model
+
+    doc = torch.load(SHIPPED, weights_only=True)
+    name = next(iter(doc["networks"]))
+    weights = doc["networks"][name]["encoder.stem.0.weight"].clone()
+    weights.view(-1)[3] = float("nan")
+    doc["networks"][name]["encoder.stem.0.weight"] = weights
+    torch.save(doc, tmp_path / "nan.pt")
+    with pytest.raises(CheckpointError, match=rf"nan.pt: network {name}: encoder.stem.0.weight holds NaN"):
+        load_model(tmp_path / "nan.pt")

@@ -247,7 +247,7 @@ def folder_owner(path: Path) -> str | None:
         return _OWNERS.get(said, f"a folder of odolab {said}")
     for name, keys, words in (
         ("config.json", ("format", "episodes"), "a navigation results folder (python -m odolab.navigate)"),
-        ("training.json", ("command", "stages"), "a training's report folder (python -m odolab.<family>.train)"),
+        ("training.json", ("command", "stages"), "a training's report folder (python -m odolab.robust_vo.train or baselines.deepvo.train)"),
         (DATASET, ("format", "shards"), "a training data folder (python -m odolab.training_data)"),
     ):
         try:
@@ -335,6 +335,24 @@ def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = 
             pass
     except OSError as exc:
         raise UsageError(f"{option} {path}: cannot write in {folder} ({_describe(exc)})") from None
+
+
+def check_replaceable(path: Path, option: str, ours: Callable[[Path], bool], what: str) -> None:
+    """:class:`UsageError` when file ``path`` exists (links followed) and ``ours(path)`` says it is
+    not ``what`` (in words: "a bench JSON file"): a command replaces only a file of its own kind,
+    never a model, a recipe or another command's output given by mistake."""
+    path = Path(path)
+    if not path.is_file():
+        return
+    try:
+        mine = ours(path)
+    except (OSError, ValueError, UnicodeDecodeError):
+        mine = False
+    if not mine:
+        raise UsageError(
+            f"{option} {path}: expected a new file or {what} to replace, found a file of another kind; "
+            f"choose another {option}"
+        )
 
 
 #: Longest error message printed whole; a 20,000-character name a user pasted is not echoed back.

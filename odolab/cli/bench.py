@@ -4,9 +4,18 @@ evaluator and training (:mod:`odolab.bench` times them)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 from odolab import bench
-from odolab.cli.args import ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli
+from odolab.cli.args import (
+    ArgumentParser,
+    UsageError,
+    check_output_file,
+    check_replaceable,
+    file_arg,
+    number,
+    run_cli,
+)
 
 
 def _table(rows: list[dict]) -> str:
@@ -74,6 +83,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.json is not None:
         check_output_file(args.json, "--json", [".json"])
+        check_replaceable(args.json, "--json", _bench_json, "a bench JSON file (python -m odolab.bench --json)")
     parts = args.only or ["simulator", "odometers", "navigation", "evaluate", "training"]
     recipes = args.recipe or bench.default_recipes()
     if "training" in parts:
@@ -175,6 +185,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(_table(report["training"]))
         save()
     return 0
+
+
+def _bench_json(path: Path) -> bool:
+    """Whether ``path`` holds what ``--json`` writes: an object with the machine and timed parts only."""
+    import json
+
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    parts = {"machine", "parts_pending", "simulator", "episodes", "odometers", "navigation", "evaluate", "training"}
+    return isinstance(doc, dict) and "machine" in doc and set(doc) <= parts
 
 
 if __name__ == "__main__":

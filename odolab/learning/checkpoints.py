@@ -184,11 +184,15 @@ def load_model(
         for name, net in nets.items():
             net.load_state_dict(doc["networks"][name])
             net.eval()
+            for key, value in net.state_dict().items():
+                if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                    raise CheckpointError(f"{path}: network {name}: {key} holds NaN or infinite values")
     except CheckpointError:
         raise
     except (KeyError, TypeError, RuntimeError, ValueError) as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise CheckpointError(f"{path}: the weights do not fit the {kind} config ({first})") from None
+        lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()] or [type(exc).__name__]
+        said = " ".join(lines[:2]) if lines[0].endswith(":") and len(lines) > 1 else lines[0]
+        raise CheckpointError(f"{path}: the weights do not fit the {kind} config ({said})") from None
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()  # which weights, for results kept per model
     return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {}), "sha256": digest}
 

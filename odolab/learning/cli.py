@@ -183,8 +183,11 @@ def parse_training_command(
     owner = folder_owner(work) if work.is_dir() else None
     if owner is not None:
         raise UsageError(f"--work {work}: is {owner}; choose another --work")
-    check_output_dir(work, "--work")  # made only once every check above has passed
+    _check_work_files(work)
+    if not export.parent.is_dir() and not any(_same_path(export.parent, p) for p in (work, reports)):
+        check_output_file(export, "--export")  # its folder is missing: refused before any folder is made
     check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
+    check_output_dir(work, "--work")  # made only once every check above has passed
     check_output_file(export, "--export")
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -205,6 +208,21 @@ def parse_training_command(
 
 #: The files a training writes under ``--reports`` (odolab.learning.validation).
 REPORT_FILES = ("training.json", "curves.csv", "curves.png")
+
+
+def _check_work_files(work: Path) -> None:
+    """:class:`UsageError` when folder ``work`` holds anything but training states and models
+    (``.pt`` files), a training's reports (:data:`REPORT_FILES`) and hidden files (an atomic write's
+    temporary file): the states are written there, never into a folder of the user's files."""
+    if not work.is_dir():
+        return
+    for entry in sorted(work.iterdir()):
+        ours = entry.name.startswith(".") or entry.name in REPORT_FILES or entry.suffix == ".pt"
+        if not (ours and entry.is_file()):
+            raise UsageError(
+                f"--work {work}: expected a new folder or one of training states (.pt files), found "
+                f"{entry.name!r}; choose a new or empty --work"
+            )
 
 
 def _same_path(a: Path, b: Path) -> bool:

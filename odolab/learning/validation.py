@@ -115,5 +115,6 @@ def other_training(reports: Path, command: str) -> str | None:
         return f"{path}: not a readable training summary"
     recorded = status.get("command") if isinstance(status, dict) else None
     if not isinstance(recorded, str) or _recipe_of(recorded) != _recipe_of(command):
-        return f"{path} is the summary of another training ({str(recorded)[:120]!r})"
+        shown = str(recorded) if len(str(recorded)) <= 120 else str(recorded)[:120] + "..."
+        return f"{path} is the summary of another training ({shown!r})"
     return None

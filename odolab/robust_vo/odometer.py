@@ -112,6 +112,7 @@ class RobustVOOdometer(Odometer):
             if pixels is frame.rgb:
                 return sized
         rgb, depth = resize_frame(frame.rgb, frame.depth, self.cfg.width, self.cfg.height)
+        rgb, depth = (a if a.flags.writeable else a.copy() for a in (rgb, depth))  # torch wants writable arrays
         sized = torch.from_numpy(rgb)[None], torch.from_numpy(depth)[None]
         self._sized = [*self._sized[-1:], (frame.rgb, sized)]
         return sized

@@ -88,8 +88,14 @@ def residual(data: TrainingData, idx: np.ndarray, sigma: float, seed: int = 0) -
     return np.concatenate(out)
 
 
+def _is_report(path: Path) -> bool:
+    """Whether ``path`` holds a report this probe wrote (its first line)."""
+    with open(path, encoding="utf-8") as f:
+        return f.readline().startswith("move_forward val pairs: ")
+
+
 def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, check_output_dir, number, path_arg
+    from odolab.cli import ArgumentParser, UsageError, check_output_file, check_replaceable, number, path_arg
 
     ap = ArgumentParser(prog="python -m studies.robust_vo.forward_dz_probe", description=__doc__.split("\n")[0])
     ap.add_argument(
@@ -112,14 +118,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--out", type=path_arg("--out"), default=None, help="also write the report to this text file")
     args = ap.parse_args(argv)
-    if args.out is not None:  # found now, not after the work
-        if args.out.is_dir():
-            raise UsageError(f"--out {args.out}: is a folder; give a file name")
-        check_output_dir(args.out.parent, "--out's folder")
+    if args.out is not None:  # found now, not after the work; only an earlier report is replaced
+        check_output_file(args.out, "--out")
+        check_replaceable(args.out, "--out", _is_report, "an earlier report of this probe")
     try:
+        model, _, _ = load_model(args.checkpoint)  # before the data: its size is what they must have
         cfg = load_train_config(str(args.config))
         data = TrainingData(cfg.data_folder(cfg.val_data))
-        model, _, _ = load_model(args.checkpoint)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if (data.config.width, data.config.height) != (model.width, model.height):
