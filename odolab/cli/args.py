@@ -247,7 +247,11 @@ def folder_owner(path: Path) -> str | None:
         return _OWNERS.get(said, f"a folder of odolab {said}")
     for name, keys, words in (
         ("config.json", ("format", "episodes"), "a navigation results folder (python -m odolab.navigate)"),
-        ("training.json", ("command", "stages"), "a training's report folder (python -m odolab.robust_vo.train or baselines.deepvo.train)"),
+        (
+            "training.json",
+            ("command", "stages"),
+            "a training's report folder (python -m odolab.robust_vo.train or baselines.deepvo.train)",
+        ),
         (DATASET, ("format", "shards"), "a training data folder (python -m odolab.training_data)"),
     ):
         try:
