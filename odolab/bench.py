@@ -174,9 +174,10 @@ TRAINING_RECIPES = (
 def bench_training(recipes: Sequence[Path], device: str | None = None, threads: int | None = None) -> list[dict]:
     """Training throughput per robust-VO recipe (:mod:`odolab.robust_vo.speed`), with ``threads``
     torch threads (None: torch's own choice; the setting is restored afterwards)."""
-    from odolab.learning import pick_device, torch_threads
+    from odolab.learning import pick_device
     from odolab.robust_vo.config import load_train_config
     from odolab.robust_vo.speed import training_speed
+    from odolab.threads import torch_threads
 
     dev = pick_device(device)
     with torch_threads(threads):

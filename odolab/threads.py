@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from odolab.odometer import Odometer
 from odolab.options import whole_number
 
-__all__ = ["MAX_THREADS", "check_threads", "odometer_threads"]
+__all__ = ["MAX_THREADS", "check_threads", "odometer_threads", "torch_threads"]
 
 #: The most torch threads an odometer may ask for (far above any core count here; torch itself
 #: crashes the process on absurd values such as 100000).
@@ -33,9 +33,9 @@ def check_threads(value: object) -> int:
 
 
 @contextlib.contextmanager
-def odometer_threads(odometer: Odometer) -> Iterator[None]:
-    """Apply ``odometer.threads`` (an int >= 1, or None = leave as is) to torch's pool for the block."""
-    threads = odometer.threads
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """Run the block with ``threads`` torch threads (an int >= 1, or None = leave as is), restoring
+    the setting afterwards; nothing to do where torch was never imported."""
     torch = sys.modules.get("torch")
     if threads is None or torch is None:
         yield
@@ -46,3 +46,8 @@ def odometer_threads(odometer: Odometer) -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(before)
+
+
+def odometer_threads(odometer: Odometer) -> contextlib.AbstractContextManager[None]:
+    """Apply ``odometer.threads`` to torch's pool for the block (:func:`torch_threads`)."""
+    return torch_threads(odometer.threads)

@@ -11,7 +11,7 @@ from odolab.learning.checkpoints import CheckpointError, load_checkpoint, load_i
 from odolab.learning.compute import Compute, ComputeConfig, choose_compute
 from odolab.learning.configs import ConfigError, check, describe, from_toml, read_toml, setting
 from odolab.learning.curves import Curves
-from odolab.learning.device import pick_device, torch_threads
+from odolab.learning.device import pick_device
 from odolab.learning.epochs import EpochLoop, StopRequested, require_finite
 from odolab.learning.loading import prefetched
 from odolab.parallel import SERIAL, Execution
@@ -43,5 +43,4 @@ __all__ = [
     "resize_frame",
     "save_checkpoint",
     "setting",
-    "torch_threads",
 ]

@@ -89,18 +89,12 @@ class RobustVOOdometer(Odometer):
         """Steps per second of the forward network's pass alone at batch 1, as :meth:`step` runs it
         (layout, device; the caller's torch threads), on a random input: the limit of the step's
         rate. Median of ``calls`` timed calls after two untimed ones."""
-        import time
+        from odolab.robust_vo.speed import calls_per_s
 
         x = torch.rand(1, self.cfg.input_channels, self.cfg.height, self.cfg.width)
         x = x.to(self.device, memory_format=torch.channels_last)
         actions = np.array([Action.MOVE_FORWARD.value])
-        times = []
-        with torch.inference_mode():
-            for _ in range(calls + 2):
-                started = time.perf_counter()
-                predict(self.nets, self.cfg, x, actions)
-                times.append(time.perf_counter() - started)
-        return 1.0 / float(np.median(times[2:]))
+        return calls_per_s(lambda: predict(self.nets, self.cfg, x, actions), calls)
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         return self.step_batch([(prev, cur, action)])[0]

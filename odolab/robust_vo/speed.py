@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -57,14 +58,26 @@ def inference_steps_per_s(cfg: TrainConfig, compute: Compute, steps: int = 20) -
     torch.manual_seed(0)
     net = compute.prepare(VONet(cfg.model)).eval()
     x = torch.rand(1, cfg.model.input_channels, cfg.model.height, cfg.model.width)
-    times = []
+
+    def forward() -> None:
+        with compute.autocast():
+            net(compute.inputs(x))
+
+    return calls_per_s(forward, steps)
+
+
+def calls_per_s(call: Callable[[], object], calls: int = 20, warmup: int = 2) -> float:
+    """Calls per second of ``call()`` under ``torch.inference_mode``: the median of ``calls`` timed
+    calls after ``warmup`` untimed ones."""
     with torch.inference_mode():
-        for _ in range(steps + 2):
+        for _ in range(warmup):
+            call()
+        times = []
+        for _ in range(calls):
             started = time.perf_counter()
-            with compute.autocast():
-                net(compute.inputs(x))
+            call()
             times.append(time.perf_counter() - started)
-    return 1.0 / float(np.median(times[2:]))
+    return 1.0 / float(np.median(times))
 
 
 def moments_ms(cfg: TrainConfig, repeats: int = 5) -> dict[str, float]:
