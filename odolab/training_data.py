@@ -167,12 +167,16 @@ class DataConfig:
         """The camera of the stored (resized) frames."""
         return CameraSpec().intrinsics.resized(self.width, self.height)
 
-    def require_size(self, width: int, height: int) -> None:
-        """``ValueError`` unless the frames are ``width`` x ``height`` px (what a model takes)."""
-        if (self.width, self.height) != (width, height):
-            raise ValueError(
-                f"{self.split} data is {self.width} x {self.height} px but the model takes {width} x {height}"
-            )
+    def require_size(self, width: int, height: int, resized: bool = False) -> None:
+        """``ValueError`` unless the frames are ``width`` x ``height`` px (what a model takes); with
+        ``resized``, frames at least that large also do (the trainer resizes them on load with
+        :func:`resize_frame`, as the odometer resizes the camera's frames)."""
+        if (self.width, self.height) == (width, height):
+            return
+        if resized and self.width >= width and self.height >= height:
+            return
+        wanted = f"at least {width} x {height}" if resized else f"{width} x {height}"
+        raise ValueError(f"{self.split} data is {self.width} x {self.height} px but the model takes {wanted}")
 
     def folder(self, root: str | os.PathLike) -> Path:
         """The conventional folder of this data under ``root``:
@@ -397,15 +401,18 @@ class TrainingData:
         shard = np.searchsorted(self._start, frame_indices, side="right") - 1
         return shard, frame_indices - self._start[shard]
 
-    def frames(self, frame_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """RGB (N, h, w, 3) uint8 and depth (N, h, w) float32 metres of global frames, in order."""
+    def frames(self, frame_indices: np.ndarray, size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """RGB (N, h, w, 3) uint8 and depth (N, h, w) float32 metres of global frames, in order; with
+        ``size`` = (w, h), each frame resized to it by :func:`resize_frame` (None: as stored)."""
         frame_indices = np.asarray(frame_indices, np.int64).ravel()
-        rgb = np.empty((len(frame_indices), self.config.height, self.config.width, 3), np.uint8)
-        depth = np.empty((len(frame_indices), self.config.height, self.config.width), np.float32)
+        w, h = size or (self.config.width, self.config.height)
+        rgb = np.empty((len(frame_indices), h, w, 3), np.uint8)
+        depth = np.empty((len(frame_indices), h, w), np.float32)
         for k, (s, row) in enumerate(zip(*self._locate(frame_indices))):
             m = self._shard(int(s))
-            rgb[k] = m["rgb"].read(int(row))
-            depth[k] = m["depth_mm"].read(int(row)) * np.float32(0.001)
+            rgb[k], depth[k] = resize_frame(
+                m["rgb"].read(int(row)), m["depth_mm"].read(int(row)) * np.float32(0.001), w, h
+            )
         return rgb, depth
 
     def prefetch(self, frame_indices: np.ndarray) -> None:

@@ -96,6 +96,28 @@ def test_a_tiny_deepvo_learns_its_batch(recipe):
     assert losses[-1] < 0.2 * losses[0]
 
 
+def test_a_model_smaller_than_its_data_trains_on_frames_resized_as_the_odometer_resizes(recipe):
+    """A recipe may take data larger than its model: the windows' frames are the stored frames
+    through resize_frame (what the odometer applies to the camera's frames); a smaller data set, or
+    any other size for the robust VO's exact-size check, is refused with both sizes named."""
+    from odolab.learning import resize_frame
+
+    data = TrainingData(recipe.data_folder(recipe.train_data))
+    small = dataclasses.replace(recipe.model, width=W // 2, height=H // 2)
+    starts = data.windows(4)[:3]
+    x, _, _ = trainer.window_batch(data, starts, 4, small)
+    frames = data.pairs[starts][:, None] + np.arange(4)[None]
+    rgb, depth = data.frames(frames.ravel())
+    want = np.stack([resize_frame(c, d, W // 2, H // 2)[0] for c, d in zip(rgb, depth)])
+    assert x.shape == (3, 4, 3, H // 2, W // 2)
+    assert torch.equal(x.reshape(-1, 3, H // 2, W // 2), torch.from_numpy(want).movedim(-1, 1) / 255.0 - 0.5)
+    assert dataclasses.replace(recipe, model=small).model.width == W // 2  # accepted
+    with pytest.raises(ValueError, match=f"train data is {W} x {H} px but the model takes at least {2 * W} x"):
+        dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, width=2 * W))
+    with pytest.raises(ValueError, match=f"data is {W} x {H} px but the model takes {W // 2} x {H // 2}$"):
+        recipe.train_data.require_size(W // 2, H // 2)
+
+
 def test_the_lstm_state_carries_across_steps_and_reset_clears_it(trained, recipe):
     from odolab.episodes import render_episode
 

@@ -75,7 +75,7 @@ class DeepVOTraining(RecipeConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        self.require_data_size(self.model.width, self.model.height)
+        self.require_data_size(self.model.width, self.model.height, resized=True)
 
 
 def load_training(path: str, changes: Sequence[str] = ()) -> DeepVOTraining:

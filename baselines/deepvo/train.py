@@ -45,7 +45,7 @@ def window_batch(
     """Frames (B, window, C, H, W), true (dx, dz, dyaw) (B, window - 1, 3) and actions (B, window - 1)
     of the windows starting at pair indices ``starts`` (from :meth:`TrainingData.windows`)."""
     frames = data.pairs[starts][:, None] + np.arange(window)[None]
-    rgb, depth = data.frames(frames.ravel())
+    rgb, depth = data.frames(frames.ravel(), (cfg.width, cfg.height))
     x = frame_tensor(rgb, depth, cfg)
     x = x.reshape(len(starts), window, *x.shape[1:])
     pairs = starts[:, None] + np.arange(window - 1)[None]

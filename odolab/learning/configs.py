@@ -48,10 +48,11 @@ class RecipeConfig:
         if not self.data_root.strip():
             raise ValueError(f"recipe: data_root must name a folder, got {self.data_root!r}")
 
-    def require_data_size(self, width: int, height: int) -> None:
-        """``ValueError`` unless both data sets hold frames of the model's ``width`` x ``height``."""
+    def require_data_size(self, width: int, height: int, resized: bool = False) -> None:
+        """``ValueError`` unless both data sets hold frames of the model's ``width`` x ``height``
+        (with ``resized``: at least that large, resized on load; :meth:`DataConfig.require_size`)."""
         for data in (self.train_data, self.val_data):
-            data.require_size(width, height)
+            data.require_size(width, height, resized)
 
     def data_folder(self, data: DataConfig) -> str:
         """Where a data set lives (:meth:`DataConfig.folder` under ``data_root``; recipes of the
