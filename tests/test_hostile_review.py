@@ -592,3 +592,40 @@ def test_a_trainer_refuses_the_reports_of_another_training(tmp_path):
         json.dumps({"command": f"python -m odolab.robust_vo.train --config {tmp_path / 'recipe.toml'} --quiet"})
     )
     assert _job(tmp_path, "--set", f"data_root={tmp_path / 'd'}").reports == reports  # the same recipe, elsewhere
+
+
+def test_sigterm_ends_a_command_after_its_clean_up(tmp_path):
+    """SIGTERM (what `kill` and job schedulers send) ends a command like Ctrl-C, exit 143 after its
+    `with` blocks ran: the training bench's temporary data folder is removed, not left in the
+    system's temporary folder."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(
+        'base = "' + str(Path("studies/robust_vo/shipped.toml").resolve()) + '"\n'
+        "[model]\nwidth = 48\nheight = 32\n[train_data]\nwidth = 48\nheight = 32\n"
+        "[val_data]\nwidth = 48\nheight = 32\nmax_steps = 400\n"
+    )
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "odolab.bench", "--only", "training", "--recipe", str(recipe)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not list(tmp.glob("odolab-bench-*")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert list(tmp.glob("odolab-bench-*")), "the bench never made its temporary folder"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert "python -m odolab.bench: terminated" in err
+    assert not list(tmp.glob("odolab-bench-*"))

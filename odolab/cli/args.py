@@ -11,8 +11,10 @@ import argparse
 import math
 import os
 import re
+import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
@@ -371,19 +373,37 @@ def _capped(text: str) -> str:
     return f"{text[:MAX_ERROR_CHARS]}... ({len(text) - MAX_ERROR_CHARS} more characters)"
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread (:func:`run_cli`) so that ``with`` blocks and ``finally``
+    clauses run: temporary folders are removed, a partial file is not left behind."""
+
+
+def _terminated(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
 def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv: Sequence[str] | None = None) -> int:
-    """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2."""
+    """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2.
+    Ctrl-C exits 130 and SIGTERM 143 (the shell's codes), each after the command's clean-up."""
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if in_main else None
     try:
         return int(main(argv) or 0)
     except (UsageError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
         print(f"{prog}: error: {_capped(str(exc))}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"{prog}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # the reader of stdout went away (``... | head -1``): no traceback
         quiet_broken_pipe()
         return 141  # what a shell reports for a command ended by SIGPIPE
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def quiet_broken_pipe() -> None:
