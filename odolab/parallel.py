@@ -9,7 +9,9 @@ import contextlib
 import logging
 import os
 import re
+import signal
 import socket
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -125,6 +127,23 @@ def _errors_only(record: logging.LogRecord) -> bool:
 
 
 @contextlib.contextmanager
+def _signal_handlers_kept() -> Iterator[None]:
+    """Put back this process's SIGINT and SIGTERM handlers after the block: ``ray.init`` replaces
+    SIGTERM's with one that exits at once, so a command's own handling (clean-up, exit 143,
+    :func:`odolab.cli.run_cli`) would be lost for the rest of the run."""
+    if threading.current_thread() is not threading.main_thread():  # only the main thread has handlers
+        yield
+        return
+    kept = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in kept.items():
+            if handler is not None:  # None: set outside Python, cannot be put back
+                signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
 def _token_notices_hidden(local: bool, quiet: bool) -> Iterator[None]:
     """Hide Ray's token-authentication notices while a Ray instance starts, when it is a local
     instance odolab starts for itself (the user started no cluster, so the notice is noise) or the
@@ -143,7 +162,8 @@ def _token_notices_hidden(local: bool, quiet: bool) -> Iterator[None]:
 def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool = False) -> bool:
     """Connect to the cluster at ``ray_address`` (None: the one ``RAY_ADDRESS`` names, if any; either
     checked first, :func:`check_ray_address`) or start a local instance, unless Ray is already running
-    in this process; returns whether it started it (the caller then shuts it down)."""
+    in this process; returns whether it started it (the caller then shuts it down). This process's
+    signal handlers stay as they were."""
     import ray
 
     if ray.is_initialized():
@@ -152,7 +172,8 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
         check_ray_address(ray_address)
     else:  # ray.init() would connect to RAY_ADDRESS: a dead one hangs it, a malformed one is a traceback
         check_environment_ray_address()
-    with _token_notices_hidden(local=ray_address is None and not os.environ.get(RAY_ADDRESS), quiet=quiet):
+    local = ray_address is None and not os.environ.get(RAY_ADDRESS)
+    with _signal_handlers_kept(), _token_notices_hidden(local=local, quiet=quiet):
         ray.init(address=ray_address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
     return True
 

@@ -629,3 +629,51 @@ def test_sigterm_ends_a_command_after_its_clean_up(tmp_path):
     assert proc.returncode == 143, err
     assert "python -m odolab.bench: terminated" in err
     assert not list(tmp.glob("odolab-bench-*"))
+
+
+def test_starting_ray_keeps_the_commands_signal_handlers(monkeypatch):
+    """ray.init() puts in a SIGTERM handler of its own that exits at once; start_ray puts the
+    command's back, so SIGTERM still ends a command that fans out on Ray after its clean-up (143)."""
+    import signal
+
+    import ray
+
+    from odolab.parallel import start_ray
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+
+    def mine(signum, frame):  # pragma: no cover - never called
+        raise AssertionError
+
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        started = start_ray(None, quiet=True)
+        try:
+            assert started, "Ray was already running in the test process"
+            assert signal.getsignal(signal.SIGTERM) is mine
+        finally:
+            if started:
+                ray.shutdown()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_sigterm_is_reported_as_such_when_a_library_re_raises_it_as_ctrl_c(capsys):
+    """Ray turns any exception raised by a signal handler during ray.get/ray.wait into a bare
+    KeyboardInterrupt; run_cli still knows SIGTERM came and answers 143, "terminated"."""
+    import os
+    import signal
+    import time
+
+    from odolab.cli import run_cli
+
+    def main(argv):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(10)  # the handler raises in here
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt() from None  # what Ray's check_signals does with it
+
+    assert run_cli(main, "prog", []) == 143
+    assert "prog: terminated" in capsys.readouterr().err
+    assert run_cli(lambda argv: (_ for _ in ()).throw(KeyboardInterrupt()), "prog", []) == 130

@@ -378,24 +378,26 @@ class Terminated(KeyboardInterrupt):
     clauses run: temporary folders are removed, a partial file is not left behind."""
 
 
-def _terminated(signum: int, frame: object) -> None:
-    raise Terminated()
-
-
 def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv: Sequence[str] | None = None) -> int:
     """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2.
     Ctrl-C exits 130 and SIGTERM 143 (the shell's codes), each after the command's clean-up."""
     in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _terminated) if in_main else None
+    terminated: list[int] = []  # the SIGTERMs received: Ray re-raises the handler's exception as a bare Ctrl-C
+
+    def on_sigterm(signum: int, frame: object) -> None:
+        terminated.append(signum)
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, on_sigterm) if in_main else None
     try:
         return int(main(argv) or 0)
     except (UsageError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
         print(f"{prog}: error: {_capped(str(exc))}", file=sys.stderr)
         return 2
-    except Terminated:
-        print(f"{prog}: terminated", file=sys.stderr)
-        return 143
     except KeyboardInterrupt:
+        if terminated:
+            print(f"{prog}: terminated", file=sys.stderr)
+            return 143
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # the reader of stdout went away (``... | head -1``): no traceback
