@@ -259,6 +259,18 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
         )
 
 
+def test_the_command_refuses_a_start_of_another_shape_before_making_its_folders(trained, tmp_path):
+    """A recipe whose ``init`` cannot start it is refused by the command in one line naming both
+    values, before its --work and --reports are made."""
+    from odolab.cli import UsageError
+
+    work, reports = tmp_path / "w", tmp_path / "r"
+    argv = ["--config", "studies/deepvo/shipped.toml", "--set", f"init={trained / 'model.pt'}"]
+    with pytest.raises(UsageError, match=r"differs from this recipe's in width \(48 there, 170 here\)"):
+        trainer.main([*argv, "--work", str(work), "--reports", str(reports), "--quiet"])
+    assert not work.exists() and not reports.exists()
+
+
 @pytest.mark.parametrize("gain", ["depth", "actions"])
 def test_a_model_gains_an_input_and_answers_alike(trained, recipe, tmp_path, gain):
     """``init`` may gain the depth input or the action input (zero weights on the new inputs: the

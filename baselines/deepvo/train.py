@@ -106,7 +106,10 @@ def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
     if refused:
         lost = [name for name in refused if name in GAINABLE]
         raise ValueError(
-            f"init = {cfg.init!r}: its model differs from this recipe's in {', '.join(refused)}"
+            f"init = {cfg.init!r}: its model differs from this recipe's in "
+            + ", ".join(
+                f"{name} ({getattr(model, name)!r} there, {getattr(cfg.model, name)!r} here)" for name in refused
+            )
             + (f" (a start may gain {' or '.join(GAINABLE)}, not lose it)" if lost else "")
         )
     state = dict(first.state_dict())
@@ -286,6 +289,7 @@ def main(argv: list[str] | None = None) -> int:
         load_config=load_training,
         run=run,
         state_files=state_files,
+        check_start=first_stage,
     )
 
 

@@ -127,6 +127,9 @@ def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
 
 #: What keeps a training state -> its file, given the recipe and ``--work``.
 StateFiles = Callable[[Any, Path], dict[str, Path]]
+#: A check of the model a recipe starts from (its ``init``), given the recipe and ``--export``:
+#: ``ValueError`` when it cannot start this recipe.
+StartCheck = Callable[[Any, Path], object]
 
 
 def stage_states(config: Any, work: Path) -> dict[str, Path]:
@@ -140,12 +143,13 @@ def parse_training_command(
     argv: Sequence[str] | None,
     load_config: Callable[[str, Sequence[str]], Any],
     state_files: StateFiles | None = None,
+    check_start: StartCheck | None = None,
 ) -> TrainingJob:
     """Parse, read the recipe with ``load_config(path, --set changes)`` (its ``ValueError`` becomes a
-    usage error), pick
-    the device, set the thread count and check every output path before any work: ``--export``
-    must not be the recipe, a training state (``state_files``, default :func:`stage_states`) or a
-    file that is not a model odolab exported."""
+    usage error), pick the device, set the thread count and check every output path and the model
+    the recipe starts from (``check_start``) before any folder is made: ``--export`` must not be the
+    recipe, a training state (``state_files``, default :func:`stage_states`) or a file that is not
+    a model odolab exported."""
     import torch
 
     from odolab.learning.checkpoints import check_export
@@ -176,6 +180,11 @@ def parse_training_command(
         check_export(export, args.config, (state_files or stage_states)(config, work), kind=f"odolab-{args.family}")
     except ValueError as exc:
         raise UsageError(str(exc) if args.export else f"{exc} (the default --export is <work>/model.pt)") from None
+    if check_start is not None and getattr(config, "init", ""):
+        try:
+            check_start(config, export)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     other = other_training(reports, " ".join([ap.prog, *(list(argv) if argv is not None else sys.argv[1:])]))
     if other:  # never over another training's reports
         raise UsageError(f"--reports {reports}: {other}; choose another --reports")
@@ -315,13 +324,14 @@ def training_main(
     load_config: Callable[[str, Sequence[str]], Any],
     run: Callable[..., bool],
     state_files: StateFiles | None = None,
+    check_start: StartCheck | None = None,
 ) -> int:
     """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
     ``run(config, work=, reports=, export=, device=, hours=, execution=, command=, workers=,
     gpus_per_worker=)``
     (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
     ap = training_parser(prog, description, family)
-    job = parse_training_command(ap, argv, load_config, state_files)
+    job = parse_training_command(ap, argv, load_config, state_files, check_start)
     try:
         done = run(
             job.config,

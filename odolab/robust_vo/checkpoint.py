@@ -56,7 +56,7 @@ def load_start(init: str, cfg: TrainConfig, export: str | os.PathLike) -> tuple[
     head starts as a fresh network's (:func:`resized_start`)."""
     model, nets, digest = load_init(init, export, load_model)
     changed = [
-        f.name
+        f"{f.name} ({getattr(model, f.name)!r} there, {getattr(cfg.model, f.name)!r} here)"
         for f in dataclasses.fields(model)
         if f.name not in INIT_MAY_DIFFER and getattr(model, f.name) != getattr(cfg.model, f.name)
     ]

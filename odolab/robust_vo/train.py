@@ -369,6 +369,7 @@ def main(argv: list[str] | None = None) -> int:
         family="robust-vo",
         load_config=load_train_config,
         run=run,
+        check_start=lambda cfg, export: load_start(cfg.init, cfg, export),
     )
 
 
