@@ -71,13 +71,37 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
         )
     host = match["host"].strip("[]")
     try:
-        with socket.create_connection((host, int(match["port"])), timeout=timeout):
-            pass
+        with socket.create_connection((host, int(match["port"])), timeout=timeout) as conn:
+            grpc = _speaks_grpc(conn)
     except OSError as exc:
         reason = (
             f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc)).lower()
         )
         raise RayAddressError(f"{address}: no Ray cluster there ({reason})") from None
+    if not grpc:
+        raise RayAddressError(
+            f"{address}: something answers there, but not as a Ray cluster does (gRPC); give the head "
+            "node's GCS address (ray start --head prints it)"
+        )
+
+
+#: An HTTP/2 client's opening: the connection preface and an empty SETTINGS frame.
+_HTTP2_OPENING = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def _speaks_grpc(conn: socket.socket) -> bool:
+    """Whether the server on ``conn`` answers an HTTP/2 opening with a SETTINGS frame, as every
+    gRPC server (a Ray cluster's GCS, Ray Client's server) does; a web server or a database does
+    not. Uses the connection's timeout."""
+    conn.sendall(_HTTP2_OPENING)
+    head = b""
+    with contextlib.suppress(OSError):
+        while len(head) < 9:
+            chunk = conn.recv(9 - len(head))
+            if not chunk:
+                break
+            head += chunk
+    return len(head) == 9 and head[3] == 4  # a frame header: length (3 bytes), type 4 = SETTINGS
 
 
 def _local_cluster_address() -> str:
@@ -135,12 +159,20 @@ def _signal_handlers_kept() -> Iterator[None]:
         yield
         return
     kept = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    put_back = False
     try:
         yield
+    except SystemExit as exc:  # Ray's handler, in place during ray.init, turns SIGTERM into exit(15)
+        if exc.code != signal.SIGTERM:
+            raise
+        put_back = True
     finally:
         for sig, handler in kept.items():
             if handler is not None:  # None: set outside Python, cannot be put back
                 signal.signal(sig, handler)
+    if put_back:  # the SIGTERM Ray's handler took goes to the handler that was there before
+        signal.raise_signal(signal.SIGTERM)
+        raise SystemExit(128 + signal.SIGTERM)  # that handler ignored it: the run cannot go on half-started
 
 
 @contextlib.contextmanager
@@ -173,8 +205,18 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
     else:  # ray.init() would connect to RAY_ADDRESS: a dead one hangs it, a malformed one is a traceback
         check_environment_ray_address()
     local = ray_address is None and not os.environ.get(RAY_ADDRESS)
-    with _signal_handlers_kept(), _token_notices_hidden(local=local, quiet=quiet):
-        ray.init(address=ray_address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
+    try:
+        with _signal_handlers_kept(), _token_notices_hidden(local=local, quiet=quiet):
+            ray.init(address=ray_address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
+    except BaseException as exc:  # interrupted or refused half-way: stop what it started
+        with contextlib.suppress(Exception):
+            ray.shutdown()
+        address = ray_address or os.environ.get(RAY_ADDRESS)
+        if isinstance(exc, ConnectionError) and address:  # a gRPC server that is no Ray cluster's
+            said = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            subject = RayAddressError.subject if ray_address else ENVIRONMENT
+            raise RayAddressError(f"{address}: Ray could not connect there ({said})", subject=subject) from None
+        raise
     return True
 
 

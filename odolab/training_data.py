@@ -26,11 +26,15 @@ raises :class:`DamagedShardError` naming it.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import os
+import sys
 import zipfile
 import zlib
+from collections.abc import Iterator
 from collections.abc import Sequence as Seq
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -247,14 +251,42 @@ def make_training_data(
 ) -> dict:
     """Render the shards of ``cfg`` that ``root`` lacks (as Ray tasks), each written atomically as it
     finishes, with ``dataset.json`` updated after each: an interrupted run resumes where it stopped.
-    A folder made with another config is refused (``ValueError`` naming the differing fields).
-    Returns the manifest."""
+    A folder made with another config is refused (``ValueError`` naming the differing fields). One
+    process at a time makes a folder: another one waits for it (:func:`making`), then finds the
+    shards made. Returns the manifest."""
 
     root = Path(root)
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ValueError(f"{root}: cannot make the data folder ({exc.strerror or exc})") from None
+    with making(root):
+        return _make(cfg, root, execution)
+
+
+#: The lock file a process making a data folder holds (:func:`making`).
+LOCK = ".making.lock"
+
+
+@contextlib.contextmanager
+def making(root: Path) -> Iterator[None]:
+    """Hold the data folder ``root`` for making (an exclusive ``flock`` on its :data:`LOCK` file,
+    released when the process ends however it ends); while another process holds it, say so on
+    stderr and wait."""
+    with open(root / LOCK, "a+b") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            print(f"{root}: another process is making this data; waiting for it", file=sys.stderr, flush=True)
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _make(cfg: DataConfig, root: Path, execution: Execution) -> dict:
+    """:func:`make_training_data`'s work, with the folder held."""
     config = json.loads(json.dumps(asdict(cfg)))
     doc = _read_manifest(root) or {"format": FORMAT, "config": config, "shards": {}}
     if doc["config"] != config:

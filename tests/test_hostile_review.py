@@ -677,3 +677,60 @@ def test_sigterm_is_reported_as_such_when_a_library_re_raises_it_as_ctrl_c(capsy
     assert run_cli(main, "prog", []) == 143
     assert "prog: terminated" in capsys.readouterr().err
     assert run_cli(lambda argv: (_ for _ in ()).throw(KeyboardInterrupt()), "prog", []) == 130
+
+
+def test_a_sigterm_while_ray_starts_reaches_the_commands_handler(monkeypatch):
+    """ray.init() puts its own SIGTERM handler (exit 15) in place first thing; a SIGTERM that lands
+    before it returns is handed to the command's handler, and what Ray started is shut down."""
+    import os
+    import signal
+    import sys
+    import time
+
+    import ray
+
+    from odolab.parallel import start_ray
+
+    class Mine(Exception):
+        pass
+
+    def mine(signum, frame):
+        raise Mine()
+
+    def init(**kwargs):  # what ray.init does with SIGTERM, then a SIGTERM half-way
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10)
+
+    shut = []
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(ray, "shutdown", lambda: shut.append(True))
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        with pytest.raises(Mine):
+            start_ray(None, quiet=True)
+        assert signal.getsignal(signal.SIGTERM) is mine
+        assert shut == [True]
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_an_address_where_no_ray_cluster_answers_is_one_line_at_once():
+    """A web server at --ray-address takes the connection but is no Ray cluster: refused within
+    seconds (Ray itself retries for minutes), naming the address."""
+    import http.server
+    import threading
+
+    from odolab.parallel import RayAddressError, check_ray_address
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        address = f"127.0.0.1:{server.server_address[1]}"
+        with pytest.raises(RayAddressError, match=f"--ray-address {address}: something answers there, but not as a"):
+            check_ray_address(address)
+    finally:
+        server.shutdown()
+        server.server_close()

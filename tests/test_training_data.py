@@ -146,3 +146,24 @@ def test_a_killed_runs_leftovers_are_cleared_and_a_bad_manifest_named(folder, tm
     (copy / td.MANIFEST).write_text('{"format": 1, "shards": {}}')
     with pytest.raises(ValueError, match="no config or shards"):
         make_training_data(CFG, copy, execution=SERIAL)
+
+
+def test_a_second_maker_of_a_folder_waits_for_the_first(tmp_path, capsys):
+    """Two runs sharing a data_root (two trainings, a study's rows) never render into one folder at
+    once: the second waits while the first holds it, then finds the shards made."""
+    import threading
+
+    root = tmp_path / "d"
+    root.mkdir()
+    cfg = DataConfig(split="train", episodes=1, max_steps=4, width=40, height=24, episodes_per_shard=1)
+    made: list[dict] = []
+    with td.making(root):
+        second = threading.Thread(target=lambda: made.append(make_training_data(cfg, root, execution=SERIAL)))
+        second.start()
+        second.join(timeout=3)
+        assert second.is_alive() and not made  # waiting, nothing written
+        assert not list(root.glob("shard-*"))
+        assert "another process is making this data; waiting for it" in capsys.readouterr().err
+        td._make(cfg, root, SERIAL)  # the first maker's own work, the folder held
+    second.join(timeout=60)
+    assert not second.is_alive() and len(made[0]["shards"]) == 1

@@ -389,9 +389,18 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
         raise Terminated()
 
     previous = signal.signal(signal.SIGTERM, on_sigterm) if in_main else None
+    from odolab.parallel import RayAddressError
+
     try:
         return int(main(argv) or 0)
-    except (UsageError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
+    except (
+        UsageError,
+        RayAddressError,  # found only as Ray connects: a server that takes connections but is no cluster
+        FileNotFoundError,
+        PermissionError,
+        IsADirectoryError,
+        NotADirectoryError,
+    ) as exc:
         print(f"{prog}: error: {_capped(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
