@@ -59,9 +59,9 @@ def test_each_rows_changes_give_the_recipe_of_its_switches(scale: str, tmp_path:
 
 
 def test_the_cpu_scale_keeps_to_its_budget(tmp_path: Path):
-    """At most 20 CPU-hours at 35 pairs/s a unit: the training passes (a GeoInv pair counts twice),
-    the wide rows' extra (0.4 hours) and the evaluations' estimate in studies/ablations.toml (6.3
-    hours) fit."""
+    """At most 20 CPU-hours at 35 pairs/s a unit: the training passes (a GeoInv pair counts twice;
+    each stage's ``pairs_per_epoch``, an upper bound where the data hold fewer samples), the wide
+    rows' extra (0.4 hours) and the evaluations' estimate in studies/ablations.toml (6.3 hours) fit."""
     passes = 0
     for n, cfg in _recipes("cpu", tmp_path).items():
         if n != ablations.model_row(DEFINITION.rows[n]):
