@@ -163,22 +163,27 @@ class Scale:
 @dataclass(frozen=True)
 class Definition:
     """The study: its framework definition (name, title, scales as plain TOML), the changes every
-    robust-VO row starts from (``blank``), the rows by number and each scale's parameters."""
+    robust-VO row starts from (``blank``), those of the rows that know the action (``knows_action``:
+    ActInfo Embed or SepAct) and of the SepAct rows (``sepact``), the rows by number and each
+    scale's parameters."""
 
     study: framework.StudyConfig
     blank: tuple[str, ...]
+    knows_action: tuple[str, ...]
+    sepact: tuple[str, ...]
     rows: dict[int, Row]
     scales: dict[str, Scale]
 
 
 def load_definition(path: Path = DEFINITION) -> Definition:
-    """Read ``studies/ablations.toml``: ``title``, ``blank``, ``[scales.*]`` and ``[[rows]]``.
+    """Read ``studies/ablations.toml``: ``title``, ``blank``, ``knows_action``, ``sepact``,
+    ``[scales.*]`` and ``[[rows]]``.
     :class:`odolab.config.ConfigError` names the file and the field. (The rows are the same at every
     scale, so they sit beside the scales rather than in them, where ``framework.load_study`` reads.)"""
     from odolab.config import ConfigError, build, read_toml
 
     doc = read_toml(path)
-    fields = {"title", "blank", "scales", "rows"}
+    fields = {"title", "blank", "knows_action", "sepact", "scales", "rows"}
     if set(doc) != fields:
         raise ConfigError(f"{path}: expected the fields {', '.join(sorted(fields))}, got {', '.join(sorted(doc))}")
     raw = doc["scales"]
@@ -200,16 +205,19 @@ def load_definition(path: Path = DEFINITION) -> Definition:
         unknown = sorted(set(scale.rows) - set(by_number))
         if unknown:
             raise ConfigError(f"{path}: scales.{s}.rows: no such row {unknown[0]}")
-    header = build(Header, {"title": doc["title"], "blank": doc["blank"]}, str(path))
-    return Definition(framework.StudyConfig(NAME, header.title, raw), header.blank, by_number, scales)
+    header = build(Header, {k: doc[k] for k in ("title", "blank", "knows_action", "sepact")}, str(path))
+    study = framework.StudyConfig(NAME, header.title, raw)
+    return Definition(study, header.blank, header.knows_action, header.sepact, by_number, scales)
 
 
 @dataclass(frozen=True)
 class Header:
-    """The study's one-line title and the changes every robust-VO row starts from."""
+    """The study's one-line title and the changes its robust-VO rows share (:class:`Definition`)."""
 
     title: str
     blank: tuple[str, ...]
+    knows_action: tuple[str, ...]
+    sepact: tuple[str, ...]
 
 
 # ---------------------------------------------------------------------------------------- recipes
@@ -226,7 +234,8 @@ def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -
     """The training recipe of row ``number`` at ``scale`` (a robust-VO ``TrainConfig`` or DeepVO's
     ``DeepVOTraining``), its data under ``data_root``: the scale's recipe read as a TOML document
     (for the robust VO with the scale's stage schedule in place of its stages), with the scale's,
-    the blank row's and the row's changes applied in order, then built and checked."""
+    the blank row's, the shared ones of a row that knows the action and of a SepAct row, and the
+    row's own changes applied in order, then built and checked."""
     from odolab.config import build, change_document, read_toml
 
     row = definition.rows[number]
@@ -240,7 +249,15 @@ def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -
 
         assert row.switches is not None
         path, cls = scale.robust_vo_recipe, TrainConfig
-        changes = (*scale.robust_vo_changes, *definition.blank, *(scale.wide_changes if row.wide else ()), *row.changes)
+        actinfo = row.switches.actinfo
+        changes = (
+            *scale.robust_vo_changes,
+            *definition.blank,
+            *(definition.knows_action if actinfo != "none" else ()),
+            *(definition.sepact if actinfo == "SepAct" else ()),
+            *(scale.wide_changes if row.wide else ()),
+            *row.changes,
+        )
         doc = read_toml(ROOT / path)
         doc["stages"] = list(scale.sepact_stages if row.switches.actinfo == "SepAct" else scale.single_stages)
     doc["data_root"] = str(data_root)

@@ -47,7 +47,10 @@ def test_each_rows_changes_give_the_recipe_of_its_switches(scale: str, tmp_path:
         assert m.kind == ablations.ACTINFO[switches.actinfo], n
         assert any(s.data_aug for s in cfg.stages) == switches.data_aug, n
         assert any(s.geoinv for s in cfg.stages) == switches.geoinv, n
-        assert (m.warp, m.mirror_turns, m.depth_residual) == ("none", False, 0.0), n  # the paper's input
+        # the shared base: the warp hands a network the action, so only the rows that know it read
+        # the warped frame; the mirrored right turns need SepAct; no depth residual anywhere
+        assert m.warp == ("none" if switches.actinfo == "none" else "nominal"), n
+        assert m.mirror_turns == (switches.actinfo == "SepAct") and m.depth_residual == 0.0, n
         assert cfg.data_root == str(tmp_path)
     one = recipes[1].model
     assert (one.visual, one.dd_bins, one.sproj, one.kind) == ("rgb", 0, False, "unified")  # RGB only
@@ -76,16 +79,17 @@ def test_the_cpu_scale_keeps_to_its_budget(tmp_path: Path):
 
 
 def test_the_row_18_recipes_of_the_warp_probe_are_the_studys_row_18_at_its_cpu_scale():
-    """studies/robust_vo/ablations/row18-cpu.toml trains what the study trains for row 18 at its cpu
-    scale; row18-cpu-warp.toml differs from it in the warp and the mirrored turns alone."""
+    """studies/robust_vo/ablations/row18-cpu-warp.toml trains what the study trains for row 18 at its
+    cpu scale (with the shared base of the rows that know the action); row18-cpu.toml, the paper's
+    input, differs from it in the warp and the mirrored turns alone."""
     from odolab.robust_vo.config import load_train_config
 
     folder = ablations.ROOT / "studies" / "robust_vo" / "ablations"
     study = ablations.recipe_identity(ablations.recipe(DEFINITION, DEFINITION.scales["cpu"], 18, Path("data")))
-    assert ablations.recipe_identity(load_train_config(str(folder / "row18-cpu.toml"))) == study
-    warp = ablations.recipe_identity(load_train_config(str(folder / "row18-cpu-warp.toml")))
-    assert warp["model"] == {**study["model"], "warp": "nominal", "mirror_turns": True}
-    assert {k: v for k, v in warp.items() if k != "model"} == {k: v for k, v in study.items() if k != "model"}
+    assert ablations.recipe_identity(load_train_config(str(folder / "row18-cpu-warp.toml"))) == study
+    paper = ablations.recipe_identity(load_train_config(str(folder / "row18-cpu.toml")))
+    assert paper["model"] == {**study["model"], "warp": "none", "mirror_turns": False}
+    assert {k: v for k, v in paper.items() if k != "model"} == {k: v for k, v in study.items() if k != "model"}
 
 
 def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
@@ -134,7 +138,8 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
     ]
     assert by_row[1]["Visual"] == "RGB" and by_row[1]["ActInfo"] == "" and by_row[0]["setting"] == "DeepVO"
     assert by_row[17]["S_vs_18"] in ("", "tie", "agrees (overlap)", "differs (overlap)")  # 1 episode: no interval
-    assert by_row[18]["params_M"].startswith("3x") and by_row[18]["paper_error"] == "(1.10, 0.84, 0.68)"
+    # two networks: forward, and the turn network that answers right turns mirrored
+    assert by_row[18]["params_M"].startswith("2x") and by_row[18]["paper_error"] == "(1.10, 0.84, 0.68)"
     assert by_row[5]["params_M"] == by_row[4]["params_M"]  # row 4's model, run with 10 dropout passes
     for n in {ablations.model_row(DEFINITION.rows[r]) for r in scale.rows} - {None}:
         assert (out / ablations.model_file(n)).is_file()
