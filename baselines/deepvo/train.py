@@ -30,6 +30,7 @@ from odolab.learning import (
     EpochLoop,
     Execution,
     TrainingData,
+    differences_from_init,
     load_init,
     make_training_data,
     require_finite,
@@ -107,9 +108,7 @@ def first_stage(cfg: DeepVOTraining, export: Path) -> tuple[dict, str] | None:
         lost = [name for name in refused if name in GAINABLE]
         raise ValueError(
             f"init = {cfg.init!r}: its model differs from this recipe's in "
-            + ", ".join(
-                f"{name} ({getattr(model, name)!r} there, {getattr(cfg.model, name)!r} here)" for name in refused
-            )
+            + differences_from_init(model, cfg.model, refused)
             + (f" (a start may gain {' or '.join(GAINABLE)}, not lose it)" if lost else "")
         )
     state = dict(first.state_dict())

@@ -7,7 +7,13 @@ The public face for learned code beside :mod:`odolab.api` (which stays torch-fre
 
 from __future__ import annotations
 
-from odolab.learning.checkpoints import CheckpointError, load_checkpoint, load_init, save_checkpoint
+from odolab.learning.checkpoints import (
+    CheckpointError,
+    differences_from_init,
+    load_checkpoint,
+    load_init,
+    save_checkpoint,
+)
 from odolab.learning.compute import Compute, ComputeConfig, choose_compute
 from odolab.learning.configs import ConfigError, check, describe, from_toml, read_toml, setting
 from odolab.learning.curves import Curves
@@ -32,6 +38,7 @@ __all__ = [
     "check",
     "choose_compute",
     "describe",
+    "differences_from_init",
     "from_toml",
     "load_checkpoint",
     "load_init",

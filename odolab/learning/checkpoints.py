@@ -8,7 +8,7 @@ import hashlib
 import io
 import os
 import pickle
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -195,6 +195,12 @@ def load_model(
         raise CheckpointError(f"{path}: the weights do not fit the {kind} config ({said})") from None
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()  # which weights, for results kept per model
     return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {}), "sha256": digest}
+
+
+def differences_from_init(started: Any, recipe: Any, names: Sequence[str]) -> str:
+    """``width (48 there, 170 here), ...``: each field of ``names`` with its value in the model a
+    recipe starts from (``started``) and in the recipe's model."""
+    return ", ".join(f"{n} ({getattr(started, n)!r} there, {getattr(recipe, n)!r} here)" for n in names)
 
 
 def load_init(

@@ -56,12 +56,13 @@ def load_start(init: str, cfg: TrainConfig, export: str | os.PathLike) -> tuple[
     head starts as a fresh network's (:func:`resized_start`)."""
     model, nets, digest = load_init(init, export, load_model)
     changed = [
-        f"{f.name} ({getattr(model, f.name)!r} there, {getattr(cfg.model, f.name)!r} here)"
+        f.name
         for f in dataclasses.fields(model)
         if f.name not in INIT_MAY_DIFFER and getattr(model, f.name) != getattr(cfg.model, f.name)
     ]
     if changed:
-        raise ValueError(f"init = {init!r}: its model differs from this recipe's in {', '.join(changed)}")
+        said = checkpoints.differences_from_init(model, cfg.model, changed)
+        raise ValueError(f"init = {init!r}: its model differs from this recipe's in {said}")
     if model.depth_residual and model.depth_residual != cfg.model.depth_residual:
         raise ValueError(
             f"init = {init!r}: it has depth_residual = {model.depth_residual}, this recipe "
