@@ -171,9 +171,12 @@ TRAINING_RECIPES = (
 )
 
 
-def bench_training(recipes: Sequence[Path], device: str | None = None, threads: int | None = None) -> list[dict]:
+def bench_training(
+    recipes: Sequence[Path], device: str | None = None, threads: int | None = None, data: Path | None = None
+) -> list[dict]:
     """Training throughput per robust-VO recipe (:mod:`odolab.robust_vo.speed`), with ``threads``
-    torch threads (None: torch's own choice; the setting is restored afterwards)."""
+    torch threads (None: torch's own choice; the setting is restored afterwards), the end-to-end
+    epoch on training-data folder ``data`` (None: 20 val episodes rendered per recipe)."""
     from odolab.learning import pick_device
     from odolab.robust_vo.config import load_train_config
     from odolab.robust_vo.speed import training_speed
@@ -181,7 +184,7 @@ def bench_training(recipes: Sequence[Path], device: str | None = None, threads: 
 
     dev = pick_device(device)
     with torch_threads(threads):
-        return [training_speed(load_train_config(str(p)), p.stem, dev) for p in recipes]
+        return [training_speed(load_train_config(str(p)), p.stem, dev, data_folder=data) for p in recipes]
 
 
 def _cpu_model() -> str:

@@ -267,3 +267,22 @@ def test_mirror_turns_leaves_the_forward_stage_resumable():
     b = dataclasses.replace(a, model=dataclasses.replace(WARPED, mirror_turns=True))
     assert _identity(a, a.stages[0]) == _identity(b, b.stages[0])
     assert _identity(a, a.stages[1]) != _identity(b, b.stages[1])
+
+
+def test_batches_made_in_the_loader_or_on_the_device_are_the_same(recipe):
+    """A GPU trainer's loader reads only the frames and the device makes the inputs (warp, psi);
+    a CPU trainer's loader makes them whole: the same batch either way (swapped GeoInv half too)."""
+    from odolab.robust_vo.batches import Pairs
+    from odolab.robust_vo.train import StepBatches
+
+    data = TrainingData(recipe.data_folder(recipe.train_data))
+    model = dataclasses.replace(WARPED, dd_bins=4, sproj=True)
+    samples = Samples(np.arange(6), np.array([0, 1, 0, 1, 0, 0], bool), np.array([0, 0, 1, 1, 0, 0], bool))
+    cpu = torch.device("cpu")
+    whole = StepBatches(data, model, True, cpu)
+    later = StepBatches(data, model, True, cpu, inputs_in_loader=False)
+    made = later(samples)
+    assert all(isinstance(m, Pairs) and m.rgb.dtype == torch.uint8 for m in made)
+    for a, b in zip(whole.finish(whole(samples)), later.finish(made)):
+        assert torch.equal(a.x, b.x) and torch.equal(a.target, b.target) and np.array_equal(a.action, b.action)
+    assert not torch.equal(whole(samples)[0].x, whole(samples)[1].x)  # the GeoInv half is swapped

@@ -10,7 +10,15 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from odolab.learning import ComputeConfig, choose_compute, prefetched
+from odolab.learning import (
+    SERIAL,
+    ComputeConfig,
+    DataConfig,
+    TrainingData,
+    choose_compute,
+    make_training_data,
+    prefetched,
+)
 from odolab.learning.compute import cpu_flags, native_bf16
 from odolab.learning.epochs import EpochLoop, EpochTracker
 
@@ -83,6 +91,18 @@ def test_loader_workers_auto_is_none_on_two_cores_and_one_on_more():
     assert ComputeConfig().resolve(CPU, cores=2).loader_workers == 0
     assert ComputeConfig().resolve(CPU, cores=8).loader_workers == 1
     assert ComputeConfig(loader_workers=3).resolve(CPU, cores=2).loader_workers == 3
+    assert not ComputeConfig().resolve(CPU, cores=8).loader_thread
+
+
+def test_on_a_gpu_auto_makes_batches_in_a_thread_of_the_training_process():
+    """On a GPU the loader only reads frames and the GPU makes the inputs: no worker, a thread
+    (measured fastest on an H200: docs/training.md#gpus); explicit choices are kept."""
+    gpu = torch.device("mps")  # resolve() needs no such hardware; any non-CPU device is a GPU here
+    auto = ComputeConfig().resolve(gpu, cores=16)
+    assert (auto.loader_workers, auto.loader_thread) == (0, True)
+    assert ComputeConfig(loader_thread="off").resolve(gpu, cores=16).loader_thread is False
+    kept = ComputeConfig(loader_workers=4).resolve(gpu, cores=16)
+    assert (kept.loader_workers, kept.loader_thread) == (4, False)
 
 
 def test_a_compute_table_is_read_from_toml(tmp_path):
@@ -273,6 +293,15 @@ batch = 4
     )
     assert rows[0]["precision"] in ("fp32", "bf16") and rows[0]["memory_format"] == "contiguous"
     assert "end_to_end_pairs_per_s" in capsys.readouterr().out
+    # the end-to-end epoch on a given data folder: one val episode of 40 steps holds fewer forward
+    # pairs than the 24 batches of 4 take, so they are repeated
+    folder = tmp_path / "given"
+    make_training_data(DataConfig(split="val", episodes=1, max_steps=40, width=64, height=36), folder, execution=SERIAL)
+    assert TrainingData(folder).counts()["move_forward"] < 24 * 4
+    args = ["--only", "training", "--recipe", str(recipe), "--json", str(out), "--bench-data", str(folder)]
+    assert bench.main([*args, "--train-threads", "1"]) == 0
+    rows = json.loads(out.read_text())["training"]
+    assert rows[0]["data"] == str(folder) and rows[0]["end_to_end_pairs_per_s"] > 0
 
 
 def test_the_projection_filters_only_its_band_with_the_same_numbers():

@@ -99,7 +99,7 @@ class Compute:
             "memory_format": self.memory_format,
             "loader_workers": self.loader_workers,
             "loader_thread": self.loader_thread,
-            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+            "machine": " ".join(dict.fromkeys(n for n in (platform.machine(), platform.processor()) if n)),
         }
 
 
@@ -107,22 +107,24 @@ class Compute:
 class ComputeConfig:
     """A recipe's ``[compute]`` table: ``precision`` and ``memory_format`` (``auto``: the module
     docstring's rule), ``loader_workers``, processes that make batches ahead of the step (0: in
-    the training process; ``auto``: 0 on a machine of at most 2 cores, where a worker only competes
-    with the network for them and costs a copy of every batch, else 1) and ``loader_thread``, whether
-    the training process makes them in a thread beside the step rather than between steps (``on``
-    means no worker; ``auto``: ``off``: on 2 cores the thread and the network's step compete for
-    them and it gained nothing in ``python -m odolab.bench --only training``). None of it is part of
-    a run's identity: a run resumes on another machine with that machine's choice."""
+    the training process; ``auto``: 0 on a GPU, where the GPU makes the network inputs from the
+    frames read in the training process, and on a machine of at most 2 cores, where a worker only
+    competes with the network for them and costs a copy of every batch, else 1) and
+    ``loader_thread``, whether the training process makes them in a thread beside the step rather
+    than between steps (``on`` means no worker; ``auto``: on for a GPU, off on a CPU: on 2 cores the
+    thread and the network's step compete for them and it gained nothing in ``python -m odolab.bench
+    --only training``). None of it is part of a run's identity: a run resumes on another machine
+    with that machine's choice."""
 
     precision: Precision = setting("auto", doc="numeric precision of a step (auto: bf16 where native, else fp32)")
     memory_format: MemoryFormat = setting("auto", doc="memory layout of the inputs (auto: contiguous)")
     loader_workers: int | Literal["auto"] = setting(
         "auto",
         range=(0, MAX_LOADER_WORKERS),
-        doc="processes making batches ahead of the step (auto: 0 on <= 2 cores, else 1)",
+        doc="processes making batches ahead of the step (auto: 0 on a GPU or on <= 2 cores, else 1)",
     )
     loader_thread: LoaderThread = setting(
-        "auto", doc="with no loader worker, make batches in a thread beside the step (auto: off)"
+        "auto", doc="with no loader worker, make batches in a thread beside the step (auto: on for a GPU, else off)"
     )
 
     def __post_init__(self) -> None:
@@ -138,13 +140,13 @@ class ComputeConfig:
         ``os.cpu_count()``)."""
         import os
 
+        gpu = device.type != "cpu"
         workers = self.loader_workers
         if workers == "auto":
-            workers = 0 if self.loader_thread == "on" or (cores or os.cpu_count() or 1) <= 2 else 1
+            workers = 0 if self.loader_thread == "on" or gpu or (cores or os.cpu_count() or 1) <= 2 else 1
+        thread = self.loader_thread == "on" or (self.loader_thread == "auto" and gpu and workers == 0)
         return dataclasses.replace(
-            choose_compute(device, self.precision, self.memory_format),
-            loader_workers=workers,
-            loader_thread=self.loader_thread == "on",
+            choose_compute(device, self.precision, self.memory_format), loader_workers=workers, loader_thread=thread
         )
 
 

@@ -1,10 +1,10 @@
 """Training throughput of a robust-VO recipe, against the bare network step from the same run.
 
 ``bare``: one network (the forward one), a batch of the recipe's first stage of random inputs
-resident in memory, forward + MSE + backward + Adam, in the chosen precision and memory format and
-in fp32 beside it. ``end_to_end``: the trainer's own epoch (:meth:`StageRunner.train_epoch`: shard
-reads, swaps and mirrors, the nominal warp, psi, the batch made by the loader workers, the step) on a
-few real episodes, worker start-up included. The end-to-end rate over the bare one says how much the
+resident in the device's memory, forward + MSE + backward + Adam, in the chosen precision and memory
+format and in fp32 beside it. ``end_to_end``: the trainer's own epoch (:meth:`StageRunner.train_epoch`:
+shard reads, swaps and mirrors, the nominal warp, psi, the batch made by the loader workers or, on a
+GPU, the inputs made on the GPU, the step) on a few real episodes, worker start-up included. The end-to-end rate over the bare one says how much the
 rest of training costs (at least 0.7 is wanted). Beside them, one network's forward pass at batch 1
 (what the odometer's speed is bound by) in fp32 and bf16, and the input normaliser's batch moments
 (:func:`odolab.robust_vo.model.batch_moments`) against ``Tensor.mean`` and ``Tensor.var``.
@@ -35,13 +35,13 @@ def bare_pairs_per_s(cfg: TrainConfig, compute: Compute, steps: int = 6) -> floa
     net = compute.prepare(VONet(model))
     net.train()
     opt = torch.optim.Adam(net.parameters(), lr=1e-4)
-    x = torch.rand(batch, model.input_channels, model.height, model.width)
+    x = compute.inputs(torch.rand(batch, model.input_channels, model.height, model.width))
     y = torch.rand(batch, 3, device=compute.device)
     times = []
     for _ in range(steps + 1):
         started = time.perf_counter()
         with compute.autocast():
-            pred = net(compute.inputs(x))
+            pred = net(x)
         loss = (pred.float() - y).pow(2).mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -106,7 +106,8 @@ def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 20) -> TrainingDa
 
 
 def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingData, steps: int = 24) -> float:
-    """Pairs per second of the trainer's own epoch over ``steps`` batches of the first stage."""
+    """Pairs per second of the trainer's own epoch over ``steps`` batches of the first stage (the
+    stage's samples repeated in order where ``data`` holds fewer)."""
     from odolab.robust_vo.model import build_networks
     from odolab.robust_vo.train import StageRunner
 
@@ -114,6 +115,7 @@ def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingDat
     torch.manual_seed(0)
     nets = compute.prepare(build_networks(cfg.model))
     runner = StageRunner(cfg, stage, data, data, nets, compute, progress=False)
+    runner.samples = runner.samples.take(np.resize(np.arange(len(runner.samples)), stage.pairs_per_epoch))
     loop = EpochLoop(
         Path(tempfile.gettempdir()) / "unused.pt", dict(nets), runner.optimizer, 1, 0, {}, save_every=float("inf")
     )
@@ -123,14 +125,22 @@ def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingDat
     return tracker.samples / tracker.seconds
 
 
-def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int = 24) -> dict:
-    """One row of ``python -m odolab.bench --only training`` for recipe ``cfg`` (called ``name``)."""
+def training_speed(
+    cfg: TrainConfig, name: str, device: torch.device, steps: int = 24, data_folder: Path | None = None
+) -> dict:
+    """One row of ``python -m odolab.bench --only training`` for recipe ``cfg`` (called ``name``), its
+    end-to-end part on ``data_folder`` (training data of the recipe's frame size) or, by default, on
+    20 val episodes rendered for it."""
     from odolab.learning import choose_compute
 
     compute = cfg.compute.resolve(device)
     fp32 = choose_compute(device, "fp32", compute.memory_format)
     with tempfile.TemporaryDirectory(prefix="odolab-bench-") as tmp:
-        data = bench_data(cfg, Path(tmp))
+        if data_folder is None:
+            data = bench_data(cfg, Path(tmp))
+        else:
+            data = TrainingData(data_folder)
+            data.config.require_size(cfg.model.width, cfg.model.height)
         fp32_bare = bare_pairs_per_s(cfg, fp32)
         bare = fp32_bare if compute == fp32 else bare_pairs_per_s(cfg, compute)
         end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
@@ -148,6 +158,7 @@ def training_speed(cfg: TrainConfig, name: str, device: torch.device, steps: int
         "base_planes": m.base_planes,
         "batch": cfg.stages[0].batch,
         "device": str(device),
+        "data": "20 rendered val episodes" if data_folder is None else str(data_folder),
         "threads": torch.get_num_threads(),
         "precision": compute.precision,
         "memory_format": compute.memory_format,

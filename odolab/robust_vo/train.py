@@ -27,7 +27,7 @@ from odolab.learning.compute import Compute
 from odolab.learning.distributed import Team
 from odolab.learning.epochs import EpochTracker
 from odolab.learning.validation import error_rows, write_report
-from odolab.robust_vo.batches import Batch, Samples, make_batch, stage_samples
+from odolab.robust_vo.batches import Batch, Pairs, Samples, network_inputs, read_pairs, stage_samples
 from odolab.robust_vo.checkpoint import apply_start, init_stages, load_start, resized_start, save_model
 from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config
 from odolab.robust_vo.model import build_networks, predict
@@ -55,17 +55,35 @@ def _mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 class StepBatches:
-    """What one training step reads, made on the CPU (in a loader worker): the batch of ``samples``
-    and, for GeoInv, the same pairs swapped. Picklable (the data's maps reopen in each worker)."""
+    """What one training step reads, made in a loader worker (or the training process): the batch of
+    ``samples`` and, for GeoInv, the same pairs swapped. For a CPU ``device`` the batches are made
+    whole there; for a GPU only the frames are read there (:class:`Pairs`) and :meth:`finish` makes
+    the network inputs on the GPU, which copies a ninth of the bytes and leaves the warp and psi to
+    the GPU (``inputs_in_loader`` overrides the choice). Picklable (the data's maps reopen in each
+    worker)."""
 
-    def __init__(self, data: TrainingData, cfg: ModelConfig, geoinv: bool) -> None:
-        self.data, self.cfg, self.geoinv = data, cfg, geoinv
+    def __init__(
+        self,
+        data: TrainingData,
+        cfg: ModelConfig,
+        geoinv: bool,
+        device: torch.device = torch.device("cpu"),
+        inputs_in_loader: bool | None = None,
+    ) -> None:
+        self.data, self.cfg, self.geoinv, self.device = data, cfg, geoinv, device
+        self.inputs_in_loader = device.type == "cpu" if inputs_in_loader is None else inputs_in_loader
 
-    def __call__(self, samples: Samples) -> tuple[Batch, Batch | None]:
-        cpu = torch.device("cpu")
-        batch = make_batch(self.data, samples, self.cfg, cpu)
-        other = make_batch(self.data, samples, self.cfg, cpu, swap_all=True) if self.geoinv else None
-        return batch, other
+    def __call__(self, samples: Samples) -> tuple[Batch | Pairs, Batch | Pairs | None]:
+        made = [read_pairs(self.data, samples, swap_all=s) for s in ((False, True) if self.geoinv else (False,))]
+        if self.inputs_in_loader:
+            made = [network_inputs(p, self.data.intrinsics, self.cfg, self.device) for p in made]
+        return made[0], made[1] if self.geoinv else None
+
+    def finish(self, made: tuple[Batch | Pairs, Batch | Pairs | None]) -> tuple[Batch, Batch | None]:
+        """The batches of one step on the device, from what :meth:`__call__` made."""
+        return tuple(  # type: ignore[return-value]
+            network_inputs(m, self.data.intrinsics, self.cfg, self.device) if isinstance(m, Pairs) else m for m in made
+        )
 
     def advise(self, samples: Samples) -> None:
         """Start reading the frames of ``samples`` (see :meth:`TrainingData.prefetch`)."""
@@ -139,8 +157,9 @@ class StageRunner:
             leave=False,
         )
         c = self.compute
-        made = c.batches(parts, StepBatches(self.train, self.cfg.model, stage.geoinv))
-        for (batch, other), whole in zip(made, batches):
+        steps = StepBatches(self.train, self.cfg.model, stage.geoinv, self.device)
+        for made, whole in zip(c.batches(parts, steps), batches):
+            batch, other = steps.finish(made)
             with c.autocast():
                 pred = predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action)
             loss = _mse(pred, batch.target.to(self.device))
@@ -168,7 +187,9 @@ class StageRunner:
             for idx in np.array_split(self.val_pairs, max(1, -(-len(self.val_pairs) // 64)))
         ]
         c = self.compute
-        for batch, _ in self.compute.batches(parts, StepBatches(self.val, self.cfg.model, False)):
+        steps = StepBatches(self.val, self.cfg.model, False, self.device)
+        for made in self.compute.batches(parts, steps):
+            batch, _ = steps.finish(made)
             preds.append(predict(self.nets, self.cfg.model, c.inputs(batch.x), batch.action).cpu().numpy())
             targets.append(batch.target.cpu().numpy())
             actions.append(batch.action)

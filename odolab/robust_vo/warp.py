@@ -88,7 +88,9 @@ def warp_pairs(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Pairs ``rgb`` (B, 2, H, W, 3), ``depth`` (B, 2, H, W) with their current frames warped by the
     nominal motion of ``actions`` (B,) (float32 RGB 0-255, depth m)."""
-    cur_rgb, cur_depth = warp_current(rgb[:, 1], depth[:, 1], depth[:, 0], nominal_transforms(actions), intrinsics)
+    cur_rgb, cur_depth = warp_current(
+        rgb[:, 1], depth[:, 1], depth[:, 0], nominal_transforms(actions).to(depth.device), intrinsics
+    )
     return (
         torch.stack([rgb[:, 0].to(torch.float32), cur_rgb], dim=1),
         torch.stack([depth[:, 0].to(torch.float32), cur_depth], dim=1),
