@@ -94,13 +94,13 @@ def test_loader_workers_auto_is_none_on_two_cores_and_one_on_more():
     assert not ComputeConfig().resolve(CPU, cores=8).loader_thread
 
 
-def test_on_a_gpu_auto_makes_batches_in_a_thread_of_the_training_process():
-    """On a GPU the loader only reads frames and the GPU makes the inputs: no worker, a thread
-    (measured fastest on an H200: docs/training.md#gpus); explicit choices are kept."""
+def test_on_a_gpu_auto_makes_batches_in_the_training_process():
+    """On a GPU the loader only reads frames and the GPU makes the inputs: no worker process, however
+    many cores (docs/training.md#gpus); explicit choices are kept."""
     gpu = torch.device("mps")  # resolve() needs no such hardware; any non-CPU device is a GPU here
     auto = ComputeConfig().resolve(gpu, cores=16)
-    assert (auto.loader_workers, auto.loader_thread) == (0, True)
-    assert ComputeConfig(loader_thread="off").resolve(gpu, cores=16).loader_thread is False
+    assert (auto.loader_workers, auto.loader_thread) == (0, False)
+    assert ComputeConfig(loader_thread="on").resolve(gpu, cores=16).loader_thread is True
     kept = ComputeConfig(loader_workers=4).resolve(gpu, cores=16)
     assert (kept.loader_workers, kept.loader_thread) == (4, False)
 

@@ -111,10 +111,10 @@ class ComputeConfig:
     frames read in the training process, and on a machine of at most 2 cores, where a worker only
     competes with the network for them and costs a copy of every batch, else 1) and
     ``loader_thread``, whether the training process makes them in a thread beside the step rather
-    than between steps (``on`` means no worker; ``auto``: on for a GPU, off on a CPU: on 2 cores the
-    thread and the network's step compete for them and it gained nothing in ``python -m odolab.bench
-    --only training``). None of it is part of a run's identity: a run resumes on another machine
-    with that machine's choice."""
+    than between steps (``on`` means no worker; ``auto``: off: on 2 cores the thread and the
+    network's step compete for them, and on an H200 it overlapped no better; ``python -m
+    odolab.bench --only training``). None of it is part of a run's identity: a run resumes on
+    another machine with that machine's choice."""
 
     precision: Precision = setting("auto", doc="numeric precision of a step (auto: bf16 where native, else fp32)")
     memory_format: MemoryFormat = setting("auto", doc="memory layout of the inputs (auto: contiguous)")
@@ -124,7 +124,7 @@ class ComputeConfig:
         doc="processes making batches ahead of the step (auto: 0 on a GPU or on <= 2 cores, else 1)",
     )
     loader_thread: LoaderThread = setting(
-        "auto", doc="with no loader worker, make batches in a thread beside the step (auto: on for a GPU, else off)"
+        "auto", doc="with no loader worker, make batches in a thread beside the step (auto: off)"
     )
 
     def __post_init__(self) -> None:
@@ -140,13 +140,14 @@ class ComputeConfig:
         ``os.cpu_count()``)."""
         import os
 
-        gpu = device.type != "cpu"
         workers = self.loader_workers
         if workers == "auto":
-            workers = 0 if self.loader_thread == "on" or gpu or (cores or os.cpu_count() or 1) <= 2 else 1
-        thread = self.loader_thread == "on" or (self.loader_thread == "auto" and gpu and workers == 0)
+            few = (cores or os.cpu_count() or 1) <= 2
+            workers = 0 if self.loader_thread == "on" or device.type != "cpu" or few else 1
         return dataclasses.replace(
-            choose_compute(device, self.precision, self.memory_format), loader_workers=workers, loader_thread=thread
+            choose_compute(device, self.precision, self.memory_format),
+            loader_workers=workers,
+            loader_thread=self.loader_thread == "on",
         )
 
 

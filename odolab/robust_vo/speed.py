@@ -158,6 +158,7 @@ def training_speed(
         "base_planes": m.base_planes,
         "batch": cfg.stages[0].batch,
         "device": str(device),
+        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "",
         "data": "20 rendered val episodes" if data_folder is None else str(data_folder),
         "threads": torch.get_num_threads(),
         "precision": compute.precision,
