@@ -834,7 +834,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "*_ci: 95 % intervals (Wilson's for S, Student's t for the others). S_vs_18 and error_vs_18 say "
             "whether the row lies on the same side of row 18 as in the paper, '(overlap)' where our intervals "
             "of the two rows overlap (not settled at this sample size)."
-            + (f" Missing (not computed): {', '.join(missing)}." if missing else ""),
+            + (f" Missing (not computed): {framework.unit_ranges(missing)}." if missing else ""),
             *(f"Row {r}: {definition.rows[r].note}" for r in scale.rows if definition.rows[r].note),
         ],
         columns=COLUMNS,
@@ -857,7 +857,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"{computed} units computed ({', '.join(f'{len(o.computed)} {n}' for o, n in zip(outcomes, PHASES))})")
     print(f"{len(lines)} rows -> {out}")
     if missing:
-        print(f"note: no saved result (left out of the table): {', '.join(missing)}", file=sys.stderr)
+        print(f"note: no saved result (left out of the table): {framework.unit_ranges(missing)}", file=sys.stderr)
     return 0
 
 

@@ -410,9 +410,26 @@ figure{{margin:1.5em 0}}</style></head><body>
     return folder.written
 
 
+def unit_ranges(labels: Sequence[str]) -> str:
+    """``labels`` for people, in their order: a run of labels that differ only in a last number
+    counting up by one becomes one range ("navigate row 3 episode 0-49"), led by the count of units
+    when there are several ("3 units: row 4, errors row 0 seed 0-1")."""
+    groups: list[list[Any]] = []  # [prefix, first, last] or [label, None, None]
+    for label in labels:
+        m = re.fullmatch(r"(.*?)(\d+)", label)
+        prefix, number = (m.group(1), int(m.group(2))) if m else (label, None)
+        last = groups[-1] if groups else None
+        if number is not None and last and last[0] == prefix and last[2] is not None and number == last[2] + 1:
+            last[2] = number
+        else:
+            groups.append([prefix, number, number])
+    parts = [p if a is None else f"{p}{a}" if a == b else f"{p}{a}-{b}" for p, a, b in groups]
+    return f"{len(labels)} units: {', '.join(parts)}" if len(labels) > 1 else ", ".join(parts)
+
+
 def outcome_note(outcome: Outcome) -> str:
     """For a report's intro: the units left out because no result was saved ("" when none)."""
-    return f" Missing (not computed): {', '.join(outcome.missing)}." if outcome.missing else ""
+    return f" Missing (not computed): {unit_ranges(outcome.missing)}." if outcome.missing else ""
 
 
 def require_results(outcome: Outcome, out: Path, scale: str) -> None:
@@ -427,7 +444,7 @@ def say_done(outcome: Outcome, rows: int, out: Path) -> None:
     """Print how many units were computed and rows written; name the missing units on stderr."""
     print(f"{len(outcome.computed)} units computed, {rows} rows -> {out}")
     if outcome.missing:
-        print(f"note: no saved result (left out of the table): {', '.join(outcome.missing)}", file=sys.stderr)
+        print(f"note: no saved result (left out of the table): {unit_ranges(outcome.missing)}", file=sys.stderr)
 
 
 def command_line(prog: str, argv: Sequence[str] | None) -> str:

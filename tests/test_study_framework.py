@@ -144,3 +144,15 @@ def test_e_table_scale_fields_are_checked():
             e_table.scale_of(config, "ci")
         assert str(exc.value) == f"{base.path}: {words}"
     assert e_table.scale_of(base, "cpu").seeds == (0, 1, 2)
+
+
+def test_missing_units_are_named_as_ranges():
+    """A study stopped early leaves thousands of units; the note names runs of them as ranges."""
+    from studies.framework import unit_ranges
+
+    labels = [f"navigate row {r} seed 0 episode {e}" for r in (0, 3) for e in range(50)]
+    assert unit_ranges(["train row 4", "train row 5", "train row 7", *labels, "u"]) == (
+        "104 units: train row 4-5, train row 7, navigate row 0 seed 0 episode 0-49, "
+        "navigate row 3 seed 0 episode 0-49, u"
+    )
+    assert unit_ranges(["u3"]) == "u3" and unit_ranges(["e 2", "e 1"]) == "2 units: e 2, e 1"
