@@ -354,6 +354,13 @@ class TrainingData:
         self.config = DataConfig.from_dict(doc["config"], str(self.root / MANIFEST))
         expected = [self.config.shard_name(i, g) for i, g in enumerate(self.config.shard_specs())]
         missing = [n for n in expected if n not in doc["shards"] or not (self.root / n).exists()]
+        listed = [n for n in doc["shards"] if (self.root / n).exists()]
+        if missing and listed and not set(listed) & set(expected):
+            raise ValueError(
+                f"{self.root / MANIFEST}: its config does not describe the shards it lists (their names "
+                f"come from the config: e.g. {listed[0]} there, {expected[0]} for this config): it was "
+                "changed after the data were made; restore it, or make the data anew in another folder"
+            )
         if missing:
             raise ValueError(
                 f"{self.root}: {len(missing)} of {len(expected)} shards missing (e.g. {missing[0]}); "

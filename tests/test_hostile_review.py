@@ -734,3 +734,28 @@ def test_an_address_where_no_ray_cluster_answers_is_one_line_at_once():
     finally:
         server.shutdown()
         server.server_close()
+
+
+@pytest.mark.parametrize(("signum", "code", "word"), [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+@pytest.mark.parametrize("then", ["returns", "fails"])
+def test_a_signal_that_a_library_swallowed_still_ends_the_command(capsys, signum, code, word, then):
+    """Open3D's import swallows a Ctrl-C that lands while it loads; the command then runs on, but
+    its exit code and last line still say it was stopped (a hostile review found exit 0)."""
+    import os
+    import signal
+    import time
+
+    def main(argv):
+        try:
+            os.kill(os.getpid(), getattr(signal, signum))
+            time.sleep(1)
+        except KeyboardInterrupt:
+            pass  # swallowed, as a library's import does
+        if then == "fails":
+            raise RuntimeError("what the swallowed signal left broken")
+        return 0
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    assert run_cli(main, "prog", []) == code
+    assert capsys.readouterr().err == f"prog: {word}\n"
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before

@@ -4,6 +4,7 @@ the epoch loop's saves within an epoch."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -302,6 +303,22 @@ batch = 4
     assert bench.main([*args, "--train-threads", "1"]) == 0
     rows = json.loads(out.read_text())["training"]
     assert rows[0]["data"] == str(folder) and rows[0]["end_to_end_pairs_per_s"] > 0
+    assert rows[0]["data_pairs"] == TrainingData(folder).counts()["move_forward"]
+    # refused before any timing, naming what is wrong
+    from odolab.cli import UsageError
+
+    (tmp_path / "a-file").write_text("")
+    turns = tmp_path / "turns"  # one step: a turn
+    make_training_data(DataConfig(split="val", episodes=1, max_steps=1, width=64, height=36), turns, execution=SERIAL)
+    assert TrainingData(turns).counts()["move_forward"] == 0
+    for given, said in [
+        ("", "expected a training-data folder"),
+        (str(tmp_path / "nowhere"), "nowhere: no such folder"),
+        (str(tmp_path / "a-file"), "a-file: not a folder"),
+        (str(turns), "turns: no pairs for the first stage ('forward': move_forward)"),
+    ]:
+        with pytest.raises(UsageError, match=re.escape(said)):
+            bench.main(["--only", "training", "--recipe", str(recipe), "--bench-data", given])
 
 
 def test_the_projection_filters_only_its_band_with_the_same_numbers():
@@ -371,3 +388,24 @@ def test_reports_of_another_recipe_are_named(tmp_path):
         json.dumps({"command": cmd + " --set data_root=/big/disk --set compute.precision=fp32"})
     )
     assert other_training(tmp_path, cmd) is None  # where and how it computed: the same training
+
+
+@pytest.mark.parametrize(
+    ("name", "said"),
+    [
+        ("", "device '': expected cpu, cuda, cuda:N or mps"),
+        ("cpu:1", "device 'cpu:1': expected cpu, cuda, cuda:N or mps"),
+        ("tpu", "device 'tpu': expected cpu, cuda, cuda:N or mps"),
+        ("cuda:-1", "device 'cuda:-1': expected cpu, cuda, cuda:N or mps"),
+        ("cuda:2", "device 'cuda:2': this machine has 1 CUDA GPU (cuda:0)"),
+    ],
+)
+def test_a_device_name_is_one_of_four_forms_and_on_this_machine(monkeypatch, name, said):
+    from odolab.learning import pick_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    with pytest.raises(ValueError) as info:
+        pick_device(name)
+    assert str(info.value) == said
+    assert pick_device("cuda:0").type == "cuda" and pick_device("cpu").type == "cpu"

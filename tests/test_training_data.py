@@ -167,3 +167,18 @@ def test_a_second_maker_of_a_folder_waits_for_the_first(tmp_path, capsys):
         td._make(cfg, root, SERIAL)  # the first maker's own work, the folder held
     second.join(timeout=60)
     assert not second.is_alive() and len(made[0]["shards"]) == 1
+
+
+def test_a_hand_edited_config_is_named_as_such_not_as_missing_shards(folder, tmp_path):
+    """Shard names come from the config: an edited dataset.json no longer names its shards, and the
+    message says so instead of asking to make shards that are there."""
+    import shutil
+
+    copy = tmp_path / "edited"
+    shutil.copytree(folder, copy)
+    doc = json.loads((copy / td.MANIFEST).read_text())
+    doc["config"]["width"] += 16
+    (copy / td.MANIFEST).write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="its config does not describe the shards it lists") as info:
+        TrainingData(copy)
+    assert "missing" not in str(info.value)

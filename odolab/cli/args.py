@@ -380,19 +380,30 @@ class Terminated(KeyboardInterrupt):
 
 def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv: Sequence[str] | None = None) -> int:
     """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2.
-    Ctrl-C exits 130 and SIGTERM 143 (the shell's codes), each after the command's clean-up."""
+    Ctrl-C exits 130 and SIGTERM 143 (the shell's codes), each after the command's clean-up, also
+    when a library swallowed the signal's exception and the command went on to its end."""
     in_main = threading.current_thread() is threading.main_thread()
-    terminated: list[int] = []  # the SIGTERMs received: Ray re-raises the handler's exception as a bare Ctrl-C
+    # the signals received: Ray re-raises the handler's exception as a bare Ctrl-C, and a library
+    # may swallow it (Open3D's import does), so the exit code is taken from this list
+    received: list[int] = []
 
-    def on_sigterm(signum: int, frame: object) -> None:
-        terminated.append(signum)
-        raise Terminated()
+    def on_signal(signum: int, frame: object) -> None:
+        received.append(signum)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
-    previous = signal.signal(signal.SIGTERM, on_sigterm) if in_main else None
+    def stopped() -> int:
+        if signal.SIGTERM in received:
+            print(f"{prog}: terminated", file=sys.stderr)
+            return 143
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+
+    watched = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, on_signal) for s in watched} if in_main else {}
     from odolab.parallel import RayAddressError
 
     try:
-        return int(main(argv) or 0)
+        code = int(main(argv) or 0)
     except (
         UsageError,
         RayAddressError,  # found only as Ray connects: a server that takes connections but is no cluster
@@ -404,17 +415,18 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
         print(f"{prog}: error: {_capped(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        if terminated:
-            print(f"{prog}: terminated", file=sys.stderr)
-            return 143
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+        return stopped()
     except BrokenPipeError:  # the reader of stdout went away (``... | head -1``): no traceback
         quiet_broken_pipe()
         return 141  # what a shell reports for a command ended by SIGPIPE
+    except Exception:
+        if received:  # a swallowed signal that surfaced as another error
+            return stopped()
+        raise
     finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return stopped() if received else code
 
 
 def quiet_broken_pipe() -> None:

@@ -31,16 +31,6 @@ def _table(rows: list[dict]) -> str:
     )
 
 
-def _check_bench_data(folder: str, width: int, height: int, recipe: Path) -> None:
-    """``UsageError`` unless ``folder`` is training data of ``width`` x ``height`` px frames."""
-    from odolab.learning import TrainingData
-
-    try:
-        TrainingData(folder).config.require_size(width, height)
-    except ValueError as exc:
-        raise UsageError(f"--bench-data: {exc} (--recipe {recipe})") from None
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.odometer import (
         OdometerListError,
@@ -79,9 +69,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--bench-data",
         default=None,
         metavar="FOLDER",
-        help="training data (python -m odolab.training_data, of the recipes' frame size) the training "
-        "part's end-to-end epoch reads, its pairs repeated where too few (default: 20 val episodes "
-        "rendered for each recipe)",
+        help="training data (python -m odolab.training_data, of the recipes' frame size; a few episodes: "
+        "every shard is checked first) the training part's end-to-end epoch reads, its pairs repeated "
+        "where too few (default: 20 val episodes rendered for each recipe)",
     )
     ap.add_argument("--odometers", default=None, help="comma-separated odometers (default: all)")
     ap.add_argument(
@@ -108,13 +98,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         from odolab.learning import ConfigError
         from odolab.robust_vo.config import load_train_config
 
+        configs = []
         for r in recipes:
             try:
-                cfg = load_train_config(str(r))
+                configs.append((str(r), load_train_config(str(r))))
             except ConfigError as exc:
                 raise UsageError(f"--recipe: {exc}") from None
-            if args.bench_data is not None:
-                _check_bench_data(args.bench_data, cfg.model.width, cfg.model.height, r)
+        if args.bench_data is not None:
+            from odolab.robust_vo.speed import open_bench_data
+
+            try:
+                args.bench_data = open_bench_data(args.bench_data, configs)
+            except ValueError as exc:
+                raise UsageError(f"--bench-data: {exc}") from None
     elif args.recipe or args.train_threads or args.bench_data:
         option = "--recipe" if args.recipe else "--train-threads" if args.train_threads else "--bench-data"
         raise UsageError(
@@ -197,9 +193,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(_table([report["evaluate"]]))
         save()
     if "training" in parts:
-        report["training"] = bench.bench_training(
-            recipes, threads=args.train_threads, data=None if args.bench_data is None else Path(args.bench_data)
-        )
+        report["training"] = bench.bench_training(recipes, threads=args.train_threads, data=args.bench_data)
         print(
             "\n## Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
             "own epoch end to end; fp32 bare beside the chosen precision)\n"

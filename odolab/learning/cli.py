@@ -159,11 +159,14 @@ def parse_training_command(
     args = ap.parse_args(argv)
     try:
         config = load_config(str(args.config), args.set)
-        device = pick_device(args.device)
     except ChangeError as exc:
         raise UsageError(f"--set {exc}") from None
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    try:
+        device = pick_device(args.device)
+    except ValueError as exc:
+        raise UsageError(f"--device: {exc}") from None
     name = args.config.stem
     work = args.work or Path("runs") / args.family / name
     reports = args.reports or Path("reports") / args.family / name

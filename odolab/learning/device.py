@@ -2,21 +2,29 @@
 
 from __future__ import annotations
 
+import re
+
 import torch
+
+#: The device names :func:`pick_device` takes.
+DEVICE_NAME = re.compile(r"cpu|mps|cuda(?::(\d+))?")
 
 
 def pick_device(name: str | None = None) -> torch.device:
-    """``torch.device(name)`` if given (``ValueError`` when it is not available), else ``cuda`` when
-    a CUDA GPU is present, ``mps`` on Apple silicon, otherwise ``cpu``."""
-    if name:
-        try:
-            device = torch.device(name)
-        except RuntimeError as exc:
-            raise ValueError(f"device {name!r} is not a torch device ({exc})") from None
-        if device.type not in ("cpu", "cuda", "mps"):
+    """``torch.device(name)`` for ``name`` cpu, cuda, cuda:N or mps (``ValueError`` for another name
+    or one this machine lacks); for None, ``cuda`` when a CUDA GPU is present, ``mps`` on Apple
+    silicon, otherwise ``cpu``."""
+    if name is not None:
+        form = DEVICE_NAME.fullmatch(name)
+        if form is None:
             raise ValueError(f"device {name!r}: expected cpu, cuda, cuda:N or mps")
+        device = torch.device(name)
         if device.type == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"device {name!r} asked for but no CUDA GPU is available")
+        if form.group(1) is not None and int(form.group(1)) >= torch.cuda.device_count():
+            n = torch.cuda.device_count()
+            names = "cuda:0" if n == 1 else f"cuda:0 to cuda:{n - 1}"
+            raise ValueError(f"device {name!r}: this machine has {n} CUDA GPU{'s' if n != 1 else ''} ({names})")
         if device.type == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
             raise ValueError(f"device {name!r} asked for but Apple's MPS is not available")
         return device

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,7 @@ import torch
 
 from odolab.learning import SERIAL, Compute, EpochLoop, TrainingData, make_training_data
 from odolab.learning.epochs import EpochTracker
+from odolab.robust_vo.batches import stage_samples
 from odolab.robust_vo.config import TrainConfig
 from odolab.robust_vo.model import VONet, batch_moments
 
@@ -105,6 +106,33 @@ def bench_data(cfg: TrainConfig, folder: Path, episodes: int = 20) -> TrainingDa
     return TrainingData(folder)
 
 
+def open_bench_data(folder: str, recipes: Sequence[tuple[str, TrainConfig]]) -> Path:
+    """The training-data folder ``folder`` checked for timing ``recipes`` (name, recipe) end to end:
+    one frame size for all, every shard intact, pairs for each recipe's first stage. Returns its
+    absolute path; ``ValueError`` naming the folder and what is wrong."""
+    if not folder.strip():
+        raise ValueError("expected a training-data folder (python -m odolab.training_data --out FOLDER), got ''")
+    path = Path(folder)
+    if not path.is_dir():
+        raise ValueError(f"{folder}: {'not a folder' if path.exists() else 'no such folder'}")
+    sizes = dict.fromkeys(f"{c.model.width} x {c.model.height}" for _, c in recipes)
+    if len(sizes) > 1:
+        raise ValueError(f"one data folder serves recipes of one frame size; these take {' and '.join(sizes)}")
+    data = TrainingData(path)
+    try:
+        data.config.require_size(recipes[0][1].model.width, recipes[0][1].model.height)
+    except ValueError as exc:
+        raise ValueError(f"{folder}: {exc}") from None
+    data.verify()
+    for name, cfg in recipes:
+        stage = cfg.stages[0]
+        if not len(stage_samples(data, stage)):
+            raise ValueError(
+                f"{folder}: no pairs for the first stage ({stage.name!r}: {', '.join(stage.actions)}) of recipe {name}"
+            )
+    return path.absolute()
+
+
 def end_to_end_pairs_per_s(cfg: TrainConfig, compute: Compute, data: TrainingData, steps: int = 24) -> float:
     """Pairs per second of the trainer's own epoch over ``steps`` batches of the first stage (the
     stage's samples repeated in order where ``data`` holds fewer)."""
@@ -139,8 +167,9 @@ def training_speed(
         if data_folder is None:
             data = bench_data(cfg, Path(tmp))
         else:
-            data = TrainingData(data_folder)
+            data = TrainingData(data_folder)  # checked by open_bench_data
             data.config.require_size(cfg.model.width, cfg.model.height)
+        distinct = len(stage_samples(data, cfg.stages[0]))
         fp32_bare = bare_pairs_per_s(cfg, fp32)
         bare = fp32_bare if compute == fp32 else bare_pairs_per_s(cfg, compute)
         end_to_end = end_to_end_pairs_per_s(cfg, compute, data, steps)
@@ -160,6 +189,7 @@ def training_speed(
         "device": str(device),
         "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "",
         "data": "20 rendered val episodes" if data_folder is None else str(data_folder),
+        "data_pairs": distinct,  # the first stage's samples in the data (repeated where fewer than timed)
         "threads": torch.get_num_threads(),
         "precision": compute.precision,
         "memory_format": compute.memory_format,
