@@ -227,8 +227,13 @@ def fan_out(
     on_result: Callable[[int, Any], None] | None = None,
     execution: Execution = Execution(),
     desc: str = "tasks",
+    gpus: float = 0.0,
 ) -> list[Any]:
     """``[fn(item) for item in items]``, as Ray tasks when ``execution.parallel`` and there are 2+ items.
+
+    ``gpus``: GPUs each Ray task asks for (Ray then makes only its GPUs visible to it; 0: none asked,
+    and a task sees whatever GPUs its node has); :class:`RayAddressError` naming the cluster's GPU count
+    when it has fewer (the tasks would wait for ever). In this process (serial) it has no effect.
 
     ``on_result(k, result)`` is called in the driver as each item finishes (in completion order),
     e.g. to write it to disk at once so finished work survives an interruption; results are then
@@ -257,7 +262,13 @@ def fan_out(
 
         started = start_ray(ray_address, quiet=not progress)
         try:
-            task = ray.remote(fn)
+            if gpus > 0 and ray.cluster_resources().get("GPU", 0.0) < gpus:
+                have = ray.cluster_resources().get("GPU", 0.0)
+                raise RayAddressError(
+                    f"has {have:g} GPUs; each task asks for {gpus:g} (run where there are GPUs, or ask for none)",
+                    subject=ray_address or "the local Ray instance",
+                )
+            task = ray.remote(num_gpus=gpus)(fn) if gpus > 0 else ray.remote(fn)
             pending = {task.remote(item): k for k, item in enumerate(items)}
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1)

@@ -24,6 +24,7 @@ import functools
 import hashlib
 import json
 import math
+import os
 import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -139,7 +140,8 @@ class Row:
 class Scale:
     """One scale's parameters (see ``studies/ablations.toml``). ``data_root`` "" is ``<out>/data``;
     ``device`` "" is a GPU where the unit sees one, else the CPU; ``train_threads`` 0 leaves torch's
-    thread count as it is."""
+    thread count as it is; ``train_gpus``: GPUs each training unit asks Ray for (0: none, and a unit
+    sees every GPU of its node)."""
 
     rows: tuple[int, ...]
     robust_vo_recipe: str
@@ -158,6 +160,7 @@ class Scale:
     nav_seeds: tuple[int, ...]
     nav_episodes: int
     nav_max_steps: int
+    train_gpus: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -753,6 +756,22 @@ def check_folders(out: Path) -> None:
             raise UsageError(f"--out {out}: {exc}") from None
 
 
+def check_gpus(scale: Scale, name: str, *, serial: bool, address: str | None, redraw: bool) -> None:
+    """Before anything is made: ``UsageError`` when the scale asks Ray for GPUs per training unit
+    and the local instance it would start has none (a cluster's are counted when it connects)."""
+    from odolab.cli import UsageError
+
+    if scale.train_gpus > 0 and not serial and address is None and not redraw and not os.environ.get("RAY_ADDRESS"):
+        import torch
+
+        if torch.cuda.device_count() < scale.train_gpus:
+            raise UsageError(
+                f"--scale {name} asks Ray for {scale.train_gpus:g} GPU per training unit (train_gpus in "
+                f"{DEFINITION.name}) and this machine has {torch.cuda.device_count()}; give --ray-address "
+                "of a cluster with GPUs, or --serial to train in this process"
+            )
+
+
 def make_data(recipes: dict[int, TrainConfig | DeepVOTraining], execution: Execution) -> None:
     """Every data set the recipes train on, made here (once each) before the training units start,
     so that no two units make the same folder at once."""
@@ -776,6 +795,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     scale = definition.scales[args.scale]
     out = args.out or Path("reports") / NAME
+    check_gpus(scale, args.scale, serial=args.serial, address=args.ray_address, redraw=args.redraw)
     framework.check_options(args, out, definition.study)
     check_folders(out)
     out = out.resolve()  # the units run elsewhere (Ray workers): every path they get is absolute
@@ -795,6 +815,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         redraw=args.redraw,
         execution=execution,
         valid=functools.partial(valid_model, out=out, check_file=not args.redraw),
+        gpus=scale.train_gpus,
     )
     error_todo, nav_todo, untrained = evaluation_units(definition, scale, trained.results)
     errors = framework.run_units(

@@ -265,12 +265,13 @@ def run_units(
     redraw: bool = False,
     execution: Execution = Execution(),
     valid: Callable[[Any], bool] | None = None,
+    gpus: float = 0.0,
 ) -> Outcome:
     """``fn(unit.key)`` for every unit without a saved result, as Ray tasks (a local instance, or the
     cluster at ``execution.ray_address``), each result saved as it finishes; with ``redraw`` nothing is computed.
     Results must be plain JSON data. Computing seconds are saved beside each result. A saved result
     that ``valid`` refuses (a file edited or damaged by hand) counts as not saved: computed again,
-    or missing with ``redraw``."""
+    or missing with ``redraw``. ``gpus``: GPUs each unit's Ray task asks for (:func:`fan_out`)."""
 
     out = Outcome()
     todo = []
@@ -300,6 +301,7 @@ def run_units(
         on_result=done,
         execution=execution,
         desc="study units",
+        gpus=gpus,
     )
     return out
 

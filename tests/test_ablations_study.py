@@ -175,3 +175,18 @@ def test_a_changed_model_file_is_not_taken_for_its_result(ci_run, tmp_path: Path
     (tmp_path / ablations.model_file(18)).write_bytes(b"other weights")
     assert not ablations.valid_model(value, out=tmp_path, check_file=True)
     assert ablations.valid_model(value, out=tmp_path, check_file=False)  # --redraw reads numbers only
+
+
+def test_the_paper_scale_on_a_machine_without_gpus_is_refused_before_anything_is_made(tmp_path, monkeypatch, capsys):
+    """The paper scale asks Ray for a GPU per training unit; started here (no GPU, no cluster) it would
+    render 14,000 episodes and then wait for ever: one line, exit 2, nothing made."""
+    import torch
+
+    from odolab.cli import run_cli
+    from studies import ablations
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 0)
+    out = tmp_path / "paper"
+    assert run_cli(ablations.main, "prog", ["--scale", "paper", "--out", str(out)]) == 2
+    assert "asks Ray for 1 GPU per training unit" in capsys.readouterr().err and not out.exists()

@@ -799,3 +799,30 @@ def test_a_pasted_20000_character_name_is_not_echoed_whole(tmp_path):
 def test_every_command_names_itself_as_typed_in_its_errors(module):
     proc = subprocess.run([sys.executable, "-m", module, "--bogus-option"], capture_output=True, text=True, check=False)
     assert proc.returncode == 2 and proc.stderr.startswith(f"python -m {module}: error: "), proc.stderr
+
+
+def test_tasks_that_ask_for_gpus_get_one_each_or_a_clear_refusal():
+    """The ablation study's paper scale asks Ray for a GPU per training unit: Ray then shows each task
+    only its GPU; a cluster with none refuses in one line at once instead of waiting for ever."""
+    import os
+
+    import ray
+
+    from odolab.parallel import RayAddressError, fan_out
+
+    quiet = Execution(progress=False)
+    visible = ["CUDA_VISIBLE_DEVICES"] * 2  # each task's os.getenv of it
+    ray.init(num_cpus=2, num_gpus=1, include_dashboard=False, log_to_driver=False)  # a GPU declared, none there
+    try:
+        assert fan_out(os.getenv, visible, execution=quiet, gpus=1) == ["0", "0"]  # one after the other
+    finally:
+        ray.shutdown()
+    ray.init(num_cpus=2, num_gpus=0, include_dashboard=False, log_to_driver=False)
+    try:
+        with pytest.raises(RayAddressError) as info:
+            fan_out(os.getenv, visible, execution=quiet, gpus=1)
+        assert str(info.value) == (
+            "the local Ray instance has 0 GPUs; each task asks for 1 (run where there are GPUs, or ask for none)"
+        )
+    finally:
+        ray.shutdown()
