@@ -57,7 +57,7 @@ def _mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 class StepBatches:
     """What one training step reads, made in a loader worker (or the training process): the batch of
     ``samples`` and, for GeoInv, the same pairs swapped. For a CPU ``device`` the batches are made
-    whole there; for a GPU only the frames are read there (:class:`Pairs`) and :meth:`finish` makes
+    whole there (on the CPU); for a GPU only the frames are read there (:class:`Pairs`) and :meth:`finish` makes
     the network inputs on the GPU, which copies a ninth of the bytes and leaves the warp and psi to
     the GPU (``inputs_in_loader`` overrides the choice). Picklable (the data's maps reopen in each
     worker)."""
@@ -75,8 +75,8 @@ class StepBatches:
 
     def __call__(self, samples: Samples) -> tuple[Batch | Pairs, Batch | Pairs | None]:
         made = [read_pairs(self.data, samples, swap_all=s) for s in ((False, True) if self.geoinv else (False,))]
-        if self.inputs_in_loader:
-            made = [network_inputs(p, self.data.intrinsics, self.cfg, self.device) for p in made]
+        if self.inputs_in_loader:  # on the CPU: the step moves them to its device
+            made = [network_inputs(p, self.data.intrinsics, self.cfg, torch.device("cpu")) for p in made]
         return made[0], made[1] if self.geoinv else None
 
     def finish(self, made: tuple[Batch | Pairs, Batch | Pairs | None]) -> tuple[Batch, Batch | None]:
