@@ -262,8 +262,8 @@ def fan_out(
 
         started = start_ray(ray_address, quiet=not progress)
         try:
-            if gpus > 0 and ray.cluster_resources().get("GPU", 0.0) < gpus:
-                have = ray.cluster_resources().get("GPU", 0.0)
+            have = ray.cluster_resources().get("GPU", 0.0) if gpus > 0 else 0.0
+            if have < gpus:
                 raise RayAddressError(
                     f"has {have:g} GPUs; each task asks for {gpus:g} (run where there are GPUs, or ask for none)",
                     subject=ray_address or "the local Ray instance",

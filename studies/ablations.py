@@ -25,7 +25,6 @@ import hashlib
 import json
 import math
 import os
-import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -764,11 +763,12 @@ def check_gpus(scale: Scale, name: str, *, serial: bool, address: str | None, re
     if scale.train_gpus > 0 and not serial and address is None and not redraw and not os.environ.get("RAY_ADDRESS"):
         import torch
 
-        if torch.cuda.device_count() < scale.train_gpus:
+        have = torch.cuda.device_count()
+        if have < scale.train_gpus:
             raise UsageError(
                 f"--scale {name} asks Ray for {scale.train_gpus:g} GPU per training unit (train_gpus in "
-                f"{DEFINITION.name}) and this machine has {torch.cuda.device_count()}; give --ray-address "
-                "of a cluster with GPUs, or --serial to train in this process"
+                f"{DEFINITION.name}) and this machine has {have}; give --ray-address of a cluster with "
+                "GPUs, or --serial to train in this process"
             )
 
 
@@ -854,8 +854,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "errors x 1e-2 (mean and standard deviation over the seeds), fps in steps/s of the odometer alone; "
             "*_ci: 95 % intervals (Wilson's for S, Student's t for the others). S_vs_18 and error_vs_18 say "
             "whether the row lies on the same side of row 18 as in the paper, '(overlap)' where our intervals "
-            "of the two rows overlap (not settled at this sample size)."
-            + (f" Missing (not computed): {framework.unit_ranges(missing)}." if missing else ""),
+            "of the two rows overlap (not settled at this sample size)." + framework.missing_note(missing),
             *(f"Row {r}: {definition.rows[r].note}" for r in scale.rows if definition.rows[r].note),
         ],
         columns=COLUMNS,
@@ -877,8 +876,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     computed = sum(len(o.computed) for o in outcomes)
     print(f"{computed} units computed ({', '.join(f'{len(o.computed)} {n}' for o, n in zip(outcomes, PHASES))})")
     print(f"{len(lines)} rows -> {out}")
-    if missing:
-        print(f"note: no saved result (left out of the table): {framework.unit_ranges(missing)}", file=sys.stderr)
+    framework.say_missing(missing)
     return 0
 
 

@@ -429,9 +429,20 @@ def unit_ranges(labels: Sequence[str]) -> str:
     return f"{len(labels)} units: {', '.join(parts)}" if len(labels) > 1 else ", ".join(parts)
 
 
+def missing_note(labels: Sequence[str]) -> str:
+    """For a report's intro: the units ``labels`` left out because no result was saved ("" when none)."""
+    return f" Missing (not computed): {unit_ranges(labels)}." if labels else ""
+
+
 def outcome_note(outcome: Outcome) -> str:
-    """For a report's intro: the units left out because no result was saved ("" when none)."""
-    return f" Missing (not computed): {unit_ranges(outcome.missing)}." if outcome.missing else ""
+    """:func:`missing_note` of ``outcome``'s missing units."""
+    return missing_note(outcome.missing)
+
+
+def say_missing(labels: Sequence[str]) -> None:
+    """Name the units ``labels`` left out of the table on stderr (nothing when none)."""
+    if labels:
+        print(f"note: no saved result (left out of the table): {unit_ranges(labels)}", file=sys.stderr)
 
 
 def require_results(outcome: Outcome, out: Path, scale: str) -> None:
@@ -445,8 +456,7 @@ def require_results(outcome: Outcome, out: Path, scale: str) -> None:
 def say_done(outcome: Outcome, rows: int, out: Path) -> None:
     """Print how many units were computed and rows written; name the missing units on stderr."""
     print(f"{len(outcome.computed)} units computed, {rows} rows -> {out}")
-    if outcome.missing:
-        print(f"note: no saved result (left out of the table): {unit_ranges(outcome.missing)}", file=sys.stderr)
+    say_missing(outcome.missing)
 
 
 def command_line(prog: str, argv: Sequence[str] | None) -> str:

@@ -2,9 +2,10 @@
 
 ``bare``: one network (the forward one), a batch of the recipe's first stage of random inputs
 resident in the device's memory, forward + MSE + backward + Adam, in the chosen precision and memory
-format and in fp32 beside it. ``end_to_end``: the trainer's own epoch (:meth:`StageRunner.train_epoch`:
-shard reads, swaps and mirrors, the nominal warp, psi, the batch made by the loader workers or, on a
-GPU, the inputs made on the GPU, the step) on a few real episodes, worker start-up included. The end-to-end rate over the bare one says how much the
+format and in fp32 beside it. ``end_to_end``: the trainer's own epoch
+(:meth:`StageRunner.train_epoch`: shard reads, swaps and mirrors, the nominal warp, psi, the batch
+made by the loader workers or, on a GPU, its inputs made on the GPU, the step) on a few real
+episodes, worker start-up included. The end-to-end rate over the bare one says how much the
 rest of training costs (at least 0.7 is wanted). Beside them, one network's forward pass at batch 1
 (what the odometer's speed is bound by) in fp32 and bf16, and the input normaliser's batch moments
 (:func:`odolab.robust_vo.model.batch_moments`) against ``Tensor.mean`` and ``Tensor.var``.

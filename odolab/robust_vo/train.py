@@ -57,10 +57,10 @@ def _mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 class StepBatches:
     """What one training step reads, made in a loader worker (or the training process): the batch of
     ``samples`` and, for GeoInv, the same pairs swapped. For a CPU ``device`` the batches are made
-    whole there (on the CPU); for a GPU only the frames are read there (:class:`Pairs`) and :meth:`finish` makes
-    the network inputs on the GPU, which copies a ninth of the bytes and leaves the warp and psi to
-    the GPU (``inputs_in_loader`` overrides the choice). Picklable (the data's maps reopen in each
-    worker)."""
+    whole there (on the CPU); for a GPU only the frames are read there (:class:`Pairs`) and
+    :meth:`finish` makes the network inputs on the GPU, which copies a ninth of the bytes and leaves
+    the warp and psi to the GPU (``inputs_in_loader`` overrides the choice). Picklable (the data's
+    maps reopen in each worker)."""
 
     def __init__(
         self,
