@@ -774,7 +774,8 @@ def check_gpus(scale: Scale, name: str, *, serial: bool, address: str | None, re
 
 def make_data(recipes: dict[int, TrainConfig | DeepVOTraining], execution: Execution) -> None:
     """Every data set the recipes train on, made here (once each) before the training units start,
-    so that no two units make the same folder at once."""
+    so that no two units make the same folder at once; the caller passes the recipes of the models
+    still to train."""
     from odolab.training_data import make_training_data
 
     made = set()
@@ -806,15 +807,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError(str(exc)) from None
     execution = execution_of(args)
     store = framework.ResultStore(out / "results")
-    if not args.redraw:
-        make_data(recipes, execution)
+    training = train_units(definition, scale, recipes)
+    trained_valid = functools.partial(valid_model, out=out, check_file=not args.redraw)
+    if not args.redraw:  # the data of the models still to train (a resumed study may need none)
+        to_train = framework.unsaved(training, store, trained_valid)
+        make_data({u.key["row"]: recipes[u.key["row"]] for u in to_train}, execution)
     trained = framework.run_units(
         functools.partial(train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads),
-        train_units(definition, scale, recipes),
+        training,
         store,
         redraw=args.redraw,
         execution=execution,
-        valid=functools.partial(valid_model, out=out, check_file=not args.redraw),
+        valid=trained_valid,
         gpus=scale.train_gpus,
     )
     error_todo, nav_todo, untrained = evaluation_units(definition, scale, trained.results)

@@ -257,6 +257,19 @@ def _timed(job: tuple[Callable[[dict], Any], dict]) -> tuple[Any, float]:
     return result, time.perf_counter() - t0
 
 
+def _saved(store: ResultStore, unit: Unit, valid: Callable[[Any], bool] | None) -> dict[str, Any] | None:
+    """``unit``'s saved ``{"value", "seconds"}`` when ``valid`` accepts its value, else None."""
+    saved = store.get(unit)
+    if isinstance(saved, dict) and "value" in saved and (valid is None or _accepts(valid, saved["value"])):
+        return saved
+    return None
+
+
+def unsaved(units: Sequence[Unit], store: ResultStore, valid: Callable[[Any], bool] | None = None) -> list[Unit]:
+    """The units :func:`run_units` would compute: those without a saved result ``valid`` accepts."""
+    return [u for u in units if _saved(store, u, valid) is None]
+
+
 def run_units(
     fn: Callable[[dict[str, Any]], Any],
     units: Sequence[Unit],
@@ -276,8 +289,8 @@ def run_units(
     out = Outcome()
     todo = []
     for u in units:
-        saved = store.get(u)
-        if isinstance(saved, dict) and "value" in saved and (valid is None or _accepts(valid, saved["value"])):
+        saved = _saved(store, u, valid)
+        if saved is not None:
             out.results[u.label] = saved["value"]
             out.seconds += _seconds(saved.get("seconds", 0.0))
         elif redraw:

@@ -151,7 +151,14 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
 def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     out, table = ci_run
     models = {p: p.stat().st_mtime_ns for p in (out / "models").rglob("model.pt")}
-    assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+    data, aside = out / "data", out.parent / "data-aside"
+    data.rename(aside)
+    try:
+        assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+        assert not data.exists()  # every model is trained: no training data made again
+    finally:
+        shutil.rmtree(data, ignore_errors=True)
+        aside.rename(data)
     assert "0 units computed" in capsys.readouterr().out
     assert {p: p.stat().st_mtime_ns for p in (out / "models").rglob("model.pt")} == models
     assert (out / "table.csv").read_text() == table
