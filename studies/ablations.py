@@ -5,7 +5,8 @@ driven through PointGoal navigation, and its numbers are set beside the paper's.
 
 A row is DeepVO (row 0), the robust VO with the paper's switches (rows 1-18: a recipe with
 ``path=value`` changes, see ``studies/ablations.toml``) or ground truth (row 20); row 19 is left out
-(it fine-tunes the paper's learned policy; odolab's policy is a classical one). Three phases of
+(it fine-tunes the paper's learned policy; odolab's policy is a classical one). Row 21 is not the
+paper's: the action prior (each action's mean motion), the floor a trained odometer has to beat. Three phases of
 units, each a Ray task whose result is saved as it finishes and reused while its key (everything it
 depends on) stays the same: training a row's model (``<out>/models/<row>/model.pt``), its per-step
 error on each seed's test episodes (``run_comparison``, the challenge's noise), and its navigation
@@ -93,16 +94,21 @@ class Paper:
     error: tuple[float, ...] = ()
 
 
+#: The paper's numbers of a row the paper does not have: none (NaN; shown as -).
+NO_PAPER = Paper(success=math.nan, spl=math.nan, d_g=math.nan, soft_spl=math.nan, params="")
+
+
 @dataclass(frozen=True)
 class Row:
     """One row of the table: its ``odometer``; for the robust VO its ``switches`` and the recipe
     ``changes`` that set them (``wide``: also the scale's ``wide_changes``); ``model_of``: use that
     row's model instead of training one; ``options``: odometer options beyond the model file;
-    ``note``: where odolab's row is not the paper's exactly."""
+    ``note``: where odolab's row is not the paper's exactly; ``paper`` None: a reference row of
+    odolab's that the paper's table does not have (the action prior)."""
 
     row: int
-    paper: Paper
-    odometer: Literal["robust-vo", "deepvo", "ground-truth"] = "robust-vo"
+    paper: Paper | None = None
+    odometer: Literal["robust-vo", "deepvo", "ground-truth", "action-prior"] = "robust-vo"
     switches: Switches | None = None
     changes: tuple[str, ...] = ()
     wide: bool = False
@@ -112,17 +118,16 @@ class Row:
 
     def setting(self) -> str:
         """The row's odometer in words: ``DeepVO``, ``robust VO`` (``rnd10``: ten dropout passes;
-        ``2x wide``), ``Ground truth``; its switches are :meth:`switch_cells`."""
-        if self.odometer == "deepvo":
-            return "DeepVO"
-        if self.switches is None:
-            return "Ground truth"
+        ``2x wide``), ``Ground truth``, ``Action prior``; its switches are :meth:`switch_cells`."""
+        named = {"deepvo": "DeepVO", "ground-truth": "Ground truth", "action-prior": "Action prior"}
+        if self.odometer in named:
+            return named[self.odometer]
         extra = " (rnd10)" if self.options.get("mc_samples") == 10 else ""
         return "robust VO" + extra + (" (2x wide)" if self.wide else "")
 
     def switch_cells(self) -> dict[str, str]:
         """The paper's switch columns (:data:`SWITCH_COLUMNS`): the visual input, the DD bins, the
-        action information and a check mark per switch that is on; empty for DeepVO and ground truth."""
+        action information and a check mark per switch that is on; empty for the other odometers."""
         s = self.switches
         if s is None:
             return dict.fromkeys(SWITCH_COLUMNS, "")
@@ -201,6 +206,8 @@ def load_definition(path: Path = DEFINITION) -> Definition:
     for r in rows:
         if (r.odometer == "robust-vo") != (r.switches is not None):
             raise ConfigError(f"{path}: row {r.row}: switches are for robust-VO rows, and every one has them")
+        if (r.paper is None) != (r.odometer == "action-prior"):
+            raise ConfigError(f"{path}: row {r.row}: paper numbers are for the paper's rows, and every one has them")
         if r.model_of is not None and (r.model_of not in by_number or by_number[r.model_of].model_of is not None):
             raise ConfigError(f"{path}: row {r.row}: model_of {r.model_of} is no row that trains a model")
     for s, scale in scales.items():
@@ -226,8 +233,9 @@ class Header:
 
 
 def model_row(row: Row) -> int | None:
-    """The row whose model ``row`` runs (its own, or ``model_of``); None for ground truth."""
-    if row.odometer == "ground-truth":
+    """The row whose model ``row`` runs (its own, or ``model_of``); None for a reference odometer
+    (ground truth, the action prior), which has none."""
+    if row.odometer in ("ground-truth", "action-prior"):
         return None
     return row.row if row.model_of is None else row.model_of
 
@@ -594,18 +602,19 @@ def table(
             for e in range(scale.nav_episodes)
             if (label := f"navigate row {number} seed {s} episode {e}") in navigation
         ]
+        paper = row.paper or NO_PAPER
         line: dict[str, Any] = {
             "row": number,
             "setting": row.setting(),
             **row.switch_cells(),
             "params_M": "" if model_row(row) is None else _params_text(trained),
-            "paper_params_M": row.paper.params,
-            "paper_S": row.paper.success,
-            "paper_SPL": row.paper.spl,
-            "paper_d_G": row.paper.d_g,
-            "paper_SoftSPL": row.paper.soft_spl,
-            "paper_error": f"({', '.join(f'{v:.2f}' for v in row.paper.error)})" if row.paper.error else "",
-            "paper_error_mean": float(np.mean(row.paper.error)) if row.paper.error else float("nan"),
+            "paper_params_M": paper.params,
+            "paper_S": paper.success,
+            "paper_SPL": paper.spl,
+            "paper_d_G": paper.d_g,
+            "paper_SoftSPL": paper.soft_spl,
+            "paper_error": f"({', '.join(f'{v:.2f}' for v in paper.error)})" if paper.error else "",
+            "paper_error_mean": float(np.mean(paper.error)) if paper.error else float("nan"),
             "nav_episodes": len(nav),
             "pairs_seen": trained["pairs_seen"] if trained and row.model_of is None else "",
             "train_h": trained["training_hours"] if trained and row.model_of is None else "",
@@ -631,19 +640,20 @@ def table(
         lines.append(line)
     reference = next((line for line in lines if line["row"] == REFERENCE_ROW), None)
     paper_reference = definition.rows[REFERENCE_ROW].paper
+    assert paper_reference is not None  # load_definition checks it
     for line in lines:
-        row = definition.rows[line["row"]]
+        paper = definition.rows[line["row"]].paper or NO_PAPER
         line["S_vs_18"] = _order(
             line["S"],
             reference and reference["S"],
-            row.paper.success,
+            paper.success,
             paper_reference.success,
             overlap=reference is not None and _overlap(line["S_range"], reference["S_range"]),
         )
         line["error_vs_18"] = _order(
             -_mean_error(line),
             reference and -_mean_error(reference),
-            -line["paper_error_mean"] if row.paper.error else None,
+            -line["paper_error_mean"] if paper.error else None,
             -float(np.mean(paper_reference.error)),
             overlap=reference is not None
             and _overlap(
@@ -672,7 +682,7 @@ def _order(ours: float, ours_ref: float | None, paper: float | None, paper_ref: 
     ``agrees``, ``differs``, ``tie`` (ours level with row 18's, the paper's not), or "" without
     numbers; `` (overlap)`` follows when our 95 % intervals of the two rows overlap (the order is
     not settled at this sample size)."""
-    if paper is None or ours_ref is None or not (math.isfinite(ours) and math.isfinite(ours_ref)):
+    if paper is None or ours_ref is None or not all(map(math.isfinite, (ours, ours_ref, paper))):
         return ""
     mine, theirs = np.sign(ours - ours_ref), np.sign(paper - paper_ref)
     if mine == 0 and theirs != 0:
@@ -730,6 +740,9 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
         ax.scatter(xs, ys, color=color, marker=marker, label=f"{who} (row number beside each point)")
         for x, y, n in points:
             ax.annotate(str(n), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=8, color=color)
+    for line in lines:  # odolab's reference rows without a paper row: the action prior
+        if line["setting"] == "Action prior" and math.isfinite(line["S"]):
+            ax.axhline(line["S"], color="0.4", linestyle=":", label=f"row {line['row']}: the action prior's success")
     ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
     ax.set_ylabel("navigation success (%)")
     ax.set_title("Navigation success against per-step VO error, per row of Table 2 (bars: our 95 % intervals)")

@@ -99,6 +99,14 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
         ablations.load_definition(tmp_path / "a.toml")
 
 
+def test_a_paper_row_without_the_papers_numbers_is_refused(tmp_path: Path):
+    text = ablations.DEFINITION.read_text(encoding="utf-8")
+    start = text.index("paper = {", text.index("row = 3\n"))
+    (tmp_path / "a.toml").write_text(text[:start] + text[text.index("\n", start) + 1 :])
+    with pytest.raises(ConfigError, match=r"a.toml: row 3: paper numbers are for the paper's rows"):
+        ablations.load_definition(tmp_path / "a.toml")
+
+
 @pytest.fixture(scope="module")
 def ci_run(tmp_path_factory) -> tuple[Path, str]:
     out = tmp_path_factory.mktemp("ablations") / "out"
@@ -123,10 +131,16 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
     for r in rows:
         for column in ("S", "SPL", "d_G", "SoftSPL", "dx", "dz", "dyaw"):
             assert math.isfinite(float(r[column])), (r["row"], column)
-        assert math.isnan(float(r["fps"])) if r["row"] == "20" else float(r["fps"]) > 0  # ground truth: no speed
-        assert float(r["paper_S"]) == DEFINITION.rows[int(r["row"])].paper.success
+        reference = r["row"] in ("20", "21")  # ground truth and the action prior: no speed
+        assert math.isnan(float(r["fps"])) if reference else float(r["fps"]) > 0
+        paper = DEFINITION.rows[int(r["row"])].paper
+        assert math.isnan(float(r["paper_S"])) if paper is None else float(r["paper_S"]) == paper.success
     by_row = {int(r["row"]): r for r in rows}
     assert by_row[20]["dx"] == "0.0" and by_row[18]["S_vs_18"] == ""
+    # the action prior (not the paper's): its own numbers, nothing to set beside the paper's
+    prior = by_row[21]
+    assert prior["setting"] == "Action prior" and float(prior["dx"]) > 0 and prior["params_M"] == ""
+    assert prior["S_vs_18"] == prior["error_vs_18"] == "" and prior["paper_error"] == ""
     assert [by_row[18][c] for c in ablations.SWITCH_COLUMNS] == [
         "RGB-D",
         "10",
