@@ -327,9 +327,12 @@ def _check(value: Any, annotation: Any, where: str) -> Any:
     if annotation is Any:
         return value
     if origin in (typing.Union, types.UnionType):
-        for option in typing.get_args(annotation):
-            if option is type(None) and value is None:
-                return None
+        options = [o for o in typing.get_args(annotation) if o is not type(None)]
+        if value is None and len(options) < len(typing.get_args(annotation)):
+            return None
+        if len(options) == 1:  # X | None: X's own message says what is wrong
+            return _check(value, options[0], where)
+        for option in options:
             try:
                 return _check(value, option, where)
             except ConfigError:

@@ -206,9 +206,19 @@ def load_definition(path: Path = DEFINITION) -> Definition:
     for r in rows:
         if (r.odometer == "robust-vo") != (r.switches is not None):
             raise ConfigError(f"{path}: row {r.row}: switches are for robust-VO rows, and every one has them")
-        if (r.paper is None) != (r.odometer == "action-prior"):
-            raise ConfigError(f"{path}: row {r.row}: paper numbers are for the paper's rows, and every one has them")
-        if r.model_of is not None and (r.model_of not in by_number or by_number[r.model_of].model_of is not None):
+        if r.odometer == "action-prior" and r.paper is not None:
+            raise ConfigError(
+                f"{path}: row {r.row}: paper: expected none (the paper has no action-prior row), got a table"
+            )
+        if r.odometer != "action-prior" and r.paper is None:
+            raise ConfigError(f"{path}: row {r.row}: paper: expected the paper's numbers for its row, got none")
+        if r.paper is not None and len(r.paper.error) not in (0, len(COMPONENTS)):
+            raise ConfigError(
+                f"{path}: row {r.row}: paper.error: expected {len(COMPONENTS)} numbers (dx, dz, dyaw) or none, got {len(r.paper.error)}"
+            )
+        if r.model_of is not None and (
+            r.model_of not in by_number or model_row(by_number[r.model_of]) != r.model_of or model_row(r) is None
+        ):
             raise ConfigError(f"{path}: row {r.row}: model_of {r.model_of} is no row that trains a model")
     for s, scale in scales.items():
         unknown = sorted(set(scale.rows) - set(by_number))
@@ -311,6 +321,7 @@ def train_row(
     work states under ``<out>/work/<row>/<key digest>``, curves under ``<out>/training/<row>``, the
     model at ``<out>/models/<row>/model.pt``; returns :func:`model_summary`."""
     from odolab.learning import pick_device
+    from odolab.learning.checkpoints import what_file
     from odolab.parallel import SERIAL
 
     number = key["row"]
@@ -322,6 +333,8 @@ def train_row(
     else:
         from odolab.robust_vo.train import run
     export = out / model_file(number)
+    if export.is_file() and not export.is_symlink() and what_file(export) is not None:
+        export.unlink()  # the study's own model path holds no model (a damaged file): export it again
     with torch_threads(threads):
         done = run(
             cfg,
@@ -393,8 +406,8 @@ def _sha256(path: Path) -> str:
 
 
 def _number(v: Any) -> bool:
-    """An int or float that is no bool and no NaN."""
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+    """An int or float that is no bool, no NaN and no infinity."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _odometer(key: dict[str, Any], out: Path) -> tuple[str, dict[str, Any]]:
@@ -587,8 +600,9 @@ def table(
     paper's. Errors (x 1e-2): mean and standard deviation over the seeds; fps: steps per second of
     the odometer alone, mean over the seeds; navigation (S, SPL, SoftSPL in %, d_G in m): mean over
     every seed's episodes with its 95 % interval (Wilson's for success, Student's t for the others).
-    Each line also carries ``S_range`` (success's interval, %) and ``error_ci`` (the mean error's
-    interval over the seeds) for the verdicts and the figure."""
+    Each line also carries ``S_range``, ``SPL_range``, ``SoftSPL_range``, ``d_G_range`` (the 95 %
+    intervals as numbers) and ``error_ci`` (the mean error's interval over the seeds) for the
+    verdicts and the figure."""
     from odolab.navigation.metrics import mean_ci
 
     lines = []
@@ -635,8 +649,7 @@ def table(
             ci = mean_ci(np.array([n[k] for n in nav], float), binary=binary)
             line[column] = ci.mean * scale_by
             line[f"{column}_ci"] = _interval(ci.low * scale_by, ci.high * scale_by)
-            if column == "S":
-                line["S_range"] = (ci.low * scale_by, ci.high * scale_by)
+            line[f"{column}_range"] = (ci.low * scale_by, ci.high * scale_by)
         lines.append(line)
     reference = next((line for line in lines if line["row"] == REFERENCE_ROW), None)
     paper_reference = definition.rows[REFERENCE_ROW].paper
@@ -713,6 +726,55 @@ def findings(lines: list[dict[str, Any]]) -> list[str]:
     return out
 
 
+#: The settings of the rows that are references rather than trained odometers.
+REFERENCES = ("Ground truth", "Action prior")
+
+
+def floor_findings(lines: list[dict[str, Any]]) -> list[str]:
+    """Which trained rows beat the action prior (the floor), per error component and per navigation
+    measure: an error below the prior's by more than both rows' standard deviations over the seeds
+    (mean + sd of the row under mean - sd of the prior); a navigation measure better than the
+    prior's with the two 95 % intervals apart. Empty without an action-prior line."""
+    prior = next((line for line in lines if line["setting"] == "Action prior"), None)
+    if prior is None:
+        return []
+    trained = [line for line in lines if line["setting"] not in REFERENCES]
+
+    def sd(line: dict[str, Any], c: str) -> float:
+        return line[f"{c}_sd"] if math.isfinite(line[f"{c}_sd"]) else 0.0
+
+    def rows(picked: list[dict[str, Any]]) -> str:
+        return ", ".join(str(line["row"]) for line in picked) or "none"
+
+    said = []
+    if math.isfinite(prior["dx"]):
+        below = {c: [ln for ln in trained if ln[c] + sd(ln, c) < prior[c] - sd(prior, c)] for c in COMPONENTS}
+        said.append(
+            f"Per-step error against the action prior (row {prior['row']}: {', '.join(f'{c} {prior[c]:.2f}' for c in COMPONENTS)}"
+            f"), rows below it beyond the seeds' spread: {'; '.join(f'{c}: {rows(below[c])}' for c in COMPONENTS)}"
+        )
+    if math.isfinite(prior["S"]):
+        better = {
+            column: [
+                ln
+                for ln in trained
+                if all(map(math.isfinite, (*ln[f"{column}_range"], *prior[f"{column}_range"])))
+                and (
+                    ln[f"{column}_range"][1] < prior[f"{column}_range"][0]
+                    if column == "d_G"
+                    else ln[f"{column}_range"][0] > prior[f"{column}_range"][1]
+                )
+            ]
+            for column in ("S", "SPL", "SoftSPL", "d_G")
+        }
+        said.append(
+            f"Navigation against the action prior (S {prior['S']:.0f} %, SoftSPL {prior['SoftSPL']:.0f} %, "
+            f"d_G {prior['d_G']:.2f} m), rows better with the two 95 % intervals apart: "
+            + "; ".join(f"{column}: {rows(better[column])}" for column in better)
+        )
+    return said
+
+
 def draw(lines: list[dict[str, Any]], path: Path) -> None:
     """Navigation success against per-step error, one point per row, ours and the paper's."""
     import matplotlib
@@ -726,6 +788,8 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
     for who, color, marker in (("ours", "tab:blue", "o"), ("paper", "tab:orange", "s")):
         points = []
         for line in lines:
+            if line["setting"] == "Action prior":
+                continue  # drawn as the floor below
             x, y = (_mean_error(line), line["S"]) if who == "ours" else (line["paper_error_mean"], line["paper_S"])
             if math.isfinite(x) and math.isfinite(y):
                 points.append((x, y, line["row"]))
@@ -740,9 +804,12 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
         ax.scatter(xs, ys, color=color, marker=marker, label=f"{who} (row number beside each point)")
         for x, y, n in points:
             ax.annotate(str(n), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=8, color=color)
-    for line in lines:  # odolab's reference rows without a paper row: the action prior
-        if line["setting"] == "Action prior" and math.isfinite(line["S"]):
-            ax.axhline(line["S"], color="0.4", linestyle=":", label=f"row {line['row']}: the action prior's success")
+    for line in lines:  # the floor: the action prior (odolab's row, not the paper's)
+        x, y = _mean_error(line), line["S"]
+        if line["setting"] == "Action prior" and math.isfinite(x) and math.isfinite(y):
+            ax.axhline(y, color="0.45", linestyle=":", linewidth=1)
+            ax.axvline(x, color="0.45", linestyle=":", linewidth=1)
+            ax.scatter([x], [y], color="0.3", marker="*", s=140, zorder=3, label=f"action prior (row {line['row']})")
     ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
     ax.set_ylabel("navigation success (%)")
     ax.set_title("Navigation success against per-step VO error, per row of Table 2 (bars: our 95 % intervals)")
@@ -804,7 +871,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.cli import UsageError, execution_of
     from odolab.config import ConfigError
 
-    definition = load_definition()
+    try:
+        definition = load_definition()
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None
     ap = framework.study_arguments(f"python -m studies.{NAME}", definition.study)
     args = ap.parse_args(argv)
     scale = definition.scales[args.scale]
@@ -866,8 +936,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{scale.episodes} test episodes of at most {scale.max_steps} steps for each of the seeds "
             f"{', '.join(map(str, scale.seeds))}; navigation on {scale.nav_episodes} test episodes of at most "
             f"{scale.nav_max_steps} steps for each of the seeds {', '.join(map(str, scale.nav_seeds))}. "
-            "Row 19 is left out: it fine-tunes the paper's learned navigation policy to the VO, and odolab's "
-            "policy is a classical map-and-plan one with nothing to tune. S, SPL, SoftSPL in %, d_G in m, "
+            "S, SPL, SoftSPL in %, d_G in m, "
             "errors x 1e-2 (mean and standard deviation over the seeds), fps in steps/s of the odometer alone; "
             "*_ci: 95 % intervals (Wilson's for S, Student's t for the others). S_vs_18 and error_vs_18 say "
             "whether the row lies on the same side of row 18 as in the paper, '(overlap)' where our intervals "
@@ -883,7 +952,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 lambda p: draw(lines, p),
             )
         },
-        findings=findings(lines),
+        findings=[*findings(lines), *floor_findings(lines)],
         command=framework.command_line(f"python -m studies.{NAME}", argv),
         machine=framework.machine(),
         cpu_hours=sum(o.seconds for o in outcomes) / 3600,

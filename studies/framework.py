@@ -404,10 +404,10 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}
 th{{background:#f2f2f2}}td:first-child,th:first-child{{text-align:left}}img{{max-width:100%}}
-figure{{margin:1.5em 0}}</style></head><body>
+figure{{margin:1.5em 0}}.wide{{overflow-x:auto}}</style></head><body>
 <h1>{html.escape(report.title)}</h1>
 {"".join(f"<p>{html.escape(p)}</p>" for p in report.intro)}
-<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>
+<div class="wide"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>
 <h2>Against the paper</h2><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in report.findings)}</ul>
 {"".join(figures)}
 <p>Command: <code>{html.escape(report.command)}</code><br>Machine: {html.escape(report.machine)};

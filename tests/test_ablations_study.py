@@ -99,11 +99,32 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
         ablations.load_definition(tmp_path / "a.toml")
 
 
+@pytest.mark.parametrize(
+    ("old", "new", "said"),
+    [
+        ("row = 6\nswitches", "row = 6\nmodel_of = 21\nswitches", r"row 6: model_of 21 is no row that trains a model"),
+        ("success = 81,", "success = 81, speed = 3,", r"rows\[\d+\]\.paper: unknown field\(s\) speed"),
+        ("error = [1.10, 0.84, 0.68]", "error = [1.10, 0.84]", r"row 18: paper.error: expected 3 numbers"),
+        (
+            'odometer = "action-prior"',
+            'odometer = "action-prior"\npaper = { success = 1, spl = 1, d_g = 1, soft_spl = 1, params = "" }',
+            r"row 21: paper: expected none",
+        ),
+    ],
+)
+def test_a_bad_row_is_refused_when_the_definition_is_read(tmp_path: Path, old: str, new: str, said: str):
+    text = ablations.DEFINITION.read_text(encoding="utf-8")
+    assert old in text
+    (tmp_path / "a.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(ConfigError, match=said):
+        ablations.load_definition(tmp_path / "a.toml")
+
+
 def test_a_paper_row_without_the_papers_numbers_is_refused(tmp_path: Path):
     text = ablations.DEFINITION.read_text(encoding="utf-8")
     start = text.index("paper = {", text.index("row = 3\n"))
     (tmp_path / "a.toml").write_text(text[:start] + text[text.index("\n", start) + 1 :])
-    with pytest.raises(ConfigError, match=r"a.toml: row 3: paper numbers are for the paper's rows"):
+    with pytest.raises(ConfigError, match=r"a.toml: row 3: paper: expected the paper's numbers for its row, got none"):
         ablations.load_definition(tmp_path / "a.toml")
 
 
@@ -159,7 +180,7 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
         assert (out / ablations.model_file(n)).is_file()
     assert len(list((out / "results").glob("*.json"))) == _units(scale)
     html = (out / "index.html").read_text()
-    assert "Row 19 is left out" in html and "Against the paper" in html
+    assert "row 19 is left out" in html and "Against the paper" in html
 
 
 def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
@@ -186,6 +207,18 @@ def test_redraw_needs_only_the_saved_results(ci_run, tmp_path: Path, capsys):
     assert ablations.main(["--scale", "ci", "--out", str(copy), "--redraw", "--quiet"]) == 0
     assert "0 units computed" in capsys.readouterr().out
     assert (copy / "table.csv").read_text() == table and (copy / "success-vs-error.png").is_file()
+
+
+def test_a_damaged_model_file_is_trained_again(ci_run, tmp_path: Path, capsys):
+    out, _ = ci_run
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    (copy / ablations.model_file(4)).write_bytes(b"not a model")
+    assert ablations.main(["--scale", "ci", "--out", str(copy), "--serial", "--quiet"]) == 0
+    from odolab.learning.checkpoints import what_file
+
+    assert what_file(copy / ablations.model_file(4)) is None  # a model again
+    assert "1 training" in capsys.readouterr().out
 
 
 def test_a_changed_model_file_is_not_taken_for_its_result(ci_run, tmp_path: Path):

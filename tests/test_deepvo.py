@@ -4,6 +4,7 @@ carries across steps and resets between sequences, resumable training, the odome
 from __future__ import annotations
 
 import dataclasses
+import shutil
 
 import numpy as np
 import pytest
@@ -150,8 +151,10 @@ def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
         hours=None,
         execution=SERIAL,
     )
+    moved = tmp_path / "moved-data"  # the data moved (a study's folder moved): the run resumes all the same
+    shutil.copytree(recipe.data_root, moved)
     assert trainer.run(
-        recipe,
+        dataclasses.replace(recipe, data_root=str(moved)),
         work=tmp_path / "w",
         reports=tmp_path / "r",
         export=tmp_path / "two.pt",

@@ -194,7 +194,8 @@ def train_windows(job: dict) -> dict:
     torch.manual_seed(cfg.seed)
     net = compute.prepare(DeepVONet(cfg.model))
     recipe = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init", "compute")}
+    # where the data live is not what they are (a moved run resumes): train_data / val_data say that
+    identity = {k: v for k, v in recipe.items() if k not in ("epochs", "init", "compute", "data_root")}
     if start is not None:
         net.load_state_dict(start[0])
         identity["init_sha256"] = start[1]
