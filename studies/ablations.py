@@ -775,6 +775,37 @@ def floor_findings(lines: list[dict[str, Any]]) -> list[str]:
     return said
 
 
+def claim_findings(lines: list[dict[str, Any]]) -> list[str]:
+    """The paper's claim that a lower per-step error gives better navigation, as Spearman's rank
+    correlation over the trained rows (the references left out) between the mean per-step error and
+    S, SoftSPL and d_G: ours, and the paper's over the same rows. Empty below three rows."""
+    from scipy.stats import spearmanr
+
+    said = []
+    for who, error, columns in (
+        ("ours", _mean_error, ("S", "SoftSPL", "d_G")),
+        ("the paper's", lambda line: line["paper_error_mean"], ("paper_S", "paper_SoftSPL", "paper_d_G")),
+    ):
+        pairs = {
+            column: [
+                (error(line), line[column])
+                for line in lines
+                if line["setting"] not in REFERENCES and math.isfinite(error(line)) and math.isfinite(line[column])
+            ]
+            for column in columns
+        }
+        parts = []
+        for column, got in pairs.items():
+            if len(got) >= 3 and len({x for x, _ in got}) > 1 and len({y for _, y in got}) > 1:
+                rho = spearmanr(*zip(*got)).statistic
+                parts.append(f"{column.removeprefix('paper_')} {rho:+.2f} ({len(got)} rows)")
+        if parts:
+            said.append(
+                f"Mean per-step error against navigation, Spearman's rank correlation, {who}: {', '.join(parts)}"
+            )
+    return said
+
+
 def draw(lines: list[dict[str, Any]], path: Path) -> None:
     """Navigation success against per-step error, one point per row, ours and the paper's."""
     import matplotlib
@@ -952,7 +983,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 lambda p: draw(lines, p),
             )
         },
-        findings=[*findings(lines), *floor_findings(lines)],
+        findings=[*findings(lines), *floor_findings(lines), *claim_findings(lines)],
         command=framework.command_line(f"python -m studies.{NAME}", argv),
         machine=framework.machine(),
         cpu_hours=sum(o.seconds for o in outcomes) / 3600,

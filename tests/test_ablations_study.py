@@ -181,6 +181,29 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
     assert len(list((out / "results").glob("*.json"))) == _units(scale)
     html = (out / "index.html").read_text()
     assert "row 19 is left out" in html and "Against the paper" in html
+    assert "Per-step error against the action prior (row 21" in html and "Spearman" in html
+
+
+def _line(row: int, error: float, success: float, setting: str = "robust VO") -> dict:
+    """A table line with what the findings read: its mean error and navigation, ours and the paper's."""
+    nav = {"S": success, "SoftSPL": success / 2, "d_G": 10 - success / 10}
+    ranges = {f"{k}_range": (v - 1, v + 1) for k, v in nav.items()}
+    return {
+        "row": row, "setting": setting, "dx": error, "dz": error, "dyaw": error,
+        **{f"{c}_sd": 0.1 for c in ablations.COMPONENTS}, **nav, **ranges, "SPL": success, "SPL_range": (0, 1),
+        "paper_error_mean": error, "paper_S": 100 - error, "paper_SoftSPL": 50.0, "paper_d_G": error,
+    }  # fmt: skip
+
+
+def test_the_claim_and_the_floor_are_read_from_the_lines():
+    lines = [_line(1, 3.0, 10), _line(2, 2.0, 20), _line(3, 1.0, 40), _line(20, 0.0, 99, "Ground truth")]
+    claim = ablations.claim_findings(lines)
+    assert claim[0].endswith("ours: S -1.00 (3 rows), SoftSPL -1.00 (3 rows), d_G +1.00 (3 rows)")
+    assert claim[1].endswith("the paper's: S -1.00 (3 rows), d_G +1.00 (3 rows)")  # SoftSPL the same in all
+    assert ablations.floor_findings(lines) == []  # no action prior
+    floor = ablations.floor_findings([*lines, _line(21, 2.5, 15, "Action prior")])
+    assert floor[0].endswith("rows below it beyond the seeds' spread: dx: 2, 3; dz: 2, 3; dyaw: 2, 3")
+    assert floor[1].endswith("S: 2, 3; SPL: none; SoftSPL: 2, 3; d_G: 3")  # d_G 8.0 +- 1 meets 8.5 +- 1
 
 
 def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
