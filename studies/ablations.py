@@ -202,7 +202,8 @@ def load_definition(path: Path = DEFINITION) -> Definition:
     rows = [build(Row, r, f"{path}: rows[{k}]") for k, r in enumerate(doc["rows"])]
     by_number = {r.row: r for r in rows}
     if len(by_number) != len(rows):
-        raise ConfigError(f"{path}: rows: two rows of one number")
+        twice = sorted({r.row for r in rows if [q.row for q in rows].count(r.row) > 1})
+        raise ConfigError(f"{path}: rows: expected one row of each number, got two of {twice[0]}")
     for r in rows:
         if (r.odometer == "robust-vo") != (r.switches is not None):
             raise ConfigError(f"{path}: row {r.row}: switches are for robust-VO rows, and every one has them")
@@ -216,6 +217,8 @@ def load_definition(path: Path = DEFINITION) -> Definition:
             raise ConfigError(
                 f"{path}: row {r.row}: paper.error: expected {len(COMPONENTS)} numbers (dx, dz, dyaw) or none, got {len(r.paper.error)}"
             )
+        if r.options:
+            _check_options(path, r)
         if r.model_of is not None and (
             r.model_of not in by_number or model_row(by_number[r.model_of]) != r.model_of or model_row(r) is None
         ):
@@ -227,6 +230,20 @@ def load_definition(path: Path = DEFINITION) -> Definition:
     header = build(Header, {k: doc[k] for k in ("title", "blank", "knows_action", "sepact")}, str(path))
     study = framework.StudyConfig(NAME, header.title, raw)
     return Definition(study, header.blank, header.knows_action, header.sepact, by_number, scales)
+
+
+def _check_options(path: Path, row: Row) -> None:
+    """Refuse, as the file is read, options that are no table or that row's odometer does not take."""
+    from odolab.config import ConfigError
+    from odolab.odometer import REGISTRY
+    from odolab.options import OptionError, check_options
+
+    if not isinstance(row.options, dict):
+        raise ConfigError(f"{path}: row {row.row}: options: expected a table, got {row.options!r}")
+    try:
+        check_options(row.odometer, REGISTRY.resolve(row.odometer), row.options)
+    except OptionError as exc:
+        raise ConfigError(f"{path}: row {row.row}: options: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -751,7 +768,8 @@ def floor_findings(lines: list[dict[str, Any]]) -> list[str]:
         below = {c: [ln for ln in trained if ln[c] + sd(ln, c) < prior[c] - sd(prior, c)] for c in COMPONENTS}
         said.append(
             f"Per-step error against the action prior (row {prior['row']}: {', '.join(f'{c} {prior[c]:.2f}' for c in COMPONENTS)}"
-            f"), rows below it beyond the seeds' spread: {'; '.join(f'{c}: {rows(below[c])}' for c in COMPONENTS)}"
+            f"), rows below it by more than both rows' standard deviations over the seeds"
+            f"{'' if math.isfinite(prior['dx_sd']) else ' (none with one seed)'}: {'; '.join(f'{c}: {rows(below[c])}' for c in COMPONENTS)}"
         )
     if math.isfinite(prior["S"]):
         better = {
@@ -917,6 +935,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         wanted = sorted({n for r in scale.rows if (n := model_row(definition.rows[r])) is not None})
         recipes = {n: recipe(definition, scale, n, data_root(scale, out)) for n in wanted}
+        for n in wanted:
+            path = out / model_file(n)
+            if path.is_dir() and not path.is_symlink():
+                raise UsageError(f"--out {out}: {path}: expected row {n}'s model file or nothing, found a folder")
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     execution = execution_of(args)

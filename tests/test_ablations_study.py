@@ -106,6 +106,13 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
         ("success = 81,", "success = 81, speed = 3,", r"rows\[\d+\]\.paper: unknown field\(s\) speed"),
         ("error = [1.10, 0.84, 0.68]", "error = [1.10, 0.84]", r"row 18: paper.error: expected 3 numbers"),
         (
+            "options = { mc_samples = 10 }",
+            "options = { mc_samplez = 10 }",
+            r"row 5: options: .* no option 'mc_samplez'",
+        ),
+        ("options = { mc_samples = 10 }", "options = 'x'", r"row 5: options: expected a table, got 'x'"),
+        ("row = 7\n", "row = 6\n", r"rows: expected one row of each number, got two of 6"),
+        (
             'odometer = "action-prior"',
             'odometer = "action-prior"\npaper = { success = 1, spl = 1, d_g = 1, soft_spl = 1, params = "" }',
             r"row 21: paper: expected none",
@@ -202,7 +209,7 @@ def test_the_claim_and_the_floor_are_read_from_the_lines():
     assert claim[1].endswith("the paper's: S -1.00 (3 rows), d_G +1.00 (3 rows)")  # SoftSPL the same in all
     assert ablations.floor_findings(lines) == []  # no action prior
     floor = ablations.floor_findings([*lines, _line(21, 2.5, 15, "Action prior")])
-    assert floor[0].endswith("rows below it beyond the seeds' spread: dx: 2, 3; dz: 2, 3; dyaw: 2, 3")
+    assert floor[0].endswith("standard deviations over the seeds: dx: 2, 3; dz: 2, 3; dyaw: 2, 3")
     assert floor[1].endswith("S: 2, 3; SPL: none; SoftSPL: 2, 3; d_G: 3")  # d_G 8.0 +- 1 meets 8.5 +- 1
 
 
@@ -242,6 +249,19 @@ def test_a_damaged_model_file_is_trained_again(ci_run, tmp_path: Path, capsys):
 
     assert what_file(copy / ablations.model_file(4)) is None  # a model again
     assert "1 training" in capsys.readouterr().out
+
+
+def test_a_folder_where_a_model_file_goes_is_refused_before_training(ci_run, tmp_path: Path, capsys):
+    from odolab.cli import run_cli
+
+    out, _ = ci_run
+    copy = tmp_path / "copy"
+    shutil.copytree(out / "results", copy / "results")
+    shutil.copy(out / "manifest.txt", copy / "manifest.txt")
+    (copy / ablations.model_file(4)).mkdir(parents=True)
+    assert run_cli(ablations.main, "prog", ["--scale", "ci", "--out", str(copy), "--serial", "--quiet"]) == 2
+    assert "expected row 4's model file or nothing, found a folder" in capsys.readouterr().err
+    assert not (copy / "data").exists()
 
 
 def test_a_changed_model_file_is_not_taken_for_its_result(ci_run, tmp_path: Path):
