@@ -217,10 +217,20 @@ def load_definition(path: Path = DEFINITION) -> Definition:
             raise ConfigError(
                 f"{path}: row {r.row}: paper.error: expected {len(COMPONENTS)} numbers (dx, dz, dyaw) or none, got {len(r.paper.error)}"
             )
+        if r.paper is not None:
+            numbers = {"success": r.paper.success, "spl": r.paper.spl, "d_g": r.paper.d_g, "soft_spl": r.paper.soft_spl}
+            bad = [k for k, v in numbers.items() if not math.isfinite(v)] + [
+                "error" for v in r.paper.error if not math.isfinite(v)
+            ]
+            if bad:
+                raise ConfigError(f"{path}: row {r.row}: paper.{bad[0]}: expected a finite number, got nan or inf")
         if r.options:
             _check_options(path, r)
         if r.model_of is not None and (
-            r.model_of not in by_number or model_row(by_number[r.model_of]) != r.model_of or model_row(r) is None
+            r.model_of == r.row
+            or r.model_of not in by_number
+            or model_row(by_number[r.model_of]) != r.model_of
+            or model_row(r) is None
         ):
             raise ConfigError(f"{path}: row {r.row}: model_of {r.model_of} is no row that trains a model")
     for s, scale in scales.items():

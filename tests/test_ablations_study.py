@@ -112,6 +112,9 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
         ),
         ("options = { mc_samples = 10 }", "options = 'x'", r"row 5: options: expected a table, got 'x'"),
         ("row = 7\n", "row = 6\n", r"rows: expected one row of each number, got two of 6"),
+        ("row = 6\nswitches", "row = 6\nmodel_of = 6\nswitches", r"row 6: model_of 6 is no row that trains a model"),
+        ("error = [1.10, 0.84, 0.68]", "error = [1.10, nan, 0.68]", r"row 18: paper.error: expected a finite number"),
+        ("success = 81,", "success = nan,", r"paper.success: expected a finite number, got nan"),
         (
             'odometer = "action-prior"',
             'odometer = "action-prior"\npaper = { success = 1, spl = 1, d_g = 1, soft_spl = 1, params = "" }',
