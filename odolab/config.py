@@ -376,11 +376,26 @@ def build(cls: type[T], doc: dict[str, Any], where: str) -> T:
         raise ConfigError(
             f"{where}: unknown field(s) {', '.join(unknown)}; expected some of {', '.join(sorted(known))}"
         )
-    values = {k: _check(v, hints[k], f"{where}.{k}" if where else k) for k, v in doc.items()}
+    required = {
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.init and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    }
+    missing = sorted(required - set(doc))
+    if missing:
+        raise ConfigError(f"{where}: missing field(s) {', '.join(missing)}")
+    values = {k: _check(v, hints[k], _at(where, k)) for k, v in doc.items()}
     try:
         return cls(**values)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+def _at(where: str, name: str) -> str:
+    """``where`` followed by field ``name``: ``file: name`` at a file's top, ``file: a.b.name`` below."""
+    if not where:
+        return name
+    return f"{where}.{name}" if ": " in where else f"{where}: {name}"
 
 
 def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()) -> T:

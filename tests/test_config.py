@@ -125,7 +125,7 @@ def test_literal_choices_are_checked_described_built_and_assigned(tmp_path):
     ]
     assert choices(Choosing, "workers") == ("auto",) and choices(Example(), "cell") == ()
     assert build(Choosing, {"workers": 2, "precision": "fp32"}, "f") == Choosing(precision="fp32", workers=2)
-    with pytest.raises(ConfigError, match=r"f.precision: expected one of 'auto', 'fp32', 'bf16', got 'fp16'"):
+    with pytest.raises(ConfigError, match=r"f: precision: expected one of 'auto', 'fp32', 'bf16', got 'fp16'"):
         build(Choosing, {"precision": "fp16"}, "f")
     assert assign(Choosing, ["workers=auto", "precision=fp32"]) == Choosing(precision="fp32")
     assert assign(Choosing, ['workers="auto"']).workers == "auto" and assign(Choosing, ["workers=8"]).workers == 8

@@ -424,7 +424,7 @@ def test_save_and_load_round_trip(recipe, tmp_path):
 def test_recipe_errors_name_the_file_and_field(tmp_path):
     path = tmp_path / "r.toml"
     path.write_text('[model]\ndd_bins = "ten"\n[[stages]]\nname = "f"\nactions = ["move_forward"]\nepochs = 1\n')
-    with pytest.raises(ConfigError, match=r"r.toml.model.dd_bins: expected an integer, got 'ten'"):
+    with pytest.raises(ConfigError, match=r"r.toml: model.dd_bins: expected an integer, got 'ten'"):
         load_train_config(str(path))
     path.write_text('[[stages]]\nname = "f"\nactions = ["jump"]\nepochs = 1\n')
     with pytest.raises(ConfigError, match="actions must be some of"):
