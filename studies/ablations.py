@@ -835,7 +835,9 @@ def claim_findings(lines: list[dict[str, Any]]) -> list[str]:
 
 
 def draw(lines: list[dict[str, Any]], path: Path) -> None:
-    """Navigation success against per-step error, one point per row, ours and the paper's."""
+    """Navigation success (%) against mean per-step error (x 1e-2), one point per trained row: ours
+    (with the 95 % interval of success) on the left, the paper's on the right, on one success axis;
+    ground truth (zero error) as a dashed line in each, our action prior as a star and dotted lines."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -843,40 +845,89 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
 
     from odolab.io.atomic import save_figure_atomic
 
-    fig, ax = plt.subplots(figsize=(8.5, 6))
-    for who, color, marker in (("ours", "tab:blue", "o"), ("paper", "tab:orange", "s")):
-        points = []
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.6), sharey=True)
+    labels = []
+    for ax, who, color, marker in ((axes[0], "ours", "tab:blue", "o"), (axes[1], "paper", "tab:orange", "s")):
+        points, truth = [], []
         for line in lines:
-            if line["setting"] == "Action prior":
-                continue  # drawn as the floor below
             x, y = (_mean_error(line), line["S"]) if who == "ours" else (line["paper_error_mean"], line["paper_S"])
-            if math.isfinite(x) and math.isfinite(y):
+            if line["setting"] == "Action prior" and who == "ours" and math.isfinite(x) and math.isfinite(y):
+                ax.axhline(y, color="0.45", linestyle=":", linewidth=1)
+                ax.axvline(x, color="0.45", linestyle=":", linewidth=1)
+                ax.scatter(
+                    [x], [y], color="0.3", marker="*", s=140, zorder=3, label=f"action prior (row {line['row']})"
+                )
+            elif line["setting"] == "Ground truth" and math.isfinite(y):
+                truth.append((line["row"], y))
+            elif line["setting"] != "Action prior" and math.isfinite(x) and math.isfinite(y):
                 points.append((x, y, line["row"]))
-        if not points:
-            continue
-        xs, ys, numbers = zip(*points)
-        if who == "ours":  # our success's 95 % interval
-            ranges = {line["row"]: line["S_range"] for line in lines}
-            low = [max(0.0, y - ranges[n][0]) if math.isfinite(ranges[n][0]) else 0.0 for y, n in zip(ys, numbers)]
-            high = [max(0.0, ranges[n][1] - y) if math.isfinite(ranges[n][1]) else 0.0 for y, n in zip(ys, numbers)]
-            ax.errorbar(xs, ys, yerr=[low, high], fmt="none", ecolor=color, alpha=0.35, capsize=2)
-        ax.scatter(xs, ys, color=color, marker=marker, label=f"{who} (row number beside each point)")
-        for x, y, n in points:
-            ax.annotate(str(n), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=8, color=color)
-    for line in lines:  # the floor: the action prior (odolab's row, not the paper's)
-        x, y = _mean_error(line), line["S"]
-        if line["setting"] == "Action prior" and math.isfinite(x) and math.isfinite(y):
-            ax.axhline(y, color="0.45", linestyle=":", linewidth=1)
-            ax.axvline(x, color="0.45", linestyle=":", linewidth=1)
-            ax.scatter([x], [y], color="0.3", marker="*", s=140, zorder=3, label=f"action prior (row {line['row']})")
-    ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
-    ax.set_ylabel("navigation success (%)")
-    ax.set_title("Navigation success against per-step VO error, per row of Table 2 (bars: our 95 % intervals)")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best")
+        for number, y in truth:
+            ax.axhline(y, color="0.2", linestyle="--", linewidth=1, label=f"ground truth (row {number}): {y:.0f} %")
+        if points:
+            xs, ys, numbers = zip(*points)
+            if who == "ours":
+                ranges = {line["row"]: line["S_range"] for line in lines}
+                low = [max(0.0, y - ranges[n][0]) if math.isfinite(ranges[n][0]) else 0.0 for y, n in zip(ys, numbers)]
+                high = [max(0.0, ranges[n][1] - y) if math.isfinite(ranges[n][1]) else 0.0 for y, n in zip(ys, numbers)]
+                ax.errorbar(xs, ys, yerr=[low, high], fmt="none", ecolor=color, alpha=0.35, capsize=2)
+            ax.scatter(
+                xs, ys, s=22, color=color, marker=marker, zorder=3, label="trained rows (row number by each point)"
+            )
+            labels.append((ax, points, color))
+        ax.set_title("odolab, this run (bars: 95 % intervals)" if who == "ours" else "the paper's Table 2")
+        ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[0].set_ylabel("navigation success (%)")
+    axes[0].set_ylim(-4, 104)
+    fig.suptitle("Navigation success against per-step VO error, per row of Table 2")
     fig.tight_layout()
+    for ax, points, color in labels:
+        _label_points(ax, points, color)
     save_figure_atomic(fig, path)
     plt.close(fig)
+
+
+def _label_points(ax: Any, points: list[tuple[float, float, int]], color: str) -> None:
+    """Write each point's row number beside it where it covers no other label, marker or legend:
+    the first free spot on rings of growing radius around the point, joined to it by a thin line
+    when it is not the nearest ring. Call after the layout is final (positions are in pixels)."""
+    from matplotlib.text import Text
+
+    renderer = ax.figure.canvas.get_renderer()
+    marks = [ax.transData.transform((x, y)) for x, y, _ in points]
+    legend = ax.get_legend()
+    taken = [legend.get_window_extent(renderer)] if legend is not None else []
+    rings = [(r, a) for r in (5, 14, 24, 36, 50, 66) for a in range(0, 360, 30)]
+    for x, y, number in sorted(points, key=lambda p: (-p[1], p[0])):
+        for k, (radius, angle) in enumerate(rings):
+            dx, dy = radius * math.cos(math.radians(angle)), radius * math.sin(math.radians(angle))
+            near = k < 12
+            note = ax.annotate(
+                str(number),
+                (x, y),
+                textcoords="offset points",
+                xytext=(dx, dy),
+                ha="left" if dx >= 0 else "right",
+                va="bottom" if dy >= 0 else "top",
+                fontsize=8,
+                color=color,
+                arrowprops=None if near else {"arrowstyle": "-", "color": color, "lw": 0.8, "shrinkA": 1, "shrinkB": 3},
+            )
+            note.update_positions(renderer)
+            box = Text.get_window_extent(note, renderer).expanded(1.1, 1.1)  # the text, not its line
+            inside = ax.get_window_extent(renderer).contains(box.x0, box.y0) and ax.get_window_extent(
+                renderer
+            ).contains(box.x1, box.y1)
+            covers = any(box.overlaps(b) for b in taken) or any(
+                box.x0 - 4 <= px <= box.x1 + 4 and box.y0 - 4 <= py <= box.y1 + 4 for px, py in marks
+            )
+            if inside and not covers:
+                taken.append(box)
+                break
+            note.remove()
+        else:
+            ax.annotate(str(number), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=8, color=color)
 
 
 # -------------------------------------------------------------------------------------------- main
@@ -1011,13 +1062,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         figures={
             "success-vs-error.png": (
                 "Navigation success (%) against per-step error (mean of the three components, x 1e-2), "
-                + "one point per row, ours and the paper's",
+                + "one point per trained row: ours on the left (bars: success's 95 % interval), the paper's "
+                + "on the right; ground truth dashed, the action prior a star",
                 lambda p: draw(lines, p),
             )
         },
         findings=[*findings(lines), *floor_findings(lines), *claim_findings(lines)],
         command=framework.command_line(f"python -m studies.{NAME}", argv),
-        machine=framework.machine(),
+        machine=framework.machines(outcomes),
         cpu_hours=sum(o.seconds for o in outcomes) / 3600,
     )
     framework.write_report(report, out, owner=f"study {NAME}")

@@ -226,12 +226,19 @@ class ResultStore:
 @dataclass
 class Outcome:
     """The results of a study's units (label -> result), which were computed now, and which are
-    missing (only with ``redraw``: never computed); ``seconds`` of computing, summed over units."""
+    missing (only with ``redraw``: never computed); ``seconds`` of computing, summed over units;
+    ``machines``: how many of the units ran on each machine (:func:`machine`; "" not recorded)."""
 
     results: dict[str, Any] = field(default_factory=dict)
     computed: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    machines: dict[str, int] = field(default_factory=dict)
+
+    def count(self, where: Any) -> None:
+        """Count one more unit run on ``where`` (a saved machine line; anything else: not recorded)."""
+        key = where if isinstance(where, str) else ""
+        self.machines[key] = self.machines.get(key, 0) + 1
 
 
 def _accepts(valid: Callable[[Any], bool], value: Any) -> bool:
@@ -250,11 +257,12 @@ def _seconds(value: Any) -> float:
     return seconds if math.isfinite(seconds) and seconds >= 0 else 0.0
 
 
-def _timed(job: tuple[Callable[[dict], Any], dict]) -> tuple[Any, float]:
+def _timed(job: tuple[Callable[[dict], Any], dict]) -> tuple[Any, float, str]:
+    """``fn(key)``, its seconds and the machine it ran on (a Ray task's own node)."""
     fn, key = job
     t0 = time.perf_counter()
     result = fn(key)
-    return result, time.perf_counter() - t0
+    return result, time.perf_counter() - t0, machine()
 
 
 def _saved(store: ResultStore, unit: Unit, valid: Callable[[Any], bool] | None) -> dict[str, Any] | None:
@@ -282,7 +290,7 @@ def run_units(
 ) -> Outcome:
     """``fn(unit.key)`` for every unit without a saved result, as Ray tasks (a local instance, or the
     cluster at ``execution.ray_address``), each result saved as it finishes; with ``redraw`` nothing is computed.
-    Results must be plain JSON data. Computing seconds are saved beside each result. A saved result
+    Results must be plain JSON data. Computing seconds and the machine are saved beside each result. A saved result
     that ``valid`` refuses (a file edited or damaged by hand) counts as not saved: computed again,
     or missing with ``redraw``. ``gpus``: GPUs each unit's Ray task asks for (:func:`fan_out`)."""
 
@@ -293,6 +301,7 @@ def run_units(
         if saved is not None:
             out.results[u.label] = saved["value"]
             out.seconds += _seconds(saved.get("seconds", 0.0))
+            out.count(saved.get("machine"))
         elif redraw:
             out.missing.append(u.label)
         else:
@@ -301,12 +310,13 @@ def run_units(
     if todo:
         store.check_writable(todo)
 
-    def done(k: int, value: tuple[Any, float]) -> None:
-        result, seconds = value
-        store.put(todo[k], {"value": result, "seconds": seconds})
+    def done(k: int, value: tuple[Any, float, str]) -> None:
+        result, seconds, where = value
+        store.put(todo[k], {"value": result, "seconds": seconds, "machine": where})
         out.results[todo[k].label] = result
         out.computed.append(todo[k].label)
         out.seconds += seconds
+        out.count(where)
 
     fan_out(
         _timed,
@@ -333,6 +343,22 @@ def machine() -> str:
         torch_version = ""
     cpu = m["processor"] if m["cpu_model"] == "unknown" else m["cpu_model"]
     return f"{cpu}, {m['cpus']} cores, Python {m['python']}{torch_version}"
+
+
+def machines(outcomes: Sequence[Outcome]) -> str:
+    """Where the units of ``outcomes`` ran, in one line: each machine with its number of units, most
+    first (not recorded last); this machine (:func:`machine`) when there are no units."""
+    counts: dict[str, int] = {}
+    for o in outcomes:
+        for where, n in o.machines.items():
+            counts[where] = counts.get(where, 0) + n
+    if not counts:
+        return machine()
+    total = sum(counts.values())
+    if len(counts) == 1 and "" not in counts:
+        return f"{next(iter(counts))} (all {total} units)"
+    parts = sorted(counts.items(), key=lambda kv: (kv[0] == "", -kv[1], kv[0]))
+    return "; ".join(f"{where or 'machine not recorded'} ({n} of {total} units)" for where, n in parts)
 
 
 def _cell(v: Any) -> str:
@@ -624,7 +650,7 @@ class StudyRun:
             figures=figures,
             findings=findings,
             command=command_line(self.prog, self.argv),
-            machine=machine(),
+            machine=machines([outcome]),
             cpu_hours=outcome.seconds / 3600,
         )
         write_report(report, self.out, owner=f"study {self.config.name}")

@@ -673,7 +673,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         figures=figures,
         findings=findings(rows, route_rows),
         command=framework.command_line(PROG, argv),
-        machine=framework.machine(),
+        machine=framework.machines([routes, runs]),
         cpu_hours=outcome.seconds / 3600,
     )
     framework.write_report(report, out, owner=f"study {config.name}")

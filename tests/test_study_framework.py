@@ -39,6 +39,27 @@ def test_units_run_once_and_redraw_computes_nothing(tmp_path: Path):
     assert again.computed == [] and again.missing == ["u3"] and again.results["u2"] == 4
 
 
+def test_a_report_names_the_machines_its_units_ran_on_not_the_one_that_redraws(tmp_path: Path):
+    store = framework.ResultStore(tmp_path)
+    units = [framework.Unit(f"u{k}", {"k": k}) for k in range(3)]
+    first = framework.run_units(_square, units, store, execution=SERIAL)
+    here = framework.machine()
+    assert first.machines == {here: 3}
+    assert framework.machines([first]) == f"{here} (all 3 units)"
+    for k, where in ((0, "Another CPU, 64 cores"), (1, None)):  # one unit ran elsewhere; one never said
+        path = tmp_path / f"{units[k].digest}.json"
+        doc = json.loads(path.read_text())
+        doc["result"].pop("machine")
+        if where:
+            doc["result"]["machine"] = where
+        path.write_text(json.dumps(doc))
+    again = framework.run_units(_square, units, store, execution=SERIAL, redraw=True)
+    assert framework.machines([again]) == (
+        f"Another CPU, 64 cores (1 of 3 units); {here} (1 of 3 units); machine not recorded (1 of 3 units)"
+    )
+    assert framework.machines([framework.Outcome()]) == here
+
+
 def _square(key: dict) -> int:
     return key["k"] ** 2
 
