@@ -224,7 +224,7 @@ def load_definition(path: Path = DEFINITION) -> Definition:
             ]
             if bad:
                 raise ConfigError(f"{path}: row {r.row}: paper.{bad[0]}: expected a finite number, got nan or inf")
-        if r.options:
+        if r.options or not isinstance(r.options, dict):
             _check_options(path, r)
         if r.model_of is not None and (
             r.model_of == r.row
@@ -626,7 +626,8 @@ def table(
     numbers and the paper's beside them, and whether the row's order against row 18 agrees with the
     paper's. Errors (x 1e-2): mean and standard deviation over the seeds; fps: steps per second of
     the odometer alone, mean over the seeds; navigation (S, SPL, SoftSPL in %, d_G in m): mean over
-    every seed's episodes with its 95 % interval (Wilson's for success, Student's t for the others).
+    every seed's episodes with its 95 % interval (Wilson's for success, Student's t for the others,
+    kept within the measure's range: 0-100 %, d_G >= 0).
     Each line also carries ``S_range``, ``SPL_range``, ``SoftSPL_range``, ``d_G_range`` (the 95 %
     intervals as numbers) and ``error_ci`` (the mean error's interval over the seeds) for the
     verdicts and the figure."""
@@ -674,9 +675,11 @@ def table(
             ("d_G", "d_g", 1, False),
         ):
             ci = mean_ci(np.array([n[k] for n in nav], float), binary=binary)
+            top = np.inf if k == "d_g" else 1.0  # the interval stays where the measure can be
+            low, high = (float(np.clip(b, 0.0, top)) * scale_by for b in (ci.low, ci.high))
             line[column] = ci.mean * scale_by
-            line[f"{column}_ci"] = _interval(ci.low * scale_by, ci.high * scale_by)
-            line[f"{column}_range"] = (ci.low * scale_by, ci.high * scale_by)
+            line[f"{column}_ci"] = _interval(low, high)
+            line[f"{column}_range"] = (low, high)
         lines.append(line)
     reference = next((line for line in lines if line["row"] == REFERENCE_ROW), None)
     paper_reference = definition.rows[REFERENCE_ROW].paper
@@ -863,6 +866,7 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
                 points.append((x, y, line["row"]))
         for number, y in truth:
             ax.axhline(y, color="0.2", linestyle="--", linewidth=1, label=f"ground truth (row {number}): {y:.0f} %")
+        bars: list[tuple[float, float, float]] = []
         if points:
             xs, ys, numbers = zip(*points)
             if who == "ours":
@@ -870,39 +874,55 @@ def draw(lines: list[dict[str, Any]], path: Path) -> None:
                 low = [max(0.0, y - ranges[n][0]) if math.isfinite(ranges[n][0]) else 0.0 for y, n in zip(ys, numbers)]
                 high = [max(0.0, ranges[n][1] - y) if math.isfinite(ranges[n][1]) else 0.0 for y, n in zip(ys, numbers)]
                 ax.errorbar(xs, ys, yerr=[low, high], fmt="none", ecolor=color, alpha=0.35, capsize=2)
+                bars = [(x, y - lo, y + hi) for x, y, lo, hi in zip(xs, ys, low, high)]
             ax.scatter(
                 xs, ys, s=22, color=color, marker=marker, zorder=3, label="trained rows (row number by each point)"
             )
-            labels.append((ax, points, color))
+            labels.append((ax, points, color, bars))
         ax.set_title("odolab, this run (bars: 95 % intervals)" if who == "ours" else "the paper's Table 2")
         ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="best", fontsize=8)
     axes[0].set_ylabel("navigation success (%)")
     axes[0].set_ylim(-4, 104)
     fig.suptitle("Navigation success against per-step VO error, per row of Table 2")
     fig.tight_layout()
-    for ax, points, color in labels:
-        _label_points(ax, points, color)
+    for ax, points, color, bars in labels:
+        _label_points(ax, points, color, bars)
     save_figure_atomic(fig, path)
     plt.close(fig)
 
 
-def _label_points(ax: Any, points: list[tuple[float, float, int]], color: str) -> None:
-    """Write each point's row number beside it where it covers no other label, marker or legend:
-    the first free spot on rings of growing radius around the point, joined to it by a thin line
-    when it is not the nearest ring. Call after the layout is final (positions are in pixels)."""
+def _label_points(
+    ax: Any,
+    points: list[tuple[float, float, int]],
+    color: str,
+    bars: Sequence[tuple[float, float, float]] = (),
+) -> None:
+    """Write each point's row number beside it where it covers no other label, marker, leader line,
+    interval bar (``bars``: x, low, high in data units) or the legend: the first free spot on rings
+    of growing radius around the point, joined to it by a thin line beyond the nearest ring. Call
+    after the layout is final (positions are in pixels)."""
     from matplotlib.text import Text
+    from matplotlib.transforms import Bbox
 
     renderer = ax.figure.canvas.get_renderer()
-    marks = [ax.transData.transform((x, y)) for x, y, _ in points]
+    to_px = ax.transData.transform
+    marks = [to_px((x, y)) for x, y, _ in points]
     legend = ax.get_legend()
     taken = [legend.get_window_extent(renderer)] if legend is not None else []
+    lines = [(to_px((x, low)), to_px((x, high))) for x, low, high in bars]
+    frame = ax.get_window_extent(renderer)
+
+    def crosses(box: Bbox, a: np.ndarray, b: np.ndarray) -> bool:
+        return any(box.contains(*(a + (b - a) * t)) for t in np.linspace(0.0, 1.0, 24))
+
     rings = [(r, a) for r in (5, 14, 24, 36, 50, 66) for a in range(0, 360, 30)]
-    for x, y, number in sorted(points, key=lambda p: (-p[1], p[0])):
+    for (x, y, number), mark in sorted(zip(points, marks), key=lambda pm: (-pm[0][1], pm[0][0])):
         for k, (radius, angle) in enumerate(rings):
             dx, dy = radius * math.cos(math.radians(angle)), radius * math.sin(math.radians(angle))
-            near = k < 12
+            leader = k >= 12
             note = ax.annotate(
                 str(number),
                 (x, y),
@@ -912,18 +932,26 @@ def _label_points(ax: Any, points: list[tuple[float, float, int]], color: str) -
                 va="bottom" if dy >= 0 else "top",
                 fontsize=8,
                 color=color,
-                arrowprops=None if near else {"arrowstyle": "-", "color": color, "lw": 0.8, "shrinkA": 1, "shrinkB": 3},
+                arrowprops={"arrowstyle": "-", "color": color, "lw": 0.8, "shrinkA": 1, "shrinkB": 3}
+                if leader
+                else None,
             )
             note.update_positions(renderer)
-            box = Text.get_window_extent(note, renderer).expanded(1.1, 1.1)  # the text, not its line
-            inside = ax.get_window_extent(renderer).contains(box.x0, box.y0) and ax.get_window_extent(
-                renderer
-            ).contains(box.x1, box.y1)
-            covers = any(box.overlaps(b) for b in taken) or any(
-                box.x0 - 4 <= px <= box.x1 + 4 and box.y0 - 4 <= py <= box.y1 + 4 for px, py in marks
+            text = Text.get_window_extent(note, renderer)  # the text alone, not its line
+            box = Bbox.from_extents(text.x0 - 3, text.y0 - 2, text.x1 + 3, text.y1 + 2)
+            anchor = np.array([(text.x0 + text.x1) / 2, (text.y0 + text.y1) / 2])
+            free = (
+                frame.contains(box.x0, box.y0)
+                and frame.contains(box.x1, box.y1)
+                and not any(box.overlaps(b) for b in taken)
+                and not any(box.x0 - 3 <= px <= box.x1 + 3 and box.y0 - 3 <= py <= box.y1 + 3 for px, py in marks)
+                and not any(crosses(box, a, b) for a, b in lines)
+                and not (leader and any(crosses(b, mark, anchor) for b in taken))
             )
-            if inside and not covers:
+            if free:
                 taken.append(box)
+                if leader:
+                    lines.append((mark, anchor))
                 break
             note.remove()
         else:
@@ -1052,7 +1080,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{scale.nav_max_steps} steps for each of the seeds {', '.join(map(str, scale.nav_seeds))}. "
             "S, SPL, SoftSPL in %, d_G in m, "
             "errors x 1e-2 (mean and standard deviation over the seeds), fps in steps/s of the odometer alone; "
-            "*_ci: 95 % intervals (Wilson's for S, Student's t for the others). S_vs_18 and error_vs_18 say "
+            "*_ci: 95 % intervals (Wilson's for S, Student's t for the others, kept within 0-100 % and d_G >= 0). S_vs_18 and error_vs_18 say "
             "whether the row lies on the same side of row 18 as in the paper, '(overlap)' where our intervals "
             "of the two rows overlap (not settled at this sample size)." + framework.missing_note(missing),
             *(f"Row {r}: {definition.rows[r].note}" for r in scale.rows if definition.rows[r].note),

@@ -236,8 +236,13 @@ class Outcome:
     machines: dict[str, int] = field(default_factory=dict)
 
     def count(self, where: Any) -> None:
-        """Count one more unit run on ``where`` (a saved machine line; anything else: not recorded)."""
-        key = where if isinstance(where, str) else ""
+        """Count one more unit run on ``where`` (a saved machine line, made one printable line of at most
+        200 characters; anything else, or blank: not recorded)."""
+        key = (
+            " ".join("".join(c if c.isprintable() else " " for c in where).split())[:200]
+            if isinstance(where, str)
+            else ""
+        )
         self.machines[key] = self.machines.get(key, 0) + 1
 
 
@@ -355,8 +360,8 @@ def machines(outcomes: Sequence[Outcome]) -> str:
     if not counts:
         return machine()
     total = sum(counts.values())
-    if len(counts) == 1 and "" not in counts:
-        return f"{next(iter(counts))} (all {total} units)"
+    if len(counts) == 1:
+        return f"{next(iter(counts)) or 'not recorded'} (all {total} units)"
     parts = sorted(counts.items(), key=lambda kv: (kv[0] == "", -kv[1], kv[0]))
     return "; ".join(f"{where or 'machine not recorded'} ({n} of {total} units)" for where, n in parts)
 

@@ -111,6 +111,7 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
             r"row 5: options: .* no option 'mc_samplez'",
         ),
         ("options = { mc_samples = 10 }", "options = 'x'", r"row 5: options: expected a table, got 'x'"),
+        ("options = { mc_samples = 10 }", "options = []", r"row 5: options: expected a table, got \[\]"),
         ("row = 7\n", "row = 6\n", r"rows: expected one row of each number, got two of 6"),
         ("row = 6\nswitches", "row = 6\nmodel_of = 6\nswitches", r"row 6: model_of 6 is no row that trains a model"),
         ("error = [1.10, 0.84, 0.68]", "error = [1.10, nan, 0.68]", r"row 18: paper.error: expected a finite number"),

@@ -46,7 +46,7 @@ def test_a_report_names_the_machines_its_units_ran_on_not_the_one_that_redraws(t
     here = framework.machine()
     assert first.machines == {here: 3}
     assert framework.machines([first]) == f"{here} (all 3 units)"
-    for k, where in ((0, "Another CPU, 64 cores"), (1, None)):  # one unit ran elsewhere; one never said
+    for k, where in ((0, "Another  CPU,\n64 cores "), (1, None)):  # one ran elsewhere (odd spaces); one never said
         path = tmp_path / f"{units[k].digest}.json"
         doc = json.loads(path.read_text())
         doc["result"].pop("machine")
@@ -58,6 +58,7 @@ def test_a_report_names_the_machines_its_units_ran_on_not_the_one_that_redraws(t
         f"Another CPU, 64 cores (1 of 3 units); {here} (1 of 3 units); machine not recorded (1 of 3 units)"
     )
     assert framework.machines([framework.Outcome()]) == here
+    assert framework.machines([framework.Outcome(machines={"": 2})]) == "not recorded (all 2 units)"
 
 
 def _square(key: dict) -> int:
