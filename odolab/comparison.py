@@ -256,11 +256,15 @@ def odometer_configs(odometers: dict) -> dict[str, str]:
     }
 
 
-def run_comparison(config: ComparisonConfig, observer: RunObserver | None = None) -> ComparisonResult:
-    """Run every odometer of ``config`` on its sequences and summarise (nothing is written)."""
+def run_comparison(
+    config: ComparisonConfig, observer: RunObserver | None = None, odometers: dict[str, Odometer] | None = None
+) -> ComparisonResult:
+    """Run every odometer of ``config`` on its sequences and summarise (nothing is written);
+    ``odometers``: those of ``config`` already made by :func:`load_odometers`, else made here."""
     if config.split not in SPLITS:
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
-    odometers = load_odometers(config.odometers, config.options)
+    if odometers is None:
+        odometers = load_odometers(config.odometers, config.options)
     if config.tum is not None:
         blind = [name for name, odo in odometers.items() if getattr(odo, "needs_action", False)]
         if blind and config.odometers is not None:

@@ -129,6 +129,18 @@ def test_compare_output_paths_are_checked_before_work(tmp_path):
     )
 
 
+@pytest.mark.parametrize(
+    ("module", "option", "words"),
+    [
+        ("odolab.compare", "icp.max_depth=-1", "max_depth must be in"),
+        ("odolab.navigate", "icp.bogus=1", "has no option 'bogus'"),
+    ],
+)
+def test_a_bad_odometer_option_is_refused_before_the_out_folder_is_made(tmp_path, module, option, words):
+    one_line_error(module, "--odometers", "icp", "--odometer-option", option, "--out", tmp_path / "o", words=words)
+    assert not (tmp_path / "o").exists()
+
+
 def test_evaluate_plot_path_is_checked_before_work(tmp_path):
     gt = tmp_path / "gt.txt"
     gt.write_text(TUM_OK)

@@ -32,6 +32,7 @@ from odolab.comparison import (
     ComparisonConfig,
     ComparisonError,
     failure_reasons,
+    load_odometers,
     odometer_names,
     run_comparison,
 )
@@ -272,13 +273,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     config = _config(args)
+    try:  # every name and option checked before a folder is made
+        odometers = load_odometers(config.odometers, config.options)
+    except ComparisonError as exc:
+        raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     _check_before_work(args, argv)
     from odolab.progress import StepProgressBar
     from odolab.report import format_table, write_report
     from odolab.summary import every_step_failed
 
     try:
-        result = run_comparison(config, observer=StepProgressBar(disable=args.quiet))
+        result = run_comparison(config, observer=StepProgressBar(disable=args.quiet), odometers=odometers)
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     for warning in result.warnings:

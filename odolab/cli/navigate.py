@@ -110,11 +110,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, OptionError) as exc:
         raise UsageError(str(exc)) from None
     check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
-    check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
     try:
-        loaded = load_odometers(names, options)  # every name and option checked here, before any episode runs
+        loaded = load_odometers(names, options)  # every name and option checked here, before --out is made
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
+    check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
     noise = NoiseConfig()
     specs = [
