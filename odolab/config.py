@@ -404,13 +404,12 @@ def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()
     :class:`ChangeError` naming that change (``'seed=abc': seed: expected an integer, got 'abc'``)."""
     changes = list(changes)
     doc = read_toml(path)
+    changed = change_document(doc, changes)  # a malformed change: ChangeError naming it
     try:
-        return build(cls, change_document(doc, changes), str(path))
-    except ChangeError:
-        raise
+        return build(cls, changed, str(path))
     except ConfigError as exc:
         said = str(exc).removeprefix(f"{path}.").removeprefix(f"{path}: ")
-        blamed = _blamed(said, changes)
+        blamed = _blamed(said, changes, changed)
         if blamed is None:
             try:
                 build(cls, doc, str(path))
@@ -420,14 +419,30 @@ def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()
         raise ChangeError(f"{_SHORT.repr(blamed)}: {said}") from None
 
 
-def _blamed(said: str, changes: list[str]) -> str | None:
-    """The last of ``changes`` whose path the message ``said`` (``field.path: ...``) is about."""
-    field = said.partition(":")[0].strip()
+def _blamed(said: str, changes: list[str], doc: dict[str, Any]) -> str | None:
+    """The last of ``changes`` whose path the message ``said`` (``field.path: ...``, a list entry
+    as ``stages[0]``) is about; a change that enters a list by an entry's name (``stages.forward``)
+    is matched by that entry's position in ``doc``, the changed document."""
+    field = said.partition(":")[0].strip().replace("[", ".").replace("]", "")
     for item in reversed(changes):
-        path = ".".join(k.strip() for k in item.partition("=")[0].split("."))
+        path = ".".join(_positions([k.strip() for k in item.partition("=")[0].split(".")], doc))
         if path == field or path.startswith(f"{field}.") or field.startswith(f"{path}."):
             return item
     return None
+
+
+def _positions(keys: list[str], doc: Any) -> list[str]:
+    """``keys`` (a change's path) with each list entry named by its ``name`` given by its position."""
+    out, node = [], doc
+    for key in keys:
+        if isinstance(node, list):
+            named = [k for k, e in enumerate(node) if isinstance(e, dict) and e.get("name") == key]
+            key = str(named[0]) if len(named) == 1 and not key.isdigit() else key
+            node = node[int(key)] if key.isdigit() and int(key) < len(node) else None
+        else:
+            node = node.get(key) if isinstance(node, dict) else None
+        out.append(key)
+    return out
 
 
 _SHORT = reprlib.Repr()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -160,3 +161,18 @@ def test_change_document_sets_dotted_paths_and_leaves_the_original_alone():
         with pytest.raises(ChangeError) as info:
             change_document(doc, [bad])
         assert str(info.value).startswith(repr(bad))
+
+
+def test_a_refused_change_among_several_is_the_one_named(tmp_path):
+    """The message's ``stages[0].lr`` is the change ``stages.forward.lr``: that change alone is named."""
+    from odolab.config import ChangeError
+    from odolab.robust_vo.config import TrainConfig
+
+    recipe = Path(__file__).resolve().parents[1] / "studies" / "robust_vo" / "shipped.toml"
+    for changes, named in (
+        (["seed=1", "stages.forward.lr=abc"], "'stages.forward.lr=abc': stages[0].lr: expected a number"),
+        (["stages.1.lr=abc", "seed=2"], "'stages.1.lr=abc': stages[1].lr: expected a number"),
+    ):
+        with pytest.raises(ChangeError) as info:
+            from_toml(TrainConfig, recipe, changes)
+        assert str(info.value).startswith(named), str(info.value)
