@@ -38,6 +38,7 @@ import functools
 import math
 import numbers
 import os
+import re
 import reprlib
 import types
 import typing
@@ -391,11 +392,16 @@ def build(cls: type[T], doc: dict[str, Any], where: str) -> T:
         raise ConfigError(f"{where}: {exc}") from None
 
 
+_FIELD_PATH = re.compile(r"[A-Za-z_]\w*(\[\d+\])*(\.[A-Za-z_]\w*(\[\d+\])*)*")
+
+
 def _at(where: str, name: str) -> str:
-    """``where`` followed by field ``name``: ``file: name`` at a file's top, ``file: a.b.name`` below."""
+    """``where`` followed by field ``name``: ``file: a.b.name`` below a field path (``file: a.b``),
+    else ``where: name`` (a file's top, or any other place such as ``file: row 3's recipe``)."""
     if not where:
         return name
-    return f"{where}.{name}" if ": " in where else f"{where}: {name}"
+    _, sep, tail = where.rpartition(": ")
+    return f"{where}.{name}" if sep and _FIELD_PATH.fullmatch(tail) else f"{where}: {name}"
 
 
 def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()) -> T:

@@ -180,6 +180,7 @@ class Definition:
     sepact: tuple[str, ...]
     rows: dict[int, Row]
     scales: dict[str, Scale]
+    source: Path = DEFINITION
 
 
 def load_definition(path: Path = DEFINITION) -> Definition:
@@ -239,7 +240,7 @@ def load_definition(path: Path = DEFINITION) -> Definition:
             raise ConfigError(f"{path}: scales.{s}.rows: no such row {unknown[0]}")
     header = build(Header, {k: doc[k] for k in ("title", "blank", "knows_action", "sepact")}, str(path))
     study = framework.StudyConfig(NAME, header.title, raw)
-    return Definition(study, header.blank, header.knows_action, header.sepact, by_number, scales)
+    return Definition(study, header.blank, header.knows_action, header.sepact, by_number, scales, path)
 
 
 def _check_options(path: Path, row: Row) -> None:
@@ -283,7 +284,7 @@ def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -
     (for the robust VO with the scale's stage schedule in place of its stages), with the scale's,
     the blank row's, the shared ones of a row that knows the action and of a SepAct row, and the
     row's own changes applied in order, then built and checked."""
-    from odolab.config import build, change_document, read_toml
+    from odolab.config import ChangeError, ConfigError, build, change_document, read_toml
 
     row = definition.rows[number]
     if row.odometer == "deepvo":
@@ -308,7 +309,12 @@ def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -
         doc = read_toml(ROOT / path)
         doc["stages"] = list(scale.sepact_stages if row.switches.actinfo == "SepAct" else scale.single_stages)
     doc["data_root"] = str(data_root)
-    return build(cls, change_document(doc, changes), f"{path} (row {number})")
+    where = f"{definition.source}: row {number}'s recipe ({path} with the scale's and the row's changes)"
+    try:
+        changed = change_document(doc, changes)
+    except ChangeError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    return build(cls, changed, where)
 
 
 def recipe_identity(cfg: TrainConfig | DeepVOTraining) -> dict[str, Any]:

@@ -291,3 +291,17 @@ def test_the_paper_scale_on_a_machine_without_gpus_is_refused_before_anything_is
     out = tmp_path / "paper"
     assert run_cli(ablations.main, "prog", ["--scale", "paper", "--out", str(out)]) == 2
     assert "asks Ray for 1 GPU per training unit" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [("model.nope=1", r"model: unknown field\(s\) nope"), ("garbage", r"'garbage': expected path=value")],
+)
+def test_a_bad_row_change_names_the_definition_and_the_row(tmp_path: Path, change: str, said: str):
+    text = ablations.DEFINITION.read_text(encoding="utf-8").replace(
+        "changes = ['model.visual=\"rgb\"']", f"changes = ['{change}']", 1
+    )
+    (tmp_path / "a.toml").write_text(text)
+    definition = ablations.load_definition(tmp_path / "a.toml")
+    with pytest.raises(ConfigError, match=rf"a.toml: row 1's recipe \(studies/robust_vo/shipped.toml .*\): {said}"):
+        ablations.recipe(definition, definition.scales["cpu"], 1, tmp_path / "data")

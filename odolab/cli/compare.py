@@ -167,7 +167,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
-    """Every check that can fail on the user's input, done before any episode or odometer runs."""
+    """Every check of the user's input that makes nothing, done before any odometer is made (then :func:`_check_folders`)."""
     if args.split not in SPLITS:
         raise UsageError(f"--split {args.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     if args.tum is None:
@@ -201,8 +201,12 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
         if args.no_cache and given_options(argv, ["--cache"]):
             raise UsageError("--cache and --no-cache contradict each other; give one of them")
         check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before any folder is made
-        if not args.no_cache:
-            check_output_dir(args.cache, "--cache")
+
+
+def _check_folders(args: argparse.Namespace) -> None:
+    """The cache and report folders: made if missing and checked (after every other check)."""
+    if args.tum is None and not args.no_cache:
+        check_output_dir(args.cache, "--cache")
     check_report_dir(args.out, "--out")
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import MANIFEST, ManifestError, OutputFolder
@@ -273,11 +277,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     config = _config(args)
+    _check_before_work(args, argv)
     try:  # every name and option checked before a folder is made
         odometers = load_odometers(config.odometers, config.options)
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
-    _check_before_work(args, argv)
+    _check_folders(args)
     from odolab.progress import StepProgressBar
     from odolab.report import format_table, write_report
     from odolab.summary import every_step_failed
