@@ -26,6 +26,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -238,9 +239,38 @@ def load_definition(path: Path = DEFINITION) -> Definition:
         unknown = sorted(set(scale.rows) - set(by_number))
         if unknown:
             raise ConfigError(f"{path}: scales.{s}.rows: no such row {unknown[0]}")
+        _check_scale(f"{path}: scales.{s}", scale)
     header = build(Header, {k: doc[k] for k in ("title", "blank", "knows_action", "sepact")}, str(path))
     study = framework.StudyConfig(NAME, header.title, raw)
     return Definition(study, header.blank, header.knows_action, header.sepact, by_number, scales, path)
+
+
+def _check_scale(where: str, scale: Scale) -> None:
+    """Refuse, as the file is read, a scale whose lists or counts no run could use."""
+    from odolab.config import ConfigError
+    from odolab.episodes import MAX_EPISODE_STEPS
+
+    for name, values in (("rows", scale.rows), ("seeds", scale.seeds), ("nav_seeds", scale.nav_seeds)):
+        if not values or len(set(values)) != len(values):
+            raise ConfigError(f"{where}.{name}: expected a non-empty list without repeats, got {list(values)}")
+        if name != "rows" and min(values) < 0:
+            raise ConfigError(f"{where}.{name}: expected seeds >= 0, got {min(values)}")
+    for name, value, low, high in (
+        ("episodes", scale.episodes, 1, 1000),
+        ("max_steps", scale.max_steps, 1, MAX_EPISODE_STEPS),
+        ("nav_episodes", scale.nav_episodes, 1, 1000),
+        ("nav_max_steps", scale.nav_max_steps, 1, MAX_EPISODE_STEPS),
+        ("train_threads", scale.train_threads, 0, 1024),
+    ):
+        if not low <= value <= high:
+            raise ConfigError(f"{where}.{name}: expected an integer in [{low}, {high}], got {value}")
+    if not (math.isfinite(scale.train_gpus) and scale.train_gpus >= 0):
+        raise ConfigError(f"{where}.train_gpus: expected a number >= 0, got {scale.train_gpus}")
+    if scale.device and not re.fullmatch(r"(cpu|cuda|mps|xpu)(:\d+)?", scale.device):
+        raise ConfigError(
+            f'{where}.device: expected "" (a GPU where a unit sees one, else the CPU) or a torch device '
+            f'such as "cpu" or "cuda:0", got {scale.device!r}'
+        )
 
 
 def _check_options(path: Path, row: Row) -> None:
