@@ -484,9 +484,9 @@ def outcome_note(outcome: Outcome) -> str:
 
 
 def say_missing(labels: Sequence[str]) -> None:
-    """Name the units ``labels`` left out of the table on stderr (nothing when none)."""
+    """Name on stderr the units ``labels`` that have no saved result, so no number comes from them (nothing when none)."""
     if labels:
-        print(f"note: no saved result (left out of the table): {unit_ranges(labels)}", file=sys.stderr)
+        print(f"note: no saved result (no number in the table comes from them): {unit_ranges(labels)}", file=sys.stderr)
 
 
 def require_results(outcome: Outcome, out: Path, scale: str) -> None:

@@ -88,6 +88,6 @@ def test_the_noise_study_redraws_from_its_results_without_computing(tmp_path, mo
     victim.write_text('{"a":' * 100_000)  # damaged: left out, and said so
     assert cli("--out", out, "--redraw") == 0
     captured = capsys.readouterr()
-    assert "note: no saved result (left out of the table):" in captured.err
+    assert "note: no saved result (no number in the table comes from them):" in captured.err
     assert "Missing (not computed):" in (out / "index.html").read_text()
     assert len((out / "table.csv").read_text().splitlines()) == len(table.splitlines()) - 1
