@@ -220,19 +220,15 @@ def load_definition(path: Path = DEFINITION) -> Definition:
                 f"{path}: row {r.row}: paper.error: expected {len(COMPONENTS)} numbers (dx, dz, dyaw) or none, got {len(r.paper.error)}"
             )
         if r.paper is not None:
-            numbers = {"success": r.paper.success, "spl": r.paper.spl, "d_g": r.paper.d_g, "soft_spl": r.paper.soft_spl}
-            bad = [k for k, v in numbers.items() if not math.isfinite(v)] + [
-                "error" for v in r.paper.error if not math.isfinite(v)
-            ]
-            if bad:
-                raise ConfigError(f"{path}: row {r.row}: paper.{bad[0]}: expected a finite number, got nan or inf")
+            _check_paper(f"{path}: row {r.row}: paper", r.paper)
         if r.options or not isinstance(r.options, dict):
             _check_options(path, r)
+        if r.model_of == r.row:
+            raise ConfigError(
+                f"{path}: row {r.row}: model_of: expected another row that trains a model, got its own number"
+            )
         if r.model_of is not None and (
-            r.model_of == r.row
-            or r.model_of not in by_number
-            or model_row(by_number[r.model_of]) != r.model_of
-            or model_row(r) is None
+            r.model_of not in by_number or model_row(by_number[r.model_of]) != r.model_of or model_row(r) is None
         ):
             raise ConfigError(f"{path}: row {r.row}: model_of {r.model_of} is no row that trains a model")
     for s, scale in scales.items():
@@ -243,6 +239,19 @@ def load_definition(path: Path = DEFINITION) -> Definition:
     header = build(Header, {k: doc[k] for k in ("title", "blank", "knows_action", "sepact")}, str(path))
     study = framework.StudyConfig(NAME, header.title, raw)
     return Definition(study, header.blank, header.knows_action, header.sepact, by_number, scales, path)
+
+
+def _check_paper(where: str, paper: Paper) -> None:
+    """Refuse, as the file is read, a paper number outside what it measures: success, SPL and
+    SoftSPL in [0, 100] %, d_G and the per-step errors >= 0, all finite."""
+    from odolab.config import ConfigError
+
+    values = [("success", paper.success, 100.0), ("spl", paper.spl, 100.0), ("soft_spl", paper.soft_spl, 100.0)]
+    values += [("d_g", paper.d_g, math.inf)] + [(f"error[{k}]", v, math.inf) for k, v in enumerate(paper.error)]
+    for name, value, top in values:
+        if not (math.isfinite(value) and 0.0 <= value <= top):
+            expected = f"a number in [0, {top:g}]" if math.isfinite(top) else "a finite number >= 0"
+            raise ConfigError(f"{where}.{name}: expected {expected}, got {value}")
 
 
 def _check_scale(where: str, scale: Scale) -> None:

@@ -113,9 +113,19 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
         ("options = { mc_samples = 10 }", "options = 'x'", r"row 5: options: expected a table, got 'x'"),
         ("options = { mc_samples = 10 }", "options = []", r"row 5: options: expected a table, got \[\]"),
         ("row = 7\n", "row = 6\n", r"rows: expected one row of each number, got two of 6"),
-        ("row = 6\nswitches", "row = 6\nmodel_of = 6\nswitches", r"row 6: model_of 6 is no row that trains a model"),
-        ("error = [1.10, 0.84, 0.68]", "error = [1.10, nan, 0.68]", r"row 18: paper.error: expected a finite number"),
-        ("success = 81,", "success = nan,", r"paper.success: expected a finite number, got nan"),
+        (
+            "row = 6\nswitches",
+            "row = 6\nmodel_of = 6\nswitches",
+            r"row 6: model_of: expected another row that trains a model, got its own number",
+        ),
+        (
+            "error = [1.10, 0.84, 0.68]",
+            "error = [1.10, nan, 0.68]",
+            r"row 18: paper.error\[1\]: expected a finite number >= 0, got nan",
+        ),
+        ("success = 81,", "success = nan,", r"paper.success: expected a number in \[0, 100\], got nan"),
+        ("success = 81,", "success = 150,", r"row 18: paper.success: expected a number in \[0, 100\], got 150"),
+        ("d_g = 0.51,", "d_g = -1,", r"row 18: paper.d_g: expected a finite number >= 0, got -1"),
         (
             'odometer = "action-prior"',
             'odometer = "action-prior"\npaper = { success = 1, spl = 1, d_g = 1, soft_spl = 1, params = "" }',
