@@ -290,6 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         run=run,
         state_files=state_files,
         check_start=first_stage,
+        set_example="seed=1 --set lr=1e-4 --set epochs=2",
     )
 
 

@@ -58,9 +58,12 @@ class TrainingJob:
     gpus_per_worker: float = 0.0
 
 
-def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
+def training_parser(
+    prog: str, description: str, family: str, set_example: str = "seed=1 --set model.width=341"
+) -> ArgumentParser:
     """The shared options; ``family`` names the default folders (``runs/<family>/<recipe name>``,
-    ``reports/<family>/<recipe name>``)."""
+    ``reports/<family>/<recipe name>``); ``set_example``: changes of this family's recipes for
+    ``--set``'s help."""
     ap = ArgumentParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", type=path_arg("--config"), required=True, help="TOML recipe")
     ap.add_argument(
@@ -68,8 +71,7 @@ def training_parser(prog: str, description: str, family: str) -> ArgumentParser:
         action="append",
         default=[],
         metavar="PATH=VALUE",
-        help="change one recipe value, e.g. --set seed=1 --set model.width=341 --set stages.forward.lr=1e-4 "
-        "(a changed recipe is another run: give it its own --work)",
+        help=f"change one recipe value, e.g. --set {set_example} (a changed recipe is another run: give it its own --work)",
     )
     ap.add_argument(
         "--work",
@@ -328,12 +330,13 @@ def training_main(
     run: Callable[..., bool],
     state_files: StateFiles | None = None,
     check_start: StartCheck | None = None,
+    set_example: str = "seed=1 --set model.width=341",
 ) -> int:
     """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
     ``run(config, work=, reports=, export=, device=, hours=, execution=, command=, workers=,
     gpus_per_worker=)``
     (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
-    ap = training_parser(prog, description, family)
+    ap = training_parser(prog, description, family, set_example)
     job = parse_training_command(ap, argv, load_config, state_files, check_start)
     try:
         done = run(
