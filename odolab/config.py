@@ -420,9 +420,39 @@ def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()
             try:
                 build(cls, doc, str(path))
             except ConfigError:
-                raise exc from None  # the file itself is refused: name the file
+                source = _source(path, said, doc)
+                if source == str(path):
+                    raise exc from None  # the file itself is refused: name the file
+                raise ConfigError(f"{source}: {said} (the base of {path})") from None
             blamed = changes[-1] if len(changes) == 1 else "; ".join(changes)
         raise ChangeError(f"{_SHORT.repr(blamed)}: {said}") from None
+
+
+def _source(path: str | os.PathLike, said: str, doc: dict[str, Any]) -> str:
+    """The file of ``path``'s ``base =`` chain that set the field the message ``said`` is about:
+    the first, from ``path`` down, whose own tables or ``changes`` name it; ``path`` when none does
+    (or the message names no field)."""
+    field = said.partition(":")[0].strip().replace("[", ".").replace("]", "").split(".")
+    current, seen = str(path), 0
+    while seen < MAX_BASE_CHAIN:
+        own = _read_toml_file(current)
+        node: Any = own
+        for key in field:  # a list (such as [[stages]]) is set whole by the file that holds it
+            if not isinstance(node, dict) or key not in node:
+                break
+            node = node[key]
+        else:
+            return current
+        if isinstance(node, list) and node is not own:
+            return current
+        changes = own.get("changes", [])
+        if isinstance(changes, list) and _blamed(said, [c for c in changes if isinstance(c, str)], doc):
+            return current
+        base = own.get("base")
+        if not isinstance(base, str) or not base:
+            return str(path)
+        current, seen = os.path.join(os.path.dirname(os.path.abspath(current)), base), seen + 1
+    return str(path)
 
 
 def _blamed(said: str, changes: list[str], doc: dict[str, Any]) -> str | None:

@@ -176,3 +176,18 @@ def test_a_refused_change_among_several_is_the_one_named(tmp_path):
         with pytest.raises(ChangeError) as info:
             from_toml(TrainConfig, recipe, changes)
         assert str(info.value).startswith(named), str(info.value)
+
+
+def test_a_bad_value_in_a_base_file_names_that_file(tmp_path):
+    from odolab.robust_vo.config import TrainConfig
+
+    shipped = Path(__file__).resolve().parents[1] / "studies" / "robust_vo" / "shipped.toml"
+    (tmp_path / "bad.toml").write_text(f'base = "{shipped}"\n[model]\ndropout = "x"\n')
+    (tmp_path / "child.toml").write_text('base = "bad.toml"\nseed = 3\n')
+    with pytest.raises(
+        ConfigError, match=r"bad.toml: model.dropout: expected a number, got 'x' \(the base of .*child.toml\)"
+    ):
+        from_toml(TrainConfig, tmp_path / "child.toml")
+    (tmp_path / "child.toml").write_text('base = "bad.toml"\n[model]\ndropout = "y"\n')  # the child's own value
+    with pytest.raises(ConfigError, match=r"child.toml: model.dropout: expected a number, got 'y'$"):
+        from_toml(TrainConfig, tmp_path / "child.toml")
