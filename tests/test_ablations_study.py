@@ -81,7 +81,8 @@ def test_the_cpu_scale_keeps_to_its_budget(tmp_path: Path):
 def test_the_row_18_recipes_of_the_warp_probe_are_the_studys_row_18_at_its_cpu_scale():
     """studies/robust_vo/ablations/row18-cpu-warp.toml trains what the study trains for row 18 at its
     cpu scale (with the shared base of the rows that know the action); row18-cpu.toml, the paper's
-    input, differs from it in the warp and the mirrored turns alone."""
+    input, differs from it in the warp and the mirrored turns alone; row18-cpu-4x.toml in its epochs alone
+    (four times each stage's)."""
     from odolab.robust_vo.config import load_train_config
 
     folder = ablations.ROOT / "studies" / "robust_vo" / "ablations"
@@ -90,6 +91,10 @@ def test_the_row_18_recipes_of_the_warp_probe_are_the_studys_row_18_at_its_cpu_s
     paper = ablations.recipe_identity(load_train_config(str(folder / "row18-cpu.toml")))
     assert paper["model"] == {**study["model"], "warp": "none", "mirror_turns": False}
     assert {k: v for k, v in paper.items() if k != "model"} == {k: v for k, v in study.items() if k != "model"}
+    four = ablations.recipe_identity(load_train_config(str(folder / "row18-cpu-4x.toml")))  # the budget probe
+    assert [s["epochs"] for s in four["stages"]] == [4 * s["epochs"] for s in study["stages"]]
+    assert [{**s, "epochs": 0} for s in four["stages"]] == [{**s, "epochs": 0} for s in study["stages"]]
+    assert {k: v for k, v in four.items() if k != "stages"} == {k: v for k, v in study.items() if k != "stages"}
 
 
 def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
