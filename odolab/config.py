@@ -286,7 +286,7 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
         return doc
     if not isinstance(base, str) or not base:
         raise ConfigError(f"{path}: base must be the path of another TOML file, got {base!r}")
-    base_path = os.path.join(os.path.dirname(os.path.abspath(path)), base)
+    base_path = os.path.join(os.path.dirname(os.path.realpath(path)), base)  # beside the file, not a link to it
     if os.path.abspath(base_path) in _seen or os.path.abspath(path) == os.path.abspath(base_path):
         raise ConfigError(f"{path}: base {base!r} leads back to itself")
     if not os.path.isfile(base_path):
@@ -407,51 +407,71 @@ def _at(where: str, name: str) -> str:
 def from_toml(cls: type[T], path: str | os.PathLike, changes: Iterable[str] = ()) -> T:
     """Read ``path``, apply ``changes`` (:func:`change_document`: ``model.width=341``) and build
     ``cls`` from it (see :func:`build`). A value refused only because of a change raises
-    :class:`ChangeError` naming that change (``'seed=abc': seed: expected an integer, got 'abc'``)."""
+    :class:`ChangeError` naming that change (``'seed=abc': seed: expected an integer, got 'abc'``);
+    one refused in the file's ``base =`` chain names the file that brought it in."""
     changes = list(changes)
     doc = read_toml(path)
     changed = change_document(doc, changes)  # a malformed change: ChangeError naming it
     try:
         return build(cls, changed, str(path))
     except ConfigError as exc:
-        said = str(exc).removeprefix(f"{path}.").removeprefix(f"{path}: ")
-        blamed = _blamed(said, changes, changed)
-        if blamed is None:
-            try:
-                build(cls, doc, str(path))
-            except ConfigError:
-                source = _source(path, said, doc)
-                if source == str(path):
-                    raise exc from None  # the file itself is refused: name the file
-                raise ConfigError(f"{source}: {said} (the base of {path})") from None
-            blamed = changes[-1] if len(changes) == 1 else "; ".join(changes)
-        raise ChangeError(f"{_SHORT.repr(blamed)}: {said}") from None
+        said = _said(exc, path)
+        if not _builds(cls, doc, path):  # the file itself is refused: name the file that brought the value in
+            source = _source(cls, path, said)
+            if source == str(path):
+                raise exc from None
+            raise ConfigError(f"{source}: {said} (a base of {path})") from None
+        raise ChangeError(f"{_SHORT.repr(_culprit(cls, doc, changes, said, path))}: {said}") from None
 
 
-def _source(path: str | os.PathLike, said: str, doc: dict[str, Any]) -> str:
-    """The file of ``path``'s ``base =`` chain that set the field the message ``said`` is about:
-    the first, from ``path`` down, whose own tables or ``changes`` name it; ``path`` when none does
-    (or the message names no field)."""
-    field = said.partition(":")[0].strip().replace("[", ".").replace("]", "").split(".")
-    current, seen = str(path), 0
-    while seen < MAX_BASE_CHAIN:
-        own = _read_toml_file(current)
-        node: Any = own
-        for key in field:  # a list (such as [[stages]]) is set whole by the file that holds it
-            if not isinstance(node, dict) or key not in node:
-                break
-            node = node[key]
-        else:
-            return current
-        if isinstance(node, list) and node is not own:
-            return current
-        changes = own.get("changes", [])
-        if isinstance(changes, list) and _blamed(said, [c for c in changes if isinstance(c, str)], doc):
-            return current
-        base = own.get("base")
+def _said(exc: ConfigError, path: str | os.PathLike) -> str:
+    """The message of ``exc`` without the file ``path`` it starts with."""
+    return str(exc).removeprefix(f"{path}.").removeprefix(f"{path}: ")
+
+
+def _builds(cls: type, doc: dict[str, Any], path: str | os.PathLike) -> bool:
+    """Whether ``cls`` can be built from ``doc``."""
+    try:
+        build(cls, doc, str(path))
+    except ConfigError:
+        return False
+    return True
+
+
+def _culprit(cls: type, doc: dict[str, Any], changes: list[str], said: str, path: str | os.PathLike) -> str:
+    """The change of ``changes`` that the refusal ``said`` is about: the only one without which the
+    document builds; else the last whose path the message names (:func:`_blamed`); else them all."""
+    alone = []
+    for k, item in enumerate(changes):
+        try:
+            if _builds(cls, change_document(doc, changes[:k] + changes[k + 1 :]), path):
+                alone.append(item)
+        except ChangeError:
+            continue
+    if len(alone) == 1:
+        return alone[0]
+    return _blamed(said, changes, change_document(doc, changes)) or "; ".join(changes)
+
+
+def _source(cls: type, path: str | os.PathLike, said: str) -> str:
+    """The file of ``path``'s ``base =`` chain that brought in the value the refusal ``said`` is
+    about: the deepest base that is refused with the same words on its own; ``path`` when none is."""
+    chain, current = [str(path)], str(path)
+    while len(chain) <= MAX_BASE_CHAIN:
+        try:
+            base = _read_toml_file(current).get("base")
+        except ConfigError:
+            break
         if not isinstance(base, str) or not base:
-            return str(path)
-        current, seen = os.path.join(os.path.dirname(os.path.abspath(current)), base), seen + 1
+            break
+        current = os.path.join(os.path.dirname(os.path.realpath(current)), base)
+        chain.append(current)
+    for file in reversed(chain[1:]):
+        try:
+            build(cls, read_toml(file), file)
+        except ConfigError as exc:
+            if _said(exc, file) == said:
+                return file
     return str(path)
 
 

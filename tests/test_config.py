@@ -172,6 +172,9 @@ def test_a_refused_change_among_several_is_the_one_named(tmp_path):
     for changes, named in (
         (["seed=1", "stages.forward.lr=abc"], "'stages.forward.lr=abc': stages[0].lr: expected a number"),
         (["stages.1.lr=abc", "seed=2"], "'stages.1.lr=abc': stages[1].lr: expected a number"),
+        (["stages.forward.lr=5", "stages.forward.epochs=3"], "'stages.forward.lr=5': stages[0]: stage 'forward': lr"),
+        (["model.dropout=5", "model.hidden=256"], "'model.dropout=5': model: dropout must be in"),
+        (["seed=1", "model.width=100"], "'model.width=100': train data is 170 x 96 px"),
     ):
         with pytest.raises(ChangeError) as info:
             from_toml(TrainConfig, recipe, changes)
@@ -185,9 +188,19 @@ def test_a_bad_value_in_a_base_file_names_that_file(tmp_path):
     (tmp_path / "bad.toml").write_text(f'base = "{shipped}"\n[model]\ndropout = "x"\n')
     (tmp_path / "child.toml").write_text('base = "bad.toml"\nseed = 3\n')
     with pytest.raises(
-        ConfigError, match=r"bad.toml: model.dropout: expected a number, got 'x' \(the base of .*child.toml\)"
+        ConfigError, match=r"bad.toml: model.dropout: expected a number, got 'x' \(a base of .*child.toml\)"
     ):
         from_toml(TrainConfig, tmp_path / "child.toml")
     (tmp_path / "child.toml").write_text('base = "bad.toml"\n[model]\ndropout = "y"\n')  # the child's own value
     with pytest.raises(ConfigError, match=r"child.toml: model.dropout: expected a number, got 'y'$"):
         from_toml(TrainConfig, tmp_path / "child.toml")
+
+
+def test_a_linked_recipe_takes_its_base_beside_the_file_it_links_to(tmp_path):
+    from odolab.robust_vo.config import TrainConfig
+
+    recipe = Path(__file__).resolve().parents[1] / "studies" / "robust_vo" / "ablations" / "no-dropout.toml"
+    (tmp_path / "links").mkdir()
+    (tmp_path / "links" / "r.toml").symlink_to(recipe)
+    (tmp_path / "shipped.toml").write_text("seed = 99\n")  # where '../shipped.toml' would be beside the link
+    assert from_toml(TrainConfig, tmp_path / "links" / "r.toml") == from_toml(TrainConfig, recipe)

@@ -58,9 +58,7 @@ class TrainingJob:
     gpus_per_worker: float = 0.0
 
 
-def training_parser(
-    prog: str, description: str, family: str, set_example: str = "seed=1 --set model.width=341"
-) -> ArgumentParser:
+def training_parser(prog: str, description: str, family: str, set_example: str = "seed=1") -> ArgumentParser:
     """The shared options; ``family`` names the default folders (``runs/<family>/<recipe name>``,
     ``reports/<family>/<recipe name>``); ``set_example``: changes of this family's recipes for
     ``--set``'s help."""
@@ -330,7 +328,7 @@ def training_main(
     run: Callable[..., bool],
     state_files: StateFiles | None = None,
     check_start: StartCheck | None = None,
-    set_example: str = "seed=1 --set model.width=341",
+    set_example: str = "seed=1",
 ) -> int:
     """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
     ``run(config, work=, reports=, export=, device=, hours=, execution=, command=, workers=,

@@ -391,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
         load_config=load_train_config,
         run=run,
         check_start=lambda cfg, export: load_start(cfg.init, cfg, export),
-        set_example="seed=1 --set model.width=341 --set stages.forward.lr=1e-4",
+        set_example="seed=1 --set stages.forward.lr=1e-4 --set model.dropout=0.1",
     )
 
 
