@@ -50,6 +50,7 @@ __all__ = [
     "load_odometers",
     "odometer_names",
     "run_comparison",
+    "tum_sequences",
 ]
 
 #: Where episodes are cached unless told otherwise.
@@ -185,7 +186,8 @@ def _floor_plan(scene_seed: int, goal: tuple[float, float] | None = None) -> Flo
     return FloorPlan(scene.free, scene.origin, scene.resolution, goal)
 
 
-def _tum_sequences(config: ComparisonConfig):
+def tum_sequences(config: ComparisonConfig) -> list:
+    """The TUM RGB-D sequence of ``config.tum``, read and checked (:class:`ComparisonError` with one line)."""
     from odolab.io.errors import FileFormatError
     from odolab.io.tum_rgbd import TUM_DEPTH_SCALE, load_tum_sequence
 
@@ -258,10 +260,14 @@ def odometer_configs(odometers: dict) -> dict[str, str]:
 
 
 def run_comparison(
-    config: ComparisonConfig, observer: RunObserver | None = None, odometers: dict[str, Odometer] | None = None
+    config: ComparisonConfig,
+    observer: RunObserver | None = None,
+    odometers: dict[str, Odometer] | None = None,
+    sequences: list | None = None,
 ) -> ComparisonResult:
     """Run every odometer of ``config`` on its sequences and summarise (nothing is written);
-    ``odometers``: those of ``config`` already made by :func:`load_odometers`, else made here."""
+    ``odometers``: those of ``config`` already made by :func:`load_odometers`, else made here;
+    ``sequences``: with ``config.tum``, the folder already read by :func:`tum_sequences`."""
     if config.split not in SPLITS:
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     if odometers is None:
@@ -273,7 +279,7 @@ def run_comparison(
                 f"{blind[0]} needs the action of every step, and real data has none; leave it out of a --tum comparison"
             )
         odometers = {name: odo for name, odo in odometers.items() if name not in blind}  # all, by default
-        sequences = _tum_sequences(config)
+        sequences = sequences if sequences is not None else tum_sequences(config)
         depth_warning = sequences[0].depth_warning()  # read before the run: a few frames
         results = _run(odometers, sequences, observer)
         title = f"odolab compare on TUM folder {config.tum}"

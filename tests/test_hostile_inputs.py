@@ -141,6 +141,15 @@ def test_a_bad_odometer_option_is_refused_before_the_out_folder_is_made(tmp_path
     assert not (tmp_path / "o").exists()
 
 
+def test_a_tum_folder_without_its_lists_is_refused_before_the_out_folder_is_made(tmp_path):
+    folder = tmp_path / "rgbd_dataset_freiburg1_xyz"
+    folder.mkdir()
+    one_line_error(
+        "odolab.compare", "--odometers", "icp", "--tum", folder, "--out", tmp_path / "o", words="rgb.txt: no such file"
+    )
+    assert not (tmp_path / "o").exists()
+
+
 def test_evaluate_plot_path_is_checked_before_work(tmp_path):
     gt = tmp_path / "gt.txt"
     gt.write_text(TUM_OK)

@@ -35,6 +35,7 @@ from odolab.comparison import (
     load_odometers,
     odometer_names,
     run_comparison,
+    tum_sequences,
 )
 from odolab.episodes import MAX_EPISODE_STEPS
 from odolab.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
@@ -282,13 +283,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         odometers = load_odometers(config.odometers, config.options)
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
+    sequences = None
+    if args.tum is not None:  # the folder read and checked before --out is made
+        try:
+            sequences = tum_sequences(config)
+        except ComparisonError as exc:
+            raise UsageError(f"--tum {args.tum}: {exc}") from None
     _check_folders(args)
     from odolab.progress import StepProgressBar
     from odolab.report import format_table, write_report
     from odolab.summary import every_step_failed
 
     try:
-        result = run_comparison(config, observer=StepProgressBar(disable=args.quiet), odometers=odometers)
+        result = run_comparison(
+            config, observer=StepProgressBar(disable=args.quiet), odometers=odometers, sequences=sequences
+        )
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     for warning in result.warnings:
