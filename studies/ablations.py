@@ -290,10 +290,26 @@ def _check_options(path: Path, row: Row) -> None:
 
     if not isinstance(row.options, dict):
         raise ConfigError(f"{path}: row {row.row}: options: expected a table, got {row.options!r}")
+    if "checkpoint" in row.options:
+        raise ConfigError(f"{path}: row {row.row}: options: checkpoint is the row's own model file; leave it out")
     try:
         check_options(row.odometer, REGISTRY.resolve(row.odometer), row.options)
     except OptionError as exc:
         raise ConfigError(f"{path}: row {row.row}: options: {exc}") from None
+
+
+def check_option_values(definition: Definition, number: int) -> None:
+    """Refuse row ``number``'s options that its odometer refuses when made (with its shipped model
+    in place of the row's own, which the study has not trained yet)."""
+    from odolab.config import ConfigError
+    from odolab.odometer import REGISTRY
+
+    row = definition.rows[number]
+    if row.options:
+        try:
+            REGISTRY.load(row.odometer, **row.options)
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"{definition.source}: row {number}: options: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -1073,6 +1089,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             path = out / model_file(n)
             if path.is_dir() and not path.is_symlink():
                 raise UsageError(f"--out {out}: {path}: expected row {n}'s model file or nothing, found a folder")
+        for r in scale.rows:  # option values, as the odometer takes them, before any work
+            check_option_values(definition, r)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     execution = execution_of(args)

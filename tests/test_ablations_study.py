@@ -117,6 +117,11 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
         ),
         ("options = { mc_samples = 10 }", "options = 'x'", r"row 5: options: expected a table, got 'x'"),
         ("options = { mc_samples = 10 }", "options = []", r"row 5: options: expected a table, got \[\]"),
+        (
+            "options = { mc_samples = 10 }",
+            'options = { checkpoint = "x.pt" }',
+            r"row 5: options: checkpoint is the row's own",
+        ),
         ("row = 7\n", "row = 6\n", r"rows: expected one row of each number, got two of 6"),
         (
             "row = 6\nswitches",
@@ -342,3 +347,14 @@ def test_a_scale_no_run_could_use_is_refused_when_the_definition_is_read(tmp_pat
     (tmp_path / "a.toml").write_text(text.replace(old, new, 1))
     with pytest.raises(ConfigError, match=said):
         ablations.load_definition(tmp_path / "a.toml")
+
+
+def test_a_row_option_value_its_odometer_refuses_is_refused_before_any_work(tmp_path: Path):
+    text = ablations.DEFINITION.read_text(encoding="utf-8")
+    (tmp_path / "a.toml").write_text(text.replace("options = { mc_samples = 10 }", "options = { mc_samples = 1 }", 1))
+    definition = ablations.load_definition(tmp_path / "a.toml")
+    with pytest.raises(
+        ConfigError, match=r"a.toml: row 5: options: mc_samples must be 0 \(off\) or in \[2, 1000\], got 1"
+    ):
+        ablations.check_option_values(definition, 5)
+    ablations.check_option_values(DEFINITION, 5)  # the committed value is taken
