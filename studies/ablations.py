@@ -207,6 +207,10 @@ def load_definition(path: Path = DEFINITION) -> Definition:
         twice = sorted({r.row for r in rows if [q.row for q in rows].count(r.row) > 1})
         raise ConfigError(f"{path}: rows: expected one row of each number, got two of {twice[0]}")
     for r in rows:
+        if r.switches is not None and r.switches.dd < 0:
+            raise ConfigError(
+                f"{path}: row {r.row}: switches.dd: expected 0 (none) or a number of bins, got {r.switches.dd}"
+            )
         if (r.odometer == "robust-vo") != (r.switches is not None):
             raise ConfigError(f"{path}: row {r.row}: switches are for robust-VO rows, and every one has them")
         if r.odometer == "action-prior" and r.paper is not None:
@@ -227,10 +231,19 @@ def load_definition(path: Path = DEFINITION) -> Definition:
             raise ConfigError(
                 f"{path}: row {r.row}: model_of: expected another row that trains a model, got its own number"
             )
+        if r.model_of is not None and (r.changes or r.wide):
+            raise ConfigError(
+                f"{path}: row {r.row}: model_of: a row using another's model trains nothing; drop its changes and wide"
+            )
         if r.model_of is not None and (
-            r.model_of not in by_number or model_row(by_number[r.model_of]) != r.model_of or model_row(r) is None
+            r.model_of not in by_number
+            or by_number[r.model_of].odometer != r.odometer
+            or model_row(by_number[r.model_of]) != r.model_of
+            or model_row(r) is None
         ):
-            raise ConfigError(f"{path}: row {r.row}: model_of {r.model_of} is no row that trains a model")
+            raise ConfigError(
+                f"{path}: row {r.row}: model_of: expected a row of the same odometer that trains a model, got {r.model_of}"
+            )
     for s, scale in scales.items():
         unknown = sorted(set(scale.rows) - set(by_number))
         if unknown:

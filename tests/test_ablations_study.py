@@ -107,7 +107,11 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
 @pytest.mark.parametrize(
     ("old", "new", "said"),
     [
-        ("row = 6\nswitches", "row = 6\nmodel_of = 21\nswitches", r"row 6: model_of 21 is no row that trains a model"),
+        (
+            "row = 6\nswitches",
+            "row = 6\nmodel_of = 21\nswitches",
+            r"row 6: model_of: a row using another's model trains nothing",
+        ),
         ("success = 81,", "success = 81, speed = 3,", r"rows\[\d+\]\.paper: unknown field\(s\) speed"),
         ("error = [1.10, 0.84, 0.68]", "error = [1.10, 0.84]", r"row 18: paper.error: expected 3 numbers"),
         (
@@ -117,6 +121,17 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
         ),
         ("options = { mc_samples = 10 }", "options = 'x'", r"row 5: options: expected a table, got 'x'"),
         ("options = { mc_samples = 10 }", "options = []", r"row 5: options: expected a table, got \[\]"),
+        (
+            "model_of = 4",
+            "model_of = 0",
+            r"row 5: model_of: expected a row of the same odometer that trains a model, got 0",
+        ),
+        ("model_of = 4", "model_of = 4\nwide = true", r"row 5: model_of: a row using another's model trains nothing"),
+        (
+            'row = 1\nswitches = { visual = "RGB", dd = 0,',
+            'row = 1\nswitches = { visual = "RGB", dd = -3,',
+            r"row 1: switches.dd: expected 0",
+        ),
         (
             "options = { mc_samples = 10 }",
             'options = { checkpoint = "x.pt" }',
