@@ -14,6 +14,7 @@ naming the option and what was expected.
 
 from __future__ import annotations
 
+import difflib
 import inspect
 import numbers
 import os
@@ -115,8 +116,10 @@ def check_options(name: str, factory: Callable[..., Any], options: Mapping[str, 
     ]
     for key, value in options.items():
         if key not in accepted:
+            near = difflib.get_close_matches(str(key), accepted, n=2)
+            hint = f" (did you mean {' or '.join(map(repr, near))}?)" if near else ""
             raise OptionError(
-                f"odometer {name!r} has no option {key!r}; it accepts: {', '.join(accepted) or 'no options'}"
+                f"odometer {name!r} has no option {key!r}{hint}; it accepts: {', '.join(accepted) or 'no options'}"
             )
         parts = _simple_parts(params[key].annotation)
         if parts and not any(_fits(value, p) for p in parts):

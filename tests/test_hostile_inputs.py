@@ -134,6 +134,7 @@ def test_compare_output_paths_are_checked_before_work(tmp_path):
     [
         ("odolab.compare", "icp.max_depth=-1", "max_depth must be in"),
         ("odolab.navigate", "icp.bogus=1", "has no option 'bogus'"),
+        ("odolab.compare", "icp.max_dept=3", "has no option 'max_dept' (did you mean 'max_depth'"),
     ],
 )
 def test_a_bad_odometer_option_is_refused_before_the_out_folder_is_made(tmp_path, module, option, words):
