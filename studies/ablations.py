@@ -286,8 +286,16 @@ def _check_scale(where: str, scale: Scale) -> None:
     ):
         if not low <= value <= high:
             raise ConfigError(f"{where}.{name}: expected an integer in [{low}, {high}], got {value}")
-    if not (math.isfinite(scale.train_gpus) and scale.train_gpus >= 0):
-        raise ConfigError(f"{where}.train_gpus: expected a number >= 0, got {scale.train_gpus}")
+    if not (scale.train_gpus == 0 or (math.isfinite(scale.train_gpus) and 1e-4 <= scale.train_gpus <= 64)):
+        raise ConfigError(f"{where}.train_gpus: expected 0 (none) or a number in [0.0001, 64], got {scale.train_gpus}")
+    if scale.train_gpus and scale.device == "cpu":
+        raise ConfigError(
+            f'{where}.device: "cpu" with train_gpus {scale.train_gpus:g}: asks Ray for GPUs it would not use'
+        )
+    if scale.train_gpus and re.fullmatch(r"cuda:[1-9]\d*", scale.device):
+        raise ConfigError(
+            f'{where}.device: {scale.device!r} with train_gpus: a unit sees only the GPU Ray gives it; use "cuda" or ""'
+        )
     if scale.device and not re.fullmatch(r"(cpu|cuda|mps|xpu)(:\d+)?", scale.device):
         raise ConfigError(
             f'{where}.device: expected "" (a GPU where a unit sees one, else the CPU) or a torch device '
