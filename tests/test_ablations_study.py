@@ -156,9 +156,18 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
             'odometer = "action-prior"\npaper = { success = 1, spl = 1, d_g = 1, soft_spl = 1, params = "" }',
             r"row 21: paper: expected none",
         ),
+        ("seeds = [0, 1, 2]", "seeds = []", r"scales.cpu.seeds: expected a non-empty list without repeats, got \[\]"),
+        ("rows = [0, 1, 4,", "rows = [0, 0, 1, 4,", r"scales.ci.rows: expected a non-empty list without repeats"),
+        (
+            "nav_episodes = 50",
+            "nav_episodes = -4",
+            r"scales.cpu.nav_episodes: expected an integer in \[1, 1000\], got -4",
+        ),
+        ('device = "cpu"', 'device = "tpu9"', r"scales.ci.device: expected .* got 'tpu9'"),
+        ("train_threads = 1", "train_threads = -1", r"scales.ci.train_threads: expected an integer in \[0, 1024\]"),
     ],
 )
-def test_a_bad_row_is_refused_when_the_definition_is_read(tmp_path: Path, old: str, new: str, said: str):
+def test_a_bad_row_or_scale_is_refused_when_the_definition_is_read(tmp_path: Path, old: str, new: str, said: str):
     text = ablations.DEFINITION.read_text(encoding="utf-8")
     assert old in text
     (tmp_path / "a.toml").write_text(text.replace(old, new, 1))
@@ -340,28 +349,6 @@ def test_a_bad_row_change_names_the_definition_and_the_row(tmp_path: Path, chang
     definition = ablations.load_definition(tmp_path / "a.toml")
     with pytest.raises(ConfigError, match=rf"a.toml: row 1's recipe \(studies/robust_vo/shipped.toml .*\): {said}"):
         ablations.recipe(definition, definition.scales["cpu"], 1, tmp_path / "data")
-
-
-@pytest.mark.parametrize(
-    ("old", "new", "said"),
-    [
-        ("seeds = [0, 1, 2]", "seeds = []", r"scales.cpu.seeds: expected a non-empty list without repeats, got \[\]"),
-        ("rows = [0, 1, 4,", "rows = [0, 0, 1, 4,", r"scales.ci.rows: expected a non-empty list without repeats"),
-        (
-            "nav_episodes = 50",
-            "nav_episodes = -4",
-            r"scales.cpu.nav_episodes: expected an integer in \[1, 1000\], got -4",
-        ),
-        ('device = "cpu"', 'device = "tpu9"', r"scales.ci.device: expected .* got 'tpu9'"),
-        ("train_threads = 1", "train_threads = -1", r"scales.ci.train_threads: expected an integer in \[0, 1024\]"),
-    ],
-)
-def test_a_scale_no_run_could_use_is_refused_when_the_definition_is_read(tmp_path: Path, old: str, new: str, said: str):
-    text = ablations.DEFINITION.read_text(encoding="utf-8")
-    assert old in text
-    (tmp_path / "a.toml").write_text(text.replace(old, new, 1))
-    with pytest.raises(ConfigError, match=said):
-        ablations.load_definition(tmp_path / "a.toml")
 
 
 def test_a_row_option_value_its_odometer_refuses_is_refused_before_any_work(tmp_path: Path):
