@@ -152,7 +152,8 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
             raise ComparisonError(str(exc)) from None
         except Exception as exc:  # noqa: BLE001 - a broken plugin or a bad option value is reported, not a traceback
             detail = f" with options {_short(opts)}" if opts else ""
-            kind = "" if isinstance(exc, (ValueError, TypeError)) else f"{type(exc).__name__}: "  # a refused value says why
+            # a refused value or type says why itself; anything else is named by its kind
+            kind = "" if isinstance(exc, (ValueError, TypeError)) else f"{type(exc).__name__}: "
             raise ComparisonError(f"could not load odometer {name!r}{detail}: {kind}{exc}") from None
     return out
 
