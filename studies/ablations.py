@@ -393,6 +393,34 @@ def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -
     return build(cls, changed, where)
 
 
+def trained_switches(cfg: TrainConfig) -> Switches:
+    """The paper's switches that robust-VO recipe ``cfg`` trains: its model's visual input, DD bins,
+    S-proj, dropout (> 0) and kind (action information), and whether any stage uses DataAug or GeoInv."""
+    m = cfg.model
+    return Switches(
+        visual={"rgb": "RGB", "depth": "D", "rgbd": "RGB-D"}[m.visual],
+        dd=m.dd_bins,
+        sproj=m.sproj,
+        dropout=m.dropout > 0,
+        actinfo={"unified": "none", "actembed": "Embed", "sepact": "SepAct"}[m.kind],
+        data_aug=any(stage.data_aug for stage in cfg.stages),
+        geoinv=any(stage.geoinv for stage in cfg.stages),
+    )
+
+
+def check_switches(definition: Definition, number: int, cfg: TrainConfig) -> None:
+    """Refuse row ``number`` when the switches its table shows are not those its recipe ``cfg`` trains."""
+    from odolab.config import ConfigError
+
+    shown, trained = definition.rows[number].switches, trained_switches(cfg)
+    for f in dataclasses.fields(Switches):
+        if shown is not None and getattr(shown, f.name) != getattr(trained, f.name):
+            raise ConfigError(
+                f"{definition.source}: row {number}: switches.{f.name}: the table would show "
+                f"{getattr(shown, f.name)!r}, but the row's recipe trains {getattr(trained, f.name)!r}"
+            )
+
+
 def recipe_identity(cfg: TrainConfig | DeepVOTraining) -> dict[str, Any]:
     """What a model depends on: the whole recipe but where its data live and how it computes."""
     doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
@@ -1110,8 +1138,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             path = out / model_file(n)
             if path.is_dir() and not path.is_symlink():
                 raise UsageError(f"--out {out}: {path}: expected row {n}'s model file or nothing, found a folder")
-        for r in scale.rows:  # option values, as the odometer takes them, before any work
+        for r in scale.rows:  # option values as the odometer takes them, switches as trained: before any work
             check_option_values(definition, r)
+            if definition.rows[r].switches is not None:
+                check_switches(definition, r, recipes[model_row(definition.rows[r])])
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     execution = execution_of(args)

@@ -360,3 +360,23 @@ def test_a_row_option_value_its_odometer_refuses_is_refused_before_any_work(tmp_
     ):
         ablations.check_option_values(definition, 5)
     ablations.check_option_values(DEFINITION, 5)  # the committed value is taken
+
+
+def test_the_switches_a_row_shows_are_those_its_recipe_trains(tmp_path: Path):
+    for scale in DEFINITION.scales.values():  # every committed row, at every scale
+        for number in scale.rows:
+            row = DEFINITION.rows[number]
+            if row.switches is not None:
+                cfg = ablations.recipe(DEFINITION, scale, ablations.model_row(row), tmp_path)
+                ablations.check_switches(DEFINITION, number, cfg)
+    text = ablations.DEFINITION.read_text(encoding="utf-8")
+    (tmp_path / "a.toml").write_text(
+        text.replace('actinfo = "SepAct", data_aug = false', 'actinfo = "Embed", data_aug = false', 1)
+    )
+    definition = ablations.load_definition(tmp_path / "a.toml")
+    cfg = ablations.recipe(definition, definition.scales["cpu"], 8, tmp_path)
+    with pytest.raises(
+        ConfigError,
+        match=r"row 8: switches.actinfo: the table would show 'Embed', but the row's recipe trains 'SepAct'",
+    ):
+        ablations.check_switches(definition, 8, cfg)
