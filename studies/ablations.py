@@ -201,7 +201,7 @@ def load_definition(path: Path = DEFINITION) -> Definition:
     scales = {s: build(Scale, raw[s], f"{path}: scales.{s}") for s in framework.SCALES}
     if not isinstance(doc["rows"], list) or not doc["rows"]:
         raise ConfigError(f"{path}: rows: expected [[rows]] tables")
-    rows = [build(Row, r, f"{path}: rows[{k}]") for k, r in enumerate(doc["rows"])]
+    rows = [build(Row, r, f"{path}: {_row_place(r, k)}") for k, r in enumerate(doc["rows"])]
     by_number = {r.row: r for r in rows}
     if len(by_number) != len(rows):
         twice = sorted({r.row for r in rows if [q.row for q in rows].count(r.row) > 1})
@@ -265,6 +265,12 @@ def _check_paper(where: str, paper: Paper) -> None:
         if not (math.isfinite(value) and 0.0 <= value <= top):
             expected = f"a number in [0, {top:g}]" if math.isfinite(top) else "a finite number >= 0"
             raise ConfigError(f"{where}.{name}: expected {expected}, got {value}")
+
+
+def _row_place(doc: Any, k: int) -> str:
+    """How messages name the ``k``-th ``[[rows]]`` table: ``row N`` by its number, else ``rows[k]``."""
+    number = doc.get("row") if isinstance(doc, dict) else None
+    return f"row {number}" if isinstance(number, int) and not isinstance(number, bool) else f"rows[{k}]"
 
 
 def _check_scale(where: str, scale: Scale) -> None:

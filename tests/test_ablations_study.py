@@ -112,7 +112,7 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
             "row = 6\nmodel_of = 21\nswitches",
             r"row 6: model_of: a row using another's model trains nothing",
         ),
-        ("success = 81,", "success = 81, speed = 3,", r"rows\[\d+\]\.paper: unknown field\(s\) speed"),
+        ("success = 81,", "success = 81, speed = 3,", r"row 18: paper: unknown field\(s\) speed"),
         ("error = [1.10, 0.84, 0.68]", "error = [1.10, 0.84]", r"row 18: paper.error: expected 3 numbers"),
         (
             "options = { mc_samples = 10 }",
