@@ -314,6 +314,8 @@ def parse_odometer_list(text: str) -> list[str]:
     names = split_odometer_names(text)
     if not names:
         raise OdometerListError("is empty")
+    if any(not n for n in split_odometer_names(text, keep_empty=True)):
+        raise OdometerListError(f"{text!r} has an empty name (a comma too many?)", joiner=": ")
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise OdometerListError(f"names {twice[0]!r} twice")

@@ -142,6 +142,11 @@ def test_a_bad_odometer_option_is_refused_before_the_out_folder_is_made(tmp_path
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("module", ["odolab.compare", "odolab.navigate"])
+def test_an_odometer_list_with_an_empty_name_is_refused(tmp_path, module):
+    one_line_error(module, "--odometers", "icp,", "--out", tmp_path / "o", words="'icp,' has an empty name")
+
+
 def test_a_tum_folder_without_its_lists_is_refused_before_the_out_folder_is_made(tmp_path):
     folder = tmp_path / "rgbd_dataset_freiburg1_xyz"
     folder.mkdir()
