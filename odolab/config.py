@@ -286,7 +286,7 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
         return doc
     if not isinstance(base, str) or not base:
         raise ConfigError(f"{path}: base must be the path of another TOML file, got {base!r}")
-    base_path = os.path.join(os.path.dirname(os.path.realpath(path)), base)  # beside the file, not a link to it
+    base_path = _base_path(path, base)
     if os.path.abspath(base_path) in _seen or os.path.abspath(path) == os.path.abspath(base_path):
         raise ConfigError(f"{path}: base {base!r} leads back to itself")
     if not os.path.isfile(base_path):
@@ -301,6 +301,11 @@ def read_toml(path: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str,
         raise ConfigError(f"{path}: changes: {exc}") from None
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+
+
+def _base_path(path: str | os.PathLike, base: str) -> str:
+    """Where ``base = "..."`` in file ``path`` points: beside the file itself, not beside a link to it."""
+    return os.path.join(os.path.dirname(os.path.realpath(path)), base)
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any], where: str = "", depth: int = 0) -> dict[str, Any]:
@@ -464,7 +469,7 @@ def _source(cls: type, path: str | os.PathLike, said: str) -> str:
             break
         if not isinstance(base, str) or not base:
             break
-        current = os.path.join(os.path.dirname(os.path.realpath(current)), base)
+        current = _base_path(current, base)
         chain.append(current)
     for file in reversed(chain[1:]):
         try:

@@ -311,10 +311,11 @@ def parse_odometer_list(text: str) -> list[str]:
     """A list of odometer names such as a command line's ``--odometers``: :func:`split_odometer_names`,
     refusing an empty list, a name given twice and a composite with an empty or repeated input
     (:class:`OdometerListError`; ``ValueError`` for unbalanced parentheses)."""
-    names = split_odometer_names(text)
+    parts = split_odometer_names(text, keep_empty=True)
+    names = [n for n in parts if n]
     if not names:
         raise OdometerListError("is empty")
-    if any(not n for n in split_odometer_names(text, keep_empty=True)):
+    if len(names) < len(parts):
         raise OdometerListError(f"{text!r} has an empty name (a comma too many?)", joiner=": ")
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import html
+import importlib.metadata
 import io
 import json
 import math
@@ -22,6 +23,7 @@ import os
 import re
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -233,17 +235,14 @@ class Outcome:
     computed: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
     seconds: float = 0.0
-    machines: dict[str, int] = field(default_factory=dict)
+    machines: Counter[str] = field(default_factory=Counter)
 
     def count(self, where: Any) -> None:
         """Count one more unit run on ``where`` (a saved machine line, made one printable line of at most
         200 characters; anything else, or blank: not recorded)."""
-        key = (
-            " ".join("".join(c if c.isprintable() else " " for c in where).split())[:200]
-            if isinstance(where, str)
-            else ""
-        )
-        self.machines[key] = self.machines.get(key, 0) + 1
+        if not isinstance(where, str):
+            where = ""
+        self.machines[" ".join("".join(c if c.isprintable() else " " for c in where).split())[:200]] += 1
 
 
 def _accepts(valid: Callable[[Any], bool], value: Any) -> bool:
@@ -340,11 +339,9 @@ def machine() -> str:
     from odolab.bench import machine as measured
 
     m = measured()
-    try:
-        import torch
-
-        torch_version = f", torch {torch.__version__}"
-    except ImportError:
+    try:  # the installed version, read without importing torch (a Ray worker may never need it)
+        torch_version = f", torch {importlib.metadata.version('torch')}"
+    except importlib.metadata.PackageNotFoundError:
         torch_version = ""
     cpu = m["processor"] if m["cpu_model"] == "unknown" else m["cpu_model"]
     return f"{cpu}, {m['cpus']} cores, Python {m['python']}{torch_version}"
@@ -353,10 +350,9 @@ def machine() -> str:
 def machines(outcomes: Sequence[Outcome]) -> str:
     """Where the units of ``outcomes`` ran, in one line: each machine with its number of units, most
     first (not recorded last); this machine (:func:`machine`) when there are no units."""
-    counts: dict[str, int] = {}
+    counts: Counter[str] = Counter()
     for o in outcomes:
-        for where, n in o.machines.items():
-            counts[where] = counts.get(where, 0) + n
+        counts.update(o.machines)
     if not counts:
         return machine()
     total = sum(counts.values())
