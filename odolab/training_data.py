@@ -11,6 +11,8 @@ A folder holds ``dataset.json`` (the config and, per shard, its file and counts)
 
 * ``rgb`` (F, h, w, 3) uint8 and ``depth_mm`` (F, h, w) uint16 millimetres (0 = no reading),
   resized by :func:`resize_frame` (the function learned odometers apply to their input at run time);
+* with ``clean_depth`` set, ``clean_depth_mm`` (F, h, w) uint16: the simulator's noiseless depth of
+  the same frames, resized the same way (the target of a depth corrector);
 * ``poses`` (F, 4, 4) ``T_world_cam``; ``actions`` (F,) int8: the action taken after the frame,
   -1 on an episode's last frame; ``collisions`` (F,) bool; ``episode`` (F,) int32 episode index.
 
@@ -21,7 +23,9 @@ Each shard's CRC-32 (of the whole file) is written in ``dataset.json`` when the 
 checked the first time a :class:`TrainingData` object maps the shard's frames (once per shard and
 process: one read of the file, which the frames are read from anyway); a shard whose entry has no
 ``crc32`` is checked against its zip archive's own CRC-32 of each array instead. A damaged shard
-raises :class:`DamagedShardError` naming it.
+raises :class:`DamagedShardError` naming it. Shard names read from ``dataset.json`` must be plain
+file names inside the folder (a manifest naming ``../x`` or an absolute path is refused, never
+read or deleted).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import fcntl
 import hashlib
 import json
 import os
+import re
 import sys
 import zipfile
 import zlib
@@ -44,7 +49,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from odolab.config import build, check, setting
-from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_episode
+from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_frames, rollout
 from odolab.geometry import invert, transform_to_planar
 from odolab.io.atomic import atomic_open, write_bytes_atomic
 from odolab.io.npz_mmap import NpzRows
@@ -146,6 +151,7 @@ class DataConfig:
     height: int = setting(96, range=(1, _CAMERA.height), doc="stored frame height, px")
     episodes_per_shard: int = setting(8, range=(1, MAX_EPISODES_PER_SHARD), doc="episodes per shard file")
     noise: NoiseConfig = setting(default_factory=NoiseConfig, doc="noise multipliers of the episodes")
+    clean_depth: bool = setting(False, doc="also store the noiseless depth (clean_depth_mm), for depth correctors")
 
     def __post_init__(self) -> None:
         check(self)
@@ -193,7 +199,8 @@ class DataConfig:
 
     def shard_name(self, index: int, specs: list[EpisodeSpec]) -> str:
         """File name of shard ``index``; its digest changes with the simulator and the resolution."""
-        blob = json.dumps([FORMAT, self.width, self.height, [s.key() for s in specs]])
+        parts = [FORMAT, self.width, self.height, [s.key() for s in specs]]
+        blob = json.dumps(parts + ["clean_depth"] if self.clean_depth else parts)
         return f"shard-{index:05d}-{hashlib.sha256(blob.encode()).hexdigest()[:12]}.npz"
 
     @classmethod
@@ -202,24 +209,44 @@ class DataConfig:
         return build(cls, doc, source)
 
 
+def _depth_mm(depth: np.ndarray) -> np.ndarray:
+    """Depth (m) as uint16 millimetres (0 = no reading; clipped at 65.535 m)."""
+    return np.round(depth * 1000.0).clip(0, 65535).astype(np.uint16)
+
+
 def _render_shard(job: tuple[DataConfig, list[EpisodeSpec]]) -> dict[str, np.ndarray]:
     """Render the episodes of one shard and resize their frames (a Ray task)."""
     cfg, specs = job
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in _ARRAYS}
+    names = _ARRAYS + (("clean_depth_mm",) if cfg.clean_depth else ())
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
     for spec in specs:
-        ep = render_episode(spec)
-        small = [resize_frame(ep.rgb[i], ep.depth[i], cfg.width, cfg.height) for i in range(len(ep))]
-        parts["rgb"].append(np.stack([r for r, _ in small]))
-        parts["depth_mm"].append(np.stack([np.round(d * 1000.0).clip(0, 65535).astype(np.uint16) for _, d in small]))
-        parts["poses"].append(ep.poses.astype(np.float64))
-        parts["actions"].append(np.concatenate([ep.actions.astype(np.int8), [-1]]).astype(np.int8))
-        parts["collisions"].append(np.concatenate([ep.collisions, [False]]))
-        parts["episode"].append(np.full(len(ep), spec.index, np.int32))
+        motion = rollout(spec)
+        for _, clean_depth, rgb, depth in render_frames(spec, motion):
+            small_rgb, small_depth = resize_frame(rgb, depth, cfg.width, cfg.height)
+            parts["rgb"].append(small_rgb[None])
+            parts["depth_mm"].append(_depth_mm(small_depth)[None])
+            if cfg.clean_depth:
+                _, small_clean = resize_frame(rgb, clean_depth, cfg.width, cfg.height)
+                parts["clean_depth_mm"].append(_depth_mm(small_clean)[None])
+        n = len(motion.states)
+        parts["poses"].append(motion.camera_poses(spec.camera.mount_height).astype(np.float64))
+        parts["actions"].append(np.array([a.value for a in motion.actions] + [-1], np.int8))
+        parts["collisions"].append(np.concatenate([np.array(motion.collisions, bool), [False]]))
+        parts["episode"].append(np.full(n, spec.index, np.int32))
     return {name: np.concatenate(v) for name, v in parts.items()}
 
 
 def _action_counts(actions: np.ndarray) -> dict[str, int]:
     return {a.label: int(np.sum(actions == a.value)) for a in MOTION_ACTIONS}
+
+
+#: The file name of every shard (:meth:`DataConfig.shard_name`).
+_SHARD_NAME = re.compile(r"shard-[0-9]{5,}-[0-9a-f]{12}\.npz")
+
+
+def _is_shard_name(name: object) -> bool:
+    """Whether ``name`` is a shard's plain file name (no folder, no ``..``, no absolute path)."""
+    return isinstance(name, str) and _SHARD_NAME.fullmatch(name) is not None
 
 
 def _read_manifest(root: Path) -> dict | None:
@@ -239,6 +266,12 @@ def _read_manifest(root: Path) -> dict | None:
         raise ValueError(
             f"{path}: not an odolab training-data manifest of format {FORMAT} (no config or shards); "
             "delete it, or choose another folder"
+        )
+    bad = next((name for name in doc["shards"] if not _is_shard_name(name)), None)
+    if bad is not None:
+        raise ValueError(
+            f"{path}: field shards: expected shard file names like shard-00000-<12 hex digits>.npz inside "
+            f"{root}, got {bad!r:.120}; restore the file, or make the data anew in another folder"
         )
     return doc
 
@@ -289,6 +322,8 @@ def _make(cfg: DataConfig, root: Path, execution: Execution) -> dict:
     """:func:`make_training_data`'s work, with the folder held."""
     config = json.loads(json.dumps(asdict(cfg)))
     doc = _read_manifest(root) or {"format": FORMAT, "config": config, "shards": {}}
+    with contextlib.suppress(ValueError, TypeError):  # a field added since the folder was made: its default
+        doc["config"] = json.loads(json.dumps(asdict(DataConfig.from_dict(doc["config"], str(root / MANIFEST)))))
     if doc["config"] != config:
         diff = [
             f"{k} (folder {doc['config'].get(k)!r}, asked {v!r})"
@@ -332,7 +367,8 @@ def _make(cfg: DataConfig, root: Path, execution: Execution) -> dict:
     stale = set(doc["shards"]) - set(names)
     for name in stale:  # shards of an older simulator: dropped from the manifest and deleted
         doc["shards"].pop(name)
-        (root / name).unlink(missing_ok=True)
+        if _is_shard_name(name):  # only a plain shard file of this folder, never a path read from the file
+            (root / name).unlink(missing_ok=True)
     write_manifest()
     return doc
 
@@ -432,7 +468,8 @@ class TrainingData:
             if s not in self._verified:
                 verify_shard(path, self._entries[s])
                 self._verified.add(s)
-            self._maps[s] = {k: NpzRows(path, k) for k in ("rgb", "depth_mm")}
+            members = ("rgb", "depth_mm") + (("clean_depth_mm",) if self.config.clean_depth else ())
+            self._maps[s] = {k: NpzRows(path, k) for k in members}
         return self._maps[s]
 
     def _locate(self, frame_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -453,6 +490,17 @@ class TrainingData:
                 m["rgb"].read(int(row)), m["depth_mm"].read(int(row)) * np.float32(0.001), w, h
             )
         return rgb, depth
+
+    def clean_depths(self, frame_indices: np.ndarray) -> np.ndarray:
+        """The simulator's noiseless depth (N, h, w) float32 metres (0 = no reading) of global frames,
+        as stored; ``ValueError`` when the data were made without ``clean_depth``."""
+        if not self.config.clean_depth:
+            raise ValueError(f"{self.root}: made without clean_depth = true; it holds no noiseless depth")
+        frame_indices = np.asarray(frame_indices, np.int64).ravel()
+        out = np.empty((len(frame_indices), self.config.height, self.config.width), np.float32)
+        for k, (s, row) in enumerate(zip(*self._locate(frame_indices))):
+            out[k] = self._shard(int(s))["clean_depth_mm"].read(int(row)) * np.float32(0.001)
+        return out
 
     def prefetch(self, frame_indices: np.ndarray) -> None:
         """Start reading global frames that :meth:`frames` will be asked for soon (the disk reads them

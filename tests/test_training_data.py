@@ -182,3 +182,39 @@ def test_a_hand_edited_config_is_named_as_such_not_as_missing_shards(folder, tmp
     with pytest.raises(ValueError, match="its config does not describe the shards it lists") as info:
         TrainingData(copy)
     assert "missing" not in str(info.value)
+
+
+def test_a_manifest_naming_a_path_outside_its_folder_is_refused_and_nothing_is_deleted(folder, tmp_path):
+    import shutil
+
+    copy = tmp_path / "data"
+    shutil.copytree(folder, copy)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    doc = json.loads((copy / td.MANIFEST).read_text())
+    for name in ("../victim.txt", str(victim)):
+        doc["shards"] = {**{k: v for k, v in doc["shards"].items() if k.startswith("shard-")}, name: {"index": 9}}
+        (copy / td.MANIFEST).write_text(json.dumps(doc))
+        for call in (lambda: make_training_data(CFG, copy, execution=SERIAL), lambda: TrainingData(copy)):
+            with pytest.raises(ValueError, match=r"field shards: expected shard file names .* got '"):
+                call()
+        assert victim.read_text() == "keep me"
+
+
+def test_clean_depth_is_stored_beside_the_noisy_depth_of_the_same_frames(tmp_path):
+    plain = DataConfig(split="train", episodes=1, max_steps=4, width=40, height=24)
+    both = DataConfig(split="train", episodes=1, max_steps=4, width=40, height=24, clean_depth=True)
+    assert plain.shard_name(0, plain.specs) != both.shard_name(0, both.specs)
+    make_training_data(plain, tmp_path / "plain", execution=SERIAL)
+    make_training_data(both, tmp_path / "both", execution=SERIAL)
+    a, b = TrainingData(tmp_path / "plain"), TrainingData(tmp_path / "both")
+    frames = np.arange(len(b.poses))
+    rgb_a, depth_a = a.frames(frames)
+    rgb_b, depth_b = b.frames(frames)
+    assert np.array_equal(rgb_a, rgb_b) and np.array_equal(depth_a, depth_b)  # the same noisy frames
+    clean = b.clean_depths(frames)
+    assert clean.shape == depth_b.shape and (clean > 0).mean() > 0.5
+    both_valid = (clean > 0) & (depth_b > 0)
+    assert 0 < np.abs(clean - depth_b)[both_valid].mean() < 0.5  # noise, but the same scene
+    with pytest.raises(ValueError, match="made without clean_depth"):
+        a.clean_depths(frames)

@@ -61,6 +61,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=d.episodes_per_shard,
         help=f"1-{MAX_EPISODES_PER_SHARD} (default {d.episodes_per_shard})",
     )
+    ap.add_argument(
+        "--clean-depth", action="store_true", help="also store the noiseless depth (the target of a depth corrector)"
+    )
     ap.add_argument("--out", type=path_arg("--out"), required=True, help="folder (created; reused to resume)")
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="render in this process, without Ray")
@@ -79,6 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         width=args.width,
         height=args.height,
         episodes_per_shard=args.episodes_per_shard,
+        clean_depth=args.clean_depth,
     )
     check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
     check_report_dir(args.out, "--out", manifest=MANIFEST)  # a folder of the user's own files is refused
