@@ -12,7 +12,9 @@ Layout of ``DIR``::
     manifest.txt           the files this run wrote (one per line)
 
 ``groundtruth.*`` holds the true poses; the ``ground-truth`` row integrates exactly these, so it
-has no file of its own. A run removes the files that ``manifest.txt`` says the previous run into
+has no file of its own. ``<sequence>`` and ``<odometer>`` are :func:`file_stem` of the names: one
+file per name (``icp``, ``fused(icp,open3d-rgbd)`` -> ``fused_icp_open3d-rgbd_``; other names carry
+a short digest of the name). A run removes the files that ``manifest.txt`` says the previous run into
 the same folder wrote and it did not rewrite, and nothing else. Tables are written first: a
 figure that fails is reported on the page and on stderr and costs nothing else.
 """
@@ -20,6 +22,7 @@ figure that fails is reported on the page and on stderr and costs nothing else.
 from __future__ import annotations
 
 import csv
+import hashlib
 import html
 import io
 import os
@@ -53,9 +56,32 @@ ZOOM_MARGIN = 1.5
 GROUND_TRUTH_FILE = "groundtruth"
 
 
-def _safe(name: str) -> str:
-    """A portable file name for an odometer or sequence name ("module:Class" -> "module_Class")."""
-    return re.sub(r"[^A-Za-z0-9_.+-]", "_", name)
+#: Names kept as they are: lower case, digits and ``_.+-``, starting with a letter or digit, at most
+#: :data:`_READABLE_CHARS` long, not ending in ``_`` (a flat composite's form) nor in ``-`` and 8 hex
+#: digits (a digest form).
+_PLAIN = re.compile(r"(?![a-z0-9_.+-]*(_|-[0-9a-f]{8})$)[a-z0-9][a-z0-9_.+-]*")
+#: A flat composite of plain names without ``_``, ``fused(icp,open3d-rgbd)``, kept readable as
+#: ``fused_icp_open3d-rgbd_`` (the names split back at each ``_``: no two give one file name).
+_FLAT = re.compile(r"[a-z0-9][a-z0-9.+-]*\([a-z0-9][a-z0-9.+-]*(,[a-z0-9][a-z0-9.+-]*)*\)")
+#: Characters of a name kept readable in a file name; a longer one is cut and carries a digest.
+_READABLE_CHARS = 100
+
+
+def file_stem(name: str) -> str:
+    """A portable file name (no suffix) for an odometer or sequence name, one per name by
+    construction, also on a file system that ignores case: a plain lower-case name is kept as it is
+    (``icp``), a flat composite reads as before (``fused(icp,open3d-rgbd)`` ->
+    ``fused_icp_open3d-rgbd_``); any other name (``/a/c 1/x.py:Odo``, ``ICP``, ``groundtruth``, the
+    true poses' file) is made portable, cut to :data:`_READABLE_CHARS` characters, and carries
+    ``-`` and 8 hex digits of its SHA-1, as ``odolab.navigation`` names its folders. The three forms
+    never meet: a plain name ends in neither ``_`` nor a digest, a composite's form ends in ``_``."""
+    if len(name) <= _READABLE_CHARS and name != GROUND_TRUTH_FILE:
+        if _PLAIN.fullmatch(name):
+            return name
+        if _FLAT.fullmatch(name):
+            return re.sub(r"[(),]", "_", name)
+    clean = re.sub(r"[^A-Za-z0-9_.+-]", "_", name)[:_READABLE_CHARS].lstrip(".") or "_"
+    return f"{clean}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
 
 #: The names compare writes (and its cleanup may remove), relative to its folder.
@@ -536,12 +562,20 @@ def _draw_goal(ax: Any, goal: np.ndarray, centre: np.ndarray, half: float, end: 
 
 def write_trajectories(results: list[SequenceResult], out: OutputFolder) -> None:
     """Every estimated trajectory and each ground truth (``groundtruth.*``), in TUM and KITTI
-    formats; the ``ground-truth`` row is not written (it integrates exactly the ground truth)."""
+    formats, named by :func:`file_stem`; the ``ground-truth`` row is not written (it integrates
+    exactly the ground truth). Two names that would share a file raise ``ValueError`` before any
+    is written (only two SHA-1 digests that agree in 8 hex digits could)."""
+    _check_unique({r.sequence: file_stem(r.sequence) for r in results}, "sequences")
+    for seq in dict.fromkeys(r.sequence for r in results):
+        mine = {
+            r.odometer: file_stem(r.odometer) for r in results if r.sequence == seq and r.odometer != "ground-truth"
+        }
+        _check_unique({"the true poses": GROUND_TRUTH_FILE, **mine}, f"trajectories of {seq!r}")
     done_gt: set[str] = set()
     for r in results:
-        folder = f"trajectories/{_safe(r.sequence)}"
+        folder = f"trajectories/{file_stem(r.sequence)}"
         stamps = r.timestamps if r.timestamps is not None else np.arange(len(r.poses), dtype=float)
-        todo = [] if r.odometer == "ground-truth" else [(_safe(r.odometer), r.poses)]
+        todo = [] if r.odometer == "ground-truth" else [(file_stem(r.odometer), r.poses)]
         if r.gt_poses is not None and r.sequence not in done_gt:
             todo.append((GROUND_TRUTH_FILE, r.gt_poses))
             done_gt.add(r.sequence)
@@ -549,6 +583,16 @@ def write_trajectories(results: list[SequenceResult], out: OutputFolder) -> None
             write_tum_trajectory(out.path(f"{folder}/{name}.tum"), Trajectory(stamps, poses))
             # KITTI: poses relative to the first camera (camera i -> camera 0)
             write_kitti_poses(out.path(f"{folder}/{name}.kitti"), Trajectory(None, invert(poses[0]) @ poses))
+
+
+def _check_unique(stems: dict[str, str], what: str) -> None:
+    """``ValueError`` when two names of ``stems`` (name -> file stem) would share a file, on a file
+    system that ignores case too."""
+    seen: dict[str, str] = {}
+    for name, stem in stems.items():
+        other = seen.setdefault(stem.lower(), name)
+        if other != name:
+            raise ValueError(f"{what}: {other!r} and {name!r} would share the file name {stem!r}")
 
 
 def _inline(text: str) -> str:
@@ -691,7 +735,7 @@ def write_report(
     cards = []
     for seq in dict.fromkeys(r.sequence for r in results if r.gt_poses is not None):
         mine = [r for r in results if r.sequence == seq]
-        rel = f"trajectories/{_safe(seq)}/top-down.png"
+        rel = f"trajectories/{file_stem(seq)}/top-down.png"
         if figure(rel, lambda p, m=mine, s=seq: plot_sequence(m, p, names, (plans or {}).get(s))):
             cards.append(
                 f'<figure><a href="{html.escape(rel)}"><img src="{html.escape(rel)}" loading="lazy" '
@@ -732,7 +776,8 @@ def write_report(
     sections.append(
         "<h2>Files</h2><p><code>table.csv</code> (all columns above, full precision), "
         "<code>trajectories/&lt;sequence&gt;/&lt;odometer&gt;.tum</code> and <code>.kitti</code> "
-        "(readable by <code>python -m odolab.evaluate</code> and evo); "
+        "(readable by <code>python -m odolab.evaluate</code> and evo; a name a file cannot hold as it is "
+        "carries 8 hex digits of its digest, so no two odometers share a file); "
         f"<code>{GROUND_TRUTH_FILE}.tum</code> / <code>.kitti</code> are the true poses (the "
         "ground-truth row integrates exactly these, so it has no file of its own); "
         f"<code>{MANIFEST}</code> lists every file this run wrote.</p>"

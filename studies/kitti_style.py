@@ -158,8 +158,10 @@ def run_units_of(scale: Scale, identity: dict[str, str | None]) -> list[framewor
 
 def file_name(odometer: str) -> str:
     """An odometer's trajectory file name without suffix, as ``odolab.compare`` names it
-    (``fused(a,b)`` -> ``fused_a_b_``)."""
-    return re.sub(r"[^A-Za-z0-9_.+-]", "_", odometer)
+    (:func:`odolab.report.file_stem`: ``fused(a,b)`` -> ``fused_a_b_``, one file per name)."""
+    from odolab.report import file_stem
+
+    return file_stem(odometer)
 
 
 def _sha256(path: Path) -> str | None:
