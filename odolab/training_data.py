@@ -190,8 +190,10 @@ class DataConfig:
 
     def folder(self, root: str | os.PathLike) -> Path:
         """The conventional folder of this data under ``root``:
-        ``<split>-<episodes>-s<seed>-<width>x<height>`` (a folder made otherwise is refused on use)."""
-        return Path(root) / f"{self.split}-{self.episodes}-s{self.seed}-{self.width}x{self.height}"
+        ``<split>-<episodes>-s<seed>-<width>x<height>``, ``-clean`` added with ``clean_depth`` (a folder
+        made otherwise is refused on use)."""
+        suffix = "-clean" if self.clean_depth else ""
+        return Path(root) / f"{self.split}-{self.episodes}-s{self.seed}-{self.width}x{self.height}{suffix}"
 
     def shard_specs(self) -> list[list[EpisodeSpec]]:
         specs, k = self.specs, self.episodes_per_shard

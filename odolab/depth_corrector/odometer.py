@@ -1,0 +1,103 @@
+"""``denoised(X)``: odometer X on depth corrected by the learned depth corrector; and
+``noiseless-depth(X)``: X on the simulator's noiseless depth (an oracle: the ceiling of any
+depth corrector).
+
+    python -m odolab.compare --odometers 'open3d-rgbd,denoised(open3d-rgbd),noiseless-depth(open3d-rgbd)'
+
+``denoised(X)`` runs the corrector (:mod:`odolab.depth_corrector.model`) on each frame once (a
+step's current frame is the next step's previous one: frames are recognised by identity, as the
+runner hands out read-only frames) and gives X the frame with its depth replaced: RGB, timestamp
+and ground truth (for oracles) unchanged. Options: ``checkpoint`` (default: the shipped model),
+``max_spread`` (m; > 0: pixels whose predicted error spread exceeds it get no reading, as a depth
+camera drops pixels it cannot trust; 0: keep all), ``threads`` (torch threads of the corrector),
+``options_file`` (X's options, TOML ``[odometers."icp"]``). Frames of another size than the
+model's are resized to it and the correction (a per-pixel ratio) resized back.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import cv2
+import numpy as np
+import torch
+
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads, load_inputs, split_odometer_names
+from odolab.depth_corrector.checkpoint import SHIPPED, load_model
+from odolab.depth_corrector.model import pixel_place
+from odolab.learning import resize_frame
+
+
+def _one_input(owner: str, inputs: object) -> str:
+    """The one inner odometer name of ``owner(inputs)``; ``ValueError`` otherwise."""
+    names = split_odometer_names(inputs) if isinstance(inputs, str) else []
+    if len(names) != 1:
+        raise ValueError(
+            f"{owner} takes one inner odometer, e.g. {owner}(open3d-rgbd), got {len(names)}"
+            + (f" ({', '.join(names)})" if names else "")
+        )
+    return names[0]
+
+
+class DenoisedOdometer(Odometer):
+    """X on corrected depth (module docstring)."""
+
+    composite = True
+
+    def __init__(
+        self, inputs: str = "", checkpoint: str = "", max_spread: float = 0.0, threads: int = 2, options_file: str = ""
+    ) -> None:
+        name = _one_input("denoised", inputs)
+        if isinstance(max_spread, bool) or not isinstance(max_spread, (int, float)) or not 0 <= max_spread <= 100:
+            raise ValueError(
+                f"max_spread must be a number of metres in [0, 100] (0: keep every pixel), got {max_spread!r}"
+            )
+        self.threads = check_threads(threads)
+        self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
+        self.max_spread = float(max_spread)
+        self.inner = load_inputs("denoised", [name], options_file)[name]
+        self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
+        settings = f"{name}={self.inner.identity_digest};{self.info['sha256']};{self.max_spread!r}"
+        self.identity_digest = hashlib.sha256(settings.encode()).hexdigest()
+        self._place = pixel_place(self.cfg.height, self.cfg.width)[None]
+        self._last: list[tuple[np.ndarray, Frame]] = []  # the last two frames' depth arrays and corrected frames
+
+    def reset(self, intrinsics: Intrinsics) -> None:
+        super().reset(intrinsics)
+        self.inner.reset(intrinsics)
+        self._last = []
+
+    def correct_depth(self, rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Corrected depth and its error's spread (H, W) float32 m of one RGB-D frame (0 = no reading)."""
+        h, w = depth.shape
+        size = (self.cfg.width, self.cfg.height)
+        small_rgb, small_depth = resize_frame(rgb, depth, *size)
+        with torch.inference_mode():
+            corrected, spread = self.net(
+                torch.from_numpy(np.ascontiguousarray(small_rgb))[None],
+                torch.from_numpy(np.array(small_depth, np.float32))[None],
+                self._place,
+            )
+        corrected, spread = corrected[0].numpy(), spread[0].numpy()
+        if (w, h) != size:  # the correction as a ratio, resized back to the frame's pixels
+            ratio = np.where(small_depth > 0, corrected / np.maximum(small_depth, 1e-6), 1.0).astype(np.float32)
+            ratio = cv2.resize(ratio, (w, h), interpolation=cv2.INTER_LINEAR)
+            spread = cv2.resize(spread, (w, h), interpolation=cv2.INTER_LINEAR)
+            corrected = np.asarray(depth, np.float32) * ratio
+        return corrected.astype(np.float32), spread.astype(np.float32)
+
+    def _frame(self, frame: Frame) -> Frame:
+        """``frame`` with its depth corrected (each frame once: the last two are kept)."""
+        for depth, done in self._last:
+            if depth is frame.depth:
+                return done
+        corrected, spread = self.correct_depth(frame.rgb, frame.depth)
+        if self.max_spread > 0:
+            corrected[spread > self.max_spread] = 0.0
+        corrected.setflags(write=False)
+        done = Frame(frame.rgb, corrected, timestamp=frame.timestamp, gt_pose=frame.gt_pose)
+        self._last = [*self._last[-1:], (frame.depth, done)]
+        return done
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
+        return self.inner.step(self._frame(prev), self._frame(cur), action)
