@@ -132,7 +132,7 @@ def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path):
     assert run(cfg, device=torch.device("cpu"), hours=None, execution=SERIAL, **kw)
     rows = (tmp_path / "rep" / "curves.csv").read_text().splitlines()
     assert rows[0].startswith("epoch,split,loss,frames") and any(",val," in r and ",all," in r for r in rows)
-    cfg_back, net, info = load_model(tmp_path / "model.pt")
+    cfg_back, _net, info = load_model(tmp_path / "model.pt")
     assert cfg_back == cfg.model and info["training"]["epochs_done"] == 2
     more = CorrectorTraining(**{**cfg.__dict__, "epochs": 3})
     assert run(more, device=torch.device("cpu"), hours=None, execution=SERIAL, **{**kw, "export": tmp_path / "m3.pt"})
