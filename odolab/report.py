@@ -41,7 +41,7 @@ from odolab.io.kitti import write_kitti_poses
 from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
 from odolab.io.tum import write_tum_trajectory
 from odolab.runner import SequenceResult
-from odolab.summary import ActionRow, Row, fmt, text_table
+from odolab.summary import REFERENCE_ODOMETERS, ActionRow, Row, fmt, text_table
 from odolab.trajectory import Trajectory
 
 _ACTION_COLORS = {
@@ -357,11 +357,46 @@ def _bar_value(row: ActionRow | None, comp: str) -> float:
     return float(getattr(row, comp))
 
 
+#: Width of ``errors.png`` in inches: about 1230 pixels at the 110 dpi figures are saved with, what
+#: the report shows (its page is 1280 px wide), so the figure is shown at its own size.
+ERROR_FIGURE_WIDTH = 11.2
+#: Smallest font of ``errors.png`` in points: 8.5 pt at 110 dpi are 13 px on the page.
+ERROR_FIGURE_FONT = 8.5
+#: More odometers than this: the error figure's panels are stacked in one column.
+ERROR_FIGURE_TWO_COLUMNS = 10
+
+
+def error_panel_odometers(action_rows: list[ActionRow]) -> tuple[list[str], list[str]]:
+    """The odometers :func:`plot_errors` draws in its error panels and in its failure panel, in
+    order: an odometer whose every error is zero (``ground-truth``) has no bar to draw, and the
+    reference rows (:data:`~odolab.summary.REFERENCE_ODOMETERS`) never fail."""
+    names = list(dict.fromkeys(r.odometer for r in action_rows))
+    errors = [
+        n
+        for n in names
+        if any(v != 0 for r in action_rows if r.odometer == n for v in (r.dx, r.dz, r.dyaw) if np.isfinite(v))
+    ]
+    return errors, [n for n in names if n not in REFERENCE_ODOMETERS]
+
+
+def _left_out_note(names: list[str], errors: list[str], failing: list[str]) -> str:
+    """What :func:`plot_errors` leaves out, and why ("" when nothing)."""
+    zero = [n for n in names if n not in errors]
+    references = [n for n in names if n not in failing]
+    parts = [f"{' and '.join(zero)} (zero error everywhere)"] if zero else []
+    parts += [f"from the failures, {' and '.join(references)} (references: they never fail)"] if references else []
+    return f"Not drawn: {'; '.join(parts)}." if parts else ""
+
+
 def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
-    """Grouped bars: per-step error as used (x 1e-2) of each odometer, one bar per action (its step
-    count in the legend), one panel per axis, and the failed steps. Collided forward steps are few,
-    and their large dz error would squash every other bar: a panel's axis is cut above the other
-    actions' bars (see :func:`error_axis_top`) and a cut bar carries its value."""
+    """Grouped bars in a grid of panels about as wide as the report shows it
+    (:data:`ERROR_FIGURE_WIDTH`, fonts of at least :data:`ERROR_FIGURE_FONT` pt): per-step error as
+    used (x 1e-2) of each odometer, one bar per action (its step count in the legend), one panel
+    per axis (dx, dz m; dyaw rad), and the failed steps (% of the action's steps). Odometers with no
+    bar to draw are left out and named (:func:`error_panel_odometers`); an odometer that never
+    failed reads "0 %". Collided forward steps are few, and their large dz error would squash every
+    other bar: a panel's axis is cut above the other actions' bars (see :func:`error_axis_top`), a
+    cut bar carries a break mark and its value is written above the axis."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -369,53 +404,91 @@ def plot_errors(action_rows: list[ActionRow], path: Path) -> None:
 
     names = list(dict.fromkeys(r.odometer for r in action_rows))
     actions = list(dict.fromkeys(r.action for r in action_rows))
-    fig, axes = plt.subplots(1, 4, figsize=(max(12, 2.6 * len(names)), 4.8))
-    x = np.arange(len(names))
-    width = 0.8 / max(len(actions), 1)
+    errors, failing = error_panel_odometers(action_rows)
+    two = max(len(errors), len(failing)) <= ERROR_FIGURE_TWO_COLUMNS
+    rows_n, cols_n = (2, 2) if two else (4, 1)
+    band = 1.1  # inches above the panels: the title, what is left out, the legend
+    height = (3.9 if two else 3.4) * rows_n + band
+    fig, grid = plt.subplots(rows_n, cols_n, figsize=(ERROR_FIGURE_WIDTH, height), squeeze=False, layout="constrained")
+    fig.get_layout_engine().set(rect=(0, 0, 1, 1 - band / height), h_pad=0.12)
+    axes = list(grid.flat)
+    font = ERROR_FIGURE_FONT
     panels = [
-        ("dx", "mean |error| of dx, as used (x1e-2 m)", "per-step error as used: dx"),
-        ("dz", "mean |error| of dz, as used (x1e-2 m)", "per-step error as used: dz"),
-        ("dyaw", "mean |error| of dyaw, as used (x1e-2 rad)", "per-step error as used: dyaw"),
-        ("failed", "failed steps (% of the action's steps)", "failures (prior used instead)"),
+        ("dx", "mean |error| of dx, as used (x1e-2 m)", "dx error per step, as used", errors),
+        ("dz", "mean |error| of dz, as used (x1e-2 m)", "dz error per step, as used", errors),
+        ("dyaw", "mean |error| of dyaw, as used (x1e-2 rad)", "dyaw error per step, as used", errors),
+        ("failed", "failed steps (% of the action's steps)", "failures (prior used instead)", failing),
     ]
-    for ax, (comp, ylabel, title) in zip(axes, panels):
-        values: dict[str, list[float]] = {}
-        for a in actions:
-            rows = [next((r for r in action_rows if r.odometer == n and r.action == a), None) for n in names]
-            values[a] = [_bar_value(row, comp) for row in rows]
-        top = None if comp == "failed" else error_axis_top(values)
-        for k, a in enumerate(actions):
-            xs = x + (k - (len(actions) - 1) / 2) * width
-            ax.bar(xs, values[a], width, label=f"{a} ({_step_counts(action_rows, a)})", color=_ACTION_COLORS.get(a))
-            for xi, v in zip(xs, values[a]):
-                if top is not None and np.isfinite(v) and v > top:  # cut at the axis: write the value
-                    ax.text(
-                        xi,
-                        top * 0.98,
-                        f"{v:.1f}",
-                        rotation=90,
-                        ha="center",
-                        va="top",
-                        fontsize=7,
-                        color="white",
-                        fontweight="bold",
-                    )
+    for ax, (comp, ylabel, title, shown) in zip(axes, panels):
+        top = _error_panel(ax, action_rows, actions, shown, comp, font)
+        ax.set_ylabel(ylabel, fontsize=font + 1)
         if top is not None:
-            ax.set_ylim(0, top)
-            title += f"\n(axis cut at {top:.1f}: taller bars carry their value)"
-        ax.set_xticks(x, names, rotation=30, ha="right", fontsize=8)
-        ax.set_ylabel(ylabel)
-        ax.set_title(title, fontsize=10)
-        ax.grid(True, axis="y", alpha=0.3)
-    axes[0].legend(title="action (steps per odometer)", fontsize=7, title_fontsize=8)
-    fig.suptitle(
-        "Per-step error by odometer and action; as used: a failed step is scored with the action "
-        "prior that replaced it",
-        fontsize=10,
+            title += f" (axis cut at {top:.1f}:\na taller bar's value stands above it)"
+        ax.set_title(title, fontsize=font + 2, pad=14 if top is not None else 6)
+    note = _left_out_note(names, errors, failing)
+    fig.text(
+        0.5,
+        1 - 0.08 / height,
+        "Per-step error by odometer and action; as used: a failed step is scored with the action prior "
+        "that replaced it" + (f"\n{note}" if note else ""),
+        ha="center",
+        va="top",
+        fontsize=font + 2,
     )
-    fig.tight_layout()
+    handles = [plt.Rectangle((0, 0), 1, 1, color=_ACTION_COLORS.get(a)) for a in actions]
+    axes[0].legend(
+        handles,
+        [f"{a} ({_step_counts(action_rows, a)})" for a in actions],
+        title="action (steps per odometer)",
+        fontsize=font + 0.5,
+        title_fontsize=font + 0.5,
+        ncol=len(actions),
+        loc="lower center",
+        bbox_to_anchor=(0.5, 1 - band / height),
+        bbox_transform=fig.transFigure,
+        frameon=False,
+    ).set_in_layout(False)
     save_figure_atomic(fig, path)
     plt.close(fig)
+
+
+def _error_panel(
+    ax: Any, action_rows: list[ActionRow], actions: list[str], names: list[str], comp: str, font: float
+) -> float | None:
+    """One panel of :func:`plot_errors`: ``comp``'s bars of ``names`` (one group per odometer, one
+    bar per action); returns where the axis was cut above the usual bars because a collided one
+    would squash them (None: not cut)."""
+    if not names:
+        ax.text(0.5, 0.5, "no odometer to show", ha="center", va="center", fontsize=font + 1, transform=ax.transAxes)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        return None
+    x = np.arange(len(names))
+    width = 0.8 / max(len(actions), 1)
+    values: dict[str, list[float]] = {}
+    for a in actions:
+        rows = [next((r for r in action_rows if r.odometer == n and r.action == a), None) for n in names]
+        values[a] = [_bar_value(row, comp) for row in rows]
+    top = None if comp == "failed" else error_axis_top(values)
+    for k, a in enumerate(actions):
+        xs = x + (k - (len(actions) - 1) / 2) * width
+        ax.bar(xs, values[a], width, color=_ACTION_COLORS.get(a))
+        for xi, v in zip(xs, values[a]):
+            if top is not None and np.isfinite(v) and v > top:  # cut at the axis: a break, the value above
+                ax.plot([xi - width / 2, xi + width / 2], [0.93 * top, 0.96 * top], color="white", lw=2.5)
+                ax.text(xi, top, f"{v:.1f}", ha="center", va="bottom", fontsize=font, clip_on=False)
+    if comp == "failed":
+        for xi, n in zip(x, names):
+            if all(v == 0 for a in actions for v, m in zip(values[a], names) if m == n):
+                ax.text(xi, 0, "0 %", ha="center", va="bottom", fontsize=font, color="0.3")
+    if top is not None:
+        ax.set_ylim(0, top)
+    pad = max(0.5, (4 - len(names)) / 2 + 0.5)  # a few odometers: narrow groups, centred
+    ax.set_xlim(-pad, len(names) - 1 + pad)
+    ax.set_xticks(x, names, rotation=30 if len(names) > 3 else 0, ha="right" if len(names) > 3 else "center")
+    ax.tick_params(labelsize=font + 0.5)
+    ax.grid(True, axis="y", alpha=0.3)
+    return top
 
 
 @dataclass(frozen=True)
@@ -431,29 +504,26 @@ class FloorPlan:
 
 #: Grey level (0 black, 1 white) of obstacles in top-down figures; free floor is white.
 OBSTACLE_SHADE = 0.75
-#: Colours of the odometers' trajectories over a floor plan: saturated, none of them grey or black
+#: Colours of the odometers' trajectories over a floor plan: Paul Tol's "bright" qualitative scheme,
+#: told apart with the common colour-vision deficiencies and on white, none of them grey or black
 #: (obstacles are grey, ground truth black); after these, the colours repeat with another line style.
-TRAJECTORY_COLORS = (
-    "#1f77b4",
-    "#ff7f0e",
-    "#2ca02c",
-    "#d62728",
-    "#9467bd",
-    "#8c564b",
-    "#e377c2",
-    "#bcbd22",
-    "#17becf",
-    "#393b79",
-    "#7b4173",
-    "#637939",
-)
+TRAJECTORY_COLORS = ("#4477AA", "#EE6677", "#228833", "#CCBB44", "#66CCEE", "#AA3377")
+#: Markers along each trajectory, one more than the colours (no colour and marker pair repeats
+#: before 42 odometers); none of the start (circle), end (square) or goal (star) markers.
+TRAJECTORY_MARKERS = ("^", "v", "D", "P", "X", "<", ">")
 _LINE_STYLES = ("-", "--", ":", "-.")
 
 
 def trajectory_style(index: int) -> tuple[str, str]:
-    """The colour and line style of the ``index``-th odometer in top-down figures."""
+    """The colour and matplotlib format (marker and line style, ``"^-"``) of the ``index``-th
+    odometer in top-down figures."""
     colors = len(TRAJECTORY_COLORS)
-    return TRAJECTORY_COLORS[index % colors], _LINE_STYLES[(index // colors) % len(_LINE_STYLES)]
+    marker = TRAJECTORY_MARKERS[index % len(TRAJECTORY_MARKERS)]
+    return TRAJECTORY_COLORS[index % colors], marker + _LINE_STYLES[(index // colors) % len(_LINE_STYLES)]
+
+
+#: Markers drawn along a trajectory in a top-down figure (about; every step for short ones).
+TRAJECTORY_MARKS = 12
 
 
 def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan: FloorPlan | None = None) -> None:
@@ -469,6 +539,7 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     from matplotlib.lines import Line2D
 
     gt = mine[0].gt_poses[:, :3, 3]
+    drawn = [n for n in names if n != "ground-truth"]  # drawn as the black ground truth: no colour of its own
     fig, ax = plt.subplots(figsize=(5.6, 6.0))
     if plan is not None:
         h, w = plan.free.shape
@@ -493,8 +564,9 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
         if r.odometer == "ground-truth":
             continue
         p = r.poses[:, :3, 3]
-        color, style = trajectory_style(names.index(r.odometer))
-        ax.plot(p[:, 0], p[:, 1], style, lw=1.3, color=color, label=r.odometer)
+        color, style = trajectory_style(drawn.index(r.odometer))
+        every = max(1, len(p) // TRAJECTORY_MARKS)
+        ax.plot(p[:, 0], p[:, 1], style, lw=1.4, ms=5, markevery=every, color=color, label=r.odometer)
         ax.plot(p[-1, 0], p[-1, 1], "s", ms=6, color=color, markeredgecolor="k", markeredgewidth=0.6, zorder=4)
     ax.plot(gt[0, 0], gt[0, 1], "o", ms=8, color="w", markeredgecolor="k", markeredgewidth=1.5, zorder=5)
     everything = np.concatenate([gt[:, :2]] + [r.poses[:, :2, 3] for r in mine])
@@ -526,7 +598,7 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     ax.grid(True, alpha=0.3)
     handles, _ = ax.get_legend_handles_labels()
     ax.legend(
-        handles=handles + markers, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False
+        handles=handles + markers, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False
     )
     fig.tight_layout()
     save_figure_atomic(fig, path)

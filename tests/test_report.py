@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,121 @@ def test_plain_names_keep_their_place_in_the_manifest(tmp_path):
         for stem in ("icp", "fused_icp_open3d-rgbd_", GROUND_TRUTH_FILE)
         for ext in ("tum", "kitti")
     }
+
+
+# -- errors.png --------------------------------------------------------------------------------
+
+
+def _action_rows(names: tuple[str, ...] = ("action-prior", "ground-truth", "icp", "deepvo")) -> list:
+    """Per-action rows as a compare run gives them: zero for ground truth, no failures for the
+    references, a tall collided dz bar for the prior."""
+    from odolab.summary import ActionRow
+
+    rows = []
+    for k, name in enumerate(names):
+        scale = 0.0 if name == "ground-truth" else 1.0 + 0.3 * k
+        for action, steps, e in (("move_forward", 12, 2.0), ("turn_left", 5, 1.0), ("move_forward_collided", 2, 9.0)):
+            failures = 3 if name == "icp" else 0
+            rows.append(ActionRow(name, action, e * scale, e * scale, e * scale, e, e, e, steps, failures))
+    return rows
+
+
+def _drawn_errors(monkeypatch, rows: list):
+    import matplotlib
+
+    import odolab.report
+
+    matplotlib.use("Agg")
+    figures: list = []
+    monkeypatch.setattr(odolab.report, "save_figure_atomic", lambda fig, path, dpi=110: figures.append((fig, dpi)))
+    odolab.report.plot_errors(rows, Path("errors.png"))
+    return figures[0]
+
+
+def test_the_error_figure_reads_at_the_size_the_report_shows_it(monkeypatch):
+    from matplotlib.text import Text
+
+    fig, dpi = _drawn_errors(monkeypatch, _action_rows())
+    fig.canvas.draw()
+    width_px = fig.get_size_inches()[0] * dpi
+    assert 1000 <= width_px <= 1280  # the report's page is 1280 px wide: shown at its own size
+    texts = [t for t in fig.findobj(Text) if t.get_text().strip() and t.get_visible()]
+    smallest = min(t.get_fontsize() for t in texts) * dpi / 72
+    assert smallest >= 10, [(t.get_text(), t.get_fontsize()) for t in texts if t.get_fontsize() * dpi / 72 < 10]
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert len(panels) == 4 and len({round(ax.get_position().y0, 2) for ax in panels}) == 2  # a 2 x 2 grid
+
+
+def test_the_error_figure_draws_no_empty_bars_and_says_what_it_left_out(monkeypatch):
+    fig, _ = _drawn_errors(monkeypatch, _action_rows())
+    dx, dz, dyaw, failed = (ax for ax in fig.axes if ax.get_title())
+    for ax in (dx, dz, dyaw):
+        assert [t.get_text() for t in ax.get_xticklabels()] == ["action-prior", "icp", "deepvo"]
+    assert [t.get_text() for t in failed.get_xticklabels()] == ["icp", "deepvo"]
+    assert [t.get_text() for t in failed.texts] == ["0 %"]  # deepvo never failed: said, not an empty gap
+    said = " ".join(t.get_text() for t in fig.texts)
+    assert "ground-truth (zero error everywhere)" in said
+    assert "action-prior and ground-truth (references: they never fail)" in said
+
+
+def test_a_cut_bar_reads_its_value_above_the_axis(monkeypatch):
+    from matplotlib.colors import to_rgb
+
+    fig, _ = _drawn_errors(monkeypatch, _action_rows())
+    dz = next(ax for ax in fig.axes if ax.get_title().startswith("dz"))
+    top = dz.get_ylim()[1]
+    assert top < 9.0 and "axis cut at" in dz.get_title()
+    values = {t.get_text(): t for t in dz.texts}
+    assert set(values) == {"9.0", "14.4", "17.1"}  # the prior's, icp's and deepvo's collided steps
+    for t in values.values():
+        assert t.get_rotation() == 0 and t.get_position()[1] >= top and t.get_va() == "bottom"
+        assert sum(to_rgb(t.get_color())) < 1.5  # dark on the white page, not white on the bar
+
+
+def test_the_error_figure_of_references_alone_draws_no_empty_panel(monkeypatch):
+    fig, _ = _drawn_errors(monkeypatch, _action_rows(("ground-truth",)))
+    for ax in (ax for ax in fig.axes if ax.get_title()):
+        assert [t.get_text() for t in ax.texts] == ["no odometer to show"] and not ax.patches
+
+
+# -- trajectory colours ------------------------------------------------------------------------
+
+#: Machado et al. (2009) simulation of protanopia, deuteranopia and tritanopia (severity 1), on linear RGB.
+_COLOUR_BLIND = {
+    "protanopia": ((0.152286, 1.052583, -0.204868), (0.114503, 0.786281, 0.099216), (-0.003882, -0.048116, 1.051998)),
+    "deuteranopia": ((0.367322, 0.860646, -0.227968), (0.280085, 0.672501, 0.047413), (-0.011820, 0.042940, 0.968881)),
+    "tritanopia": ((1.255528, -0.076749, -0.178779), (-0.078411, 0.930809, 0.147602), (0.004733, 0.691367, 0.303900)),
+}
+
+
+def _lab(rgb: np.ndarray) -> np.ndarray:
+    """CIE L*a*b* (D65) of linear RGB in 0-1."""
+    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]]) @ rgb
+    t = xyz / np.array([0.95047, 1.0, 1.08883])
+    f = np.where(t > (6 / 29) ** 3, np.cbrt(t), t / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def test_trajectory_colours_stay_apart_for_colour_blind_readers():
+    from matplotlib.colors import to_rgb
+
+    from odolab.report import TRAJECTORY_COLORS
+
+    linear = [
+        np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+        for c in map(np.array, map(to_rgb, TRAJECTORY_COLORS))
+    ]
+    for vision, matrix in [("normal", np.eye(3)), *_COLOUR_BLIND.items()]:
+        seen = [_lab(np.clip(np.array(matrix) @ c, 0, 1)) for c in linear]
+        nearest = min(np.linalg.norm(a - b) for i, a in enumerate(seen) for b in seen[i + 1 :])
+        assert nearest > 12, vision  # CIE76 distance; the old palette's red, brown and pink: 4.6 (protanopia)
+
+
+def test_every_odometer_has_its_own_colour_marker_and_line_style():
+    from odolab.report import TRAJECTORY_COLORS, trajectory_style
+
+    styles = [trajectory_style(k) for k in range(24)]
+    assert len(set(styles)) == len(styles)
+    first = styles[: len(TRAJECTORY_COLORS)]
+    assert len({c for c, _ in first}) == len(first) and len({s[0] for _, s in first}) == len(first)
+    assert all(s[0] not in "os*" for _, s in styles)  # not the start, end or goal markers
