@@ -5,7 +5,8 @@
     odolab --version                the installed version
 
 Each subcommand imports its module only when it runs, so ``odolab --help`` is quick and a command
-that needs torch is the only one that loads it.
+that needs torch is the only one that loads it. A subcommand's help and messages carry the name it
+was typed with (``usage: odolab compare``; :func:`odolab.cli.help_text.command_face`).
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ def usage() -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``odolab COMMAND ...``; exit code 2 with the list for an unknown or missing command."""
     from odolab.cli.args import run_cli
+    from odolab.cli.help_text import command_face
 
     args = list(sys.argv[1:] if argv is None else argv)
     if args[:1] == ["help"] and len(args) > 1:  # odolab help compare = odolab compare --help
@@ -95,7 +97,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     _, module, _ = COMMANDS[name]
     entry = importlib.import_module(module).main
-    return run_cli(entry, f"odolab {name}", rest)
+    with command_face(f"odolab {name}"):  # its --help says "usage: odolab NAME", not the python -m form
+        return run_cli(entry, f"odolab {name}", rest)
 
 
 def _print(text: str, stream, code: int) -> int:
