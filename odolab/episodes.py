@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import sys
 import zipfile
 import zlib
@@ -27,7 +28,7 @@ import numpy as np
 from odolab.config import check, setting
 from odolab.environment import PointNavEnv, Sensors
 from odolab.geometry import camera_pose_from_agent
-from odolab.io.atomic import atomic_open
+from odolab.io.atomic import atomic_open, remove_stale_temporaries
 from odolab.parallel import Execution, fan_out
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
@@ -296,15 +297,28 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
     )
 
 
+#: The temporary files of :meth:`EpisodeCache.put` (``.<spec key>.npz.<random>.tmp``): a killed
+#: write leaves one, which a later write removes once no live writer holds it.
+CACHE_TEMPORARY = re.compile(r"\.[0-9a-f]{16}\.npz\.[A-Za-z0-9_]+\.tmp")
+
+
 class EpisodeCache:
     """Episodes on disk under ``root``, one ``<spec key>.npz`` each (atomic writes, no pickle).
 
     A damaged entry (truncated, bad CRC, unreadable) is named in one line on stderr, deleted and
-    reported missing, so it is regenerated; it never ends a run.
+    reported missing, so it is regenerated; it never ends a run. Only regular files are read, and
+    only regular files inside ``root`` are written: a symbolic link in an entry's place is replaced,
+    never written through. A write that fails (a full disk, a read-only cache) is said once in one
+    line on stderr and the episode is kept in memory instead, so the run goes on with its results;
+    a read-only cache that holds every episode is simply read. The first write removes the
+    temporary files that killed writers left (:data:`CACHE_TEMPORARY`).
     """
 
     def __init__(self, root: str | os.PathLike) -> None:
         self.root = Path(root)
+        self._unwritten: dict[str, Episode] = {}  # spec key -> episode that could not be written
+        self._write_failed = False
+        self._swept = False
 
     def path(self, spec: EpisodeSpec) -> Path:
         return self.root / f"{spec.key()}.npz"
@@ -317,13 +331,21 @@ class EpisodeCache:
         )
         try:
             path.unlink(missing_ok=True)
-        except OSError:  # e.g. a folder in its place: put() will then say so
+        except OSError:  # e.g. a folder in its place, or a read-only cache: put() will then say so
             pass
+
+    def _readable(self, spec: EpisodeSpec) -> Path | None:
+        """The entry of ``spec`` if it is a regular file (links followed); None when missing, or a
+        folder, pipe or device (never opened: a pipe would block the read)."""
+        p = self.path(spec)
+        return p if p.is_file() else None
 
     def get(self, spec: EpisodeSpec) -> Episode | None:
         """The cached episode of ``spec``, or None (missing, or damaged: then discarded)."""
-        p = self.path(spec)
-        if not p.exists():
+        if spec.key() in self._unwritten:
+            return self._unwritten[spec.key()]
+        p = self._readable(spec)
+        if p is None:
             return None
         try:
             with np.load(p, allow_pickle=False) as z:
@@ -337,9 +359,11 @@ class EpisodeCache:
 
     def has(self, spec: EpisodeSpec) -> bool:
         """True if a readable file for ``spec`` is cached (reads its small ``info`` member only; a
-        damaged file is discarded)."""
-        p = self.path(spec)
-        if not p.exists():
+        damaged file is discarded), or this cache kept the episode in memory (its write failed)."""
+        if spec.key() in self._unwritten:
+            return True
+        p = self._readable(spec)
+        if p is None:
             return False
         try:
             with np.load(p, allow_pickle=False) as z:
@@ -350,8 +374,12 @@ class EpisodeCache:
 
     def steps(self, spec: EpisodeSpec) -> int:
         """Number of steps of the cached episode of ``spec`` (reads only its actions); for a
-        damaged file, which is discarded, ``spec.max_steps`` (an upper bound)."""
-        p = self.path(spec)
+        missing or damaged file (a damaged one is discarded), ``spec.max_steps`` (an upper bound)."""
+        if spec.key() in self._unwritten:
+            return len(self._unwritten[spec.key()].actions)
+        p = self._readable(spec)
+        if p is None:
+            return spec.max_steps
         try:
             with np.load(p, allow_pickle=False) as z:
                 return len(z["actions"])
@@ -359,22 +387,60 @@ class EpisodeCache:
             self._discard(p, exc)
             return spec.max_steps
 
-    def put(self, episode: Episode) -> Path:
-        """Write atomically (:func:`odolab.io.atomic.atomic_open`); returns the path."""
-        self.root.mkdir(parents=True, exist_ok=True)
+    def put(self, episode: Episode) -> Path | None:
+        """Write atomically (:func:`odolab.io.atomic.atomic_open`, a link in the entry's place
+        replaced); returns the path. When it cannot be written (:meth:`_keep`) the episode is kept
+        in memory and None is returned."""
+        key = episode.spec.key()
+        if self._write_failed:  # said once; the disk is not retried for every episode
+            self._unwritten[key] = episode
+            return None
         p = self.path(episode.spec)
-        info = json.dumps({**episode.info, "spec_key": episode.spec.key()})
-        with atomic_open(p, "wb") as f:
-            np.savez(
-                f,
-                rgb=episode.rgb,
-                depth=episode.depth,
-                poses=episode.poses,
-                actions=episode.actions,
-                collisions=episode.collisions,
-                info=np.array(info),
-            )
+        info = json.dumps({**episode.info, "spec_key": key})
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            self._sweep()
+            with atomic_open(p, "wb", follow_links=False) as f:
+                np.savez(
+                    f,
+                    rgb=episode.rgb,
+                    depth=episode.depth,
+                    poses=episode.poses,
+                    actions=episode.actions,
+                    collisions=episode.collisions,
+                    info=np.array(info),
+                )
+        except (OSError, ValueError) as exc:
+            self._keep(episode, p, exc)
+            return None
+        self._unwritten.pop(key, None)
         return p
+
+    def _keep(self, episode: Episode, path: Path, exc: BaseException) -> None:
+        """A failed write (full disk, read-only or vanished folder, a folder or pipe in the entry's
+        place): one line on stderr, the first time, and the episode kept in memory."""
+        self._unwritten[episode.spec.key()] = episode
+        if not self._write_failed:
+            self._write_failed = True
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            print(
+                f"odolab: warning: cannot write the episode cache {self.root} ({path.name}: {reason}); "
+                "going on without writing it (the results are kept)",
+                file=sys.stderr,
+            )
+
+    def _sweep(self) -> None:
+        """Once per cache: remove the temporary files killed writers left (one line on stderr)."""
+        if self._swept:
+            return
+        self._swept = True
+        removed = remove_stale_temporaries(self.root, CACHE_TEMPORARY)
+        if removed:
+            print(
+                f"odolab: removed {len(removed)} temporary file{'s' if len(removed) > 1 else ''} that a stopped "
+                f"episode-cache write left in {self.root}",
+                file=sys.stderr,
+            )
 
 
 def generate_episodes(
