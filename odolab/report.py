@@ -67,6 +67,12 @@ _FLAT = re.compile(r"[a-z0-9][a-z0-9.+-]*\([a-z0-9][a-z0-9.+-]*(,[a-z0-9][a-z0-9
 _READABLE_CHARS = 100
 
 
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """``n`` and ``noun``, in the plural (``noun`` + s unless given) unless ``n`` is 1:
+    ``counted(1, "test episode")`` -> ``1 test episode``, ``counted(5, "test episode")`` -> ``5 test episodes``."""
+    return f"{n} {noun if n == 1 else plural or noun + 's'}"
+
+
 def file_stem(name: str) -> str:
     """A portable file name (no suffix) for an odometer or sequence name, one per name by
     construction, also on a file system that ignores case: a plain lower-case name is kept as it is
@@ -594,7 +600,7 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("world x (m)")
     ax.set_ylabel("world y (m)")
-    ax.set_title(f"{mine[0].sequence}: {len(gt) - 1} steps", fontsize=10)
+    ax.set_title(f"{mine[0].sequence}: {counted(len(gt) - 1, 'step')}", fontsize=10)
     ax.grid(True, alpha=0.3)
     handles, _ = ax.get_legend_handles_labels()
     ax.legend(
@@ -815,7 +821,7 @@ def write_report(
             )
     if cards:
         sections.append(
-            f"<h2>Trajectories, top-down ({len(cards)} sequence{'s' if len(cards) > 1 else ''})</h2>"
+            f"<h2>Trajectories, top-down ({counted(len(cards), 'sequence')})</h2>"
             "<p>Ground truth (black) and "
             "each odometer's integrated trajectory, world x/y in metres, over the floor plan where "
             "known (obstacles grey); a circle marks the start, a square each trajectory's end, a "

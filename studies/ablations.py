@@ -849,9 +849,17 @@ def _order(ours: float, ours_ref: float | None, paper: float | None, paper_ref: 
     return ("agrees" if mine == theirs else "differs") + (" (overlap)" if overlap else "")
 
 
+def _for_seeds(seeds: Sequence[int]) -> str:
+    """``for the seed 0`` or ``for each of the seeds 0, 1, 2``."""
+    listed = ", ".join(map(str, seeds))
+    return f"for the seed {listed}" if len(seeds) == 1 else f"for each of the seeds {listed}"
+
+
 def findings(lines: list[dict[str, Any]]) -> list[str]:
     """Per measure, which rows come on the same side of row 18 as in the paper, and of those which
     are apart from row 18 by more than our 95 % intervals."""
+    from odolab.report import counted
+
     out = []
     for column, measure in (("S_vs_18", "Success"), ("error_vs_18", "Per-step error (mean of dx, dz, dyaw)")):
         said = {
@@ -864,7 +872,7 @@ def findings(lines: list[dict[str, Any]]) -> list[str]:
             out.append(f"{measure}: no row to set against row 18 (row 18 or the numbers are missing)")
             continue
         out.append(
-            f"{measure} against row 18: ours on the paper's side in {len(said['agrees'])} of {judged} rows"
+            f"{measure} against row 18: ours on the paper's side in {len(said['agrees'])} of {counted(judged, 'row')}"
             f" ({', '.join(said['agrees']) or 'none'}); the other side in {', '.join(said['differs']) or 'none'}; "
             f"level with row 18 in {', '.join(said['tie']) or 'none'}. Apart from row 18 beyond our 95 % "
             f"intervals: {', '.join(clear) or 'none'}"
@@ -1124,6 +1132,7 @@ def make_data(recipes: dict[int, TrainConfig | DeepVOTraining], execution: Execu
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.cli import UsageError, execution_of
     from odolab.config import ConfigError
+    from odolab.report import counted
 
     try:
         definition = load_definition()
@@ -1195,9 +1204,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         intro=[
             " ".join(__doc__.split("\n\n")[2].split()).replace("``", ""),
             f"Scale {args.scale}: rows {', '.join(map(str, scale.rows))}; per-step error on "
-            f"{scale.episodes} test episodes of at most {scale.max_steps} steps for each of the seeds "
-            f"{', '.join(map(str, scale.seeds))}; navigation on {scale.nav_episodes} test episodes of at most "
-            f"{scale.nav_max_steps} steps for each of the seeds {', '.join(map(str, scale.nav_seeds))}. "
+            f"{counted(scale.episodes, 'test episode')} of at most {counted(scale.max_steps, 'step')} "
+            f"{_for_seeds(scale.seeds)}; navigation on {counted(scale.nav_episodes, 'test episode')} of at most "
+            f"{counted(scale.nav_max_steps, 'step')} {_for_seeds(scale.nav_seeds)}. "
             "S, SPL, SoftSPL in %, d_G in m, "
             "errors x 1e-2 (mean and standard deviation over the seeds), fps in steps/s of the odometer alone; "
             "*_ci: 95 % intervals (Wilson's for S, Student's t for the others, kept within 0-100 % and d_G >= 0). S_vs_18 and error_vs_18 say "
@@ -1223,8 +1232,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     framework.write_report(report, out, owner=f"study {NAME}")
     print(framework.table_md(["row", "setting", "S", "paper_S", "SPL", "d_G", "dx", "dz", "dyaw", "S_vs_18"], lines))
     computed = sum(len(o.computed) for o in outcomes)
-    print(f"{computed} units computed ({', '.join(f'{len(o.computed)} {n}' for o, n in zip(outcomes, PHASES))})")
-    print(f"{len(lines)} rows -> {out}")
+    print(
+        f"{counted(computed, 'unit')} computed ({', '.join(f'{len(o.computed)} {n}' for o, n in zip(outcomes, PHASES))})"
+    )
+    print(f"{counted(len(lines), 'row')} -> {out}; open {out / 'index.html'}")
     framework.say_missing(missing)
     return 0
 

@@ -226,6 +226,8 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.report import counted
+
     study = framework.begin("e_table", PROG, argv, scale_of)
     scale: Scale = study.scale
     outcome = study.run(unit_result, units(scale, study.identity), valid_result)
@@ -235,8 +237,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         intro=[
             " ".join(__doc__.split("\n\n")[2].split()).replace("``", ""),
             (
-                f"Scale {study.args.scale}: seeds {', '.join(map(str, scale.seeds))}, {scale.episodes} test "
-                f"episodes of at most {scale.max_steps} steps each per seed."
+                f"Scale {study.args.scale}: {'seed' if len(scale.seeds) == 1 else 'seeds'} "
+                f"{', '.join(map(str, scale.seeds))}, {counted(scale.episodes, 'test episode')} of at most "
+                f"{counted(scale.max_steps, 'step')} each per seed."
             ),
         ],
         columns=COLUMNS,

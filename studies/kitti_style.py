@@ -455,6 +455,8 @@ def findings(rows: list[dict[str, Any]], routes: list[dict[str, Any]]) -> list[s
     """The paper has no KITTI-style table: which lengths the routes hold (against KITTI's), who drifts
     least, and whether the per-step error (the paper's measure) orders the odometers as t_rel and
     r_rel do."""
+    from odolab.report import counted
+
     held = held_lengths(rows)
     said = ", ".join(f"{L}" for L in held) or "none"
     out = [
@@ -473,7 +475,7 @@ def findings(rows: list[dict[str, Any]], routes: list[dict[str, Any]]) -> list[s
         out.append(
             f"Routes: {len(routes)}, {min(lengths):.0f}-{max(lengths):.0f} m, {np.mean([r['steps'] for r in routes]):.0f} "
             f"steps on average, {100 * np.mean([r['collision_share'] for r in routes]):.1f} % of steps collided "
-            f"(episodes: 7-8 %), {sum(r['reached'] for r in routes)} goals reached."
+            f"(episodes: 7-8 %), {counted(sum(r['reached'] for r in routes), 'goal')} reached."
         )
         net = {L: [r["net_share"][str(L)] for r in routes if str(L) in r["net_share"]] for L in held}
         out.append(
@@ -611,6 +613,7 @@ def intro(scale_name: str, scale: Scale, rows: list[dict[str, Any]], note: str) 
 
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.cli import UsageError, execution_of
+    from odolab.report import counted
 
     try:
         config = framework.load_study("kitti_style")
@@ -680,7 +683,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     framework.write_report(report, out, owner=f"study {config.name}")
     print(framework.table_md(columns(rows)[:9], [r for r in rows if r["route"] == "all"]))
-    print(f"({len(routes.computed)} routes and {len(runs.computed)} odometer runs computed)")
+    print(f"({counted(len(routes.computed), 'route')} and {counted(len(runs.computed), 'odometer run')} computed)")
     framework.say_done(outcome, len(rows), out)
     return 0
 

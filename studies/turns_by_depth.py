@@ -266,6 +266,8 @@ def draw(scale: Scale, turns: dict[str, list], path: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from odolab.report import counted
+
     study = framework.begin("turns_by_depth", PROG, argv, scale_of)
     scale: Scale = study.scale
     valid = functools.partial(valid_result, per_scene=scale.per_scene)
@@ -278,7 +280,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         intro=[
             " ".join(__doc__.split("\n\n")[2].split()),
             (
-                f"Scale {study.args.scale}: {scale.per_scene} turns in each of {scale.scenes} {scale.split} scenes "
+                f"Scale {study.args.scale}: {counted(scale.per_scene, 'turn')} in each of "
+                f"{counted(scale.scenes, scale.split + ' scene')} "
                 f"(seed {scale.seed}); options: {given or 'none'}. Shares are fractions; the RMS and the share "
                 "over 2 deg are over the answered turns."
             ),
