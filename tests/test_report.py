@@ -228,3 +228,14 @@ def test_every_odometer_has_its_own_colour_marker_and_line_style():
     first = styles[: len(TRAJECTORY_COLORS)]
     assert len({c for c, _ in first}) == len(first) and len({s[0] for _, s in first}) == len(first)
     assert all(s[0] not in "os*" for _, s in styles)  # not the start, end or goal markers
+
+
+# -- wording -----------------------------------------------------------------------------------
+
+
+def test_one_of_a_thing_reads_in_the_singular():
+    from odolab.report import counted
+
+    assert counted(1, "test episode") == "1 test episode"
+    assert counted(5, "test episode") == "5 test episodes" and counted(0, "step") == "0 steps"
+    assert counted(2, "odometer run") == "2 odometer runs" and counted(3, "axis", "axes") == "3 axes"
