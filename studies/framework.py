@@ -31,6 +31,7 @@ from typing import Any
 
 import tomllib
 
+from odolab.io.lock import FolderLock
 from odolab.parallel import Execution, fan_out
 
 SCALES = ("ci", "cpu", "paper")
@@ -587,12 +588,13 @@ def _is_result_file(path: Path) -> bool:
     return isinstance(doc, dict) and {"key", "result"} <= set(doc)
 
 
-def check_options(args, out: Path, config: StudyConfig) -> None:
+def check_options(args, out: Path, config: StudyConfig) -> FolderLock:
     """Everything a study's command line can get wrong, found before any work and before ``out`` is
     made: ``--ray-address`` (malformed, unreachable, or with ``--serial``) and the ``RAY_ADDRESS``
     variable (unless nothing is computed), ``--redraw`` with no saved results to draw from, and the
     ``--out`` folder (:func:`check_out`), claimed only once every check has passed (with ``--redraw``,
-    by the report it draws)."""
+    by the report it draws). Returns this run's hold on ``out`` (:func:`hold_out`): keep it while
+    the study computes and writes."""
     from odolab.cli import UsageError, check_ray_option
 
     if args.redraw and args.ray_address is not None:
@@ -604,8 +606,23 @@ def check_options(args, out: Path, config: StudyConfig) -> None:
         results = out / "results"
         if not results.is_dir() or not any(results.glob("*.json")):
             raise UsageError(f"--redraw: no saved results in {results}; run without --redraw first")
-        return  # the report, once drawn, claims the folder: a redraw refused later writes nothing
+        return hold_out(out)  # the report, once drawn, claims the folder: a redraw refused later writes nothing
     check_out(out, config)
+    return hold_out(out)
+
+
+def hold_out(out: Path) -> FolderLock:
+    """This run's hold on its ``--out`` folder (:func:`odolab.io.lock.lock_folder`): ``UsageError``
+    at once when another odolab run holds it (two runs of a study into one folder would overwrite
+    each other's results and report). Released when the returned object is released or dropped, or
+    the process ends."""
+    from odolab.cli import UsageError
+    from odolab.io.lock import FolderInUseError, lock_folder
+
+    try:
+        return lock_folder(out)
+    except FolderInUseError as exc:
+        raise UsageError(exc.named("--out")) from None
 
 
 @dataclass(frozen=True)
@@ -621,6 +638,7 @@ class StudyRun:
     scale: Any
     out: Path
     identity: dict[str, str | None]
+    held: FolderLock | None = None  # this run's hold on out (check_options), released once published
 
     def run(self, fn: Callable[[dict[str, Any]], Any], units: Sequence[Unit], valid: Callable[[Any], bool]) -> Outcome:
         """:func:`run_units` into ``out/results`` as the command line asks (``--redraw``, where the
@@ -655,6 +673,8 @@ class StudyRun:
             cpu_hours=outcome.seconds / 3600,
         )
         write_report(report, self.out, owner=f"study {self.config.name}")
+        if self.held is not None:
+            self.held.release()
         print(table_md(columns, rows))
         say_done(outcome, len(rows), self.out)
 
@@ -692,8 +712,8 @@ def begin(name: str, prog: str, argv: Sequence[str] | None, scale_of: Callable[[
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = args.out or default_out(config)
-    check_options(args, out, config)
-    return StudyRun(config, prog, argv, args, scale, out, identity)
+    held = check_options(args, out, config)
+    return StudyRun(config, prog, argv, args, scale, out, identity, held)
 
 
 #: The title of the reports index: a page with another is a user's, never written over.

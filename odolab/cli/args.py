@@ -8,6 +8,7 @@ refuses NaN and infinity; output paths are checked by :func:`check_output_dir` a
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import os
 import re
@@ -18,6 +19,7 @@ import threading
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
+from odolab.io.lock import FolderLock
 from odolab.parallel import Execution
 
 #: Largest accepted seed (seeds feed numpy's SeedSequence; 2^32 - 1 keeps them portable).
@@ -109,12 +111,39 @@ def _describe(exc: OSError) -> str:
     return (exc.strerror or str(exc)).lower()
 
 
+#: The longest name of one folder or file, in bytes, that common file systems hold (ext4, XFS,
+#: btrfs, tmpfs, APFS: 255), and the longest path the system takes (Linux's PATH_MAX, its NUL included).
+NAME_MAX = 255
+PATH_MAX = 4096
+
+
+def check_path_length(text: str, option: str) -> None:
+    """``argparse.ArgumentTypeError`` naming ``option`` when a name in path ``text`` is longer than
+    :data:`NAME_MAX` bytes or the whole path than :data:`PATH_MAX` - 1: no file system could hold it,
+    and every use of it would end in "File name too long"."""
+    total = len(os.fsencode(text))
+    if total >= PATH_MAX:
+        raise argparse.ArgumentTypeError(
+            f"{option}: expected a path of at most {PATH_MAX - 1} bytes, got one of {total} bytes "
+            f"({text[:40]!r}...); choose a shorter path"
+        )
+    for part in Path(text).parts:
+        size = len(os.fsencode(part))
+        if size > NAME_MAX:
+            raise argparse.ArgumentTypeError(
+                f"{option}: expected folder and file names of at most {NAME_MAX} bytes, got one of {size} "
+                f"bytes ({part[:40]!r}...); choose a shorter name"
+            )
+
+
 def path_arg(option: str) -> Callable[[str], Path]:
-    """An argparse ``type`` for a path: an empty string is refused (it would mean the current folder)."""
+    """An argparse ``type`` for a path: an empty string is refused (it would mean the current
+    folder), and so is a name no file system holds (:func:`check_path_length`)."""
 
     def parse(text: str) -> Path:
         if not text.strip():
             raise argparse.ArgumentTypeError(f"{option} is empty; give a path")
+        check_path_length(text, option)
         return Path(text)
 
     return parse
@@ -299,6 +328,31 @@ def check_output_dir(path: Path, option: str) -> None:
         raise UsageError(f"{option} {path}: not a writable folder ({_describe(exc)})") from None
 
 
+def check_cache_dir(path: Path, option: str) -> None:
+    """:func:`check_output_dir` for a cache a run reads and adds to: a folder that exists but cannot
+    be written is accepted (it is read; what it lacks is made and kept in memory, said once by the
+    cache), a file, a link to nothing, a ``..`` after a link or a folder that cannot be made is
+    refused (:class:`UsageError` naming ``option``)."""
+    check_no_dotdot_after_link(path, option)
+    if path.is_dir() and os.access(path, os.R_OK | os.X_OK) and not os.access(path, os.W_OK):
+        return  # read-only: read, not refused
+    check_output_dir(path, option)
+
+
+def hold_folder(path: Path, option: str) -> FolderLock:
+    """Hold folder ``path`` (made by the checks before) for this run, or :class:`UsageError` naming
+    ``option`` when another odolab run holds it (:func:`odolab.io.lock.lock_folder`): two runs never
+    write one folder at once. Release it (``with``) when the run's writing is done."""
+    from odolab.io.lock import FolderInUseError, lock_folder
+
+    try:
+        return lock_folder(path)
+    except FolderInUseError as exc:
+        raise UsageError(exc.named(option)) from None
+    except OSError as exc:
+        raise UsageError(f"{option} {path}: cannot be opened to hold it for this run ({_describe(exc)})") from None
+
+
 def check_output_file(path: Path, option: str, suffixes: Iterable[str] | None = None) -> None:
     """Check that file ``path`` can be written (its folder exists and is writable, it is not a
     folder, device, pipe or socket; a symbolic link to a file is written through, a link to nothing
@@ -378,6 +432,27 @@ class Terminated(KeyboardInterrupt):
     clauses run: temporary folders are removed, a partial file is not left behind."""
 
 
+#: What a file system refuses a write for, whatever the command (errno -> what to do about it).
+DISK_ERRORS = {
+    errno.ENOSPC: "nothing half-written was left; free some space and run again",
+    errno.EDQUOT: "nothing half-written was left; free some space or raise the quota and run again",
+    errno.EFBIG: "this file system takes no file this large; write elsewhere",
+    errno.EROFS: "choose a folder on a writable file system",
+    errno.ENAMETOOLONG: "choose a shorter name",
+}
+
+
+def disk_error(exc: OSError) -> str | None:
+    """One line for an ``OSError`` that a file system gave a write (:data:`DISK_ERRORS`: a full disk,
+    a quota, a read-only file system, a name too long), naming the file when the error does
+    (atomic writes name the file they were writing; nothing half-written is left); None for others."""
+    if exc.errno not in DISK_ERRORS:
+        return None
+    what = (exc.strerror or str(exc)).lower()
+    where = f"{exc.filename}: " if exc.filename is not None else ""
+    return f"{where}{what}; {DISK_ERRORS[exc.errno]}"
+
+
 def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv: Sequence[str] | None = None) -> int:
     """Run ``main(argv)``; turn :class:`UsageError` and file errors into ``prog: error: ...`` + exit 2.
     Ctrl-C exits 130 and SIGTERM 143 (the shell's codes), each after the command's clean-up, also
@@ -419,6 +494,14 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
     except BrokenPipeError:  # the reader of stdout went away (``... | head -1``): no traceback
         quiet_broken_pipe()
         return 141  # what a shell reports for a command ended by SIGPIPE
+    except OSError as exc:
+        said = disk_error(exc)
+        if said is None:
+            if received:
+                return stopped()
+            raise
+        print(f"{prog}: error: {_capped(said)}", file=sys.stderr)
+        return 2
     except Exception:
         if received:  # a swallowed signal that surfaced as another error
             return stopped()

@@ -16,11 +16,12 @@ from odolab.cli.args import (
     MAX_SEED,
     ArgumentParser,
     UsageError,
-    check_output_dir,
+    check_cache_dir,
     check_ray_option,
     check_report_dir,
     execution_of,
     given_options,
+    hold_folder,
     number,
     path_arg,
     pinhole,
@@ -38,6 +39,7 @@ from odolab.comparison import (
     tum_sequences,
 )
 from odolab.episodes import MAX_EPISODE_STEPS
+from odolab.io.lock import FolderLock
 from odolab.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
 from odolab.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
 from odolab.sim.scenes import SPLITS
@@ -204,14 +206,16 @@ def _check_before_work(args: argparse.Namespace, argv: Sequence[str]) -> None:
         check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before any folder is made
 
 
-def _check_folders(args: argparse.Namespace) -> None:
-    """The cache and report folders: made if missing and checked (after every other check)."""
+def _check_folders(args: argparse.Namespace) -> FolderLock:
+    """The cache and report folders: made if missing and checked (after every other check); returns
+    the hold of this run on ``--out`` (a second run into it is refused at once)."""
     if args.tum is None and not args.no_cache:
-        check_output_dir(args.cache, "--cache")
+        check_cache_dir(args.cache, "--cache")  # read-only: read; what it lacks is made, not written
     check_report_dir(args.out, "--out")
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import MANIFEST, ManifestError, OutputFolder
 
+    held = hold_folder(args.out, "--out")
     try:  # what the previous run wrote, and this run's fixed files, can be replaced without leaving --out
         OutputFolder.check(
             args.out,
@@ -219,9 +223,12 @@ def _check_folders(args: argparse.Namespace) -> None:
             folders=("trajectories",),
         )
     except ManifestError as exc:
+        held.release()
         raise UsageError(f"--out {exc}") from None
     except UnsafeOutputError as exc:
+        held.release()
         raise UsageError(f"--out: {exc}; remove it or choose another --out") from None
+    return held
 
 
 def _config(args: argparse.Namespace) -> ComparisonConfig:
@@ -289,39 +296,39 @@ def main(argv: Sequence[str] | None = None) -> int:
             sequences = tum_sequences(config)
         except ComparisonError as exc:
             raise UsageError(f"--tum {args.tum}: {exc}") from None
-    _check_folders(args)
-    from odolab.progress import StepProgressBar
-    from odolab.report import format_table, write_report
-    from odolab.summary import every_step_failed
+    with _check_folders(args):  # --out held until the report is written
+        from odolab.progress import StepProgressBar
+        from odolab.report import format_table, write_report
+        from odolab.summary import every_step_failed
 
-    try:
-        result = run_comparison(
-            config, observer=StepProgressBar(disable=args.quiet), odometers=odometers, sequences=sequences
+        try:
+            result = run_comparison(
+                config, observer=StepProgressBar(disable=args.quiet), odometers=odometers, sequences=sequences
+            )
+        except ComparisonError as exc:
+            raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
+        for warning in result.warnings:
+            print(f"note: {warning}", file=sys.stderr)
+        print(result.title)  # the table first: nothing that follows can lose it
+        print(format_table(result.rows, real_data=args.tum is not None))
+        write_report(
+            args.out,
+            rows=result.rows,
+            action_rows=result.action_rows,
+            results=result.results,
+            title=result.title,
+            notes=result.notes,
+            plans=result.plans,
+            configs=result.configs,
         )
-    except ComparisonError as exc:
-        raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
-    for warning in result.warnings:
-        print(f"note: {warning}", file=sys.stderr)
-    print(result.title)  # the table first: nothing that follows can lose it
-    print(format_table(result.rows, real_data=args.tum is not None))
-    write_report(
-        args.out,
-        rows=result.rows,
-        action_rows=result.action_rows,
-        results=result.results,
-        title=result.title,
-        notes=result.notes,
-        plans=result.plans,
-        configs=result.configs,
-    )
-    for r in result.results:
-        for e in r.errors[:1]:
-            print(f"note: {r.odometer} raised on {r.sequence}: {e}")
-    for line in every_step_failed(result.rows):
-        print(f"note: {line}")
-    for name, reasons in failure_reasons(result.results).items():
-        print(f"note: {name} failed steps by reason: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
-    print(f"wrote {args.out / 'table.csv'} and {args.out / 'report.html'}")
+        for r in result.results:
+            for e in r.errors[:1]:
+                print(f"note: {r.odometer} raised on {r.sequence}: {e}")
+        for line in every_step_failed(result.rows):
+            print(f"note: {line}")
+        for name, reasons in failure_reasons(result.results).items():
+            print(f"note: {name} failed steps by reason: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
+        print(f"wrote {args.out / 'table.csv'} and {args.out / 'report.html'}")
     return 0
 
 

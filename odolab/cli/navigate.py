@@ -11,6 +11,7 @@ belief.png, paths-*.png and report.html under --out (see odolab.navigation.study
 
 from __future__ import annotations
 
+import argparse
 import shlex
 import sys
 from collections.abc import Sequence
@@ -23,6 +24,7 @@ from odolab.cli.args import (
     check_ray_option,
     check_report_dir,
     execution_of,
+    hold_folder,
     number,
     path_arg,
     run_cli,
@@ -43,10 +45,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.comparison import ComparisonError, load_odometers
     from odolab.config import describe
     from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
-    from odolab.io.owned import UnsafeOutputError, check_owned_path
     from odolab.navigation.agent import PolicyConfig, PolicyError
-    from odolab.navigation.report import output_files, write_outputs
-    from odolab.navigation.study import NavTask, RunFolderError, config_doc, run_navigation
+    from odolab.navigation.study import NavTask
     from odolab.odometer import REGISTRY, OdometerListError, parse_odometer_list
     from odolab.options import (
         OptionError,
@@ -56,7 +56,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         read_options_file,
         without_defaults,
     )
-    from odolab.summary import failed_steps_text
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument(
@@ -114,7 +113,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         loaded = load_odometers(names, options)  # every name and option checked here, before --out is made
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
-    check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
     noise = NoiseConfig()
     specs = [
@@ -122,6 +120,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         for i in range(args.episodes)
     ]
     tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].identity_digest) for n in names for s in specs]
+    check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
+    with hold_folder(args.out, "--out"):  # a second run into --out is refused until this one has written
+        return _run(args, argv, tasks, names, specs, policy, options)
+
+
+def _run(
+    args: argparse.Namespace,
+    argv: Sequence[str] | None,
+    tasks: list,
+    names: list[str],
+    specs: list,
+    policy: object,
+    options: dict[str, dict],
+) -> int:
+    """Run the episodes ``--out`` lacks and write the report (``--out`` held by the caller)."""
+    from odolab.io.owned import UnsafeOutputError, check_owned_path
+    from odolab.navigation.report import output_files, write_outputs
+    from odolab.navigation.study import RunFolderError, config_doc, run_navigation
+    from odolab.summary import failed_steps_text
+
     try:
         for name in output_files(specs):  # the report's files, found unusable now rather than after every episode
             check_owned_path(args.out, name)

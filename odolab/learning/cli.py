@@ -5,9 +5,10 @@ budget, the device and thread count. Mistakes are one line and exit code 2, befo
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -336,8 +337,35 @@ def training_main(
     (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
     ap = training_parser(prog, description, family, set_example)
     job = parse_training_command(ap, argv, load_config, state_files, check_start)
+    with hold_training_folders(job):
+        done = _train(job, run)
+    said = f"finished; model written to {job.export}" if done else "stopped; run the same command to resume"
+    print(f"{said} (curves: {job.reports / 'curves.png'})")
+    return 0
+
+
+@contextlib.contextmanager
+def hold_training_folders(job: TrainingJob) -> Iterator[None]:
+    """Hold ``--work`` and ``--reports`` for this training while the block runs, or :class:`UsageError`
+    at once when another odolab run holds either (two trainings into one folder would overwrite each
+    other's states, curves and model); the system releases them if the process dies."""
+    from odolab.io.lock import FolderInUseError, lock_folder
+
+    with contextlib.ExitStack() as held:
+        for folder, option in ((job.work, "--work"), (job.reports, "--reports")):
+            if option == "--reports" and _same_path(job.reports, job.work):
+                continue
+            try:
+                held.enter_context(lock_folder(folder))
+            except FolderInUseError as exc:
+                raise UsageError(exc.named(option)) from None
+        yield
+
+
+def _train(job: TrainingJob, run: Callable[..., bool]) -> bool:
+    """``run`` the job (its ``ValueError`` becomes one line); True when every epoch is done."""
     try:
-        done = run(
+        return run(
             job.config,
             work=job.work,
             reports=job.reports,
@@ -351,6 +379,3 @@ def training_main(
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    said = f"finished; model written to {job.export}" if done else "stopped; run the same command to resume"
-    print(f"{said} (curves: {job.reports / 'curves.png'})")
-    return 0
