@@ -131,12 +131,13 @@ class PointNavEnv:
         return camera_pose_from_agent(self.state.x, self.state.y, self.state.yaw, height)
 
     def observe(self, timestamp: float = 0.0) -> Frame:
-        """The noisy frame at the current state (``gt_pose`` set: only oracles may read it)."""
+        """The noisy frame at the current state (``gt_pose`` and ``clean_depth`` set: only oracles may
+        read them)."""
         if self.sensors is None:
             raise RuntimeError("this environment has no sensors (made for motion only)")
         pose = self.camera_pose()
         reading = self.sensors.read(pose)
-        return Frame(reading.rgb, reading.depth, timestamp=timestamp, gt_pose=pose)
+        return Frame(reading.rgb, reading.depth, timestamp=timestamp, gt_pose=pose, clean_depth=reading.clean_depth)
 
     def step(self, action: Action) -> bool:
         """Execute a motion action; returns whether its translation was blocked. STOP is refused:

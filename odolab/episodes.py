@@ -37,7 +37,7 @@ from odolab.sim.scenes import SPLITS, generate_scene, scene_seed
 from odolab.types import Action, Frame, Intrinsics
 
 _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
-FORMAT_VERSION = 1  # the .npz layout
+FORMAT_VERSION = 2  # the .npz layout (2: clean_depth_mm added)
 #: Bump whenever the simulator's output for a given spec changes (scenes, rendering, noise, motion,
 #: follower): it is part of every cache key, so stale cached episodes are never reused.
 SIMULATOR_VERSION = 4
@@ -225,7 +225,9 @@ class Episode:
 
     ``rgb`` (T+1, H, W, 3) uint8; ``depth`` (T+1, H, W) float32 m (0 = no reading);
     ``poses`` (T+1, 4, 4) ``T_world_cam``; ``actions`` (T,) int8 :class:`Action` values;
-    ``collisions`` (T,) bool; ``info``: scene seed, goal, start distance, reached_goal.
+    ``collisions`` (T,) bool; ``info``: scene seed, goal, start distance, reached_goal;
+    ``clean_depth_mm`` (T+1, H, W) uint16: the simulator's noiseless depth in millimetres (0 = no
+    reading), handed to oracles as ``Frame.clean_depth`` (m), or None.
     """
 
     spec: EpisodeSpec
@@ -235,6 +237,7 @@ class Episode:
     actions: np.ndarray
     collisions: np.ndarray
     info: dict
+    clean_depth_mm: np.ndarray | None = None
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -248,7 +251,8 @@ class Episode:
         return len(self.rgb)
 
     def __getitem__(self, i: int) -> Frame:
-        return Frame(self.rgb[i], self.depth[i], timestamp=float(i), gt_pose=self.poses[i])
+        clean = None if self.clean_depth_mm is None else self.clean_depth_mm[i] * np.float32(0.001)
+        return Frame(self.rgb[i], self.depth[i], timestamp=float(i), gt_pose=self.poses[i], clean_depth=clean)
 
     def action(self, i: int) -> Action:
         return Action(int(self.actions[i]))
@@ -277,8 +281,10 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
     n = len(motion.states)
     rgb = np.empty((n, cam.height, cam.width, 3), np.uint8)
     depth = np.empty((n, cam.height, cam.width), np.float32)
-    for i, (_, _, noisy_rgb, noisy_depth) in enumerate(render_frames(spec, motion)):
+    clean_mm = np.empty((n, cam.height, cam.width), np.uint16)
+    for i, (_, clean_depth, noisy_rgb, noisy_depth) in enumerate(render_frames(spec, motion)):
         rgb[i], depth[i] = noisy_rgb, noisy_depth
+        clean_mm[i] = np.round(clean_depth * 1000.0).clip(0, 65535)
     info = {
         "scene_seed": motion.scene_seed,
         "goal": list(motion.goal),
@@ -294,6 +300,7 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
         np.array([a.value for a in motion.actions], np.int8),
         np.array(motion.collisions, bool),
         info,
+        clean_mm,
     )
 
 
@@ -352,7 +359,8 @@ class EpisodeCache:
                 info = json.loads(str(z["info"]))
                 if info.pop("spec_key", None) != spec.key():
                     return None
-                return Episode(spec, z["rgb"], z["depth"], z["poses"], z["actions"], z["collisions"], info)
+                clean = z["clean_depth_mm"] if "clean_depth_mm" in z.files else None
+                return Episode(spec, z["rgb"], z["depth"], z["poses"], z["actions"], z["collisions"], info, clean)
         except _DAMAGE as exc:
             self._discard(p, exc)
             return None
@@ -409,6 +417,7 @@ class EpisodeCache:
                     actions=episode.actions,
                     collisions=episode.collisions,
                     info=np.array(info),
+                    **({} if episode.clean_depth_mm is None else {"clean_depth_mm": episode.clean_depth_mm}),
                 )
         except (OSError, ValueError) as exc:
             self._keep(episode, p, exc)

@@ -255,7 +255,9 @@ class RouteFrames:
         while self._next <= i:
             reading = self._sensors.read(self._poses[self._next])
             self._next += 1
-        frame = Frame(reading.rgb, reading.depth, timestamp=float(i), gt_pose=self._poses[i])
+        frame = Frame(
+            reading.rgb, reading.depth, timestamp=float(i), gt_pose=self._poses[i], clean_depth=reading.clean_depth
+        )
         self._last = (i, frame)
         return frame
 

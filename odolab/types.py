@@ -129,14 +129,16 @@ class Frame:
     """One RGB-D observation.
 
     ``rgb``: (H, W, 3) uint8. ``depth``: (H, W) float32 metres, 0 = no reading.
-    ``timestamp``: seconds. ``gt_pose``: ``T_world_cam`` 4x4 when ground truth exists; only
-    oracle odometers (see :attr:`Odometer.oracle`) may read it.
+    ``timestamp``: seconds. ``gt_pose``: ``T_world_cam`` 4x4 when ground truth exists;
+    ``clean_depth``: the simulator's noiseless depth (H, W) float32 m of the same view, when the
+    frame is simulated. Only oracle odometers (see :attr:`Odometer.oracle`) may read these two.
     """
 
     rgb: np.ndarray
     depth: np.ndarray
     timestamp: float = 0.0
     gt_pose: np.ndarray | None = field(default=None, repr=False)
+    clean_depth: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         """``ValueError`` naming the field for arrays that cannot be an RGB-D frame (an odometer
@@ -151,6 +153,12 @@ class Frame:
         if rgb.shape[:2] != depth.shape:
             raise ValueError(
                 f"Frame: rgb is {rgb.shape[0]}x{rgb.shape[1]} pixels but depth {depth.shape[0]}x{depth.shape[1]}"
+            )
+        clean = self.clean_depth
+        if clean is not None and (not isinstance(clean, np.ndarray) or clean.shape != depth.shape):
+            raise ValueError(
+                f"Frame.clean_depth: expected an array of the depth's shape {depth.shape}, "
+                f"got {getattr(clean, 'shape', type(clean).__name__)}"
             )
 
 

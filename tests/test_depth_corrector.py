@@ -137,3 +137,23 @@ def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path):
     more = CorrectorTraining(**{**cfg.__dict__, "epochs": 3})
     assert run(more, device=torch.device("cpu"), hours=None, execution=SERIAL, **{**kw, "export": tmp_path / "m3.pt"})
     assert load_model(tmp_path / "m3.pt")[2]["training"]["epochs_done"] == 3  # resumed: one more epoch
+
+
+def test_noiseless_depth_is_an_oracle_that_gives_its_inner_odometer_the_simulators_depth(episode):
+    from odolab.api import Frame
+
+    odo = load_odometer("noiseless-depth(icp)")
+    assert odo.oracle is True and load_odometer("icp").oracle is False
+    inner = load_odometer("icp")
+    for o in (odo, inner):
+        o.reset(episode.intrinsics)
+    frames = [episode[i] for i in range(len(episode))]
+    assert all(f.clean_depth is not None and f.clean_depth.shape == f.depth.shape for f in frames)
+    assert any(not np.array_equal(f.clean_depth, f.depth) for f in frames)  # the noise is there to remove
+    clean = [Frame(f.rgb, f.clean_depth, f.timestamp, f.gt_pose) for f in frames]
+    for i in range(len(frames) - 1):
+        a = odo.step(frames[i], frames[i + 1], episode.action(i))
+        b = inner.step(clean[i], clean[i + 1], episode.action(i))
+        assert a.valid == b.valid and np.array_equal(a.transform, b.transform)
+    with pytest.raises(ValueError, match="noiseless-depth: this frame has no noiseless depth"):
+        odo.step(clean[0], clean[1], episode.action(0))

@@ -115,3 +115,15 @@ def test_a_read_only_cache_holding_every_episode_is_read(tmp_path, tiny, monkeyp
     monkeypatch.setattr(atomic.tempfile, "mkstemp", read_only)  # no file can be made there
     (back,) = stream_episodes([spec], EpisodeCache(tmp_path), execution=SERIAL)
     assert np.array_equal(back.rgb, episode.rgb) and capsys.readouterr().err == ""
+
+
+def test_the_noiseless_depth_goes_through_the_cache_and_reaches_frames_in_metres(tmp_path, tiny):
+    spec, episode = tiny
+    assert episode.clean_depth_mm is not None and episode.clean_depth_mm.dtype == np.uint16
+    cache = EpisodeCache(tmp_path / "cache")
+    cache.put(episode)
+    back = cache.get(spec)
+    assert np.array_equal(back.clean_depth_mm, episode.clean_depth_mm)
+    frame = back[1]
+    assert frame.clean_depth.dtype == np.float32
+    assert np.array_equal(frame.clean_depth, episode.clean_depth_mm[1] * np.float32(0.001))
