@@ -87,6 +87,11 @@ class PairDataset:
                     f"{cache.root}; generate it first"
                 )
             path = cache.path(spec)
+            if not path.is_file():  # kept in memory only: the cache could not be written
+                raise ValueError(
+                    f"episode {spec.split}-s{spec.seed}-e{spec.index:03d}: no file {path} (the cache "
+                    f"{cache.root} could not be written); free space or choose a writable cache"
+                )
             with np.load(path, allow_pickle=False) as z:
                 counts.append(len(z["actions"]))
             self.paths.append(path)

@@ -18,7 +18,7 @@ from odolab.cli.args import (
     MAX_SEED,
     ArgumentParser,
     UsageError,
-    check_output_dir,
+    check_cache_dir,
     check_output_file,
     check_ray_option,
     execution_of,
@@ -152,7 +152,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except OSError as exc:
             raise UsageError(f"--out {args.out}: cannot make its folder ({exc.strerror or exc})") from None
         check_output_file(args.out, "--out", suffixes=[".json"])
-    check_output_dir(args.cache, "--cache")
+    check_cache_dir(args.cache, "--cache")  # a read-only cache is read
     try:
         odometers = load_odometers(names)
     except ComparisonError as exc:
