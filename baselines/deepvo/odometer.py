@@ -26,6 +26,9 @@ from odolab.learning import checkpoints, pick_device, resize_frame
 
 KIND = "odolab-deepvo"
 SHIPPED = Path(__file__).resolve().parent / "deepvo.pt"
+#: The SHA-256 of the shipped file's bytes, which it must match: it was written before model files
+#: carried a checksum inside (re-saving it would change every saved result keyed by its digest).
+SHIPPED_SHA256 = "bf1be1d02f97fe2d93ab6aa632c3e5d05900af6d555720ae33854f5ae3acd19a"
 
 
 def save_model(path, cfg: DeepVOTraining, net: DeepVONet, training: dict) -> None:
@@ -35,8 +38,11 @@ def save_model(path, cfg: DeepVOTraining, net: DeepVONet, training: dict) -> Non
 
 def load_model(path) -> tuple[DeepVOModel, DeepVONet, dict]:
     """(model config, network in eval mode, the checkpoint's recipe and training info), read with
-    ``weights_only=True``; :class:`~odolab.learning.CheckpointError` names the file and problem."""
-    cfg, nets, info = checkpoints.load_model(path, KIND, DeepVOModel, lambda c: {"deepvo": DeepVONet(c)})
+    ``weights_only=True``; :class:`~odolab.learning.CheckpointError` names the file and problem (a
+    damaged file: contents that do not match its checksum, or the shipped model's :data:`SHIPPED_SHA256`)."""
+    cfg, nets, info = checkpoints.load_model(
+        path, KIND, DeepVOModel, lambda c: {"deepvo": DeepVONet(c)}, checkpoints.Shipped(SHIPPED, SHIPPED_SHA256)
+    )
     return cfg, nets["deepvo"], info
 
 

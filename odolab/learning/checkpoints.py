@@ -1,6 +1,13 @@
 """Checkpoints as plain data: ``{"format": ..., "kind": ..., ...}`` of tensors, numbers, strings,
 lists and dicts, written atomically and read with ``torch.load(weights_only=True)`` (no pickled code
-is ever executed)."""
+is ever executed).
+
+Every checkpoint carries a SHA-256 of its contents (:data:`CHECKSUM_KEY`: every tensor's dtype,
+shape and bytes and every other value, in a fixed key order; :func:`content_digest`), checked
+when it is read: a flipped bit in a weight is refused in one line naming the file
+(:class:`CheckpointError`), never run. A file written before checksums were kept is read with a
+one-line note on stderr; the shipped models, written before, are checked against the SHA-256 of
+their bytes instead (:class:`Shipped`)."""
 
 from __future__ import annotations
 
@@ -8,7 +15,9 @@ import hashlib
 import io
 import os
 import pickle
+import sys
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,17 +30,113 @@ class CheckpointError(ValueError):
     """A file that is not a checkpoint of the expected kind and format (the message names it)."""
 
 
+#: The entry of a checkpoint that holds the SHA-256 (hex) of the rest of its contents.
+CHECKSUM_KEY = "content_sha256"
+
+
+@dataclass(frozen=True)
+class Shipped:
+    """A model file shipped with odolab before checksums were kept inside files: where it lies and
+    the SHA-256 (hex) of its bytes, which it must match when read from there."""
+
+    path: Path
+    sha256: str
+
+
+def _order(key: Any) -> tuple[str, str]:
+    """A sort key for a dict's keys of any plain type (optimiser states have integer keys)."""
+    return type(key).__name__, str(key)
+
+
+def _feed(h: Any, value: Any) -> None:
+    """Add ``value`` (tensors, dicts, lists, tuples, numbers, strings, None) to hash ``h``, each
+    part tagged with its type and length so that no two different documents feed the same bytes."""
+    if isinstance(value, torch.Tensor):
+        t = value.detach().cpu().contiguous()
+        h.update(f"T{t.dtype}{tuple(t.shape)}:".encode())
+        if t.numel():
+            h.update(t.reshape(-1).view(torch.uint8).numpy())
+    elif isinstance(value, dict):
+        h.update(f"D{len(value)}:".encode())
+        for key in sorted(value, key=_order):
+            _feed(h, key)
+            _feed(h, value[key])
+    elif isinstance(value, (list, tuple)):
+        h.update(f"{'L' if isinstance(value, list) else 'U'}{len(value)}:".encode())
+        for item in value:
+            _feed(h, item)
+    elif isinstance(value, str):
+        data = value.encode("utf-8", "surrogatepass")
+        h.update(f"S{len(data)}:".encode() + data)
+    elif isinstance(value, float):
+        h.update(f"F{value.hex()};".encode())
+    elif value is None or isinstance(value, (bool, int)):
+        h.update(f"{type(value).__name__}{value!r};".encode())
+    else:  # a torch.dtype, a device...: what weights_only loading accepts besides the above
+        text = repr(value).encode("utf-8", "surrogatepass")
+        h.update(f"O{type(value).__qualname__}{len(text)}:".encode() + text)
+
+
+def content_digest(doc: dict[str, Any]) -> str:
+    """The SHA-256 (hex) of a checkpoint's contents, its :data:`CHECKSUM_KEY` entry left out: the
+    same for the document saved and the one read back, whatever the order of its keys."""
+    h = hashlib.sha256()
+    _feed(h, {k: v for k, v in doc.items() if k != CHECKSUM_KEY})
+    return h.hexdigest()
+
+
 def save_checkpoint(path: str | os.PathLike, kind: str, format: int, doc: dict[str, Any]) -> None:
-    """Write ``doc`` (plain data and tensors) tagged with ``kind`` and ``format``, atomically."""
+    """Write ``doc`` (plain data and tensors) tagged with ``kind``, ``format`` and the checksum of it
+    all (:func:`content_digest`; one already in ``doc`` is replaced), atomically."""
+    full = {"kind": kind, "format": format, **{k: v for k, v in doc.items() if k != CHECKSUM_KEY}}
+    full[CHECKSUM_KEY] = content_digest(full)
     buffer = io.BytesIO()
-    torch.save({"kind": kind, "format": format, **doc}, buffer)
+    torch.save(full, buffer)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     write_bytes_atomic(path, buffer.getvalue())
 
 
-def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str, Any]:
+def check_checksum(
+    path: str | os.PathLike, doc: dict[str, Any], shipped: Shipped | None = None, file_sha256: str | None = None
+) -> None:
+    """Refuse (:class:`CheckpointError`, one line naming the file) a checkpoint whose contents do not
+    match the checksum stored in it. One without a checksum (written before they were kept) is
+    read with a one-line note on stderr, unless it is the ``shipped`` file (or a copy of it: the
+    SHA-256 of its bytes, ``file_sha256``, is the shipped one's): then its bytes must match."""
+    stored = doc.get(CHECKSUM_KEY)
+    if stored is not None:
+        if not isinstance(stored, str) or stored != content_digest(doc):
+            raise CheckpointError(
+                f"{path}: damaged: its contents do not match the checksum stored in it (a changed bit, or "
+                "a file edited by hand); use an intact copy, or train or export it again"
+            )
+        return
+    if shipped is not None and file_sha256 == shipped.sha256:
+        return  # the shipped file, byte for byte (here or copied elsewhere)
+    if shipped is not None and _same_file(path, shipped.path):
+        raise CheckpointError(
+            f"{path}: damaged: the shipped model's bytes do not match its SHA-256 ({shipped.sha256[:16]}...); "
+            "restore it (git checkout, or reinstall odolab)"
+        )
+    print(
+        f"note: {path}: written before odolab kept checksums in its files, so damage to it cannot be "
+        "detected; save it again (train or export) to add one",
+        file=sys.stderr,
+    )
+
+
+def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether ``a`` and ``b`` are one file (links and hard links followed; False when one is missing)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def load_checkpoint(path: str | os.PathLike, kind: str, format: int, *, verify: bool = True) -> dict[str, Any]:
     """Read a checkpoint written by :func:`save_checkpoint`; :class:`CheckpointError` names the file
-    and what is wrong (missing, unreadable, unsafe content, another kind or format)."""
+    and what is wrong (missing, unreadable, unsafe content, another kind or format, or, with
+    ``verify``, contents that do not match its checksum: :func:`check_checksum`)."""
     if os.path.isdir(path):
         raise CheckpointError(f"{path}: is a folder, not a checkpoint file")
     if not os.path.isfile(path):
@@ -54,6 +159,8 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int) -> dict[str
         raise CheckpointError(
             f"{path}: {kind} checkpoint of format {doc.get('format')!r}; this odolab reads format {format}"
         )
+    if verify:
+        check_checksum(path, doc)
     return doc
 
 
@@ -167,14 +274,19 @@ def save_model(
 
 
 def load_model(
-    path: str | os.PathLike, kind: str, model_cls: type, build: Callable[[Any], dict[str, torch.nn.Module]]
+    path: str | os.PathLike,
+    kind: str,
+    model_cls: type,
+    build: Callable[[Any], dict[str, torch.nn.Module]],
+    shipped: Shipped | None = None,
 ) -> tuple[Any, dict[str, torch.nn.Module], dict]:
     """Read a model file of ``kind``: (``model_cls`` config, networks built by ``build(config)`` with
     their weights, in eval mode, ``{"recipe": ..., "training": ..., "sha256": file digest}``). :class:`CheckpointError`
-    names the file when it is not such a file or its weights do not fit its config."""
+    names the file when it is not such a file, its weights do not fit its config or its contents
+    do not match its checksum (:func:`check_checksum`; ``shipped``: the model shipped with odolab)."""
     from odolab.config import build as build_config
 
-    doc = load_checkpoint(path, kind, MODEL_FORMAT)
+    doc = load_checkpoint(path, kind, MODEL_FORMAT, verify=False)  # checked below, once it reads as a model
     try:
         cfg = build_config(model_cls, doc["model"], f"{path}: model")
         nets = build(cfg)
@@ -194,6 +306,7 @@ def load_model(
         said = " ".join(lines[:2]) if lines[0].endswith(":") and len(lines) > 1 else lines[0]
         raise CheckpointError(f"{path}: the weights do not fit the {kind} config ({said})") from None
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()  # which weights, for results kept per model
+    check_checksum(path, doc, shipped, digest)
     return cfg, nets, {"recipe": doc.get("recipe", {}), "training": doc.get("training", {}), "sha256": digest}
 
 
