@@ -22,6 +22,7 @@ __all__ = [
     "evaluate_trajectory",
     "evaluation_to_dict",
     "pair_trajectories",
+    "stamps_are_steps",
     "time_coverage",
 ]
 
@@ -62,7 +63,11 @@ class Evaluation:
     est_poses: np.ndarray
     """Paired estimated poses after the alignment (K, 4, 4), in the ground-truth world frame."""
     times: np.ndarray | None
-    """Seconds since the first paired ground-truth pose (K,), or None for index pairing."""
+    """Seconds since the first paired ground-truth pose (K,), or None for index pairing; steps
+    instead of seconds when ``step_stamps``."""
+    step_stamps: bool = False
+    """Whether the ground truth's timestamps count steps (0, 1, 2, ...: the TUM files odolab writes
+    for simulated episodes, which have no clock) rather than seconds."""
 
 
 def pair_trajectories(gt: Trajectory, est: Trajectory, method: str, max_diff: float = 0.01) -> Pairing:
@@ -94,6 +99,14 @@ def pair_trajectories(gt: Trajectory, est: Trajectory, method: str, max_diff: fl
     largest = float(np.max(np.abs(gt.timestamps[idx_gt] - est.timestamps[idx_est])))
     coverage = time_coverage(gt.timestamps, est.timestamps[idx_est], max_diff)
     return Pairing("timestamp", idx_gt, idx_est, len(gt), len(est), coverage, max_diff, largest)
+
+
+def stamps_are_steps(stamps: np.ndarray | None) -> bool:
+    """Whether timestamps are step indices 0, 1, 2, ... (as odolab writes a simulated episode's
+    trajectory, which has no clock) rather than seconds; False for None (no timestamps)."""
+    if stamps is None or len(stamps) < 2:
+        return False
+    return bool(np.array_equal(np.asarray(stamps, dtype=np.float64), np.arange(len(stamps), dtype=np.float64)))
 
 
 def time_coverage(t_gt: np.ndarray, t_paired: np.ndarray, max_diff: float) -> float:
@@ -132,7 +145,7 @@ def evaluate_trajectory(
     rpe = metrics.rpe(G, P_aligned, delta, delta_unit)
     kitti = metrics.kitti_relative_errors(G, P_aligned)
     times = None if gt.timestamps is None else gt.timestamps[pairing.idx_gt] - gt.timestamps[pairing.idx_gt[0]]
-    return Evaluation(pairing, result, rpe, kitti, G, P_aligned, times)
+    return Evaluation(pairing, result, rpe, kitti, G, P_aligned, times, stamps_are_steps(gt.timestamps))
 
 
 def _num(x: float) -> float | None:

@@ -13,7 +13,7 @@ from odolab.io.atomic import save_figure_atomic
 if TYPE_CHECKING:
     from odolab.evaluation import Evaluation
 
-__all__ = ["IMAGE_SUFFIXES", "plot_evaluations", "top_down_axes"]
+__all__ = ["IMAGE_SUFFIXES", "plot_evaluations", "time_axis_label", "top_down_axes"]
 
 #: Image types :func:`plot_evaluations` writes (matplotlib's Agg backend and Pillow), by extension.
 IMAGE_SUFFIXES = ("png", "pdf", "svg", "jpg", "jpeg", "eps", "ps", "tif", "tiff", "webp")
@@ -31,11 +31,21 @@ def top_down_axes(positions: np.ndarray) -> tuple[int, int]:
     return a, b
 
 
+def time_axis_label(ev: Evaluation) -> str:
+    """What the x axis of an error-over-time panel counts: seconds, steps (timestamps 0, 1, 2, ...:
+    a simulated episode's), or the pose's line in the file (KITTI files have no timestamps)."""
+    if ev.times is None:
+        return "pose index (line of the file; KITTI files have no timestamps)"
+    if ev.step_stamps:
+        return "step (the files' timestamps count steps: 0, 1, 2, ...)"
+    return "time [s]"
+
+
 def plot_evaluations(path: str | os.PathLike, rows: Sequence[tuple[str, Evaluation]]) -> None:
     """Write one figure for ``(label, evaluation)`` rows sharing a ground truth.
 
     Panels: aligned estimates over the ground truth, top-down (m); position error (m) over time
-    (s) or frame index; KITTI translational drift (%) per segment length, or, when no segment
+    (s), step or pose index (:func:`time_axis_label`); KITTI translational drift (%) per segment length, or, when no segment
     fits (short trajectories), the RPE translation (m) over time. The image format follows the
     file extension; the file is replaced atomically.
     """
@@ -49,7 +59,7 @@ def plot_evaluations(path: str | os.PathLike, rows: Sequence[tuple[str, Evaluati
     a, b = top_down_axes(gt_pos)
     ax_traj.plot(gt_pos[:, a], gt_pos[:, b], "k--", lw=1.2, label="ground truth")
     has_segments = any(ev.kitti.n_segments for _, ev in rows)
-    xlabel = "time [s]" if rows[0][1].times is not None else "frame"
+    xlabel = time_axis_label(rows[0][1])
     for name, ev in rows:
         pos = ev.est_poses[:, :3, 3]
         x = ev.times if ev.times is not None else np.arange(len(pos))

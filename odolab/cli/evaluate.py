@@ -195,10 +195,33 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
     return "\n".join(head + [text_table(cols, body)])
 
 
+def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether paths ``a`` and ``b`` name one file: the same real path (links resolved), or, both
+    existing, the same file by device and inode (hard links)."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return False
+
+
+def _check_plot_is_no_input(plot: str | os.PathLike, gt: str, estimates: Sequence[str]) -> None:
+    """:class:`UsageError` when ``--plot`` names the ground truth or an estimate (directly or
+    through a link), which the figure would replace; checked before any work."""
+    for role, path in [("the ground truth", gt), *(("an estimate", p) for p in estimates)]:
+        if _same_file(plot, path):
+            raise UsageError(
+                f"--plot {plot}: expected a new image file, found {role} ({path}), which the figure would "
+                "replace; give --plot another path"
+            )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; see the module docstring."""
     args = _parser().parse_args(argv)
     if args.plot:
+        _check_plot_is_no_input(args.plot, args.gt, args.est)
         check_output_file(args.plot, "--plot", IMAGE_SUFFIXES)
     if args.delta <= 0:
         raise UsageError(f"--delta must be positive, got {args.delta:g}")
