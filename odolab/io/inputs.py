@@ -20,6 +20,39 @@ def missing(path: str | os.PathLike, what: str = "file") -> str:
     return f"no such {what}"
 
 
+def special_kind(mode: int) -> str | None:
+    """What an ``os.stat`` mode that is neither a regular file nor a folder is, in words ("a named
+    pipe (FIFO)", "a character device"...); None for a regular file or a folder."""
+    for test, words in (
+        (stat.S_ISFIFO, "a named pipe (FIFO)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return words
+    return None if stat.S_ISREG(mode) or stat.S_ISDIR(mode) else "not a regular file"
+
+
+def not_regular(path: str | os.PathLike, what: str = "file") -> str | None:
+    """Why ``path`` is not (a link to) a regular file, in words after its name, e.g. ``no such file``,
+    ``is a folder, not a regular file``, ``is a named pipe (FIFO), not a regular file``, ``is a link
+    to /dev/zero, a character device, not a regular file``; None for a regular file. Only looked
+    at (``stat``), never opened: reading a pipe would block, a device may never end."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return missing(path, what)
+    except OSError as exc:  # a link loop, a name too long, no permission on a folder on the way
+        return f"cannot be read ({(exc.strerror or str(exc)).lower()})"
+    if stat.S_ISREG(mode):
+        return None
+    kind = "a folder" if stat.S_ISDIR(mode) else special_kind(mode)
+    if os.path.islink(path):
+        return f"is a link to {os.readlink(path)}, {kind}, not a regular file"
+    return f"is {kind}, not a regular file"
+
+
 def check_regular_file(path: str | os.PathLike, what: str = "file") -> None:
     """Raise ``ValueError("<path>: ...")`` unless ``path`` is (a link to) a regular file: missing
     ("no such <what>"), a folder, a pipe, a device or a socket."""

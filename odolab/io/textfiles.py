@@ -8,12 +8,14 @@ import os
 import numpy as np
 
 from odolab.io.errors import FileFormatError
-from odolab.io.inputs import missing
+from odolab.io.inputs import missing, special_kind
 
 
 def read_lines(path: str | os.PathLike) -> list[str]:
     """All lines of a UTF-8 text file (a byte-order mark at its start is dropped); OS and decoding
-    problems become :class:`FileFormatError`."""
+    problems become :class:`FileFormatError`, as does a pipe or a device (e.g. a link to
+    ``/dev/zero``), which is never opened: reading it would block or never end."""
+    _refuse_special(path)
     try:
         with open(path, encoding="utf-8-sig") as f:
             return f.read().splitlines()
@@ -25,6 +27,18 @@ def read_lines(path: str | os.PathLike) -> list[str]:
         raise FileFormatError(path, None, f"not a text file ({exc.reason})") from None
     except OSError as exc:
         raise FileFormatError(path, None, (exc.strerror or str(exc)).lower()) from None
+
+
+def _refuse_special(path: str | os.PathLike) -> None:
+    """:class:`FileFormatError` when ``path`` is (a link to) a pipe, device or socket (found by
+    ``stat``, without opening it); a missing path or a folder is left to ``open`` to report."""
+    try:
+        kind = special_kind(os.stat(path).st_mode)
+    except OSError:
+        return
+    if kind is not None:
+        link = f"a link to {os.readlink(path)}, " if os.path.islink(path) else ""
+        raise FileFormatError(path, None, f"is {link}{kind}, not a regular file")
 
 
 def read_numeric_rows(path: str | os.PathLike, n_cols: int, layout: str) -> tuple[np.ndarray, np.ndarray]:

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from odolab.io.errors import FileFormatError
+from odolab.io.inputs import not_regular
 from odolab.io.textfiles import read_lines
 from odolab.io.tum import associate, read_tum_trajectory
 from odolab.trajectory import Trajectory
@@ -353,8 +354,9 @@ def _read_list(path: Path) -> list[_Listed]:
         if os.path.isabs(fields[1]) or os.path.normpath(fields[1]).split(os.sep)[0] == "..":
             raise FileFormatError(path, no, f"{fields[1]}: outside the sequence folder (paths must be relative to it)")
         image = path.parent / fields[1]
-        if not image.is_file():
-            raise FileFormatError(path, no, f"{fields[1]}: no such file")
+        problem = not_regular(image)  # only looked at: a pipe would block, /dev/zero never end
+        if problem is not None:
+            raise FileFormatError(path, no, f"{fields[1]}: {problem}")
         entries.append(_Listed(stamp, image, path, no))
     if not entries:
         raise FileFormatError(path, None, "lists no images (empty or only comments)")
