@@ -18,6 +18,7 @@ Heavy imports happen when an odometer is loaded, not when :mod:`odolab` is impor
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import importlib
@@ -28,6 +29,7 @@ import re
 import sys
 from collections.abc import Callable, Iterator
 from importlib.metadata import entry_points
+from typing import Any
 
 import numpy as np
 
@@ -46,6 +48,7 @@ __all__ = [
     "UnknownOdometerError",
     "available_odometers",
     "load_odometer",
+    "own_copy",
     "register_odometer",
 ]
 
@@ -113,8 +116,23 @@ class Odometer:
     def step_batch(self, pairs: list[tuple[Frame, Frame, Action | None]]) -> list[Estimate]:
         """Estimates for consecutive ``(prev, cur, action)`` pairs, in order (default: :meth:`step`
         on each). Override it to batch the work (e.g. one network forward pass) and set
-        ``batch_size``; it must return exactly one :class:`Estimate` per pair."""
-        return [self.step(prev, cur, action) for prev, cur, action in pairs]
+        ``batch_size``; it must return exactly one :class:`Estimate` per pair. Each step's answer is
+        copied as it returns (:func:`own_copy`), so a ``step`` that reuses one output array does not
+        change the answers before it."""
+        return [own_copy(self.step(prev, cur, action)) for prev, cur, action in pairs]
+
+
+def own_copy(answer: Any) -> Any:
+    """An :class:`Estimate` with its own copies of ``transform`` and ``covariance`` (same dtype and
+    values), so that the odometer that made it can no longer change it; anything else (not an
+    Estimate, or one whose arrays cannot be copied) is returned as it is, for the runner's checks."""
+    if not isinstance(answer, Estimate):
+        return answer
+    try:
+        covariance = None if answer.covariance is None else np.array(answer.covariance, copy=True)
+        return dataclasses.replace(answer, transform=np.array(answer.transform, copy=True), covariance=covariance)
+    except Exception:  # noqa: BLE001 - e.g. a tensor on a GPU: the runner's checks say what is wrong with it
+        return answer
 
 
 def _actions_checked_step(step: Callable) -> Callable:

@@ -16,25 +16,48 @@ records the failure, and goes on. The substituted motion is what gets scored and
 it is what a robot would have used; the odometer's own answers are kept in ``raw`` (covariances
 included) for fusion and for scoring raw estimates.
 
+What a step returns is copied at the step (transform and covariance), so an odometer that reuses
+one output array, or changes an answer afterwards, cannot change what was recorded.
+
+Attributes the runner reads (``oracle``, ``batch_size``, ``threads``) are read once per sequence
+inside a guard: one that raises or holds an unusable value (``batch_size = nan``) fails every step
+of that sequence (``bad-attribute``), with one line naming it in ``errors``.
+
+Time limit: with ``step_timeout`` (s, :data:`DEFAULT_STEP_TIMEOUT` unless told otherwise) the
+odometer's ``reset`` and ``step_batch`` calls run in a worker thread (a daemon) and the runner waits
+at most ``step_timeout`` per pair; a call past it fails its steps (``timed-out``). Python cannot stop
+a thread, so the call is abandoned, not killed: it may go on in the background until it returns
+(or the process ends), and the next call gets a fresh worker. After
+:data:`MAX_TIMEOUTS_IN_A_ROW` timed-out calls in a row the odometer is stopped for the rest of the
+sequence (its remaining steps fail as ``timed-out`` without being asked). ``reset`` and the steps of
+one sequence share one thread, so thread-local state an odometer sets in ``reset`` holds in its
+steps. A ``step_batch`` that yields without end is read for at most one item more than it was given
+pairs (``batch-length``). ``step_timeout=None`` runs every call in the calling thread, unlimited.
+
 Timing: the wall time of a ``step_batch`` call divided by the number of pairs it answered is each
-pair's ``step_seconds``; frame copies and checks are outside the timed region.
+pair's ``step_seconds``, measured in the thread that makes the call; frame copies, answer copies
+and checks are outside the timed region. A timed-out call counts the time waited.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import math
+import queue
+import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from odolab.action_prior import ActionPrior
 from odolab.geometry import integrate, invert, planar_to_transform
-from odolab.odometer import Odometer
-from odolab.threads import odometer_threads
+from odolab.odometer import Odometer, own_copy
+from odolab.threads import MAX_THREADS, torch_threads
 from odolab.types import Action, Estimate, Frame, Sequence
 
 NO_ACTION = -1
@@ -44,18 +67,29 @@ NO_ACTION = -1
 MAX_STEP_TRANSLATION = 100.0
 #: Largest entry of ``|R^T R - I|`` and ``|det R - 1|`` accepted for a rotation block.
 ROTATION_TOLERANCE = 1e-3
+#: Seconds one step (one pair; a batch gets this per pair) may take before it counts as failed
+#: (``timed-out``): generous, as the slowest odometer here takes well under a second per step.
+DEFAULT_STEP_TIMEOUT = 60.0
+#: Timed-out calls in a row after which an odometer is stopped for the rest of its sequence.
+MAX_TIMEOUTS_IN_A_ROW = 3
+#: The largest ``batch_size`` an odometer may declare (far above any sequence here).
+MAX_BATCH_SIZE = 1_000_000
+#: The :class:`Frame` fields only oracle odometers see (removed for the others, :func:`guarded_frame`).
+ORACLE_ONLY_FIELDS = ("gt_pose",)
 
 #: Why a step failed, as counted in :attr:`SequenceResult.failure_reasons`.
 FAILURE_REASONS = {
     "raised": "step or step_batch raised an exception",
     "reset-raised": "reset(intrinsics) raised, so no step of the sequence was tried",
+    "bad-attribute": "an attribute the runner reads (oracle, batch_size, threads) raised or is unusable",
+    "timed-out": "the step took longer than the step time limit, or its odometer was stopped after timing out",
     "not-valid": "the odometer returned valid=False",
     "bad-shape": "Estimate.transform is not 4x4",
     "non-finite": "the transform has NaN or inf entries",
     "bad-bottom-row": "the transform's bottom row is not [0, 0, 0, 1]",
     "not-a-rotation": "the rotation block is not a rotation (reflection, scale, shear)",
     "absurd-translation": f"the translation is longer than {MAX_STEP_TRANSLATION:g} m",
-    "batch-length": "step_batch returned a different number of estimates than pairs",
+    "batch-length": "step_batch returned (or kept yielding) a different number of estimates than pairs",
 }
 
 
@@ -67,10 +101,13 @@ class SequenceResult:
     ones or None; ``poses`` (N + 1, 4, 4) integrated ``T_world_cam``, starting at the true first pose
     (identity without ground truth); ``gt_poses`` likewise or None. ``actions`` (N,) int8 Action
     values, -1 when unknown. ``valid`` (N,) False where the step failed; ``step_seconds`` (N,) wall
-    time per step (a batch's time shared equally by its pairs). ``errors``: messages of the first
-    few exceptions. ``raw`` (N,): the odometer's own :class:`Estimate` of each step as returned
-    (covariance included), None where it raised or never ran. ``failure_reasons``: failed steps
-    per reason (keys of :data:`FAILURE_REASONS`).
+    time per step (a batch's time shared equally by its pairs; 0 for a step never asked). ``asked``
+    (N,) bool: the odometer was asked for the step (False after a failed reset, a bad attribute or
+    being stopped; None: not recorded, every step counts as asked). ``errors``: messages of the
+    first few exceptions. ``raw`` (N,): a copy of the odometer's own :class:`Estimate` of each step
+    (covariance included), None where it raised or never ran. ``failure_reasons``: failed steps per
+    reason (keys of :data:`FAILURE_REASONS`). ``empty_depth``: frames read whose every depth pixel
+    is 0 (no reading at all).
     """
 
     odometer: str
@@ -88,6 +125,8 @@ class SequenceResult:
     errors: list[str] = field(default_factory=list)
     raw: tuple[Estimate | None, ...] = ()
     failure_reasons: dict[str, int] = field(default_factory=dict)
+    asked: np.ndarray | None = None
+    empty_depth: int = 0
 
     @property
     def failures(self) -> int:
@@ -137,32 +176,149 @@ def _read_only(a: np.ndarray | None) -> np.ndarray | None:
     return out
 
 
+def _oracle_fields(frame: Frame, oracle: bool) -> dict[str, np.ndarray | None]:
+    """The oracle-only fields of ``frame`` (:data:`ORACLE_ONLY_FIELDS`) as one odometer gets them:
+    read-only copies for an oracle, None (removed) for any other."""
+    return {name: _read_only(getattr(frame, name)) if oracle else None for name in ORACLE_ONLY_FIELDS}
+
+
 def guarded_frame(frame: Frame, oracle: bool) -> Frame:
-    """The frame as one odometer sees it: read-only private arrays, ``gt_pose`` only for oracles."""
+    """The frame as one odometer sees it: read-only private arrays, ground truth only for oracles."""
     return dataclasses.replace(
-        frame,
-        rgb=_read_only(frame.rgb),
-        depth=_read_only(frame.depth),
-        gt_pose=_read_only(frame.gt_pose) if oracle else None,
+        frame, rgb=_read_only(frame.rgb), depth=_read_only(frame.depth), **_oracle_fields(frame, oracle)
     )
 
 
-def _step_chunks(odometer: Odometer, seq: Sequence, oracle: bool, n: int, stamps: list[float]):
-    """``(first index, [(prev, cur, action), ...])`` chunks of ``odometer.batch_size`` pairs;
-    appends each frame's timestamp to ``stamps`` as it is read."""
-    size = max(1, int(odometer.batch_size))
-    prev = guarded_frame(seq[0], oracle)
-    stamps.append(prev.timestamp)
-    chunk: list[tuple[Frame, Frame, Action | None]] = []
-    first = 0
-    for i in range(n):
-        cur = guarded_frame(seq[i + 1], oracle)
-        stamps.append(cur.timestamp)
-        chunk.append((prev, cur, seq.action(i)))
-        prev = cur
-        if len(chunk) == size or i == n - 1:
-            yield first, chunk
-            first, chunk = i + 1, []
+def has_no_depth(frame: Frame) -> bool:
+    """Whether every depth pixel of ``frame`` is 0 (no reading anywhere in the image)."""
+    return not np.any(frame.depth)
+
+
+@dataclass(frozen=True)
+class Attributes:
+    """What the runner reads from an odometer, checked: ``oracle``, ``batch_size`` (pairs per
+    ``step_batch`` call) and ``threads`` (torch threads, or None)."""
+
+    oracle: bool
+    batch_size: int
+    threads: int | None
+
+
+class AttributeProblem(ValueError):
+    """An odometer attribute the runner reads raised or holds a value it cannot use; the message is
+    one line naming the attribute, what was expected and what was got."""
+
+
+def _attribute(odometer: Odometer, name: str) -> Any:
+    """``odometer.<name>``; :class:`AttributeProblem` when reading it raises."""
+    try:
+        return getattr(odometer, name)
+    except Exception as exc:  # noqa: BLE001 - a property of a plug-in may raise anything
+        raise AttributeProblem(f"reading {name} raised {type(exc).__name__}: {exc}") from None
+
+
+def _whole(name: str, value: Any, lo: int, hi: int) -> int:
+    """``value`` as an int in [lo, hi] (an integral float such as 4.0 too); :class:`AttributeProblem` otherwise."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise AttributeProblem(f"{name} must be a whole number in [{lo}, {hi}], got {value!r}")
+    if not (math.isfinite(value) and float(value).is_integer() and lo <= value <= hi):
+        raise AttributeProblem(f"{name} must be a whole number in [{lo}, {hi}], got {value!r}")
+    return int(value)
+
+
+def read_attributes(odometer: Odometer) -> Attributes:
+    """``oracle`` (a bool, or 0 / 1), ``batch_size`` (a whole number >= 1) and ``threads`` (None or a
+    whole number in [1, MAX_THREADS]) of ``odometer``, each read once; :class:`AttributeProblem`."""
+    oracle = _attribute(odometer, "oracle")
+    if not isinstance(oracle, (bool, np.bool_)) and not (isinstance(oracle, (int, np.integer)) and oracle in (0, 1)):
+        raise AttributeProblem(f"oracle must be True or False, got {oracle!r}")
+    threads = _attribute(odometer, "threads")
+    return Attributes(
+        oracle=bool(oracle),
+        batch_size=_whole("batch_size", _attribute(odometer, "batch_size"), 1, MAX_BATCH_SIZE),
+        threads=None if threads is None else _whole("threads", threads, 1, MAX_THREADS),
+    )
+
+
+@dataclass
+class _Call:
+    """One call made for the runner: its result or exception and its wall time (s)."""
+
+    fn: Callable[[], Any]
+    done: threading.Event = field(default_factory=threading.Event)
+    value: Any = None
+    error: BaseException | None = None
+    seconds: float = 0.0
+
+    def make(self) -> None:
+        """Run ``fn`` once, timed, keeping its value or the exception it raised."""
+        t0 = time.perf_counter()
+        try:
+            self.value = self.fn()
+        except BaseException as exc:  # noqa: BLE001 - handed to the runner's thread, which decides
+            self.error = exc
+        self.seconds = time.perf_counter() - t0
+        self.done.set()
+
+
+class _Worker:
+    """A daemon thread that makes the calls it is handed, one at a time, until :meth:`close`."""
+
+    def __init__(self, name: str) -> None:
+        self._calls: queue.SimpleQueue[_Call | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._serve, name=f"odolab runner: {name}", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while (call := self._calls.get()) is not None:
+            call.make()
+
+    def submit(self, call: _Call) -> None:
+        self._calls.put(call)
+
+    def close(self) -> None:
+        """Let the thread end once its current call (if any) returns."""
+        self._calls.put(None)
+
+
+class _Caller:
+    """Makes an odometer's calls with a time limit (see the module docstring): in a worker thread
+    when ``timeout`` (s per pair) is set, replaced after a call it stopped waiting for; else in the
+    calling thread. :meth:`close` lets the worker go."""
+
+    def __init__(self, name: str, timeout: float | None) -> None:
+        self.name, self.timeout = name, timeout
+        self._worker: _Worker | None = None
+
+    def close(self) -> None:
+        """Let the worker thread end (once its current call, if any, returns)."""
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
+
+    def call(self, fn: Callable[[], Any], pairs: int = 1) -> _Call | None:
+        """``fn`` made and timed; None when it ran past ``timeout * pairs`` s (abandoned).
+        An exception other than ``Exception`` or ``SystemExit`` (e.g. ``KeyboardInterrupt``) is raised here."""
+        call = _Call(fn)
+        if self.timeout is None:
+            call.make()
+        else:
+            if self._worker is None:
+                self._worker = _Worker(self.name)
+            self._worker.submit(call)
+            if not call.done.wait(self.timeout * pairs):
+                self._worker.close()  # still busy with the call; it ends when (if) the call returns
+                self._worker = None
+                return None
+        if call.error is not None and not isinstance(call.error, (Exception, SystemExit)):
+            raise call.error
+        return call
+
+
+def _ask(odometer: Odometer, chunk: list) -> list:
+    """``odometer.step_batch(chunk)`` read into a list, at most one item more than ``chunk`` has
+    pairs (a ``step_batch`` that yields without end is not read to its end)."""
+    return list(itertools.islice(odometer.step_batch(chunk), len(chunk) + 1))
 
 
 @dataclass
@@ -174,49 +330,115 @@ class _StepLog:
     raw: list = field(default_factory=list)
     reasons: list = field(default_factory=list)
     seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    asked: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     errors: list[str] = field(default_factory=list)
     stamps: list[float] = field(default_factory=list)
+    empty_depth: int = 0
 
     def __post_init__(self) -> None:
         self.raw = [None] * self.n
         self.reasons = ["reset-raised"] * self.n
         self.seconds = np.zeros(self.n)
+        self.asked = np.zeros(self.n, bool)
 
-    def note(self, where: str, exc: Exception) -> None:
+    def note(self, where: str, exc: BaseException | str) -> None:
+        """Keep the message of ``exc`` (or the text ``exc``) raised at ``where``, up to ``max_errors``."""
         if len(self.errors) < self.max_errors:
-            self.errors.append(f"{where}: {type(exc).__name__}: {exc}")
+            self.errors.append(f"{where}: {exc}" if isinstance(exc, str) else f"{where}: {type(exc).__name__}: {exc}")
+
+    def fail(self, first: int, count: int, reason: str, seconds: float = 0.0) -> None:
+        """Steps ``first .. first + count - 1`` failed for ``reason``, ``seconds`` spent on them in all."""
+        self.reasons[first : first + count] = [reason] * count
+        self.seconds[first : first + count] = seconds / count if count else 0.0
 
     def answer(self, first: int, count: int, answers: list | None, seconds: float) -> None:
-        """Record the answers (None: the call raised) to steps ``first .. first + count - 1``."""
+        """Record (copies of) the answers (None: the call raised) to steps ``first .. first + count - 1``."""
         self.seconds[first : first + count] = seconds / count
+        self.asked[first : first + count] = True
         for k, i in enumerate(range(first, first + count)):
             if answers is None:
                 self.reasons[i] = "raised"
             elif len(answers) != count:
                 self.reasons[i] = "batch-length"
             else:
-                self.raw[i] = answers[k]
+                self.raw[i] = own_copy(answers[k])
                 try:
-                    self.reasons[i] = failure_reason(answers[k])
+                    self.reasons[i] = failure_reason(self.raw[i])
                 except Exception as exc:  # noqa: BLE001 - not an Estimate at all
                     self.note(f"step {i}", exc)
                     self.reasons[i] = "raised"
 
 
+def _step_chunks(seq: Sequence, oracle: bool, size: int, log: _StepLog) -> Iterator[tuple[int, list]]:
+    """``(first index, [(prev, cur, action), ...])`` chunks of ``size`` pairs; each frame's
+    timestamp goes to ``log.stamps`` as it is read, and a frame without any depth is counted."""
+    frame = seq[0]
+    prev = guarded_frame(frame, oracle)
+    log.stamps.append(prev.timestamp)
+    log.empty_depth += has_no_depth(frame)
+    chunk: list[tuple[Frame, Frame, Action | None]] = []
+    first = 0
+    for i in range(log.n):
+        frame = seq[i + 1]
+        cur = guarded_frame(frame, oracle)
+        log.stamps.append(cur.timestamp)
+        log.empty_depth += has_no_depth(frame)
+        chunk.append((prev, cur, seq.action(i)))
+        prev = cur
+        if len(chunk) == size or i == log.n - 1:
+            yield first, chunk
+            first, chunk = i + 1, []
+
+
+def _steps_text(first: int, count: int) -> str:
+    return f"step {first}" if count == 1 else f"steps {first}-{first + count - 1}"
+
+
 def _run_steps(
-    odometer: Odometer, name: str, seq: Sequence, oracle: bool, log: _StepLog, observer: RunObserver | None
+    odometer: Odometer,
+    name: str,
+    seq: Sequence,
+    attrs: Attributes,
+    log: _StepLog,
+    caller: _Caller,
+    observer: RunObserver | None,
 ) -> None:
-    """Ask the odometer about every pair, one ``step_batch`` call per chunk, timed."""
-    for first, chunk in _step_chunks(odometer, seq, oracle, log.n, log.stamps):
-        t0 = time.perf_counter()
-        try:
-            answers = list(odometer.step_batch(chunk))
-        except (Exception, SystemExit) as exc:  # noqa: BLE001 - a bug (even sys.exit) must not end the comparison
-            answers = None
-            log.note(f"step {first}" if len(chunk) == 1 else f"steps {first}-{first + len(chunk) - 1}", exc)
-        log.answer(first, len(chunk), answers, time.perf_counter() - t0)
+    """Ask the odometer about every pair, one ``step_batch`` call per chunk, timed and time-limited;
+    after :data:`MAX_TIMEOUTS_IN_A_ROW` timed-out calls in a row, the remaining pairs are not asked."""
+    in_a_row = 0
+    for first, chunk in _step_chunks(seq, attrs.oracle, attrs.batch_size, log):
+        count = len(chunk)
+        if in_a_row >= MAX_TIMEOUTS_IN_A_ROW:
+            log.fail(first, count, "timed-out")
+        else:
+            call = caller.call(lambda chunk=chunk: _ask(odometer, chunk), count)
+            if call is None:
+                in_a_row += 1
+                log.asked[first : first + count] = True
+                log.fail(first, count, "timed-out", caller.timeout * count)
+                stopped = "; stopped for the rest of the sequence" if in_a_row == MAX_TIMEOUTS_IN_A_ROW else ""
+                log.note(_steps_text(first, count), f"timed out after {caller.timeout * count:g} s{stopped}")
+            else:
+                in_a_row = 0
+                if call.error is not None:
+                    log.note(_steps_text(first, count), call.error)
+                log.answer(first, count, None if call.error is not None else call.value, call.seconds)
         if observer is not None:
-            observer.advance(name, len(chunk))
+            observer.advance(name, count)
+
+
+def _start(odometer: Odometer, seq: Sequence, caller: _Caller, log: _StepLog) -> bool:
+    """``odometer.reset(seq.intrinsics)`` within the time limit; False (every step failed, the reason
+    noted) when it raised or timed out."""
+    call = caller.call(lambda: odometer.reset(seq.intrinsics))
+    if call is None:
+        log.fail(0, log.n, "timed-out")
+        log.note("reset", f"timed out after {caller.timeout:g} s")
+        return False
+    if call.error is not None:
+        log.note("reset", call.error)  # the reasons stay "reset-raised"
+        return False
+    return True
 
 
 def run_sequence(
@@ -226,24 +448,40 @@ def run_sequence(
     prior: ActionPrior,
     observer: RunObserver | None = None,
     max_errors: int = 5,
+    step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
 ) -> SequenceResult:
-    """Run one odometer over one sequence (see the module docstring for failure handling)."""
+    """Run one odometer over one sequence (see the module docstring for failure handling and the
+    time limit ``step_timeout``, seconds per pair, None for none). ``ValueError`` for a sequence
+    without frames; one frame is zero steps."""
+    if len(seq) < 1:
+        raise ValueError(f"sequence {seq.name!r} has no frames; a sequence needs at least one")
     n = len(seq) - 1
     log = _StepLog(n, max_errors)
     actions = np.array([NO_ACTION if a is None else a.value for a in (seq.action(i) for i in range(n))], np.int8)
-    oracle = bool(odometer.oracle)
-    with odometer_threads(odometer):
-        if observer is not None:
-            observer.advance(name, 0)
+    try:
+        attrs: Attributes | None = read_attributes(odometer)
+    except AttributeProblem as exc:
+        attrs = None
+        log.fail(0, n, "bad-attribute")
+        log.note("attributes", str(exc))
+    stepped = False
+    if observer is not None:
+        observer.advance(name, 0)
+    if attrs is not None:
+        caller = _Caller(name, step_timeout)
         try:
-            odometer.reset(seq.intrinsics)
-        except (Exception, SystemExit) as exc:  # noqa: BLE001 - a broken odometer fails this sequence, not the comparison
-            log.note("reset", exc)
-            if observer is not None:
-                observer.advance(name, n)
-        else:
-            _run_steps(odometer, name, seq, oracle, log, observer)
-    stamps = log.stamps or [seq[i].timestamp for i in range(n + 1)]
+            with torch_threads(attrs.threads):
+                if _start(odometer, seq, caller, log):
+                    _run_steps(odometer, name, seq, attrs, log, caller, observer)
+                    stepped = True
+        finally:
+            caller.close()
+    if not stepped:
+        frames = [seq[i] for i in range(n + 1)]
+        log.stamps = [f.timestamp for f in frames]
+        log.empty_depth = sum(has_no_depth(f) for f in frames)
+        if observer is not None:
+            observer.advance(name, n)
 
     valid = np.array([r is None for r in log.reasons], dtype=bool)
     estimates = np.empty((n, 4, 4))
@@ -261,7 +499,7 @@ def run_sequence(
     return SequenceResult(
         odometer=name,
         sequence=seq.name,
-        oracle=oracle,
+        oracle=False if attrs is None else attrs.oracle,
         estimates=estimates,
         truth=truth,
         poses=poses,
@@ -270,10 +508,12 @@ def run_sequence(
         valid=valid,
         step_seconds=log.seconds,
         collisions=None if collisions is None else np.asarray(collisions),
-        timestamps=np.array(stamps),
+        timestamps=np.array(log.stamps),
         errors=log.errors,
         raw=tuple(log.raw),
         failure_reasons=dict(Counter(r for r in log.reasons if r is not None)),
+        asked=log.asked,
+        empty_depth=int(log.empty_depth),
     )
 
 
@@ -283,10 +523,12 @@ def run(
     prior: ActionPrior | None = None,
     observer: RunObserver | None = None,
     total_steps: int | None = None,
+    step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
 ) -> list[SequenceResult]:
     """Every odometer on every sequence, one sequence at a time (so ``sequences`` may be a stream
     that holds one episode in memory). ``observer`` hears of progress; ``total_steps`` (steps per
-    odometer, summed over sequences) tells it the total when ``sequences`` has no length."""
+    odometer, summed over sequences) tells it the total when ``sequences`` has no length;
+    ``step_timeout``: seconds a step may take (None: no limit; see the module docstring)."""
     prior = prior or ActionPrior.shipped()
     if total_steps is None and hasattr(sequences, "__len__"):
         total_steps = sum(len(s) - 1 for s in sequences)
@@ -296,7 +538,7 @@ def run(
     try:
         for seq in sequences:
             for name, odo in odometers.items():
-                results.append(run_sequence(odo, seq, name, prior, observer))
+                results.append(run_sequence(odo, seq, name, prior, observer, step_timeout=step_timeout))
     finally:
         if observer is not None:
             observer.close()

@@ -1,0 +1,294 @@
+"""odolab/runner.py: answers copied at the step, the per-step time limit, attributes read inside a
+guard, frames without depth counted; on a tiny synthetic sequence (no simulator), so each test is fast."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from odolab import api, runner
+from odolab.action_prior import ActionPrior
+from odolab.geometry import planar_to_transform
+from odolab.odometer import own_copy
+from odolab.types import Action, Frame, Intrinsics
+
+PRIOR = ActionPrior.shipped()
+FORWARD = planar_to_transform(0.0, 0.25, 0.0)
+
+
+@dataclass
+class Tiny:
+    """``frames`` frames of 4 x 6 pixels, moving 0.25 m forward per step; ``empty``: frames whose depth is all 0."""
+
+    frames: int = 7
+    empty: tuple[int, ...] = ()
+    intrinsics: Intrinsics = field(default_factory=lambda: Intrinsics(5.0, 5.0, 2.5, 1.5, 6, 4))
+    name: str = "tiny"
+    collisions: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return self.frames
+
+    def __getitem__(self, i: int) -> Frame:
+        depth = np.zeros((4, 6), np.float32) if i in self.empty else np.full((4, 6), 2.0, np.float32)
+        return Frame(np.zeros((4, 6, 3), np.uint8), depth, timestamp=0.1 * i, gt_pose=self.gt_pose(i))
+
+    def action(self, i: int) -> Action | None:
+        return Action.MOVE_FORWARD
+
+    def gt_pose(self, i: int) -> np.ndarray:
+        return np.linalg.matrix_power(FORWARD, i)
+
+
+class Counting(api.Odometer):
+    """Answers step k as k cm forward, written into ONE array it reuses for every answer."""
+
+    def reset(self, intrinsics):
+        super().reset(intrinsics)
+        self.k, self.out = 0, np.eye(4)
+
+    def step(self, prev, cur, action):
+        self.k += 1
+        self.out[:] = planar_to_transform(0.0, 0.01 * self.k, 0.0)
+        return api.Estimate(self.out, covariance=np.full((6, 6), float(self.k)))
+
+
+def _forward(result: runner.SequenceResult) -> list[float]:
+    return [float(e.transform[2, 3]) for e in result.raw]
+
+
+def test_an_odometer_reusing_one_output_array_is_scored_on_each_answer():
+    res = runner.run_sequence(Counting(), Tiny(), "reuse", PRIOR)
+    assert _forward(res) == pytest.approx([0.01, 0.02, 0.03, 0.04, 0.05, 0.06])
+    assert res.estimates[:, 2, 3] == pytest.approx([0.01, 0.02, 0.03, 0.04, 0.05, 0.06])
+    assert [e.covariance[0, 0] for e in res.raw] == [1, 2, 3, 4, 5, 6]
+
+
+def test_a_batched_odometer_reusing_its_buffer_across_calls_is_scored_on_each_answer():
+    class Buffered(api.Odometer):
+        batch_size = 2
+
+        def reset(self, intrinsics):
+            super().reset(intrinsics)
+            self.k, self.buffer = 0, np.stack([np.eye(4)] * 2)
+
+        def step_batch(self, pairs):
+            out = []
+            for j in range(len(pairs)):
+                self.k += 1
+                self.buffer[j] = planar_to_transform(0.0, 0.01 * self.k, 0.0)
+                out.append(api.Estimate(self.buffer[j]))
+            return out
+
+    res = runner.run_sequence(Buffered(), Tiny(), "buffered", PRIOR)
+    assert _forward(res) == pytest.approx([0.01, 0.02, 0.03, 0.04, 0.05, 0.06])
+
+
+def test_an_answer_changed_after_its_step_is_scored_as_given():
+    class Regretful(api.Odometer):
+        """Returns the true motion, then spoils every earlier answer in place."""
+
+        def reset(self, intrinsics):
+            super().reset(intrinsics)
+            self.given = []
+
+        def step(self, prev, cur, action):
+            for est in self.given:
+                est.transform[:] = np.nan
+            self.given.append(api.Estimate(FORWARD.copy()))
+            return self.given[-1]
+
+    res = runner.run_sequence(Regretful(), Tiny(), "regretful", PRIOR)
+    assert res.failures == 0 and np.all(np.isfinite(res.estimates))
+    assert np.allclose(res.poses, res.gt_poses)
+    assert all(np.array_equal(e.transform, FORWARD) for e in res.raw)
+
+
+def test_the_default_step_batch_copies_each_answer():
+    odo = Counting()
+    odo.reset(Tiny().intrinsics)
+    out = odo.step_batch([(None, None, None)] * 3)
+    assert [e.transform[2, 3] for e in out] == pytest.approx([0.01, 0.02, 0.03])
+    assert odo.step_batch([]) == [] and own_copy("not an estimate") == "not an estimate"
+
+
+class Stuck(api.Odometer):
+    """Steps ``stuck`` (indices) wait until the test releases them; the others answer the truth."""
+
+    def __init__(self, stuck=(), release=None):
+        self.stuck, self.release, self.calls = set(stuck), release or threading.Event(), 0
+
+    def step(self, prev, cur, action):
+        self.calls += 1
+        if self.calls - 1 in self.stuck:
+            self.release.wait(10)
+        return api.Estimate(FORWARD)
+
+
+@pytest.fixture
+def release():
+    """An event that lets go of every step still waiting when the test ends."""
+    event = threading.Event()
+    yield event
+    event.set()
+
+
+def test_a_step_past_the_time_limit_fails_and_the_next_ones_run(release):
+    t0 = time.perf_counter()
+    res = runner.run_sequence(Stuck({1}, release), Tiny(), "slow", PRIOR, step_timeout=0.05)
+    assert time.perf_counter() - t0 < 1.0
+    assert res.failure_reasons == {"timed-out": 1} and not res.valid[1] and res.valid.sum() == 5
+    assert res.step_seconds[1] == pytest.approx(0.05) and res.asked.all()
+    assert res.errors == ["step 1: timed out after 0.05 s"]
+    assert "timed-out" in runner.FAILURE_REASONS
+
+
+def test_an_odometer_that_keeps_timing_out_is_stopped_for_the_sequence(release):
+    odo = Stuck(range(100), release)
+    t0 = time.perf_counter()
+    res = runner.run_sequence(odo, Tiny(frames=11), "stuck", PRIOR, step_timeout=0.03)
+    assert time.perf_counter() - t0 < 0.5  # 3 waits, not 10
+    assert res.failure_reasons == {"timed-out": 10} and odo.calls == runner.MAX_TIMEOUTS_IN_A_ROW
+    assert res.asked.sum() == 3 and res.step_seconds[3:].sum() == 0
+    assert "stopped for the rest of the sequence" in res.errors[-1]
+    assert len(res.timestamps) == 11  # every frame was still read
+
+
+def test_a_reset_past_the_time_limit_fails_the_sequence(release):
+    class SlowReset(api.Odometer):
+        def reset(self, intrinsics):
+            release.wait(10)
+
+        def step(self, prev, cur, action):
+            raise AssertionError("never asked")
+
+    res = runner.run_sequence(SlowReset(), Tiny(), "slow-reset", PRIOR, step_timeout=0.03)
+    assert res.failure_reasons == {"timed-out": 6} and not res.asked.any()
+    assert res.errors == ["reset: timed out after 0.03 s"]
+
+
+def test_a_step_batch_that_yields_forever_fails_its_batch():
+    class Endless(api.Odometer):
+        batch_size = 3
+
+        def step_batch(self, pairs):
+            while True:
+                yield api.Estimate(FORWARD)
+
+    res = runner.run_sequence(Endless(), Tiny(), "endless", PRIOR)
+    assert res.failure_reasons == {"batch-length": 6}
+
+
+def test_reset_and_steps_share_one_worker_thread_and_numbers_match_the_unlimited_run():
+    class Where(Counting):
+        def reset(self, intrinsics):
+            super().reset(intrinsics)
+            self.threads_seen = [threading.get_ident()]
+
+        def step(self, prev, cur, action):
+            self.threads_seen.append(threading.get_ident())
+            return super().step(prev, cur, action)
+
+    limited, unlimited = Where(), Where()
+    a = runner.run_sequence(limited, Tiny(), "w", PRIOR, step_timeout=60.0)
+    b = runner.run_sequence(unlimited, Tiny(), "w", PRIOR, step_timeout=None)
+    assert len(set(limited.threads_seen)) == 1 and limited.threads_seen[0] != threading.get_ident()
+    assert set(unlimited.threads_seen) == {threading.get_ident()}
+    assert np.array_equal(a.estimates, b.estimates) and np.array_equal(a.poses, b.poses)
+
+
+def test_a_step_is_timed_in_its_own_thread_as_without_a_limit():
+    class Sleepy(api.Odometer):
+        def step(self, prev, cur, action):
+            time.sleep(0.02)
+            return api.Estimate(FORWARD)
+
+    for timeout in (None, 60.0):
+        res = runner.run_sequence(Sleepy(), Tiny(frames=3), "sleepy", PRIOR, step_timeout=timeout)
+        assert np.all((res.step_seconds > 0.019) & (res.step_seconds < 0.03))
+
+
+def test_an_interrupt_raised_in_a_step_is_not_swallowed():
+    class Interrupted(api.Odometer):
+        def step(self, prev, cur, action):
+            raise KeyboardInterrupt
+
+    for timeout in (None, 60.0):
+        with pytest.raises(KeyboardInterrupt):
+            runner.run_sequence(Interrupted(), Tiny(), "ctrl-c", PRIOR, step_timeout=timeout)
+
+
+def test_sys_exit_in_a_step_is_a_failure_of_that_step():
+    class Exits(api.Odometer):
+        def step(self, prev, cur, action):
+            raise SystemExit(3)
+
+    res = runner.run_sequence(Exits(), Tiny(), "exits", PRIOR)
+    assert res.failure_reasons == {"raised": 6} and res.errors[0] == "step 0: SystemExit: 3"
+
+
+class RaisingOracle(api.Odometer):
+    @property
+    def oracle(self):
+        raise RuntimeError("cannot tell")
+
+    def step(self, prev, cur, action):
+        return api.Estimate(FORWARD)
+
+
+def _with_attribute(name, value):
+    class Odd(api.Odometer):
+        def step(self, prev, cur, action):
+            return api.Estimate(FORWARD)
+
+    setattr(Odd, name, value)
+    return Odd()
+
+
+@pytest.mark.parametrize(
+    "odometer,message",
+    [
+        (_with_attribute("batch_size", float("nan")), "batch_size must be a whole number in [1, 1000000], got nan"),
+        (_with_attribute("batch_size", 0), "batch_size must be a whole number in [1, 1000000], got 0"),
+        (_with_attribute("batch_size", "4"), "batch_size must be a whole number in [1, 1000000], got '4'"),
+        (_with_attribute("threads", float("inf")), "threads must be a whole number in [1, 256], got inf"),
+        (_with_attribute("oracle", "no"), "oracle must be True or False, got 'no'"),
+        (RaisingOracle(), "reading oracle raised RuntimeError: cannot tell"),
+    ],
+)
+def test_an_unusable_attribute_fails_that_odometer_not_the_run(odometer, message):
+    results = runner.run({"odd": odometer, "ground-truth": api.load_odometer("ground-truth")}, [Tiny()])
+    odd, truth = results
+    assert odd.failure_reasons == {"bad-attribute": 6} and odd.errors == [f"attributes: {message}"]
+    assert not odd.asked.any() and not odd.oracle and len(odd.timestamps) == 7
+    assert truth.failures == 0
+
+
+def test_whole_float_attributes_are_accepted():
+    res = runner.run_sequence(_with_attribute("batch_size", 2.0), Tiny(), "two", PRIOR)
+    assert res.failures == 0 and runner.read_attributes(_with_attribute("oracle", 1)).oracle is True
+
+
+def test_frames_without_any_depth_are_counted():
+    assert runner.run_sequence(Counting(), Tiny(empty=(0, 4)), "c", PRIOR).empty_depth == 2
+    assert runner.run_sequence(RaisingOracle(), Tiny(empty=(3,)), "c", PRIOR).empty_depth == 1
+    assert runner.run_sequence(Counting(), Tiny(), "c", PRIOR).empty_depth == 0
+
+
+def test_one_frame_is_zero_steps_and_no_frame_is_refused():
+    res = runner.run_sequence(Counting(), Tiny(frames=1), "one", PRIOR)
+    assert res.estimates.shape == (0, 4, 4) and res.poses.shape == (1, 4, 4) and res.failure_reasons == {}
+    with pytest.raises(ValueError, match="sequence 'tiny' has no frames"):
+        runner.run_sequence(Counting(), Tiny(frames=0), "none", PRIOR)
+
+
+def test_oracle_only_fields_are_removed_for_other_odometers():
+    frame = Tiny()[2]
+    assert runner.guarded_frame(frame, oracle=False).gt_pose is None
+    seen = runner.guarded_frame(frame, oracle=True).gt_pose
+    assert np.array_equal(seen, frame.gt_pose) and not seen.flags.writeable
+    assert runner.ORACLE_ONLY_FIELDS == ("gt_pose",)
