@@ -54,6 +54,7 @@ all segments of all lengths pooled; also per segment length.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -117,20 +118,22 @@ class ErrorStats:
 
     @classmethod
     def of(cls, errors: np.ndarray) -> ErrorStats:
-        """Statistics of a 1-D error array."""
+        """Statistics of a 1-D error array; finite wherever the errors are (errors near 1e300 are
+        scaled down first, :func:`_scaled`, where squaring or summing them would overflow)."""
         e = np.asarray(errors, dtype=np.float64).reshape(-1)
         if e.size == 0:
             nan = float("nan")
             return cls(nan, nan, nan, nan, nan, nan, 0)
-        return cls(
-            rmse=float(np.sqrt(np.mean(e * e))),
-            mean=float(np.mean(e)),
-            median=float(np.median(e)),
-            std=float(np.std(e)),
-            min=float(np.min(e)),
-            max=float(np.max(e)),
-            n=int(e.size),
-        )
+        with np.errstate(over="ignore", invalid="ignore"):
+            return cls(
+                rmse=_scaled(e, lambda x: np.sqrt(np.mean(x * x))),
+                mean=_scaled(e, np.mean),
+                median=float(np.median(e)),
+                std=_scaled(e, np.std),
+                min=float(np.min(e)),
+                max=float(np.max(e)),
+                n=int(e.size),
+            )
 
 
 @dataclass(frozen=True)
@@ -197,6 +200,30 @@ class KittiResult:
 # ----------------------------------------------------------------------------- building blocks
 
 
+def _scaled(e: np.ndarray, stat: Callable[[np.ndarray], np.floating]) -> float:
+    """``stat(e)`` for a statistic that scales with its input (``stat(c e) = c stat(e)``, c > 0):
+    computed directly, and again on ``e / max|e|`` (times ``max|e|``) only when the direct value
+    overflowed although every error is finite (e.g. errors of 1e300 m), so usual values are
+    unchanged to the last bit."""
+    value = float(stat(e))
+    if np.isfinite(value) or not np.all(np.isfinite(e)):
+        return value
+    scale = float(np.max(np.abs(e)))
+    return float(scale * stat(e / scale))
+
+
+def row_norms(v: np.ndarray) -> np.ndarray:
+    """Euclidean norms (N,) of the rows of ``v`` (N, K): ``np.linalg.norm(v, axis=1)``, computed
+    again after scaling for a finite row whose norm overflowed (entries near 1e300)."""
+    with np.errstate(over="ignore"):
+        n = np.linalg.norm(v, axis=1)
+    over = np.isinf(n) & np.all(np.isfinite(v), axis=1)
+    if over.any():
+        m = np.max(np.abs(v[over]), axis=1)
+        n[over] = m * np.linalg.norm(v[over] / m[:, None], axis=1)
+    return n
+
+
 def _as_poses(poses: np.ndarray, name: str) -> np.ndarray:
     p = np.asarray(poses, dtype=np.float64)
     if p.ndim != 3 or p.shape[1:] != (4, 4):
@@ -216,7 +243,7 @@ def _paired(gt_poses: np.ndarray, est_poses: np.ndarray) -> tuple[np.ndarray, np
 def path_lengths(positions: np.ndarray) -> np.ndarray:
     """Accumulated path length (N,) m along positions (N, 3); the first entry is 0."""
     p = np.asarray(positions, dtype=np.float64)
-    steps = np.linalg.norm(p[:-1] - p[1:], axis=1)
+    steps = row_norms(p[:-1] - p[1:])
     return np.concatenate(([0.0], np.cumsum(steps)))
 
 
@@ -270,7 +297,7 @@ def _relative_errors(gt: np.ndarray, est: np.ndarray, i: np.ndarray, j: np.ndarr
     dg = invert(gt[i]) @ gt[j]
     dp = invert(est[i]) @ est[j]
     E = invert(dg) @ dp
-    return np.linalg.norm(E[:, :3, 3], axis=1), rotation_angle(E[:, :3, :3])
+    return row_norms(E[:, :3, 3]), rotation_angle(E[:, :3, :3])
 
 
 # ----------------------------------------------------------------------------- metrics
@@ -281,7 +308,7 @@ def ate(gt_poses: np.ndarray, est_poses: np.ndarray, align: str = "none") -> ATE
     gt, est = _paired(gt_poses, est_poses)
     R, t, s = _align(gt, est, align)
     p = s * est[:, :3, 3] @ R.T + t
-    errors = np.linalg.norm(p - gt[:, :3, 3], axis=1)
+    errors = row_norms(p - gt[:, :3, 3])
     st = ErrorStats.of(errors)
     return ATEResult(**st.__dict__, errors=errors, align=align, scale=s, rotation=R, translation=t)
 
@@ -316,7 +343,7 @@ def rpe_pairs(
             if abs((cum[best] - cum[i]) - delta) <= delta * rel_delta_tol:
                 pairs.append((i, best))
         return np.array(pairs, dtype=np.intp).reshape(-1, 2)
-    steps = np.linalg.norm(pos[1:] - pos[:-1], axis=1).tolist()
+    steps = row_norms(pos[1:] - pos[:-1]).tolist()
     ids, travelled = [0], 0.0
     for k, step in enumerate(steps, start=1):
         travelled += step
@@ -406,7 +433,7 @@ def kitti_relative_errors(
     dg = invert(gt[first]) @ gt[last]
     dp = invert(est[first]) @ est[last]
     E = invert(dp) @ dg
-    t_err = np.linalg.norm(E[:, :3, 3], axis=1) / seg_len
+    t_err = row_norms(E[:, :3, 3]) / seg_len
     r_err = rotation_angle(E[:, :3, :3]) / seg_len
 
     def summary(mask: np.ndarray) -> tuple[float, float]:

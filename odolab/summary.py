@@ -10,8 +10,9 @@ Definitions (each metric's formula lives in :mod:`odolab.metrics`):
   steps left out), as the paper scored raw estimates; read it together with ``failure_share``.
 * ``failure_share``: share of steps that raised or returned ``valid=False``; ``failures``: their
   number (the action prior was used instead).
-* ``fps``: steps per second of the odometer's ``step`` calls alone (total steps / total time);
-  not applicable (NaN, shown as -) for the reference rows, which only look numbers up.
+* ``fps``: steps per second of the odometer's ``step`` calls alone (steps asked / their total time;
+  steps never asked, after a failed ``reset``, are left out); not applicable (NaN, shown as -) for
+  the reference rows, which only look numbers up, and for an odometer never asked a step.
 * ``ate_m``: mean over sequences of the ATE RMSE (m) with *no* alignment: every trajectory starts
   at the true first pose, so this is the drift a robot would suffer (``python -m odolab.evaluate``
   aligns by default, SE(3) as ``evo_ape -a``; pass ``--align none`` to get these figures).
@@ -20,7 +21,7 @@ Definitions (each metric's formula lives in :mod:`odolab.metrics`):
   ``trans_mm_own`` / ``rot_deg_own``: the same on the answered steps.
 
 Reference rows (``ground-truth``, ``action-prior``) come first, then the odometers in the order
-they were given.
+they were given. Sequences of one frame (zero steps) give NaN figures (shown as -), not an error.
 """
 
 from __future__ import annotations
@@ -107,7 +108,18 @@ def by_odometer(results: list[SequenceResult]) -> dict[str, list[SequenceResult]
 
 
 def _mean(x: np.ndarray) -> float:
+    """The mean of ``x``, NaN when it is empty."""
     return float(x.mean()) if len(x) else float("nan")
+
+
+def _std(x: np.ndarray) -> float:
+    """The (population) standard deviation of ``x``, NaN when it is empty."""
+    return float(x.std()) if len(x) else float("nan")
+
+
+def _asked(r: SequenceResult) -> int:
+    """Steps of ``r`` its odometer was asked (every step when the runner did not record it)."""
+    return len(r.valid) if r.asked is None else int(np.count_nonzero(r.asked))
 
 
 def summarize(results: list[SequenceResult]) -> list[Row]:
@@ -117,13 +129,14 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
         errs = [step_errors(r) for r in mine]
         pooled = np.concatenate(errs) * 100.0
         valid = np.concatenate([r.valid for r in mine])
-        per_seq = np.array([e.mean(axis=0) for e in errs if len(e)]) * 100.0
+        per_seq = np.array([e.mean(axis=0) for e in errs if len(e)]).reshape(-1, 3) * 100.0
         rel = [relative_motion_errors(r.gt_poses, r.poses) for r in mine]
         trans = np.concatenate([t for t, _ in rel]) * 1e3
         rot = np.concatenate([a for _, a in rel])
         ates = np.array([ate(r.gt_poses, r.poses).rmse for r in mine])
         drifts = np.array([np.linalg.norm(r.poses[-1, :3, 3] - r.gt_poses[-1, :3, 3]) for r in mine])
         seconds = sum(float(r.step_seconds.sum()) for r in mine)
+        asked = sum(_asked(r) for r in mine)
         steps = len(pooled)
         reference = name in REFERENCE_ODOMETERS
         rows.append(
@@ -134,9 +147,9 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
                 dx=_mean(pooled[:, 0]),
                 dz=_mean(pooled[:, 1]),
                 dyaw=_mean(pooled[:, 2]),
-                dx_std=float(per_seq[:, 0].std()),
-                dz_std=float(per_seq[:, 1].std()),
-                dyaw_std=float(per_seq[:, 2].std()),
+                dx_std=_std(per_seq[:, 0]),
+                dz_std=_std(per_seq[:, 1]),
+                dyaw_std=_std(per_seq[:, 2]),
                 dx_own=_mean(pooled[valid, 0]),
                 dz_own=_mean(pooled[valid, 1]),
                 dyaw_own=_mean(pooled[valid, 2]),
@@ -148,7 +161,7 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
                 ate_std=float(ates.std()),
                 drift_m=float(drifts.mean()),
                 drift_std=float(drifts.std()),
-                fps=float("nan") if reference else steps / seconds if seconds > 0 else float("inf"),
+                fps=asked / seconds if asked and seconds > 0 and not reference else float("nan"),
                 failures=int((~valid).sum()),
                 failure_share=float((~valid).mean()) if steps else 0.0,
                 steps=steps,
@@ -215,13 +228,26 @@ def every_step_failed(rows: Sequence[Row]) -> list[str]:
     ]
 
 
+#: Magnitude from which :func:`fmt` writes a number in e-notation (no figure here comes near it:
+#: a fixed-point 1e300 would be a 300-digit cell).
+HUGE = 1e9
+
+
 def fmt(value: float, spec: str, std: float | None = None) -> str:
-    """``value`` formatted by ``spec``, ``"-"`` when it is NaN (does not apply), and `` +- std``
-    when ``std`` is given and finite."""
-    if value is None or not np.isfinite(value):
-        return "-" if value is None or np.isnan(value) else str(value)
-    text = format(value, spec)
-    return text if std is None or not np.isfinite(std) else f"{text} +- {format(std, spec)}"
+    """``value`` formatted by ``spec``, ``"-"`` when it is None or NaN (does not apply), ``"inf"`` /
+    ``"-inf"`` when it overflowed, in e-notation (``"1e+300"``) when its magnitude is at least
+    :data:`HUGE`, and `` +- std`` when ``std`` is given and finite."""
+    if value is None or np.isnan(value):
+        return "-"
+    if not np.isfinite(value):
+        return str(float(value))
+    text = _number(value, spec)
+    return text if std is None or not np.isfinite(std) else f"{text} +- {_number(std, spec)}"
+
+
+def _number(value: float, spec: str) -> str:
+    """Finite ``value`` by ``spec``, or in e-notation (4 significant digits) from :data:`HUGE` on."""
+    return format(value, ".4g") if abs(value) >= HUGE else format(value, spec)
 
 
 def text_table(header: Sequence[str], rows: Sequence[Sequence[str]], markdown: bool = False) -> str:

@@ -1,0 +1,65 @@
+"""odolab/summary.py: zero-step sequences, steps/s of steps never asked, and the cell formatter."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from odolab import summary
+from odolab.runner import SequenceResult
+
+
+def _result(n: int, odometer: str = "odo", seconds: float = 0.0, asked: bool | None = True) -> SequenceResult:
+    """A result of ``n`` steps standing still on a true path that stands still too."""
+    return SequenceResult(
+        odometer=odometer,
+        sequence=f"seq-{n}",
+        oracle=False,
+        estimates=np.tile(np.eye(4), (n, 1, 1)),
+        truth=np.tile(np.eye(4), (n, 1, 1)),
+        poses=np.tile(np.eye(4), (n + 1, 1, 1)),
+        gt_poses=np.tile(np.eye(4), (n + 1, 1, 1)),
+        actions=np.zeros(n, np.int8),
+        valid=np.full(n, asked is not False),
+        step_seconds=np.full(n, seconds),
+        asked=None if asked is None else np.full(n, asked),
+    )
+
+
+def test_a_sequence_of_one_frame_gives_a_row_of_dashes_not_a_traceback():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "mean of empty slice" either
+        (row,) = summary.summarize([_result(0)])
+    assert row.steps == 0 and row.failures == 0 and row.failure_share == 0.0
+    assert all(np.isnan(v) for v in (row.dx, row.dz_std, row.dyaw_own, row.trans_mm, row.fps))
+    assert summary.fmt(row.dx, ".2f", row.dx_std) == "-" and summary.summarize_actions([_result(0)]) == []
+
+
+def test_steps_per_second_count_only_the_steps_asked():
+    (never,) = summary.summarize([_result(5, asked=False)])  # reset failed: no step was timed
+    assert np.isnan(never.fps) and summary.fmt(never.fps, ".1f") == "-"
+    (half,) = summary.summarize([_result(4, seconds=0.5), _result(6, asked=False)])
+    assert half.fps == pytest.approx(2.0)  # 4 steps in 2 s, not 10
+    (unrecorded,) = summary.summarize([_result(4, seconds=0.25, asked=None)])  # results made elsewhere
+    assert unrecorded.fps == pytest.approx(4.0)
+
+
+@pytest.mark.parametrize(
+    "value,std,text",
+    [
+        (1.23456, None, "1.235"),
+        (1.23456, 0.5, "1.235 +- 0.500"),
+        (1.0, float("nan"), "1.000"),
+        (float("nan"), None, "-"),
+        (None, None, "-"),
+        (float("inf"), 1.0, "inf"),
+        (-float("inf"), None, "-inf"),
+        (1e300, None, "1e+300"),
+        (2.5e12, 1e10, "2.5e+12 +- 1e+10"),
+        (999_999_999.0, None, "999999999.000"),
+    ],
+)
+def test_fmt_says_does_not_apply_overflow_and_huge_apart(value, std, text):
+    assert summary.fmt(value, ".3f", std) == text
