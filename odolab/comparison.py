@@ -14,8 +14,10 @@ Every mistake in the configuration raises :class:`ComparisonError` with one line
 
 from __future__ import annotations
 
+import math
 import os
-from collections.abc import Iterator
+import sys
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -46,11 +48,14 @@ __all__ = [
     "ComparisonConfig",
     "ComparisonError",
     "ComparisonResult",
+    "check_step_timeout",
+    "empty_depth_warnings",
     "failure_reasons",
     "load_odometers",
     "odometer_names",
     "run_comparison",
     "tum_sequences",
+    "warn_on_stderr",
 ]
 
 #: Where episodes are cached unless told otherwise.
@@ -72,7 +77,8 @@ class ComparisonConfig:
     and its camera ``tum_intrinsics`` ``(fx, fy, cx, cy)`` (None: the TUM camera its name says).
     ``execution``: where missing episodes are generated, and whether with progress bars
     (:class:`~odolab.parallel.Execution`). ``command``: the command line that asked
-    (its caller's words, recorded in the notes), or None."""
+    (its caller's words, recorded in the notes), or None. ``step_timeout``: seconds one step of an
+    odometer may take before it fails as ``timed-out`` (None: no limit; :mod:`odolab.runner`)."""
 
     odometers: list[str] | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -87,6 +93,7 @@ class ComparisonConfig:
     cache: Path | None = DEFAULT_CACHE
     execution: Execution = Execution()
     command: str | None = None
+    step_timeout: float | None = runner.DEFAULT_STEP_TIMEOUT
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -123,8 +130,22 @@ def odometer_names(names: list[str] | None) -> list[str]:
     return chosen
 
 
-def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] | None = None) -> dict[str, Odometer]:
-    """Instantiate odometers by name (None = all available) with their constructor options."""
+def warn_on_stderr(line: str) -> None:
+    """Print one warning line on standard error."""
+    print(line, file=sys.stderr)
+
+
+def load_odometers(
+    names: list[str] | None,
+    options: dict[str, dict[str, Any]] | None = None,
+    warn: Callable[[str], None] = warn_on_stderr,
+) -> dict[str, Odometer]:
+    """Instantiate odometers by name (None = all available) with their constructor options.
+
+    Named odometers must all load (:class:`ComparisonError` with one line otherwise). Of all
+    available ones (``names`` None), one that cannot be imported or made with its defaults (a
+    broken third-party entry point) is left out, with one line to ``warn`` naming it and why; one
+    given options must still load. :class:`ComparisonError` when none is left."""
     options = options or {}
     chosen = odometer_names(names)
     holders = {n: [c for c in chosen if n in inner_names(c)] for n in options}  # composites that take n as an input
@@ -145,17 +166,29 @@ def load_odometers(names: list[str] | None, options: dict[str, dict[str, Any]] |
     for name in chosen:
         opts = options.get(name, {})
         try:
-            factory = REGISTRY.resolve(name)
-            check_options(name, factory, opts)
-            out[name] = REGISTRY.load(name, **opts)
-        except (UnknownOdometerError, OptionError, IncompleteOdometerError, OracleInputError) as exc:
-            raise ComparisonError(str(exc)) from None
-        except Exception as exc:  # noqa: BLE001 - a broken plugin or a bad option value is reported, not a traceback
-            detail = f" with options {_short(opts)}" if opts else ""
-            # a refused value or type says why itself; anything else is named by its kind
-            kind = "" if isinstance(exc, (ValueError, TypeError)) else f"{type(exc).__name__}: "
-            raise ComparisonError(f"could not load odometer {name!r}{detail}: {kind}{exc}") from None
+            out[name] = _load_one(name, opts)
+        except ComparisonError as exc:
+            if names is not None or opts:
+                raise
+            warn(f"warning: left out of the default list of odometers: {exc}")
+    if not out:
+        raise ComparisonError(f"no odometer could be loaded; available: {', '.join(available_odometers())}")
     return out
+
+
+def _load_one(name: str, opts: dict[str, Any]) -> Odometer:
+    """Odometer ``name`` made with options ``opts``; :class:`ComparisonError` with one line otherwise."""
+    try:
+        factory = REGISTRY.resolve(name)
+        check_options(name, factory, opts)
+        return REGISTRY.load(name, **opts)
+    except (UnknownOdometerError, OptionError, IncompleteOdometerError, OracleInputError) as exc:
+        raise ComparisonError(str(exc)) from None
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - a broken plugin or a bad option value is reported, not a traceback
+        detail = f" with options {_short(opts)}" if opts else ""
+        # a refused value or type says why itself; anything else is named by its kind
+        kind = "" if isinstance(exc, (ValueError, TypeError)) else f"{type(exc).__name__}: "
+        raise ComparisonError(f"could not load odometer {name!r}{detail}: {kind}{exc}") from None
 
 
 def _options_file_advice(name: str, holder: str) -> str:
@@ -188,15 +221,54 @@ def _floor_plan(scene_seed: int, goal: tuple[float, float] | None = None) -> Flo
 
 
 def tum_sequences(config: ComparisonConfig) -> list:
-    """The TUM RGB-D sequence of ``config.tum``, read and checked (:class:`ComparisonError` with one line)."""
+    """The TUM RGB-D sequence of ``config.tum``, read and checked (:class:`ComparisonError` with one
+    line, also for a folder of fewer than two usable frames: no step to compare)."""
     from odolab.io.errors import FileFormatError
     from odolab.io.tum_rgbd import TUM_DEPTH_SCALE, load_tum_sequence
 
     scale = TUM_DEPTH_SCALE if config.tum_depth_scale is None else config.tum_depth_scale
     try:
-        return [load_tum_sequence(config.tum, config.tum_intrinsics, depth_scale=scale)]
+        sequence = load_tum_sequence(config.tum, config.tum_intrinsics, depth_scale=scale)
     except (FileFormatError, ValueError) as exc:
         raise ComparisonError(str(exc)) from None
+    if len(sequence) < 2:
+        raise ComparisonError(
+            f"{len(sequence)} usable frame (a colour image with a depth image and a ground-truth pose); "
+            "a comparison needs at least 2, one step between them"
+        )
+    return [sequence]
+
+
+def check_step_timeout(value: object) -> float | None:
+    """``value`` as a step time limit in seconds: None (no limit) or a number > 0 (inf: no limit);
+    :class:`ComparisonError` naming it otherwise."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
+        raise ComparisonError(f"step_timeout must be a number of seconds > 0 (or None for no limit), got {value!r}")
+    return None if math.isinf(value) else float(value)
+
+
+def empty_depth_warnings(results: list[SequenceResult]) -> list[str]:
+    """One line per sequence with frames whose every depth pixel is 0 (counted by the runner)."""
+    empty: dict[str, tuple[int, int]] = {}
+    for r in results:
+        frames = len(r.actions) + 1
+        empty[r.sequence] = max(empty.get(r.sequence, (0, frames)), (r.empty_depth, frames))
+    return [
+        f"{name}: {count} of {frames} frames have no depth at all (every depth pixel is 0); "
+        "odometers that use depth cannot use them"
+        for name, (count, frames) in empty.items()
+        if count
+    ]
+
+
+def _needs_action(name: str, odometer: Odometer) -> bool:
+    """Whether ``odometer`` says it needs actions; :class:`ComparisonError` when reading it raises."""
+    try:
+        return bool(getattr(odometer, "needs_action", False))
+    except Exception as exc:  # noqa: BLE001 - a plug-in's property may raise anything
+        raise ComparisonError(f"odometer {name!r}: reading needs_action raised {type(exc).__name__}: {exc}") from None
 
 
 def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple[Iterator, int | None]:
@@ -212,12 +284,16 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
 
 
 def _run(
-    odometers: dict[str, Odometer], sequences, observer: RunObserver | None, total: int | None = None
+    odometers: dict[str, Odometer],
+    sequences,
+    observer: RunObserver | None,
+    step_timeout: float | None,
+    total: int | None = None,
 ) -> list[SequenceResult]:
     from odolab.io.errors import FileFormatError
 
     try:
-        return runner.run(odometers, sequences, observer=observer, total_steps=total)
+        return runner.run(odometers, sequences, observer=observer, total_steps=total, step_timeout=step_timeout)
     except FileFormatError as exc:  # an image that went bad after the folder was checked
         raise ComparisonError(str(exc)) from None
 
@@ -253,11 +329,14 @@ def odometer_configs(odometers: dict) -> dict[str, str]:
             )
         ]
 
-    return {
-        name: ", ".join(flat("", odo.config))
-        for name, odo in odometers.items()
-        if dataclasses.is_dataclass(getattr(odo, "config", None))
-    }
+    def config_of(odo: Odometer) -> object:
+        try:
+            return getattr(odo, "config", None)
+        except Exception:  # noqa: BLE001 - a plug-in's property that raises: nothing to show
+            return None
+
+    configs = {name: config_of(odo) for name, odo in odometers.items()}
+    return {name: ", ".join(flat("", c)) for name, c in configs.items() if dataclasses.is_dataclass(c)}
 
 
 def run_comparison(
@@ -271,10 +350,11 @@ def run_comparison(
     ``sequences``: with ``config.tum``, the folder already read by :func:`tum_sequences`."""
     if config.split not in SPLITS:
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
+    step_timeout = check_step_timeout(config.step_timeout)
     if odometers is None:
         odometers = load_odometers(config.odometers, config.options)
     if config.tum is not None:
-        blind = [name for name, odo in odometers.items() if getattr(odo, "needs_action", False)]
+        blind = [name for name, odo in odometers.items() if _needs_action(name, odo)]
         if blind and config.odometers is not None:
             raise ComparisonError(
                 f"{blind[0]} needs the action of every step, and real data has none; leave it out of a --tum comparison"
@@ -282,7 +362,8 @@ def run_comparison(
         odometers = {name: odo for name, odo in odometers.items() if name not in blind}  # all, by default
         sequences = sequences if sequences is not None else tum_sequences(config)
         depth_warning = sequences[0].depth_warning()  # read before the run: a few frames
-        results = _run(odometers, sequences, observer)
+        results = _run(odometers, sequences, observer, step_timeout)
+        no_depth = empty_depth_warnings(results)
         title = f"odolab compare on TUM folder {config.tum}"
         dropped = sequences[0].dropped
         left_out = (
@@ -302,8 +383,9 @@ def run_comparison(
             camera,
             *_options_note(config),
             *([depth_warning] if depth_warning else []),
+            *no_depth,
         ]
-        warnings = ([left_out] if any(dropped.values()) else []) + ([depth_warning] if depth_warning else [])
+        warnings = ([left_out] if any(dropped.values()) else []) + ([depth_warning] if depth_warning else []) + no_depth
         return ComparisonResult(
             results=results,
             rows=summary.summarize(results),
@@ -336,7 +418,8 @@ def run_comparison(
                 goals[ep.name] = (float(ep.info["goal"][0]), float(ep.info["goal"][1]))
             yield ep
 
-    results = _run(odometers, noted(episodes), observer, total)
+    results = _run(odometers, noted(episodes), observer, step_timeout, total)
+    no_depth = empty_depth_warnings(results)
     one = [r for r in results if r.odometer == results[0].odometer]
     steps = sum(len(r.actions) for r in one)
     collided = sum(int(r.collisions.sum()) for r in one if r.collisions is not None)
@@ -350,6 +433,7 @@ def run_comparison(
     ]
     notes += [f"Command: {config.command}"] if config.command else []
     notes += _options_note(config)
+    notes += no_depth
     plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
     title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
     return ComparisonResult(
@@ -359,5 +443,6 @@ def run_comparison(
         title=title,
         notes=notes,
         plans=plans,
+        warnings=no_depth,
         configs=odometer_configs(odometers),
     )

@@ -385,7 +385,8 @@ class OdometerRegistry:
     def resolve(self, name: str) -> Callable[..., Odometer]:
         """The factory for ``name``; :class:`UnknownOdometerError` lists the valid choices.
         ``head(a,b,...)`` is odometer ``head`` with its option ``inputs="a,b,..."`` (e.g. ``fused(icp,robust-vo)``);
-        ``module:Class`` is imported, ``path/to/file.py:Class`` is imported from that file.
+        ``module:Class`` is imported, ``path/to/file.py:Class`` is imported from that file; a module
+        that cannot be imported (whatever it raises) is an :class:`UnknownOdometerError` naming it.
         ``ValueError`` for a name nested deeper than :data:`MAX_NESTING`."""
         check_nesting(name)
         composite = COMPOSITE.fullmatch(name)
@@ -404,6 +405,10 @@ class OdometerRegistry:
                     obj = getattr(obj, part)
             except (ImportError, AttributeError) as exc:
                 raise UnknownOdometerError(f"odometer {name!r}: cannot import {target!r} ({exc})") from None
+            except (Exception, SystemExit) as exc:  # noqa: BLE001 - a plug-in's module may raise anything at import
+                raise UnknownOdometerError(
+                    f"odometer {name!r}: cannot import {target!r} ({type(exc).__name__} while imported: {exc})"
+                ) from None
             return obj
         return target
 
