@@ -42,6 +42,7 @@ from odolab.api import (
 )
 from odolab.learning import resize_frame
 from odolab.pose_corrector.checkpoint import SHIPPED_RECIPE, load_model, shipped_model
+from odolab.pose_corrector.config import PoseCorrectorTraining
 from odolab.pose_corrector.model import apply_correction, pair_inputs
 from odolab.robust_vo.odometer import planar_covariance_to_6d
 
@@ -69,9 +70,10 @@ class CorrectedOdometer(Odometer):
             raise ValueError(f"checkpoint must be the path of a model file, got {checkpoint!r:.80}")
         path = checkpoint or shipped_model(name)
         if not checkpoint and not path.is_file():
+            change = "" if name == PoseCorrectorTraining().inner else f" --set 'inner={name}'"
             raise ValueError(
                 f"corrected({name}): no shipped model for {name} ({path}); train one (python -m "
-                f"odolab.pose_corrector.train --config {SHIPPED_RECIPE} --set 'inner={name}') "
+                f"odolab.pose_corrector.train --config {SHIPPED_RECIPE}{change} --export {path}) "
                 "or pass checkpoint=<model file>"
             )
         self.cfg, self.net, self.info = load_model(path)
