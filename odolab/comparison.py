@@ -435,7 +435,9 @@ def run_comparison(
     notes += _options_note(config)
     notes += no_depth
     plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
-    title = f"odolab compare: {config.episodes} {config.split} episodes, seed {config.seed}"
+    from odolab.report import counted
+
+    title = f"odolab compare: {counted(config.episodes, config.split + ' episode')}, seed {config.seed}"
     return ComparisonResult(
         results=results,
         rows=summary.summarize(results),

@@ -75,7 +75,7 @@ MAX_TIMEOUTS_IN_A_ROW = 3
 #: The largest ``batch_size`` an odometer may declare (far above any sequence here).
 MAX_BATCH_SIZE = 1_000_000
 #: The :class:`Frame` fields only oracle odometers see (removed for the others, :func:`guarded_frame`).
-ORACLE_ONLY_FIELDS = ("gt_pose",)
+ORACLE_ONLY_FIELDS = ("gt_pose", "clean_depth")
 
 #: Why a step failed, as counted in :attr:`SequenceResult.failure_reasons`.
 FAILURE_REASONS = {

@@ -496,7 +496,11 @@ def require_results(outcome: Outcome, out: Path, scale: str) -> None:
 
 def say_done(outcome: Outcome, rows: int, out: Path) -> None:
     """Print how many units were computed and rows written; name the missing units on stderr."""
-    print(f"{len(outcome.computed)} units computed, {rows} rows -> {out}")
+    from odolab.report import counted
+
+    print(
+        f"{counted(len(outcome.computed), 'unit')} computed, {counted(rows, 'row')} -> {out}; open {out / 'index.html'}"
+    )
     say_missing(outcome.missing)
 
 

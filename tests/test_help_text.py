@@ -8,7 +8,6 @@ import types
 
 import pytest
 
-import odolab.cli.args
 from odolab.cli.help_text import PlainHelp, command_face, plain
 
 
@@ -62,10 +61,6 @@ def test_the_odolab_command_runs_a_subcommand_under_its_face(monkeypatch, capsys
     assert capsys.readouterr().out.startswith("usage: odolab thing [-h]")
 
 
-@pytest.mark.skipif(
-    not issubclass(odolab.cli.args.ArgumentParser, PlainHelp),
-    reason="odolab.cli.args.ArgumentParser does not derive from PlainHelp yet",
-)
 @pytest.mark.parametrize("name", ["compare", "navigate", "simcard"])
 def test_odolab_subcommand_help_is_plain_and_names_the_odolab_face(name, capsys):
     from odolab.cli.commands import main

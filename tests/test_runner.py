@@ -291,4 +291,9 @@ def test_oracle_only_fields_are_removed_for_other_odometers():
     assert runner.guarded_frame(frame, oracle=False).gt_pose is None
     seen = runner.guarded_frame(frame, oracle=True).gt_pose
     assert np.array_equal(seen, frame.gt_pose) and not seen.flags.writeable
-    assert runner.ORACLE_ONLY_FIELDS == ("gt_pose",)
+    assert runner.ORACLE_ONLY_FIELDS == ("gt_pose", "clean_depth")
+    from odolab.types import Frame
+
+    simulated = Frame(frame.rgb, frame.depth, gt_pose=frame.gt_pose, clean_depth=frame.depth + 0.1)
+    assert runner.guarded_frame(simulated, oracle=False).clean_depth is None
+    assert np.array_equal(runner.guarded_frame(simulated, oracle=True).clean_depth, frame.depth + 0.1)

@@ -19,6 +19,7 @@ import threading
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
+from odolab.cli.help_text import PlainHelp
 from odolab.io.lock import FolderLock
 from odolab.parallel import Execution
 
@@ -30,7 +31,7 @@ class UsageError(Exception):
     """A mistake in the user's input (bad argument, unreadable file...). The message names it."""
 
 
-class ArgumentParser(argparse.ArgumentParser):
+class ArgumentParser(PlainHelp):
     """argparse whose mistakes raise :class:`UsageError` (so :func:`run_cli` prints one line), and
     which takes options only as spelled in full (``--ep`` is not ``--episodes``)."""
 

@@ -102,6 +102,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=60,
         help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 60)",
     )
+    ap.add_argument(
+        "--step-timeout",
+        type=number("--step-timeout", float, 0.001, 86400.0),
+        default=60.0,
+        help="seconds one step of an odometer may take before it fails as timed-out; after 3 in a row the "
+        "odometer is stopped for the sequence (default 60)",
+    )
     for kind, default, what in (
         ("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"),
         ("depth", 1.0, "Redwood depth"),
@@ -261,6 +268,7 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
         seed=args.seed,
         split=args.split,
         max_steps=args.max_steps,
+        step_timeout=args.step_timeout,
         noise=NoiseConfig(rgb=args.rgb_noise, depth=args.depth_noise, actuation=args.actuation_noise),
         tum=args.tum,
         tum_depth_scale=args.depth_scale,
