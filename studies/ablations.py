@@ -1143,7 +1143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     scale = definition.scales[args.scale]
     out = args.out or Path("reports") / NAME
     check_gpus(scale, args.scale, serial=args.serial, address=args.ray_address, redraw=args.redraw)
-    framework.check_options(args, out, definition.study)
+    _held = framework.check_options(args, out, definition.study)  # this run's hold on out, kept until main returns
     check_folders(out)
     out = out.resolve()  # the units run elsewhere (Ray workers): every path they get is absolute
     try:

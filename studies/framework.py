@@ -720,74 +720,9 @@ def begin(name: str, prog: str, argv: Sequence[str] | None, scale_of: Callable[[
     return StudyRun(config, prog, argv, args, scale, out, identity, held)
 
 
-#: The title of the reports index: a page with another is a user's, never written over.
-INDEX_TITLE = "<title>odolab reports</title>"
-#: Files named so are report pages; what a report folder holds besides them is listed when it has none.
-PAGE_NAMES = ("index.html", "report.html")
-
-
-def _report_files(reports: Path) -> list[Path]:
-    """Every regular file under ``reports`` (relative), reached through folders only (no links)."""
-    found = []
-    for root, dirs, files in os.walk(reports):
-        dirs[:] = sorted(d for d in dirs if not (Path(root) / d).is_symlink())
-        found += [(Path(root) / f).relative_to(reports) for f in sorted(files) if (Path(root) / f).is_file()]
-    return [f for f in found if not (Path(reports) / f).is_symlink()]
-
-
-def _page_title(page: Path) -> str:
-    """The ``<title>`` of an HTML page (the folder's name when it has none or cannot be read)."""
-    try:
-        text = page.read_text(encoding="utf-8", errors="replace")[:100_000]
-    except OSError:
-        return page.parent.name
-    m = re.search(r"<title>(.*?)</title>", text, flags=re.DOTALL | re.IGNORECASE)
-    return " ".join(html.unescape(m.group(1)).split()) if m and m.group(1).strip() else page.parent.name
-
-
 def write_reports_index(reports: Path) -> Path:
-    """``reports/index.html``: a link to every report page under ``reports`` at any depth
-    (``index.html`` or ``report.html``) with its title; then each top-level folder with no page,
-    linking its Markdown files."""
-    from odolab.io.atomic import write_text_atomic
-    from odolab.io.owned import UnsafeOutputError, owned_path
+    """``reports/index.html`` (:func:`studies.reports_index.write_reports_index`: relative,
+    percent-encoded links to the report pages found there)."""
+    from studies.reports_index import write_reports_index as write
 
-    reports = Path(reports)
-    files = _report_files(reports)
-    pages = [f for f in files if f.name in PAGE_NAMES and f != Path("index.html")]
-    items = [
-        f'<li><a href="{html.escape(f.as_posix())}">{html.escape(f.parent.as_posix())}</a>: '
-        f"{html.escape(_page_title(reports / f))}</li>"
-        for f in pages
-    ]
-    with_page = {f.parts[0] for f in pages}
-    bare = sorted({f.parts[0] for f in files if len(f.parts) > 1} - with_page)
-    others = []
-    for top in bare:
-        notes = [f for f in files if f.parts[0] == top and f.suffix == ".md"]
-        links = ", ".join(
-            f'<a href="{html.escape(f.as_posix())}">{html.escape(f.relative_to(top).as_posix())}</a>' for f in notes
-        )
-        others.append(f'<li><a href="{html.escape(top)}/">{html.escape(top)}</a>{": " + links if links else ""}</li>')
-    page = (
-        f'<!doctype html>\n<html lang="en"><head><meta charset="utf-8">{INDEX_TITLE}'
-        "<style>body{font-family:sans-serif;max-width:900px;margin:2em auto;padding:0 1em}li{margin:.3em 0}</style>"
-        "</head><body><h1>odolab reports</h1><h2>Report pages</h2><ul>"
-        + "".join(items)
-        + "</ul>"
-        + (f"<h2>Folders without a page</h2><ul>{''.join(others)}</ul>" if others else "")
-        + "</body></html>\n"
-    )
-    path = owned_path(reports, "index.html")
-    if path.exists() and not _is_reports_index(path):
-        raise UnsafeOutputError(path, "odolab's reports index", "another page, which is left alone")
-    write_text_atomic(path, page)
-    return path
-
-
-def _is_reports_index(path: Path) -> bool:
-    """Whether ``path`` is a page :func:`write_reports_index` wrote (its title), not a user's own."""
-    try:
-        return INDEX_TITLE in path.read_text(encoding="utf-8", errors="replace")[:2000]
-    except OSError:
-        return False
+    return write(reports)

@@ -623,7 +623,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = args.out or framework.default_out(config)
-    framework.check_options(args, out, config)
+    _held = framework.check_options(args, out, config)  # this run's hold on out, kept until main returns
     check_folder(out)
     out = out.resolve()  # the units run elsewhere (Ray workers): the path they write under is absolute
     execution = execution_of(args)

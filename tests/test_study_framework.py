@@ -10,7 +10,7 @@ import pytest
 
 from odolab.cli import UsageError
 from odolab.parallel import SERIAL
-from studies import e_table, framework
+from studies import e_table, framework, reports_index
 
 
 def test_a_result_is_reused_only_for_the_same_key(tmp_path: Path):
@@ -146,7 +146,7 @@ def test_the_reports_index_command(tmp_path: Path, capsys):
 def test_the_committed_index_links_every_committed_report_page():
     reports = framework.HERE.parent / "reports"
     index = (reports / "index.html").read_text()
-    pages = [p for name in framework.PAGE_NAMES for p in reports.rglob(name) if p != reports / "index.html"]
+    pages = [p for name in reports_index.PAGE_NAMES for p in reports.rglob(name) if p != reports / "index.html"]
     assert pages and (reports / "navigation" / "report.html") in pages
     for p in pages:
         assert f'href="{p.relative_to(reports).as_posix()}"' in index, f"run python -m studies.reports_index: {p}"
