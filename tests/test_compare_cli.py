@@ -41,6 +41,8 @@ def test_compare_writes_table_report_and_trajectories(tmp_path, capsys):
     }
     printed = capsys.readouterr().out
     assert "action-prior" in printed and "table.csv" in printed
+    page = (out / "report.html").read_text()
+    assert "--odometers ground-truth,action-prior" in page  # the report's command names its odometers
 
 
 def test_same_seed_same_errors_other_seed_other_errors(tmp_path):

@@ -132,7 +132,7 @@ def test_a_missing_trajectory_file_computes_its_unit_again(ci_run, capsys):
     text = lost.read_text()
     lost.unlink()
     assert kitti_style.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
-    assert "1 units computed" in capsys.readouterr().out
+    assert "1 unit computed" in capsys.readouterr().out
     assert lost.read_text() == text and (out / "table.csv").read_text() == table
 
 

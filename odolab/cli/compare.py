@@ -8,6 +8,7 @@ written to ``runs/compare`` (table.csv, report.html, figures, trajectories). Epi
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -285,7 +286,15 @@ def _command(args: argparse.Namespace) -> str:
         f"python -m odolab.compare --episodes {args.episodes} --seed {args.seed} "
         f"--split {args.split} --max-steps {args.max_steps} --rgb-noise {args.rgb_noise:g} "
         f"--depth-noise {args.depth_noise:g} --actuation-noise {args.actuation_noise:g}"
+        + "".join(f" --{flag} {shlex.quote(str(value))}" for flag, value in _chosen(args))
     )
+
+
+def _chosen(args: argparse.Namespace) -> list[tuple[str, object]]:
+    """The options that choose the odometers, as given (flag without dashes, value)."""
+    given = [("odometers", args.odometers)] if args.odometers is not None else []
+    given += [("config", args.config)] if args.config is not None else []
+    return given + [("odometer-option", o) for o in args.odometer_option or []]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

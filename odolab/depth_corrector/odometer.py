@@ -92,7 +92,7 @@ class DenoisedOdometer(Odometer):
         small_rgb, small_depth = resize_frame(rgb, depth, *size)
         with torch.inference_mode():
             corrected, spread = self.net(
-                torch.from_numpy(np.ascontiguousarray(small_rgb))[None],
+                torch.from_numpy(np.array(small_rgb, np.uint8))[None],  # a writable copy (frames are read-only)
                 torch.from_numpy(np.array(small_depth, np.float32))[None],
                 self._place,
             )
