@@ -36,3 +36,18 @@ def test_a_subcommand_runs_its_command(capsys, tmp_path):
         main(["bench", "--help"])
     assert exit_.value.code == 0
     assert "usage" in usage()
+
+
+def test_a_plug_in_beside_the_user_loads_under_the_odolab_face(tmp_path, monkeypatch, capsys):
+    import sys
+    from pathlib import Path
+
+    source = Path(__file__).resolve().parents[1] / "examples" / "nominal_motion.py"
+    (tmp_path / "my_plug_in_odometer.py").write_text(source.read_text())
+    monkeypatch.chdir(tmp_path)
+    path = list(sys.path)
+    argv = ["--odometers", "my_plug_in_odometer:NominalMotion", "--episodes", "1", "--max-steps", "2"]
+    code = main(["compare", *argv, "--serial", "--quiet", "--no-cache", "--out", str(tmp_path / "out")])
+    assert code == 0, capsys.readouterr().err
+    assert (tmp_path / "out" / "table.csv").read_text().count("my_plug_in_odometer") == 1
+    assert sys.path == path  # the folder is importable only while the command runs

@@ -11,7 +11,9 @@ was typed with (``usage: odolab compare``; :func:`odolab.cli.help_text.command_f
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -97,8 +99,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     _, module, _ = COMMANDS[name]
     entry = importlib.import_module(module).main
-    with command_face(f"odolab {name}"):  # its --help says "usage: odolab NAME", not the python -m form
+    with command_face(f"odolab {name}"), _current_folder_importable():  # as under python -m
         return run_cli(entry, f"odolab {name}", rest)
+
+
+@contextlib.contextmanager
+def _current_folder_importable():
+    """The current folder first on ``sys.path`` while a command runs, as ``python -m`` puts it, so a
+    plug-in ``module:Class`` next to the user loads under both faces of a command."""
+    here = os.getcwd()
+    added = here not in sys.path and "" not in sys.path
+    if added:
+        sys.path.insert(0, here)
+    try:
+        yield
+    finally:
+        if added and here in sys.path:
+            sys.path.remove(here)
 
 
 def _print(text: str, stream, code: int) -> int:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from collections.abc import Sequence
@@ -169,8 +168,8 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
         "segments",
     ]
 
-    def f(x: float, spec: str) -> str:
-        return "-" if not math.isfinite(x) else format(x, spec)
+    from odolab.summary import fmt as f
+    from odolab.summary import text_table
 
     body = []
     for path, ev in rows:
@@ -181,7 +180,7 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
                 str(len(p.idx_gt)),
                 f"{p.n_gt - p.used('gt')}/{p.n_est - p.used('est')}",
                 f"{p.coverage:.3f}",
-                f"{ev.ate.scale:.4f}",
+                f(ev.ate.scale, ".4f"),
                 f(ev.ate.rmse, ".4f"),
                 f(ev.rpe.trans.rmse, ".4f"),
                 f(ev.rpe.rot.rmse, ".4f"),
@@ -190,8 +189,6 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
                 str(ev.kitti.n_segments),
             ]
         )
-    from odolab.summary import text_table
-
     return "\n".join(head + [text_table(cols, body)])
 
 

@@ -118,6 +118,7 @@ def write_report(folder: Path, rows: list[dict], status: dict) -> None:
         ylabel={k: "mean abs. error [mm]" for k in ["all", *bin_labels(), "edges"]},
         scale={k: 1000.0 for k in ["all", *bin_labels(), "edges"]},
         title="Depth corrector: validation depth error after each epoch (val split)",
+        wrap=4,
     )
     write_bytes_atomic(folder / "training.json", (json.dumps(status, indent=1) + "\n").encode())
 

@@ -45,11 +45,13 @@ class Curves:
         ylabel: dict[str, str] | None = None,
         title: str = "",
         scale: dict[str, float] | None = None,
+        wrap: int | None = None,
     ) -> None:
         """Small multiples: one panel per (``rows`` value, ``cols`` value), ``x`` on the horizontal axis
         and one line per ``series`` column (value: matplotlib style, with ``label``). ``where``
         filters rows; ``scale`` multiplies values per ``cols`` value (e.g. rad -> deg);
-        ``ylabel`` per ``cols`` value."""
+        ``ylabel`` per ``cols`` value; ``wrap``: at most this many panels a line, the panels then
+        read in order left to right, top to bottom."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -61,35 +63,35 @@ class Curves:
         col_keys = list(dict.fromkeys(r[cols] for r in data))
         if not data:
             return
+        panels = [(rk, ck) for rk in row_keys for ck in col_keys]
+        n_cols = min(wrap, len(panels)) if wrap else len(col_keys)
+        n_rows = -(-len(panels) // n_cols)
         fig, axes = plt.subplots(
-            len(row_keys),
-            len(col_keys),
-            figsize=(3.6 * len(col_keys), 2.6 * len(row_keys)),
-            squeeze=False,
-            constrained_layout=True,
+            n_rows, n_cols, figsize=(3.6 * n_cols, 2.6 * n_rows), squeeze=False, constrained_layout=True
         )
-        for i, rk in enumerate(row_keys):
-            for j, ck in enumerate(col_keys):
-                ax = axes[i][j]
-                cell = [r for r in data if r[rows] == rk and r[cols] == ck]
-                factor = (scale or {}).get(ck, 1.0)
-                for column, style in series.items():
-                    pts = [(r[x], r[column] * factor) for r in cell if r.get(column) not in (None, "")]
-                    if pts:
-                        xs, ys = zip(*pts)
-                        ax.plot(xs, ys, **{"marker": "o", "markersize": 3, **style})
-                ax.set_title(f"{rk}: {ck}", fontsize=9)
-                ax.set_xlabel(x)
-                ax.set_ylabel((ylabel or {}).get(ck, ""))
-                ax.grid(alpha=0.3)
-                values = [r[c] * factor for r in cell for c in series if r.get(c) not in (None, "")]
-                ax.set_ylim(0, 1.15 * max(values) if values and max(values) > 0 else 1)
-                xs_all = [r[x] for r in cell if r.get(x) not in (None, "")]
-                if xs_all and min(xs_all) == max(xs_all):  # one epoch: whole-number ticks around it
-                    ax.set_xlim(min(xs_all) - 1, max(xs_all) + 1)
-                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-                if i == 0 and j == 0:
-                    ax.legend(fontsize=7)
+        for ax in axes.flat[len(panels) :]:
+            ax.set_visible(False)
+        for k, (rk, ck) in enumerate(panels):
+            ax = axes.flat[k]
+            cell = [r for r in data if r[rows] == rk and r[cols] == ck]
+            factor = (scale or {}).get(ck, 1.0)
+            for column, style in series.items():
+                pts = [(r[x], r[column] * factor) for r in cell if r.get(column) not in (None, "")]
+                if pts:
+                    xs, ys = zip(*pts)
+                    ax.plot(xs, ys, **{"marker": "o", "markersize": 3, **style})
+            ax.set_title(f"{rk}: {ck}", fontsize=9)
+            ax.set_xlabel(x)
+            ax.set_ylabel((ylabel or {}).get(ck, ""))
+            ax.grid(alpha=0.3)
+            values = [r[c] * factor for r in cell for c in series if r.get(c) not in (None, "")]
+            ax.set_ylim(0, 1.15 * max(values) if values and max(values) > 0 else 1)
+            xs_all = [r[x] for r in cell if r.get(x) not in (None, "")]
+            if xs_all and min(xs_all) == max(xs_all):  # one epoch: whole-number ticks around it
+                ax.set_xlim(min(xs_all) - 1, max(xs_all) + 1)
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+            if k == 0:
+                ax.legend(fontsize=7)
         if title:
             fig.suptitle(title, fontsize=10)
         buffer = io.BytesIO()
