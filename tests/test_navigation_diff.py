@@ -111,9 +111,13 @@ def test_bad_tables_are_refused_in_one_line_naming_file_and_line(tmp_path, capsy
             continue
         assert code == 2 and len(err) == 1 and words in err[0] and str(bad / "episodes.csv") in err[0], (words, err)
     code, _, err = _diff([good, tmp_path / "none"], capsys)
-    assert code == 2 and len(err) == 1 and "no such episodes table" in err[0] and err[0].count(str(tmp_path / "none")) == 1
+    assert (
+        code == 2 and len(err) == 1 and "no such episodes table" in err[0] and err[0].count(str(tmp_path / "none")) == 1
+    )
     code, _, err = _diff([good, tmp_path / ("x" * 300)], capsys)  # too long a name for the file system
-    assert code == 2 and len(err) == 1 and "expected folder and file names of at most 255 bytes, got one of 300" in err[0]
+    assert (
+        code == 2 and len(err) == 1 and "expected folder and file names of at most 255 bytes, got one of 300" in err[0]
+    )
     other = _folder(tmp_path, "other", [("z", 0, 1, 10, 2)])
     code, _, err = _diff([good, other], capsys)
     assert code == 2 and "share no episode" in err[-1]
