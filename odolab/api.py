@@ -93,6 +93,7 @@ __all__ = [
     "load_tum_sequence",
     "nominal_motion",
     "nominal_planar",
+    "one_input",
     "pair_trajectories",
     "planar_to_transform",
     "range_text",
@@ -112,7 +113,7 @@ __all__ = [
 
 if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and import-linter
     from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonError, ComparisonResult, run_comparison
-    from odolab.composites import load_inputs
+    from odolab.composites import load_inputs, one_input
     from odolab.datasets import Pair, PairDataset, episode_specs, true_motions
     from odolab.episodes import (
         EpisodeCache,
@@ -149,6 +150,7 @@ _LAZY = {
     "SequenceResult": "odolab.runner",
     "failure_reason": "odolab.runner",
     "load_inputs": "odolab.composites",
+    "one_input": "odolab.composites",
     "load_tum_sequence": "odolab.io.tum_rgbd",
     "UnknownCameraError": "odolab.io.tum_rgbd",
     "write_bytes_atomic": "odolab.io.atomic",

@@ -3,10 +3,22 @@ each with its own options from a TOML file (``options_file``, as ``compare --con
 
 from __future__ import annotations
 
-from odolab.odometer import REGISTRY, Odometer
+from odolab.odometer import REGISTRY, Odometer, split_odometer_names
 from odolab.options import check_options, read_options_file
 
-__all__ = ["load_inputs"]
+__all__ = ["load_inputs", "one_input"]
+
+
+def one_input(owner: str, inputs: object) -> str:
+    """The one inner odometer name of ``owner(inputs)`` (``denoised(icp)``: ``icp``); ``ValueError``
+    for none or several."""
+    names = split_odometer_names(inputs) if isinstance(inputs, str) else []
+    if len(names) != 1:
+        raise ValueError(
+            f"{owner} takes one inner odometer, e.g. {owner}(open3d-rgbd), got {len(names)}"
+            + (f" ({', '.join(names)})" if names else "")
+        )
+    return names[0]
 
 
 def load_inputs(owner: str, names: list[str], options_file: str = "") -> dict[str, Odometer]:

@@ -22,21 +22,10 @@ import cv2
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads, load_inputs, split_odometer_names
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads, load_inputs, one_input
 from odolab.depth_corrector.checkpoint import SHIPPED, load_model
 from odolab.depth_corrector.model import pixel_place
 from odolab.learning import resize_frame
-
-
-def _one_input(owner: str, inputs: object) -> str:
-    """The one inner odometer name of ``owner(inputs)``; ``ValueError`` otherwise."""
-    names = split_odometer_names(inputs) if isinstance(inputs, str) else []
-    if len(names) != 1:
-        raise ValueError(
-            f"{owner} takes one inner odometer, e.g. {owner}(open3d-rgbd), got {len(names)}"
-            + (f" ({', '.join(names)})" if names else "")
-        )
-    return names[0]
 
 
 class DenoisedOdometer(Odometer):
@@ -47,7 +36,7 @@ class DenoisedOdometer(Odometer):
     def __init__(
         self, inputs: str = "", checkpoint: str = "", max_spread: float = 0.0, threads: int = 2, options_file: str = ""
     ) -> None:
-        name = _one_input("denoised", inputs)
+        name = one_input("denoised", inputs)
         if isinstance(max_spread, bool) or not isinstance(max_spread, (int, float)) or not 0 <= max_spread <= 100:
             raise ValueError(
                 f"max_spread must be a number of metres in [0, 100] (0: keep every pixel), got {max_spread!r}"
@@ -131,7 +120,7 @@ class NoiselessDepthOdometer(Odometer):
     oracle = True
 
     def __init__(self, inputs: str = "", options_file: str = "") -> None:
-        name = _one_input("noiseless-depth", inputs)
+        name = one_input("noiseless-depth", inputs)
         self.inner = load_inputs("noiseless-depth", [name], options_file)[name]
         self.needs_action, self.threads = self.inner.needs_action, getattr(self.inner, "threads", None)
         self.identity_digest = hashlib.sha256(

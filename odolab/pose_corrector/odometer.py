@@ -38,24 +38,13 @@ from odolab.api import (
     failure_reason,
     load_inputs,
     load_odometer,
-    split_odometer_names,
+    one_input,
 )
 from odolab.learning import resize_frame
 from odolab.pose_corrector.checkpoint import SHIPPED_RECIPE, load_model, shipped_model
 from odolab.pose_corrector.config import PoseCorrectorTraining
 from odolab.pose_corrector.model import apply_correction, pair_inputs
 from odolab.robust_vo.odometer import planar_covariance_to_6d
-
-
-def one_input(owner: str, inputs: object) -> str:
-    """The one inner odometer name of ``owner(inputs)``; ``ValueError`` otherwise."""
-    names = split_odometer_names(inputs) if isinstance(inputs, str) else []
-    if len(names) != 1:
-        raise ValueError(
-            f"{owner} takes one inner odometer, e.g. {owner}(open3d-rgbd), got {len(names)}"
-            + (f" ({', '.join(names)})" if names else "")
-        )
-    return names[0]
 
 
 class CorrectedOdometer(Odometer):
