@@ -266,11 +266,11 @@ def test_a_tiny_model_learns_its_batch(data):
     torch.manual_seed(0)
     cfg = dataclasses.replace(TINY, dropout=0.0)
     nets = build_networks(cfg)
-    idx = data.select([Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT])[:16]
+    idx = data.select([Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT])[:8]
     batch = make_batch(data, Samples(idx, np.zeros(len(idx), bool), np.zeros(len(idx), bool)), cfg, torch.device("cpu"))
     opt = torch.optim.Adam(nets.parameters(), lr=2e-3)
     losses = []
-    for _ in range(60):
+    for _ in range(40):
         loss = (predict(nets, cfg, batch.x, batch.action) - batch.target).pow(2).sum(1).mean()
         opt.zero_grad()
         loss.backward()
