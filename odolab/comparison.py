@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from odolab import runner, summary
+from odolab import paired, runner, summary
 from odolab.odometer import (
     REGISTRY,
     IncompleteOdometerError,
@@ -111,6 +111,8 @@ class ComparisonResult:
     """What a person should hear at once (e.g. frames a TUM folder had to leave out)."""
     configs: dict[str, str] = field(default_factory=dict)
     """Each configurable odometer's settings (:func:`odometer_configs`), for the report."""
+    paired_rows: list[paired.PairedRow] = field(default_factory=list)
+    """Each composite against its inputs on the same steps (:mod:`odolab.paired`)."""
 
 
 def odometer_names(names: list[str] | None) -> list[str]:
@@ -395,6 +397,7 @@ def run_comparison(
             plans=None,
             warnings=warnings,
             configs=odometer_configs(odometers),
+            paired_rows=_paired_rows(results),
         )
 
     from odolab.datasets import episode_specs
@@ -447,4 +450,11 @@ def run_comparison(
         plans=plans,
         warnings=no_depth,
         configs=odometer_configs(odometers),
+        paired_rows=_paired_rows(results),
     )
+
+
+def _paired_rows(results: list[SequenceResult]) -> list[paired.PairedRow]:
+    """Each composite row against each of its inputs that ran too (:func:`odolab.paired.default_pairs`)."""
+    names = list(dict.fromkeys(r.odometer for r in results))
+    return paired.paired_differences(results, paired.default_pairs(names))

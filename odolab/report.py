@@ -6,6 +6,9 @@ Layout of ``DIR``::
     table_per_action.csv   per-step error per odometer and action (simulator runs), and on the
                            forward steps a collision blocked ("move_forward_collided")
     errors.png             per-step error bars per odometer and action (simulator runs)
+    table_paired.csv       each composite against each of its inputs on the same steps: the
+                           paired difference of the per-step error, its 95 % interval and verdict
+                           (columns: odolab.paired.PairedRow; when a composite and an input ran)
     report.html            all of the above on one page, with the definitions and a gallery
     trajectories/<sequence>/top-down.png            true vs estimated trajectories, top-down
     trajectories/<sequence>/<odometer>.{tum,kitti}  every estimate, and groundtruth.{tum,kitti}
@@ -40,6 +43,7 @@ from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.kitti import write_kitti_poses
 from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
 from odolab.io.tum import write_tum_trajectory
+from odolab.paired import COMPONENTS, PairedRow
 from odolab.runner import SequenceResult
 from odolab.summary import REFERENCE_ODOMETERS, ActionRow, Row, fmt, text_table
 from odolab.trajectory import Trajectory
@@ -92,7 +96,7 @@ def file_stem(name: str) -> str:
 
 #: The names compare writes (and its cleanup may remove), relative to its folder.
 COMPARE_NAMES = re.compile(
-    r"(table\.csv|table_per_action\.csv|errors\.png|report\.html"
+    r"(table\.csv|table_per_action\.csv|table_paired\.csv|errors\.png|report\.html"
     r"|trajectories/[^/]+/[^/]+\.(tum|kitti|png))"
 )
 
@@ -742,6 +746,36 @@ def _action_table(action_rows: list[ActionRow]) -> str:
     )
 
 
+def _paired_table(paired_rows: list[PairedRow]) -> str:
+    """One line per (odometer, input, group of steps): each component's difference, interval, verdict."""
+    lines: dict[tuple[str, str, str], dict[str, PairedRow]] = {}
+    for r in paired_rows:
+        lines.setdefault((r.odometer, r.against, r.action), {})[r.component] = r
+
+    def cell(r: PairedRow | None) -> str:
+        if r is None:
+            return "-"
+        interval = f" ({fmt(r.low, '+.2f')} to {fmt(r.high, '+.2f')})" if np.isfinite(r.low) else ""
+        return f"{fmt(r.diff, '+.2f')}{interval} {r.verdict}"
+
+    header = ["odometer", "against", "steps", "sequences"] + [
+        f"{c} difference, x1e-2 {'rad' if c == 'dyaw' else 'm'} (95 % interval), verdict" for c in COMPONENTS
+    ]
+    rows = []
+    for (odometer, against, action), cells in lines.items():
+        first = next(iter(cells.values()))
+        label = odometer if action == "all" else f"{odometer}: {action}"
+        rows.append([label, against, str(first.steps), str(first.sequences), *(cell(cells.get(c)) for c in COMPONENTS)])
+    return _html_table(
+        header,
+        rows,
+        "Paired difference of the mean absolute error per step as used (odometer minus the input it is "
+        "built on, on the same steps; negative: lower error), mean over sequences with a 95 % Student-t "
+        "interval over the per-sequence differences. Verdict: lower or higher when the whole interval "
+        "is on one side of zero, else undecided. Also in table_paired.csv.",
+    )
+
+
 _STYLE = """body{font-family:system-ui,sans-serif;max-width:1280px;margin:2em auto;padding:0 1em;color:#222;
 line-height:1.45} h1{font-size:1.6em} h2{margin-top:1.6em;border-bottom:1px solid #ddd}
 table{border-collapse:collapse;margin:.5em 0;font-size:.86em} caption{caption-side:bottom;text-align:left;
@@ -763,6 +797,7 @@ def write_report(
     notes: list[str],
     plans: dict[str, FloorPlan] | None = None,
     configs: dict[str, str] | None = None,
+    paired_rows: list[PairedRow] | None = None,
 ) -> None:
     """Write the tables, figures, trajectories and ``report.html`` into ``out`` (layout: module
     docstring), the fields of a :class:`~odolab.comparison.ComparisonResult` given by name; files of the previous run into ``out`` that this one did not write are removed."""
@@ -779,6 +814,8 @@ def write_report(
     write_text_atomic(folder.path("table.csv"), _csv(rows, Row))
     if action_rows:
         write_text_atomic(folder.path("table_per_action.csv"), _csv(action_rows, ActionRow))
+    if paired_rows:
+        write_text_atomic(folder.path("table_paired.csv"), _csv(paired_rows, PairedRow))
     write_trajectories(results, folder)
 
     problems: list[str] = []
@@ -809,6 +846,8 @@ def write_report(
                 '<h2>Per-step error by odometer and action</h2><img class="wide" src="errors.png" '
                 'alt="per-step error bars">'
             )
+    if paired_rows:
+        sections.append("<h2>What each composite adds over its input</h2>" + _paired_table(paired_rows))
     names = list(dict.fromkeys(r.odometer for r in results))
     cards = []
     for seq in dict.fromkeys(r.sequence for r in results if r.gt_poses is not None):

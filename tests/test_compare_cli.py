@@ -204,3 +204,17 @@ def test_noiseless_sensors_and_actuation_change_the_errors(tmp_path):
     noisy, exact = _table(tmp_path / "a" / "table.csv")[0], _table(tmp_path / "b" / "table.csv")[0]
     # Without actuation noise the true motion is the nominal one; the prior's mean is off by its bias only
     assert float(exact["dyaw"]) < float(noisy["dyaw"])
+
+
+def test_a_composite_is_paired_with_its_input_in_table_paired_and_the_report(tmp_path, capsys):
+    out = tmp_path / "run"
+    names = "action-prior,noiseless-depth(action-prior)"  # the prior reads no depth: no difference
+    argv = ["--odometers", names, "--episodes", "2", "--max-steps", "6", "--serial", "--quiet", "--no-cache"]
+    assert run_cli(main, "odolab.compare", [*argv, "--out", str(out)]) == 0
+    assert "noiseless-depth(action-prior) against action-prior, paired on 12 steps" in capsys.readouterr().out
+    rows = _table(out / "table_paired.csv")
+    assert {(r["action"], r["component"]) for r in rows} >= {("all", "dx"), ("all", "dz"), ("all", "dyaw")}
+    assert all(float(r["diff"]) == 0 and r["verdict"] == "undecided" for r in rows)
+    assert {r["sequences"] for r in rows if r["action"] == "all"} == {"2"}
+    assert "What each composite adds over its input" in (out / "report.html").read_text()
+    assert "table_paired.csv" in (out / "manifest.txt").read_text()

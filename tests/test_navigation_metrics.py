@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from odolab.navigation.metrics import SUCCESS_DISTANCE, EpisodeOutcome, mean_ci, path_length
+from odolab.navigation.metrics import SUCCESS_DISTANCE, EpisodeOutcome, path_length
+from odolab.stats import mean_ci
 
 
 def test_spl_and_soft_spl_on_known_paths():

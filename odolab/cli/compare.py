@@ -227,7 +227,7 @@ def _check_folders(args: argparse.Namespace) -> FolderLock:
     try:  # what the previous run wrote, and this run's fixed files, can be replaced without leaving --out
         OutputFolder.check(
             args.out,
-            files=("table.csv", "table_per_action.csv", "errors.png", "report.html", MANIFEST),
+            files=("table.csv", "table_per_action.csv", "table_paired.csv", "errors.png", "report.html", MANIFEST),
             folders=("trajectories",),
         )
     except ManifestError as exc:
@@ -314,6 +314,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ComparisonError as exc:
             raise UsageError(f"--tum {args.tum}: {exc}") from None
     with _check_folders(args):  # --out held until the report is written
+        from odolab.paired import paired_verdicts
         from odolab.progress import StepProgressBar
         from odolab.report import format_table, write_report
         from odolab.summary import every_step_failed
@@ -328,6 +329,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"note: {warning}", file=sys.stderr)
         print(result.title)  # the table first: nothing that follows can lose it
         print(format_table(result.rows, real_data=args.tum is not None))
+        for line in paired_verdicts(result.paired_rows):
+            print(line)
         write_report(
             args.out,
             rows=result.rows,
@@ -337,6 +340,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             notes=result.notes,
             plans=result.plans,
             configs=result.configs,
+            paired_rows=result.paired_rows,
         )
         for r in result.results:
             for e in r.errors[:1]:

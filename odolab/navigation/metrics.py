@@ -1,5 +1,5 @@
 """PointNav metrics exactly as habitat-lab defines them (``habitat/tasks/nav/nav.py``; facts in
-``docs/reference-facts.md`` section 9), and their means with 95 % confidence intervals.
+``docs/reference-facts.md`` section 9); their means with 95 % intervals come from :mod:`odolab.stats`.
 
 With d_0 the geodesic distance from start to goal, d_T the geodesic distance at the end, p the
 agent's path length (the summed straight-line lengths of its actual steps, true positions):
@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 #: Habitat PointNav Challenge 2020: stop within this geodesic distance (m) of the goal.
 SUCCESS_DISTANCE = 0.36
@@ -57,38 +56,6 @@ class EpisodeOutcome:
     @property
     def soft_spl(self) -> float:
         return max(0.0, 1.0 - self.d_end / self.d0) * self.efficiency
-
-
-@dataclass(frozen=True)
-class MeanCI:
-    """A mean and its 95 % confidence interval (Student t; for 0/1 values, Wilson's score interval)."""
-
-    mean: float
-    low: float
-    high: float
-    n: int
-
-
-def mean_ci(values: np.ndarray, binary: bool = False, confidence: float = 0.95) -> MeanCI:
-    """Mean and interval of ``values``; ``binary`` (0/1 outcomes such as success) gets Wilson's score
-    interval, which stays inside [0, 1] and is not degenerate at 0 or 100 %; others Student's t."""
-    v = np.asarray(values, np.float64)
-    n = len(v)
-    if n == 0:
-        return MeanCI(float("nan"), float("nan"), float("nan"), 0)
-    m = float(v.mean())
-    z = float(stats.norm.ppf(0.5 + confidence / 2))
-    if binary:
-        if not np.isin(v, (0.0, 1.0)).all():
-            raise ValueError("binary=True needs values that are all 0 or 1")
-        centre = (m + z * z / (2 * n)) / (1 + z * z / n)
-        half = z * np.sqrt(m * (1 - m) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-        # Wilson's bounds contain the mean exactly; rounding can put them 1e-18 beyond it at 0 or n of n
-        return MeanCI(m, float(min(centre - half, m)), float(max(centre + half, m)), n)
-    if n == 1:
-        return MeanCI(m, float("nan"), float("nan"), 1)
-    half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * v.std(ddof=1) / np.sqrt(n))
-    return MeanCI(m, m - half, m + half, n)
 
 
 def belief_error(row: dict) -> float:

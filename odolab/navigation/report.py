@@ -26,7 +26,8 @@ from odolab.episodes import EpisodeSpec
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.owned import owned_path
 from odolab.navigation.agent import PolicyConfig
-from odolab.navigation.metrics import belief_error, mean_ci
+from odolab.navigation.metrics import belief_error
+from odolab.stats import mean_ci
 
 METRICS = ("success", "spl", "soft_spl", "d_end", "belief_error")
 UNBOUNDED = {"d_end", "belief_error"}  # metres: their intervals are clipped at 0 only
