@@ -87,15 +87,21 @@ KITTI_LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 _KITTI_STEP = 10
 
 
-def per_step_abs_error(est_planar: np.ndarray, gt_planar: np.ndarray) -> np.ndarray:
-    """Absolute planar errors (N, 3): |dx| m, |dz| m, |dyaw| rad (wrapped) per step."""
+def per_step_signed_error(est_planar: np.ndarray, gt_planar: np.ndarray) -> np.ndarray:
+    """Signed planar errors (N, 3), estimate minus truth per step: dx m, dz m, dyaw rad (wrapped to
+    [-pi, pi)); their mean is an odometer's bias (a steady over- or under-estimate that integrates)."""
     est = np.asarray(est_planar, dtype=np.float64).reshape(-1, 3)
     gt = np.asarray(gt_planar, dtype=np.float64).reshape(-1, 3)
     if est.shape != gt.shape:
-        raise ValueError(f"per_step_abs_error: shapes differ, {est.shape} vs {gt.shape}")
-    err = np.abs(est - gt)
-    err[:, 2] = np.abs(wrap_angle(est[:, 2] - gt[:, 2]))
+        raise ValueError(f"per-step error: shapes differ, {est.shape} vs {gt.shape}")
+    err = est - gt
+    err[:, 2] = wrap_angle(err[:, 2])
     return err
+
+
+def per_step_abs_error(est_planar: np.ndarray, gt_planar: np.ndarray) -> np.ndarray:
+    """Absolute planar errors (N, 3): |dx| m, |dz| m, |dyaw| rad (wrapped) per step."""
+    return np.abs(per_step_signed_error(est_planar, gt_planar))
 
 
 # ----------------------------------------------------------------------------- value types

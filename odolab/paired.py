@@ -107,7 +107,8 @@ def paired_verdicts(rows: list[PairedRow]) -> list[str]:
     out = []
     for (a, b), mine in lines.items():
         parts = [
-            f"{r.component} {r.diff:+.2f}" + (f" ({r.low:+.2f} to {r.high:+.2f})" if np.isfinite(r.low) else "")
+            f"{r.component} {r.diff:+.2f}"
+            + (f" ({r.low:+.2f} to {r.high:+.2f})" if np.isfinite(r.low) else "")
             + f" {r.verdict}"
             for r in mine
         ]

@@ -268,9 +268,9 @@ def _csv(rows: list, cls) -> str:
 Column = tuple[str, str, Callable[[Row], str]]
 
 
-def summary_columns(rows: list[Row], real_data: bool, spread: bool = True) -> list[Column]:
+def summary_columns(rows: list[Row], real_data: bool, spread: bool = True, bias: bool = False) -> list[Column]:
     """The columns of the summary table; with ``spread``, ``+- std`` over sequences when there
-    are several."""
+    are several; with ``bias`` (simulator runs), the signed mean error per step."""
     many = spread and any(r.sequences > 1 for r in rows)
 
     def sd(x: float) -> float | None:
@@ -296,6 +296,14 @@ def summary_columns(rows: list[Row], real_data: bool, spread: bool = True) -> li
             ("own dz", "dz error, x1e-2 m, on answered steps", lambda r: fmt(r.dz_own, ".2f")),
             ("own dyaw", "dyaw error, x1e-2 rad, on answered steps", lambda r: fmt(r.dyaw_own, ".2f")),
         ]
+        if bias:
+            cols.append(
+                (
+                    "bias",
+                    "bias: signed mean error (dx, dz, dyaw), x1e-2, as used",
+                    lambda r: ", ".join(fmt(v, "+.2f") for v in (r.dx_bias, r.dz_bias, r.dyaw_bias)),
+                )
+            )
     cols += [
         ("failed %", "failed steps, % (prior used)", lambda r: f"{100 * r.failure_share:.1f}"),
         ("ATE m (no align)", "ATE, m, RMSE, no alignment", lambda r: fmt(r.ate_m, ".3f", sd(r.ate_std))),
@@ -306,8 +314,9 @@ def summary_columns(rows: list[Row], real_data: bool, spread: bool = True) -> li
     return cols
 
 
-def table_caption(rows: list[Row], real_data: bool, spread: bool = True) -> str:
-    """What the summary table's figures are: units, pooling, alignment, what "own" means."""
+def table_caption(rows: list[Row], real_data: bool, spread: bool = True, bias: bool = False) -> str:
+    """What the summary table's figures are: units, pooling, alignment, what "own" means (and the
+    bias, when ``bias`` and simulator runs)."""
     many = spread and any(r.sequences > 1 for r in rows)
     what = (
         "Per frame pair: mean translation and rotation error of the relative pose"
@@ -317,7 +326,13 @@ def table_caption(rows: list[Row], real_data: bool, spread: bool = True) -> str:
     return (
         f"{what}{'; +- is the standard deviation over sequences' if many else ''}. 'As used' scores a "
         "failed step with the action prior's motion that replaced it; 'own' leaves failed steps out "
-        "(as the paper scored raw estimates) and must be read with the failure share. ATE: RMSE of the "
+        "(as the paper scored raw estimates) and must be read with the failure share. "
+        + (
+            "Bias: the signed mean error per step (estimate minus truth), which integrates into drift. "
+            if bias and not real_data
+            else ""
+        )
+        + "ATE: RMSE of the "
         "position error with no alignment (trajectories start at the true pose); python -m "
         "odolab.evaluate aligns by default (SE(3)), use --align none for these figures. '-': does not "
         "apply (reference rows are not timed)."
@@ -834,10 +849,12 @@ def write_report(
             return False
 
     sections = []
-    cols = summary_columns(rows, real_data)
+    cols = summary_columns(rows, real_data, bias=True)
     sections.append(
         "<h2>Summary</h2>"
-        + _html_table([c[1] for c in cols], [[c[2](r) for c in cols] for r in rows], table_caption(rows, real_data))
+        + _html_table(
+            [c[1] for c in cols], [[c[2](r) for c in cols] for r in rows], table_caption(rows, real_data, bias=True)
+        )
     )
     if action_rows:
         sections.append("<h2>Per action</h2>" + _action_table(action_rows))

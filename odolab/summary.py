@@ -8,6 +8,8 @@ Definitions (each metric's formula lives in :mod:`odolab.metrics`):
   per-sequence means.
 * ``dx_own, dz_own, dyaw_own``: the same error on the steps the odometer answered itself (failed
   steps left out), as the paper scored raw estimates; read it together with ``failure_share``.
+* ``dx_bias, dz_bias, dyaw_bias``: the signed mean error per step as used (estimate minus truth,
+  x 1e-2): a bias, which integrates into drift where an absolute error of the same size may cancel.
 * ``failure_share``: share of steps that raised or returned ``valid=False``; ``failures``: their
   number (the action prior was used instead).
 * ``fps``: steps per second of the odometer's ``step`` calls alone (steps asked / their total time;
@@ -32,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from odolab.geometry import transform_to_planar
-from odolab.metrics import ate, per_step_abs_error, relative_motion_errors
+from odolab.metrics import ate, per_step_abs_error, per_step_signed_error, relative_motion_errors
 from odolab.runner import SequenceResult
 from odolab.types import MOTION_ACTIONS, Action
 
@@ -56,6 +58,9 @@ class Row:
     dx_own: float
     dz_own: float
     dyaw_own: float
+    dx_bias: float
+    dz_bias: float
+    dyaw_bias: float
     trans_mm: float
     rot_deg: float
     trans_mm_own: float
@@ -74,7 +79,8 @@ class Row:
 @dataclass(frozen=True)
 class ActionRow:
     """Per-step error (x 1e-2) of one odometer for one action, as used and on the answered steps
-    (``*_own``, NaN when every step failed), and its failed steps."""
+    (``*_own``, NaN when every step failed), its failed steps, and its signed mean error as used
+    (``*_bias``)."""
 
     odometer: str
     action: str
@@ -86,6 +92,9 @@ class ActionRow:
     dyaw_own: float
     steps: int
     failures: int
+    dx_bias: float
+    dz_bias: float
+    dyaw_bias: float
 
 
 def _planar(T: np.ndarray) -> np.ndarray:
@@ -95,6 +104,11 @@ def _planar(T: np.ndarray) -> np.ndarray:
 def step_errors(r: SequenceResult) -> np.ndarray:
     """(N, 3) absolute planar errors (m, m, rad) of a result with ground truth."""
     return per_step_abs_error(_planar(r.estimates), _planar(r.truth))
+
+
+def step_signed_errors(r: SequenceResult) -> np.ndarray:
+    """(N, 3) signed planar errors (m, m, rad; estimate minus truth) of a result with ground truth."""
+    return per_step_signed_error(_planar(r.estimates), _planar(r.truth))
 
 
 def by_odometer(results: list[SequenceResult]) -> dict[str, list[SequenceResult]]:
@@ -128,6 +142,7 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
     for name, mine in by_odometer(results).items():
         errs = [step_errors(r) for r in mine]
         pooled = np.concatenate(errs) * 100.0
+        signed = np.concatenate([step_signed_errors(r) for r in mine]) * 100.0
         valid = np.concatenate([r.valid for r in mine])
         per_seq = np.array([e.mean(axis=0) for e in errs if len(e)]).reshape(-1, 3) * 100.0
         rel = [relative_motion_errors(r.gt_poses, r.poses) for r in mine]
@@ -153,6 +168,9 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
                 dx_own=_mean(pooled[valid, 0]),
                 dz_own=_mean(pooled[valid, 1]),
                 dyaw_own=_mean(pooled[valid, 2]),
+                dx_bias=_mean(signed[:, 0]),
+                dz_bias=_mean(signed[:, 1]),
+                dyaw_bias=_mean(signed[:, 2]),
                 trans_mm=_mean(trans),
                 rot_deg=_mean(rot),
                 trans_mm_own=_mean(trans[valid]),
@@ -184,6 +202,7 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
     rows = []
     for name, mine in by_odometer(results).items():
         errs = np.concatenate([step_errors(r) for r in mine]) * 100.0
+        signed = np.concatenate([step_signed_errors(r) for r in mine]) * 100.0
         acts = np.concatenate([r.actions for r in mine])
         valid = np.concatenate([r.valid for r in mine])
         groups = [(a.label, acts == a.value) for a in MOTION_ACTIONS]
@@ -201,6 +220,7 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
                         *(_mean(own[:, k]) for k in range(3)),
                         int(sel.sum()),
                         int((~valid[sel]).sum()),
+                        *(_mean(signed[sel, k]) for k in range(3)),
                     )
                 )
     return rows

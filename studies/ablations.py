@@ -747,7 +747,7 @@ def table(
     Each line also carries ``S_range``, ``SPL_range``, ``SoftSPL_range``, ``d_G_range`` (the 95 %
     intervals as numbers) and ``error_ci`` (the mean error's interval over the seeds) for the
     verdicts and the figure."""
-    from odolab.navigation.metrics import mean_ci
+    from odolab.stats import mean_ci
 
     lines = []
     for number in scale.rows:

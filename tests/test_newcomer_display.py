@@ -154,7 +154,7 @@ def _action_rows():
             ("move_forward_collided", 11, 16.7),
         ):
             e = dz * scale
-            rows.append(ActionRow(name, action, e, e, e, e, e, e, steps, 0))
+            rows.append(ActionRow(name, action, e, e, e, e, e, e, steps, 0, 0.0, 0.0, 0.0))
     return rows
 
 

@@ -125,7 +125,9 @@ def _action_rows(names: tuple[str, ...] = ("action-prior", "ground-truth", "icp"
         scale = 0.0 if name == "ground-truth" else 1.0 + 0.3 * k
         for action, steps, e in (("move_forward", 12, 2.0), ("turn_left", 5, 1.0), ("move_forward_collided", 2, 9.0)):
             failures = 3 if name == "icp" else 0
-            rows.append(ActionRow(name, action, e * scale, e * scale, e * scale, e, e, e, steps, failures))
+            rows.append(
+                ActionRow(name, action, e * scale, e * scale, e * scale, e, e, e, steps, failures, 0.0, 0.0, 0.0)
+            )
     return rows
 
 

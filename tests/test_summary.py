@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -63,3 +64,20 @@ def test_steps_per_second_count_only_the_steps_asked():
 )
 def test_fmt_says_does_not_apply_overflow_and_huge_apart(value, std, text):
     assert summary.fmt(value, ".3f", std) == text
+
+
+def test_the_bias_is_the_signed_mean_error_which_cancels_where_the_absolute_error_does_not():
+    from odolab.geometry import planar_to_transform
+
+    def moved(dz_errors: list[float], name: str) -> SequenceResult:
+        r = _result(len(dz_errors), odometer=name)
+        est = np.stack([planar_to_transform(0.0, 0.25 + e, -0.01) for e in dz_errors])
+        truth = np.stack([planar_to_transform(0.0, 0.25, 0.0)] * len(dz_errors))
+        return dataclasses.replace(r, estimates=est, truth=truth, actions=np.ones(len(dz_errors), np.int8))
+
+    steady, alternating = summary.summarize([moved([0.01] * 4, "steady"), moved([0.01, -0.01] * 2, "alternating")])
+    assert steady.dz == pytest.approx(1.0) and steady.dz_bias == pytest.approx(1.0)
+    assert alternating.dz == pytest.approx(1.0) and alternating.dz_bias == pytest.approx(0.0, abs=1e-9)
+    assert steady.dyaw_bias == pytest.approx(-1.0) and steady.dx_bias == pytest.approx(0.0, abs=1e-9)
+    (action,) = summary.summarize_actions([moved([0.01] * 4, "steady")])  # every step a forward step
+    assert action.dz_bias == pytest.approx(1.0)
