@@ -12,7 +12,7 @@ segments of 100, 200, ..., 800 m of true path start at every 10th frame, the tra
 and rotation error (deg per 100 m) of each are divided by its length and averaged over every
 segment of every route; a route holds the lengths shorter than itself. ATE is the RMSE of the
 position error with no alignment (every path starts at the true pose) and after an SE(3) fit; drift
-is the final position error per 100 m travelled; dx, dz, dyaw the per-step error as used (x 1e-2).
+is the final position error per 100 m travelled; dx, dz, dyaw the per-step error as used (x 1e-2), dx_bias, dz_bias, dyaw_bias its signed mean.
 """
 
 from __future__ import annotations
@@ -287,6 +287,9 @@ def run_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
         "dx": float(row.dx),
         "dz": float(row.dz),
         "dyaw": float(row.dyaw),
+        "dx_bias": float(row.dx_bias),
+        "dz_bias": float(row.dz_bias),
+        "dyaw_bias": float(row.dyaw_bias),
         "steps": int(row.steps),
         "failures": int(row.failures),
         "step_seconds": float(result.step_seconds.sum()),
@@ -349,10 +352,12 @@ def valid_run(value: Any, out: Path, check_files: bool = True) -> bool:
     if not (isinstance(value, dict) and isinstance(value.get("odometer"), str)):
         return False
     numbers = ("ate_m", "length_m", "dx", "dz", "dyaw", "step_seconds")
+    signed = ("dx_bias", "dz_bias", "dyaw_bias")
     maybe = ("t_rel", "r_rel", "ate_se3_m", "drift_per_100m")
     segments = value.get("segments")
     return (
         all(_num(value.get(k)) for k in numbers)
+        and all(_num(value.get(k), -math.inf) for k in signed)
         and all(value.get(k) is None or _num(value.get(k)) for k in maybe)
         and all(type(value.get(k)) is int for k in ("steps", "failures"))
         and isinstance(value.get("reference"), bool)
@@ -409,10 +414,14 @@ def summary_row(odometer: str, route: str, results: list[dict[str, Any]]) -> dic
         "ate_m": _mean([r["ate_m"] for r in results]),
         "ate_se3_m": _mean([r["ate_se3_m"] for r in results]),
         "drift_per_100m": _mean([r["drift_per_100m"] for r in results]),
-        **{c: sum(r[c] * r["steps"] for r in results) / steps if steps else float("nan") for c in ("dx", "dz", "dyaw")},
+        **{c: sum(r[c] * r["steps"] for r in results) / steps if steps else float("nan") for c in PER_STEP},
         "failure_share": sum(r["failures"] for r in results) / steps if steps else float("nan"),
         "fps": steps / seconds if seconds > 0 and not any(r["reference"] for r in results) else float("nan"),
     }
+
+
+#: The per-step columns (x 1e-2, as used, pooled over steps): absolute error, then the bias (signed mean).
+PER_STEP = ("dx", "dz", "dyaw", "dx_bias", "dz_bias", "dyaw_bias")
 
 
 def table(scale: Scale, runs: dict[str, Any]) -> list[dict[str, Any]]:
@@ -436,7 +445,7 @@ def columns(rows: list[dict[str, Any]]) -> list[str]:
     per_length = [f"t_rel_{L}m" for L in held_lengths(rows)]
     return [
         "odometer", "route", "routes", "length_m", "steps", "segments", "t_rel", "r_rel", *per_length,
-        "ate_m", "ate_se3_m", "drift_per_100m", "dx", "dz", "dyaw", "failure_share", "fps",
+        "ate_m", "ate_se3_m", "drift_per_100m", *PER_STEP, "failure_share", "fps",
     ]  # fmt: skip
 
 
@@ -598,7 +607,7 @@ def intro(scale_name: str, scale: Scale, rows: list[dict[str, Any]], note: str) 
             f"through floor plans of {scale.scene_scale:g} x an episode's sides, goals {scale.min_leg:g}-"
             f"{scale.max_leg:g} m apart; camera {scale.camera[0]} x {scale.camera[1]} px. Segment lengths held: "
             f"{held} m. Rows: each odometer over all routes (route 'all'), then route by route; t_rel in %, r_rel in "
-            f"deg/100 m, ATE in m, drift in m per 100 m travelled, dx dz dyaw x 1e-2 (m, m, rad), fps in steps/s.{note}"
+            f"deg/100 m, ATE in m, drift in m per 100 m travelled, dx dz dyaw x 1e-2 (m, m, rad) and their signed means (the bias, which integrates into drift), fps in steps/s.{note}"
         ),
         (
             f"Trajectories: {TRAJECTORIES}/<route>/<odometer>.tum (world frame, frame i at i s) and .kitti (first "

@@ -110,6 +110,8 @@ def test_the_ci_scale_reports_kitti_errors_of_every_odometer(ci_run):
         for column in ("t_rel", "r_rel", "t_rel_100m", "ate_m", "ate_se3_m", "drift_per_100m", "dz"):
             assert math.isfinite(float(r[column])) and float(r[column]) >= 0, (r["odometer"], column)
         assert float(r["length_m"]) >= CI["length"] and int(r["segments"]) >= 1
+        for c in ("dx", "dz", "dyaw"):  # the bias is signed, and never larger than the absolute error
+            assert abs(float(r[f"{c}_bias"])) <= float(r[c]) + 1e-9, (r["odometer"], c)
     names = {p.name for p in _route(out).iterdir()}
     assert names == {f"{n}.{f}" for n in ["groundtruth", *CI["odometers"]] for f in ("tum", "kitti")}
     html = (out / "index.html").read_text()
