@@ -288,3 +288,21 @@ def test_a_tiny_training_resumes_and_exports_a_model_corrected_x_loads(tmp_path,
     odo = load_odometer("corrected(icp)", checkpoint=str(tmp_path / "m3.pt"))
     odo.reset(episode.intrinsics)
     assert odo.step(episode[0], episode[1], episode.action(0)).valid
+
+
+@pytest.mark.parametrize("inner", ["nosuch", "fused(icp", "denoised(nosuch)"])
+def test_an_x_that_cannot_be_built_is_refused_before_any_data_is_made(tmp_path, inner):
+    from odolab.pose_corrector.train import run
+
+    data = {"episodes": 2, "max_steps": 4, "width": 64, "height": 40, "episodes_per_shard": 1}
+    cfg = PoseCorrectorTraining(
+        model=TINY,
+        train_data=DataConfig(split="train", **data),
+        val_data=DataConfig(split="val", **data),
+        data_root=str(tmp_path / "data"),
+        inner=inner,
+    )
+    kw = {"work": tmp_path / "work", "reports": tmp_path / "rep", "export": tmp_path / "model.pt"}
+    with pytest.raises(ValueError, match=r"recipe: inner = .*unknown odometer"):
+        run(cfg, device=torch.device("cpu"), hours=None, execution=SERIAL, **kw)
+    assert not (tmp_path / "data").exists()

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from odolab.api import MOTION_ACTIONS, Action, load_odometer, transform_to_planar, wrap_angle
+from odolab.api import MOTION_ACTIONS, Action, load_inputs, load_odometer, transform_to_planar, wrap_angle
 from odolab.learning import Curves, EpochLoop, Execution, TrainingData, make_training_data, require_finite
 from odolab.learning.epochs import EpochTracker
 from odolab.pose_corrector.checkpoint import save_model
@@ -199,6 +199,11 @@ def run(
         raise ValueError(f"--workers {workers}: the pose corrector trains in one process; leave --workers out")
     if cfg.init:
         raise ValueError("recipe: init: the pose corrector starts from fresh weights; set init = ''")
+    try:  # X and its options checked before any data is made (hours of rendering for the shipped recipe)
+        load_inputs("corrected", [cfg.inner], cfg.options_file)
+    except (KeyError, TypeError, ValueError) as exc:
+        said = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        raise ValueError(f"recipe: inner = {cfg.inner!r}: {said}") from None
     folders = [cfg.data_folder(dc) for dc in (cfg.train_data, cfg.val_data)]
     for dc, folder in zip((cfg.train_data, cfg.val_data), folders):
         make_training_data(dc, folder, execution=execution)
