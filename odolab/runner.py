@@ -32,7 +32,10 @@ a thread, so the call is abandoned, not killed: it may go on in the background u
 sequence (its remaining steps fail as ``timed-out`` without being asked). ``reset`` and the steps of
 one sequence share one thread, so thread-local state an odometer sets in ``reset`` holds in its
 steps. A ``step_batch`` that yields without end is read for at most one item more than it was given
-pairs (``batch-length``). ``step_timeout=None`` runs every call in the calling thread, unlimited.
+pairs (``batch-length``). Answers are copied as they are read, so a generator may reuse one array;
+answers of a returned list that share one transform array fail (``shared-array``: by the time the
+list returns they all hold the last pair's motion). ``step_timeout=None`` runs every call in the
+calling thread, unlimited.
 
 Timing: the wall time of a ``step_batch`` call divided by the number of pairs it answered is each
 pair's ``step_seconds``, measured in the thread that makes the call; frame copies, answer copies
@@ -90,6 +93,7 @@ FAILURE_REASONS = {
     "not-a-rotation": "the rotation block is not a rotation (reflection, scale, shear)",
     "absurd-translation": f"the translation is longer than {MAX_STEP_TRANSLATION:g} m",
     "batch-length": "step_batch returned (or kept yielding) a different number of estimates than pairs",
+    "shared-array": "step_batch answered several pairs with one transform array (each answer must own its own)",
 }
 
 
@@ -315,10 +319,21 @@ class _Caller:
         return call
 
 
+#: What :func:`_ask` puts in place of an answer whose transform array another answer of its batch shares.
+SHARED = object()
+
+
 def _ask(odometer: Odometer, chunk: list) -> list:
     """``odometer.step_batch(chunk)`` read into a list, at most one item more than ``chunk`` has
-    pairs (a ``step_batch`` that yields without end is not read to its end)."""
-    return list(itertools.islice(odometer.step_batch(chunk), len(chunk) + 1))
+    pairs (a ``step_batch`` that yields without end is not read to its end). Each answer is copied
+    as it is read, so a generator may reuse one array; in a returned list or tuple, answers that
+    share one transform array are :data:`SHARED` (by then they hold only the last pair's motion)."""
+    answers = odometer.step_batch(chunk)
+    if isinstance(answers, (list, tuple)):
+        items = list(answers[: len(chunk) + 1])
+        shared = _sharing(items)
+        return [SHARED if k in shared else own_copy(a) for k, a in enumerate(items)]
+    return [own_copy(a) for a in itertools.islice(answers, len(chunk) + 1)]
 
 
 @dataclass
@@ -360,6 +375,8 @@ class _StepLog:
                 self.reasons[i] = "raised"
             elif len(answers) != count:
                 self.reasons[i] = "batch-length"
+            elif answers[k] is SHARED:
+                self.reasons[i] = "shared-array"
             else:
                 self.raw[i] = own_copy(answers[k])
                 try:
@@ -367,6 +384,19 @@ class _StepLog:
                 except Exception as exc:  # noqa: BLE001 - not an Estimate at all
                     self.note(f"step {i}", exc)
                     self.reasons[i] = "raised"
+
+
+def _sharing(answers: list) -> set[int]:
+    """Indices of the answers whose transform shares memory with another answer's: one array
+    reused for a whole batch holds only the last pair's motion by the time the batch returns."""
+    arrays = [getattr(a, "transform", None) for a in answers]
+    arrays = [t if isinstance(t, np.ndarray) else None for t in arrays]
+    shared = set()
+    for k, t in enumerate(arrays):
+        for j in range(k + 1, len(arrays)):
+            if t is not None and arrays[j] is not None and np.shares_memory(t, arrays[j]):
+                shared |= {k, j}
+    return shared
 
 
 def _step_chunks(seq: Sequence, oracle: bool, size: int, log: _StepLog) -> Iterator[tuple[int, list]]:

@@ -297,3 +297,28 @@ def test_oracle_only_fields_are_removed_for_other_odometers():
     simulated = Frame(frame.rgb, frame.depth, gt_pose=frame.gt_pose, clean_depth=frame.depth + 0.1)
     assert runner.guarded_frame(simulated, oracle=False).clean_depth is None
     assert np.array_equal(runner.guarded_frame(simulated, oracle=True).clean_depth, frame.depth + 0.1)
+
+
+def test_a_batch_answered_with_one_reused_array_fails_as_shared_array_but_a_generator_may_reuse():
+    class ListReuse(api.Odometer):
+        batch_size = 3
+
+        def step_batch(self, pairs):
+            self.buffer, answers = np.eye(4), []
+            for k, _ in enumerate(pairs):
+                self.buffer[2, 3] = 0.1 * (k + 1)  # each pair's own motion, written into one array
+                answers.append(api.Estimate(self.buffer))
+            return answers
+
+    class GeneratorReuse(ListReuse):
+        def step_batch(self, pairs):
+            buffer = np.eye(4)
+            for _ in pairs:
+                buffer[:] = FORWARD
+                yield api.Estimate(buffer)
+                buffer[:] = np.nan  # changed after it was read: the runner's copy keeps the answer
+
+    res = runner.run_sequence(ListReuse(), Tiny(), "list", PRIOR)
+    assert res.failure_reasons == {"shared-array": 6} and not res.valid.any()
+    res = runner.run_sequence(GeneratorReuse(), Tiny(), "generator", PRIOR)
+    assert res.valid.all() and np.allclose(res.estimates, FORWARD)
