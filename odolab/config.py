@@ -611,7 +611,9 @@ def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigE
             except ValueError:
                 raise error(f"{shown}: {key} takes {kind}") from None
             if not math.isfinite(float(value)) or not in_range(cls, key, value):
-                raise error(f"{shown}: {key} must be {either}in {range_text(cls, key)}")
+                raise error(
+                    f"{shown}: {key} must be {either}in {range_text(cls, key)}, got {short.repr(text.strip())[1:-1]}"
+                )
         else:
             try:
                 value = _check(_toml_value(text.strip()), hints[key], key)

@@ -83,7 +83,7 @@ def test_built_from_toml_and_key_value_changes(tmp_path):
     for items, said in (
         (["stride=1.5"], "example 'stride=1.5': stride takes a whole number in [1, 64]"),
         (["stride=1_0"], "example 'stride=1_0': stride takes a whole number in [1, 64]"),
-        (["cell=nan"], "example 'cell=nan': cell must be in [0.02, 1]"),
+        (["cell=nan"], "example 'cell=nan': cell must be in [0.02, 1], got nan"),
         (["stride=2", "stride=3"], "example 'stride=3': stride is given twice"),
         (["nope=1"], "example 'nope=1': expected key=value with key one of cell, stride, speed, reach, name"),
         (["name=[1]"], "example 'name=[1]': name: expected str, got [1]"),
@@ -132,7 +132,7 @@ def test_literal_choices_are_checked_described_built_and_assigned(tmp_path):
     assert assign(Choosing, ['workers="auto"']).workers == "auto" and assign(Choosing, ["workers=8"]).workers == 8
     for items, said in (
         (["workers=x"], "'workers=x': workers takes 'auto' or a whole number in [0, 64]"),
-        (["workers=65"], "'workers=65': workers must be 'auto' or in [0, 64]"),
+        (["workers=65"], "'workers=65': workers must be 'auto' or in [0, 64], got 65"),
     ):
         with pytest.raises(ConfigError) as info:
             assign(Choosing, items)

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 
 from odolab import action_prior
 from odolab.cli.args import MAX_SEED, ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli, seed
+from odolab.report import counted
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -29,7 +30,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     unseen = [a.label for a, n in prior.samples.items() if n == 0]
     if unseen:
         raise UsageError(
-            f"no {' or '.join(unseen)} step in {args.episodes} episodes of at most {args.max_steps} "
+            f"no {' or '.join(unseen)} step in {counted(args.episodes, 'episode')} of at most {args.max_steps} "
             "steps: a mean of nothing is no prior; use more --episodes or --max-steps"
         )
     text = json.dumps(prior.to_json(), indent=2) + "\n"

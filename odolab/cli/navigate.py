@@ -29,6 +29,7 @@ from odolab.cli.args import (
     path_arg,
     run_cli,
 )
+from odolab.report import counted
 from odolab.sim.scenes import SPLITS
 
 #: The options that set what the library calls a navigation run's settings (odolab.navigation.study.Setting).
@@ -163,7 +164,7 @@ def _run(
         print(
             f"{r['odometer']:>28}: success {r['success']:.2f} [{r['success_low']:.2f}, {r['success_high']:.2f}]  "
             f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "
-            f"{failed_steps_text(r['failed_steps'], r['steps'] * r['episodes'])}  ({r['episodes']} episodes)"
+            f"{failed_steps_text(r['failed_steps'], r['steps'] * r['episodes'])}  ({counted(r['episodes'], 'episode')})"
         )
     print(f"wrote {args.out}/report.html")
     return 0

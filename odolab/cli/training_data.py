@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 from odolab.cli.args import ArgumentParser, check_report_dir, execution_of, number, path_arg, run_cli, seed
 from odolab.episodes import MAX_EPISODE_STEPS
+from odolab.report import counted
 from odolab.sim.scenes import SPLITS
 from odolab.training_data import (
     MANIFEST,
@@ -93,7 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(str(exc))
     counts = ", ".join(f"{k} {v}" for k, v in data.counts().items())
     print(
-        f"{args.out}: {len(data)} pairs ({counts}) from {cfg.episodes} {cfg.split} episodes at {cfg.width}x{cfg.height}"
+        f"{args.out}: {len(data)} pairs ({counts}) from {counted(cfg.episodes, cfg.split + ' episode')} at {cfg.width}x{cfg.height}"
     )
     return 0
 
