@@ -37,7 +37,7 @@ PAPER = {
 
 def unit_result(key: dict[str, Any]) -> dict[str, Any]:
     """Run one odometer on one seed's test episodes: per action ("all" included) its errors as used
-    and own (x 1e-2), steps and failure share."""
+    and own and its bias (signed mean error as used; x 1e-2), steps and failure share."""
     from odolab.api import SERIAL, ComparisonConfig, run_comparison
 
     result = run_comparison(
@@ -62,7 +62,7 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
 
 def valid_result(value: Any) -> bool:
     """Whether a saved ``value`` has :func:`unit_result`'s shape, its errors finite and >= 0 (the own
-    errors may be None: an odometer that never answered), its steps a count and its failure share in
+    errors may be None: an odometer that never answered; the biases finite, of either sign), its steps a count and its failure share in
     [0, 1]: a results file edited or damaged by hand is computed again rather than breaking the table."""
 
     def number(v: Any) -> bool:
@@ -75,6 +75,9 @@ def valid_result(value: Any) -> bool:
             and entry["steps"] >= 0
             and all(number(entry.get(c)) for c in COMPONENTS)
             and all(entry.get(f"{c}_own") is None or number(entry.get(f"{c}_own")) for c in COMPONENTS)
+            and all(
+                type(entry.get(f"{c}_bias")) in (int, float) and math.isfinite(entry[f"{c}_bias"]) for c in COMPONENTS
+            )
             and number(entry.get("failure_share"))
             and entry["failure_share"] <= 1
         )
@@ -87,6 +90,7 @@ def _numbers(row: Any, steps: int, failure_share: float) -> dict[str, float]:
     return {
         **{c: float(getattr(row, c)) for c in COMPONENTS},
         **own,
+        **{f"{c}_bias": float(getattr(row, f"{c}_bias")) for c in COMPONENTS},
         "steps": int(steps),
         "failure_share": failure_share,
     }
@@ -155,7 +159,12 @@ def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
             if not got:
                 continue
             row: dict[str, Any] = {"odometer": odo, "action": action, "seeds": len(got)}
-            for c in (*COMPONENTS, *(f"{c}_own" for c in COMPONENTS), "failure_share"):
+            for c in (
+                *COMPONENTS,
+                *(f"{c}_own" for c in COMPONENTS),
+                *(f"{c}_bias" for c in COMPONENTS),
+                "failure_share",
+            ):
                 values = np.array([np.nan if g[c] is None else g[c] for g in got], float)
                 row[c] = float(np.mean(values))
                 row[f"{c}_sd"] = float(np.std(values)) if len(values) > 1 else float("nan")
@@ -168,7 +177,7 @@ def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
 
 COLUMNS = [
     "odometer", "action", "seeds", "steps", "dx", "dx_sd", "dz", "dz_sd", "dyaw", "dyaw_sd",
-    "dx_own", "dz_own", "dyaw_own", "failure_share", "paper",
+    "dx_own", "dz_own", "dyaw_own", "dx_bias", "dz_bias", "dyaw_bias", "failure_share", "paper",
 ]  # fmt: skip
 
 
