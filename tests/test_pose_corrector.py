@@ -7,6 +7,7 @@ training run resumes and exports."""
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -259,20 +260,23 @@ def test_stored_estimates_of_another_x_are_refused_in_one_line(tmp_path, tiny_da
 
 
 @pytest.mark.slow
-def test_a_tiny_training_resumes_and_exports_a_model_corrected_x_loads(tmp_path, episode):
-    from odolab.pose_corrector.train import run
-
+def _tiny_recipe(root: Path, inner: str, **kw) -> PoseCorrectorTraining:
+    """A recipe of 2 train and 2 val episodes of 4 steps at 64 x 40, data under ``root``."""
     data = {"episodes": 2, "max_steps": 4, "width": 64, "height": 40, "episodes_per_shard": 1}
-    cfg = PoseCorrectorTraining(
+    return PoseCorrectorTraining(
         model=TINY,
         train_data=DataConfig(split="train", **data),
         val_data=DataConfig(split="val", **data),
-        data_root=str(tmp_path / "data"),
-        inner="icp",
-        batch=4,
-        epochs=2,
-        pairs_per_epoch=8,
+        data_root=str(root),
+        inner=inner,
+        **kw,
     )
+
+
+def test_a_tiny_training_resumes_and_exports_a_model_corrected_x_loads(tmp_path, episode):
+    from odolab.pose_corrector.train import run
+
+    cfg = _tiny_recipe(tmp_path / "data", "icp", batch=4, epochs=2, pairs_per_epoch=8)
     kw = {"work": tmp_path / "work", "reports": tmp_path / "rep", "export": tmp_path / "model.pt"}
     assert run(cfg, device=torch.device("cpu"), hours=None, execution=SERIAL, **kw)
     with open(tmp_path / "rep" / "curves.csv", newline="") as f:
@@ -294,14 +298,7 @@ def test_a_tiny_training_resumes_and_exports_a_model_corrected_x_loads(tmp_path,
 def test_an_x_that_cannot_be_built_is_refused_before_any_data_is_made(tmp_path, inner):
     from odolab.pose_corrector.train import run
 
-    data = {"episodes": 2, "max_steps": 4, "width": 64, "height": 40, "episodes_per_shard": 1}
-    cfg = PoseCorrectorTraining(
-        model=TINY,
-        train_data=DataConfig(split="train", **data),
-        val_data=DataConfig(split="val", **data),
-        data_root=str(tmp_path / "data"),
-        inner=inner,
-    )
+    cfg = _tiny_recipe(tmp_path / "data", inner)
     kw = {"work": tmp_path / "work", "reports": tmp_path / "rep", "export": tmp_path / "model.pt"}
     with pytest.raises(ValueError, match=r"recipe: inner = .*unknown odometer"):
         run(cfg, device=torch.device("cpu"), hours=None, execution=SERIAL, **kw)
