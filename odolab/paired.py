@@ -24,8 +24,8 @@ import numpy as np
 from odolab.odometer import COMPOSITE, split_odometer_names
 from odolab.runner import SequenceResult
 from odolab.stats import mean_ci, verdict
-from odolab.summary import COLLIDED_FORWARD, step_errors
-from odolab.types import MOTION_ACTIONS, Action
+from odolab.summary import COLLIDED_FORWARD, action_groups, step_errors
+from odolab.types import MOTION_ACTIONS
 
 COMPONENTS = ("dx", "dz", "dyaw")
 #: The groups of steps, in the order the rows list them.
@@ -60,12 +60,8 @@ def default_pairs(names: list[str]) -> list[tuple[str, str]]:
 
 
 def _groups(result: SequenceResult) -> list[tuple[str, np.ndarray]]:
-    """(label, step mask) of every step, of each action, and of the collided forward steps."""
-    acts = np.asarray(result.actions)
-    groups = [("all", np.ones(len(acts), bool))] + [(a.label, acts == a.value) for a in MOTION_ACTIONS]
-    if result.collisions is not None:
-        groups.append((COLLIDED_FORWARD, (acts == Action.MOVE_FORWARD.value) & np.asarray(result.collisions, bool)))
-    return groups
+    """(label, step mask) of every step, then of each action (:func:`odolab.summary.action_groups`)."""
+    return [("all", np.ones(len(result.actions), bool)), *action_groups(result.actions, result.collisions)]
 
 
 def paired_differences(results: list[SequenceResult], pairs: list[tuple[str, str]]) -> list[PairedRow]:

@@ -367,7 +367,7 @@ class _StepLog:
         self.seconds[first : first + count] = seconds / count if count else 0.0
 
     def answer(self, first: int, count: int, answers: list | None, seconds: float) -> None:
-        """Record (copies of) the answers (None: the call raised) to steps ``first .. first + count - 1``."""
+        """Record the answers (copies, from :func:`_ask`; None: the call raised) to steps ``first .. first + count - 1``."""
         self.seconds[first : first + count] = seconds / count
         self.asked[first : first + count] = True
         for k, i in enumerate(range(first, first + count)):
@@ -378,7 +378,7 @@ class _StepLog:
             elif answers[k] is SHARED:
                 self.reasons[i] = "shared-array"
             else:
-                self.raw[i] = own_copy(answers[k])
+                self.raw[i] = answers[k]  # a copy already (:func:`_ask`)
                 try:
                     self.reasons[i] = failure_reason(self.raw[i])
                 except Exception as exc:  # noqa: BLE001 - not an Estimate at all

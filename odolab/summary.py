@@ -194,6 +194,16 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
 COLLIDED_FORWARD = "move_forward_collided"
 
 
+def action_groups(actions: np.ndarray, collisions: np.ndarray | None) -> list[tuple[str, np.ndarray]]:
+    """(label, step mask) of each motion action's steps, and of the forward steps that collided
+    (:data:`COLLIDED_FORWARD`) when ``collisions`` is known."""
+    acts = np.asarray(actions)
+    groups = [(a.label, acts == a.value) for a in MOTION_ACTIONS]
+    if collisions is not None:
+        groups.append((COLLIDED_FORWARD, (acts == Action.MOVE_FORWARD.value) & np.asarray(collisions, bool)))
+    return groups
+
+
 def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
     """Per-step error (x 1e-2) per odometer and motion action (reference rows first); when every
     result knows its collisions and some forward step collided, also a row ``COLLIDED_FORWARD`` of
@@ -205,11 +215,9 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
         signed = np.concatenate([step_signed_errors(r) for r in mine]) * 100.0
         acts = np.concatenate([r.actions for r in mine])
         valid = np.concatenate([r.valid for r in mine])
-        groups = [(a.label, acts == a.value) for a in MOTION_ACTIONS]
-        if all(r.collisions is not None for r in mine):
-            collided = np.concatenate([np.asarray(r.collisions, bool) for r in mine])
-            groups.append((COLLIDED_FORWARD, (acts == Action.MOVE_FORWARD.value) & collided))
-        for label, sel in groups:
+        known = all(r.collisions is not None for r in mine)
+        collided = np.concatenate([np.asarray(r.collisions, bool) for r in mine]) if known else None
+        for label, sel in action_groups(acts, collided):
             if sel.any():
                 e, own = errs[sel], errs[sel & valid]
                 rows.append(
