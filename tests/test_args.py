@@ -1,9 +1,12 @@
 """odolab.cli.args against hostile disks and names (issue 56): a name over 255 bytes, a full disk
-while a command writes, a read-only cache: one line and exit 2, never a traceback."""
+while a command writes, a read-only cache: one line and exit 2, never a traceback. Also: RAY_ADDRESS
+and --ray-address checked before any folder is made, a folder named by the command that wrote it,
+numbers in plain ASCII digits, long names cut, and run_cli's exits on Ctrl-C, SIGTERM and a closed pipe."""
 
 from __future__ import annotations
 
 import errno
+import json
 import os
 from pathlib import Path
 
@@ -12,6 +15,7 @@ import pytest
 from odolab.cli import run_cli
 from odolab.cli.args import NAME_MAX, UsageError, check_cache_dir, disk_error
 from odolab.io import atomic
+from tests.helpers import command_argv, refused
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 
@@ -92,3 +96,244 @@ def test_a_read_only_cache_is_accepted_and_a_file_is_not(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "access", real)
     check_cache_dir(tmp_path / "new", "--cache")  # made
     assert (tmp_path / "new").is_dir()
+
+
+def test_a_pasted_20000_character_name_is_not_echoed_whole(tmp_path):
+    import contextlib
+    import io
+
+    from odolab.cli import MAX_ERROR_CHARS
+    from odolab.compare import main
+
+    name = "k" * 20000
+    for args in (["--odometers", name], ["--odometers", "icp", "--odometer-option", f"icp.{name}=1"]):
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            code = run_cli(
+                main,
+                "odolab.compare",
+                [*args, "--episodes", "1", "--max-steps", "3", "--no-cache", "--out", str(tmp_path / "o")],
+            )
+        line = err.getvalue().strip()
+        assert code == 2 and "\n" not in line and line.endswith("more characters)")
+        assert len(line) < MAX_ERROR_CHARS + 100
+
+
+def test_an_option_is_named_once_in_its_error():
+    from odolab.cli import ArgumentParser, pinhole
+
+    ap = ArgumentParser(prog="x")
+    ap.add_argument("--intrinsics", type=pinhole("--intrinsics"))
+    with pytest.raises(UsageError) as err:
+        ap.parse_args(["--intrinsics", "0,1,2,3"])
+    assert str(err.value).count("--intrinsics") == 1
+
+
+def test_a_dangling_output_folder_is_named_as_a_link(tmp_path):
+    from odolab.cli import check_output_dir
+
+    (tmp_path / "out").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(UsageError, match="link to nothing"):
+        check_output_dir(tmp_path / "out", "--out")
+
+
+def test_a_reader_that_goes_away_is_no_traceback(capsys):
+    """``odolab help | head -1`` ended in a BrokenPipeError traceback."""
+
+    def main(argv):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    assert run_cli(main, "python -m odolab.evaluate", []) == 141
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("text", ["1_0", "\uff15", "1\u0660"])
+def test_numbers_are_plain_ascii_digits(text):
+    """'--rgb-noise 1_0' ran at ten times the noise, '--episodes ５' (a full-width 5) as 5."""
+    import argparse
+
+    from odolab.cli import number
+
+    with pytest.raises(argparse.ArgumentTypeError, match="must be a number"):
+        number("--rgb-noise", float, 0, 10)(text)
+    assert number("--rgb-noise", float, 0, 10)(" 2.5e0 ") == 2.5 and number("--episodes", int, 1)("+3") == 3
+
+
+def test_sigterm_ends_a_command_after_its_clean_up(tmp_path):
+    """SIGTERM (what `kill` and job schedulers send) ends a command like Ctrl-C, exit 143 after its
+    `with` blocks ran: the training bench's temporary data folder is removed, not left in the
+    system's temporary folder."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    recipe = tmp_path / "tiny.toml"
+    recipe.write_text(
+        'base = "' + str(Path("studies/robust_vo/shipped.toml").resolve()) + '"\n'
+        "[model]\nwidth = 48\nheight = 32\n[train_data]\nwidth = 48\nheight = 32\n"
+        "[val_data]\nwidth = 48\nheight = 32\nmax_steps = 400\n"
+    )
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "odolab.bench", "--only", "training", "--recipe", str(recipe)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not list(tmp.glob("odolab-bench-*")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert list(tmp.glob("odolab-bench-*")), "the bench never made its temporary folder"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert "python -m odolab.bench: terminated" in err
+    assert not list(tmp.glob("odolab-bench-*"))
+
+
+def test_sigterm_is_reported_as_such_when_a_library_re_raises_it_as_ctrl_c(capsys):
+    """Ray turns any exception raised by a signal handler during ray.get/ray.wait into a bare
+    KeyboardInterrupt; run_cli still knows SIGTERM came and answers 143, "terminated"."""
+    import os
+    import signal
+    import time
+
+    from odolab.cli import run_cli
+
+    def main(argv):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(10)  # the handler raises in here
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt() from None  # what Ray's check_signals does with it
+
+    assert run_cli(main, "prog", []) == 143
+    assert "prog: terminated" in capsys.readouterr().err
+    assert run_cli(lambda argv: (_ for _ in ()).throw(KeyboardInterrupt()), "prog", []) == 130
+
+
+@pytest.mark.parametrize(("signum", "code", "word"), [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+@pytest.mark.parametrize("then", ["returns", "fails"])
+def test_a_signal_that_a_library_swallowed_still_ends_the_command(capsys, signum, code, word, then):
+    """Open3D's import swallows a Ctrl-C that lands while it loads; the command then runs on, but
+    its exit code and last line still say it was stopped (a hostile review found exit 0)."""
+    import os
+    import signal
+    import time
+
+    swallowed = []
+
+    def main(argv):
+        try:
+            os.kill(os.getpid(), getattr(signal, signum))
+            time.sleep(1)
+        except KeyboardInterrupt as exc:  # swallowed, as a library's import does
+            swallowed.append(exc)
+        if then == "fails":
+            raise RuntimeError("what the swallowed signal left broken")
+        return 0
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    assert run_cli(main, "prog", []) == code
+    assert len(swallowed) == 1  # the signal reached the library, which went on
+    assert capsys.readouterr().err == f"prog: {word}\n"
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+
+
+COMMANDS = ["compare", "navigate", "simcard", "training_data", "calibrate", "e_table"]
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+@pytest.mark.parametrize(
+    "environment, extra, words",
+    [
+        ("garbage", [], "RAY_ADDRESS (environment) 'garbage' is not an address"),
+        ("127.0.0.1:1", [], "RAY_ADDRESS (environment) 127.0.0.1:1: no Ray cluster there"),
+        (None, ["--ray-address", "garbage"], "--ray-address 'garbage' is not an address"),
+        (None, ["--ray-address", "127.0.0.1:1", "--serial"], "--ray-address and --serial exclude each other"),
+    ],
+)
+def test_every_command_that_can_start_ray_checks_its_address_before_making_anything(
+    tmp_path, monkeypatch, capsys, name, environment, extra, words
+):
+    """RAY_ADDRESS was a traceback (garbage), a hang (a dead address) or Ray's own text, after
+    --out was made; simcard and training_data ignored --ray-address with --serial."""
+    if environment is None:
+        monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    else:
+        monkeypatch.setenv("RAY_ADDRESS", environment)
+    monkeypatch.chdir(tmp_path)  # a default folder a command would make lands here
+    out = tmp_path / "new" / "out"
+    err = refused(capsys, name, command_argv(name, out) + extra)
+    assert words in err, err
+    assert ("unset it for a local instance" in err) == (environment is not None)
+    assert list(tmp_path.iterdir()) == [], "a refusal makes no folder"
+
+
+def test_ray_address_in_the_environment_is_left_alone_when_no_ray_starts(monkeypatch):
+    from odolab.cli.args import check_ray_option
+
+    monkeypatch.setenv("RAY_ADDRESS", "garbage")
+    check_ray_option(None, serial=True)  # --serial: Ray is never started
+    check_ray_option(None, starts_ray=False)  # a study's --redraw computes nothing
+    with pytest.raises(UsageError, match=r"^RAY_ADDRESS \(environment\) 'garbage' is not an address"):
+        check_ray_option(None)
+    monkeypatch.setenv("RAY_ADDRESS", "")  # set but empty: Ray ignores it too
+    check_ray_option(None)
+
+
+def test_a_ray_client_address_without_ray_client_is_one_line(monkeypatch):
+    """ray:// needs Ray Client (ray[client]); without it ray.init() raised after the folders were made."""
+    from odolab.cli.args import check_ray_option
+
+    monkeypatch.setattr("odolab.parallel.has_ray_client", lambda: False)
+    with pytest.raises(UsageError, match=r"--ray-address ray://127.0.0.1:1: a ray:// address needs Ray Client"):
+        check_ray_option("ray://127.0.0.1:1")
+    monkeypatch.setenv("RAY_ADDRESS", "ray://127.0.0.1:1")
+    with pytest.raises(UsageError, match=r"RAY_ADDRESS \(environment\) ray://127.0.0.1:1: a ray:// address needs"):
+        check_ray_option(None)
+
+
+def _navigation_folder(path: Path) -> Path:
+    path.mkdir()
+    (path / "config.json").write_text(json.dumps({"format": 1, "options": {}, "episodes": [{}], "policy": {}}))
+    (path / "nav.csv").write_text("odometer\n")
+    return path
+
+
+def _study_folder(path: Path) -> Path:
+    path.mkdir()
+    (path / "manifest.txt").write_text("# odolab study e_table\ntable.md\n")
+    (path / "table.md").write_text("| x |\n")
+    return path
+
+
+def _compare_folder(path: Path) -> Path:
+    path.mkdir()
+    (path / "manifest.txt").write_text("# odolab compare\ntable.csv\n")
+    (path / "table.csv").write_text("odometer\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    "name, folder, owner",
+    [
+        ("compare", _navigation_folder, "a navigation results folder (python -m odolab.navigate)"),
+        ("e_table", _navigation_folder, "a navigation results folder (python -m odolab.navigate)"),
+        ("training_data", _study_folder, "the report folder of study e_table (python -m studies.e_table)"),
+        ("navigate", _compare_folder, "a comparison report folder (python -m odolab.compare)"),
+    ],
+)
+def test_a_folder_odolab_wrote_is_named_by_its_owner(tmp_path, monkeypatch, capsys, name, folder, owner):
+    """Such folders were said to hold "files odolab did not write"."""
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    out = folder(tmp_path / "theirs")
+    before = sorted(p.name for p in out.iterdir())
+    err = refused(capsys, name, command_argv(name, out) + ["--serial"])
+    assert f"--out {out}: is {owner}; choose another --out" in err, err
+    assert sorted(p.name for p in out.iterdir()) == before

@@ -1,4 +1,5 @@
-"""The classical odometers of ``baselines/`` on real TUM frames and on views with known motion."""
+"""The classical odometers of ``baselines/`` on real TUM frames and on views with known motion; open3d-rgbd's
+out-of-range options in one line and its settings' digest; baselines.measure_tum's rows."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from odolab.api import (
     transform_to_planar,
 )
 from odolab.parallel import SERIAL
+from tests.helpers import one_line_error
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 ODOMETERS = ["feature-essential", "icp", "open3d-rgbd"]
@@ -421,3 +423,97 @@ def test_beats_the_action_prior_on_the_simulator(name, short_sim_episodes):
     )
     prior, odo = (np.array([r.dx, r.dz, r.dyaw]) for r in rows)
     assert np.all(odo < 0.8 * prior), (name, odo, prior)
+
+
+def test_measure_tum_runs_reference_rows_and_names_an_unknown_odometer(capsys):
+    from baselines.measure_tum import main as measure_main
+
+    assert measure_main([str(TUM), "--odometers", "ground-truth", "action-prior", "no-motion", "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    rows = {
+        line.split("|")[1].strip(): line.split("|")[2].strip() for line in out.splitlines() if line.startswith("| ")
+    }
+    assert rows["ground-truth"] == "0.00" and float(rows["no-motion"]) > 5 and rows["action-prior"] == rows["no-motion"]
+    assert measure_main([str(TUM), "--odometers", "nope"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown odometer 'nope'" in err[0]
+
+
+@pytest.mark.parametrize(
+    "value",
+    ["[]", "[0]", "[1000000]", '"123"', "[1.5]", "[true]", "[2147483648]", "[5,5,5,5,5,5,5,5]", "20", "[[20,5]]"],
+)
+def test_open3d_iterations_out_of_range_are_one_line(tmp_path, value):
+    """0 iterations would quietly return the starting guess, a million would never end, 8 pyramid
+    levels leave a 2 x 1 pixel image, a string would be read digit by digit."""
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--odometer-option",
+        f"open3d-rgbd.iterations={value}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="iterations: expected a list of 1-6 whole numbers",
+    )
+
+
+@pytest.mark.parametrize("value", ["[0]", "[1000000]", '"123"', "[5,5,5,5,5,5,5]"])
+def test_open3d_fallback_iterations_out_of_range_are_one_line(tmp_path, value):
+    """The fallback schedule is checked as the first one is (but may be empty: no fallback)."""
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--odometer-option",
+        f"open3d-rgbd.fallback_iterations={value}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words="fallback_iterations: expected a list of 0-6 whole numbers",
+    )
+
+
+@pytest.mark.parametrize(
+    "option,value,words",
+    [
+        ("fallback_iterations", "[" * 3000 + "]" * 3000, "open3d-rgbd.fallback_iterations: value nested too deeply"),
+        ("max_depth", "inf", "max_depth must be in (0, 1000], got inf"),
+        ("max_depth", "1e300", "max_depth must be in (0, 1000], got 1e+300"),
+    ],
+)
+def test_open3d_depth_and_nesting_are_one_line(tmp_path, option, value, words):
+    """A depth cut of infinity ran (and wrote Infinity into navigate's JSON); [[[...]]] 3000 deep
+    was a RecursionError traceback."""
+    one_line_error(
+        "odolab.compare",
+        "--odometers",
+        "open3d-rgbd",
+        "--odometer-option",
+        f"open3d-rgbd.{option}={value}",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path / "o",
+        words=words,
+    )
+
+
+def test_equal_settings_give_equal_digests():
+    """6 and 6.0 set the same depth cut: a rerun with either reuses the other's episodes."""
+    from odolab.odometer import load_odometer
+
+    assert load_odometer("open3d-rgbd", max_depth=6).identity_digest == load_odometer("open3d-rgbd").identity_digest
+    assert load_odometer("open3d-rgbd", max_depth=5).identity_digest != load_odometer("open3d-rgbd").identity_digest

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.test_hostile_inputs import one_line_error
+from tests.helpers import one_line_error
 
 
 def _nested(depth: int, inner: str = "icp") -> str:

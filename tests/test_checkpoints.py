@@ -1,4 +1,5 @@
-"""odolab/learning/checkpoints.py: model files and training states carry a checksum, checked on load."""
+"""odolab/learning/checkpoints.py: model files and training states carry a checksum, checked on load;
+one trainer never replaces another's model; an export or --init that is a dead link is named as one."""
 
 from __future__ import annotations
 
@@ -154,3 +155,48 @@ def test_the_content_digest_ignores_key_order_and_sees_every_value():
     ):
         assert checkpoints.content_digest(changed) != checkpoints.content_digest(a)
     assert checkpoints.content_digest({**a, checkpoints.CHECKSUM_KEY: "x"}) == checkpoints.content_digest(a)
+
+
+def test_one_trainer_never_replaces_anothers_model(tmp_path):
+    torch = pytest.importorskip("torch")
+    import dataclasses
+
+    from odolab.learning.checkpoints import CheckpointError, check_export, save_model
+
+    @dataclasses.dataclass
+    class R:
+        model: dict = dataclasses.field(default_factory=dict)
+
+    model = tmp_path / "model.pt"
+    save_model(model, "odolab-robust-vo", R(), {"net": torch.nn.Linear(2, 2)}, {})
+    with pytest.raises(ValueError, match="another trainer's"):
+        check_export(model, tmp_path / "r.toml", {}, kind="odolab-deepvo")
+    with pytest.raises(CheckpointError, match="another trainer's"):
+        save_model(model, "odolab-deepvo", R(), {"net": torch.nn.Linear(2, 2)}, {})
+    check_export(model, tmp_path / "r.toml", {}, kind="odolab-robust-vo")  # its own trainer may
+    save_model(model, "odolab-robust-vo", R(), {"net": torch.nn.Linear(2, 2)}, {})
+
+
+def test_an_export_that_is_a_dangling_link_is_named_as_one(tmp_path):
+    from odolab.learning.checkpoints import check_export
+
+    (tmp_path / "model.pt").symlink_to(tmp_path / "nowhere.pt")
+    with pytest.raises(ValueError, match="link to nothing"):
+        check_export(tmp_path / "model.pt", tmp_path / "r.toml", {})
+
+
+def test_an_init_that_is_a_dead_link_or_absolute_is_named_as_such(tmp_path):
+    from odolab.learning.checkpoints import load_init
+
+    def never(path):
+        raise AssertionError("not to be loaded")
+
+    dead = tmp_path / "model.pt"
+    dead.symlink_to(tmp_path / "gone.pt")
+    with pytest.raises(ValueError, match=r"is a link to nothing"):
+        load_init(str(dead), tmp_path / "export.pt", never)
+    with pytest.raises(ValueError) as caught:
+        load_init(str(tmp_path / "none.pt"), tmp_path / "export.pt", never)
+    assert "no such model file;" in str(caught.value) and "relative to" not in str(caught.value)
+    with pytest.raises(ValueError, match=r"relative to"):
+        load_init("no/such/model.pt", tmp_path / "export.pt", never)

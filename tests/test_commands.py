@@ -1,8 +1,11 @@
-"""The ``odolab`` console command: its subcommands are the ``python -m`` commands."""
+"""The ``odolab`` console command: its subcommands are the ``python -m`` commands; its help, version and
+near names; every command names itself as typed in its errors."""
 
 from __future__ import annotations
 
 import importlib
+import subprocess
+import sys
 
 import pytest
 
@@ -51,3 +54,36 @@ def test_a_plug_in_beside_the_user_loads_under_the_odolab_face(tmp_path, monkeyp
     assert code == 0, capsys.readouterr().err
     assert (tmp_path / "out" / "table.csv").read_text().count("my_plug_in_odometer") == 1
     assert sys.path == path  # the folder is importable only while the command runs
+
+
+@pytest.mark.parametrize(
+    "module",
+    [
+        "odolab.compare",
+        "odolab.bench",
+        "odolab.simcard",
+        "odolab.evaluate",
+        "odolab.navigate",
+        "odolab.action_prior",
+        "odolab.training_data",
+        "odolab.fusion.calibrate",
+        "odolab.navigation.diff",
+    ],
+)
+def test_every_command_names_itself_as_typed_in_its_errors(module):
+    proc = subprocess.run([sys.executable, "-m", module, "--bogus-option"], capture_output=True, text=True, check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith(f"python -m {module}: error: "), proc.stderr
+
+
+def test_the_odolab_command_help_version_and_near_names(capsys):
+    from odolab.cli.commands import main
+
+    assert main([]) == 2  # a usage error: the list goes to stderr, not into a pipe's data
+    got = capsys.readouterr()
+    assert not got.out and "commands:" in got.err
+    with pytest.raises(SystemExit) as exit_:
+        main(["help", "evaluate"])  # = odolab evaluate --help, not the general list
+    assert exit_.value.code == 0 and "ground-truth trajectory file" in capsys.readouterr().out
+    assert main(["--version"]) == 0 and capsys.readouterr().out.startswith("odolab ")
+    assert main(["navigation_diff"]) == 2
+    assert "did you mean 'navigation-diff'?" in capsys.readouterr().err

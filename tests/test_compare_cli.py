@@ -1,14 +1,17 @@
-"""`python -m odolab.compare`: outputs, determinism by seed, and one-line errors for bad input."""
+"""`python -m odolab.compare`: outputs, determinism by seed, and one-line errors for bad input (numbers,
+--out and --cache, --tum folders and their camera, Ray addresses), each before any folder is made."""
 
 import csv
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from odolab.cli import run_cli
 from odolab.compare import main
+from tests.helpers import FR1, ROOT, one_line_error
 
 FAST = ["--odometers", "ground-truth,action-prior", "--episodes", "2", "--max-steps", "12", "--serial", "--quiet"]
 
@@ -218,3 +221,215 @@ def test_a_composite_is_paired_with_its_input_in_table_paired_and_the_report(tmp
     assert {r["sequences"] for r in rows if r["action"] == "all"} == {"2"}
     assert "What each composite adds over its input" in (out / "report.html").read_text()
     assert "table_paired.csv" in (out / "manifest.txt").read_text()
+
+
+def test_a_bad_option_is_one_line_from_the_command_line():
+    proc = subprocess.run(
+        [sys.executable, "-m", "odolab.compare", "--seed", "-1"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+        check=False,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == "python -m odolab.compare: error: --seed must be in [0, 4294967295], got -1"
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--seed", "-1"], "--seed must be in [0, 4294967295], got -1"),
+        (["--seed", "99999999999"], "--seed must be in"),
+        (["--rgb-noise", "inf"], "--rgb-noise must be a finite number"),
+        (["--depth-noise", "1e300"], "--depth-noise must be in [0, 10]"),
+        (["--actuation-noise", "nan"], "--actuation-noise must be a finite number"),
+        (["--episodes", "10000000"], "--episodes must be in [1, 1000]"),
+        (["--max-steps", "100000"], "--max-steps must be in [1, 500]"),
+    ],
+)
+def test_compare_numeric_options_have_ranges(args, words):
+    one_line_error("odolab.compare", *args, words=words)
+
+
+def test_compare_output_paths_are_checked_before_work(tmp_path):
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    one_line_error("odolab.compare", "--cache", a_file, "--out", tmp_path / "o", words="--cache")
+    one_line_error("odolab.compare", "--out", a_file, words="is a file, not a folder")
+    one_line_error(
+        "odolab.compare",
+        "--no-cache",
+        "--cache",
+        tmp_path / "c",
+        "--out",
+        tmp_path / "o",
+        words="--cache and --no-cache contradict",
+    )
+    # /proc refuses new files even to root: a read-only location on every Linux machine
+    one_line_error(
+        "odolab.compare",
+        "--cache",
+        "/proc/odolab-cache",
+        "--out",
+        tmp_path / "o",
+        words="--cache /proc/odolab-cache: not a writable folder",
+    )
+
+
+def test_a_tum_folder_without_its_lists_is_refused_before_the_out_folder_is_made(tmp_path):
+    folder = tmp_path / "rgbd_dataset_freiburg1_xyz"
+    folder.mkdir()
+    one_line_error(
+        "odolab.compare", "--odometers", "icp", "--tum", folder, "--out", tmp_path / "o", words="rgb.txt: no such file"
+    )
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "address,words",
+    [
+        ("127.0.0.1:1", "no Ray cluster there"),  # a dead loopback port: nothing listens
+        ("not an address", "is not an address"),
+        ("127.0.0.1:99999", "is not an address"),
+    ],
+)
+def test_ray_address_fails_within_seconds(tmp_path, address, words):
+    start = time.monotonic()
+    one_line_error(
+        "odolab.compare",
+        "--ray-address",
+        address,
+        "--odometers",
+        "action-prior",
+        "--episodes",
+        "2",
+        "--max-steps",
+        "5",
+        "--no-cache",
+        "--out",
+        tmp_path,
+        words=words,
+    )
+    assert time.monotonic() - start < 30
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--episodes", "3"], "--episodes: simulator option, meaningless with --tum"),
+        (["--split=val", "--rgb-noise", "2"], "--split, --rgb-noise: simulator options"),
+    ],
+)
+def test_tum_refuses_simulator_options(tmp_path, args, words):
+    one_line_error("odolab.compare", "--tum", DATA, *args, "--out", tmp_path, words=words)
+
+
+def test_tum_says_how_many_frames_it_left_out(tmp_path, capsys):
+    import shutil
+
+    from odolab.compare import main
+
+    folder = tmp_path / "rgbd_dataset_freiburg1_cut"
+    shutil.copytree(DATA, folder)
+    lines = (folder / "depth.txt").read_text().splitlines()
+    (folder / "depth.txt").write_text("\n".join(lines[:-3]) + "\n")
+    out = tmp_path / "out"
+    assert (
+        run_cli(
+            main, "odolab.compare", ["--tum", str(folder), "--odometers", "action-prior", "--quiet", "--out", str(out)]
+        )
+        == 0
+    )
+    said = "7 frames; colour images left out: 3 without a depth image and 0 without a ground-truth pose"
+    assert said in capsys.readouterr().err and said in (out / "report.html").read_text()
+
+
+def test_an_empty_out_or_a_folder_of_someone_elses_files_is_refused(tmp_path):
+    one_line_error("odolab.compare", "--out", "", words="--out is empty")
+    one_line_error("odolab.compare", "--cache", "", words="--cache is empty")
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "report.html").write_text("mine")
+    one_line_error("odolab.compare", "--out", theirs, "--serial", words="holds files odolab did not write")
+    assert (theirs / "report.html").read_text() == "mine"
+
+
+def test_a_report_folder_holding_a_pipe_or_a_dead_link_is_refused_before_work(tmp_path):
+    import os
+
+    for kind in ("fifo", "dead"):
+        out = tmp_path / kind
+        out.mkdir()
+        (out / "manifest.txt").write_text("table.csv\n")
+        if kind == "fifo":
+            os.mkfifo(out / "table.csv")
+        else:
+            (out / "table.csv").symlink_to(tmp_path / "missing" / "t.csv")
+        words = "is not a regular file" if kind == "fifo" else "is a link to nothing"
+        one_line_error(
+            "odolab.compare",
+            "--odometers",
+            "action-prior",
+            "--episodes",
+            "1",
+            "--max-steps",
+            "5",
+            "--no-cache",
+            "--serial",
+            "--out",
+            out,
+            words=words,
+        )
+
+
+def test_compare_tum_that_is_not_a_folder_is_said_so_before_the_camera(tmp_path, capsys):
+    """A file, a missing path or a dead link given to --tum read 'cannot tell the camera from the
+    folder's name', or 'no such folder' for a file."""
+    from odolab.cli.compare import main
+
+    (tmp_path / "rgbd_fr1.txt").write_text("x")
+    (tmp_path / "dead_fr1").symlink_to(tmp_path / "nowhere")
+    for name, words in [
+        ("rgbd_fr1.txt", "is a file, not a folder"),
+        ("missing", "no such folder"),
+        ("dead_fr1", "is a link to nothing"),
+    ]:
+        argv = ["--tum", str(tmp_path / name), "--out", str(tmp_path / "out")]
+        assert run_cli(main, "python -m odolab.compare", argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and f"--tum {tmp_path / name}: {words}" in err, err
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        ([], "cannot tell the camera from the folder's name (no fr1, fr2 or fr3 in it); give it with --intrinsics"),
+        (["--intrinsics", "517,516,318"], "--intrinsics must be four numbers fx,fy,cx,cy"),
+        (["--intrinsics", "0,516,318,255"], "--intrinsics: the focal lengths fx, fy must be positive"),
+        (["--intrinsics", ",".join(map(str, FR1)), "--depth-scale", "0"], "--depth-scale must be in [1, 1e+06]"),
+    ],
+)
+def test_compare_names_a_missing_or_bad_camera_and_scale_in_one_line(millimetre_folder, tmp_path, args, words):
+    one_line_error(
+        "odolab.compare",
+        "--tum",
+        millimetre_folder,
+        "--odometers",
+        "ground-truth",
+        *args,
+        "--out",
+        tmp_path / "o",
+        words=words,
+    )
+
+
+def test_the_tum_options_need_a_tum_folder(tmp_path):
+    one_line_error(
+        "odolab.compare",
+        "--depth-scale",
+        "1000",
+        "--out",
+        tmp_path / "o",
+        words="--depth-scale describes a TUM folder's images; it needs --tum",
+    )

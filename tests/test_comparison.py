@@ -1,13 +1,16 @@
-"""compare's orchestration as one library call: what a study, a notebook or navigation would make."""
+"""compare's orchestration as one library call: what a study, a notebook or navigation would make; a TUM
+folder's depth scale and camera, and an odometer that fails every step said so."""
 
 import csv
 
 import pytest
 
 from odolab import api
+from odolab.api import register_odometer
 from odolab.cli import run_cli
 from odolab.compare import main
-from odolab.parallel import SERIAL
+from odolab.parallel import SERIAL, Execution
+from tests.helpers import FR1, Never
 
 
 def test_run_comparison_matches_the_command_line(tmp_path, monkeypatch):
@@ -88,3 +91,39 @@ def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
     assert row.steps == blocked < forward.steps
     assert row.dz > forward.dz  # the prior claims a full step where the robot did not move
     assert rows[("ground-truth", COLLIDED_FORWARD)].dz == 0 and np.isfinite(row.dx)
+
+
+def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale(millimetre_folder):
+    from odolab.comparison import ComparisonConfig, run_comparison
+
+    def run(scale):
+        config = ComparisonConfig(
+            odometers=["ground-truth"],
+            tum=millimetre_folder,
+            tum_depth_scale=scale,
+            tum_intrinsics=FR1,
+            execution=Execution(progress=False),
+        )
+        return run_comparison(config)
+
+    assert not any("median" in w for w in run(1000.0).warnings)
+    assert any("depth's median is 0.22 m" in w for w in run(None).warnings)
+
+
+def test_an_odometer_failing_every_step_is_said_on_the_compare_console():
+    from odolab.comparison import ComparisonConfig, run_comparison
+    from odolab.summary import every_step_failed
+
+    register_odometer("test-never", Never)
+    result = run_comparison(
+        ComparisonConfig(
+            odometers=["test-never", "action-prior"],
+            episodes=1,
+            max_steps=3,
+            cache=None,
+            execution=SERIAL,
+        )
+    )
+    assert every_step_failed(result.rows) == [
+        "test-never: failed steps: every one of 3; its figures are the action prior's, which stood in for each"
+    ]

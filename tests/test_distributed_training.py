@@ -75,21 +75,16 @@ def _val_errors(root) -> np.ndarray:
     return np.array([float(r["mae"]) for r in rows if int(r["epoch"]) == last])
 
 
-def test_two_workers_on_a_two_node_cluster_follow_one_worker(recipe, tmp_path):
+def test_two_workers_on_a_two_node_cluster_follow_one_worker(recipe, tmp_path, ray_cluster):
     import ray
-    from ray.cluster_utils import Cluster
 
     one = _train(recipe, tmp_path / "one")
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
     try:
-        cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        ray.init(address=cluster.address, include_dashboard=False, log_to_driver=False)
+        ray.init(address=ray_cluster, include_dashboard=False, log_to_driver=False)
         assert len([n for n in ray.nodes() if n["Alive"]]) == 2  # one CPU each: a worker per node
-        two = _train(recipe, tmp_path / "two", workers=2, ray_address=cluster.address)
+        two = _train(recipe, tmp_path / "two", workers=2, ray_address=ray_cluster)
     finally:
         ray.shutdown()
-        cluster.shutdown()
     assert two["status"]["compute"]["workers"] == 2
     one_err, two_err = _val_errors(tmp_path / "one"), _val_errors(tmp_path / "two")
     assert one_err.shape == two_err.shape and one_err.size

@@ -1,5 +1,5 @@
 """EpisodeCache (odolab.episodes) against hostile disks (issue 56): links in an entry's place, the
-temporary files of killed writers, a full disk and a read-only cache."""
+temporary files of killed writers, a full disk and a read-only cache; a damaged entry named and made again."""
 
 from __future__ import annotations
 
@@ -127,3 +127,25 @@ def test_the_noiseless_depth_goes_through_the_cache_and_reaches_frames_in_metres
     frame = back[1]
     assert frame.clean_depth.dtype == np.float32
     assert np.array_equal(frame.clean_depth, episode.clean_depth_mm[1] * np.float32(0.001))
+
+
+@pytest.mark.parametrize("damage", ["truncated", "bad crc"])
+def test_damaged_cache_entry_is_named_and_regenerated(tmp_path, small_spec, capsys, damage):
+    import dataclasses
+
+    from odolab.episodes import EpisodeCache, load_episodes, render_episode
+
+    small_spec = dataclasses.replace(small_spec, max_steps=4)
+    cache = EpisodeCache(tmp_path)
+    path = cache.put(render_episode(small_spec))
+    good = path.read_bytes()
+    k = len(good) // 3  # inside the rgb member: the zip directory stays readable, the CRC fails
+    path.write_bytes(
+        good[: len(good) // 2] if damage == "truncated" else good[:k] + bytes([good[k] ^ 0xFF]) + good[k + 1 :]
+    )
+    capsys.readouterr()
+    (ep,) = load_episodes([small_spec], cache, execution=SERIAL)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and "damaged" in err[0]
+    assert path.read_bytes() == good  # regenerated, bit for bit, and written back
+    assert cache.get(small_spec) is not None and np.array_equal(ep.rgb, cache.get(small_spec).rgb)

@@ -99,10 +99,11 @@ def test_load_episodes_uses_the_cache(tmp_path, small_spec, monkeypatch):
 
 
 @pytest.mark.slow
-def test_ray_tasks_give_the_same_episodes(tmp_path, small_spec):
+def test_ray_tasks_give_the_same_episodes(tmp_path, small_spec, ray_cluster):
     specs = [small_spec, dataclasses.replace(small_spec, index=1)]
     serial = load_episodes(specs, None, execution=SERIAL)
-    parallel = load_episodes(specs, EpisodeCache(tmp_path), execution=Execution(progress=False))
+    ray_tasks = Execution(ray_address=ray_cluster, progress=False)
+    parallel = load_episodes(specs, EpisodeCache(tmp_path), execution=ray_tasks)
     assert all(np.array_equal(a.depth, b.depth) for a, b in zip(serial, parallel))
 
 

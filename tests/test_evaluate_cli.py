@@ -1,4 +1,5 @@
-"""``python -m odolab.evaluate``: reference figures, JSON contents, plots, and one-line errors."""
+"""``python -m odolab.evaluate``: reference figures, JSON contents, plots, and one-line errors; the file
+format told (past a byte-order mark), and why RPE or t_rel has no value said truthfully."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from odolab.cli import run_cli
 from odolab.evaluate import main
+from tests.helpers import TUM_OK, one_line_error
 
 DATA = Path(__file__).parent / "data" / "evo"
 KITTI_GT, KITTI_ORB = DATA / "KITTI_00_gt.txt", DATA / "KITTI_00_ORB.txt"
@@ -95,7 +98,6 @@ def test_does_not_import_heavy_libraries():
 
 # ----------------------------------------------------------------------------- bad input
 
-TUM_OK = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 1 1 0 0 0 0 1\n4.0 0 1 1 0 0 0 1\n"
 KITTI_ROW = "1 0 0 {x} 0 1 0 {y} 0 0 1 {z}\n"
 KITTI_OK = "".join(KITTI_ROW.format(x=x, y=y, z=z) for x, y, z in [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 1)])
 
@@ -187,3 +189,104 @@ def test_coverage_halves_when_tracking_is_lost_halfway(capsys, tmp_path):
     full = run_json(capsys, TUM_GT, TUM_EST, "--format", "tum")["estimates"][0]["coverage"]
     part = run_json(capsys, TUM_GT, str(half), "--format", "tum")["estimates"][0]["coverage"]
     assert part == pytest.approx(full / 2, abs=0.03)
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--delta", "nan"], "--delta must be a finite number"),
+        (["--delta", "inf"], "--delta must be a finite number"),
+        (["--delta", "1e300"], "--delta must be <="),
+        (["--t-max-diff", "-1"], "--t-max-diff must be in [0, 60]"),
+        (["--min-coverage", "nan"], "--min-coverage must be a finite number"),
+    ],
+)
+def test_evaluate_numeric_options_have_ranges(tmp_path, args, words):
+    gt = tmp_path / "gt.txt"
+    gt.write_text(TUM_OK)
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", *args, words=words)
+
+
+def test_evaluate_refuses_a_device_at_once(tmp_path):
+    from odolab.evaluate import main
+
+    (tmp_path / "zero.tum").symlink_to("/dev/zero")
+    assert run_cli(main, "python -m odolab.evaluate", [str(tmp_path / "zero.tum"), str(tmp_path / "zero.tum")]) == 2
+
+
+def test_a_negative_delta_is_told_to_be_positive(tmp_path, capsys):
+    from odolab.evaluate import main
+
+    path = tmp_path / "a.tum"
+    path.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n")
+    assert run_cli(main, "python -m odolab.evaluate", [str(path), str(path), "--delta", "-1"]) == 2
+    assert "--delta must be positive" in capsys.readouterr().err
+
+
+def test_evaluate_names_the_delta_unit_option(tmp_path, capsys):
+    from odolab.evaluate import main
+
+    path = tmp_path / "a.tum"
+    path.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n")
+    assert run_cli(main, "python -m odolab.evaluate", [str(path), str(path), "--delta", "2.5"]) == 2
+    err = capsys.readouterr().err
+    assert "--delta must be a whole number of frames with --delta-unit f" in err and "-u f" not in err, err
+
+
+def _evaluate(capsys, *args) -> tuple[int, str, str]:
+    from odolab.cli import run_cli
+    from odolab.evaluate import main
+
+    code = run_cli(main, "python -m odolab.evaluate", [str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize("text", [TUM_OK, KITTI_OK, "# a comment\n" + TUM_OK])
+def test_evaluate_reads_past_a_byte_order_mark_and_tells_the_format(tmp_path, capsys, text):
+    path = tmp_path / "traj.txt"
+    path.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    code, out, err = _evaluate(capsys, path, path)
+    assert code == 0, err
+    fmt = "kitti" if text is KITTI_OK else "tum"
+    assert f"({len(text.strip().splitlines()) - text.count('#')} poses, {fmt})" in out
+
+
+def test_evaluate_refuses_a_format_it_cannot_tell_in_one_line(tmp_path, capsys):
+    tum, kitti, odd, named = (tmp_path / n for n in ("a.txt", "b.txt", "c.txt", "d.tum"))
+    tum.write_text(TUM_OK)
+    kitti.write_text(KITTI_OK)
+    odd.write_text("1 2 3 4 5\n")
+    named.write_text(KITTI_OK)
+    for args, words in (
+        ([tum, kitti], f"{kitti} is a KITTI file but {tum} a TUM file"),
+        ([odd, odd], "expected 8 columns (TUM) or 12 (KITTI), got 5"),
+        ([named, named], "named .tum but its lines have 12 columns, as KITTI files do"),
+    ):
+        code, _, err = _evaluate(capsys, *args)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+    assert _evaluate(capsys, named, named, "--format", "kitti")[0] == 0  # --format decides
+
+
+def test_evaluate_says_why_rpe_has_no_pair_truthfully(tmp_path, capsys):
+    one = tmp_path / "one.txt"
+    one.write_text(TUM_OK.splitlines(True)[0])
+    code, _, err = _evaluate(capsys, one, one, "--align", "none")
+    assert code == 2 and "RPE needs at least 2 poses to compare, got 1" in err and "smaller delta" not in err
+    four = tmp_path / "four.txt"
+    four.write_text(TUM_OK)
+    code, _, err = _evaluate(capsys, four, four, "--delta", "9")
+    assert code == 2 and "a delta of at most 3 frames does" in err
+    code, _, err = _evaluate(capsys, four, four, "--delta", "50", "--delta-unit", "m")
+    assert code == 2 and "the path is 3.414 m long" in err
+
+
+def test_evaluate_says_why_t_rel_is_a_dash(tmp_path, capsys):
+    path = tmp_path / "short.txt"
+    path.write_text(TUM_OK)
+    code, out, _ = _evaluate(capsys, path, path)
+    assert code == 0
+    assert (
+        f"note: {path}: t_rel and r_rel are '-': the KITTI errors need a segment of 100-800 m of the ground "
+        "truth, and its paired poses span a path of 3.414 m"
+    ) in out

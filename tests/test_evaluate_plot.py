@@ -1,5 +1,6 @@
 """``python -m odolab.evaluate --plot`` (odolab/cli/evaluate.py, odolab/trajectory_plot.py): the figure
-never replaces an input, and its time axis says what the files' stamps count."""
+never replaces an input, its path is checked before work, and its time axis says what the files' stamps
+count."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from odolab.evaluation import evaluate_trajectory, pair_trajectories, stamps_are
 from odolab.io.kitti import write_kitti_poses
 from odolab.io.tum import write_tum_trajectory
 from odolab.trajectory import Trajectory
+from tests.helpers import TUM_OK, one_line_error
 
 PROG = "python -m odolab.evaluate"
 
@@ -91,3 +93,16 @@ def test_evaluations_record_step_stamps():
     assert ev.step_stamps and np.array_equal(ev.times, np.arange(8.0))
     real_gt, real_est = Trajectory(gt.timestamps + 1e9, gt.poses), Trajectory(est.timestamps + 1e9, est.poses)
     assert not evaluate_trajectory(real_gt, real_est, pair_trajectories(real_gt, real_est, "timestamp")).step_stamps
+
+
+def test_evaluate_plot_path_is_checked_before_work(tmp_path):
+    gt = tmp_path / "gt.txt"
+    gt.write_text(TUM_OK)
+    one_line_error(
+        "odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "fig.xyz", words="unknown file type '.xyz'"
+    )
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path, words="is a folder, not a file")
+    one_line_error(
+        "odolab.evaluate", gt, gt, "--format", "tum", "--plot", tmp_path / "no" / "f.png", words="does not exist"
+    )
+    one_line_error("odolab.evaluate", gt, gt, "--format", "tum", "--plot", "/proc/f.png", words="cannot write in /proc")

@@ -1,5 +1,6 @@
 """Pose-graph fusion (odolab.fusion): the graph's arithmetic, the robust kernel, calibration, the
-fused odometer's fallback and its name in the registry."""
+fused odometer's fallback and its name in the registry, an oracle input marked, and the calibration
+command's --out and step-count checks."""
 
 from __future__ import annotations
 
@@ -12,7 +13,10 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where it is truly absent
 
+from odolab import runner
+from odolab.action_prior import ActionPrior
 from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer
+from odolab.cli import run_cli
 from odolab.fusion.calibration import CHI2_6_95, Calibration, InputCalibration, debiased, ellipsoid_share, fit_input
 from odolab.fusion.graph import (
     Measurement,
@@ -25,6 +29,7 @@ from odolab.fusion.graph import (
 )
 from odolab.io.inputs import MAX_INPUT_BYTES
 from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer
+from tests.helpers import Steps, refused
 
 
 def _pose(dx, dz, dyaw):
@@ -513,6 +518,14 @@ def test_fused_names_and_bad_options(calibration):
         REGISTRY.load("fused(icp)", calibration=calibration)
 
 
+def test_a_fused_oracle_input_answers_and_the_fused_row_is_marked_oracle(oracle_calibration):
+    fused = REGISTRY.load("fused(test-truth)", calibration=oracle_calibration)
+    assert fused.oracle
+    result = runner.run_sequence(fused, Steps(), "fused(test-truth)", ActionPrior.shipped())
+    assert result.oracle and result.failures == 0
+    assert np.allclose(result.poses[-1][:3, 3], Steps().gt_pose(4)[:3, 3], atol=1e-6)  # not the action prior's
+
+
 # --- the command lines ------------------------------------------------------------------------------
 
 
@@ -621,3 +634,73 @@ def test_an_options_file_value_its_input_refuses_names_the_file_and_the_input(tm
         ValueError, match=r'o.toml: \[odometers."planar-depth"\] one_plane_ratio must be a number in \[0, 0.5\]'
     ):
         REGISTRY.load("fused(planar-depth)", options_file=str(f))
+
+
+def test_calibrate_fusion_out_naming_a_folder_says_so(tmp_path, capsys):
+    from odolab.cli.calibrate_fusion import main
+
+    argv = ["--episodes", "1", "--max-steps", "100", "--out", str(tmp_path), "--serial"]
+    assert run_cli(main, "python -m odolab.fusion.calibrate", argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--out {tmp_path}: is a folder, not a file" in err
+
+
+SHIPPED_CALIBRATION = Path(__file__).parents[1] / "odolab" / "data" / "fusion" / "calibration.json"
+
+
+@pytest.mark.parametrize(
+    "content, words",
+    [
+        (json.dumps({"format": 1, "options": {}, "episodes": [], "policy": {}}), "not a fusion calibration (keys"),
+        ("my notes, not JSON", "not a fusion calibration (not a JSON document"),
+        ("[1, 2]", "not a fusion calibration (not a JSON object"),
+        (json.dumps({"format": 1, "source": "by hand", "inputs": {}}), "a calibration that python -m odolab.fusion"),
+    ],
+)
+def test_calibrate_replaces_only_a_calibration_it_wrote(tmp_path, capsys, content, words):
+    """--out some/existing.json replaced any file: a navigation config.json, a user's file."""
+    out = tmp_path / "config.json"
+    out.write_text(content)
+    argv = ["--odometers", "action-prior", "--episodes", "1", "--max-steps", "30", "--serial", "--out", str(out)]
+    err = refused(capsys, "calibrate", argv + ["--cache", str(tmp_path / "cache")])
+    assert f"--out {out}: expected a new file or a calibration this command wrote, found" in err and words in err
+    assert out.read_text() == content and not (tmp_path / "cache").exists()
+
+
+def test_a_calibration_this_command_wrote_may_be_replaced(tmp_path):
+    from odolab.fusion.calibration import what_file
+
+    assert what_file(SHIPPED_CALIBRATION) is None
+    old = tmp_path / "old.json"  # an older format of this command's: a new calibration replaces it
+    old.write_text(json.dumps({"format": 0, "source": "python -m odolab.fusion.calibrate --out x.json", "inputs": {}}))
+    assert what_file(old) is None
+
+
+def test_calibrate_says_how_few_steps_it_was_given(capsys):
+    err = refused(capsys, "calibrate", ["--episodes", "1", "--max-steps", "5", "--serial"])
+    assert "--episodes 1 x --max-steps 5 = 5 steps: too few to calibrate, at least 30" in err, err
+
+
+@pytest.mark.slow
+def test_the_calibration_command_names_an_oracle_input(tmp_path, capsys, oracle_calibration):
+    from odolab.cli import calibrate_fusion as calibrate
+
+    calibrate.main(
+        [
+            "--odometers",
+            "action-prior,test-truth",
+            "--episodes",
+            "1",
+            "--max-steps",
+            "30",
+            "--serial",
+            "--quiet",
+            "--split",
+            "val",
+            "--cache",
+            str(tmp_path / "cache"),
+            "--out",
+            str(tmp_path / "c.json"),
+        ]
+    )
+    assert "test-truth (an oracle" in capsys.readouterr().out

@@ -1,6 +1,6 @@
 """odolab/io/inputs.py: a path that is not a regular file is said to be what it is (a pipe, a device,
 a folder, a link to one), in one line and without opening it; its users, the text-file reader
-(odolab/io/textfiles.py) and the TUM RGB-D folder reader (odolab/io/tum_rgbd.py), say so too."""
+(odolab/io/textfiles.py), the TUM RGB-D folder reader (odolab/io/tum_rgbd.py) and evaluate, say so too."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from odolab.cli import run_cli
 from odolab.io.errors import FileFormatError
 from odolab.io.inputs import not_regular
 from odolab.io.textfiles import read_lines
@@ -105,3 +106,18 @@ def test_a_tum_list_file_that_is_a_pipe_is_refused_unopened(copy: Path):
     os.mkfifo(copy / "depth.txt")
     with _no_hang(), pytest.raises(FileFormatError, match=r"depth.txt: is a named pipe \(FIFO\), not a regular file"):
         load_tum_sequence(copy)
+
+
+def test_a_link_to_nothing_is_named_as_one(tmp_path, capsys):
+    from odolab.cli.evaluate import main as evaluate
+    from odolab.io.inputs import check_regular_file
+
+    dead = tmp_path / "est.txt"
+    dead.symlink_to(tmp_path / "gone.txt")
+    assert run_cli(evaluate, "python -m odolab.evaluate", [str(dead), str(dead)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"{dead}: is a link to nothing ({tmp_path / 'gone.txt'} does not exist)"), err
+    with pytest.raises(ValueError, match="is a link to nothing"):
+        check_regular_file(dead)
+    with pytest.raises(ValueError, match="no such file"):
+        check_regular_file(tmp_path / "never.txt")

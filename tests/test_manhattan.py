@@ -1,4 +1,5 @@
-"""baselines/manhattan: the walls' direction from depth, and an odometer whose heading they hold."""
+"""baselines/manhattan: the walls' direction from depth, and an odometer whose heading they hold (an
+oracle when its input is one)."""
 
 from __future__ import annotations
 
@@ -288,3 +289,7 @@ def test_options_for_an_input_alone_point_to_the_options_file():
 
     with pytest.raises(ComparisonError, match=r"input of 'manhattan\(icp\)'.*options_file=FILE"):
         load_odometers(["manhattan(icp)"], {"icp": {"voxel": 0.05}})
+
+
+def test_manhattan_passes_its_inputs_oracle_on():
+    assert load_odometer("manhattan(ground-truth)").oracle

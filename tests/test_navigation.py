@@ -1,4 +1,6 @@
-"""Closed-loop navigation: the goal update of eq. 1, and an agent with true odometry reaching the goal."""
+"""Closed-loop navigation: the goal update of eq. 1, and an agent with true odometry reaching the goal;
+the navigate command's checks of a folder's config.json, failed steps on its console, the policy's
+numbers and the metrics figure's legend."""
 
 from __future__ import annotations
 
@@ -6,15 +8,18 @@ import dataclasses
 import html
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from odolab.api import Action, invert, load_odometer
+from odolab.api import Action, invert, load_odometer, register_odometer
 from odolab.episodes import EpisodeSpec, render_episode, rollout
 from odolab.navigation.agent import MapPlanAgent, in_agent_frame
 from odolab.navigation.episode import navigate
 from odolab.parallel import SERIAL
+from tests.helpers import Never, captured_figures, command_argv, refused
 
 
 def test_the_goal_follows_the_true_relative_goal_when_the_odometry_is_true():
@@ -279,24 +284,12 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
         assert words in err and "Traceback" not in err
 
 
-def test_navigation_runs_unchanged_on_a_two_node_ray_cluster(tmp_path):
+def test_navigation_runs_unchanged_on_a_two_node_ray_cluster(tmp_path, ray_cluster):
     """A local two-node cluster (ray.cluster_utils): the same command through its address gives the
     same table as a serial run."""
-    import pytest
-
-    cluster_utils = pytest.importorskip("ray.cluster_utils")
     args = ["--odometers", "ground-truth", "--episodes", "2", "--max-steps", "8", "--quiet"]
     assert _navigate(args + ["--serial", "--out", str(tmp_path / "serial")]) == 0
-    cluster = cluster_utils.Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    try:
-        cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        assert _navigate(args + ["--ray-address", cluster.address, "--out", str(tmp_path / "cluster")]) == 0
-    finally:
-        import ray
-
-        ray.shutdown()
-        cluster.shutdown()
+    assert _navigate(args + ["--ray-address", ray_cluster, "--out", str(tmp_path / "cluster")]) == 0
     assert (tmp_path / "cluster" / "nav.csv").read_text() == (tmp_path / "serial" / "nav.csv").read_text()
 
 
@@ -566,3 +559,84 @@ def test_the_navigation_benchmark_accounts_for_its_time():
     parts = r["policy_ms_per_step"] + r["sensors_ms_per_step"] + r["odometer_ms_per_step"] + r["rest_ms_per_step"]
     assert abs(parts * r["steps_per_s"] / 1000 - 1) < 1e-6  # the parts add up to the whole time
     assert 0 < r["planning_ms_per_step"] <= r["policy_ms_per_step"] and 0 < r["planning_share"] < 1
+
+
+@pytest.mark.parametrize(
+    "config, words",
+    [
+        ('{"options": {}, "episodes": [], "policy": {}}', "navigation results with no format number; this odolab"),
+        ('{"format": 1, "opt', "delete it or choose another --out"),
+        (None, "its config.json is a folder, where odolab keeps a file; remove it or choose another --out"),
+        ('{"format": 1}', "not a whole navigation config (no 'episodes' and no 'policy' in it)"),
+        (
+            '{"format": 1, "options": {}, "episodes": 5, "policy": 5}',
+            "other settings (the episodes (5 there, not a list of episodes), the policy (5 there, not a table",
+        ),
+    ],
+)
+def test_navigate_says_what_is_wrong_with_a_folders_config(tmp_path, capsys, config, words):
+    out = tmp_path / "nav"
+    out.mkdir()
+    if config is None:
+        (out / "config.json").mkdir()
+        (out / "nav.csv").write_text("odometer\n")
+    else:
+        (out / "config.json").write_text(config)
+    err = refused(capsys, "navigate", command_argv("navigate", out) + ["--serial"])
+    assert words in err, err
+    assert (out / "config.json").is_dir() if config is None else (out / "config.json").read_text() == config
+
+
+def test_a_whole_policy_number_may_be_written_in_e_notation():
+    from odolab.navigation.agent import PolicyConfig, PolicyError
+
+    assert PolicyConfig.from_assignments(["memory=1e6"]).memory == 1_000_000
+    assert PolicyConfig.from_assignments(["votes=2E1"]).votes == 20
+    with pytest.raises(PolicyError, match="memory must be in"):
+        PolicyConfig.from_assignments(["memory=2e6"])
+    with pytest.raises(PolicyError, match="memory takes a whole number"):
+        PolicyConfig.from_assignments(["memory=1.5e0"])
+
+
+def test_the_navigation_metrics_legend_hides_no_bar(monkeypatch):
+    from odolab.navigation import report as nav_report
+
+    table = []
+    for k, name in enumerate(["ground-truth", "icp", "manhattan(fused(open3d-rgbd,robust-vo,planar-depth))"]):
+        row = {"odometer": name, "episodes": 100}
+        for m in ("success", "spl", "soft_spl"):
+            value = 0.95 if k == 2 else 0.5
+            row.update({m: value, f"{m}_low": value - 0.05, f"{m}_high": min(value + 0.05, 1.0)})
+        table.append(row)
+    figures = captured_figures(monkeypatch, nav_report)
+    nav_report.metrics_figure(table, Path("metrics.png"))
+    fig = figures[0]
+    (ax,) = fig.axes
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    legend, frame = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+    assert not legend.overlaps(frame)
+
+
+@pytest.mark.slow
+def test_the_navigate_console_counts_failed_steps(tmp_path, capsys):
+    from odolab.cli import run_cli
+    from odolab.navigate import main as navigate
+
+    register_odometer("test-never", Never)
+    args = [
+        "--odometers",
+        "test-never,action-prior",
+        "--episodes",
+        "1",
+        "--max-steps",
+        "3",
+        "--serial",
+        "--quiet",
+        "--out",
+        str(tmp_path),
+    ]
+    assert run_cli(navigate, "python -m odolab.navigate", args) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "failed steps: every one of 3" in next(ln for ln in lines if "test-never:" in ln)
+    assert "no failed steps" in next(ln for ln in lines if "action-prior:" in ln)

@@ -1,4 +1,5 @@
-"""python -m odolab.navigation.diff: two runs of the same episodes compared episode by episode."""
+"""python -m odolab.navigation.diff: two runs of the same episodes compared episode by episode; a file
+given for a run's folder is named."""
 
 from __future__ import annotations
 
@@ -121,3 +122,14 @@ def test_bad_tables_are_refused_in_one_line_naming_file_and_line(tmp_path, capsy
     other = _folder(tmp_path, "other", [("z", 0, 1, 10, 2)])
     code, _, err = _diff([good, other], capsys)
     assert code == 2 and "share no episode" in err[-1]
+
+
+def test_navigation_diff_given_a_file_names_the_folder_it_expects(tmp_path, capsys):
+    from odolab.cli.navigation_diff import main
+
+    (tmp_path / "episodes.csv").write_text("odometer\n")
+    argv = [str(tmp_path / "episodes.csv"), str(tmp_path)]
+    assert run_cli(main, "python -m odolab.navigation.diff", argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"before {tmp_path}/episodes.csv: is a file" in err
+    assert f"({tmp_path})" in err

@@ -1,6 +1,7 @@
 """studies.noise_robustness: the ci scale end to end (every level and odometer, the report), a
 second run reusing every saved result, a changed model's and a damaged file's units computed again,
-the findings against the paper's claim, and a bad definition refused in one line."""
+the findings against the paper's claim, a bad definition or results file refused in one line, and
+the growth labels."""
 
 from __future__ import annotations
 
@@ -122,3 +123,64 @@ def test_a_bad_definition_is_refused_naming_file_and_field(tmp_path, monkeypatch
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and f"{tmp_path / 'noise_robustness.toml'}: scales.ci." in err and said in err, err
     assert not (tmp_path / "out").exists()  # refused before any folder was made
+
+
+def _noise_row() -> dict:
+    return {
+        "steps": 10,
+        "dx": 1.0,
+        "dz": 1.0,
+        "dyaw": 1.0,
+        "dx_own": 1.0,
+        "dz_own": None,
+        "dyaw_own": 1.0,
+        "failure_share": 0.1,
+        "ate_m": 0.2,
+    }
+
+
+def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, capsys):
+    """A result with an integer of 400 digits, a bool, a negative error or a share above 1 is damage
+    (the unit is computed again, or missing with --redraw), and results files of JSON nested 100,000
+    deep or of 400-digit numbers are one line, not a traceback."""
+    import studies.noise_robustness as noise
+    from studies import framework
+
+    assert noise.valid_result(_noise_row())
+    for key, value in (
+        ("dx", 10**400),
+        ("dz", True),
+        ("dyaw", -1.0),
+        ("failure_share", 1.5),
+        ("dx_own", 10**400),
+        ("ate_m", float("nan")),
+        ("steps", 1.5),
+    ):
+        assert not noise.valid_result({**_noise_row(), key: value}), key
+    scale = noise.scale_of(framework.load_study("noise_robustness"), "ci")
+    unit = noise.units(scale, {o: None for o in scale.odometers})[0]
+    out = tmp_path / "n"
+    (out / "results").mkdir(parents=True)
+    (out / "manifest.txt").write_text("# odolab study noise_robustness\n")
+    doc = {"label": unit.label, "key": unit.key, "result": {"value": _noise_row(), "seconds": 10**400}}
+    (out / "results" / f"{unit.digest}.json").write_text(json.dumps(doc))
+    argv = ["--scale", "ci", "--redraw", "--quiet", "--out", str(out)]
+    assert run_cli(noise.main, noise.PROG, argv) == 0  # its seconds damaged: counted as none
+    big = json.dumps(doc).replace('"dx": 1.0', '"dx": 1' + "0" * 400, 1)
+    for text in (big, '{"a":' * 100_000):
+        (out / "results" / f"{unit.digest}.json").write_text(text)
+        capsys.readouterr()
+        assert run_cli(noise.main, noise.PROG, argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err and "no saved results in" in err, err
+
+
+def test_noise_growth_labels_show_small_growth():
+    from studies.noise_robustness import growth_label
+
+    assert growth_label(2.25, 2.34) == "+4.0 %"
+    assert growth_label(1.15, 1.20) == "+4.3 %"
+    assert growth_label(0.55, 0.74) == "+35 %"
+    assert growth_label(2.0, 1.96) == "-2.0 %"
+    assert growth_label(1.41, 1.41) == "0.0 %"
+    assert growth_label(0.0, 1.0) == ""

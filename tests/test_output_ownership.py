@@ -10,6 +10,7 @@ import pytest
 
 from odolab.cli import run_cli
 from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
+from tests.helpers import robust_job
 
 
 def _outside(tmp_path: Path) -> Path:
@@ -184,40 +185,6 @@ def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys
 
 # --- the trainers' --export ---------------------------------------------------------------------
 
-ROBUST_RECIPE = """
-[model]
-width = 48
-height = 32
-
-[train_data]
-width = 48
-height = 32
-
-[val_data]
-split = "val"
-width = 48
-height = 32
-
-[[stages]]
-name = "{stage}"
-actions = ["move_forward"]
-epochs = 1
-"""
-
-
-def _robust_job(tmp_path: Path, *argv: str, stage: str = "forward"):
-    from odolab.learning.cli import parse_training_command, training_parser
-    from odolab.robust_vo.config import load_train_config
-
-    recipe = tmp_path / "recipe.toml"
-    recipe.write_text(ROBUST_RECIPE.replace("{stage}", stage))  # parsed only: no data is made
-    ap = training_parser("python -m odolab.robust_vo.train", "train", "robust-vo")
-    return parse_training_command(
-        ap,
-        ["--config", str(recipe), "--work", str(tmp_path / "work"), "--reports", str(tmp_path / "reports"), *argv],
-        load_train_config,
-    )
-
 
 def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(tmp_path):
     pytest.importorskip("torch")
@@ -228,15 +195,15 @@ def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(
     with pytest.raises(
         UsageError, match="--export .*recipe.toml: expected a new file or a model odolab exported, found the recipe"
     ):
-        _robust_job(tmp_path, "--export", str(recipe))
+        robust_job(tmp_path, "--export", str(recipe))
     assert "[[stages]]" in recipe.read_text()
     with pytest.raises(UsageError, match="found the file where stage 'forward' keeps its training state"):
-        _robust_job(tmp_path, "--export", str(tmp_path / "work" / "forward.pt"))
+        robust_job(tmp_path, "--export", str(tmp_path / "work" / "forward.pt"))
     # a stage named "model": its state is where the model goes by default
     with pytest.raises(
         UsageError, match=r"stage 'model' keeps its training state.*default --export is <work>/model.pt"
     ):
-        _robust_job(tmp_path, stage="model")
+        robust_job(tmp_path, stage="model")
     state = tmp_path / "elsewhere.pt"
     save_checkpoint(state, "odolab-training-state", 1, {"epoch": 1})
     data = tmp_path / "shard.npz"
@@ -244,9 +211,9 @@ def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(
     for path, found in ((state, "found a training state"), (data, "found a file that is not an odolab model")):
         before = path.read_bytes()
         with pytest.raises(UsageError, match=found):
-            _robust_job(tmp_path, "--export", str(path))
+            robust_job(tmp_path, "--export", str(path))
         assert path.read_bytes() == before
-    job = _robust_job(tmp_path, "--export", str(tmp_path / "new.pt"))  # a new file is fine
+    job = robust_job(tmp_path, "--export", str(tmp_path / "new.pt"))  # a new file is fine
     assert job.export == tmp_path / "new.pt"
 
 
@@ -297,17 +264,17 @@ def test_a_training_keeps_its_work_out_of_other_runs_folders_but_may_keep_it_in_
     study.mkdir()
     (study / "manifest.txt").write_text("# odolab study ablations\n")
     with pytest.raises(UsageError, match=r"--work .*: lies inside the report folder of study ablations"):
-        _robust_job(tmp_path, "--work", str(study / "states"))
+        robust_job(tmp_path, "--work", str(study / "states"))
     (tmp_path / "reports").mkdir()
     same = f"python -m odolab.robust_vo.train --config {tmp_path / 'recipe.toml'}"  # this training's summary
     (tmp_path / "reports" / "training.json").write_text(json.dumps({"command": same, "stages": []}))
-    job = _robust_job(tmp_path, "--work", str(tmp_path / "reports" / "state"))  # its own reports
+    job = robust_job(tmp_path, "--work", str(tmp_path / "reports" / "state"))  # its own reports
     assert job.work == tmp_path / "reports" / "state"
     with pytest.raises(UsageError, match=r"--work .*: is a comparison report folder"):
         compare = tmp_path / "compare"
         compare.mkdir()
         (compare / "manifest.txt").write_text("# odolab compare\n")
-        _robust_job(tmp_path, "--work", str(compare))
+        robust_job(tmp_path, "--work", str(compare))
 
 
 def test_a_training_report_folder_is_a_run_folder_for_nesting(tmp_path, capsys):
@@ -351,17 +318,17 @@ def test_a_training_work_folder_of_other_files_is_refused_and_a_refusal_makes_no
     with pytest.raises(
         UsageError, match=r"--work .*user: expected a new folder or one of training states .*'notes.txt'"
     ):
-        _robust_job(tmp_path, "--work", str(user))
+        robust_job(tmp_path, "--work", str(user))
     with pytest.raises(UsageError, match=r"--reports .*user: holds files odolab did not write"):
-        _robust_job(tmp_path, "--work", str(tmp_path / "w" / "deep"), "--reports", str(user))
+        robust_job(tmp_path, "--work", str(tmp_path / "w" / "deep"), "--reports", str(user))
     with pytest.raises(UsageError, match=r"--export .*: folder .*nodir does not exist"):
-        _robust_job(tmp_path, "--work", str(tmp_path / "w2"), "--export", str(tmp_path / "nodir" / "m.pt"))
+        robust_job(tmp_path, "--work", str(tmp_path / "w2"), "--export", str(tmp_path / "nodir" / "m.pt"))
     assert not (tmp_path / "w").exists() and not (tmp_path / "w2").exists() and not (tmp_path / "reports").exists()
     states = tmp_path / "states"
     states.mkdir()
     (states / "forward.pt").write_bytes(b"")  # a folder of states (and an atomic write's leftover) is fine
     (states / ".forward.pt.x.tmp").write_bytes(b"")
-    assert _robust_job(tmp_path, "--work", str(states)).work == states
+    assert robust_job(tmp_path, "--work", str(states)).work == states
 
 
 def test_an_output_file_of_another_kind_is_never_replaced(tmp_path, capsys):

@@ -1,4 +1,5 @@
-"""odolab.report: trajectory file names, the error figure's layout and the trajectory palette."""
+"""odolab.report: trajectory file names, the error figure's layout and the trajectory palette, the
+top-down figure's colours and markers, and the output folder's manifest."""
 
 from __future__ import annotations
 
@@ -6,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.colors import to_rgb
 
 from odolab.report import GROUND_TRUTH_FILE, OutputFolder, file_stem, write_trajectories
 from odolab.runner import SequenceResult
+from tests.helpers import captured_figures
 
 
 def _result(odometer: str, shift: float, sequence: str = "seq", steps: int = 3) -> SequenceResult:
@@ -241,3 +244,149 @@ def test_one_of_a_thing_reads_in_the_singular():
     assert counted(1, "test episode") == "1 test episode"
     assert counted(5, "test episode") == "5 test episodes" and counted(0, "step") == "0 steps"
     assert counted(2, "odometer run") == "2 odometer runs" and counted(3, "axis", "axes") == "3 axes"
+
+
+def test_an_interrupted_rerun_never_mixes_two_runs(tmp_path):
+    from odolab.report import MANIFEST, OutputFolder
+
+    first = OutputFolder(tmp_path)
+    for rel in ("table.csv", "report.html", "trajectories/a/icp.tum"):
+        first.path(rel).write_text("old")
+    first.finish()
+    second = OutputFolder(tmp_path)  # the previous run's files go first
+    assert not (tmp_path / "report.html").exists() and not (tmp_path / "trajectories").exists()
+    second.path("table.csv").write_text("new")
+    # interrupted here: the manifest already names what this run wrote, and nothing else
+    assert (tmp_path / MANIFEST).read_text().splitlines() == ["# odolab compare", "table.csv"]
+    OutputFolder(tmp_path)  # the next run cleans it up
+    assert not (tmp_path / "table.csv").exists()
+
+
+def test_a_manifest_naming_a_users_file_never_deletes_it(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+
+    (tmp_path / "thesis.docx").write_text("years of work")
+    (tmp_path / "table.csv").write_text("old")
+    (tmp_path / "manifest.txt").write_text("thesis.docx\ntable.csv\n")
+    with pytest.raises(ManifestError, match="thesis.docx"):
+        OutputFolder.check(tmp_path)
+    folder = OutputFolder(tmp_path)  # even called without the check, the cleanup removes only compare's names
+    assert (tmp_path / "thesis.docx").read_text() == "years of work"
+    assert not (tmp_path / "table.csv").exists() and folder.not_removed == ["thesis.docx"]
+
+
+def test_one_command_never_takes_over_anothers_folder(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+    from odolab.simcard import CARD_NAMES
+
+    folder = OutputFolder(tmp_path)
+    folder.path("table.csv").write_text("compare's results")
+    folder.finish()
+    assert (tmp_path / "manifest.txt").read_text().splitlines()[0] == "# odolab compare"
+    with pytest.raises(ManifestError, match="odolab compare"):
+        OutputFolder.check(tmp_path, owner="simcard", names=CARD_NAMES)
+    OutputFolder.check(tmp_path)  # compare itself may write there again
+    assert (tmp_path / "table.csv").read_text() == "compare's results"
+
+
+def test_an_unreadable_manifest_is_refused_not_ignored(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+
+    (tmp_path / "manifest.txt").write_bytes(b"table.csv\n\xff\xfe garbage\n")
+    with pytest.raises(ManifestError, match="cannot be read"):
+        OutputFolder.check(tmp_path)
+
+
+def test_a_meaningless_manifest_line_is_named(tmp_path):
+    from odolab.report import ManifestError, OutputFolder
+
+    (tmp_path / "table.csv").write_text("old")
+    (tmp_path / "manifest.txt").write_text("table.csv/x\n")
+    with pytest.raises(ManifestError, match="lists 'table.csv/x'"):
+        OutputFolder.check(tmp_path)
+
+
+def test_a_pipe_named_manifest_in_a_parent_does_not_block(tmp_path, capsys):
+    import os
+
+    (tmp_path / "p").mkdir()
+    os.mkfifo(tmp_path / "p" / "manifest.txt")
+    from odolab.report import manifest_owner
+
+    assert manifest_owner(tmp_path / "p") is None  # returns, does not wait for a writer
+
+
+def _grey(color) -> bool:
+    r, g, b = to_rgb(color)
+    return max(r, g, b) - min(r, g, b) < 0.15
+
+
+def test_top_down_trajectories_never_take_the_obstacles_grey_and_show_start_end_and_goal(monkeypatch):
+    from odolab import report
+    from odolab.runner import SequenceResult
+
+    obstacle = (report.OBSTACLE_SHADE,) * 3
+    for k in range(40):
+        color, style = report.trajectory_style(k)
+        assert not _grey(color) and to_rgb(color) != obstacle and style
+    n = 6
+    poses = np.tile(np.eye(4), (n + 1, 1, 1))
+    poses[:, 0, 3] = np.linspace(0.0, 1.0, n + 1)
+    names = ["ground-truth"] + [f"odometer-{k}" for k in range(13)]
+
+    def result(name: str, shift: float) -> SequenceResult:
+        mine = poses.copy()
+        mine[:, 1, 3] = shift * np.arange(n + 1)
+        return SequenceResult(
+            odometer=name,
+            sequence="seq",
+            oracle=False,
+            estimates=np.tile(np.eye(4), (n, 1, 1)),
+            truth=None,
+            poses=mine,
+            gt_poses=poses,
+            actions=np.zeros(n, np.int8),
+            valid=np.ones(n, bool),
+            step_seconds=np.zeros(n),
+        )
+
+    plan = report.FloorPlan(np.ones((40, 40), bool), (-1.0, -1.0), 0.1, goal=(20.0, 0.0))
+    figures = captured_figures(monkeypatch, report)
+    report.plot_sequence([result(name, 0.01 * k) for k, name in enumerate(names)], Path("x.png"), names, plan)
+    (ax,) = figures[0].axes
+    drawn = [line.get_color() for line in ax.get_lines() if line.get_label() in names[1:]]
+    assert len(drawn) == 13 and not any(_grey(c) for c in drawn)
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "start" in labels and any(t.startswith("end") for t in labels) and any("goal" in t for t in labels)
+    assert any("goal 19.0 m" in t.get_text() for t in ax.texts)  # off view: an arrow with its distance
+
+
+def _collided_action_rows():
+    from odolab.summary import ActionRow
+
+    rows = []
+    for name, scale in (("action-prior", 1.0), ("icp", 0.4)):
+        for action, steps, dz in (
+            ("move_forward", 123, 4.4),
+            ("turn_left", 43, 1.2),
+            ("turn_right", 59, 1.1),
+            ("move_forward_collided", 11, 16.7),
+        ):
+            e = dz * scale
+            rows.append(ActionRow(name, action, e, e, e, e, e, e, steps, 0, 0.0, 0.0, 0.0))
+    return rows
+
+
+def test_the_error_bars_are_not_squashed_by_the_few_collided_steps(monkeypatch):
+    from odolab import report
+
+    figures = captured_figures(monkeypatch, report)
+    report.plot_errors(_collided_action_rows(), Path("errors.png"))
+    axes = figures[0].axes
+    for ax in axes[:3]:
+        assert "as used" in ax.get_title() and "as used" in ax.get_ylabel()
+        top = ax.get_ylim()[1]
+        assert 4.4 < top < 16.7 / 2  # the usual bars fill the panel; the collided one is cut
+        assert "16.7" in [t.get_text() for t in ax.texts]  # and carries its value
+    labels = [t.get_text() for t in axes[0].get_legend().get_texts()]
+    assert "move_forward (n=123)" in labels and "move_forward_collided (n=11)" in labels

@@ -1,5 +1,6 @@
 """odolab/runner.py: answers copied at the step, the per-step time limit, attributes read inside a
-guard, frames without depth counted; on a tiny synthetic sequence (no simulator), so each test is fast."""
+guard, frames without depth counted, an odometer calling sys.exit failed; on a tiny synthetic sequence
+(no simulator) or the 10-frame TUM folder, so each test is fast."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from odolab.action_prior import ActionPrior
 from odolab.geometry import planar_to_transform
 from odolab.odometer import own_copy
 from odolab.types import Action, Frame, Intrinsics
+from tests.helpers import TUM_DIR
 
 PRIOR = ActionPrior.shipped()
 FORWARD = planar_to_transform(0.0, 0.25, 0.0)
@@ -322,3 +324,20 @@ def test_a_batch_answered_with_one_reused_array_fails_as_shared_array_but_a_gene
     assert res.failure_reasons == {"shared-array": 6} and not res.valid.any()
     res = runner.run_sequence(GeneratorReuse(), Tiny(), "generator", PRIOR)
     assert res.valid.all() and np.allclose(res.estimates, FORWARD)
+
+
+def test_an_odometer_calling_sys_exit_fails_its_steps_not_the_comparison():
+    from odolab.api import Estimate, Odometer, load_tum_sequence, run_odometers
+
+    class Quitter(Odometer):
+        def step(self, prev, cur, action) -> Estimate:
+            raise SystemExit(0)
+
+    class QuitsOnReset(Odometer):
+        def reset(self, intrinsics) -> None:
+            raise SystemExit(3)
+
+    seq = load_tum_sequence(TUM_DIR)
+    a, b = run_odometers({"quitter": Quitter(), "reset": QuitsOnReset()}, [seq])
+    assert a.failures == b.failures == len(seq) - 1
+    assert "SystemExit" in a.errors[0] and "SystemExit" in b.errors[0]

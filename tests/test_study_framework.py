@@ -1,16 +1,19 @@
 """studies.framework (definitions, saved results keyed by what they depend on, reports) and the
-e_table study at its ci scale."""
+e_table study at its ci scale; the command-line checks every study shares (--out, --redraw,
+--ray-address, a stopped run resumed), with e_table standing for them."""
 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
 
-from odolab.cli import UsageError
+from odolab.cli import UsageError, run_cli
 from odolab.parallel import SERIAL
 from studies import e_table, framework, reports_index
+from tests.helpers import refused
 
 
 def test_a_result_is_reused_only_for_the_same_key(tmp_path: Path):
@@ -178,3 +181,198 @@ def test_missing_units_are_named_as_ranges():
         "navigate row 3 seed 0 episode 0-49, u"
     )
     assert unit_ranges(["u3"]) == "u3" and unit_ranges(["e 2", "e 1"]) == "2 units: e 2, e 1"
+
+
+def test_a_study_checks_ray_address_and_redraw_before_making_its_folder(tmp_path, capsys):
+    """A dead --ray-address was a traceback after --out was made; with --serial it was ignored; --redraw
+    on a new folder made it, empty."""
+    from studies.e_table import main
+
+    out = tmp_path / "e"
+    for argv, words in [
+        (["--ray-address", "127.0.0.1:1"], "--ray-address 127.0.0.1:1: no Ray cluster there"),
+        (["--ray-address", "127.0.0.1:1", "--serial"], "exclude each other"),
+        (["--redraw"], "--redraw: no saved results in"),
+    ]:
+        assert run_cli(main, "python -m studies.e_table", ["--scale", "ci", "--out", str(out), *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and words in err, err
+        assert not out.exists()
+
+
+def test_a_study_names_another_commands_folder_once(tmp_path, capsys):
+    from studies.e_table import main
+
+    (tmp_path / "manifest.txt").write_text("# odolab compare\ntable.csv\n")
+    (tmp_path / "table.csv").write_text("x")
+    assert run_cli(main, "python -m studies.e_table", ["--scale", "ci", "--out", str(tmp_path), "--redraw"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds the results of odolab compare" in err and err.count(str(tmp_path)) == 1, err
+
+
+def test_a_saved_study_result_of_the_wrong_shape_is_computed_again(tmp_path):
+    from studies import e_table, framework
+
+    store = framework.ResultStore(tmp_path)
+    unit = framework.Unit("u", {"k": 2})
+    store.put(unit, {"value": {"all": "oops"}, "seconds": 1.0})  # a results file edited by hand
+    calls = []
+
+    def fn(key):
+        calls.append(key)
+        return {"all": {c: 1.0 for c in ("dx", "dz", "dyaw", "dx_own", "dz_own", "dyaw_own", "failure_share")}}
+
+    def shaped(value):
+        return e_table.valid_result({"all": {**value["all"], "steps": 3}})
+
+    redrawn = framework.run_units(fn, [unit], store, redraw=True, execution=SERIAL, valid=shaped)
+    assert redrawn.missing == ["u"] and not calls
+    again = framework.run_units(fn, [unit], store, execution=SERIAL, valid=shaped)
+    assert again.computed == ["u"] and calls == [{"k": 2}]
+    assert not e_table.valid_result({"all": {"dx": 1.0}}) and not e_table.valid_result([1])
+
+
+def test_a_study_stopped_before_its_report_resumes_instead_of_refusing_its_folder(tmp_path, monkeypatch, capsys):
+    """Killed after some units, before its report: the rerun read 'holds files odolab did not
+    write (no manifest.txt)' and could neither resume nor redraw."""
+    from studies import e_table, framework
+
+    out = tmp_path / "e"
+    config = framework.load_study("e_table")
+
+    def stopped(fn, units, store, **kw):
+        store.put(units[0], {"value": {"all": {}}, "seconds": 0.0})  # one unit saved, then Ctrl-C
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(framework, "run_units", stopped)
+    argv = ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]
+    assert run_cli(e_table.main, "python -m studies.e_table", argv) == 130
+    assert (out / "manifest.txt").read_text() == "# odolab study e_table\n"
+    framework.check_out(out, config)  # the rerun may use its folder
+    (out / "manifest.txt").unlink()  # a folder left by a run from before the manifest came first
+    framework.check_out(out, config)
+    assert (out / "manifest.txt").is_file() and len(list((out / "results").iterdir())) == 1
+
+
+def test_a_study_refusing_redraw_writes_nothing_in_an_empty_folder(tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    err = refused(capsys, "e_table", ["--scale", "ci", "--out", str(empty), "--redraw"])
+    assert "--redraw: no saved results" in err and list(empty.iterdir()) == []
+
+
+PROG = "python -m studies.e_table"
+
+
+CI = ["--scale", "ci", "--serial", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def ci_run(tmp_path_factory) -> Path:
+    """One finished ci run of studies.e_table (copied by the tests that change it)."""
+    from studies.e_table import main
+
+    out = tmp_path_factory.mktemp("e") / "run"
+    assert main([*CI, "--out", str(out)]) == 0
+    return out
+
+
+def _run(argv: list[str], capsys) -> tuple[int, str]:
+    from studies.e_table import main
+
+    rc = run_cli(main, PROG, argv)
+    return rc, capsys.readouterr().err.strip()
+
+
+def test_ray_address_auto_without_a_cluster_is_one_line_before_any_folder(tmp_path, monkeypatch, capsys):
+    from ray._private import services
+
+    def none_found(addr, temp_dir):
+        raise ConnectionError("Could not find any running Ray instance.")
+
+    monkeypatch.setattr(services, "get_ray_address_from_environment", none_found)
+    out = tmp_path / "e"
+    rc, err = _run(["--scale", "ci", "--quiet", "--ray-address", "auto", "--out", str(out)], capsys)
+    assert rc == 2 and err.splitlines() == [
+        f"{PROG}: error: --ray-address auto: no running Ray cluster found on this machine; start one (ray start --head) or give host:port"
+    ]
+    assert not out.exists()
+
+
+def test_a_users_own_reports_index_is_left_alone(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    page = tmp_path / "reports" / "index.html"
+    page.parent.mkdir()
+    page.write_text("<html>MY OWN PAGE</html>")
+    rc, err = _run([*CI, "--out", "reports/e"], capsys)
+    assert rc == 0 and page.read_text() == "<html>MY OWN PAGE</html>"
+    assert "reports/index.html not refreshed" in err and (tmp_path / "reports" / "e" / "index.html").is_file()
+
+
+def test_a_users_folder_of_json_files_is_not_taken_for_a_stopped_study(tmp_path, capsys):
+    out = tmp_path / "mine"
+    (out / "results").mkdir(parents=True)
+    (out / "results" / "exp1.json").write_text('{"my": "experiment"}')
+    rc, err = _run([*CI, "--out", str(out)], capsys)
+    assert rc == 2 and "holds files odolab did not write" in err
+    assert sorted(p.name for p in out.rglob("*")) == ["exp1.json", "results"]
+
+
+def test_a_refused_redraw_writes_nothing(ci_run, tmp_path, capsys):
+    out = tmp_path / "e"
+    shutil.copytree(ci_run / "results", out / "results")  # a run stopped before its report
+    rc, err = _run(["--scale", "cpu", "--redraw", "--quiet", "--out", str(out)], capsys)
+    assert rc == 2 and "--redraw: no saved results" in err
+    assert sorted(p.name for p in out.iterdir()) == ["results"]
+    rc, err = _run(["--scale", "ci", "--redraw", "--quiet", "--out", str(out)], capsys)
+    assert rc == 0 and (out / "manifest.txt").read_text().startswith("# odolab study e_table")
+
+
+def test_a_result_that_could_not_be_saved_is_refused_before_any_work(ci_run, tmp_path, capsys):
+    out = tmp_path / "e"
+    shutil.copytree(ci_run, out)
+    victim = min((out / "results").iterdir())
+    victim.unlink()
+    victim.mkdir()
+    rc, err = _run([*CI, "--out", str(out)], capsys)
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert f"{victim}: expected a regular file or nothing, found a folder" in err and "remove it" in err
+
+
+def test_a_scale_key_that_is_no_field_is_refused():
+    from studies import e_table, framework
+
+    base = framework.load_study("e_table")
+    config = framework.StudyConfig(
+        base.name, base.title, {**base.scales, "ci": {**base.at("ci"), "seed": 3}}, base.path
+    )
+    with pytest.raises(ValueError) as exc:
+        framework.scale_params(config, "ci", e_table.scale_of)
+    assert str(exc.value).startswith(f"{base.path}: scales.ci.seed: not a field of this study (expected episodes")
+    assert json.dumps(framework.scale_params(base, "ci", e_table.scale_of).seeds) == "[0, 1]"
+
+
+def test_an_out_folder_inside_another_runs_folder_is_refused(ci_run, capsys):
+    inner = ci_run / "results" / "mine"
+    rc, err = _run([*CI, "--out", str(inner)], capsys)
+    assert rc == 2 and err.endswith(
+        f"--out {inner}: lies inside the report folder of study e_table (python -m studies.e_table), "
+        f"{ci_run}; choose a folder outside it"
+    )
+    assert not inner.exists()
+
+
+def test_nesting_is_found_through_links_and_before_a_stopped_run_is_claimed(ci_run, tmp_path, capsys):
+    link = tmp_path / "link"
+    link.symlink_to(ci_run / "results")
+    rc, err = _run([*CI, "--out", str(link / "x")], capsys)
+    assert (
+        rc == 2 and "lies inside the report folder of study e_table" in err and not (ci_run / "results" / "x").exists()
+    )
+    stopped = ci_run / "copy"  # what a stopped first run leaves, inside another run's folder
+    shutil.copytree(ci_run / "results", stopped / "results")
+    try:
+        rc, err = _run([*CI, "--out", str(stopped)], capsys)
+        assert rc == 2 and "lies inside" in err and not (stopped / "manifest.txt").exists()
+    finally:
+        shutil.rmtree(stopped)

@@ -1,9 +1,12 @@
 """odolab/training_data.py: shards made once and resumed, refused when made otherwise, frames resized
-with holes kept, windows of consecutive pairs."""
+with holes kept, windows of consecutive pairs, a damaged shard named when first read (checked once per
+process)."""
 
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -218,3 +221,67 @@ def test_clean_depth_is_stored_beside_the_noisy_depth_of_the_same_frames(tmp_pat
     assert 0 < np.abs(clean - depth_b)[both_valid].mean() < 0.5  # noise, but the same scene
     with pytest.raises(ValueError, match="made without clean_depth"):
         a.clean_depths(frames)
+
+
+@pytest.fixture(scope="module")
+def shards(tmp_path_factory) -> Path:
+    from odolab.training_data import DataConfig, make_training_data
+
+    root = tmp_path_factory.mktemp("data") / "train"
+    make_training_data(
+        DataConfig(split="train", episodes=2, max_steps=4, width=24, height=16, episodes_per_shard=1),
+        root,
+        execution=SERIAL,
+    )
+    return root
+
+
+def _flip_a_frame_byte(shard: Path) -> None:
+    from odolab.io.npz_mmap import mmap_npz_member
+
+    offset = mmap_npz_member(shard, "rgb").offset + 5  # a pixel of the first frame: np.load never reads it
+    data = bytearray(shard.read_bytes())
+    data[offset] ^= 0x10
+    shard.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("old", [False, True], ids=["checksum in the manifest", "shard made before checksums"])
+def test_a_shard_with_a_flipped_byte_is_named_when_its_frames_are_first_read(shards, tmp_path, old):
+    import json
+
+    from odolab.training_data import MANIFEST, DamagedShardError, TrainingData
+
+    copy = tmp_path / "copy"
+    shutil.copytree(shards, copy)
+    doc = json.loads((copy / MANIFEST).read_text())
+    assert all(isinstance(e["crc32"], int) for e in doc["shards"].values())  # written with each shard
+    if old:
+        for entry in doc["shards"].values():
+            del entry["crc32"]
+        (copy / MANIFEST).write_text(json.dumps(doc))
+    data = TrainingData(copy)
+    data.frames(np.arange(len(data.poses)))  # intact: read without complaint
+    shard = copy / data.shards[0]
+    _flip_a_frame_byte(shard)
+    damaged = TrainingData(copy)  # the small arrays are intact: opening is not the check
+    with pytest.raises(DamagedShardError, match=f"{shard.name}: damaged: "):
+        damaged.frames(np.array([0]))
+
+
+def test_a_shard_is_checked_once_per_process(shards, monkeypatch):
+    from odolab import training_data as td
+
+    calls = []
+    real = td.file_crc32
+    monkeypatch.setattr(td, "file_crc32", lambda path, *a: calls.append(path) or real(path, *a))
+    data = td.TrainingData(shards)
+    for _ in range(3):
+        data.pair_batch(np.arange(len(data)))
+    assert sorted(calls) == sorted(shards / n for n in data.shards)  # each shard once, not once per batch
+    import pickle
+
+    worker = pickle.loads(pickle.dumps(data))  # a loader worker's copy keeps what was checked
+    worker.frames(np.array([0]))
+    assert len(calls) == len(data.shards)
+    td.TrainingData(shards).frames(np.array([0]))  # a new opening checks again
+    assert len(calls) == len(data.shards) + 1

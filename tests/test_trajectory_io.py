@@ -1,4 +1,5 @@
-"""Trajectory files (TUM, KITTI) and timestamp association, checked against evo."""
+"""Trajectory files (TUM, KITTI) and timestamp association, checked against evo; repeated timestamps
+counted."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from odolab.cli import run_cli
 from odolab.io.errors import FileFormatError
 from odolab.io.kitti import read_kitti_poses, write_kitti_poses
 from odolab.io.tum import (
@@ -17,6 +19,7 @@ from odolab.io.tum import (
     write_tum_trajectory,
 )
 from odolab.trajectory import Trajectory
+from tests.helpers import TUM_OK
 
 DATA = Path(__file__).parent / "data" / "evo"
 TUM_LINE = "1.0 0 0 0 0 0 0 1"
@@ -153,6 +156,32 @@ def test_error_message_format():
     assert str(FileFormatError("groundtruth.txt", 7, "expected 8 columns, got 6")) == (
         "groundtruth.txt, line 7: expected 8 columns, got 6"
     )
+
+
+def test_duplicate_timestamps_keep_the_first_and_are_counted(tmp_path, capsys):
+    from odolab.evaluate import main
+    from odolab.io.tum import read_tum_file
+
+    gt = tmp_path / "gt.txt"
+    lines = TUM_OK.splitlines(True)
+    gt.write_text(lines[0] + lines[1] + lines[1].replace(" 1 0 0 0", " 9 0 0 0", 1) + "".join(lines[2:]))
+    traj, dropped = read_tum_file(gt)
+    assert dropped == 1 and len(traj) == 4 and traj.poses[1, 0, 3] == 1.0
+    est = tmp_path / "est.txt"
+    est.write_text(TUM_OK)
+    assert run_cli(main, "odolab.evaluate", [str(gt), str(est), "--format", "tum"]) == 0
+    assert f"repeated timestamps dropped, first kept: 1 in {gt}" in capsys.readouterr().out
+
+
+def test_error_messages_print_plain_numbers(tmp_path):
+    from odolab.io.errors import FileFormatError
+    from odolab.io.tum import read_tum_trajectory
+
+    bad = tmp_path / "t.txt"
+    bad.write_text("2.5 0 0 0 0 0 0 1\n1.5 0 0 0 0 0 0 1\n")
+    with pytest.raises(FileFormatError) as info:
+        read_tum_trajectory(bad)
+    assert "1.5 (previous line 1 has 2.5)" in str(info.value) and "np." not in str(info.value)
 
 
 # ----------------------------------------------------------------------------- KITTI files

@@ -1,8 +1,10 @@
-"""The TUM RGB-D folder reader: frames, association, camera choice and every bad-input error."""
+"""The TUM RGB-D folder reader: frames, association, camera choice, depth scale and every bad-input error."""
 
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -12,6 +14,7 @@ import pytest
 from odolab.api import Sequence, load_tum_sequence
 from odolab.io.errors import FileFormatError
 from odolab.io.tum_rgbd import TUM_CAMERAS, TumSequence, tum_camera_for
+from tests.helpers import FR1, ROOT
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 
@@ -225,3 +228,56 @@ def test_frames_without_depth_or_ground_truth_are_counted(copy):
     (copy / "depth.txt").write_text("\n".join(lines[:-2]) + "\n")  # the last two depth maps are gone
     seq = load_tum_sequence(copy)
     assert seq.dropped["no depth"] == 2 and len(seq) == 8
+
+
+@pytest.mark.parametrize("command", ["odolab.compare", "baselines.measure_tum"])
+def test_a_bad_image_stops_before_any_odometer_runs(tmp_path, command):
+    import shutil
+
+    folder = tmp_path / "rgbd_dataset_freiburg1_bad"
+    shutil.copytree(TUM, folder)
+    depth = max((folder / "depth").iterdir())  # the last frame: found before the first step
+    depth.write_bytes(depth.read_bytes()[:100])
+    args = ["--tum", folder, "--out", tmp_path / "o"] if command == "odolab.compare" else [folder]
+    proc = subprocess.run(
+        [sys.executable, "-m", command, *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stdout == ""
+    (line,) = proc.stderr.strip().splitlines()
+    assert f"{depth}: cannot be read as an image (listed in depth.txt, line 13)" in line
+
+
+@pytest.mark.parametrize(
+    "pinhole, words", [((525.0, 525.0, 1e9, 1e9), "principal point"), ((1e-9, 1e-9, 0.0, 0.0), "implausible")]
+)
+def test_implausible_tum_intrinsics_are_refused(pinhole, words):
+    from odolab.io.tum_rgbd import load_tum_sequence
+
+    folder = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
+    with pytest.raises(ValueError, match=words):
+        load_tum_sequence(folder, intrinsics=pinhole)
+
+
+def test_millimetre_depth_is_read_at_the_scale_given_and_a_wrong_scale_is_warned_of(millimetre_folder):
+    from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
+
+    with pytest.raises(UnknownCameraError):
+        load_tum_sequence(millimetre_folder)
+    truth = load_tum_sequence(TUM)
+    seq = load_tum_sequence(millimetre_folder, FR1, depth_scale=1000)
+    assert seq.intrinsics == truth.intrinsics  # the size is the images'
+    assert np.allclose(seq[3].depth, truth[3].depth, atol=0.0011) and seq.depth_warning() is None
+    wrong = load_tum_sequence(millimetre_folder, FR1)  # TUM's 5000 per metre: a fifth of the truth
+    assert np.allclose(wrong[3].depth * 5, seq[3].depth, atol=1e-5)
+    warning = wrong.depth_warning()
+    assert "median is 0.22 m at a depth scale of 5000" in warning
+    assert "At 1000 per metre (millimetres) it would be 1.08 m" in warning
+    assert "At 5000 per metre it would be 1.08 m" in load_tum_sequence(TUM, depth_scale=1000).depth_warning()
+    assert truth.depth_warning() is None
+    with pytest.raises(ValueError, match=r"depth_scale must be a number of PNG values per metre in \[1, 1e\+06\]"):
+        load_tum_sequence(millimetre_folder, FR1, depth_scale=0)

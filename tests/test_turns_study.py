@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import csv
 
-import pytest
-
 import studies.turns_by_depth as study
 from odolab.api import invert, load_odometer
 from studies import framework
@@ -124,21 +122,31 @@ def _same(name, runs):
             assert a.covariance is None or (a.covariance == b.covariance).all(), name
 
 
-def test_the_ci_scale_runs_unchanged_on_a_two_node_ray_cluster(tmp_path):
+def test_the_ci_scale_runs_unchanged_on_a_two_node_ray_cluster(tmp_path, ray_cluster):
     """The study's units as Ray tasks on a local two-node cluster (ray.cluster_utils), through its
     address: the same table as run one after another in this process."""
-    cluster_utils = pytest.importorskip("ray.cluster_utils")
     assert _run(["--scale", "ci", "--serial", "--quiet", "--out", tmp_path / "serial"]) == 0
-    cluster = cluster_utils.Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    try:
-        cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        out = tmp_path / "cluster"
-        assert _run(["--scale", "ci", "--ray-address", cluster.address, "--quiet", "--out", out]) == 0
-    finally:
-        import ray
-
-        ray.shutdown()
-        cluster.shutdown()
+    out = tmp_path / "cluster"
+    assert _run(["--scale", "ci", "--ray-address", ray_cluster, "--quiet", "--out", out]) == 0
     assert (out / "table.csv").read_text() == (tmp_path / "serial" / "table.csv").read_text()
     assert len(list((out / "results").glob("*.json"))) == len(list((tmp_path / "serial" / "results").glob("*.json")))
+
+
+def test_the_turns_study_keeps_results_of_other_options_and_damage_apart(tmp_path):
+    """Options are part of a unit's key: turns computed with other options are never taken for
+    these; a saved scene with a damaged turn is not a result."""
+    import studies.turns_by_depth as turns
+    from studies import framework
+
+    assert turns.row_ok([1.5, True, 0.3]) and not turns.row_ok([10**400, True, 0.3])
+    assert not turns.row_ok([1.5, True, 10**400]) and not turns.row_ok([1.5, False, 0.3])
+    scale = turns.Scale("val", 7, 2, 2, ("icp",), {})
+    other = turns.Scale("val", 7, 2, 2, ("icp",), {"icp": {"max_iter": 3}})
+    store = framework.ResultStore(tmp_path)
+    [first, _] = turns.units(other, {"icp": "a"})
+    store.put(first, {"value": [[1.0, True, 0.5]] * 2, "seconds": 1.0})
+    mine = turns.units(scale, {"icp": "a"})[0]
+    assert mine.label == first.label and store.get(mine) is None  # same odometer and scene, other options
+    assert turns.valid_result([[1.0, True, 0.5]] * 2, per_scene=2)
+    assert not turns.valid_result([[1.0, True, 0.5], [10**400, True, 0.5]], per_scene=2)
+    assert not turns.valid_result([[1.0, True, 0.5]] * 3, per_scene=2)

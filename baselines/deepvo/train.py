@@ -268,7 +268,7 @@ def train_windows(job: dict) -> dict:
         }
 
     def after(_: EpochLoop) -> None:
-        write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
+        write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch", final=False)
 
     finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
     if team.leader:

@@ -29,7 +29,15 @@ from tqdm.auto import tqdm
 from odolab.depth_corrector.checkpoint import save_model
 from odolab.depth_corrector.config import CorrectorTraining, load_training
 from odolab.depth_corrector.model import DepthCorrectorNet, pixel_place
-from odolab.learning import Curves, EpochLoop, Execution, TrainingData, make_training_data, require_finite
+from odolab.learning import (
+    REDRAW_SECONDS,
+    Curves,
+    EpochLoop,
+    Execution,
+    TrainingData,
+    make_training_data,
+    require_finite,
+)
 from odolab.learning.epochs import EpochTracker
 
 #: Upper edges (m) of the true-distance bins of the validation rows; the last bin is open.
@@ -97,9 +105,10 @@ def loss_fn(
     return err.mean() + spread_weight * (err.detach() / b + torch.log(b)).mean()
 
 
-def write_report(folder: Path, rows: list[dict], status: dict) -> None:
+def write_report(folder: Path, rows: list[dict], status: dict, final: bool = True) -> None:
     """``curves.csv`` (every row), ``curves.png`` (validation MAE of the noisy and corrected depth per
-    distance bin and on edges, mm) and ``training.json``, each written atomically into ``folder``."""
+    distance bin and on edges, mm) and ``training.json``, each written atomically into ``folder``;
+    ``final=False`` (after an epoch) redraws the figure only if it is older than ``REDRAW_SECONDS``."""
     from odolab.io.atomic import write_bytes_atomic
 
     folder = Path(folder)
@@ -119,6 +128,7 @@ def write_report(folder: Path, rows: list[dict], status: dict) -> None:
         scale={k: 1000.0 for k in ["all", *bin_labels(), "edges"]},
         title="Depth corrector: validation depth error after each epoch (val split)",
         wrap=4,
+        fresh_for=0.0 if final else REDRAW_SECONDS,
     )
     write_bytes_atomic(folder / "training.json", (json.dumps(status, indent=1) + "\n").encode())
 
@@ -235,7 +245,7 @@ def run(
         }
 
     def after(_: EpochLoop) -> None:
-        write_report(reports, loop.curves.rows, status())
+        write_report(reports, loop.curves.rows, status(), final=False)
 
     finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
     write_report(reports, loop.curves.rows, status())

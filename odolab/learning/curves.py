@@ -5,10 +5,15 @@ from __future__ import annotations
 import csv
 import io
 import os
+import time
 from collections.abc import Sequence
 from typing import Any
 
 from odolab.io.atomic import write_bytes_atomic
+
+#: A training redraws its curves' figure after an epoch at most once in this many seconds (drawing
+#: takes about a second; its CSV is written after every epoch) and always when it stops.
+REDRAW_SECONDS = 60.0
 
 
 class Curves:
@@ -46,12 +51,20 @@ class Curves:
         title: str = "",
         scale: dict[str, float] | None = None,
         wrap: int | None = None,
+        fresh_for: float = 0.0,
     ) -> None:
         """Small multiples: one panel per (``rows`` value, ``cols`` value), ``x`` on the horizontal axis
         and one line per ``series`` column (value: matplotlib style, with ``label``). ``where``
         filters rows; ``scale`` multiplies values per ``cols`` value (e.g. rad -> deg);
         ``ylabel`` per ``cols`` value; ``wrap``: at most this many panels a line, the panels then
-        read in order left to right, top to bottom."""
+        read in order left to right, top to bottom; ``fresh_for``: seconds within which a figure
+        already at ``path`` is kept instead of drawn again (0: always draw)."""
+        if fresh_for > 0:
+            try:
+                if time.time() - os.stat(path).st_mtime < fresh_for:
+                    return
+            except OSError:
+                pass  # no figure yet: draw it
         import matplotlib
 
         matplotlib.use("Agg")

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from odolab.api import MOTION_ACTIONS, load_odometer, write_bytes_atomic
-from odolab.learning.curves import Curves
+from odolab.learning.curves import REDRAW_SECONDS, Curves
 
 COMPONENTS = ("dx", "dz", "dyaw")
 
@@ -43,11 +43,17 @@ def error_rows(pred: np.ndarray, truth: np.ndarray, actions: np.ndarray, **label
 
 
 def write_report(
-    folder: str | Path, rows: list[dict[str, Any]], status: dict[str, Any], title: str, x: str = "epoch"
+    folder: str | Path,
+    rows: list[dict[str, Any]],
+    status: dict[str, Any],
+    title: str,
+    x: str = "epoch",
+    final: bool = True,
 ) -> None:
     """``curves.csv`` (every row), ``curves.png`` (validation rows: one panel per action and
     component, the model against the action prior, yaw in degrees) and ``training.json``
-    (``status``), each written atomically into ``folder``."""
+    (``status``), each written atomically into ``folder``; ``final=False`` (after an epoch, the
+    training goes on) redraws the figure only if it is older than ``REDRAW_SECONDS``."""
     folder = Path(folder)
     curves = Curves(rows)
     curves.to_csv(folder / "curves.csv")
@@ -70,6 +76,7 @@ def write_report(
         scale={"dyaw": 180 / np.pi},
         title=title,
         ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
+        fresh_for=0.0 if final else REDRAW_SECONDS,
     )
     write_bytes_atomic(folder / "training.json", json.dumps(status, indent=1).encode())
 

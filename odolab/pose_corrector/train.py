@@ -29,7 +29,15 @@ import torch
 from tqdm.auto import tqdm
 
 from odolab.api import MOTION_ACTIONS, Action, load_inputs, load_odometer, transform_to_planar, wrap_angle
-from odolab.learning import Curves, EpochLoop, Execution, TrainingData, make_training_data, require_finite
+from odolab.learning import (
+    REDRAW_SECONDS,
+    Curves,
+    EpochLoop,
+    Execution,
+    TrainingData,
+    make_training_data,
+    require_finite,
+)
 from odolab.learning.epochs import EpochTracker
 from odolab.pose_corrector.checkpoint import save_model
 from odolab.pose_corrector.config import PoseCorrectorModel, PoseCorrectorTraining, load_training
@@ -147,10 +155,11 @@ def correction_rows(
     return rows
 
 
-def write_report(folder: Path, rows: list[dict], status: dict, inner: str) -> None:
+def write_report(folder: Path, rows: list[dict], status: dict, inner: str, final: bool = True) -> None:
     """``curves.csv`` (every row), ``curves.png`` (validation MAE per action and component of
     corrected(X), X alone and the action prior; yaw in degrees) and ``training.json``, each written
-    atomically into ``folder``."""
+    atomically into ``folder``; ``final=False`` (after an epoch) redraws the figure only if it is older
+    than ``REDRAW_SECONDS``."""
     from odolab.io.atomic import write_bytes_atomic
 
     folder = Path(folder)
@@ -171,6 +180,7 @@ def write_report(folder: Path, rows: list[dict], status: dict, inner: str) -> No
         scale={"dyaw": 180 / np.pi},
         title=f"Pose corrector of {inner}: validation error after each epoch (val split)",
         ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
+        fresh_for=0.0 if final else REDRAW_SECONDS,
     )
     write_bytes_atomic(folder / "training.json", (json.dumps(status, indent=1) + "\n").encode())
 
@@ -286,7 +296,7 @@ def run(
         }
 
     def after(_: EpochLoop) -> None:
-        write_report(reports, loop.curves.rows, status(), cfg.inner)
+        write_report(reports, loop.curves.rows, status(), cfg.inner, final=False)
 
     finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
     write_report(reports, loop.curves.rows, status(), cfg.inner)

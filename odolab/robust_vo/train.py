@@ -227,7 +227,7 @@ def _identity(cfg: TrainConfig, stage: StageConfig, init_sha256: str = "") -> di
     return out
 
 
-def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None:
+def _write_reports(reports: Path, curves_rows: list[dict], status: dict, final: bool = True) -> None:
     offsets, total = {}, 0  # "epoch" counts within a stage; "epochs" counts over the stages in order
     for row in curves_rows:
         if row["stage"] not in offsets:
@@ -238,7 +238,14 @@ def _write_reports(reports: Path, curves_rows: list[dict], status: dict) -> None
     for r in rows:
         spans.setdefault(r["stage"], set()).add(r["epochs"])
     said = ", ".join(f"{name}: {min(e)}" + (f"-{max(e)}" if max(e) > min(e) else "") for name, e in spans.items())
-    write_report(reports, rows, status, f"Robust VO: validation error after each epoch (epochs of {said})", x="epochs")
+    write_report(
+        reports,
+        rows,
+        status,
+        f"Robust VO: validation error after each epoch (epochs of {said})",
+        x="epochs",
+        final=final,
+    )
 
 
 def run(
@@ -350,6 +357,7 @@ def train_stages(job: dict) -> dict:
                     reports,
                     rows + loop_.curves.rows,
                     {**status, "stages": {**status["stages"], stage.name: _stage_status(loop_)}},
+                    final=False,
                 )
 
             finished = loop.run(runner.train_epoch, runner.validate, deadline=deadline, after_epoch=after)

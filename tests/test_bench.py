@@ -1,0 +1,63 @@
+"""``python -m odolab.bench`` (odolab/bench.py, odolab/cli/bench.py): its --json path checked before
+work, odometer options it would ignore refused, and each part saved as it finishes."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.helpers import one_line_error
+
+
+def test_bench_json_path_is_checked_before_work(tmp_path):
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", tmp_path, words="is a folder, not a file")
+    notes = tmp_path / "notes.md"  # a slip of the tab key must not overwrite a document
+    notes.write_text("mine")
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", notes, words="unknown file type '.md'")
+    (tmp_path / "link.json").symlink_to(notes)  # the link's name is not what would be replaced
+    one_line_error(
+        "odolab.bench",
+        "--only",
+        "evaluate",
+        "--json",
+        tmp_path / "link.json",
+        words=f"links to {notes}, unknown file type '.md'",
+    )
+    assert notes.read_text() == "mine"
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", f"{tmp_path}/new.json/", words="ends in '/'")
+    assert not (tmp_path / "new.json").exists()
+    one_line_error("odolab.bench", "--only", "evaluate", "--json", tmp_path / ".json", words="has no file extension")
+    one_line_error("odolab.action_prior", "--out", f"{tmp_path}/p.json/", words="ends in '/'")
+
+
+def test_bench_refuses_odometer_options_it_would_ignore():
+    one_line_error("odolab.bench", "--only", "evaluate", "--odometers", "icp", words="does not run it")
+    one_line_error("odolab.bench", "--only", "evaluate", "--train-threads", "1", words="--train-threads chooses")
+    one_line_error(
+        "odolab.bench", "--only", "training", "--train-threads", "0", words="--train-threads must be in [1, 256], got 0"
+    )
+    one_line_error("odolab.bench", "--only", "simulator", "--odometer-option", "icp.x=1", words="does not run it")
+
+
+def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
+    import json
+
+    from odolab import bench
+    from odolab.cli.bench import main
+
+    out = tmp_path / "b.json"
+    out.write_text('{"machine": {"cpus": 2}, "evaluate": {"old": "a complete earlier run"}, "parts_pending": []}')
+    seen = []
+
+    def odometers(names, options=None, rows=None, after_each=None):  # the 2nd odometer is interrupted
+        rows.append({"odometer": names[0], "steps_per_s": 1.0})
+        after_each()
+        seen.append(json.loads(out.read_text()))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bench, "bench_odometers", odometers)
+    with pytest.raises(KeyboardInterrupt):
+        main(["--only", "odometers", "--only", "evaluate", "--odometers", "action-prior,icp", "--json", str(out)])
+    saved = json.loads(out.read_text())
+    assert "evaluate" not in saved and saved == seen[0]
+    assert saved["odometers"] == [{"odometer": "action-prior", "steps_per_s": 1.0}]
+    assert saved["parts_pending"] == ["odometers", "evaluate"]

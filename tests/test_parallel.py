@@ -1,0 +1,171 @@
+"""odolab/parallel.py: Ray addresses checked before Ray starts (dead, not Ray, from RAY_ADDRESS), the
+command's signal handlers kept while Ray starts, GPUs per task, and no token notice for a local Ray."""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from odolab.parallel import Execution
+from tests.helpers import ROOT
+
+
+def test_fan_out_checks_the_address_before_starting_ray():
+    from odolab.parallel import fan_out
+
+    start = time.monotonic()
+    with pytest.raises(ValueError, match="no Ray cluster there"):
+        fan_out(abs, [1, 2], execution=Execution(ray_address="127.0.0.1:1", progress=False))
+    assert time.monotonic() - start < 10
+
+
+def test_tasks_that_ask_for_gpus_get_one_each_or_a_clear_refusal():
+    """The ablation study's paper scale asks Ray for a GPU per training unit: Ray then shows each task
+    only its GPU; a cluster with fewer GPUs than a task asks for refuses in one line at once instead of
+    waiting for ever."""
+    import os
+
+    import ray
+
+    from odolab.parallel import RayAddressError, fan_out
+
+    quiet = Execution(progress=False)
+    visible = ["CUDA_VISIBLE_DEVICES"] * 2  # each task's os.getenv of it
+    ray.init(num_cpus=2, num_gpus=1, include_dashboard=False, log_to_driver=False)  # a GPU declared, none there
+    try:
+        assert fan_out(os.getenv, visible, execution=quiet, gpus=1) == ["0", "0"]  # one after the other
+        with pytest.raises(RayAddressError) as info:
+            fan_out(os.getenv, visible, execution=quiet, gpus=2)
+        assert str(info.value) == (
+            "the local Ray instance has 1 GPUs; each task asks for 2 (run where there are GPUs, or ask for none)"
+        )
+    finally:
+        ray.shutdown()
+
+
+def test_starting_ray_keeps_the_commands_signal_handlers(monkeypatch):
+    """ray.init() puts in a SIGTERM handler of its own that exits at once; start_ray puts the
+    command's back, so SIGTERM still ends a command that fans out on Ray after its clean-up (143)."""
+    import signal
+
+    import ray
+
+    from odolab.parallel import start_ray
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+
+    def mine(signum, frame):  # pragma: no cover - never called
+        raise AssertionError
+
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        started = start_ray(None, quiet=True)
+        try:
+            assert started, "Ray was already running in the test process"
+            assert signal.getsignal(signal.SIGTERM) is mine
+        finally:
+            if started:
+                ray.shutdown()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_a_sigterm_while_ray_starts_reaches_the_commands_handler(monkeypatch):
+    """ray.init() puts its own SIGTERM handler (exit 15) in place first thing; a SIGTERM that lands
+    before it returns is handed to the command's handler, and what Ray started is shut down."""
+    import os
+    import signal
+    import sys
+    import time
+
+    import ray
+
+    from odolab.parallel import start_ray
+
+    class Mine(Exception):
+        pass
+
+    def mine(signum, frame):
+        raise Mine()
+
+    def init(**kwargs):  # what ray.init does with SIGTERM, then a SIGTERM half-way
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10)
+
+    shut = []
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(ray, "shutdown", lambda: shut.append(True))
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        with pytest.raises(Mine):
+            start_ray(None, quiet=True)
+        assert signal.getsignal(signal.SIGTERM) is mine
+        assert shut == [True]
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_an_address_where_no_ray_cluster_answers_is_one_line_at_once():
+    """A web server at --ray-address takes the connection but is no Ray cluster: refused within
+    seconds (Ray itself retries for minutes), naming the address."""
+    import http.server
+    import threading
+
+    from odolab.parallel import RayAddressError, check_ray_address
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        address = f"127.0.0.1:{server.server_address[1]}"
+        with pytest.raises(RayAddressError, match=f"--ray-address {address}: something answers there, but not as a"):
+            check_ray_address(address)
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_the_library_checks_ray_address_before_ray_init_and_names_it(monkeypatch):
+    """Library callers (odolab.api) get the typed error, named after the variable, not a hang."""
+    pytest.importorskip("ray")
+    from odolab.parallel import RayAddressError, start_ray
+
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
+    with pytest.raises(RayAddressError, match=r"^RAY_ADDRESS \(environment\) 127.0.0.1:1: no Ray cluster"):
+        start_ray(None)
+
+
+def test_a_local_ray_start_prints_no_token_notice():
+    code = (
+        "from odolab.parallel import Execution, fan_out\n"
+        "def neg(x):\n    return -x\n"
+        "assert fan_out(neg, [1, 2], execution=Execution(progress=True)) == [-1, -2]\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_AUTH_MODE", "RAY_ADDRESS")}
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env, timeout=120, check=False
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Token authentication" not in proc.stdout + proc.stderr
+
+
+def test_token_notices_are_kept_for_a_users_cluster_and_hidden_for_a_local_one(caplog):
+    from odolab.parallel import _TOKEN_NOTICES, _token_notices_hidden
+
+    notices = logging.getLogger(_TOKEN_NOTICES)
+    for local, quiet, shown in ((True, False, False), (False, True, False), (False, False, True)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING), _token_notices_hidden(local=local, quiet=quiet):
+            notices.warning("Token authentication is enabled for this Ray cluster.")
+            notices.error("an error always passes")
+        messages = [r.getMessage() for r in caplog.records]
+        assert ("Token authentication is enabled for this Ray cluster." in messages) is shown
+        assert "an error always passes" in messages
+    assert not notices.filters
