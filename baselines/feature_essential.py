@@ -202,7 +202,7 @@ class FeatureEssentialOdometer(Odometer):
         if action is not None and cfg.planar:
             T = _planarise(fit, fixed_yaw=R_oracle is not None)
         if cfg.verify is not None and verify(prev, cur, T, action, self.intrinsics, cfg.depth, cfg.verify) is None:
-            return Estimate.invalid()
+            return Estimate.invalid(unverified=T)  # what the paper's E1/E2 would have used
         self.last_path = fit.path
         return Estimate(T, covariance=_covariance(fit))
 

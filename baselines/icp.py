@@ -123,6 +123,7 @@ class ICPOdometer(Odometer):
             return Estimate.invalid()
         if min(target.constraint, source.constraint) < cfg.min_normal_constraint and cfg.variant != "colored":
             return Estimate.invalid()  # a plane, or a floor and one wall: point-to-plane ICP would slide
+        refined: list[np.ndarray] = []
         found = first_verified(
             initial_guesses(action, prev, cur, self.intrinsics, cfg.depth)[: cfg.max_starts],
             lambda T: self._coarse_to_fine(source, target, T),
@@ -132,9 +133,10 @@ class ICPOdometer(Odometer):
             self.intrinsics,
             cfg.depth,
             cfg.verify,
+            refined,
         )
-        if found is None:
-            return Estimate.invalid()
+        if found is None:  # refused: the first start's registration is the unverified estimate
+            return Estimate.invalid(unverified=refined[0] if refined else None)
         T, rmse = found.T_prev_cur, found.detail
         return Estimate(T, covariance=self._covariance(source, target, T, rmse))
 

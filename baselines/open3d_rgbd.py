@@ -124,7 +124,7 @@ class Open3DRGBDOdometer(Odometer):
         if target is None or source is None or self._featureless(prev) or self._featureless(cur):
             return Estimate.invalid()
         guesses = initial_guesses(action, prev, cur, self.intrinsics, cfg.depth)
-        found = None
+        found, refined = None, []
         for schedule in (cfg.iterations, cfg.fallback_iterations):
             if found is None and schedule:
                 found = first_verified(
@@ -136,9 +136,10 @@ class Open3DRGBDOdometer(Odometer):
                     self.intrinsics,
                     cfg.depth,
                     cfg.verify,
+                    refined,
                 )
-        if found is None:
-            return Estimate.invalid()
+        if found is None:  # refused: the first guess's alignment is the unverified estimate
+            return Estimate.invalid(unverified=refined[0] if refined else None)
         sigma2 = found.check.depth.rms**2 / 3.0  # per-coordinate variance of the agreeing depths
         return Estimate(found.T_prev_cur, covariance=covariance_from_information(found.detail, sigma2))
 

@@ -246,15 +246,19 @@ def first_verified(
     intr: Intrinsics,
     rng: DepthRange,
     config: VerifyConfig,
+    refined: list[np.ndarray] | None = None,
 ) -> Verified[_X] | None:
     """Guess, refine, verify: the outer loop of the dense odometers.
 
     Each initial motion ``T_prev_cur`` of ``guesses`` (most likely first) is refined by
     ``register(initial) -> (T_prev_cur or None on failure, detail)`` and checked by :func:`verify`;
-    the first one accepted is returned, None when none is.
+    the first one accepted is returned, None when none is. Each refined motion, accepted or not, is
+    appended to ``refined`` when given (the first one is the odometer's unverified estimate).
     """
     for guess in guesses:
         T, detail = register(guess)
+        if refined is not None and T is not None:
+            refined.append(T)
         check = verify(prev, cur, T, action, intr, rng, config)
         if check is not None:
             return Verified(T, detail, check)

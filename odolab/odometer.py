@@ -123,14 +123,16 @@ class Odometer:
 
 
 def own_copy(answer: Any) -> Any:
-    """An :class:`Estimate` with its own copies of ``transform`` and ``covariance`` (same dtype and
-    values), so that the odometer that made it can no longer change it; anything else (not an
-    Estimate, or one whose arrays cannot be copied) is returned as it is, for the runner's checks."""
+    """An :class:`Estimate` with its own copies of ``transform``, ``covariance`` and ``unverified``
+    (same dtype and values), so that the odometer that made it can no longer change it; anything else
+    (not an Estimate, or one whose arrays cannot be copied) is returned as it is, for the runner's checks."""
     if not isinstance(answer, Estimate):
         return answer
     try:
         covariance = None if answer.covariance is None else np.array(answer.covariance, copy=True)
-        return dataclasses.replace(answer, transform=np.array(answer.transform, copy=True), covariance=covariance)
+        unverified = None if answer.unverified is None else np.array(answer.unverified, copy=True)
+        transform = np.array(answer.transform, copy=True)
+        return dataclasses.replace(answer, transform=transform, covariance=covariance, unverified=unverified)
     except Exception:  # noqa: BLE001 - e.g. a tensor on a GPU: the runner's checks say what is wrong with it
         return answer
 

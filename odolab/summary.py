@@ -8,6 +8,10 @@ Definitions (each metric's formula lives in :mod:`odolab.metrics`):
   per-sequence means.
 * ``dx_own, dz_own, dyaw_own``: the same error on the steps the odometer answered itself (failed
   steps left out), as the paper scored raw estimates; read it together with ``failure_share``.
+* ``dx_raw, dz_raw, dyaw_raw``: the paper's protocol: the same error over every step with the
+  odometer's own motion, the unverified one where it refused a step (``Estimate.unverified``);
+  ``raw_missing``: steps with no motion of its own at all (it raised, answered no rigid motion or
+  refused with nothing computed), scored with the action prior's motion and counted here.
 * ``dx_bias, dz_bias, dyaw_bias``: the signed mean error per step as used (estimate minus truth,
   x 1e-2): a bias, which integrates into drift where an absolute error of the same size may cancel.
 * ``failure_share``: share of steps that raised or returned ``valid=False``; ``failures``: their
@@ -35,8 +39,8 @@ import numpy as np
 
 from odolab.geometry import transform_to_planar
 from odolab.metrics import ate, per_step_abs_error, per_step_signed_error, relative_motion_errors
-from odolab.runner import SequenceResult
-from odolab.types import MOTION_ACTIONS, Action
+from odolab.runner import SequenceResult, failure_reason
+from odolab.types import MOTION_ACTIONS, Action, Estimate
 
 #: Rows that bracket every real odometer: zero error (an oracle) and the paper's ``sys_error``.
 REFERENCE_ODOMETERS = ("action-prior", "ground-truth")
@@ -58,6 +62,10 @@ class Row:
     dx_own: float
     dz_own: float
     dyaw_own: float
+    dx_raw: float
+    dz_raw: float
+    dyaw_raw: float
+    raw_missing: int
     dx_bias: float
     dz_bias: float
     dyaw_bias: float
@@ -79,8 +87,8 @@ class Row:
 @dataclass(frozen=True)
 class ActionRow:
     """Per-step error (x 1e-2) of one odometer for one action, as used and on the answered steps
-    (``*_own``, NaN when every step failed), its failed steps, and its signed mean error as used
-    (``*_bias``)."""
+    (``*_own``, NaN when every step failed), its failed steps, its signed mean error as used
+    (``*_bias``) and its error under the paper's protocol (``*_raw``, ``raw_missing``)."""
 
     odometer: str
     action: str
@@ -95,6 +103,10 @@ class ActionRow:
     dx_bias: float
     dz_bias: float
     dyaw_bias: float
+    dx_raw: float
+    dz_raw: float
+    dyaw_raw: float
+    raw_missing: int
 
 
 def _planar(T: np.ndarray) -> np.ndarray:
@@ -104,6 +116,31 @@ def _planar(T: np.ndarray) -> np.ndarray:
 def step_errors(r: SequenceResult) -> np.ndarray:
     """(N, 3) absolute planar errors (m, m, rad) of a result with ground truth."""
     return per_step_abs_error(_planar(r.estimates), _planar(r.truth))
+
+
+def raw_estimates(r: SequenceResult) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's protocol: (N, 4, 4) ``T_prev_cur`` of every step as the odometer computed it (its
+    answer, or the unverified motion of a step it refused: ``Estimate.unverified``) and (N,) bool,
+    True where it has none (it raised, answered no rigid motion or refused with nothing computed;
+    such a step keeps the action prior's motion it was run with)."""
+    out, missing = np.array(r.estimates, np.float64, copy=True), ~np.asarray(r.valid, bool)
+    for i in np.flatnonzero(missing):
+        answer = r.raw[i] if i < len(r.raw) else None
+        try:  # a plug-in's answer: anything may stand there
+            mine = np.asarray(getattr(answer, "unverified", None), np.float64)
+        except (TypeError, ValueError):
+            continue
+        if mine.shape == (4, 4) and failure_reason(Estimate(mine)) is None:
+            out[i], missing[i] = mine, False
+    return out, missing
+
+
+def _raw_errors(results: list[SequenceResult]) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) absolute planar errors x 1e-2 under the paper's protocol (:func:`raw_estimates`) of the
+    steps of ``results`` pooled, and (N,) bool: the steps with no motion of the odometer's own."""
+    raws = [raw_estimates(r) for r in results]
+    errs = [per_step_abs_error(_planar(T), _planar(r.truth)) for (T, _), r in zip(raws, results)]
+    return np.concatenate(errs) * 100.0, np.concatenate([m for _, m in raws])
 
 
 def step_signed_errors(r: SequenceResult) -> np.ndarray:
@@ -142,6 +179,7 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
     for name, mine in by_odometer(results).items():
         errs = [step_errors(r) for r in mine]
         pooled = np.concatenate(errs) * 100.0
+        raw, raw_missing = _raw_errors(mine)
         signed = np.concatenate([step_signed_errors(r) for r in mine]) * 100.0
         valid = np.concatenate([r.valid for r in mine])
         per_seq = np.array([e.mean(axis=0) for e in errs if len(e)]).reshape(-1, 3) * 100.0
@@ -168,6 +206,10 @@ def summarize(results: list[SequenceResult]) -> list[Row]:
                 dx_own=_mean(pooled[valid, 0]),
                 dz_own=_mean(pooled[valid, 1]),
                 dyaw_own=_mean(pooled[valid, 2]),
+                dx_raw=_mean(raw[:, 0]),
+                dz_raw=_mean(raw[:, 1]),
+                dyaw_raw=_mean(raw[:, 2]),
+                raw_missing=int(raw_missing.sum()),
                 dx_bias=_mean(signed[:, 0]),
                 dz_bias=_mean(signed[:, 1]),
                 dyaw_bias=_mean(signed[:, 2]),
@@ -213,6 +255,7 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
     for name, mine in by_odometer(results).items():
         errs = np.concatenate([step_errors(r) for r in mine]) * 100.0
         signed = np.concatenate([step_signed_errors(r) for r in mine]) * 100.0
+        raw, raw_missing = _raw_errors(mine)
         acts = np.concatenate([r.actions for r in mine])
         valid = np.concatenate([r.valid for r in mine])
         known = all(r.collisions is not None for r in mine)
@@ -229,6 +272,8 @@ def summarize_actions(results: list[SequenceResult]) -> list[ActionRow]:
                         int(sel.sum()),
                         int((~valid[sel]).sum()),
                         *(_mean(signed[sel, k]) for k in range(3)),
+                        *(_mean(raw[sel, k]) for k in range(3)),
+                        int(raw_missing[sel].sum()),
                     )
                 )
     return rows

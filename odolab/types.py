@@ -169,11 +169,14 @@ class Estimate:
     ``transform``: 4x4 ``T_prev_cur`` (camera axes, metres). ``valid``: False when the odometer
     could not estimate (the runner then falls back to the action prior and counts a failure).
     ``covariance``: 6x6 over (rx, ry, rz, tx, ty, tz) in the previous camera frame, or None.
+    ``unverified``: with ``valid=False``, the 4x4 ``T_prev_cur`` the odometer computed and then
+    refused (its own checks failed), which the paper's protocol scores; None when it computed none.
     """
 
     transform: np.ndarray
     valid: bool = True
     covariance: np.ndarray | None = None
+    unverified: np.ndarray | None = None
 
     @classmethod
     def from_planar(cls, dx: float, dz: float, dyaw: float, **kw) -> Estimate:
@@ -181,9 +184,10 @@ class Estimate:
         return cls(planar_to_transform(dx, dz, dyaw), **kw)
 
     @classmethod
-    def invalid(cls) -> Estimate:
-        """An estimate that says 'I could not tell' (identity transform, ``valid=False``)."""
-        return cls(np.eye(4), valid=False)
+    def invalid(cls, unverified: np.ndarray | None = None) -> Estimate:
+        """An estimate that says 'I could not tell' (identity transform, ``valid=False``), keeping
+        the refused ``T_prev_cur`` as ``unverified`` when one was computed."""
+        return cls(np.eye(4), valid=False, unverified=unverified)
 
     @property
     def planar(self) -> np.ndarray:

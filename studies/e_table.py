@@ -7,8 +7,9 @@ One unit of work is one odometer on one seed's episodes (``python -m odolab.comp
 split, the challenge's noise); its result is saved as it finishes and reused while the odometer's
 model or settings (its identity digest) and the scale's episodes stay the same. Errors are mean
 absolute errors of (dx m, dz m, dyaw rad) x 1e-2, as used (a failed step scored with the action
-prior that replaced it) and on the odometer's own answered steps; the spread is the standard
-deviation over seeds. The paper's numbers are on its validation set (50,000 pairs, its own
+prior that replaced it), on the odometer's own answered steps, and under the paper's protocol
+(``*_raw``: every step scored with the odometer's own motion, the unverified one where it refused;
+``raw_missing`` steps had none and keep the prior's); the spread is the standard deviation over seeds. The paper's numbers are on its validation set (50,000 pairs, its own
 simulator data), ours on test episodes: the ordering is what compares, not the values.
 """
 
@@ -62,8 +63,9 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
 
 def valid_result(value: Any) -> bool:
     """Whether a saved ``value`` has :func:`unit_result`'s shape, its errors finite and >= 0 (the own
-    errors may be None: an odometer that never answered; the biases finite, of either sign), its steps a count and its failure share in
-    [0, 1]: a results file edited or damaged by hand is computed again rather than breaking the table."""
+    errors may be None: an odometer that never answered; the biases finite, of either sign), its
+    steps and ``raw_missing`` counts and its failure share in [0, 1]: a results file edited or
+    damaged by hand (or saved before a column existed) is computed again rather than breaking the table."""
 
     def number(v: Any) -> bool:
         return type(v) in (int, float) and math.isfinite(v) and v >= 0
@@ -74,6 +76,9 @@ def valid_result(value: Any) -> bool:
             and type(entry.get("steps")) is int
             and entry["steps"] >= 0
             and all(number(entry.get(c)) for c in COMPONENTS)
+            and all(number(entry.get(f"{c}_raw")) for c in COMPONENTS)
+            and type(entry.get("raw_missing")) is int
+            and 0 <= entry["raw_missing"] <= entry["steps"]
             and all(entry.get(f"{c}_own") is None or number(entry.get(f"{c}_own")) for c in COMPONENTS)
             and all(
                 type(entry.get(f"{c}_bias")) in (int, float) and math.isfinite(entry[f"{c}_bias"]) for c in COMPONENTS
@@ -91,6 +96,8 @@ def _numbers(row: Any, steps: int, failure_share: float) -> dict[str, float]:
         **{c: float(getattr(row, c)) for c in COMPONENTS},
         **own,
         **{f"{c}_bias": float(getattr(row, f"{c}_bias")) for c in COMPONENTS},
+        **{f"{c}_raw": float(getattr(row, f"{c}_raw")) for c in COMPONENTS},
+        "raw_missing": int(row.raw_missing),
         "steps": int(steps),
         "failure_share": failure_share,
     }
@@ -163,12 +170,14 @@ def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
                 *COMPONENTS,
                 *(f"{c}_own" for c in COMPONENTS),
                 *(f"{c}_bias" for c in COMPONENTS),
+                *(f"{c}_raw" for c in COMPONENTS),
                 "failure_share",
             ):
                 values = np.array([np.nan if g[c] is None else g[c] for g in got], float)
                 row[c] = float(np.mean(values))
                 row[f"{c}_sd"] = float(np.std(values)) if len(values) > 1 else float("nan")
             row["steps"] = int(sum(g["steps"] for g in got))
+            row["raw_missing"] = int(sum(g["raw_missing"] for g in got))
             paper = PAPER.get(odo)
             row["paper"] = f"{paper[0]} ({', '.join(f'{v:g}' for v in paper[1])})" if paper and action == "all" else ""
             rows.append(row)
@@ -177,26 +186,33 @@ def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
 
 COLUMNS = [
     "odometer", "action", "seeds", "steps", "dx", "dx_sd", "dz", "dz_sd", "dyaw", "dyaw_sd",
-    "dx_own", "dz_own", "dyaw_own", "dx_bias", "dz_bias", "dyaw_bias", "failure_share", "paper",
+    "dx_own", "dz_own", "dyaw_own", "dx_raw", "dz_raw", "dyaw_raw", "raw_missing", "dx_bias", "dz_bias",
+    "dyaw_bias", "failure_share", "paper",
 ]  # fmt: skip
 
 
 def findings(rows: list[dict[str, Any]]) -> list[str]:
     """Per component, whether our E1 / E2 / E3 come in the paper's order, with mean +- sd over seeds
-    (the sd "-" with one seed); a verdict needs two of them at least."""
+    (the sd "-" with one seed), as used (a refused step scored with the action prior) and under the
+    paper's protocol (``*_raw``: every step's own estimate, unverified where refused); a verdict needs
+    two of them at least."""
     overall = {r["odometer"]: r for r in rows if r["action"] == "all"}
     have = [o for o in PAPER if o in overall]
     if len(have) < 2:
         named = ", ".join(f"{PAPER[o][0]} ({o})" for o in PAPER)
         return [f"No order to compare: the paper's table ranks {named}; this table holds {len(have)} of them."]
     out = []
-    for k, c in enumerate(COMPONENTS):
-        paper_order = sorted(have, key=lambda o: PAPER[o][1][k])
-        ours = sorted(have, key=lambda o: overall[o][c])
-        said = ", ".join(f"{PAPER[o][0]} {overall[o][c]:.2f} +- {_sd(overall[o][f'{c}_sd'])}" for o in ours)
-        verdict = "agrees with" if ours == paper_order else "differs from"
-        paper_said = " < ".join(PAPER[o][0] for o in paper_order)
-        out.append(f"{c}: ours {said} (x 1e-2, lowest first); {verdict} the paper's order {paper_said}")
+    for suffix, protocol in (("", "as used"), ("_raw", "the paper's protocol")):
+        for k, c in enumerate(COMPONENTS):
+            column = c + suffix
+            paper_order = sorted(have, key=lambda o: PAPER[o][1][k])
+            ours = sorted(have, key=lambda o: overall[o][column])
+            said = ", ".join(
+                f"{PAPER[o][0]} {overall[o][column]:.2f} +- {_sd(overall[o][f'{column}_sd'])}" for o in ours
+            )
+            verdict = "agrees with" if ours == paper_order else "differs from"
+            paper_said = " < ".join(PAPER[o][0] for o in paper_order)
+            out.append(f"{c}, {protocol}: ours {said} (x 1e-2, lowest first); {verdict} the paper's order {paper_said}")
     return out
 
 

@@ -348,7 +348,25 @@ def test_first_verified_returns_the_first_guess_the_images_confirm(tum):
     found = first_verified([wrong, T_true, wrong], register, frames[0], view, None, intr, DepthRange(), VerifyConfig())
     assert found is not None and found.detail == 1 and tried == [0, 1]
     assert found.check.depth.fraction > 0.8 and found.check.ncc > 0.85
-    assert first_verified([wrong], register, frames[0], view, None, intr, DepthRange(), VerifyConfig()) is None
+    refined = []
+    assert first_verified([wrong], register, frames[0], view, None, intr, DepthRange(), VerifyConfig(), refined) is None
+    assert len(refined) == 1 and np.array_equal(refined[0], wrong)  # what a refusing odometer keeps as unverified
+
+
+@pytest.mark.parametrize("name", ["icp", "open3d-rgbd", "feature-essential"])
+def test_a_refused_step_keeps_the_motion_it_computed_as_unverified(name, tum):
+    """A checker no motion can pass (every depth point must land in view and agree, NCC 1): each
+    classical odometer refuses the pair but keeps its unverified estimate, close to the truth, for the
+    paper's protocol."""
+    frames, intr = tum
+    T_true = planar_to_transform(0.02, 0.05, np.radians(3.0))
+    view = render_view(frames[0], intr, T_true)
+    strict = VerifyConfig(min_points_in_view=10**9, min_agreement=1.0, min_ncc=1.0)
+    odo = load_odometer(name, verify=strict)
+    odo.reset(intr)
+    est = odo.step(frames[0], view, None)
+    assert not est.valid and est.unverified is not None
+    assert np.abs(transform_to_planar(est.unverified) - transform_to_planar(T_true)).max() < 0.03
 
 
 def test_pose_solvers_recover_a_known_motion(tum):

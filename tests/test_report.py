@@ -129,7 +129,9 @@ def _action_rows(names: tuple[str, ...] = ("action-prior", "ground-truth", "icp"
         for action, steps, e in (("move_forward", 12, 2.0), ("turn_left", 5, 1.0), ("move_forward_collided", 2, 9.0)):
             failures = 3 if name == "icp" else 0
             rows.append(
-                ActionRow(name, action, e * scale, e * scale, e * scale, e, e, e, steps, failures, 0.0, 0.0, 0.0)
+                ActionRow(
+                    name, action, e * scale, e * scale, e * scale, e, e, e, steps, failures, 0.0, 0.0, 0.0, e, e, e, 0
+                )
             )
     return rows
 
@@ -373,7 +375,7 @@ def _collided_action_rows():
             ("move_forward_collided", 11, 16.7),
         ):
             e = dz * scale
-            rows.append(ActionRow(name, action, e, e, e, e, e, e, steps, 0, 0.0, 0.0, 0.0))
+            rows.append(ActionRow(name, action, e, e, e, e, e, e, steps, 0, 0.0, 0.0, 0.0, e, e, e, 0))
     return rows
 
 

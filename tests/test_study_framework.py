@@ -93,7 +93,9 @@ def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
     html = (out / "index.html").read_text()
     assert "E1 (15.9, 21.3, 8.51)" in html and "Against the paper" in html
     md = (out / "table.md").read_text()
-    assert md.count("the paper's order E2 < E1") == 3, md  # E2 (the true rotation) is lower in each component
+    as_used = [line for line in md.splitlines() if ", as used: ours" in line]
+    assert len(as_used) == 3 and all("the paper's order E2 < E1" in line for line in as_used), md  # E2 lower in each
+    assert len([line for line in md.splitlines() if ", the paper's protocol: ours" in line]) == 3
 
 
 def test_a_folder_of_the_users_own_files_is_refused(tmp_path: Path):

@@ -1,4 +1,4 @@
-"""odolab/summary.py: zero-step sequences, steps/s of steps never asked, and the cell formatter."""
+"""odolab/summary.py: zero-step sequences, steps/s of steps never asked, the cell formatter, the bias and the paper's protocol (raw) columns."""
 
 from __future__ import annotations
 
@@ -81,3 +81,42 @@ def test_the_bias_is_the_signed_mean_error_which_cancels_where_the_absolute_erro
     assert steady.dyaw_bias == pytest.approx(-1.0) and steady.dx_bias == pytest.approx(0.0, abs=1e-9)
     (action,) = summary.summarize_actions([moved([0.01] * 4, "steady")])  # every step a forward step
     assert action.dz_bias == pytest.approx(1.0)
+
+
+def test_the_papers_protocol_scores_a_refused_steps_unverified_motion_and_counts_steps_with_none():
+    """Four forward steps: answered (dz off by 1 cm), refused with an unverified motion (off by 3 cm),
+    refused with nothing computed, and refused with a motion that is no rigid motion. As used, the
+    three refused steps keep the prior's motion (here exact); raw, the second scores its own 3 cm and
+    the last two stay with the prior and count in ``raw_missing``."""
+    from odolab.geometry import planar_to_transform
+    from odolab.types import Estimate
+
+    truth = planar_to_transform(0.0, 0.25, 0.0)
+    off = {k: planar_to_transform(0.0, 0.25 + k * 0.01, 0.0) for k in (1, 3)}
+    nan = np.full((4, 4), np.nan)
+    answers = (Estimate(off[1]), Estimate.invalid(off[3]), Estimate.invalid(), Estimate.invalid(nan))
+    r = dataclasses.replace(
+        _result(4),
+        estimates=np.stack([off[1], truth, truth, truth]),
+        truth=np.stack([truth] * 4),
+        actions=np.ones(4, np.int8),
+        valid=np.array([True, False, False, False]),
+        raw=answers,
+    )
+    (row,) = summary.summarize([r])
+    assert row.dz == pytest.approx(1.0 / 4) and row.dz_own == pytest.approx(1.0)
+    assert row.dz_raw == pytest.approx((1.0 + 3.0) / 4) and row.raw_missing == 2
+    (action,) = summary.summarize_actions([r])
+    assert action.dz_raw == pytest.approx(row.dz_raw) and action.raw_missing == 2
+    T, missing = summary.raw_estimates(r)
+    assert missing.tolist() == [False, False, True, True] and np.array_equal(T[1], off[3])
+
+
+def test_a_refused_estimate_keeps_its_own_copy_of_the_unverified_motion():
+    from odolab.odometer import own_copy
+    from odolab.types import Estimate
+
+    motion = np.eye(4)
+    kept = own_copy(Estimate.invalid(motion))
+    motion[0, 3] = 5.0  # the odometer reuses its array
+    assert kept.unverified[0, 3] == 0.0 and not kept.valid
