@@ -433,3 +433,15 @@ def test_the_tum_options_need_a_tum_folder(tmp_path):
         tmp_path / "o",
         words="--depth-scale describes a TUM folder's images; it needs --tum",
     )
+
+
+def test_a_terminal_sees_a_line_at_once_that_the_next_one_writes_over(monkeypatch, capsys, tmp_path):
+    """Loading the odometers takes seconds: on a terminal a transient line says so at once (ended by a
+    carriage return, not a newline); captured output and --quiet get none."""
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    args = ["--odometers", "corrected(feature-essential)", "--out", str(tmp_path / "o")]  # no model shipped
+    assert run_cli(main, "python -m odolab.compare", args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("loading odometers\r") and err.count("\n") == 1 and "no shipped model" in err
+    assert run_cli(main, "python -m odolab.compare", [*args, "--quiet"]) == 2
+    assert not capsys.readouterr().err.startswith("loading")

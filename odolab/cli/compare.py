@@ -303,6 +303,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = _config(args)
     _check_before_work(args, argv)
+    if not args.quiet and sys.stderr.isatty():  # at once on a terminal: loading the odometers takes seconds
+        print("loading odometers", end="\r", file=sys.stderr, flush=True)  # the next line writes over it
     try:  # every name and option checked before a folder is made
         odometers = load_odometers(config.odometers, config.options)
     except ComparisonError as exc:
