@@ -326,7 +326,8 @@ def table_caption(rows: list[Row], real_data: bool, spread: bool = True, bias: b
     return (
         f"{what}{'; +- is the standard deviation over sequences' if many else ''}. 'As used' scores a "
         "failed step with the action prior's motion that replaced it; 'own' leaves failed steps out "
-        "(as the paper scored raw estimates) and must be read with the failure share. "
+        "and must be read with the failure share; table.csv's raw columns score every step as the paper "
+        "did, with the odometer's own motion (the unverified one where it refused). "
         + (
             "Bias: the signed mean error per step (estimate minus truth), which integrates into drift. "
             if bias and not real_data

@@ -7,7 +7,7 @@ Definitions (each metric's formula lives in :mod:`odolab.metrics`):
   motion that replaced it (what a robot would have used); ``*_std``: standard deviation of the
   per-sequence means.
 * ``dx_own, dz_own, dyaw_own``: the same error on the steps the odometer answered itself (failed
-  steps left out), as the paper scored raw estimates; read it together with ``failure_share``.
+  steps left out); read it together with ``failure_share``.
 * ``dx_raw, dz_raw, dyaw_raw``: the paper's protocol: the same error over every step with the
   odometer's own motion, the unverified one where it refused a step (``Estimate.unverified``);
   ``raw_missing``: steps with no motion of its own at all (it raised, answered no rigid motion or
@@ -125,12 +125,8 @@ def raw_estimates(r: SequenceResult) -> tuple[np.ndarray, np.ndarray]:
     such a step keeps the action prior's motion it was run with)."""
     out, missing = np.array(r.estimates, np.float64, copy=True), ~np.asarray(r.valid, bool)
     for i in np.flatnonzero(missing):
-        answer = r.raw[i] if i < len(r.raw) else None
-        try:  # a plug-in's answer: anything may stand there
-            mine = np.asarray(getattr(answer, "unverified", None), np.float64)
-        except (TypeError, ValueError):
-            continue
-        if mine.shape == (4, 4) and failure_reason(Estimate(mine)) is None:
+        mine = _unverified(r.raw[i] if i < len(r.raw) else None)
+        if mine is not None:
             out[i], missing[i] = mine, False
     return out, missing
 
@@ -141,6 +137,20 @@ def _raw_errors(results: list[SequenceResult]) -> tuple[np.ndarray, np.ndarray]:
     raws = [raw_estimates(r) for r in results]
     errs = [per_step_abs_error(_planar(T), _planar(r.truth)) for (T, _), r in zip(raws, results)]
     return np.concatenate(errs) * 100.0, np.concatenate([m for _, m in raws])
+
+
+def _unverified(answer: object) -> np.ndarray | None:
+    """The refused motion ``answer.unverified`` as a float 4x4 when it is a rigid motion the runner
+    would accept as an answer; None otherwise (a plug-in may put anything there, even an array-like
+    whose conversion raises: no complex, object or bool arrays, no other shape)."""
+    try:
+        mine = np.asarray(getattr(answer, "unverified", None))
+        if mine.dtype.kind not in "iuf" or mine.shape != (4, 4):
+            return None
+        mine = mine.astype(np.float64)
+    except Exception:  # noqa: BLE001 - whatever it raised, the step has no motion of its own
+        return None
+    return mine if failure_reason(Estimate(mine)) is None else None
 
 
 def step_signed_errors(r: SequenceResult) -> np.ndarray:

@@ -77,14 +77,14 @@ def valid_result(value: Any) -> bool:
             and entry["steps"] >= 0
             and all(number(entry.get(c)) for c in COMPONENTS)
             and all(number(entry.get(f"{c}_raw")) for c in COMPONENTS)
-            and type(entry.get("raw_missing")) is int
-            and 0 <= entry["raw_missing"] <= entry["steps"]
             and all(entry.get(f"{c}_own") is None or number(entry.get(f"{c}_own")) for c in COMPONENTS)
             and all(
                 type(entry.get(f"{c}_bias")) in (int, float) and math.isfinite(entry[f"{c}_bias"]) for c in COMPONENTS
             )
             and number(entry.get("failure_share"))
             and entry["failure_share"] <= 1
+            and type(entry.get("raw_missing")) is int
+            and 0 <= entry["raw_missing"] <= round(entry["failure_share"] * entry["steps"])  # of the failed steps
         )
 
     return isinstance(value, dict) and "all" in value and all(shaped(value[a]) for a in value if a in ACTIONS)

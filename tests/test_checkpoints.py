@@ -200,3 +200,23 @@ def test_an_init_that_is_a_dead_link_or_absolute_is_named_as_such(tmp_path):
     assert "no such model file;" in str(caught.value) and "relative to" not in str(caught.value)
     with pytest.raises(ValueError, match=r"relative to"):
         load_init("no/such/model.pt", tmp_path / "export.pt", never)
+
+
+def test_a_pipe_a_link_to_nothing_and_a_pickle_each_say_what_they_are_in_one_line(tmp_path, recwarn):
+    import os
+    import pickle
+
+    fifo, dangling, pickled = tmp_path / "fifo.pt", tmp_path / "dangling.pt", tmp_path / "pickled.pt"
+    os.mkfifo(fifo)
+    dangling.symlink_to(tmp_path / "nowhere.pt")
+    pickled.write_bytes(pickle.dumps({"kind": "odolab-model"}, protocol=4))
+    for path, said in (
+        (fifo, "a pipe, device or socket, not a checkpoint file"),
+        (dangling, "a link to nothing, not a checkpoint file"),
+        (tmp_path / "missing.pt", "no such checkpoint file"),
+        (pickled, "not a readable torch checkpoint"),
+    ):
+        with pytest.raises(CheckpointError) as err:
+            checkpoints.load_checkpoint(path, "odolab-model", 1)
+        assert str(err.value).startswith(f"{path}: {said}") and "\n" not in str(err.value)
+    assert not [w for w in recwarn if "pickle" in str(w.message)]  # torch's warning before the refusal: not shown

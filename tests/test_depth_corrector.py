@@ -111,7 +111,7 @@ def test_a_recipe_needs_clean_depth_and_a_crop_that_fits():
 
 
 @pytest.mark.slow
-def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path):
+def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path, monkeypatch):
     from odolab.depth_corrector.train import run
     from odolab.parallel import SERIAL
 
@@ -137,6 +137,19 @@ def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path):
     more = CorrectorTraining(**{**cfg.__dict__, "epochs": 3})
     assert run(more, device=torch.device("cpu"), hours=None, execution=SERIAL, **{**kw, "export": tmp_path / "m3.pt"})
     assert load_model(tmp_path / "m3.pt")[2]["training"]["epochs_done"] == 3  # resumed: one more epoch
+    # interrupted (Ctrl-C): the figure, redrawn after an epoch at most once a minute, is drawn as it stops
+    from odolab.learning import EpochLoop
+
+    figure = tmp_path / "rep" / "curves.png"
+    figure.write_bytes(b"drawn a moment ago")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(EpochLoop, "run", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run(more, device=torch.device("cpu"), hours=None, execution=SERIAL, **{**kw, "export": tmp_path / "m4.pt"})
+    assert figure.read_bytes().startswith(b"\x89PNG")
 
 
 def test_noiseless_depth_is_an_oracle_that_gives_its_inner_odometer_the_simulators_depth(episode):

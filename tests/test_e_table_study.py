@@ -15,7 +15,7 @@ def test_hand_edited_results_are_computed_again_not_drawn():
         {"dx": float("inf")}, {"dx": float("nan")}, {"dx": None}, {"dx": -5.0}, {"dz_own": -1.0},
         {"steps": True}, {"steps": -5}, {"failure_share": None}, {"failure_share": 5}, {"dyaw": "1"},
         {"dx_bias": None}, {"dz_bias": float("inf")}, {"dyaw_bias": "0.1"},
-        {"dx_raw": None}, {"dz_raw": -1.0}, {"raw_missing": 7}, {"raw_missing": 1.0}, {"raw_missing": -1},
+        {"dx_raw": None}, {"dz_raw": -1.0}, {"raw_missing": 7}, {"raw_missing": 4}, {"raw_missing": 1.0}, {"raw_missing": -1},
     ):  # fmt: skip
         assert not valid_result({"all": {**good, **change}}), change
 

@@ -120,3 +120,30 @@ def test_a_refused_estimate_keeps_its_own_copy_of_the_unverified_motion():
     kept = own_copy(Estimate.invalid(motion))
     motion[0, 3] = 5.0  # the odometer reuses its array
     assert kept.unverified[0, 3] == 0.0 and not kept.valid
+
+
+def test_an_unverified_motion_that_is_no_rigid_motion_counts_as_missing_and_never_raises():
+    from odolab.types import Estimate
+
+    class Raising:
+        def __array__(self, *args, **kwargs):
+            raise RuntimeError("boom")
+
+    odd = [
+        Raising(),
+        np.eye(4) * (1 + 1j),
+        np.eye(4, dtype=bool),
+        np.eye(3),
+        "eye",
+        [[1, 0], [0, 1]],
+        np.full((4, 4), np.nan),
+    ]
+    n = len(odd) + 1
+    r = dataclasses.replace(
+        _result(n), valid=np.zeros(n, bool), raw=(*(Estimate.invalid(u) for u in odd), Estimate.invalid(np.eye(4)))
+    )
+    T, missing = summary.raw_estimates(r)
+    assert missing.tolist() == [True] * len(odd) + [False]  # only the last one, a float 4x4 rigid motion, counts
+    assert np.array_equal(T[-1], np.eye(4))
+    (row,) = summary.summarize([r])
+    assert row.raw_missing == len(odd)

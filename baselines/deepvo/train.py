@@ -270,11 +270,13 @@ def train_windows(job: dict) -> dict:
     def after(_: EpochLoop) -> None:
         write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch", final=False)
 
-    finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
-    if team.leader:
-        write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
-        if finished:
-            save_model(export, cfg, net, status())
+    try:
+        finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
+    finally:  # stopped or interrupted too: the figure shows every finished epoch
+        if team.leader:
+            write_report(reports, loop.curves.rows, status(), "DeepVO: validation error after each epoch")
+    if team.leader and finished:
+        save_model(export, cfg, net, status())
     return {"finished": finished}
 
 

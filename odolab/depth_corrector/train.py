@@ -247,8 +247,10 @@ def run(
     def after(_: EpochLoop) -> None:
         write_report(reports, loop.curves.rows, status(), final=False)
 
-    finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
-    write_report(reports, loop.curves.rows, status())
+    try:
+        finished = loop.run(train_epoch, validate, deadline=deadline, after_epoch=after)
+    finally:  # stopped or interrupted too: the figure shows every finished epoch
+        write_report(reports, loop.curves.rows, status())
     if finished:
         save_model(export, cfg, net.cpu(), status())
     return finished

@@ -16,6 +16,7 @@ import io
 import os
 import pickle
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -140,9 +141,14 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int, *, verify: 
     if os.path.isdir(path):
         raise CheckpointError(f"{path}: is a folder, not a checkpoint file")
     if not os.path.isfile(path):
-        raise CheckpointError(f"{path}: no such checkpoint file")
+        what = (
+            "a link to nothing" if os.path.islink(path) else "a pipe, device or socket" if os.path.exists(path) else ""
+        )
+        raise CheckpointError(f"{path}: {what}, not a checkpoint file" if what else f"{path}: no such checkpoint file")
     try:
-        doc = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns of an old pickle protocol before refusing: one line only
+            warnings.simplefilter("ignore")
+            doc = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:  # torch's message would suggest weights_only=False: never for a file like this
         raise CheckpointError(
             f"{path}: not a readable torch checkpoint (corrupt, or it holds objects other than "

@@ -360,7 +360,13 @@ def train_stages(job: dict) -> dict:
                     final=False,
                 )
 
-            finished = loop.run(runner.train_epoch, runner.validate, deadline=deadline, after_epoch=after)
+            try:
+                finished = loop.run(runner.train_epoch, runner.validate, deadline=deadline, after_epoch=after)
+            except BaseException:  # interrupted: the figure shows every finished epoch before it goes
+                if team.leader:
+                    stages = {**status["stages"], stage.name: _stage_status(loop)}
+                    _write_reports(reports, all_rows + loop.curves.rows, {**status, "stages": stages})
+                raise
         status["stages"][stage.name] = _stage_status(loop)
         if previous is not None and loop.started:
             previous.compact()
