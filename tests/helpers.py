@@ -195,3 +195,10 @@ def robust_job(tmp_path: Path, *argv: str, stage: str = "forward"):
         ["--config", str(recipe), "--work", str(tmp_path / "work"), "--reports", str(tmp_path / "reports"), *argv],
         load_train_config,
     )
+
+
+def refused_option(tmp_path, odometer: str, option: str, *, words: str) -> None:
+    """``python -m odolab.compare --odometers odometer --odometer-option option`` on one 5-step
+    episode: refused in one line naming ``words`` (:func:`one_line_error`)."""
+    args = ["--odometers", odometer, "--odometer-option", option, "--episodes", "1", "--max-steps", "5"]
+    one_line_error("odolab.compare", *args, "--no-cache", "--out", tmp_path / "o", words=words)

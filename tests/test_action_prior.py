@@ -8,7 +8,7 @@ import os
 import pytest
 
 from odolab.cli import run_cli
-from tests.helpers import one_line_error
+from tests.helpers import one_line_error, refused_option
 
 
 @pytest.mark.parametrize(
@@ -40,21 +40,7 @@ def test_an_action_prior_file_that_is_a_pipe_or_repeats_a_key_is_one_line(tmp_pa
     twice = tmp_path / "twice.json"
     twice.write_text('{"means": {"move_forward": [0, 0, 0]}, "means": {}, "samples": {}}')
     for path, words in [(fifo, "is a pipe, device or socket"), (twice, "key 'means' appears twice")]:
-        one_line_error(
-            "odolab.compare",
-            "--odometers",
-            "action-prior",
-            "--odometer-option",
-            f"action-prior.prior={path}",
-            "--episodes",
-            "1",
-            "--max-steps",
-            "5",
-            "--no-cache",
-            "--out",
-            tmp_path / "o",
-            words=words,
-        )
+        refused_option(tmp_path, "action-prior", f"action-prior.prior={path}", words=words)
 
 
 @pytest.mark.parametrize(
@@ -84,21 +70,7 @@ def test_an_action_prior_file_with_bad_fields_names_the_field(tmp_path, change, 
         del doc["means"][change["drop"]]
     path = tmp_path / "prior.json"
     path.write_text(json.dumps(doc))
-    one_line_error(
-        "odolab.compare",
-        "--odometers",
-        "action-prior",
-        "--odometer-option",
-        f"action-prior.prior={path}",
-        "--episodes",
-        "1",
-        "--max-steps",
-        "5",
-        "--no-cache",
-        "--out",
-        tmp_path / "o",
-        words=words,
-    )
+    refused_option(tmp_path, "action-prior", f"action-prior.prior={path}", words=words)
 
 
 def test_an_output_file_that_is_a_link_to_nothing_is_refused_before_work(tmp_path, capsys):

@@ -29,7 +29,7 @@ from odolab.api import (
     transform_to_planar,
 )
 from odolab.parallel import SERIAL
-from tests.helpers import one_line_error
+from tests.helpers import refused_option
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 ODOMETERS = ["feature-essential", "icp", "open3d-rgbd"]
@@ -464,19 +464,10 @@ def test_measure_tum_runs_reference_rows_and_names_an_unknown_odometer(capsys):
 def test_open3d_iterations_out_of_range_are_one_line(tmp_path, value):
     """0 iterations would quietly return the starting guess, a million would never end, 8 pyramid
     levels leave a 2 x 1 pixel image, a string would be read digit by digit."""
-    one_line_error(
-        "odolab.compare",
-        "--odometers",
+    refused_option(
+        tmp_path,
         "open3d-rgbd",
-        "--odometer-option",
         f"open3d-rgbd.iterations={value}",
-        "--episodes",
-        "1",
-        "--max-steps",
-        "5",
-        "--no-cache",
-        "--out",
-        tmp_path / "o",
         words="iterations: expected a list of 1-6 whole numbers",
     )
 
@@ -484,19 +475,10 @@ def test_open3d_iterations_out_of_range_are_one_line(tmp_path, value):
 @pytest.mark.parametrize("value", ["[0]", "[1000000]", '"123"', "[5,5,5,5,5,5,5]"])
 def test_open3d_fallback_iterations_out_of_range_are_one_line(tmp_path, value):
     """The fallback schedule is checked as the first one is (but may be empty: no fallback)."""
-    one_line_error(
-        "odolab.compare",
-        "--odometers",
+    refused_option(
+        tmp_path,
         "open3d-rgbd",
-        "--odometer-option",
         f"open3d-rgbd.fallback_iterations={value}",
-        "--episodes",
-        "1",
-        "--max-steps",
-        "5",
-        "--no-cache",
-        "--out",
-        tmp_path / "o",
         words="fallback_iterations: expected a list of 0-6 whole numbers",
     )
 
@@ -512,21 +494,7 @@ def test_open3d_fallback_iterations_out_of_range_are_one_line(tmp_path, value):
 def test_open3d_depth_and_nesting_are_one_line(tmp_path, option, value, words):
     """A depth cut of infinity ran (and wrote Infinity into navigate's JSON); [[[...]]] 3000 deep
     was a RecursionError traceback."""
-    one_line_error(
-        "odolab.compare",
-        "--odometers",
-        "open3d-rgbd",
-        "--odometer-option",
-        f"open3d-rgbd.{option}={value}",
-        "--episodes",
-        "1",
-        "--max-steps",
-        "5",
-        "--no-cache",
-        "--out",
-        tmp_path / "o",
-        words=words,
-    )
+    refused_option(tmp_path, "open3d-rgbd", f"open3d-rgbd.{option}={value}", words=words)
 
 
 def test_equal_settings_give_equal_digests():

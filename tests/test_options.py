@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from odolab.cli import run_cli
-from tests.helpers import one_line_error
+from tests.helpers import one_line_error, refused_option
 
 
 @pytest.mark.parametrize(
@@ -50,21 +50,7 @@ def test_absurd_thread_counts_are_refused_not_crashed_on():
 
 def test_numbers_too_long_to_read_are_one_line_errors(tmp_path):
     big = "9" * 5000
-    one_line_error(
-        "odolab.compare",
-        "--odometers",
-        "action-prior",
-        "--odometer-option",
-        f"action-prior.x={big}",
-        "--episodes",
-        "1",
-        "--max-steps",
-        "5",
-        "--no-cache",
-        "--out",
-        tmp_path / "o",
-        words="action-prior.x: a number too long to read",
-    )
+    refused_option(tmp_path, "action-prior", f"action-prior.x={big}", words="action-prior.x: a number too long to read")
     cfg = tmp_path / "big.toml"
     cfg.write_text(f'[odometers."action-prior"]\nx = {big}\n')
     one_line_error(
