@@ -428,9 +428,14 @@ def check_switches(definition: Definition, number: int, cfg: TrainConfig) -> Non
 
 
 def recipe_identity(cfg: TrainConfig | DeepVOTraining) -> dict[str, Any]:
-    """What a model depends on: the whole recipe but where its data live and how it computes."""
+    """What a model depends on: the whole recipe but where its data live and how it computes. A data
+    set's ``clean_depth`` is left out while False (the data are then those made before the setting
+    existed, as their folder's digest has it), so results saved before it came still match."""
     doc = json.loads(json.dumps(dataclasses.asdict(cfg)))
     del doc["data_root"], doc["compute"]
+    for data in ("train_data", "val_data"):
+        if doc.get(data, {}).get("clean_depth") is False:
+            del doc[data]["clean_depth"]
     return doc
 
 
@@ -773,6 +778,7 @@ def table(
             "paper_SoftSPL": paper.soft_spl,
             "paper_error": f"({', '.join(f'{v:.2f}' for v in paper.error)})" if paper.error else "",
             "paper_error_mean": float(np.mean(paper.error)) if paper.error else float("nan"),
+            "paper_errors": tuple(paper.error),  # (dx, dz, dyaw) x 1e-2, or () where the paper has none
             "nav_episodes": len(nav),
             "pairs_seen": trained["pairs_seen"] if trained and row.model_of is None else "",
             "train_h": trained["training_hours"] if trained and row.model_of is None else "",
@@ -961,89 +967,226 @@ def claim_findings(lines: list[dict[str, Any]]) -> list[str]:
     return said
 
 
-def draw(lines: list[dict[str, Any]], path: Path) -> None:
-    """Navigation success (%) against mean per-step error (x 1e-2), one point per trained row: ours
-    (with the 95 % interval of success) on the left, the paper's on the right, on one success axis;
-    ground truth (zero error) as a dashed line in each, our action prior as a star and dotted lines."""
+#: Each error component's unit, as the figure's axes name it.
+UNITS = {"dx": "m", "dz": "m", "dyaw": "rad"}
+#: The rows whose numbers the figure writes first (the reference, then DeepVO); the others follow
+#: in order where a free place is left.
+LABEL_FIRST = (REFERENCE_ROW, 0)
+OURS_STYLE = {"color": "tab:blue", "marker": "o"}
+PAPER_STYLE = {"color": "tab:orange", "marker": "s"}
+
+
+def _paper_error(line: dict[str, Any], k: int) -> float:
+    """The paper's ``k``-th error component of a line (x 1e-2), NaN where the paper gives none."""
+    parts = line.get("paper_errors", ())
+    return float(parts[k]) if len(parts) > k else float("nan")
+
+
+def unplotted_paper_rows(lines: list[dict[str, Any]]) -> list[int]:
+    """The rows with the paper's success but no per-component error of the paper's: not among the
+    paper's points of the figure (ground truth, whose success is drawn as a line, among them)."""
+    return [
+        line["row"] for line in lines if math.isfinite(line["paper_S"]) and not math.isfinite(_paper_error(line, 0))
+    ]
+
+
+def figure_caption(lines: list[dict[str, Any]]) -> str:
+    """The report's caption of :func:`draw`'s figure, naming the rows the paper gives no error for."""
+    left_out = unplotted_paper_rows(lines)
+    note = (
+        f" The paper gives no per-component error for row{'s' if len(left_out) > 1 else ''} "
+        f"{', '.join(map(str, left_out))}: left out of its points"
+        + (
+            " (ground truth's success is a dashed line)."
+            if any(line["row"] in left_out and line["setting"] == "Ground truth" for line in lines)
+            else "."
+        )
+        if left_out
+        else ""
+    )
+    return (
+        "Navigation success (%) against each component of the per-step error (x 1e-2: dx in m, dz in m, "
+        "dyaw in rad), one panel per component: ours (circles; bars: success's 95 % interval) and the "
+        "paper's Table 2 (squares) on the same axes; ground truth dashed, our action prior a star with "
+        "dotted lines. Row numbers stand by the points where they fit without covering another label, "
+        "point or bar (row 18 and DeepVO's row 0 first); every row's numbers are in the table." + note
+    )
+
+
+def figure(lines: list[dict[str, Any]]) -> Any:
+    """Navigation success (%) against the per-step error, one panel per component (dx m, dz m,
+    dyaw rad; x 1e-2): each trained row ours (circles, with the 95 % interval of success) and the
+    paper's (squares, where the paper gives the component) on the same axes, whose x range runs
+    from 0 past both; ground truth (zero error) as dashed lines, our action prior as a star and
+    dotted lines; row numbers where they fit (:func:`_label_points`). The points' collections have
+    the gids ``ours`` and ``paper``. Returns the figure, laid out and labelled."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    fig, axes = plt.subplots(1, len(COMPONENTS), figsize=(13.5, 7.0), sharey=True)
+    trained = [line for line in lines if line["setting"] not in REFERENCES]
+    prior = next((line for line in lines if line["setting"] == "Action prior"), None)
+    truth = next((line for line in lines if line["setting"] == "Ground truth"), None)
+    per_axis = []
+    for k, (ax, c) in enumerate(zip(axes, COMPONENTS)):
+        ours = [(line[c], line["S"], line["row"]) for line in trained if math.isfinite(line[c] + line["S"])]
+        paper = [
+            (_paper_error(line, k), line["paper_S"], line["row"])
+            for line in trained
+            if math.isfinite(_paper_error(line, k) + line["paper_S"])
+        ]
+        bars: list[tuple[float, float, float]] = []
+        if ours:
+            ranges = {line["row"]: line["S_range"] for line in trained}
+            for x, y, n in ours:
+                low, high = ranges[n]
+                bars.append((x, min(y, low) if math.isfinite(low) else y, max(y, high) if math.isfinite(high) else y))
+            ax.vlines([b[0] for b in bars], [b[1] for b in bars], [b[2] for b in bars], color="tab:blue", alpha=0.35)
+            ax.scatter(*zip(*[(x, y) for x, y, _ in ours]), s=24, zorder=3, gid="ours", **OURS_STYLE)
+        if paper:
+            ax.scatter(*zip(*[(x, y) for x, y, _ in paper]), s=24, zorder=3, gid="paper", **PAPER_STYLE)
+        guides = []
+        if truth is not None:
+            for y, color, style in ((truth["S"], "0.2", "--"), (truth["paper_S"], "tab:orange", "--")):
+                if math.isfinite(y):
+                    ax.axhline(y, color=color, linestyle=style, linewidth=1)
+                    guides.append(("h", y))
+        xs = [x for x, _, _ in ours + paper]
+        if prior is not None and math.isfinite(prior[c] + prior["S"]):
+            ax.axhline(prior["S"], color="0.45", linestyle=":", linewidth=1)
+            ax.axvline(prior[c], color="0.45", linestyle=":", linewidth=1)
+            ax.scatter([prior[c]], [prior["S"]], color="0.3", marker="*", s=150, zorder=4)
+            guides += [("h", prior["S"]), ("v", prior[c])]
+            xs.append(prior[c])
+        ax.set_xlim(0.0, 1.08 * max(xs, default=1.0) or 1.0)
+        ax.set_title(f"{c} ({UNITS[c]})")
+        ax.set_xlabel(f"per-step error |{c}|, mean ({UNITS[c]} x 1e-2)")
+        ax.grid(alpha=0.3)
+        per_axis.append((ax, ours, paper, bars, guides, prior and (prior[c], prior["S"])))
+    axes[0].set_ylabel("navigation success (%)")
+    axes[0].set_ylim(-4, 104)
+    handles = [
+        Line2D(
+            [], [], linestyle="", markersize=6, label="ours, trained rows (bar: 95 % interval of success)", **OURS_STYLE
+        ),
+        Line2D([], [], linestyle="", markersize=6, label="the paper's Table 2", **PAPER_STYLE),
+    ]
+    if prior is not None:
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="0.3",
+                marker="*",
+                markersize=11,
+                linestyle=":",
+                label=f"action prior, ours (row {prior['row']}): {prior['S']:.0f} %",
+            )
+        )
+    if truth is not None:
+        handles += [
+            Line2D([], [], color=color, linestyle="--", label=f"ground truth (row {truth['row']}), {who}: {y:.0f} %")
+            for y, color, who in ((truth["S"], "0.2", "ours"), (truth["paper_S"], "tab:orange", "the paper's"))
+            if math.isfinite(y)
+        ]
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=9, frameon=False)
+    fig.suptitle(
+        "Navigation success against each component of the per-step VO error, per row of Table 2 "
+        "(numbers: row; ours blue, the paper's orange)",
+        fontsize=11,
+    )
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    for ax, ours, paper, bars, guides, star in per_axis:
+        _label_points(ax, ours, paper, bars, guides, [star] if star else [])
+    return fig
+
+
+def draw(lines: list[dict[str, Any]], path: Path) -> None:
+    """:func:`figure`, saved to ``path``."""
+    fig = figure(lines)
+    import matplotlib.pyplot as plt
 
     from odolab.io.atomic import save_figure_atomic
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5.6), sharey=True)
-    labels = []
-    for ax, who, color, marker in ((axes[0], "ours", "tab:blue", "o"), (axes[1], "paper", "tab:orange", "s")):
-        points, truth = [], []
-        for line in lines:
-            x, y = (_mean_error(line), line["S"]) if who == "ours" else (line["paper_error_mean"], line["paper_S"])
-            if line["setting"] == "Action prior" and who == "ours" and math.isfinite(x) and math.isfinite(y):
-                ax.axhline(y, color="0.45", linestyle=":", linewidth=1)
-                ax.axvline(x, color="0.45", linestyle=":", linewidth=1)
-                ax.scatter(
-                    [x], [y], color="0.3", marker="*", s=140, zorder=3, label=f"action prior (row {line['row']})"
-                )
-            elif line["setting"] == "Ground truth" and math.isfinite(y):
-                truth.append((line["row"], y))
-            elif line["setting"] != "Action prior" and math.isfinite(x) and math.isfinite(y):
-                points.append((x, y, line["row"]))
-        for number, y in truth:
-            ax.axhline(y, color="0.2", linestyle="--", linewidth=1, label=f"ground truth (row {number}): {y:.0f} %")
-        bars: list[tuple[float, float, float]] = []
-        if points:
-            xs, ys, numbers = zip(*points)
-            if who == "ours":
-                ranges = {line["row"]: line["S_range"] for line in lines}
-                low = [max(0.0, y - ranges[n][0]) if math.isfinite(ranges[n][0]) else 0.0 for y, n in zip(ys, numbers)]
-                high = [max(0.0, ranges[n][1] - y) if math.isfinite(ranges[n][1]) else 0.0 for y, n in zip(ys, numbers)]
-                ax.errorbar(xs, ys, yerr=[low, high], fmt="none", ecolor=color, alpha=0.35, capsize=2)
-                bars = [(x, y - lo, y + hi) for x, y, lo, hi in zip(xs, ys, low, high)]
-            ax.scatter(
-                xs, ys, s=22, color=color, marker=marker, zorder=3, label="trained rows (row number by each point)"
-            )
-            labels.append((ax, points, color, bars))
-        ax.set_title("odolab, this run (bars: 95 % intervals)" if who == "ours" else "the paper's Table 2")
-        ax.set_xlabel("per-step error: mean of |dx| (m), |dz| (m), |dyaw| (rad), x 1e-2")
-        ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(loc="best", fontsize=8)
-    axes[0].set_ylabel("navigation success (%)")
-    axes[0].set_ylim(-4, 104)
-    fig.suptitle("Navigation success against per-step VO error, per row of Table 2")
-    fig.tight_layout()
-    for ax, points, color, bars in labels:
-        _label_points(ax, points, color, bars)
     save_figure_atomic(fig, path)
     plt.close(fig)
 
 
+def _segment_meets_box(box: Any, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether the segment from ``a`` to ``b`` (pixels) meets ``box`` (Liang-Barsky clipping)."""
+    lo, hi = 0.0, 1.0
+    d = b - a
+    for p, q in ((-d[0], a[0] - box.x0), (d[0], box.x1 - a[0]), (-d[1], a[1] - box.y0), (d[1], box.y1 - a[1])):
+        if p == 0:
+            if q < 0:
+                return False
+        elif p < 0:
+            lo = max(lo, q / p)
+        else:
+            hi = min(hi, q / p)
+        if lo > hi:
+            return False
+    return True
+
+
+def _segments_cross(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
+    """Whether the segments ``a``-``b`` and ``c``-``d`` (pixels) cross (touching ends do not count)."""
+
+    def side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> float:
+        return float((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]))
+
+    return side(a, b, c) * side(a, b, d) < 0 and side(c, d, a) * side(c, d, b) < 0
+
+
 def _label_points(
     ax: Any,
-    points: list[tuple[float, float, int]],
-    color: str,
+    ours: Sequence[tuple[float, float, int]],
+    paper: Sequence[tuple[float, float, int]],
     bars: Sequence[tuple[float, float, float]] = (),
-) -> None:
-    """Write each point's row number beside it where it covers no other label, marker, leader line,
-    interval bar (``bars``: x, low, high in data units) or the legend: the first free spot on rings
-    of growing radius around the point, joined to it by a thin line beyond the nearest ring. Call
-    after the layout is final (positions are in pixels)."""
+    guides: Sequence[tuple[str, float]] = (),
+    stars: Sequence[tuple[float, float]] = (),
+) -> int:
+    """Write the row number by each point (ours in blue, the paper's in orange) where it covers no
+    other label, point, leader line, interval bar (``bars``: x, low, high in data units), guide
+    line (``guides``: ("h", y) or ("v", x)) or star (``stars``): the first free spot on rings of
+    growing radius around the point, nearer its own point than any other (on the nearest rings) or
+    joined to it by a thin line crossing no bar or other line (beyond them). A point with no free
+    spot goes unlabelled. Rows of :data:`LABEL_FIRST` come first, then the others in
+    order, ours before the paper's. Call after the layout is final (positions are in pixels).
+    Returns how many labels were written."""
     from matplotlib.text import Text
     from matplotlib.transforms import Bbox
 
     renderer = ax.figure.canvas.get_renderer()
     to_px = ax.transData.transform
-    marks = [to_px((x, y)) for x, y, _ in points]
+    frame = ax.get_window_extent(renderer)
+    points = [(x, y, n, "tab:blue") for x, y, n in ours] + [(x, y, n, "tab:orange") for x, y, n in paper]
+    marks = [to_px((x, y)) for x, y, _, _ in points]
+    big = [to_px(s) for s in stars]
+    segments = [(to_px((x, low)), to_px((x, high))) for x, low, high in bars]  # bars, then leader lines
+    lines = []  # the guide lines: no label on them; a leader line may cross one
+    for kind, v in guides:
+        ends = (
+            ((frame.x0, to_px((0, v))[1]), (frame.x1, to_px((0, v))[1]))
+            if kind == "h"
+            else ((to_px((v, 0))[0], frame.y0), (to_px((v, 0))[0], frame.y1))
+        )
+        lines.append(tuple(np.array(e) for e in ends))
     legend = ax.get_legend()
     taken = [legend.get_window_extent(renderer)] if legend is not None else []
-    lines = [(to_px((x, low)), to_px((x, high))) for x, low, high in bars]
-    frame = ax.get_window_extent(renderer)
-
-    def crosses(box: Bbox, a: np.ndarray, b: np.ndarray) -> bool:
-        return any(box.contains(*(a + (b - a) * t)) for t in np.linspace(0.0, 1.0, 24))
-
+    first = {n: k for k, n in enumerate(LABEL_FIRST)}
+    order = sorted(
+        range(len(points)),
+        key=lambda i: (first.get(points[i][2], len(first)), points[i][2], points[i][3] != "tab:blue"),
+    )
     rings = [(r, a) for r in (5, 14, 24, 36, 50, 66) for a in range(0, 360, 30)]
-    for (x, y, number), mark in sorted(zip(points, marks), key=lambda pm: (-pm[0][1], pm[0][0])):
+    written = 0
+    for i in order:
+        x, y, number, color = points[i]
+        mark = marks[i]
         for k, (radius, angle) in enumerate(rings):
             dx, dy = radius * math.cos(math.radians(angle)), radius * math.sin(math.radians(angle))
             leader = k >= 12
@@ -1054,8 +1197,9 @@ def _label_points(
                 xytext=(dx, dy),
                 ha="left" if dx >= 0 else "right",
                 va="bottom" if dy >= 0 else "top",
-                fontsize=8,
+                fontsize=8.5,
                 color=color,
+                gid="row-label",
                 arrowprops={"arrowstyle": "-", "color": color, "lw": 0.8, "shrinkA": 1, "shrinkB": 3}
                 if leader
                 else None,
@@ -1064,22 +1208,37 @@ def _label_points(
             text = Text.get_window_extent(note, renderer)  # the text alone, not its line
             box = Bbox.from_extents(text.x0 - 3, text.y0 - 2, text.x1 + 3, text.y1 + 2)
             anchor = np.array([(text.x0 + text.x1) / 2, (text.y0 + text.y1) / 2])
+            near = Bbox.from_extents(box.x0 - 3, box.y0 - 3, box.x1 + 3, box.y1 + 3)
             free = (
                 frame.contains(box.x0, box.y0)
                 and frame.contains(box.x1, box.y1)
                 and not any(box.overlaps(b) for b in taken)
-                and not any(box.x0 - 3 <= px <= box.x1 + 3 and box.y0 - 3 <= py <= box.y1 + 3 for px, py in marks)
-                and not any(crosses(box, a, b) for a, b in lines)
-                and not (leader and any(crosses(b, mark, anchor) for b in taken))
+                and not any(near.contains(*p) for p in marks)
+                and not any(Bbox.from_extents(*(s - 9), *(s + 9)).overlaps(box) for s in big)
+                and not any(_segment_meets_box(box, a, b) for a, b in (*segments, *lines))
+                and not (leader and any(_segment_meets_box(b, mark, anchor) for b in taken))
+                and not (leader and any(_segments_cross(mark, anchor, a, b) for a, b in segments))
+                and (
+                    leader
+                    or all(np.hypot(*(anchor - p)) > np.hypot(*(anchor - mark)) for p in marks + big if p is not mark)
+                )
+                and not (
+                    leader
+                    and any(
+                        _segment_meets_box(Bbox.from_extents(*(p - 2.5), *(p + 2.5)), mark, anchor)
+                        for j, p in enumerate(marks)
+                        if j != i
+                    )
+                )
             )
             if free:
                 taken.append(box)
                 if leader:
-                    lines.append((mark, anchor))
+                    segments.append((mark, anchor))
+                written += 1
                 break
             note.remove()
-        else:
-            ax.annotate(str(number), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=8, color=color)
+    return written
 
 
 # -------------------------------------------------------------------------------------------- main
@@ -1216,14 +1375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ],
         columns=COLUMNS,
         rows=lines,
-        figures={
-            "success-vs-error.png": (
-                "Navigation success (%) against per-step error (mean of the three components, x 1e-2), "
-                + "one point per trained row: ours on the left (bars: success's 95 % interval), the paper's "
-                + "on the right; ground truth dashed, the action prior a star",
-                lambda p: draw(lines, p),
-            )
-        },
+        figures={"success-vs-error.png": (figure_caption(lines), lambda p: draw(lines, p))},
         findings=[*findings(lines), *floor_findings(lines), *claim_findings(lines)],
         command=framework.command_line(f"python -m studies.{NAME}", argv),
         machine=framework.machines(outcomes),

@@ -208,50 +208,81 @@ def findings(scale: Scale, rows: list[dict[str, Any]]) -> list[str]:
     return out
 
 
-def _draw(scale: Scale, rows: list[dict[str, Any]], path: Path, growth: bool) -> None:
-    """Per component, error (or growth factor) against noise level, one line per odometer."""
+def _plot_lines(ax: Any, scale: Scale, rows: list[dict[str, Any]], column: str, growth_of: str = "") -> None:
+    """One line per odometer of ``column`` against the noise level, in its colour (C0, C1, ... in
+    the scale's order; solid: learned, dashed: the others); ``growth_of``: a component whose change
+    from x1 to the top level each line's label carries."""
+    for k, odo in enumerate(scale.odometers):
+        mine = [r for r in rows if r["odometer"] == odo]
+        if not mine:
+            continue
+        name = odo + (" (learned)" if odo in scale.learned else "")
+        if growth_of and mine[0]["level"] == 1.0:
+            name += f": {growth_label(mine[0][growth_of], mine[-1][growth_of])}"
+        ax.plot(
+            [r["level"] for r in mine],
+            [r[column] for r in mine],
+            "-" if odo in scale.learned else "--",
+            marker="o",
+            color=f"C{k}",
+            label=name,
+        )
+    ax.set_xlabel("sensor-noise multiplier")
+    ax.set_xticks(scale.levels, [f"x{v:g}" for v in scale.levels])
+    ax.grid(alpha=0.3)
+
+
+def figure(scale: Scale, rows: list[dict[str, Any]], growth: bool) -> Any:
+    """Per component, one line per odometer against the noise level, in one colour per odometer
+    throughout: with ``growth``, the growth factor (error / error at x1) in the top row of panels
+    and the per-step error itself (as used, x 1e-2) below it, so that a small error that grows is
+    not read as worse than a large one that does not; else the error alone. The odometers'
+    legend sits under the panels; each growth panel's legend also gives the change from x1 to the
+    top level. Returns the figure."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from odolab.io.atomic import save_figure_atomic
-
     top = max((r["level"] for r in rows), default=1.0)
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6))
-    for ax, c in zip(axes, COMPONENTS):
-        for k, odo in enumerate(scale.odometers):
-            mine = [r for r in rows if r["odometer"] == odo]
-            if not mine:
-                continue
-            name = odo + (" (learned)" if odo in scale.learned else "")
-            if growth and mine[0]["level"] == 1.0:
-                name += f": {growth_label(mine[0][c], mine[-1][c])}"
-            ax.plot(
-                [r["level"] for r in mine],
-                [r[f"growth_{c}"] if growth else r[c] for r in mine],
-                "-" if odo in scale.learned else "--",
-                marker="o",
-                color=f"C{k}",
-                label=name,
-            )
+    panels = 2 if growth else 1
+    fig, axes = plt.subplots(panels, 3, figsize=(14, 4.3 * panels + 0.9), sharex=True, squeeze=False)
+    for j, c in enumerate(COMPONENTS):
         if growth:
+            ax = axes[0][j]
+            _plot_lines(ax, scale, rows, f"growth_{c}", growth_of=c)
             ax.axhline(1.0, color="grey", lw=0.8, zorder=0)
-        else:
-            ax.set_ylim(bottom=0)
-        ax.set_xlabel("sensor-noise multiplier")
-        ax.set_ylabel(f"{c}: error / error at x1" if growth else f"{c}: mean abs. error ({UNITS[c]} x 1e-2)")
-        ax.set_xticks(scale.levels, [f"x{v:g}" for v in scale.levels])
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, title=f"change x1 -> x{top:g}" if growth else None, title_fontsize=7)
-    what = "Growth of the per-step error" if growth else "Per-step error as used"
+            ax.set_ylabel(f"{c}: error / error at x1")
+            ax.set_title(f"{c}: growth of the error", fontsize=10)
+            ax.legend(fontsize=7, title=f"change x1 -> x{top:g}", title_fontsize=7, loc="upper left")
+        ax = axes[-1][j]
+        _plot_lines(ax, scale, rows, c)
+        ax.set_ylim(bottom=0)
+        ax.set_ylabel(f"{c}: mean abs. error ({UNITS[c]} x 1e-2)")
+        ax.set_title(f"{c}: per-step error as used ({UNITS[c]} x 1e-2)", fontsize=10)
+        if growth:
+            axes[0][j].tick_params(labelbottom=True)
+    handles, labels = axes[-1][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6) or 1, fontsize=9, frameon=False)
+    what = "Growth of the per-step error (top) and the error itself (bottom)" if growth else "Per-step error as used"
     episodes = f"{scale.episodes} test episode{'s' if scale.episodes != 1 else ''}"
     fig.suptitle(
-        f"{what} against sensor noise: RGB sigma 0.1 x and Redwood depth noise x the multiplier "
-        f"({episodes} x at most {scale.max_steps} steps; solid lines: learned, dashed: the others)",
+        f"{what} against sensor noise: RGB sigma 0.1 x and Redwood depth noise x the multiplier\n"
+        f"({episodes} x at most {scale.max_steps} steps; one colour per odometer; solid lines: learned, "
+        "dashed: the others)",
         fontsize=10,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.45 / (4.3 * panels + 0.9), 1, 1))
+    return fig
+
+
+def _draw(scale: Scale, rows: list[dict[str, Any]], path: Path, growth: bool) -> None:
+    """:func:`figure`, saved to ``path``."""
+    fig = figure(scale, rows, growth)
+    import matplotlib.pyplot as plt
+
+    from odolab.io.atomic import save_figure_atomic
+
     save_figure_atomic(fig, path)
     plt.close(fig)
 
@@ -280,7 +311,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 lambda p: _draw(scale, rows, p, growth=False),
             ),
             "growth.png": (
-                "Growth factor (error / error at x1) against the sensor-noise multiplier, one line per odometer",
+                (
+                    "Growth factor (error / error at x1, top) beside the per-step error itself (as used, "
+                    "x 1e-2, bottom) against the sensor-noise multiplier, one line per odometer in the same "
+                    "colour in every panel: a small error that grows may still be below a large one that does not"
+                ),
                 lambda p: _draw(scale, rows, p, growth=True),
             ),
         },

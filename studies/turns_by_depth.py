@@ -223,44 +223,91 @@ def findings(rows: list[dict[str, Any]]) -> list[str]:
     return out
 
 
-def draw(scale: Scale, turns: dict[str, list], path: Path) -> None:
-    """Failed share and RMS yaw error per depth bin, one bar per odometer."""
+def share_text(share: float) -> str:
+    """A failed share (a fraction) as the figure writes it, in %: ``0``, ``0.9``, ``12``, ``100``;
+    ``-`` where there is none (no turn in the bin)."""
+    if not math.isfinite(share):
+        return "-"
+    percent = 100 * share
+    if percent == 0 or percent >= 9.95:
+        return f"{percent:.0f}"
+    return f"{percent:.1f}"
+
+
+def figure(scale: Scale, turns: dict[str, list]) -> Any:
+    """Failed share (top) and RMS yaw error of the answered turns (bottom) per depth bin, one bar
+    per odometer in its colour; above every bar (and where a bar is missing, at its foot) the
+    failed share in %, so that a small RMS over few answered turns is read as such. The labels are
+    the figure's texts with the gid ``failed-share``. Returns the figure."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from odolab.io.atomic import save_figure_atomic
-
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.4))
+    fig, (a, b) = plt.subplots(2, 1, figsize=(12, 8.8))
     names = list(turns)
     width = 0.8 / max(len(names), 1)
+    tops = {a: 0.0, b: 0.0}
     for k, n in enumerate(names):
         per_bin = bin_stats(turns[n])
         x = np.arange(len(per_bin)) + (k - (len(names) - 1) / 2) * width
-        a.bar(x, [100 * s["failed_share"] for s in per_bin], width, label=n, color=f"C{k}")
-        b.bar(x, [s["yaw_rms_deg"] for s in per_bin], width, label=n, color=f"C{k}")
+        failed = [100 * s["failed_share"] for s in per_bin]
+        rms = [s["yaw_rms_deg"] for s in per_bin]
+        for ax, heights in ((a, failed), (b, rms)):
+            ax.bar(x, heights, width, label=n, color=f"C{k}")
+            for xi, h, s in zip(x, heights, per_bin):
+                ax.annotate(
+                    share_text(s["failed_share"]),
+                    (xi, h if math.isfinite(h) else 0.0),
+                    xytext=(0, 2),
+                    textcoords="offset points",
+                    ha="center",
+                    va="bottom",
+                    rotation=90 if len(names) > 3 else 0,  # narrow bars: upright text
+                    fontsize=8 if len(names) > 3 else 9,
+                    color="0.15",
+                    gid="failed-share",
+                )
+            tops[ax] = max([tops[ax], *(h for h in heights if math.isfinite(h))])
 
     def count(k: int, word: str) -> str:
         return f"{k} {word}{'' if k == 1 else 's'}"
 
     first = bin_stats(turns[names[0]]) if names else bin_stats([])
     ticks = [f"{s['bin']}\n({count(s['turns'], 'turn')})" for s in first]
-    for ax, ylabel in ((a, "failed turns (%)"), (b, "yaw error of answered turns, RMS (deg)")):
+    for ax, ylabel, title in (
+        (a, "failed turns (%)", "Failed share of the turns (number above each bar: failed %)"),
+        (
+            b,
+            "yaw error of answered turns, RMS (deg)",
+            "RMS yaw error of the answered turns (number above each bar: failed % it leaves out)",
+        ),
+    ):
         ax.set_xticks(np.arange(len(ticks)), ticks, fontsize=8)
         ax.set_xlabel("median depth of the first frame (no bar: no turn, or none answered)", fontsize=8)
         ax.set_ylabel(ylabel)
-        ax.set_ylim(bottom=0)
+        ax.set_title(title, fontsize=9)
+        ax.set_ylim(0, (tops[ax] or 1.0) * 1.22)  # room for the labels above the highest bar
         ax.grid(axis="y", alpha=0.3)
     rows = -(-len(names) // 4)  # at most four names per legend row
-    fig.legend(*a.get_legend_handles_labels(), loc="lower center", ncol=min(len(names), 4), fontsize=8, frameon=False)
+    fig.legend(*a.get_legend_handles_labels(), loc="lower center", ncol=min(len(names), 4), fontsize=9, frameon=False)
     given = "; ".join(f"{n} " + ", ".join(f"{k}={v}" for k, v in o.items()) for n, o in scale.options.items() if o)
     fig.suptitle(
         f"Turns from random poses: {count(scale.scenes, scale.split + ' scene')} x {count(scale.per_scene, 'turn')}"
         + (f" (options: {given[:120]})" if given else ""),
         fontsize=10,
     )
-    fig.tight_layout(rect=(0, 0.05 + 0.04 * rows, 1, 1))
+    fig.tight_layout(rect=(0, 0.025 + 0.02 * rows, 1, 1))
+    return fig
+
+
+def draw(scale: Scale, turns: dict[str, list], path: Path) -> None:
+    """:func:`figure`, saved to ``path``."""
+    fig = figure(scale, turns)
+    import matplotlib.pyplot as plt
+
+    from odolab.io.atomic import save_figure_atomic
+
     save_figure_atomic(fig, path)
     plt.close(fig)
 
@@ -290,7 +337,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows=rows,
         figures={
             "turns.png": (
-                "Failed share and RMS yaw error of the answered turns per median-depth bin, one bar per odometer",
+                (
+                    "Failed share (top) and RMS yaw error of the answered turns (bottom) per median-depth bin, "
+                    "one bar per odometer; the number above each bar is its failed share in %"
+                ),
                 lambda p: draw(scale, turns, p),
             )
         },

@@ -380,3 +380,84 @@ def test_the_switches_a_row_shows_are_those_its_recipe_trains(tmp_path: Path):
         match=r"row 8: switches.actinfo: the table would show 'Embed', but the row's recipe trains 'SepAct'",
     ):
         ablations.check_switches(definition, 8, cfg)
+
+
+def _figure_lines() -> list[dict]:
+    """Lines as :func:`ablations.table` makes them for the figure: a dense cluster of ours (as the
+    cpu scale's dx), the paper's spread, a row the paper gives no error for, ground truth and the
+    action prior."""
+    lines = []
+    for k, row in enumerate(range(19)):
+        ours = {"dx": 4.0 + 0.02 * k, "dz": 3.0 + 0.3 * (k % 4), "dyaw": 2.5 + 0.7 * k}
+        success = float(2 * (k % 9))
+        lines.append({
+            "row": row, "setting": "robust VO", **ours, "S": success, "S_range": (max(0.0, success - 6), success + 9),
+            "paper_S": 40.0 + 2 * k, "paper_errors": (2.4 - 0.07 * k, 1.8 - 0.05 * k, 1.6 - 0.05 * k),
+        })  # fmt: skip
+    lines[5]["paper_errors"] = ()  # a row the paper gives no per-component error for
+    nan = float("nan")
+    lines.append({"row": 20, "setting": "Ground truth", "dx": 0.0, "dz": 0.0, "dyaw": 0.0, "S": 98.0,
+                  "S_range": (89.5, 99.6), "paper_S": 97.0, "paper_errors": ()})  # fmt: skip
+    lines.append({"row": 21, "setting": "Action prior", "dx": 4.3, "dz": 3.0, "dyaw": 5.9, "S": 8.0,
+                  "S_range": (3.2, 18.8), "paper_S": nan, "paper_errors": ()})  # fmt: skip
+    return lines
+
+
+def test_the_figure_has_a_panel_per_component_with_ours_and_the_papers_rows_on_one_x_range():
+    import matplotlib.pyplot as plt
+
+    lines = _figure_lines()
+    fig = ablations.figure(lines)
+    try:
+        assert len(fig.axes) == len(ablations.COMPONENTS) == 3
+        trained = [line for line in lines if line["setting"] not in ablations.REFERENCES]
+        for k, (ax, c) in enumerate(zip(fig.axes, ablations.COMPONENTS)):
+            assert c in ax.get_xlabel() and f"({ablations.UNITS[c]} x 1e-2)" in ax.get_xlabel()
+            points = {col.get_gid(): {tuple(p) for p in col.get_offsets()} for col in ax.collections if col.get_gid()}
+            ours, paper = points["ours"], points["paper"]
+            assert ours == {(line[c], line["S"]) for line in trained}
+            assert paper == {(line["paper_errors"][k], line["paper_S"]) for line in trained if line["paper_errors"]}
+            low, high = ax.get_xlim()
+            xs = [x for x, _ in ours | paper]
+            assert low == 0.0 and max(xs) < high < 1.2 * max(xs)  # one range holds both, from 0
+            assert ax.get_ylim() == fig.axes[0].get_ylim()  # one success axis
+        assert fig.axes[0].get_ylabel() == "navigation success (%)"
+        legend = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert any("ours" in t for t in legend) and any("the paper's Table 2" in t for t in legend)
+    finally:
+        plt.close(fig)
+    assert ablations.unplotted_paper_rows(lines) == [5, 20]
+    assert "no per-component error for rows 5, 20: left out of its points" in ablations.figure_caption(lines)
+
+
+def test_the_figures_row_labels_cover_no_other_label_or_point():
+    import matplotlib.pyplot as plt
+    from matplotlib.text import Text
+    from matplotlib.transforms import Bbox
+
+    fig = ablations.figure(_figure_lines())
+    try:
+        renderer = fig.canvas.get_renderer()
+        for ax in fig.axes:
+            notes = [t for t in ax.texts if t.get_gid() == "row-label"]
+            boxes = [Bbox.from_extents(*Text.get_window_extent(t, renderer).extents) for t in notes]  # no leader
+            assert notes and "18" in {t.get_text() for t in notes}  # the reference row first
+            for i, a in enumerate(boxes):
+                assert not any(a.overlaps(b) for b in boxes[i + 1 :]), notes[i].get_text()
+            points = [ax.transData.transform(p) for col in ax.collections if col.get_gid() for p in col.get_offsets()]
+            for note, box in zip(notes, boxes):
+                assert not any(box.contains(*p) for p in points), note.get_text()
+                assert ax.get_window_extent(renderer).contains(box.x0, box.y0), note.get_text()
+    finally:
+        plt.close(fig)
+
+
+def test_the_committed_cpu_report_redraws_to_its_own_table(tmp_path: Path):
+    """reports/ablations is redrawn from its saved results alone: every unit's key still matches
+    (a recipe setting added since, at its default, leaves the keys as they were)."""
+    committed = ablations.ROOT / "reports" / "ablations"
+    copy = tmp_path / "ablations"
+    shutil.copytree(committed / "results", copy / "results")
+    shutil.copy(committed / "manifest.txt", copy / "manifest.txt")
+    assert ablations.main(["--scale", "cpu", "--out", str(copy), "--redraw", "--quiet"]) == 0
+    assert (copy / "table.csv").read_text() == (committed / "table.csv").read_text()

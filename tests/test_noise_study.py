@@ -184,3 +184,33 @@ def test_noise_growth_labels_show_small_growth():
     assert growth_label(2.0, 1.96) == "-2.0 %"
     assert growth_label(1.41, 1.41) == "0.0 %"
     assert growth_label(0.0, 1.0) == ""
+
+
+def test_the_growth_figure_shows_the_error_itself_under_the_growth_in_the_same_colours():
+    import matplotlib.pyplot as plt
+
+    scale = noise.Scale((1.0, 3.0), 1, 6, ("action-prior", "icp", "robust-vo"), ("robust-vo",))
+    results = _rows({"action-prior": 1.0, "icp": 1.3, "robust-vo": 1.5})
+    results[noise.label("icp", 1.0)]["dx"] = results[noise.label("icp", 3.0)]["dx"] = 9.0  # large, not growing
+    rows = noise.table(scale, results)
+    fig = noise.figure(scale, rows, growth=True)
+    try:
+        assert len(fig.axes) == 6
+        growth, errors = fig.axes[:3], fig.axes[3:]
+        for top, bottom, c in zip(growth, errors, noise.COMPONENTS):
+            assert top.get_ylabel() == f"{c}: error / error at x1"
+            assert bottom.get_ylabel() == f"{c}: mean abs. error ({noise.UNITS[c]} x 1e-2)"
+            assert [ln.get_color() for ln in top.get_lines()[:3]] == [ln.get_color() for ln in bottom.get_lines()]
+            for odo, line in zip(scale.odometers, bottom.get_lines()):
+                assert list(line.get_ydata()) == [r[c] for r in rows if r["odometer"] == odo]
+        # icp's dx does not grow but stays far above robust-vo's, which grows by half
+        assert list(errors[0].get_lines()[1].get_ydata()) == [9.0, 9.0]
+        assert list(growth[0].get_lines()[2].get_ydata()) == [1.0, 1.5]
+        assert [t.get_text() for t in fig.legends[0].get_texts()] == ["action-prior", "icp", "robust-vo (learned)"]
+    finally:
+        plt.close(fig)
+    fig = noise.figure(scale, rows, growth=False)
+    try:
+        assert len(fig.axes) == 3 and all("mean abs. error" in ax.get_ylabel() for ax in fig.axes)
+    finally:
+        plt.close(fig)

@@ -150,3 +150,30 @@ def test_the_turns_study_keeps_results_of_other_options_and_damage_apart(tmp_pat
     assert turns.valid_result([[1.0, True, 0.5]] * 2, per_scene=2)
     assert not turns.valid_result([[1.0, True, 0.5], [10**400, True, 0.5]], per_scene=2)
     assert not turns.valid_result([[1.0, True, 0.5]] * 3, per_scene=2)
+
+
+def test_every_bar_of_the_turns_figure_carries_its_failed_share():
+    import math
+
+    import matplotlib.pyplot as plt
+
+    turns = {
+        "icp": [[0.5, True, 1.0], [0.6, False, None], [1.5, True, 0.5], [5.0, False, None]],
+        "action-prior": [[0.5, True, 3.0], [0.6, True, 2.0], [1.5, True, 4.0], [5.0, True, 3.0]],
+    }
+    fig = study.figure(study.Scale("val", 7, 2, 2, tuple(turns), {}), turns)
+    try:
+        for ax in fig.axes:
+            bars = ax.patches
+            labels = [t for t in ax.texts if t.get_gid() == "failed-share"]
+            assert len(bars) == len(labels) == len(turns) * len(study.BINS)
+            for bar, label in zip(bars, labels):
+                assert math.isclose(label.xy[0], bar.get_x() + bar.get_width() / 2)
+                assert label.xy[1] == (bar.get_height() if math.isfinite(bar.get_height()) else 0.0)
+                assert label.xy[1] < ax.get_ylim()[1]
+            icp = [t.get_text() for t in labels[: len(study.BINS)]]
+            assert icp == ["50", "0", "-", "100"]  # 2-4 m: no turn; > 4 m: none answered (no RMS bar)
+            assert {t.get_text() for t in labels[len(study.BINS) :]} == {"0", "-"}
+    finally:
+        plt.close(fig)
+    assert [study.share_text(v) for v in (0.0, 0.009, 0.115, 1.0, float("nan"))] == ["0", "0.9", "12", "100", "-"]
