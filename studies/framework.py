@@ -422,7 +422,7 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
             f'<figure><img src="{html.escape(name)}" alt="{html.escape(caption)}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>"
         )
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in report.columns)
+    head = "".join(f"<th>{html.escape(c).replace('_', '_<wbr>')}</th>" for c in report.columns)  # wraps at _
     body = "".join(
         "<tr>" + "".join(f"<td>{html.escape(_cell(r.get(c, '')))}</td>" for c in report.columns) + "</tr>"
         for r in report.rows
@@ -430,9 +430,11 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(report.title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}
-table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}
-th{{background:#f2f2f2}}td:first-child,th:first-child{{text-align:left}}img{{max-width:100%}}
-figure{{margin:1.5em 0}}.wide{{overflow-x:auto}}</style></head><body>
+table{{border-collapse:collapse;font-size:.64em}}td,th{{border:1px solid #ccc;padding:2px;text-align:right}}
+th{{background:#f2f2f2}}td:first-child,th:first-child{{text-align:left}}
+img{{max-width:100%}}figure{{margin:1.5em 0}}
+.wide{{overflow-x:auto;width:calc(100vw - 2em);position:relative;left:50%;transform:translateX(-50%)}}
+.wide table{{margin:0 auto}}</style></head><body>
 <h1>{html.escape(report.title)}</h1>
 {"".join(f"<p>{html.escape(p)}</p>" for p in report.intro)}
 <div class="wide"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>
