@@ -197,8 +197,13 @@ def robust_job(tmp_path: Path, *argv: str, stage: str = "forward"):
     )
 
 
+def compare_refused(tmp_path, *args, words: str) -> None:
+    """``python -m odolab.compare args`` on one 5-step episode (no cache, ``--out tmp_path/o``):
+    refused in one line naming ``words`` (:func:`one_line_error`)."""
+    tail = ["--episodes", "1", "--max-steps", "5", "--no-cache", "--out", tmp_path / "o"]
+    one_line_error("odolab.compare", *args, *tail, words=words)
+
+
 def refused_option(tmp_path, odometer: str, option: str, *, words: str) -> None:
-    """``python -m odolab.compare --odometers odometer --odometer-option option`` on one 5-step
-    episode: refused in one line naming ``words`` (:func:`one_line_error`)."""
-    args = ["--odometers", odometer, "--odometer-option", option, "--episodes", "1", "--max-steps", "5"]
-    one_line_error("odolab.compare", *args, "--no-cache", "--out", tmp_path / "o", words=words)
+    """:func:`compare_refused` of ``--odometers odometer --odometer-option option``."""
+    compare_refused(tmp_path, "--odometers", odometer, "--odometer-option", option, words=words)

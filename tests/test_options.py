@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from odolab.cli import run_cli
-from tests.helpers import one_line_error, refused_option
+from tests.helpers import compare_refused, one_line_error, refused_option
 
 
 @pytest.mark.parametrize(
@@ -74,21 +74,14 @@ def test_numbers_too_long_to_read_are_one_line_errors(tmp_path):
 
 
 def test_an_option_given_twice_is_refused(tmp_path):
-    one_line_error(
-        "odolab.compare",
+    compare_refused(
+        tmp_path,
         "--odometers",
         "open3d-rgbd",
         "--odometer-option",
         "open3d-rgbd.term=hybrid",
         "--odometer-option",
         "open3d-rgbd.term=color",
-        "--episodes",
-        "1",
-        "--max-steps",
-        "5",
-        "--no-cache",
-        "--out",
-        tmp_path / "o",
         words="open3d-rgbd.term is given twice",
     )
 
@@ -96,21 +89,7 @@ def test_an_option_given_twice_is_refused(tmp_path):
 def test_a_deeply_nested_options_file_and_a_huge_option_are_short_lines(tmp_path, capsys):
     deep = tmp_path / "deep.toml"
     deep.write_text('[odometers."open3d-rgbd"]\nfallback_iterations = ' + "[" * 3000 + "]" * 3000 + "\n")
-    one_line_error(
-        "odolab.compare",
-        "--odometers",
-        "open3d-rgbd",
-        "--config",
-        deep,
-        "--episodes",
-        "1",
-        "--max-steps",
-        "5",
-        "--no-cache",
-        "--out",
-        tmp_path / "o",
-        words="holds a value nested too deeply",
-    )
+    compare_refused(tmp_path, "--odometers", "open3d-rgbd", "--config", deep, words="holds a value nested too deeply")
     huge = "[" + ",".join(["5"] * 20000) + "]"  # the odometer's message cuts the value; the loader's did not
     from odolab.comparison import ComparisonError, load_odometers
 
