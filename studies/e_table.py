@@ -9,8 +9,9 @@ model or settings (its identity digest) and the scale's episodes stay the same. 
 absolute errors of (dx m, dz m, dyaw rad) x 1e-2, as used (a failed step scored with the action
 prior that replaced it), on the odometer's own answered steps, and under the paper's protocol
 (``*_raw``: every step scored with the odometer's own motion, the unverified one where it refused;
-``raw_missing`` steps had none and keep the prior's); the spread is the standard deviation over seeds. The paper's numbers are on its validation set (50,000 pairs, its own
-simulator data), ours on test episodes: the ordering is what compares, not the values.
+``raw_missing`` steps had none and keep the prior's); the spread is the standard deviation over
+seeds. The paper's numbers are on its validation set (50,000 pairs, its own simulator data), ours
+on test episodes: the ordering is what compares, not the values.
 """
 
 from __future__ import annotations

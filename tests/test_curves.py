@@ -1,5 +1,5 @@
 """odolab.learning.curves: training curves kept as CSV and drawn as small multiples, the figure redrawn
-after an epoch at most once in ``fresh_for`` seconds."""
+after an epoch (``final=False``) at most once a minute."""
 
 from __future__ import annotations
 
@@ -18,26 +18,24 @@ def _curves() -> Curves:
     return Curves(rows)
 
 
-def _draw(curves: Curves, path, fresh_for: float = 0.0) -> None:
-    curves.plot(
-        path, x="epoch", rows="action", cols="component", series={"mae": {"label": "model"}}, fresh_for=fresh_for
-    )
+def _draw(curves: Curves, path, final: bool = True) -> None:
+    curves.plot(path, x="epoch", rows="action", cols="component", series={"mae": {"label": "model"}}, final=final)
 
 
 def test_a_fresh_figure_is_kept_and_an_old_or_missing_one_is_drawn(tmp_path):
     path = tmp_path / "curves.png"
     curves = _curves()
-    _draw(curves, path, fresh_for=60.0)  # none yet: drawn
+    _draw(curves, path, final=False)  # none yet: drawn
     assert path.stat().st_size > 5_000
     path.write_bytes(b"drawn a moment ago")
-    _draw(curves, path, fresh_for=60.0)
+    _draw(curves, path, final=False)
     assert path.read_bytes() == b"drawn a moment ago"  # younger than a minute: kept
-    _draw(curves, path)  # fresh_for 0 (a training's last call): always drawn
+    _draw(curves, path)  # a training's last call: always drawn
     assert path.read_bytes().startswith(b"\x89PNG")
     path.write_bytes(b"drawn long ago")
     old = path.stat().st_mtime - 120
     os.utime(path, (old, old))
-    _draw(curves, path, fresh_for=60.0)
+    _draw(curves, path, final=False)
     assert path.read_bytes().startswith(b"\x89PNG")
 
 

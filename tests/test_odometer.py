@@ -50,10 +50,10 @@ def test_an_odometer_list_with_an_empty_name_is_refused(tmp_path, module):
 def test_a_class_that_is_not_an_odometer_is_refused_at_load(tmp_path):
     from odolab.odometer import IncompleteOdometerError, load_odometer
 
-    source = tmp_path / "notodo.py"
-    source.write_text("class NotOdo:\n    def step(self, prev, cur, action):\n        return None\n")
+    source = tmp_path / "plain_class.py"
+    source.write_text("class PlainClass:\n    def step(self, prev, cur, action):\n        return None\n")
     with pytest.raises(IncompleteOdometerError, match="not an Odometer"):
-        load_odometer(f"{source}:NotOdo")
+        load_odometer(f"{source}:PlainClass")
 
 
 def test_a_composite_that_hides_ground_truth_from_its_oracle_input_is_refused(oracle_calibration):

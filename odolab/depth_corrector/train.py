@@ -29,15 +29,7 @@ from tqdm.auto import tqdm
 from odolab.depth_corrector.checkpoint import save_model
 from odolab.depth_corrector.config import CorrectorTraining, load_training
 from odolab.depth_corrector.model import DepthCorrectorNet, pixel_place
-from odolab.learning import (
-    REDRAW_SECONDS,
-    Curves,
-    EpochLoop,
-    Execution,
-    TrainingData,
-    make_training_data,
-    require_finite,
-)
+from odolab.learning import Curves, EpochLoop, Execution, TrainingData, make_training_data, require_finite
 from odolab.learning.epochs import EpochTracker
 
 #: Upper edges (m) of the true-distance bins of the validation rows; the last bin is open.
@@ -108,7 +100,7 @@ def loss_fn(
 def write_report(folder: Path, rows: list[dict], status: dict, final: bool = True) -> None:
     """``curves.csv`` (every row), ``curves.png`` (validation MAE of the noisy and corrected depth per
     distance bin and on edges, mm) and ``training.json``, each written atomically into ``folder``;
-    ``final=False`` (after an epoch) redraws the figure only if it is older than ``REDRAW_SECONDS``."""
+    ``final=False`` (after an epoch) keeps a figure drawn less than a minute ago (:meth:`Curves.plot`)."""
     from odolab.io.atomic import write_bytes_atomic
 
     folder = Path(folder)
@@ -128,7 +120,7 @@ def write_report(folder: Path, rows: list[dict], status: dict, final: bool = Tru
         scale={k: 1000.0 for k in ["all", *bin_labels(), "edges"]},
         title="Depth corrector: validation depth error after each epoch (val split)",
         wrap=4,
-        fresh_for=0.0 if final else REDRAW_SECONDS,
+        final=final,
     )
     write_bytes_atomic(folder / "training.json", (json.dumps(status, indent=1) + "\n").encode())
 

@@ -16,7 +16,7 @@ from odolab.learning.checkpoints import (
 )
 from odolab.learning.compute import Compute, ComputeConfig, choose_compute
 from odolab.learning.configs import ConfigError, check, describe, from_toml, read_toml, setting
-from odolab.learning.curves import REDRAW_SECONDS, Curves
+from odolab.learning.curves import Curves
 from odolab.learning.device import pick_device
 from odolab.learning.epochs import EpochLoop, StopRequested, require_finite
 from odolab.learning.loading import prefetched
@@ -24,7 +24,6 @@ from odolab.parallel import SERIAL, Execution
 from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 __all__ = [
-    "REDRAW_SECONDS",
     "SERIAL",
     "CheckpointError",
     "Compute",

@@ -140,11 +140,12 @@ def load_checkpoint(path: str | os.PathLike, kind: str, format: int, *, verify: 
     ``verify``, contents that do not match its checksum: :func:`check_checksum`)."""
     if os.path.isdir(path):
         raise CheckpointError(f"{path}: is a folder, not a checkpoint file")
+    if os.path.islink(path) and not os.path.exists(path):
+        raise CheckpointError(f"{path}: a link to nothing, not a checkpoint file")
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise CheckpointError(f"{path}: a pipe, device or socket, not a checkpoint file")
     if not os.path.isfile(path):
-        what = (
-            "a link to nothing" if os.path.islink(path) else "a pipe, device or socket" if os.path.exists(path) else ""
-        )
-        raise CheckpointError(f"{path}: {what}, not a checkpoint file" if what else f"{path}: no such checkpoint file")
+        raise CheckpointError(f"{path}: no such checkpoint file")
     try:
         with warnings.catch_warnings():  # torch warns of an old pickle protocol before refusing: one line only
             warnings.simplefilter("ignore")

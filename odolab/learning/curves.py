@@ -51,17 +51,17 @@ class Curves:
         title: str = "",
         scale: dict[str, float] | None = None,
         wrap: int | None = None,
-        fresh_for: float = 0.0,
+        final: bool = True,
     ) -> None:
         """Small multiples: one panel per (``rows`` value, ``cols`` value), ``x`` on the horizontal axis
         and one line per ``series`` column (value: matplotlib style, with ``label``). ``where``
         filters rows; ``scale`` multiplies values per ``cols`` value (e.g. rad -> deg);
         ``ylabel`` per ``cols`` value; ``wrap``: at most this many panels a line, the panels then
-        read in order left to right, top to bottom; ``fresh_for``: seconds within which a figure
-        already at ``path`` is kept instead of drawn again (0: always draw)."""
-        if fresh_for > 0:
+        read in order left to right, top to bottom; ``final=False`` (after an epoch, the training goes
+        on): a figure at ``path`` drawn less than :data:`REDRAW_SECONDS` ago is kept."""
+        if not final:
             try:
-                if time.time() - os.stat(path).st_mtime < fresh_for:
+                if time.time() - os.stat(path).st_mtime < REDRAW_SECONDS:
                     return
             except OSError:
                 pass  # no figure yet: draw it

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from odolab.api import MOTION_ACTIONS, load_odometer, write_bytes_atomic
-from odolab.learning.curves import REDRAW_SECONDS, Curves
+from odolab.learning.curves import Curves
 
 COMPONENTS = ("dx", "dz", "dyaw")
 
@@ -53,7 +53,7 @@ def write_report(
     """``curves.csv`` (every row), ``curves.png`` (validation rows: one panel per action and
     component, the model against the action prior, yaw in degrees) and ``training.json``
     (``status``), each written atomically into ``folder``; ``final=False`` (after an epoch, the
-    training goes on) redraws the figure only if it is older than ``REDRAW_SECONDS``."""
+    training goes on) keeps a figure drawn less than a minute ago (:meth:`Curves.plot`)."""
     folder = Path(folder)
     curves = Curves(rows)
     curves.to_csv(folder / "curves.csv")
@@ -76,7 +76,7 @@ def write_report(
         scale={"dyaw": 180 / np.pi},
         title=title,
         ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
-        fresh_for=0.0 if final else REDRAW_SECONDS,
+        final=final,
     )
     write_bytes_atomic(folder / "training.json", json.dumps(status, indent=1).encode())
 

@@ -29,15 +29,7 @@ import torch
 from tqdm.auto import tqdm
 
 from odolab.api import MOTION_ACTIONS, Action, load_inputs, load_odometer, transform_to_planar, wrap_angle
-from odolab.learning import (
-    REDRAW_SECONDS,
-    Curves,
-    EpochLoop,
-    Execution,
-    TrainingData,
-    make_training_data,
-    require_finite,
-)
+from odolab.learning import Curves, EpochLoop, Execution, TrainingData, make_training_data, require_finite
 from odolab.learning.epochs import EpochTracker
 from odolab.pose_corrector.checkpoint import save_model
 from odolab.pose_corrector.config import PoseCorrectorModel, PoseCorrectorTraining, load_training
@@ -158,8 +150,8 @@ def correction_rows(
 def write_report(folder: Path, rows: list[dict], status: dict, inner: str, final: bool = True) -> None:
     """``curves.csv`` (every row), ``curves.png`` (validation MAE per action and component of
     corrected(X), X alone and the action prior; yaw in degrees) and ``training.json``, each written
-    atomically into ``folder``; ``final=False`` (after an epoch) redraws the figure only if it is older
-    than ``REDRAW_SECONDS``."""
+    atomically into ``folder``; ``final=False`` (after an epoch) keeps a figure drawn less than a
+    minute ago (:meth:`Curves.plot`)."""
     from odolab.io.atomic import write_bytes_atomic
 
     folder = Path(folder)
@@ -180,7 +172,7 @@ def write_report(folder: Path, rows: list[dict], status: dict, inner: str, final
         scale={"dyaw": 180 / np.pi},
         title=f"Pose corrector of {inner}: validation error after each epoch (val split)",
         ylabel={"dx": "mean |error|, m", "dz": "mean |error|, m", "dyaw": "mean |error|, deg"},
-        fresh_for=0.0 if final else REDRAW_SECONDS,
+        final=final,
     )
     write_bytes_atomic(folder / "training.json", (json.dumps(status, indent=1) + "\n").encode())
 

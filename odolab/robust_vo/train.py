@@ -352,20 +352,21 @@ def train_stages(job: dict) -> dict:
                 runner.init_bias()
         if finished:
 
-            def after(loop_: EpochLoop, stage: StageConfig = stage, rows: list[dict] = all_rows) -> None:
+            def after(
+                loop_: EpochLoop, stage: StageConfig = stage, rows: list[dict] = all_rows, final: bool = False
+            ) -> None:
                 _write_reports(
                     reports,
                     rows + loop_.curves.rows,
                     {**status, "stages": {**status["stages"], stage.name: _stage_status(loop_)}},
-                    final=False,
+                    final=final,
                 )
 
             try:
                 finished = loop.run(runner.train_epoch, runner.validate, deadline=deadline, after_epoch=after)
             except BaseException:  # interrupted: the figure shows every finished epoch before it goes
                 if team.leader:
-                    stages = {**status["stages"], stage.name: _stage_status(loop)}
-                    _write_reports(reports, all_rows + loop.curves.rows, {**status, "stages": stages})
+                    after(loop, final=True)
                 raise
         status["stages"][stage.name] = _stage_status(loop)
         if previous is not None and loop.started:
