@@ -72,6 +72,7 @@ __all__ = [
     "Sequence",
     "SequenceResult",
     "Setting",
+    "StepByStep",
     "Trajectory",
     "UnknownCameraError",
     "UnknownOdometerError",
@@ -126,7 +127,7 @@ if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and
     from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.io.atomic import write_bytes_atomic, write_json_atomic
     from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
-    from odolab.runner import SequenceResult, failure_reason
+    from odolab.runner import SequenceResult, StepByStep, failure_reason
     from odolab.sim.scenes import SPLITS
     from odolab.trajectory import Trajectory
 
@@ -148,6 +149,7 @@ _LAZY = {
     "run_comparison": "odolab.comparison",
     "DEFAULT_CACHE": "odolab.comparison",
     "SequenceResult": "odolab.runner",
+    "StepByStep": "odolab.runner",
     "failure_reason": "odolab.runner",
     "load_inputs": "odolab.composites",
     "one_input": "odolab.composites",

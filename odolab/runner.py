@@ -53,7 +53,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, Self
 
 import numpy as np
 
@@ -573,3 +573,91 @@ def run(
         if observer is not None:
             observer.close()
     return results
+
+
+class StepByStep:
+    """One odometer asked one pair at a time as its caller decides (closed-loop navigation, probes),
+    under the runner's guards: its attributes read once (unusable: every step fails), ``reset`` and
+    each ``step`` time-limited (``step_timeout`` s per pair, None: none), stopped after
+    :data:`MAX_TIMEOUTS_IN_A_ROW` timed-out steps in a row, each answer copied and checked.
+    :meth:`frame` guards a frame as the runner does (ground truth only for oracles); :meth:`step`
+    answers the copied :class:`Estimate` or None, the reason counted in ``reasons`` and the first
+    few messages in ``errors``. Use as a context manager (:meth:`close` lets the worker thread go)."""
+
+    def __init__(
+        self, odometer: Odometer, name: str, step_timeout: float | None = DEFAULT_STEP_TIMEOUT, max_errors: int = 5
+    ) -> None:
+        self.odometer = odometer
+        self._caller = _Caller(name, step_timeout)
+        self._log = _StepLog(0, max_errors)
+        self.reasons: Counter[str] = Counter()
+        self._in_a_row = 0
+        try:
+            self.attributes: Attributes | None = read_attributes(odometer)
+        except AttributeProblem as exc:
+            self.attributes = None
+            self._log.note("attributes", str(exc))
+        self._broken = "bad-attribute" if self.attributes is None else None
+
+    @property
+    def errors(self) -> list[str]:
+        """The first few messages: what raised, timed out or was unusable, and where."""
+        return self._log.errors
+
+    def frame(self, frame: Frame) -> Frame:
+        """``frame`` as this odometer may see it (:func:`guarded_frame`)."""
+        return guarded_frame(frame, bool(self.attributes and self.attributes.oracle))
+
+    def _call(self, fn: Callable[[], Any]) -> _Call | None:
+        with torch_threads(self.attributes.threads if self.attributes else None):
+            return self._caller.call(fn)
+
+    def reset(self, intrinsics: Any) -> bool:
+        """``odometer.reset(intrinsics)``; False (and every later step fails) when it raised or timed out."""
+        if self._broken is not None:
+            return False
+        call = self._call(lambda: self.odometer.reset(intrinsics))
+        if call is None or call.error is not None:
+            self._broken = "timed-out" if call is None else "reset-raised"
+            self._log.note("reset", f"timed out after {self._caller.timeout:g} s" if call is None else call.error)
+            return False
+        return True
+
+    def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
+        """The odometer's answer for one pair of guarded frames (:meth:`frame`), or None (failed)."""
+        if self._broken is None and self._in_a_row >= MAX_TIMEOUTS_IN_A_ROW:
+            self._broken = "timed-out"
+        if self._broken is not None:
+            self.reasons[self._broken] += 1
+            return None
+        call = self._call(lambda: own_copy(self.odometer.step(prev, cur, action)))
+        if call is None:
+            self._in_a_row += 1
+            self.reasons["timed-out"] += 1
+            stopped = "; stopped" if self._in_a_row == MAX_TIMEOUTS_IN_A_ROW else ""
+            self._log.note("step", f"timed out after {self._caller.timeout:g} s{stopped}")
+            return None
+        self._in_a_row = 0
+        if call.error is not None:
+            self.reasons["raised"] += 1
+            self._log.note("step", call.error)
+            return None
+        try:
+            reason = failure_reason(call.value)
+        except Exception as exc:  # noqa: BLE001 - not an Estimate at all
+            self._log.note("step", exc)
+            reason = "raised"
+        if reason is not None:
+            self.reasons[reason] += 1
+            return None
+        return call.value
+
+    def close(self) -> None:
+        """Let the worker thread go (a step it stopped waiting for may still be running)."""
+        self._caller.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

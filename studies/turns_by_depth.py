@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from odolab.api import Odometer, invert, transform_to_planar, wrap_angle
+from odolab.api import StepByStep, invert, transform_to_planar, wrap_angle
 from studies import framework
 
 PROG = "python -m studies.turns_by_depth"
@@ -123,25 +123,17 @@ def unit_result(key: dict[str, Any]) -> list[list]:
     from odolab.api import load_odometer
     from odolab.episodes import EpisodeSpec
 
-    odometer = load_odometer(key["odometer"], **key["options"])
-    odometer.reset(EpisodeSpec().camera.intrinsics)  # turn_pairs' episodes use the default camera
     pairs = turn_pairs(key["split"], key["seed"], key["scene"] + 1, key["per_scene"], first=key["scene"])
-    return [[depth, *_answer(odometer, prev, cur, action, yaw)] for _, depth, action, prev, cur, yaw in pairs]
+    with StepByStep(load_odometer(key["odometer"], **key["options"]), key["odometer"]) as asked:
+        asked.reset(EpisodeSpec().camera.intrinsics)  # turn_pairs' episodes use the default camera
+        return [[depth, *_answer(asked, prev, cur, action, yaw)] for _, depth, action, prev, cur, yaw in pairs]
 
 
-def _answer(odometer: Odometer, prev, cur, action, true_yaw: float) -> tuple[bool, float | None]:
-    """(answered, |yaw error| deg or None) of one turn; frames guarded as the runner guards them
-    (only oracles see the true poses), a raising odometer fails the pair."""
-    from odolab.runner import failure_reason, guarded_frame
-    from odolab.threads import odometer_threads
-
-    oracle = bool(getattr(odometer, "oracle", False))
-    try:
-        with odometer_threads(odometer):
-            est = odometer.step(guarded_frame(prev, oracle), guarded_frame(cur, oracle), action)
-    except Exception:  # noqa: BLE001 - a failing odometer is a failed step
-        return False, None
-    if failure_reason(est) is not None:
+def _answer(asked: StepByStep, prev, cur, action, true_yaw: float) -> tuple[bool, float | None]:
+    """(answered, |yaw error| deg or None) of one turn, asked under the runner's guards (frames as
+    the runner shows them, a raising, timed-out or invalid answer fails the pair)."""
+    est = asked.step(asked.frame(prev), asked.frame(cur), action)
+    if est is None:
         return False, None
     return True, float(np.degrees(abs(wrap_angle(transform_to_planar(est.transform)[2] - true_yaw))))
 

@@ -1,5 +1,5 @@
 """odolab.io.lock: one run at a time into a folder; a second is refused at once, a killed one never blocks
-(issue 56), for compare's and navigate's --out, the trainers' --work and a study's --out."""
+for compare's, navigate's and simcard's --out, the trainers' --work and a study's --out."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from types import SimpleNamespace
 import pytest
 
 from odolab.io.lock import PROC_LOCKS, FolderInUseError, FolderLock, holder_pid, lock_folder
+from tests.helpers import command_argv, refused
 
 #: A second process that holds the folder given as its argument until it is killed (no odolab
 #: import: it starts in a few milliseconds, and holds the lock as lock_folder takes it).
@@ -110,15 +111,12 @@ def test_a_second_compare_into_the_same_out_is_refused_before_any_work(tmp_path,
     proc.wait()
 
 
-def test_a_second_navigate_into_the_same_out_is_refused(tmp_path, held, capsys):
-    from odolab.cli import run_cli
-    from odolab.cli.navigate import main
-
-    out = tmp_path / "nav"
+@pytest.mark.parametrize("command", ["navigate", "simcard"])
+def test_a_second_navigate_or_simcard_into_the_same_out_is_refused(tmp_path, held, capsys, command):
+    out = tmp_path / command
     held(out)
-    argv = ["--odometers", "ground-truth", "--episodes", "1", "--max-steps", "2", "--serial", "--quiet"]
-    assert run_cli(main, "python -m odolab.navigate", [*argv, "--out", str(out)]) == 2
-    assert "--out" in _one_error_line(capsys.readouterr().err) and os.listdir(out) == []
+    line = refused(capsys, command, [*command_argv(command, out), "--serial"])
+    assert f"--out {out} is in use by another odolab run" in line and os.listdir(out) == []
 
 
 def test_a_second_training_into_the_same_work_or_reports_is_refused(tmp_path, held):

@@ -19,6 +19,7 @@ from odolab.episodes import EpisodeSpec, render_episode, rollout
 from odolab.navigation.agent import MapPlanAgent, in_agent_frame
 from odolab.navigation.episode import navigate
 from odolab.parallel import SERIAL
+from odolab.sim.camera import CameraSpec
 from tests.helpers import Never, captured_figures, command_argv, refused
 
 
@@ -51,6 +52,33 @@ def test_an_agent_with_true_odometry_stops_at_the_goal():
 def test_an_agent_with_the_action_prior_believes_a_different_path():
     run = navigate(EpisodeSpec(split="test", index=1, seed=0, max_steps=60), load_odometer("action-prior"))
     assert np.abs(run.true_xy - run.believed_xy).max() > 0.05
+
+
+def test_an_odometer_that_hangs_or_cannot_say_if_it_is_an_oracle_fails_its_steps_not_the_episode():
+    """navigate asks under the runner's guards: a step past the time limit and an ``oracle`` that
+    raises are failed steps (the action prior moves the belief), not a hang or a traceback."""
+    import threading
+
+    release = threading.Event()
+
+    class Hanging(Never):
+        def step(self, prev, cur, action):
+            release.wait(10)
+
+    class NoIdea(Never):
+        @property
+        def oracle(self):
+            raise RuntimeError("cannot tell")
+
+    spec = EpisodeSpec(split="test", index=1, seed=0, max_steps=6, camera=CameraSpec(width=48, height=27))
+    prior = navigate(spec, load_odometer("action-prior"))
+    try:
+        for odometer in (Hanging(), NoIdea()):
+            run = navigate(spec, odometer, step_timeout=0.02)
+            assert run.failed_steps == run.outcome.steps == prior.outcome.steps
+            assert np.array_equal(run.believed_xy, prior.believed_xy)
+    finally:
+        release.set()
 
 
 def test_a_boxed_in_agent_backs_out_instead_of_pushing_into_the_wall():

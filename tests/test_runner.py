@@ -341,3 +341,49 @@ def test_an_odometer_calling_sys_exit_fails_its_steps_not_the_comparison():
     a, b = run_odometers({"quitter": Quitter(), "reset": QuitsOnReset()}, [seq])
     assert a.failures == b.failures == len(seq) - 1
     assert "SystemExit" in a.errors[0] and "SystemExit" in b.errors[0]
+
+
+def _pairs(n: int) -> list[tuple[Frame, Frame, Action]]:
+    seq = Tiny(frames=n + 1)
+    return [(seq[i], seq[i + 1], Action.MOVE_FORWARD) for i in range(n)]
+
+
+def test_step_by_step_guards_a_closed_loop_as_the_runner_guards_a_sequence(release):
+    """StepByStep (navigation, probes): a hanging step times out and is stopped after three in a row,
+    a raising reset or attribute fails every step, answers are copies, frames hide the truth."""
+    with runner.StepByStep(Stuck(range(100), release), "stuck", step_timeout=0.03) as asked:
+        assert asked.reset(Tiny().intrinsics)
+        t0 = time.perf_counter()
+        answers = [asked.step(asked.frame(p), asked.frame(c), a) for p, c, a in _pairs(6)]
+        assert time.perf_counter() - t0 < 0.5 and answers == [None] * 6  # 3 waits, not 6
+        assert asked.reasons == {"timed-out": 6} and asked.odometer.calls == runner.MAX_TIMEOUTS_IN_A_ROW
+        assert asked.errors[-1] == "step: timed out after 0.03 s; stopped"
+
+    class BadReset(api.Odometer):
+        def reset(self, intrinsics):
+            raise OSError("no camera")
+
+        def step(self, prev, cur, action):
+            raise AssertionError("never asked")
+
+    for odometer, reason, error in [
+        (BadReset(), "reset-raised", "reset: OSError: no camera"),
+        (RaisingOracle(), "bad-attribute", "attributes: reading oracle raised RuntimeError: cannot tell"),
+    ]:
+        with runner.StepByStep(odometer, "odd") as asked:
+            assert not asked.reset(Tiny().intrinsics)
+            assert [asked.step(*pair) for pair in _pairs(2)] == [None, None]
+            assert asked.reasons == {reason: 2} and asked.errors == [error]
+
+    reused = np.eye(4)
+
+    class Reusing(api.Odometer):
+        def step(self, prev, cur, action):
+            assert prev.gt_pose is None
+            reused[2, 3] += 0.25
+            return api.Estimate(reused)
+
+    with runner.StepByStep(Reusing(), "reusing") as asked:
+        asked.reset(Tiny().intrinsics)
+        got = [asked.step(asked.frame(p), asked.frame(c), a) for p, c, a in _pairs(3)]
+        assert [e.transform[2, 3] for e in got] == [0.25, 0.5, 0.75] and not asked.reasons

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from odolab.cli.args import (
     check_ray_option,
     check_report_dir,
     execution_of,
+    hold_folder,
     number,
     path_arg,
     run_cli,
@@ -59,13 +61,17 @@ def build_parser() -> ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.sim.redwood import default_table
-
     args = build_parser().parse_args(argv)
     check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
     check_report_dir(args.out, "--out")  # a folder of the user's own files is refused, as compare refuses it
+    with hold_folder(args.out, "--out"):  # a second run into --out is refused until this one has written
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from odolab.io.owned import UnsafeOutputError
     from odolab.report import MANIFEST, ManifestError, OutputFolder
+    from odolab.sim.redwood import default_table
 
     try:
         OutputFolder.check(args.out, files=(*simcard.CARD_FILES, MANIFEST), owner="simcard", names=simcard.CARD_NAMES)

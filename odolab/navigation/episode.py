@@ -1,9 +1,10 @@
 """One PointGoal navigation episode, closed loop: the environment renders, the odometer estimates,
 the agent decides; the metrics use the true positions.
 
-The odometer sees each frame pair as the runner would show it (read-only copies, ground truth only
-for oracles); a failed step (invalid, raising or not a rigid motion) is replaced by the action
-prior's mean motion, as in ``compare``.
+The odometer is asked under the runner's guards (:class:`odolab.runner.StepByStep`): it sees each
+frame pair as the runner would show it (read-only copies, ground truth only for oracles), its
+attributes are read once, ``reset`` and each step are time-limited; a failed step (invalid, raising,
+timed out or not a rigid motion) is replaced by the action prior's mean motion, as in ``compare``.
 """
 
 from __future__ import annotations
@@ -21,9 +22,8 @@ from odolab.geometry import planar_to_transform
 from odolab.navigation.agent import MapPlanAgent, PolicyConfig, in_agent_frame
 from odolab.navigation.metrics import EpisodeOutcome, path_length
 from odolab.odometer import Odometer
-from odolab.runner import failure_reason, guarded_frame
+from odolab.runner import DEFAULT_STEP_TIMEOUT, StepByStep
 from odolab.sim.planner import geodesic_field
-from odolab.threads import odometer_threads
 from odolab.types import Action
 
 
@@ -47,11 +47,13 @@ def navigate(
     policy: PolicyConfig | None = None,
     prior: ActionPrior | None = None,
     timings: dict[str, float] | None = None,
+    step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
 ) -> NavigationRun:
     """Run one episode of ``spec`` (its scene, start, goal, noise; at most ``spec.max_steps``
     actions) with ``odometer`` as the agent's only sense of its own motion. ``timings``, when given,
     is added to: wall seconds in the ``policy`` (of which ``planning``, its fast marching), the
-    ``sensors`` (moving and rendering), the ``odometer``, and the ``steps`` taken."""
+    ``sensors`` (moving and rendering), the ``odometer``, and the ``steps`` taken. ``step_timeout``:
+    seconds the odometer's ``reset`` or one step may take (None: no limit)."""
     clock = _Clock(timings)
     prior = prior or ActionPrior.shipped()
     env, begin = start_environment(spec)
@@ -59,36 +61,31 @@ def navigate(
     cam = spec.camera
     goal = in_agent_frame(begin.goal, begin.start.x, begin.start.y, begin.start.yaw)  # the point-goal sensor's reading
     agent = MapPlanAgent(tuple(goal), cam.intrinsics, cam.mount_height, policy)
-    odometer.reset(cam.intrinsics)
-    oracle = bool(getattr(odometer, "oracle", False))
-    frame = env.observe(0.0)
-    seen = guarded_frame(frame, oracle)  # each frame guarded once: odometers reuse per-frame work by identity
     true_xy, believed_xy, actions = [(env.state.x, env.state.y)], [(0.0, 0.0)], []
     stopped, failed = False, 0
-    for t in range(spec.max_steps):
-        with clock("policy"):
-            action = agent.act(frame.depth)
-        if action is Action.STOP:
-            stopped = True
-            break
-        with clock("sensors"):
-            env.step(action)
-            new = env.observe(float(t + 1))
-        new_seen = guarded_frame(new, oracle)
-        try:
-            with odometer_threads(odometer), clock("odometer"):  # its own torch threads, as in the runner
-                est = odometer.step(seen, new_seen, action)
-            T = est.transform if failure_reason(est) is None else None
-        except Exception:  # noqa: BLE001 - a failing odometer is a failed step, as in the runner
-            T = None
-        if T is None:
-            failed += 1
-            T = planar_to_transform(*prior.motion(action))
-        agent.update(T)
-        frame, seen = new, new_seen
-        actions.append(action.value)
-        true_xy.append((env.state.x, env.state.y))
-        believed_xy.append(agent.belief[:2])
+    with StepByStep(odometer, "navigation", step_timeout) as asked:
+        asked.reset(cam.intrinsics)
+        frame = env.observe(0.0)
+        seen = asked.frame(frame)  # each frame guarded once: odometers reuse per-frame work by identity
+        for t in range(spec.max_steps):
+            with clock("policy"):
+                action = agent.act(frame.depth)
+            if action is Action.STOP:
+                stopped = True
+                break
+            with clock("sensors"):
+                env.step(action)
+                new = env.observe(float(t + 1))
+            new_seen = asked.frame(new)
+            with clock("odometer"):
+                est = asked.step(seen, new_seen, action)
+            if est is None:
+                failed += 1
+            agent.update(planar_to_transform(*prior.motion(action)) if est is None else est.transform)
+            frame, seen = new, new_seen
+            actions.append(action.value)
+            true_xy.append((env.state.x, env.state.y))
+            believed_xy.append(agent.belief[:2])
     clock.add("planning", agent.plan_seconds)
     clock.add("steps", len(actions))
     true = np.array(true_xy)
