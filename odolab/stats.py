@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special  # lighter to import than scipy.stats (its quantile functions)
 
-__all__ = ["MeanCI", "mean_ci", "verdict"]
+__all__ = ["MeanCI", "holm", "mcnemar", "mean_ci", "paired_t", "verdict"]
 
 
 @dataclass(frozen=True)
@@ -49,3 +49,45 @@ def verdict(ci: MeanCI) -> str:
     if not (np.isfinite(ci.low) and np.isfinite(ci.high)):
         return "undecided"
     return "lower" if ci.high < 0 else "higher" if ci.low > 0 else "undecided"
+
+
+def mcnemar(a: np.ndarray, b: np.ndarray) -> tuple[int, int, float]:
+    """McNemar's exact test of two 0/1 outcomes on the same trials (success of rows A and B on the
+    same episodes): ``(a_only, b_only, p)``, the discordant counts (A succeeded where B failed, and the
+    other way round) and the two-sided p-value of the binomial test of ``a_only`` among the discordant
+    trials at probability 1/2 (1.0 when none are discordant)."""
+    a, b = np.asarray(a, bool), np.asarray(b, bool)
+    if a.shape != b.shape:
+        raise ValueError(f"paired outcomes need one shape, got {a.shape} and {b.shape}")
+    a_only, b_only = int(np.sum(a & ~b)), int(np.sum(~a & b))
+    n = a_only + b_only
+    p = 1.0 if n == 0 else float(min(1.0, 2.0 * special.bdtr(min(a_only, b_only), n, 0.5)))
+    return a_only, b_only, p
+
+
+def paired_t(differences: np.ndarray) -> tuple[float, float]:
+    """Student's paired t test of per-trial differences A - B (same episodes): ``(mean difference,
+    two-sided p)``; p is NaN below two trials, 1.0 when every difference is 0 and 0.0 when they are
+    all one non-zero value."""
+    d = np.asarray(differences, np.float64)
+    n = len(d)
+    if n < 2:
+        return (float(d.mean()) if n else float("nan")), float("nan")
+    m, sd = float(d.mean()), float(d.std(ddof=1))
+    if sd == 0.0:
+        return m, 1.0 if m == 0.0 else 0.0
+    t = m / (sd / np.sqrt(n))
+    return m, float(2.0 * special.stdtr(n - 1, -abs(t)))
+
+
+def holm(p_values: list[float]) -> list[float]:
+    """Holm's step-down adjustment of a family of p-values (controls the family-wise error rate):
+    each adjusted p is compared with the level itself. NaN p-values stay NaN and are not counted."""
+    p = np.asarray(p_values, np.float64)
+    out = np.full(len(p), np.nan)
+    idx = [i for i in np.argsort(p, kind="stable") if np.isfinite(p[i])]
+    m, running = len(idx), 0.0
+    for rank, i in enumerate(idx):
+        running = max(running, min(1.0, (m - rank) * p[i]))
+        out[i] = running
+    return [float(v) for v in out]

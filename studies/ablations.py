@@ -574,8 +574,9 @@ def _odometer(key: dict[str, Any], out: Path) -> tuple[str, dict[str, Any]]:
 
 def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     """One row's odometer on one seed's test episodes: mean absolute error of (dx, dz, dyaw) x 1e-2
-    over every step (a failed step scored with the action prior that replaced it), steps, failure
-    share, and steps per second of the odometer's own ``step`` calls (``fps``)."""
+    over every step (a failed step scored with the action prior that replaced it) and per episode
+    (``episodes``, in episode order: the paired tests' input), steps, failure share, and steps per
+    second of the odometer's own ``step`` calls (``fps``)."""
     from odolab.api import SERIAL, ComparisonConfig, run_comparison
     from odolab.episodes import NoiseConfig
 
@@ -592,9 +593,13 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
             execution=SERIAL,
         )
     )
+    from odolab.summary import step_errors as abs_errors
+
     (row,) = [r for r in result.rows if r.odometer == name]
+    mine = [r for r in result.results if r.odometer == name]
     return {
         **{c: float(getattr(row, c)) for c in COMPONENTS},
+        "episodes": [[float(v) for v in abs_errors(r).mean(axis=0) * 100] for r in mine],
         "steps": int(row.steps),
         "failure_share": float(row.failure_share),
         "fps": None if row.reference else float(row.fps),
@@ -602,9 +607,13 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
 
 
 def valid_errors(value: Any) -> bool:
-    """Whether a saved error result has :func:`step_errors`' shape (``fps`` None: ground truth)."""
+    """Whether a saved error result has :func:`step_errors`' shape (``fps`` None: ground truth;
+    ``episodes`` may be missing: a result saved before they were kept, read without paired tests)."""
+    episodes = value.get("episodes", []) if isinstance(value, dict) else None
     return (
         isinstance(value, dict)
+        and isinstance(episodes, list)
+        and all(isinstance(e, list) and len(e) == len(COMPONENTS) and all(map(_number, e)) for e in episodes)
         and all(_number(value.get(c)) for c in (*COMPONENTS, "failure_share"))
         and isinstance(value.get("steps"), int)
         and (value.get("fps") is None or _number(value.get("fps")))
@@ -938,33 +947,156 @@ def floor_findings(lines: list[dict[str, Any]]) -> list[str]:
 
 def claim_findings(lines: list[dict[str, Any]]) -> list[str]:
     """The paper's claim that a lower per-step error gives better navigation, as Spearman's rank
-    correlation over the trained rows (the references left out) between the mean per-step error and
-    S, SoftSPL and d_G: ours, and the paper's over the same rows. Empty below three rows."""
+    correlation between the mean per-step error and S, SoftSPL and d_G: over the trained rows (the
+    references left out), then over the SepAct rows alone (a correlation over all rows may come from
+    one split, the rows that know the action against those that do not); ours, and the paper's over
+    the same rows. A group below three rows says nothing."""
     from scipy.stats import spearmanr
 
     said = []
-    for who, error, columns in (
-        ("ours", _mean_error, ("S", "SoftSPL", "d_G")),
-        ("the paper's", lambda line: line["paper_error_mean"], ("paper_S", "paper_SoftSPL", "paper_d_G")),
+    for group, picked in (
+        ("", lambda line: line["setting"] not in REFERENCES),
+        (" over the SepAct rows only", lambda line: line.get("ActInfo") == "SepAct"),
     ):
-        pairs = {
-            column: [
-                (error(line), line[column])
-                for line in lines
-                if line["setting"] not in REFERENCES and math.isfinite(error(line)) and math.isfinite(line[column])
-            ]
-            for column in columns
-        }
-        parts = []
-        for column, got in pairs.items():
-            if len(got) >= 3 and len({x for x, _ in got}) > 1 and len({y for _, y in got}) > 1:
-                rho = spearmanr(*zip(*got)).statistic
-                parts.append(f"{column.removeprefix('paper_')} {rho:+.2f} ({len(got)} rows)")
-        if parts:
-            said.append(
-                f"Mean per-step error against navigation, Spearman's rank correlation, {who}: {', '.join(parts)}"
-            )
+        for who, error, columns in (
+            ("ours", _mean_error, ("S", "SoftSPL", "d_G")),
+            ("the paper's", lambda line: line["paper_error_mean"], ("paper_S", "paper_SoftSPL", "paper_d_G")),
+        ):
+            parts = []
+            for column in columns:
+                got = [
+                    (error(line), line[column])
+                    for line in lines
+                    if picked(line) and math.isfinite(error(line)) and math.isfinite(line[column])
+                ]
+                if len(got) >= 3 and len({x for x, _ in got}) > 1 and len({y for _, y in got}) > 1:
+                    rho = spearmanr(*zip(*got)).statistic
+                    parts.append(f"{column.removeprefix('paper_')} {rho:+.2f} ({len(got)} rows)")
+            if parts:
+                said.append(
+                    f"Mean per-step error against navigation, Spearman's rank correlation{group}, {who}: {', '.join(parts)}"
+                )
     return said
+
+
+#: The paper's pairwise claims about its Table 2 (its Sec. 5): (row, the row it improves on).
+CLAIMS = ((3, 1), (3, 2), (4, 3), (7, 6), (8, 7), (10, 8), (13, 10), (18, 13), (18, 15), (18, 16))
+#: The family-wise error rate of the claims' tests (Holm's correction over every test of the table).
+ALPHA = 0.05
+CLAIM_COLUMNS = [
+    "claim", "measure", "paper_a", "paper_b", "ours_a", "ours_b", "pairs", "a_only", "b_only", "diff", "p", "p_holm",
+    "verdict",
+]  # fmt: skip
+#: What each measure of a claim is: its unit, whether higher is better, and the test.
+CLAIM_MEASURES = {
+    "success": ("%", True, "McNemar's exact test on the shared episodes"),
+    "SPL": ("%", True, "Student's paired t test on the shared episodes"),
+    "error": ("x 1e-2", False, "Student's paired t test of the mean of dx, dz, dyaw per shared episode"),
+}
+
+
+def _paired_values(
+    scale: Scale, errors: dict[str, Any], navigation: dict[str, Any], rows: tuple[int, int], measure: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both rows' values on the trials both have: per (seed, episode) success or SPL (0-1) of the
+    navigation units, or the mean of the three error components (x 1e-2) per error episode."""
+    a, b = [], []
+    if measure == "error":
+        for seed in scale.seeds:
+            got = [errors.get(f"errors row {r} seed {seed}", {}).get("episodes") for r in rows]
+            if all(got) and len(got[0]) == len(got[1]):
+                a += [float(np.mean(e)) for e in got[0]]
+                b += [float(np.mean(e)) for e in got[1]]
+        return np.array(a), np.array(b)
+    key = "success" if measure == "success" else "spl"
+    for seed in scale.nav_seeds:
+        for e in range(scale.nav_episodes):
+            got = [navigation.get(f"navigate row {r} seed {seed} episode {e}") for r in rows]
+            if all(got):
+                a.append(float(got[0][key]))
+                b.append(float(got[1][key]))
+    return np.array(a), np.array(b)
+
+
+def _paper_value(definition: Definition, row: int, measure: str) -> float:
+    paper = definition.rows[row].paper or NO_PAPER
+    if measure == "error":
+        return float(np.mean(paper.error)) if paper.error else math.nan
+    return float(paper.success if measure == "success" else paper.spl)
+
+
+def claims(
+    definition: Definition, scale: Scale, errors: dict[str, Any], navigation: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """The paper's claims (:data:`CLAIMS`) whose two rows the scale runs, one line per claim and
+    measure (:data:`CLAIM_MEASURES`), tested on the trials both rows share. ``diff``: A's mean minus
+    B's (%, or x 1e-2 for the error); ``p``: the test's two-sided p; ``p_holm``: Holm-adjusted over
+    every test of the table; ``verdict``: ``supports`` (``p_holm`` < :data:`ALPHA` and ours differs in
+    the direction the paper's numbers go, or where the paper gives none, A better), ``contradicts``
+    (the other direction) or ``undecided``."""
+    from odolab.stats import holm, mcnemar, paired_t
+
+    lines = []
+    for a_row, b_row in CLAIMS:
+        if a_row not in scale.rows or b_row not in scale.rows:
+            continue
+        for measure, (_unit, higher_better, _test) in CLAIM_MEASURES.items():
+            a, b = _paired_values(scale, errors, navigation, (a_row, b_row), measure)
+            scale_by = 100.0 if measure != "error" else 1.0
+            line: dict[str, Any] = {
+                "claim": f"{a_row} over {b_row}",
+                "measure": measure,
+                "paper_a": _paper_value(definition, a_row, measure),
+                "paper_b": _paper_value(definition, b_row, measure),
+                "ours_a": float(a.mean()) * scale_by if len(a) else math.nan,
+                "ours_b": float(b.mean()) * scale_by if len(b) else math.nan,
+                "pairs": len(a),
+                "a_only": "",
+                "b_only": "",
+            }
+            if measure == "success":
+                line["a_only"], line["b_only"], line["p"] = mcnemar(a, b) if len(a) else ("", "", math.nan)
+                line["diff"] = line["ours_a"] - line["ours_b"]
+            else:
+                diff, line["p"] = paired_t((a - b) * scale_by)
+                line["diff"] = diff
+            paper_gap = line["paper_a"] - line["paper_b"]  # the sign of diff the paper says (A better, if it is silent)
+            a_better = 1.0 if higher_better else -1.0
+            line["_expected"] = (
+                a_better if not math.isfinite(paper_gap) or paper_gap == 0 else float(np.sign(paper_gap))
+            )
+            lines.append(line)
+    for line, adjusted in zip(lines, holm([line["p"] for line in lines])):
+        expected = line.pop("_expected")
+        line["p_holm"] = adjusted
+        if not (math.isfinite(adjusted) and adjusted < ALPHA and line["diff"] != 0):
+            line["verdict"] = "undecided"
+        else:
+            line["verdict"] = "supports" if np.sign(line["diff"]) == expected else "contradicts"
+    return lines
+
+
+def claims_table(lines: list[dict[str, Any]]) -> framework.Table:
+    """The claims' lines as a report table, with what each test is and what the verdicts count."""
+    from odolab.report import counted
+
+    said = {v: sum(line["verdict"] == v for line in lines) for v in ("supports", "contradicts", "undecided")}
+    return framework.Table(
+        name="claims",
+        heading="The paper's claims, tested",
+        intro=[
+            "Each of the paper's pairwise claims (A over B) whose two rows this scale runs, per measure, on the "
+            "trials both rows share (the same seeds and episodes): "
+            + "; ".join(f"{m} ({unit}): {test}" for m, (unit, _, test) in CLAIM_MEASURES.items())
+            + f". diff is A's mean minus B's; p_holm is Holm's adjustment over the table's {counted(len(lines), 'test')} "
+            f"(family-wise error rate {ALPHA:g}). verdict: supports (p_holm < {ALPHA:g}, ours differs as the paper's "
+            "numbers do), contradicts (the other way) or undecided (p_holm >= "
+            f"{ALPHA:g}, or no shared trials). Here: {said['supports']} supports, {said['contradicts']} contradicts, "
+            f"{said['undecided']} undecided."
+        ],
+        columns=CLAIM_COLUMNS,
+        rows=lines,
+    )
 
 
 #: Each error component's unit, as the figure's axes name it.
@@ -1377,6 +1509,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows=lines,
         figures={"success-vs-error.png": (figure_caption(lines), lambda p: draw(lines, p))},
         findings=[*findings(lines), *floor_findings(lines), *claim_findings(lines)],
+        tables=[claims_table(claims(definition, scale, errors.results, navigation.results))],
         command=framework.command_line(f"python -m studies.{NAME}", argv),
         machine=framework.machines(outcomes),
         cpu_hours=sum(o.seconds for o in outcomes) / 3600,

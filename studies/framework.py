@@ -41,7 +41,7 @@ DEFAULT_REPORTS = Path("reports")
 #: The name of a unit's saved result (:class:`ResultStore`): its digest.
 RESULT_NAME = re.compile(r"[0-9a-f]{16}\.json")
 #: The files a study's report consists of (what its manifest may list and a rerun replaces).
-REPORT_NAMES = re.compile(r"(index\.html|table\.csv|table\.md|[A-Za-z0-9_.-]+\.png)")
+REPORT_NAMES = re.compile(r"(index\.html|table\.md|[A-Za-z0-9_.-]+\.csv|[A-Za-z0-9_.-]+\.png)")
 
 
 @dataclass(frozen=True)
@@ -389,7 +389,8 @@ class Report:
     """What a study reports: ``title``; ``intro`` (paragraphs, plain text); the table (``columns``,
     ``rows``); ``figures`` (file name -> caption; :meth:`write` calls ``draw(path)`` for each);
     ``findings`` (one plain-text line each: where ours agrees with the paper and where not); the
-    ``command`` that made it, the ``machine`` and the ``cpu_hours`` of its units."""
+    ``command`` that made it, the ``machine`` and the ``cpu_hours`` of its units; ``tables``: more
+    tables after the findings (each written as ``<name>.csv`` too)."""
 
     title: str
     intro: list[str]
@@ -400,6 +401,19 @@ class Report:
     command: str
     machine: str
     cpu_hours: float
+    tables: list[Table] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Table:
+    """A further table of a report: its file ``name`` (``<name>.csv``), a ``heading``, paragraphs of
+    ``intro`` (plain text) and its ``columns`` and ``rows``."""
+
+    name: str
+    heading: str
+    intro: list[str]
+    columns: list[str]
+    rows: list[dict[str, Any]]
 
 
 def write_report(report: Report, out: Path, owner: str) -> list[str]:
@@ -413,6 +427,9 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
     write_text_atomic(folder.path("table.csv"), table_csv(report.columns, report.rows))
     md = [f"# {report.title}", "", *report.intro, "", table_md(report.columns, report.rows)]
     md += [f"- {f}" for f in report.findings]
+    for extra in report.tables:
+        write_text_atomic(folder.path(f"{extra.name}.csv"), table_csv(extra.columns, extra.rows))
+        md += ["", f"## {extra.heading}", "", *extra.intro, "", table_md(extra.columns, extra.rows)]
     md += ["", f"Command: `{report.command}`", "", f"Machine: {report.machine}; {report.cpu_hours:.2f} CPU-hours."]
     write_text_atomic(folder.path("table.md"), "\n".join(md) + "\n")
     figures = []
@@ -422,10 +439,9 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
             f'<figure><img src="{html.escape(name)}" alt="{html.escape(caption)}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>"
         )
-    head = "".join(f"<th>{html.escape(c).replace('_', '_<wbr>')}</th>" for c in report.columns)  # wraps at _
-    body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(_cell(r.get(c, '')))}</td>" for c in report.columns) + "</tr>"
-        for r in report.rows
+    extras = "".join(
+        f"<h2>{html.escape(t.heading)}</h2>{''.join(f'<p>{html.escape(p)}</p>' for p in t.intro)}{_html_table(t.columns, t.rows)}"
+        for t in report.tables
     )
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(report.title)}</title>
@@ -437,8 +453,9 @@ img{{max-width:100%}}figure{{margin:1.5em 0}}
 .wide table{{margin:0 auto}}</style></head><body>
 <h1>{html.escape(report.title)}</h1>
 {"".join(f"<p>{html.escape(p)}</p>" for p in report.intro)}
-<div class="wide"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>
+{_html_table(report.columns, report.rows)}
 <h2>Against the paper</h2><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in report.findings)}</ul>
+{extras}
 {"".join(figures)}
 <p>Command: <code>{html.escape(report.command)}</code><br>Machine: {html.escape(report.machine)};
 {report.cpu_hours:.2f} CPU-hours of units.</p>
@@ -453,6 +470,15 @@ img{{max-width:100%}}figure{{margin:1.5em 0}}
         except (UnsafeOutputError, OSError) as exc:  # the report is written; a user's page stays
             print(f"note: {reports / 'index.html'} not refreshed: {exc}", file=sys.stderr)
     return folder.written
+
+
+def _html_table(columns: list[str], rows: list[dict[str, Any]]) -> str:
+    """A table as the study pages show it: as wide as the window, headers that wrap at ``_``."""
+    head = "".join(f"<th>{html.escape(c).replace('_', '_<wbr>')}</th>" for c in columns)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(_cell(r.get(c, '')))}</td>" for c in columns) + "</tr>" for r in rows
+    )
+    return f'<div class="wide"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
 
 
 def unit_ranges(labels: Sequence[str]) -> str:

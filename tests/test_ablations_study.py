@@ -261,6 +261,45 @@ def test_the_claim_and_the_floor_are_read_from_the_lines():
     assert floor[1].endswith("S: 2, 3; SPL: none; SoftSPL: 2, 3; d_G: 3")  # d_G 8.0 +- 1 meets 8.5 +- 1
 
 
+def test_the_papers_claims_get_a_verdict_from_paired_tests_on_the_shared_episodes():
+    """claims(): 18 over 13 succeeds on 20 episodes where 13 fails (McNemar: supports, as the paper's
+    81 > 79); 16 beats 18 on every episode (contradicts); 15 against 18 on one episode (undecided);
+    per-episode errors paired across seeds, a result without them gives no test."""
+    import dataclasses
+
+    scale = dataclasses.replace(
+        DEFINITION.scales["cpu"], rows=(13, 15, 16, 18), seeds=(0, 1), nav_seeds=(0,), nav_episodes=20
+    )
+
+    def nav(row: int, e: int) -> dict:
+        success = {18: 1, 13: 0, 16: 1, 15: int(e == 0)}[row] if row != 18 or e < 20 else 0
+        return {"success": success, "spl": 0.5 * success}
+
+    navigation = {f"navigate row {r} seed 0 episode {e}": nav(r, e) for r in (13, 16, 18) for e in range(20)}
+    navigation |= {"navigate row 15 seed 0 episode 0": nav(15, 0)}
+    navigation |= {f"navigate row 18 seed 0 episode {e}": {"success": 0, "spl": 0.0} for e in range(10, 20)}
+    rng = __import__("numpy").random.default_rng(0)
+    errors = {
+        f"errors row {r} seed {s}": {"episodes": [[base + rng.normal(0, 0.05)] * 3 for _ in range(10)]}
+        for r, base in ((18, 1.0), (13, 1.0), (15, 1.5), (16, 1.0))
+        for s in (0, 1)
+    }
+    errors["errors row 16 seed 1"] = {}  # saved before per-episode errors were kept: seed 1 is left out
+    lines = {(ln["claim"], ln["measure"]): ln for ln in ablations.claims(DEFINITION, scale, errors, navigation)}
+    assert set(lines) == {(f"18 over {b}", m) for b in (13, 15, 16) for m in ("success", "SPL", "error")}
+    assert all(set(ln) == set(ablations.CLAIM_COLUMNS) for ln in lines.values())
+    success = lines[("18 over 13", "success")]
+    assert (success["pairs"], success["a_only"], success["b_only"]) == (20, 10, 0)
+    assert success["p"] == pytest.approx(2 * 0.5**10) and success["p"] < success["p_holm"] < ablations.ALPHA
+    assert success["verdict"] == "supports" and success["diff"] == pytest.approx(50.0)
+    assert lines[("18 over 16", "success")]["verdict"] == "contradicts"  # 16 succeeds where 18 fails
+    assert lines[("18 over 15", "success")]["pairs"] == 1 and lines[("18 over 15", "success")]["verdict"] == "undecided"
+    assert lines[("18 over 15", "error")]["verdict"] == "supports" and lines[("18 over 15", "error")]["pairs"] == 20
+    assert lines[("18 over 16", "error")]["pairs"] == 10 and lines[("18 over 13", "error")]["verdict"] == "undecided"
+    table = ablations.claims_table(list(lines.values()))
+    assert table.name == "claims" and "McNemar" in table.intro[0] and "Holm" in table.intro[0]
+
+
 def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     out, table = ci_run
     models = {p: p.stat().st_mtime_ns for p in (out / "models").rglob("model.pt")}
