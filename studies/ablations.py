@@ -146,7 +146,8 @@ class Scale:
     """One scale's parameters (see ``studies/ablations.toml``). ``data_root`` "" is ``<out>/data``;
     ``device`` "" is a GPU where the unit sees one, else the CPU; ``train_threads`` 0 leaves torch's
     thread count as it is; ``train_gpus``: GPUs each training unit asks Ray for (0: none, and a unit
-    sees every GPU of its node)."""
+    sees every GPU of its node); ``train_seed_rows`` are trained once more for each of
+    ``train_seeds`` (the recipe's ``seed`` changed), so the table shows the training-seed spread."""
 
     rows: tuple[int, ...]
     robust_vo_recipe: str
@@ -166,6 +167,8 @@ class Scale:
     nav_episodes: int
     nav_max_steps: int
     train_gpus: float = 0.0
+    train_seed_rows: tuple[int, ...] = ()
+    train_seeds: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -196,9 +199,12 @@ def load_definition(path: Path = DEFINITION) -> Definition:
     if set(doc) != fields:
         raise ConfigError(f"{path}: expected the fields {', '.join(sorted(fields))}, got {', '.join(sorted(doc))}")
     raw = doc["scales"]
-    if not isinstance(raw, dict) or sorted(raw) != sorted(framework.SCALES):
-        raise ConfigError(f"{path}: scales: expected the tables {', '.join(framework.SCALES)}")
-    scales = {s: build(Scale, raw[s], f"{path}: scales.{s}") for s in framework.SCALES}
+    if not isinstance(raw, dict) or not set(framework.SCALES) <= set(raw) or not all(map(_scale_name, raw)):
+        raise ConfigError(
+            f"{path}: scales: expected the tables {', '.join(framework.SCALES)} and any named cpu-<name>"
+            + (f", got {', '.join(sorted(raw))}" if isinstance(raw, dict) else "")
+        )
+    scales = {s: build(Scale, raw[s], f"{path}: scales.{s}") for s in raw}
     if not isinstance(doc["rows"], list) or not doc["rows"]:
         raise ConfigError(f"{path}: rows: expected [[rows]] tables")
     rows = [build(Row, r, f"{path}: {_row_place(r, k)}") for k, r in enumerate(doc["rows"])]
@@ -249,9 +255,22 @@ def load_definition(path: Path = DEFINITION) -> Definition:
         if unknown:
             raise ConfigError(f"{path}: scales.{s}.rows: no such row {unknown[0]}")
         _check_scale(f"{path}: scales.{s}", scale)
+        for r in scale.train_seed_rows:
+            if model_row(by_number[r]) != r:
+                raise ConfigError(f"{path}: scales.{s}.train_seed_rows: row {r} trains no model of its own")
     header = build(Header, {k: doc[k] for k in ("title", "blank", "knows_action", "sepact")}, str(path))
     study = framework.StudyConfig(NAME, header.title, raw)
     return Definition(study, header.blank, header.knows_action, header.sepact, by_number, scales, path)
+
+
+def _scale_name(name: str) -> bool:
+    """A scale of the definition: ci, cpu, paper, or a further cpu budget named ``cpu-<name>``."""
+    return name in framework.SCALES or re.fullmatch(r"cpu-[a-z0-9]+", name) is not None
+
+
+def default_out(scale: str) -> Path:
+    """Where a scale's report goes by default: ``reports/ablations``; ``reports/ablations-<name>`` for ``cpu-<name>``."""
+    return Path("reports") / (NAME if scale in framework.SCALES else f"{NAME}-{scale.removeprefix('cpu-')}")
 
 
 def _check_paper(where: str, paper: Paper) -> None:
@@ -292,6 +311,16 @@ def _check_scale(where: str, scale: Scale) -> None:
     ):
         if not low <= value <= high:
             raise ConfigError(f"{where}.{name}: expected an integer in [{low}, {high}], got {value}")
+    if bool(scale.train_seed_rows) != bool(scale.train_seeds) or len(set(scale.train_seeds)) != len(scale.train_seeds):
+        raise ConfigError(
+            f"{where}.train_seeds: expected seeds without repeats for the train_seed_rows (both or neither), "
+            f"got {list(scale.train_seeds)} for rows {list(scale.train_seed_rows)}"
+        )
+    if not set(scale.train_seed_rows) <= set(scale.rows) or (scale.train_seeds and min(scale.train_seeds) < 0):
+        raise ConfigError(
+            f"{where}.train_seed_rows: expected rows of the scale and seeds >= 0, got rows {list(scale.train_seed_rows)}, "
+            f"seeds {list(scale.train_seeds)}"
+        )
     if not (scale.train_gpus == 0 or (math.isfinite(scale.train_gpus) and 1e-4 <= scale.train_gpus <= 64)):
         raise ConfigError(f"{where}.train_gpus: expected 0 (none) or a number in [0.0001, 64], got {scale.train_gpus}")
     if scale.train_gpus and scale.device == "cpu":
@@ -360,12 +389,15 @@ def model_row(row: Row) -> int | None:
     return row.row if row.model_of is None else row.model_of
 
 
-def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -> TrainConfig | DeepVOTraining:
+def recipe(
+    definition: Definition, scale: Scale, number: int, data_root: Path, train_seed: int | None = None
+) -> TrainConfig | DeepVOTraining:
     """The training recipe of row ``number`` at ``scale`` (a robust-VO ``TrainConfig`` or DeepVO's
     ``DeepVOTraining``), its data under ``data_root``: the scale's recipe read as a TOML document
     (for the robust VO with the scale's stage schedule in place of its stages), with the scale's,
     the blank row's, the shared ones of a row that knows the action and of a SepAct row, and the
-    row's own changes applied in order, then built and checked."""
+    row's own changes applied in order (then ``seed=train_seed`` where one is given), then built
+    and checked."""
     from odolab.config import ChangeError, ConfigError, build, change_document, read_toml
 
     row = definition.rows[number]
@@ -390,6 +422,7 @@ def recipe(definition: Definition, scale: Scale, number: int, data_root: Path) -
         )
         doc = read_toml(ROOT / path)
         doc["stages"] = list(scale.sepact_stages if row.switches.actinfo == "SepAct" else scale.single_stages)
+    changes = (*changes, *(() if train_seed is None else (f"seed={train_seed}",)))
     doc["data_root"] = str(data_root)
     where = f"{definition.source}: row {number}'s recipe ({path} with the scale's and the row's changes)"
     try:
@@ -463,31 +496,37 @@ def torch_threads(threads: int) -> Iterator[None]:
 
 
 def train_row(
-    key: dict[str, Any], *, out: Path, recipes: dict[int, TrainConfig | DeepVOTraining], device: str, threads: int
+    key: dict[str, Any],
+    *,
+    out: Path,
+    recipes: dict[tuple[int, int | None], TrainConfig | DeepVOTraining],
+    device: str,
+    threads: int,
 ) -> dict[str, Any]:
-    """Train (or resume, or only export) row ``key["row"]``'s model with its family's own trainer:
-    work states under ``<out>/work/<row>/<key digest>``, curves under ``<out>/training/<row>``, the
-    model at ``<out>/models/<row>/model.pt``; returns :func:`model_summary`."""
+    """Train (or resume, or only export) row ``key["row"]``'s model (with ``key["train_seed"]``: its
+    run of that seed) with its family's own trainer: work states under ``<out>/work/<model>/<key
+    digest>``, curves under ``<out>/training/<model>``, the model at :func:`model_file`, where
+    <model> is :func:`model_id`; returns :func:`model_summary`."""
     from odolab.learning import pick_device
     from odolab.learning.checkpoints import what_file
     from odolab.parallel import SERIAL
 
-    number = key["row"]
-    cfg = recipes[number]
+    number, seed = key["row"], key.get("train_seed")
+    cfg, name = recipes[(number, seed)], model_id(number, seed)
     if recipe_identity(cfg) != key["recipe"]:
         raise ValueError(f"row {number}: the recipe handed over is not the unit's")
     if key["family"] == "deepvo":
         from baselines.deepvo.train import run
     else:
         from odolab.robust_vo.train import run
-    export = out / model_file(number)
+    export = out / model_file(number, seed)
     if export.is_file() and not export.is_symlink() and what_file(export) is not None:
         export.unlink()  # the study's own model path holds no model (a damaged file): export it again
     with torch_threads(threads):
         done = run(
             cfg,
-            work=out / "work" / str(number) / framework.Unit("", key).digest,
-            reports=out / "training" / str(number),
+            work=out / "work" / name / framework.Unit("", key).digest,
+            reports=out / "training" / name,
             export=export,
             device=pick_device(device or None),
             hours=None,
@@ -498,9 +537,19 @@ def train_row(
     return model_summary(export, key["family"], out)
 
 
-def model_file(number: int) -> str:
-    """Where row ``number``'s model lives, relative to the study's folder."""
-    return f"models/{number}/model.pt"
+def model_id(number: int, train_seed: int | None = None) -> str:
+    """A model's name in the study's folders: ``18``, or ``18-seed1`` for row 18's run of training seed 1."""
+    return str(number) if train_seed is None else f"{number}-seed{train_seed}"
+
+
+def train_label(number: int, train_seed: int | None = None) -> str:
+    """A training unit's label: ``train row 18``, or ``train row 18 seed 1``."""
+    return f"train row {number}" + ("" if train_seed is None else f" seed {train_seed}")
+
+
+def model_file(number: int, train_seed: int | None = None) -> str:
+    """Where row ``number``'s model (of ``train_seed``'s run) lives, relative to the study's folder."""
+    return f"models/{model_id(number, train_seed)}/model.pt"
 
 
 def model_summary(path: Path, family: str, out: Path) -> dict[str, Any]:
@@ -661,26 +710,27 @@ def valid_navigation(value: Any) -> bool:
 
 
 def train_units(
-    definition: Definition, scale: Scale, recipes: dict[int, TrainConfig | DeepVOTraining]
+    definition: Definition, recipes: dict[tuple[int, int | None], TrainConfig | DeepVOTraining]
 ) -> list[framework.Unit]:
-    """One unit per model the scale's rows run; its key is the whole recipe (data location and
-    compute settings aside)."""
+    """One unit per model the scale's rows run (``recipes`` by (row, training seed or None)); its key
+    is the whole recipe (data location and compute settings aside) and the training seed's run."""
     return [
         framework.Unit(
-            f"train row {n}",
-            {"row": n, "family": definition.rows[n].odometer, "recipe": recipe_identity(cfg)},
+            train_label(n, seed),
+            {"row": n, "family": definition.rows[n].odometer, "recipe": recipe_identity(cfg)}
+            | ({} if seed is None else {"train_seed": seed}),
         )
-        for n, cfg in recipes.items()
+        for (n, seed), cfg in recipes.items()
     ]
 
 
-def odometer_key(row: Row, models: dict[str, Any]) -> dict[str, Any] | None:
-    """What a row's evaluations depend on: its odometer, options and model (file and SHA-256); None
-    while the model it runs has no training result."""
+def odometer_key(row: Row, models: dict[str, Any], train_seed: int | None = None) -> dict[str, Any] | None:
+    """What a row's evaluations depend on: its odometer, options and model (file and SHA-256; the run
+    of ``train_seed`` where one is given); None while the model it runs has no training result."""
     number = model_row(row)
     if number is None:
         return {"row": row.row, "odometer": row.odometer, "options": row.options, "model": "", "sha256": None}
-    trained = models.get(f"train row {number}")
+    trained = models.get(train_label(number, train_seed))
     if trained is None:
         return None
     return {
@@ -696,21 +746,23 @@ def evaluation_units(
     definition: Definition, scale: Scale, models: dict[str, Any]
 ) -> tuple[list[framework.Unit], list[framework.Unit], list[str]]:
     """The error units (row x seed) and navigation units (row x seed x episode) of every row whose
-    model is trained, and the rows left out for want of one."""
+    model is trained, and of each further training seed's run of the ``train_seed_rows``
+    (:func:`run_label`), and the rows left out for want of a model."""
     from odolab.episodes import NoiseConfig
     from odolab.navigation.agent import PolicyConfig
 
     noise = dataclasses.asdict(NoiseConfig())
     policy = dataclasses.asdict(PolicyConfig())
     errors, navigation, untrained = [], [], []
-    for number in scale.rows:
-        odometer = odometer_key(definition.rows[number], models)
+    runs = [(n, None) for n in scale.rows] + [(n, k) for n in scale.train_seed_rows for k in scale.train_seeds]
+    for number, train_seed in runs:
+        odometer = odometer_key(definition.rows[number], models, train_seed)
         if odometer is None:
-            untrained.append(f"row {number}")
+            untrained.append(run_label(number, train_seed))
             continue
         for seed in scale.seeds:
             key = {**odometer, "seed": seed, "episodes": scale.episodes, "max_steps": scale.max_steps, "noise": noise}
-            errors.append(framework.Unit(f"errors row {number} seed {seed}", key))
+            errors.append(framework.Unit(f"errors {run_label(number, train_seed)} seed {seed}", key))
         for seed in scale.nav_seeds:
             for episode in range(scale.nav_episodes):
                 key = {
@@ -721,8 +773,14 @@ def evaluation_units(
                     "noise": noise,
                     "policy": policy,
                 }
-                navigation.append(framework.Unit(f"navigate row {number} seed {seed} episode {episode}", key))
+                label = f"navigate {run_label(number, train_seed)} seed {seed} episode {episode}"
+                navigation.append(framework.Unit(label, key))
     return errors, navigation, untrained
+
+
+def run_label(number: int, train_seed: int | None = None) -> str:
+    """How evaluation units name a row's run: ``row 18``, or ``row 18 train seed 1``."""
+    return f"row {number}" + ("" if train_seed is None else f" train seed {train_seed}")
 
 
 # ------------------------------------------------------------------------------------------ table
@@ -732,7 +790,7 @@ COLUMNS = [
     "row", "setting", *SWITCH_COLUMNS, "params_M", "paper_params_M",
     "S", "S_ci", "paper_S", "SPL", "SPL_ci", "paper_SPL", "d_G", "d_G_ci", "paper_d_G", "SoftSPL", "SoftSPL_ci",
     "paper_SoftSPL", "dx", "dx_sd", "dz", "dz_sd", "dyaw", "dyaw_sd", "paper_error", "fps", "S_vs_18",
-    "error_vs_18", "nav_episodes", "pairs_seen", "train_h",
+    "error_vs_18", "nav_episodes", "train_seeds", "S_train_sd", "error_train_sd", "pairs_seen", "train_h",
 ]  # fmt: skip
 
 
@@ -757,7 +815,10 @@ def table(
     paper's. Errors (x 1e-2): mean and standard deviation over the seeds; fps: steps per second of
     the odometer alone, mean over the seeds; navigation (S, SPL, SoftSPL in %, d_G in m): mean over
     every seed's episodes with its 95 % interval (Wilson's for success, Student's t for the others,
-    kept within the measure's range: 0-100 %, d_G >= 0).
+    kept within the measure's range: 0-100 %, d_G >= 0). These are of the row's recipe's own
+    training run; ``train_seeds`` counts its runs and, over two or more, ``S_train_sd`` and
+    ``error_train_sd`` are the standard deviations over the runs of S (%) and of the mean of the
+    three errors (x 1e-2), each run on the same seeds and episodes.
     Each line also carries ``S_range``, ``SPL_range``, ``SoftSPL_range``, ``d_G_range`` (the 95 %
     intervals as numbers) and ``error_ci`` (the mean error's interval over the seeds) for the
     verdicts and the figure."""
@@ -766,14 +827,16 @@ def table(
     lines = []
     for number in scale.rows:
         row = definition.rows[number]
-        trained = models.get(f"train row {model_row(row)}")
-        got = [errors[label] for s in scale.seeds if (label := f"errors row {number} seed {s}") in errors]
-        nav = [
-            navigation[label]
-            for s in scale.nav_seeds
-            for e in range(scale.nav_episodes)
-            if (label := f"navigate row {number} seed {s} episode {e}") in navigation
+        trained = models.get(train_label(model_row(row))) if model_row(row) is not None else None
+        got, nav = _run_results(scale, errors, navigation, number)
+        runs = [(got, nav)] + [
+            _run_results(scale, errors, navigation, number, k)
+            for k in scale.train_seeds
+            if number in scale.train_seed_rows
         ]
+        runs = [(g, n) for g, n in runs if g and n]
+        run_s = [100 * float(np.mean([n["success"] for n in nv])) for _, nv in runs]
+        run_error = [float(np.mean([[g[c] for c in COMPONENTS] for g in gs])) for gs, _ in runs]
         paper = row.paper or NO_PAPER
         line: dict[str, Any] = {
             "row": number,
@@ -789,6 +852,9 @@ def table(
             "paper_error_mean": float(np.mean(paper.error)) if paper.error else float("nan"),
             "paper_errors": tuple(paper.error),  # (dx, dz, dyaw) x 1e-2, or () where the paper has none
             "nav_episodes": len(nav),
+            "train_seeds": len(runs) if model_row(row) is not None else "",
+            "S_train_sd": float(np.std(run_s, ddof=1)) if len(runs) > 1 else "",
+            "error_train_sd": float(np.std(run_error, ddof=1)) if len(runs) > 1 else "",
             "pairs_seen": trained["pairs_seen"] if trained and row.model_of is None else "",
             "train_h": trained["training_hours"] if trained and row.model_of is None else "",
         }
@@ -837,6 +903,21 @@ def table(
         if line["row"] == REFERENCE_ROW:
             line["S_vs_18"] = line["error_vs_18"] = ""
     return lines
+
+
+def _run_results(
+    scale: Scale, errors: dict[str, Any], navigation: dict[str, Any], number: int, train_seed: int | None = None
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """One run's saved error results (per seed) and navigation results (per seed and episode)."""
+    run = run_label(number, train_seed)
+    got = [errors[label] for s in scale.seeds if (label := f"errors {run} seed {s}") in errors]
+    nav = [
+        navigation[label]
+        for s in scale.nav_seeds
+        for e in range(scale.nav_episodes)
+        if (label := f"navigate {run} seed {s} episode {e}") in navigation
+    ]
+    return got, nav
 
 
 def _overlap(a: tuple[float, float], b: tuple[float, float]) -> bool:
@@ -1405,14 +1486,14 @@ def check_gpus(scale: Scale, name: str, *, serial: bool, address: str | None, re
             )
 
 
-def make_data(recipes: dict[int, TrainConfig | DeepVOTraining], execution: Execution) -> None:
+def make_data(recipes: list[TrainConfig | DeepVOTraining], execution: Execution) -> None:
     """Every data set the recipes train on, made here (once each) before the training units start,
     so that no two units make the same folder at once; the caller passes the recipes of the models
     still to train."""
     from odolab.training_data import make_training_data
 
     made = set()
-    for cfg in recipes.values():
+    for cfg in recipes:
         for data in (cfg.train_data, cfg.val_data):
             folder = cfg.data_folder(data)
             if folder not in made:
@@ -1432,31 +1513,35 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = framework.study_arguments(f"python -m studies.{NAME}", definition.study)
     args = ap.parse_args(argv)
     scale = definition.scales[args.scale]
-    out = args.out or Path("reports") / NAME
+    out = args.out or default_out(args.scale)
     check_gpus(scale, args.scale, serial=args.serial, address=args.ray_address, redraw=args.redraw)
     _held = framework.check_options(args, out, definition.study)  # this run's hold on out, kept until main returns
     check_folders(out)
     out = out.resolve()  # the units run elsewhere (Ray workers): every path they get is absolute
     try:
         wanted = sorted({n for r in scale.rows if (n := model_row(definition.rows[r])) is not None})
-        recipes = {n: recipe(definition, scale, n, data_root(scale, out)) for n in wanted}
-        for n in wanted:
-            path = out / model_file(n)
+        root = data_root(scale, out)
+        recipes = {(n, None): recipe(definition, scale, n, root) for n in wanted}
+        recipes |= {
+            (n, k): recipe(definition, scale, n, root, k) for n in scale.train_seed_rows for k in scale.train_seeds
+        }
+        for n, k in recipes:
+            path = out / model_file(n, k)
             if path.is_dir() and not path.is_symlink():
                 raise UsageError(f"--out {out}: {path}: expected row {n}'s model file or nothing, found a folder")
         for r in scale.rows:  # option values as the odometer takes them, switches as trained: before any work
             check_option_values(definition, r)
             if definition.rows[r].switches is not None:
-                check_switches(definition, r, recipes[model_row(definition.rows[r])])
+                check_switches(definition, r, recipes[(model_row(definition.rows[r]), None)])
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     execution = execution_of(args)
     store = framework.ResultStore(out / "results")
-    training = train_units(definition, scale, recipes)
+    training = train_units(definition, recipes)
     trained_valid = functools.partial(valid_model, out=out, check_file=not args.redraw)
     if not args.redraw:  # the data of the models still to train (a resumed study may need none)
         to_train = framework.unsaved(training, store, trained_valid)
-        make_data({u.key["row"]: recipes[u.key["row"]] for u in to_train}, execution)
+        make_data([recipes[(u.key["row"], u.key.get("train_seed"))] for u in to_train], execution)
     trained = framework.run_units(
         functools.partial(train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads),
         training,

@@ -546,9 +546,10 @@ def study_arguments(prog: str, config: StudyConfig):
     ap = ArgumentParser(prog=prog, description=config.title)
     ap.add_argument(
         "--scale",
-        choices=SCALES,
+        choices=list(config.scales),
         default="cpu",
-        help="ci: seconds; cpu: the committed report (default); paper: the paper's size, for a cluster",
+        help="ci: seconds; cpu: the committed report (default); paper: the paper's size, for a cluster"
+        + "".join(f"; {s}: see the study's definition" for s in config.scales if s not in SCALES),
     )
     ap.add_argument(
         "--out",

@@ -27,7 +27,7 @@ def _recipes(scale: str, root: Path) -> dict[int, object]:
     }
 
 
-@pytest.mark.parametrize("scale", ["ci", "cpu", "paper"])
+@pytest.mark.parametrize("scale", ["ci", "cpu", "cpu-4x", "paper"])
 def test_each_rows_changes_give_the_recipe_of_its_switches(scale: str, tmp_path: Path):
     from baselines.deepvo.config import DeepVOTraining
     from odolab.robust_vo.config import TrainConfig
@@ -92,6 +92,10 @@ def test_the_row_18_recipes_of_the_warp_probe_are_the_studys_row_18_at_its_cpu_s
     assert paper["model"] == {**study["model"], "warp": "none", "mirror_turns": False}
     assert {k: v for k, v in paper.items() if k != "model"} == {k: v for k, v in study.items() if k != "model"}
     four = ablations.recipe_identity(load_train_config(str(folder / "row18-cpu-4x.toml")))  # the budget probe
+    at_4x = ablations.recipe(DEFINITION, DEFINITION.scales["cpu-4x"], 18, Path("data"))
+    assert ablations.recipe_identity(at_4x) == four  # the cpu-4x scale's row 18 is the probe's recipe
+    seeded = ablations.recipe_identity(ablations.recipe(DEFINITION, DEFINITION.scales["cpu-4x"], 18, Path("data"), 2))
+    assert seeded == {**four, "seed": 2} and ablations.default_out("cpu-4x") == Path("reports/ablations-4x")
     assert [s["epochs"] for s in four["stages"]] == [4 * s["epochs"] for s in study["stages"]]
     assert [{**s, "epochs": 0} for s in four["stages"]] == [{**s, "epochs": 0} for s in study["stages"]]
     assert {k: v for k, v in four.items() if k != "stages"} == {k: v for k, v in study.items() if k != "stages"}
@@ -191,9 +195,12 @@ def ci_run(tmp_path_factory) -> tuple[Path, str]:
 
 
 def _units(scale: ablations.Scale) -> int:
+    """Training units (one per model, and one per further training seed of a train_seed_row) and every
+    run's evaluation units (per seed, and per navigation seed and episode)."""
     models = {ablations.model_row(DEFINITION.rows[r]) for r in scale.rows} - {None}
+    further = len(scale.train_seed_rows) * len(scale.train_seeds)
     per_row = len(scale.seeds) + len(scale.nav_seeds) * scale.nav_episodes
-    return len(models) + len(scale.rows) * per_row
+    return len(models) + further + (len(scale.rows) + further) * per_row
 
 
 def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
@@ -231,6 +238,11 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
     # two networks: forward, and the turn network that answers right turns mirrored
     assert by_row[18]["params_M"].startswith("2x") and by_row[18]["paper_error"] == "(1.10, 0.84, 0.68)"
     assert by_row[5]["params_M"] == by_row[4]["params_M"]  # row 4's model, run with 10 dropout passes
+    # row 18 trained with a second seed: the spread over the two runs beside the row's own numbers
+    assert scale.train_seed_rows == (18,) and (out / ablations.model_file(18, 1)).is_file()
+    assert by_row[18]["train_seeds"] == "2" and float(by_row[18]["S_train_sd"]) >= 0
+    assert float(by_row[18]["error_train_sd"]) > 0  # two trainings of other seeds answer otherwise
+    assert by_row[4]["train_seeds"] == "1" and by_row[4]["S_train_sd"] == "" and by_row[21]["train_seeds"] == ""
     for n in {ablations.model_row(DEFINITION.rows[r]) for r in scale.rows} - {None}:
         assert (out / ablations.model_file(n)).is_file()
     assert len(list((out / "results").glob("*.json"))) == _units(scale)
