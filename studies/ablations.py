@@ -27,7 +27,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -1486,6 +1486,25 @@ def check_gpus(scale: Scale, name: str, *, serial: bool, address: str | None, re
             )
 
 
+def _only_rows(text: str | None, scale: Scale, name: str) -> Callable[[framework.Unit], bool] | None:
+    """``--rows N,N,...`` as a choice of units (those whose key's row is listed: a row's model, errors
+    and navigation), or None for every unit; :class:`UsageError` for a row the scale does not run."""
+    from odolab.cli import UsageError
+
+    if text is None:
+        return None
+    try:
+        chosen = {int(t) for t in text.split(",")}
+    except ValueError:
+        raise UsageError(f"--rows: expected row numbers separated by commas, got {text!r}") from None
+    unknown = sorted(chosen - set(scale.rows))
+    if unknown:
+        raise UsageError(
+            f"--rows: row {unknown[0]} is not a row of --scale {name} (its rows: {', '.join(map(str, scale.rows))})"
+        )
+    return lambda unit: unit.key["row"] in chosen
+
+
 def make_data(recipes: list[TrainConfig | DeepVOTraining], execution: Execution) -> None:
     """Every data set the recipes train on, made here (once each) before the training units start,
     so that no two units make the same folder at once; the caller passes the recipes of the models
@@ -1511,8 +1530,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     ap = framework.study_arguments(f"python -m studies.{NAME}", definition.study)
+    ap.add_argument(
+        "--rows",
+        default=None,
+        metavar="N,N,...",
+        help="compute only these rows' units (their models, errors and navigation; the report shows every "
+        "row from the saved results): a long scale in chunks, each committed as it finishes",
+    )
     args = ap.parse_args(argv)
     scale = definition.scales[args.scale]
+    only = _only_rows(args.rows, scale, args.scale)
     out = args.out or default_out(args.scale)
     check_gpus(scale, args.scale, serial=args.serial, address=args.ray_address, redraw=args.redraw)
     _held = framework.check_options(args, out, definition.study)  # this run's hold on out, kept until main returns
@@ -1540,7 +1567,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     training = train_units(definition, recipes)
     trained_valid = functools.partial(valid_model, out=out, check_file=not args.redraw)
     if not args.redraw:  # the data of the models still to train (a resumed study may need none)
-        to_train = framework.unsaved(training, store, trained_valid)
+        to_train = [u for u in framework.unsaved(training, store, trained_valid) if only is None or only(u)]
         make_data([recipes[(u.key["row"], u.key.get("train_seed"))] for u in to_train], execution)
     trained = framework.run_units(
         functools.partial(train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads),
@@ -1550,6 +1577,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         execution=execution,
         valid=trained_valid,
         gpus=scale.train_gpus,
+        only=only,
     )
     error_todo, nav_todo, untrained = evaluation_units(definition, scale, trained.results)
     errors = framework.run_units(
@@ -1559,6 +1587,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         redraw=args.redraw,
         execution=execution,
         valid=valid_errors,
+        only=only,
     )
     navigation = framework.run_units(
         functools.partial(navigate_episode, out=out),
@@ -1567,6 +1596,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         redraw=args.redraw,
         execution=execution,
         valid=valid_navigation,
+        only=only,
     )
     outcomes = (trained, errors, navigation)
     if not any(o.results for o in outcomes):

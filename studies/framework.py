@@ -292,9 +292,11 @@ def run_units(
     execution: Execution = Execution(),
     valid: Callable[[Any], bool] | None = None,
     gpus: float = 0.0,
+    only: Callable[[Unit], bool] | None = None,
 ) -> Outcome:
     """``fn(unit.key)`` for every unit without a saved result, as Ray tasks (a local instance, or the
-    cluster at ``execution.ray_address``), each result saved as it finishes; with ``redraw`` nothing is computed.
+    cluster at ``execution.ray_address``), each result saved as it finishes; with ``redraw`` nothing is
+    computed, and with ``only`` nothing but the units it accepts (the others are read as with ``redraw``).
     Results must be plain JSON data. Computing seconds and the machine are saved beside each result. A saved result
     that ``valid`` refuses (a file edited or damaged by hand) counts as not saved: computed again,
     or missing with ``redraw``. ``gpus``: GPUs each unit's Ray task asks for (:func:`fan_out`)."""
@@ -307,7 +309,7 @@ def run_units(
             out.results[u.label] = saved["value"]
             out.seconds += _seconds(saved.get("seconds", 0.0))
             out.count(saved.get("machine"))
-        elif redraw:
+        elif redraw or (only is not None and not only(u)):
             out.missing.append(u.label)
         else:
             todo.append(u)

@@ -512,3 +512,18 @@ def test_the_committed_cpu_report_redraws_to_its_own_table(tmp_path: Path):
     shutil.copy(committed / "manifest.txt", copy / "manifest.txt")
     assert ablations.main(["--scale", "cpu", "--out", str(copy), "--redraw", "--quiet"]) == 0
     assert (copy / "table.csv").read_text() == (committed / "table.csv").read_text()
+
+
+def test_rows_computes_only_those_rows_and_reports_the_rest_as_missing(tmp_path: Path, capsys):
+    """--rows: a long scale in chunks; the chosen rows' units are computed, the others read or missing."""
+    out = tmp_path / "chunk"
+    assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet", "--rows", "21"]) == 0
+    said = capsys.readouterr()
+    assert "2 units computed (0 training, 1 error, 1 navigation)" in said.out and "no saved result" in said.err
+    rows = {r["row"]: r for r in csv.DictReader((out / "table.csv").read_text().splitlines())}
+    assert float(rows["21"]["dx"]) > 0 and rows["18"]["dx"] == "nan" and not (out / "models").exists()
+    from odolab.cli import UsageError
+
+    for bad, words in (("19", "row 19 is not a row of --scale ci"), ("4,x", "expected row numbers")):
+        with pytest.raises(UsageError, match=words):
+            ablations.main(["--scale", "ci", "--out", str(out), "--rows", bad])
