@@ -222,7 +222,8 @@ def _sd(v: float) -> str:
 
 
 def draw(rows: list[dict[str, Any]], path: Path) -> None:
-    """Bars of each odometer's error per component (all steps), with the spread over seeds."""
+    """Bars of each odometer's error per component (all steps), with the spread over seeds; each
+    odometer's label says the share of its steps that failed (scored with the action prior)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -231,7 +232,7 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
     from odolab.io.atomic import save_figure_atomic
 
     overall = [r for r in rows if r["action"] == "all"]
-    fig, axes = plt.subplots(1, 3, figsize=(14, 0.45 * len(overall) + 2), sharey=True)
+    fig, axes = plt.subplots(1, 3, figsize=(14, 0.6 * len(overall) + 2), sharey=True)
     y = np.arange(len(overall))
     for ax, c, unit in zip(axes, COMPONENTS, ("m", "m", "rad")):
         ax.barh(
@@ -243,9 +244,12 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
         )
         ax.set_xlabel(f"{c}: mean abs. error ({unit} x 1e-2)")
         ax.grid(axis="x", alpha=0.3)
-    axes[0].set_yticks(y, [r["odometer"] for r in overall])
+    axes[0].set_yticks(y, [f"{r['odometer']}\n({100 * r['failure_share']:.0f} % of steps failed)" for r in overall])
     axes[0].invert_yaxis()
-    fig.suptitle("Per-step error as used, all test steps: bars are the mean over seeds, lines one standard deviation")
+    fig.suptitle(
+        "Per-step error as used (a failed step scored with the action prior), all test steps: "
+        "bars are the mean over seeds, lines one standard deviation"
+    )
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)

@@ -36,3 +36,19 @@ def test_findings_need_two_of_the_papers_odometers_and_say_a_missing_spread():
         "dx, the paper's protocol: ours E1 4.90 +- -, E3 9.00 +- - (x 1e-2, lowest first); "
         "differs from the paper's order E3 < E1"
     )
+
+
+def test_the_error_figure_labels_each_odometer_with_its_failure_share(monkeypatch):
+    import odolab.io.atomic
+    from studies import e_table
+    from tests.helpers import captured_figures
+
+    figures = captured_figures(monkeypatch, odolab.io.atomic)
+    rows = [
+        {"odometer": name, "action": "all", "failure_share": share, **{c: 1.0 for c in e_table.COMPONENTS}}
+        | {f"{c}_sd": 0.1 for c in e_table.COMPONENTS}
+        for name, share in (("icp", 0.254), ("robust-vo", 0.0))
+    ]
+    e_table.draw(rows, None)
+    labels = [t.get_text() for t in figures[0].axes[0].get_yticklabels()]
+    assert labels == ["icp\n(25 % of steps failed)", "robust-vo\n(0 % of steps failed)"]
