@@ -39,6 +39,10 @@ _ROUTE_STREAMS = 0x70_0E
 ROUTE_VERSION = 1
 #: Draws of a next goal before a route gives up (the largest component is then nearly all too near or far).
 MAX_GOAL_DRAWS = 1000
+#: Scenes drawn for a long building before a route gives up: its navigable floor must run (nearly) end to end.
+MAX_SCENE_DRAWS = 20
+#: The share of a long building's length its largest navigable component must span.
+BUILDING_SPAN = 0.95
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,10 @@ class RouteSpec:
     distance from the agent to each next goal; a leg ends within ``goal_radius`` (m) of its goal, or
     after ``max_leg_steps`` actions (then the next goal is drawn from where the agent stands);
     ``max_steps``: actions at most, a route that has not travelled ``length`` by then is an error.
+    ``building`` (m): 0 tours one floor plan (goals anywhere); above 0 the route crosses a long
+    building of that length (:func:`~odolab.sim.scenes.generate_scene`'s ``length``, the plan's width
+    times ``scene_scale``) from its first end, each next goal ahead of the agent along it, so that
+    the route goes somewhere: its segments end far from where they start.
     """
 
     split: str = "test"
@@ -66,6 +74,7 @@ class RouteSpec:
     stop_at_contact: bool = True
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     camera: CameraSpec = field(default_factory=CameraSpec)
+    building: float = 0.0
 
     def __post_init__(self) -> None:
         def refuse(name: str, expected: str) -> None:
@@ -77,7 +86,7 @@ class RouteSpec:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name.startswith("max") else 0):
                 refuse(name, "a whole number >= " + ("1" if name.startswith("max") else "0"))
-        for name in ("length", "scene_scale", "min_leg", "max_leg", "goal_radius"):
+        for name in ("length", "scene_scale", "min_leg", "max_leg", "goal_radius", "building"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 refuse(name, "a finite number")
@@ -89,6 +98,8 @@ class RouteSpec:
             refuse("goal_radius", f"a positive number of metres below min_leg ({self.min_leg:g})")
         if not self.min_leg < self.max_leg:
             refuse("max_leg", f"a number of metres above min_leg ({self.min_leg:g})")
+        if self.building != 0 and not (20.0 <= self.building <= 2000.0 and self.building >= self.min_leg * 4):
+            refuse("building", f"0 (a floor plan) or a length in [20, 2000] m of at least 4 x min_leg ({4 * self.min_leg:g})")
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> RouteSpec:
@@ -107,7 +118,10 @@ class RouteSpec:
         """Stable short hash of the spec and of the simulator's version (what its frames depend on)."""
         from odolab.sim.redwood import table_digest
 
-        blob = {"route": ROUTE_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **asdict(self)}
+        spec = asdict(self)
+        if not self.building:  # a floor plan's route: its key as before buildings existed
+            del spec["building"]
+        blob = {"route": ROUTE_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **spec}
         return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:16]
 
     def streams(self) -> list[np.random.Generator]:
@@ -144,10 +158,19 @@ def _next_goal(
     scene: Scene, cells: np.ndarray, here: AgentState, rng: np.random.Generator, spec: RouteSpec
 ) -> tuple[float, float]:
     """A navigable cell centre of the largest component (``cells``) whose geodesic distance from
-    ``here`` lies in ``[min_leg, max_leg]``: world (x, y) m."""
+    ``here`` lies in ``[min_leg, max_leg]``: world (x, y) m. In a long building (``spec.building``) only
+    cells ahead of the agent along it (x from ``min_leg / 2`` to ``max_leg`` m beyond its own) are drawn."""
     from odolab.sim.planner import geodesic_field
 
     field_here = geodesic_field(scene, here.x, here.y)
+    if spec.building:
+        x = scene.cell_to_world(cells[:, 0], cells[:, 1])[0]
+        cells = cells[(x >= here.x + spec.min_leg / 2) & (x <= here.x + spec.max_leg)]
+        if not len(cells):
+            raise RuntimeError(
+                f"route {spec.name}: no goal ahead of ({here.x:.2f}, {here.y:.2f}) m: the building "
+                f"({spec.building:g} m) is too short for the route's length ({spec.length:g} m)"
+            )
     for _ in range(MAX_GOAL_DRAWS):
         gx, gy = (float(v) for v in scene.cell_to_world(*cells[rng.integers(len(cells))]))
         if spec.min_leg <= field_here.at(gx, gy) <= spec.max_leg:
@@ -165,10 +188,17 @@ def tour(spec: RouteSpec) -> Route:
     from odolab.sim.planner import ShortestPathFollower, geodesic_field, largest_component
 
     rng, act_rng, _, _ = spec.streams()
-    seed = scene_seed(spec.split, int(rng.integers(1 << 31)))
-    scene = generate_scene(seed, scale=spec.scene_scale)
-    cells = np.argwhere(largest_component(scene))
-    sx, sy = (float(v) for v in scene.cell_to_world(*cells[rng.integers(len(cells))]))
+    for _ in range(MAX_SCENE_DRAWS):  # a floor plan takes the first draw; a building one that runs end to end
+        seed = scene_seed(spec.split, int(rng.integers(1 << 31)))
+        scene = generate_scene(seed, scale=spec.scene_scale, length=spec.building or None)
+        cells = np.argwhere(largest_component(scene))
+        x = scene.cell_to_world(cells[:, 0], cells[:, 1])[0]
+        if not spec.building or np.ptp(x) >= BUILDING_SPAN * spec.building:
+            break
+    else:
+        raise RuntimeError(f"route {spec.name}: no building of {MAX_SCENE_DRAWS} drawn runs end to end")
+    starts = cells if not spec.building else cells[x <= x.min() + spec.min_leg]  # a building: from its first end
+    sx, sy = (float(v) for v in scene.cell_to_world(*starts[rng.integers(len(starts))]))
     env = PointNavEnv(
         scene,
         AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi))),

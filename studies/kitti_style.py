@@ -65,6 +65,7 @@ class Scale:
     max_leg: float
     camera: tuple[int, int]
     odometers: tuple[str, ...]
+    building: float = 0.0
 
     def specs(self) -> list[RouteSpec]:
         """The routes' specs (the challenge's noise, the camera's other settings as an episode's)."""
@@ -82,6 +83,7 @@ class Scale:
                 min_leg=self.min_leg,
                 max_leg=self.max_leg,
                 camera=camera,
+                building=self.building,
             )
             for k in range(self.routes)
         ]
@@ -115,6 +117,7 @@ def scale_of(config: framework.StudyConfig, scale: str) -> Scale:
         max_leg=_number(config, scale, "max_leg", 0.5, 1000.0),
         camera=(camera[0], camera[1]),
         odometers=framework.name_list(config, scale, "odometers"),
+        building=_number(config, scale, "building", 0.0, 2000.0),
     )
     try:
         params.specs()
@@ -199,7 +202,8 @@ def _finite(v: float) -> float | None:
 def route_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
     """One route's motion (no images): its statistics, goals and path, and its ground truth written
     as ``groundtruth.{tum,kitti}``. ``net_share``: per KITTI segment length the route holds, the mean
-    straight-line distance between a segment's ends over its length (1 on a straight drive)."""
+    straight-line distance between a segment's ends over its length (1 on a straight drive);
+    ``building``: the long building's length (m; 0: a floor plan)."""
     from odolab.metrics import kitti_relative_errors, path_lengths
     from odolab.report import GROUND_TRUTH_FILE
     from odolab.routes import RouteSpec, tour
@@ -221,6 +225,7 @@ def route_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
         "goals": _xy(np.array(route.goals)),
         "reached": route.reached,
         "net_share": {str(L): float(net[k.length == L].mean()) for L in LENGTHS if np.any(k.length == L)},
+        "building": float(spec.building),
         "path": _xy(poses[:, :3, 3]),
         "files": write_trajectory(out, spec.name, GROUND_TRUTH_FILE, poses),
     }
@@ -424,14 +429,51 @@ def summary_row(odometer: str, route: str, results: list[dict[str, Any]]) -> dic
 PER_STEP = ("dx", "dz", "dyaw", "dx_bias", "dz_bias", "dyaw_bias")
 
 
-def table(scale: Scale, runs: dict[str, Any]) -> list[dict[str, Any]]:
-    """Rows odometer x route: each odometer's routes pooled ("all"), then route by route."""
+def end_to_end_ratio(path: list[list[float]]) -> float:
+    """The median over a route's 100 m segments (KITTI's, of its true path: world x, y m) of the
+    straight-line distance between a segment's ends over its path length: near 1 a route that goes
+    somewhere, near 0 one that folds back (where t_rel measures loop geometry more than drift); NaN
+    for a route shorter than 100 m."""
+    from odolab.metrics import kitti_relative_errors
+
+    poses = _poses(path)
+    k = kitti_relative_errors(poses, poses)
+    hundred = k.length == 100
+    if not np.any(hundred):
+        return float("nan")
+    return float(np.median(np.linalg.norm(poses[k.last, :3, 3] - poses[k.first, :3, 3], axis=1)[hundred] / 100.0))
+
+
+#: The columns of the pooled rows' 95 % intervals over routes (Student's t over the per-route values).
+ROUTE_CI = ("t_rel", "r_rel", "drift_per_100m")
+
+
+def table(scale: Scale, runs: dict[str, Any], routes: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Rows odometer x route: each odometer's routes pooled ("all"), then route by route. Each row has
+    the route's ``end_to_end_ratio`` (:func:`end_to_end_ratio`; pooled: the median of the routes'),
+    and the pooled rows 95 % intervals over routes of t_rel, r_rel and drift (``<column>_ci``)."""
+    from odolab.stats import mean_ci
+
+    ratio = {
+        s.name: end_to_end_ratio(routes[route_label(s)]["path"])
+        for s in scale.specs()
+        if route_label(s) in (routes or {})
+    }
     rows = []
     for odo in scale.odometers:
         mine = [(s.name, runs[run_label(odo, s)]) for s in scale.specs() if run_label(odo, s) in runs]
         if mine:
-            rows.append(summary_row(odo, "all", [r for _, r in mine]))
-            rows += [summary_row(odo, name, [r]) for name, r in mine]
+            each = [
+                summary_row(odo, name, [r]) | {"end_to_end_ratio": ratio.get(name, float("nan"))} for name, r in mine
+            ]
+            pooled_row = summary_row(odo, "all", [r for _, r in mine])
+            pooled_row["end_to_end_ratio"] = (
+                float(np.median([ratio[n] for n, _ in mine])) if all(n in ratio for n, _ in mine) else float("nan")
+            )
+            for c in ROUTE_CI:
+                ci = mean_ci(np.array([e[c] for e in each], float))
+                pooled_row[f"{c}_ci"] = f"[{ci.low:.2f}, {ci.high:.2f}]" if math.isfinite(ci.low) else ""
+            rows += [pooled_row, *each]
     return rows
 
 
@@ -444,8 +486,9 @@ def columns(rows: list[dict[str, Any]]) -> list[str]:
     """The table's columns: the per-length t_rel of the lengths held."""
     per_length = [f"t_rel_{L}m" for L in held_lengths(rows)]
     return [
-        "odometer", "route", "routes", "length_m", "steps", "segments", "t_rel", "r_rel", *per_length,
-        "ate_m", "ate_se3_m", "drift_per_100m", *PER_STEP, "failure_share", "fps",
+        "odometer", "route", "routes", "length_m", "end_to_end_ratio", "steps", "segments", "t_rel", "t_rel_ci",
+        "r_rel", "r_rel_ci", *per_length, "ate_m", "ate_se3_m", "drift_per_100m", "drift_per_100m_ci", *PER_STEP,
+        "failure_share", "fps",
     ]  # fmt: skip
 
 
@@ -561,26 +604,75 @@ def _poses(xy: list[list[float]]) -> np.ndarray:
     return p
 
 
+#: The families a route figure gives a panel each (:func:`family`), in order.
+FAMILIES = ("references", "classical", "learned", "composites")
+
+
+def family(odometer: str) -> str:
+    """The panel an odometer is drawn in: ``composites`` (fused, denoised, ... : a name with
+    parentheses), ``learned`` (robust-vo, deepvo), ``references`` (the action prior) or ``classical``."""
+    if "(" in odometer:
+        return "composites"
+    if odometer in ("robust-vo", "deepvo"):
+        return "learned"
+    return "references" if odometer in ("action-prior", "ground-truth") else "classical"
+
+
 def draw_route(route: dict[str, Any], runs: list[tuple[str, dict[str, Any]]], names: list[str], path: Path) -> None:
-    """Top-down figure of one route (``odolab.compare``'s): its floor plan, the true path and every
-    odometer's integrated path (world x, y in m)."""
-    from odolab.report import FloorPlan, plot_sequence
-    from odolab.runner import SequenceResult
+    """Top-down figure of one route, one panel per odometer family (:data:`FAMILIES`) with the true
+    path (black) and the floor plan in each: world x, y in m; each odometer keeps its colour
+    (:func:`odolab.report.trajectory_style`) in every route's figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from odolab.io.atomic import save_figure_atomic
+    from odolab.report import OBSTACLE_SHADE, trajectory_style
     from odolab.sim.scenes import generate_scene
 
-    gt = _poses(route["path"])
-    empty = np.zeros((0, 4, 4))
-
-    def result(odometer: str, xy: list[list[float]]) -> SequenceResult:
-        none = np.zeros(0)
-        return SequenceResult(
-            odometer=odometer, sequence=route["route"], oracle=False, estimates=empty, truth=None,
-            poses=_poses(xy), gt_poses=gt, actions=none.astype(np.int8), valid=none.astype(bool), step_seconds=none,
-        )  # fmt: skip
-
-    scene = generate_scene(route["scene_seed"], scale=route["scene_scale"])
-    mine = [result("ground-truth", route["path"]), *(result(n, r["path"]) for n, r in runs)]
-    plot_sequence(mine, path, names, FloorPlan(scene.free, scene.origin, scene.resolution))
+    gt = np.asarray(route["path"], float)
+    building = float(route.get("building", 0.0))
+    scene = generate_scene(route["scene_seed"], scale=route["scene_scale"], length=building or None)
+    panels = [f for f in FAMILIES if any(family(n) == f for n, _ in runs)]
+    everything = np.concatenate([gt] + [np.asarray(r["path"], float) for _, r in runs])
+    lo, hi = everything.min(axis=0) - 2.0, everything.max(axis=0) + 2.0
+    wide = building > 0 or (hi[0] - lo[0]) > 2 * (hi[1] - lo[1])
+    size = (16, 2.2 * len(panels) + 1.2) if wide else (5.2 * len(panels), 6.2)
+    fig, axes = plt.subplots(*((len(panels), 1) if wide else (1, len(panels))), figsize=size, squeeze=False)
+    h, w = scene.free.shape
+    extent = (
+        scene.origin[0],
+        scene.origin[0] + w * scene.resolution,
+        scene.origin[1],
+        scene.origin[1] + h * scene.resolution,
+    )
+    drawn = [n for n in names if n != "ground-truth"]
+    for ax, fam in zip(axes.ravel(), panels):
+        ax.imshow(np.where(scene.free, 1.0, OBSTACLE_SHADE), cmap="gray", vmin=0, vmax=1, origin="lower",
+                  extent=extent, interpolation="nearest", aspect="auto")  # fmt: skip
+        ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2.2, label="ground truth", zorder=3)
+        for name, r in runs:
+            if family(name) != fam:
+                continue
+            p = np.asarray(r["path"], float)
+            color, _ = trajectory_style(drawn.index(name))
+            ax.plot(p[:, 0], p[:, 1], "-", lw=1.3, color=color, label=name, zorder=4)
+            ax.plot(p[-1, 0], p[-1, 1], "s", ms=6, color=color, markeredgecolor="k", markeredgewidth=0.6, zorder=5)
+        ax.plot(gt[0, 0], gt[0, 1], "o", ms=8, color="w", markeredgecolor="k", markeredgewidth=1.5, zorder=6)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        if not wide:
+            ax.set_aspect("equal", adjustable="box")
+        ax.set_title(fam, fontsize=10, loc="left")
+        ax.set_xlabel("world x (m)")
+        ax.set_ylabel("world y (m)")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0) if wide else (0.0, -0.15), frameon=False)
+    stretched = " (y stretched: the building is long)" if wide else ""
+    fig.suptitle(f"Route {route['route']}, {len(gt) - 1} steps: true path (black) and each odometer's{stretched}")
+    fig.tight_layout()
+    save_figure_atomic(fig, path)
+    plt.close(fig)
 
 
 # ------------------------------------------------------------------------------------ main
@@ -661,7 +753,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         seconds=routes.seconds + runs.seconds,
     )
     framework.require_results(outcome, out, args.scale)
-    rows = table(scale, runs.results)
+    rows = table(scale, runs.results, routes.results)
     route_rows = [routes.results[route_label(s)] for s in scale.specs() if route_label(s) in routes.results]
     figures = {
         "kitti-errors.png": (
@@ -674,8 +766,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             mine = [(o, runs.results[run_label(o, s)]) for o in scale.odometers if run_label(o, s) in runs.results]
             figures[f"route-{s.name}.png"] = (
                 (
-                    f"Route {s.name}, top-down (world x, y in m): the true path (black) and each odometer's integrated "
-                    "path over the floor plan (grey: obstacles); circle: start, squares: ends"
+                    f"Route {s.name}, top-down (world x, y in m), a panel per family of odometers: the true path "
+                    "(black) and each odometer's integrated path over the floor plan (grey: obstacles); circle: "
+                    "start, squares: ends"
                 ),
                 functools.partial(draw_route, routes.results[route_label(s)], mine, list(scale.odometers)),
             )

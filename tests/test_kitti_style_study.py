@@ -44,6 +44,24 @@ def test_a_route_is_its_seeds_and_ends_at_its_length():
     assert dataclasses.replace(SHORT, length=13.0).key() != SHORT.key()
 
 
+def test_a_route_through_a_building_goes_somewhere_and_a_plans_route_keeps_its_key():
+    """building > 0: a long building crossed from its first end with every goal ahead, so a 100 m
+    segment's ends lie far apart (end_to_end_ratio >= 0.5); a floor plan's route keeps its old key."""
+    spec = RouteSpec(length=105.0, building=120.0, scene_scale=1.0, min_leg=3.0, max_leg=20.0)
+    route = tour(spec)
+    xy = route.camera_poses(0.88)[:, :2, 3]
+    assert all(b[0] > a[0] for a, b in zip(route.goals, route.goals[1:]))  # each goal ahead of the last
+    assert xy[-1, 0] - xy[0, 0] > 60 and kitti_style.end_to_end_ratio(xy.tolist()) >= 0.5
+    assert dataclasses.replace(spec, building=0.0).key() == dataclasses.replace(spec, building=0.0).key() != spec.key()
+    with pytest.raises(ValueError, match=r"building: expected 0 \(a floor plan\) or a length in \[20, 2000\] m"):
+        RouteSpec(building=10.0)
+    with pytest.raises(RuntimeError, match="too short for the route's length"):
+        tour(dataclasses.replace(spec, length=300.0))
+    # a loop folds back: its 100 m segments' ends lie close together
+    loop = [[10 * np.cos(t), 10 * np.sin(t)] for t in np.linspace(0, 4 * np.pi, 400)]
+    assert kitti_style.end_to_end_ratio(loop) < 0.3 and math.isnan(kitti_style.end_to_end_ratio(loop[:100]))
+
+
 def test_route_frames_are_rendered_in_order_and_again_from_the_start():
     route = tour(SHORT)
     frames = RouteFrames(SHORT, route)
@@ -116,6 +134,10 @@ def test_the_ci_scale_reports_kitti_errors_of_every_odometer(ci_run):
     assert names == {f"{n}.{f}" for n in ["groundtruth", *CI["odometers"]] for f in ("tum", "kitti")}
     html = (out / "index.html").read_text()
     assert "has no KITTI-style table" in html and "Segment lengths held (m): 100," in html
+    for r in rows:  # the ci route crosses a 120 m building: its 100 m segments' ends lie far apart
+        assert float(r["end_to_end_ratio"]) >= 0.5, r["odometer"]
+    pooled = [r for r in rows if r["route"] == "all"]
+    assert all(r["t_rel_ci"] == "" for r in pooled)  # one route: no interval over routes
     assert len(list((out / "results").glob("*.json"))) == CI["routes"] * (1 + len(CI["odometers"]))
 
 

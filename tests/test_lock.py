@@ -150,3 +150,21 @@ def test_a_second_run_of_a_study_into_the_same_out_is_refused(tmp_path, held):
     held(out)
     with pytest.raises(UsageError, match=r"^--out .* is in use by another odolab run"):
         framework.hold_out(out)
+
+
+def test_a_finished_runs_hold_kept_only_by_a_reference_cycle_lets_the_same_process_take_the_folder(tmp_path):
+    """A study's main that returned may leave its frame in a garbage cycle (a traceback's) until the
+    collector runs: its hold then gives way to the next run in the same process; a live hold does not."""
+    import gc
+
+    gc.disable()
+    try:
+        garbage = [lock_folder(tmp_path)]
+        garbage.append(garbage)  # a cycle: only the collector frees it
+        del garbage
+        taken = lock_folder(tmp_path)
+        assert taken.held
+        with pytest.raises(FolderInUseError):
+            lock_folder(tmp_path)  # the live hold of this very process still refuses a second run
+    finally:
+        gc.enable()

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import gc
 import os
 import sys
 import weakref
@@ -79,7 +80,15 @@ class FolderLock:
             return self
         fd = os.open(self.folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                if holder_pid(self.folder) != os.getpid():
+                    raise
+                # held by this process: perhaps by a finished run's hold that only a reference cycle
+                # keeps (its frames in a traceback's cycle): collected, it lets go; a live one does not
+                gc.collect()
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
             raise FolderInUseError(self.folder, holder_pid(self.folder)) from None

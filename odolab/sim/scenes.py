@@ -275,14 +275,17 @@ def _occupancy(
         (xs[None, :] > bounds.x0) & (xs[None, :] < bounds.x1) & (ys[:, None] > bounds.y0) & (ys[:, None] < bounds.y1)
     )
     free = inside.copy()
+    # each solid clears only the cells of its own footprint (the same comparisons as on the whole grid)
     for b in boxes:
         if b.lo[2] > 1.0:  # door lintels are above the agent
             continue
-        free &= ~(
-            (xs[None, :] >= b.lo[0]) & (xs[None, :] <= b.hi[0]) & (ys[:, None] >= b.lo[1]) & (ys[:, None] <= b.hi[1])
-        )
+        c0, c1 = np.searchsorted(xs, b.lo[0], "left"), np.searchsorted(xs, b.hi[0], "right")
+        r0, r1 = np.searchsorted(ys, b.lo[1], "left"), np.searchsorted(ys, b.hi[1], "right")
+        free[r0:r1, c0:c1] = False
     for c in cylinders:
-        free &= (xs[None, :] - c.x) ** 2 + (ys[:, None] - c.y) ** 2 > c.radius**2
+        c0, c1 = np.searchsorted(xs, c.x - c.radius, "left"), np.searchsorted(xs, c.x + c.radius, "right")
+        r0, r1 = np.searchsorted(ys, c.y - c.radius, "left"), np.searchsorted(ys, c.y + c.radius, "right")
+        free[r0:r1, c0:c1] &= (xs[None, c0:c1] - c.x) ** 2 + (ys[r0:r1, None] - c.y) ** 2 > c.radius**2
     return free, (ox, oy)
 
 
@@ -303,20 +306,29 @@ def scale_depth(scale: float) -> int:
     return int(round(2.0 * np.log2(scale)))
 
 
-def generate_scene(seed: int, agent_radius: float = 0.18, n_tiles: int = 12, scale: float = 1.0) -> Scene:
+def generate_scene(
+    seed: int, agent_radius: float = 0.18, n_tiles: int = 12, scale: float = 1.0, length: float | None = None
+) -> Scene:
     """Build the scene of ``seed`` (deterministic): a 7-18 m x 6-14 m floor plan of 2-16 rooms and
     corridors, walls with doorways, furniture. ``scale`` (1-10) multiplies both sides of the plan
     and divides it :func:`scale_depth` levels deeper (rooms keep their sizes, doorways join them
-    all), for routes longer than an episode; at 1 the scene is the default one, bit for bit."""
+    all), for routes longer than an episode; at 1 the scene is the default one, bit for bit.
+    ``length`` (m, 20-2000): a long building instead, ``length`` m along x and the plan's width
+    (times ``scale``) along y, divided as many levels deeper as keep its rooms their sizes: a chain
+    of rooms a route can cross from end to end."""
     from scipy.ndimage import distance_transform_edt
 
     if not 1.0 <= float(scale) <= 10.0:
         raise ValueError(f"generate_scene: scale: expected a number in [1, 10], got {scale!r}")
+    if length is not None and not 20.0 <= float(length) <= 2000.0:
+        raise ValueError(f"generate_scene: length: expected a number of metres in [20, 2000], got {length!r}")
     rng = np.random.default_rng(np.random.SeedSequence([0x5CE7E, int(seed)]))
     # the same draws at every scale: at 1 the sides are multiplied by exactly 1.0 and no level is added
-    bounds = _Rect(0.0, 0.0, float(rng.uniform(7.0, 18.0)) * scale, float(rng.uniform(6.0, 14.0)) * scale)
+    side_x, side_y = float(rng.uniform(7.0, 18.0)), float(rng.uniform(6.0, 14.0))
+    bounds = _Rect(0.0, 0.0, side_x * scale if length is None else float(length), side_y * scale)
     walls, doors = [], []
-    depth = int(rng.integers(2, 5)) + scale_depth(scale)
+    extra = scale_depth(scale) if length is None else max(0, int(round(np.log2(length * scale / side_x))))
+    depth = int(rng.integers(2, 5)) + extra
     rooms = _divide(bounds, rng, depth=depth, walls=walls, doors=doors)
     materials = _materials(rng, n_tiles)
     t = WALL_THICKNESS
