@@ -512,7 +512,8 @@ def _error_panel(
     pad = max(0.5, (4 - len(names)) / 2 + 0.5)  # a few odometers: narrow groups, centred
     ax.set_xlim(-pad, len(names) - 1 + pad)
     tilt = len(names) > 3 or max((len(n) for n in names), default=0) > 14  # long names side by side would overlap
-    ax.set_xticks(x, names, rotation=30 if tilt else 0, ha="right" if tilt else "center")
+    # tilted down to the right from each tick: no name reaches left past the axis into the y label
+    ax.set_xticks(x, names, rotation=-30 if tilt else 0, ha="left" if tilt else "center", rotation_mode="anchor")
     ax.tick_params(labelsize=font + 0.5)
     ax.grid(True, axis="y", alpha=0.3)
     return top
