@@ -18,12 +18,13 @@ CURVES = """epoch,split,stage,loss,pairs,pairs_per_s,epochs,action,component,mae
 """
 
 
-def test_points_count_every_earlier_stage(tmp_path: Path):
+def test_points_count_the_earlier_stages_that_train_their_action(tmp_path: Path):
     run = tmp_path / "run-a"
     run.mkdir()
     (run / "curves.csv").write_text(CURVES)
     points = scaling.read_curves(run)
-    assert [(p.stage, p.pairs) for p in points] == [("forward", 1000), ("forward", 2000), ("turns", 2500)]
+    # a turn's point counts the turn stage's samples only, a forward point the forward stage's
+    assert [(p.stage, p.pairs) for p in points] == [("forward", 1000), ("forward", 2000), ("turns", 500)]
     assert points[-1].hours == pytest.approx((100 + 50 + 10) / 3600)
     assert points[0].run == "run-a" and points[1].mae == 0.03
 
@@ -39,8 +40,16 @@ def test_a_run_from_a_trained_model_starts_after_that_models_training(tmp_path: 
     }
     (run / "training.json").write_text(json.dumps({"stages": {}, "init": init}))
     points = scaling.read_curves(run)
-    assert [p.pairs for p in points] == [2000, 3000, 3500]
+    assert [p.pairs for p in points] == [2000, 3000, 1500]  # the init's stages, not matched to actions: every action
     assert points[-1].hours == pytest.approx(0.75 + 160 / 3600)
+    assert {(p.start, p.start_from) for p in points} == {(1000, "")}  # m.pt in the working folder: no run name
+    # the init's own run beside its model: its stages count for the actions they validate
+    (tmp_path / "first").mkdir()
+    (tmp_path / "first" / "curves.csv").write_text(CURVES.replace(",forward,", ",a,").replace(",turns,", ",b,"))
+    init["path"] = str(tmp_path / "first" / "model.pt")
+    (run / "training.json").write_text(json.dumps({"stages": {}, "init": init}))
+    points = scaling.read_curves(run)
+    assert [p.pairs for p in points] == [1700, 2700, 800] and points[0].start_from == "first"
     init["stages"]["b"]["hours"] = float("nan")
     (run / "training.json").write_text(json.dumps({"init": init}))
     with pytest.raises(ValueError, match=r"training.json: init.stages: expected"):
@@ -69,6 +78,12 @@ def test_classical_lines_are_metres_and_radians(tmp_path: Path):
         ("icp", "move_forward", "dz"): pytest.approx(0.008),
         ("icp", "move_forward", "dyaw"): pytest.approx(0.011),
     }
+    assert scaling.classical_split(table) == ""  # no trajectories beside it: the split is not known
+    for name in ("val-s0-e000", "val-s0-e001"):
+        (tmp_path / "trajectories" / name).mkdir(parents=True)
+    assert scaling.classical_split(table) == "val"
+    (tmp_path / "trajectories" / "test-s0-e000").mkdir()
+    assert scaling.classical_split(table) == ""  # two splits: none named
 
 
 _CURVES_HEAD = "epoch,split,stage,pairs,pairs_per_s,action,component,mae,prior_mae\n"

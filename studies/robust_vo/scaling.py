@@ -7,11 +7,15 @@ robust-VO training runs, with the classical odometers' test errors as horizontal
 
 Reads only committed reports: each run's ``curves.csv`` (written by ``python -m
 odolab.robust_vo.train``) and a comparison's ``table_per_action.csv`` (``python -m odolab.compare``).
-Samples seen count every stage's training pairs up to that validation, in the order the stages ran,
-after those of the model the run started from (its ``init``, as its ``training.json`` records it);
-hours are the training epochs' wall-clock (pairs / pairs per second), validation left out. The
-lines are test-split errors (as used), the curves validation-split errors: two splits of the same
-simulator, disjoint scenes. Writes ``scaling.png`` and ``scaling.csv`` (the plotted points).
+A panel's samples seen count the training pairs of the stages that train its action (a stage trains
+the actions it validates), up to that validation, in the order the stages ran, after those of the
+model the run started from (its ``init``, as its ``training.json`` records it; that model's stages
+are matched to actions through its own ``curves.csv`` beside it, else counted for every action); a
+warm-started run's start is drawn as a dotted line. Hours are the training epochs' wall-clock of
+every stage (pairs / pairs per second), validation left out. The curves are validation-split
+errors; the lines are the comparison's errors as used, on the split its trajectories name (give a
+validation-split comparison to set validation against validation). Writes ``scaling.png`` and
+``scaling.csv`` (the plotted points).
 """
 
 from __future__ import annotations
@@ -42,6 +46,9 @@ class Point:
     component: str
     mae: float
     prior_mae: float
+    start: int = 0  # samples of this action the model the run started from had seen (0: a fresh start)
+    start_hours: float = 0.0  # that model's training hours
+    start_from: str = ""  # that model's run (its folder's name), "" for a fresh start
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:
@@ -79,25 +86,47 @@ def curves_file(run: Path) -> Path:
     return run if run.name == "curves.csv" and run.is_file() else run / "curves.csv"
 
 
-def init_offset(status: Path) -> tuple[int, float]:
-    """The samples seen and training hours of the model a run started from (``init``), as its
-    ``training.json`` records them (every stage of that model's own training); (0, 0.0) for a run
-    that started afresh or a folder without the file. ``ValueError`` names the file and field."""
+def stage_actions(rows: list[dict[str, str]]) -> dict[str, set[str]]:
+    """Stage -> the actions it validates (and so trains), from a ``curves.csv``'s val rows."""
+    out: dict[str, set[str]] = {}
+    for r in rows:
+        if r.get("split") == "val" and r.get("action") in ACTIONS:
+            out.setdefault(r.get("stage", ""), set()).add(r["action"])
+    return out
+
+
+def init_offset(status: Path) -> tuple[dict[str, int], float, str]:
+    """The samples seen per action and the training hours of the model a run started from
+    (``init``), as its ``training.json`` records them (every stage of that model's own training; a
+    stage counts for the actions its run's ``curves.csv`` beside the model validates, for every
+    action where that file is not there), and that run's folder name; ({}, 0.0, "") for a run that
+    started afresh or a folder without the file. ``ValueError`` names the file and field."""
     if not status.is_file():
-        return 0, 0.0
+        return {}, 0.0, ""
     try:
         doc = json.loads(status.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ValueError(f"{status}: not a readable training status ({exc})") from None
-    stages = doc.get("init", {}).get("stages", {}) if isinstance(doc, dict) else {}
+    init = doc.get("init", {}) if isinstance(doc, dict) else {}
+    stages = init.get("stages", {}) if isinstance(init, dict) else {}
     try:
-        pairs = sum(_count_field({"n": s["pairs_seen"]}, "n") for s in stages.values())
+        seen = {name: _count_field({"n": s["pairs_seen"]}, "n") for name, s in stages.items()}
         hours = sum(_finite_field({"h": s["hours"]}, "h") for s in stages.values())
     except (AttributeError, KeyError, TypeError, ValueError):
         raise ValueError(
             f"{status}: init.stages: expected stage -> {{pairs_seen: whole number >= 0, hours: number >= 0}}"
         ) from None
-    return pairs, hours
+    if not seen:
+        return {}, hours, ""
+    model = Path(str(init.get("path", "")))
+    trains: dict[str, set[str]] = {}
+    if (model.parent / "curves.csv").is_file():
+        try:
+            trains = stage_actions(_read_csv(model.parent / "curves.csv"))
+        except ValueError:
+            trains = {}
+    per_action = {a: sum(n for name, n in seen.items() if a in trains.get(name, set(ACTIONS))) for a in ACTIONS}
+    return per_action, hours, model.parent.name
 
 
 def read_curves(folder: Path, name: str | None = None) -> list[Point]:
@@ -118,12 +147,16 @@ def read_curves(folder: Path, name: str | None = None) -> list[Point]:
             f"rows, columns {', '.join(sorted(wanted))}"
         )
     points = []
-    pairs, hours = init_offset(path.parent / "training.json")
+    start, init_hours, start_from = init_offset(path.parent / "training.json")
+    hours = init_hours
+    pairs = {a: start.get(a, 0) for a in ACTIONS}
+    trains = stage_actions(rows)
     for k, r in enumerate(rows):
         try:
             if r["split"] == "train":
                 seen = _count_field(r, "pairs")
-                pairs += seen
+                for a in trains.get(r["stage"], set(ACTIONS)):  # a stage that validates nothing: every action
+                    pairs[a] += seen
                 hours += seen / _finite_field(r, "pairs_per_s", positive=True) / 3600
             elif r["split"] == "val":
                 points.append(
@@ -131,12 +164,15 @@ def read_curves(folder: Path, name: str | None = None) -> list[Point]:
                         name,
                         r["stage"],
                         _count_field(r, "epoch"),
-                        pairs,
+                        pairs.get(r["action"], 0),
                         hours,
                         r["action"],
                         r["component"],
                         _finite_field(r, "mae"),
                         _finite_field(r, "prior_mae"),
+                        start.get(r["action"], 0),
+                        init_hours,
+                        start_from,
                     )
                 )
         except (TypeError, ValueError):
@@ -166,9 +202,20 @@ def read_classical(path: Path, odometers: tuple[str, ...] = CLASSICAL) -> dict[t
     return out
 
 
-def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path: Path, x: str = "pairs") -> None:
-    """A 3 x 3 grid (actions x components) of validation error against ``x``: samples seen
-    (``"pairs"``) or training hours (``"hours"``)."""
+def classical_split(path: Path) -> str:
+    """The split of the comparison whose ``table_per_action.csv`` is ``path``, as the names of its
+    ``trajectories/<split>-s<seed>-e<index>`` folders say; "" when they do not (one split or none)."""
+    folder = path.parent / "trajectories"
+    names = {p.name.split("-")[0] for p in folder.iterdir()} if folder.is_dir() else set()
+    return names.pop() if len(names) == 1 and names <= {"train", "val", "test"} else ""
+
+
+def draw(
+    points: list[Point], classical: dict[tuple[str, str, str], float], path: Path, x: str = "pairs", split: str = ""
+) -> None:
+    """A 3 x 3 grid (actions x components) of validation error against ``x``: samples seen of the
+    panel's action (``"pairs"``) or training hours (``"hours"``); a warm-started run's start as a
+    dotted line from where its model's training ended; the classical rows' errors on ``split``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -177,7 +224,7 @@ def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path
 
     runs = list(dict.fromkeys(p.run for p in points))
     odometers = list(dict.fromkeys(k[0] for k in classical))
-    fig, axes = plt.subplots(3, 3, figsize=(13, 10.5), sharex=True)
+    fig, axes = plt.subplots(3, 3, figsize=(13, 10.5), sharex="row" if x == "pairs" else True)
     colours = plt.get_cmap("tab10")
     for i, action in enumerate(ACTIONS):
         for j, comp in enumerate(COMPONENTS):
@@ -187,14 +234,18 @@ def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path
                     (p for p in points if (p.run, p.action, p.component) == (run, action, comp)), key=lambda p: p.pairs
                 )
                 if mine:
+                    warm = f", warm start from {mine[0].start_from}" if mine[0].start_from else ""
                     ax.plot(
                         [getattr(p, x) for p in mine],
                         [p.mae * 100 for p in mine],
                         "o-",
                         ms=3,
                         color=colours(r),
-                        label=f"robust-vo {run} (val)",
+                        label=f"robust-vo {run} (val{warm})",
                     )
+                    if mine[0].start_from:
+                        begin = mine[0].start if x == "pairs" else mine[0].start_hours
+                        ax.axvline(begin, ls=":", lw=1.2, color=colours(r))
             for k, odo in enumerate(odometers):
                 if (odo, action, comp) in classical:
                     ax.axhline(
@@ -202,7 +253,7 @@ def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path
                         ls="--",
                         lw=1,
                         color=colours(len(runs) + k),
-                        label=f"{odo} (test)",
+                        label=f"{odo} ({split or 'a comparison'})",
                     )
             ax.set_title(f"{action}: {comp}")
             ax.set_ylabel(f"mean abs. error ({UNITS[comp]} x 1e-2)")
@@ -211,14 +262,19 @@ def draw(points: list[Point], classical: dict[tuple[str, str, str], float], path
                 ax.xaxis.set_major_formatter(ticker.FuncFormatter(_count))
                 ax.xaxis.set_minor_formatter(ticker.NullFormatter())
             ax.grid(alpha=0.3)
-            if i == 2:
+            if x == "pairs" or i == 2:  # samples of the row's own action: each row its own axis
                 ax.set_xlabel(
-                    "training samples seen (all stages so far)" if x == "pairs" else "training hours (2-core CPU)"
+                    f"training samples of {'forward steps' if action == 'move_forward' else 'turns'} seen"
+                    if x == "pairs"
+                    else "training hours (2-core CPU)"
                 )
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), frameon=False)
     what = "samples seen" if x == "pairs" else "training hours"
-    fig.suptitle(f"robust-vo validation error against {what}; the classical rows' test errors as lines")
+    lines = f"the classical rows' {split} errors" if split else "a comparison's errors"
+    fig.suptitle(
+        f"robust-vo validation error against {what}; {lines} as dashed lines; dotted: a warm-started run's start"
+    )
     fig.tight_layout(rect=(0, 0.08, 1, 0.97))
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -293,8 +349,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         raise UsageError(f"--classical: {exc}") from None
     check_report_dir(args.out, "--out", manifest="scaling.csv")  # inputs read first: nothing made on a typo
-    draw(points, classical, args.out / "scaling.png", "pairs")
-    draw(points, classical, args.out / "scaling-hours.png", "hours")
+    split = classical_split(args.classical)
+    draw(points, classical, args.out / "scaling.png", "pairs", split)
+    draw(points, classical, args.out / "scaling-hours.png", "hours", split)
     write_points(points, args.out / "scaling.csv")
     print(f"{len(points)} validation points of {len(args.runs)} runs -> {args.out}")
     return 0
