@@ -98,8 +98,14 @@ class RouteSpec:
             refuse("goal_radius", f"a positive number of metres below min_leg ({self.min_leg:g})")
         if not self.min_leg < self.max_leg:
             refuse("max_leg", f"a number of metres above min_leg ({self.min_leg:g})")
-        if self.building != 0 and not (20.0 <= self.building <= 2000.0 and self.building >= self.min_leg * 4):
-            refuse("building", f"0 (a floor plan) or a length in [20, 2000] m of at least 4 x min_leg ({4 * self.min_leg:g})")
+        if self.building != 0 and not (
+            20.0 <= self.building <= 2000.0 and self.building >= max(self.length, 4 * self.min_leg)
+        ):
+            refuse(
+                "building",
+                f"0 (a floor plan) or a length in [20, 2000] m of at least the route's length ({self.length:g}) "
+                f"and 4 x min_leg ({4 * self.min_leg:g})",
+            )
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> RouteSpec:
@@ -108,6 +114,15 @@ class RouteSpec:
         noise = NoiseConfig(**values.pop("noise", {}))
         camera = CameraSpec(**values.pop("camera", {}))
         return cls(**values, noise=noise, camera=camera)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The spec as plain data (:func:`dataclasses.asdict`; :meth:`from_dict` reads it back), with
+        ``building`` left out while 0: a floor plan's route is described, and keyed, as before
+        buildings existed."""
+        spec = asdict(self)
+        if not self.building:
+            del spec["building"]
+        return spec
 
     @property
     def name(self) -> str:
@@ -118,10 +133,7 @@ class RouteSpec:
         """Stable short hash of the spec and of the simulator's version (what its frames depend on)."""
         from odolab.sim.redwood import table_digest
 
-        spec = asdict(self)
-        if not self.building:  # a floor plan's route: its key as before buildings existed
-            del spec["building"]
-        blob = {"route": ROUTE_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **spec}
+        blob = {"route": ROUTE_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **self.to_dict()}
         return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:16]
 
     def streams(self) -> list[np.random.Generator]:

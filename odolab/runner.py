@@ -217,8 +217,18 @@ def _attribute(odometer: Odometer, name: str) -> Any:
     """``odometer.<name>``; :class:`AttributeProblem` when reading it raises."""
     try:
         return getattr(odometer, name)
-    except Exception as exc:  # noqa: BLE001 - a property of a plug-in may raise anything
-        raise AttributeProblem(f"reading {name} raised {type(exc).__name__}: {exc}") from None
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # noqa: BLE001 - a property of a plug-in may raise anything, sys.exit too
+        raise AttributeProblem(f"reading {name} raised {type(exc).__name__}: {_text(exc)}") from None
+
+
+def _text(exc: BaseException) -> str:
+    """An exception's message; a placeholder where its ``__str__`` itself raises."""
+    try:
+        return str(exc)
+    except Exception:  # noqa: BLE001 - a plug-in's exception class may be broken
+        return "(its message could not be read)"
 
 
 def _whole(name: str, value: Any, lo: int, hi: int) -> int:
@@ -301,8 +311,10 @@ class _Caller:
             self._worker = None
 
     def call(self, fn: Callable[[], Any], pairs: int = 1) -> _Call | None:
-        """``fn`` made and timed; None when it ran past ``timeout * pairs`` s (abandoned).
-        An exception other than ``Exception`` or ``SystemExit`` (e.g. ``KeyboardInterrupt``) is raised here."""
+        """``fn`` made and timed; None when it ran past ``timeout * pairs`` s (abandoned). A
+        ``KeyboardInterrupt`` is raised here; any other exception (``SystemExit`` and
+        ``GeneratorExit`` included) is the call's error. A call stuck in C code that holds the
+        interpreter lock is only abandoned once it lets go of it."""
         call = _Call(fn)
         if self.timeout is None:
             call.make()
@@ -314,7 +326,7 @@ class _Caller:
                 self._worker.close()  # still busy with the call; it ends when (if) the call returns
                 self._worker = None
                 return None
-        if call.error is not None and not isinstance(call.error, (Exception, SystemExit)):
+        if isinstance(call.error, KeyboardInterrupt):
             raise call.error
         return call
 
@@ -359,7 +371,9 @@ class _StepLog:
     def note(self, where: str, exc: BaseException | str) -> None:
         """Keep the message of ``exc`` (or the text ``exc``) raised at ``where``, up to ``max_errors``."""
         if len(self.errors) < self.max_errors:
-            self.errors.append(f"{where}: {exc}" if isinstance(exc, str) else f"{where}: {type(exc).__name__}: {exc}")
+            self.errors.append(
+                f"{where}: {exc}" if isinstance(exc, str) else f"{where}: {type(exc).__name__}: {_text(exc)}"
+            )
 
     def fail(self, first: int, count: int, reason: str, seconds: float = 0.0) -> None:
         """Steps ``first .. first + count - 1`` failed for ``reason``, ``seconds`` spent on them in all."""
@@ -624,13 +638,14 @@ class StepByStep:
         return True
 
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
-        """The odometer's answer for one pair of guarded frames (:meth:`frame`), or None (failed)."""
+        """The odometer's answer for one pair of guarded frames (:meth:`frame`), asked as the runner
+        asks (``step_batch`` of the one pair: an odometer may define either), or None (failed)."""
         if self._broken is None and self._in_a_row >= MAX_TIMEOUTS_IN_A_ROW:
             self._broken = "timed-out"
         if self._broken is not None:
             self.reasons[self._broken] += 1
             return None
-        call = self._call(lambda: own_copy(self.odometer.step(prev, cur, action)))
+        call = self._call(lambda: _ask(self.odometer, [(prev, cur, action)]))
         if call is None:
             self._in_a_row += 1
             self.reasons["timed-out"] += 1
@@ -642,15 +657,19 @@ class StepByStep:
             self.reasons["raised"] += 1
             self._log.note("step", call.error)
             return None
+        if len(call.value) != 1:
+            self.reasons["batch-length"] += 1
+            return None
+        (answer,) = call.value
         try:
-            reason = failure_reason(call.value)
+            reason = failure_reason(answer)
         except Exception as exc:  # noqa: BLE001 - not an Estimate at all
             self._log.note("step", exc)
             reason = "raised"
         if reason is not None:
             self.reasons[reason] += 1
             return None
-        return call.value
+        return answer
 
     def close(self) -> None:
         """Let the worker thread go (a step it stopped waiting for may still be running)."""

@@ -1002,7 +1002,7 @@ def floor_findings(lines: list[dict[str, Any]]) -> list[str]:
         said.append(
             f"Per-step error against the action prior (row {prior['row']}: {', '.join(f'{c} {prior[c]:.2f}' for c in COMPONENTS)}"
             f"), rows below it by more than both rows' standard deviations over the seeds"
-            f"{'' if math.isfinite(prior['dx_sd']) else ' (none with one seed)'}: {'; '.join(f'{c}: {rows(below[c])}' for c in COMPONENTS)}"
+            f"{'' if math.isfinite(prior['dx_sd']) else ' (one seed: no standard deviation, so simply below)'}: {'; '.join(f'{c}: {rows(below[c])}' for c in COMPONENTS)}"
         )
     if math.isfinite(prior["S"]):
         better = {
@@ -1493,10 +1493,10 @@ def _only_rows(text: str | None, scale: Scale, name: str) -> Callable[[framework
 
     if text is None:
         return None
-    try:
-        chosen = {int(t) for t in text.split(",")}
-    except ValueError:
-        raise UsageError(f"--rows: expected row numbers separated by commas, got {text!r}") from None
+    parts = [t.strip() for t in text.split(",")]
+    if not all(re.fullmatch(r"[0-9]{1,3}", t) for t in parts):
+        raise UsageError(f"--rows: expected row numbers separated by commas, got {text!r}")
+    chosen = {int(t) for t in parts}
     unknown = sorted(chosen - set(scale.rows))
     if unknown:
         raise UsageError(
@@ -1539,6 +1539,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     scale = definition.scales[args.scale]
+    if args.rows is not None and args.redraw:
+        raise UsageError("--rows chooses units to compute; --redraw computes none: give one of them")
     only = _only_rows(args.rows, scale, args.scale)
     out = args.out or default_out(args.scale)
     check_gpus(scale, args.scale, serial=args.serial, address=args.ray_address, redraw=args.redraw)

@@ -7,7 +7,9 @@ route, and its integrated path is scored as KITTI's odometry benchmark scores on
 A route (odolab.routes) has the episodes' laws: the challenge's actuation noise, collisions that stop
 the agent at contact, Habitat's greedy shortest-path follower, RGB and Redwood depth noise; each
 next goal is drawn from the route's seed among the navigable points within a set geodesic distance
-of the agent, on a floor plan larger than an episode's. t_rel and r_rel follow KITTI's devkit:
+of the agent, on a floor plan larger than an episode's, or, crossing a long building, ahead of the
+agent along it (end_to_end_ratio: the median over 100 m segments of the distance between a segment's
+ends over its length; near 0 where routes fold back and t_rel reads loop geometry more than drift). t_rel and r_rel follow KITTI's devkit:
 segments of 100, 200, ..., 800 m of true path start at every 10th frame, the translation error (%)
 and rotation error (deg per 100 m) of each are divided by its length and averaged over every
 segment of every route; a route holds the lengths shorter than itself. ATE is the RMSE of the
@@ -17,7 +19,6 @@ is the final position error per 100 m travelled; dx, dz, dyaw the per-step error
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import hashlib
 import math
@@ -139,9 +140,7 @@ def run_label(odometer: str, spec: RouteSpec) -> str:
 def route_units(scale: Scale) -> list[framework.Unit]:
     """One unit per route (its motion and ground truth); the key is the route's spec and its digest
     (which holds the simulator's version)."""
-    return [
-        framework.Unit(route_label(s), {"route": dataclasses.asdict(s), "route_key": s.key()}) for s in scale.specs()
-    ]
+    return [framework.Unit(route_label(s), {"route": s.to_dict(), "route_key": s.key()}) for s in scale.specs()]
 
 
 def run_units_of(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]:
@@ -149,7 +148,7 @@ def run_units_of(scale: Scale, identity: dict[str, str | None]) -> list[framewor
     return [
         framework.Unit(
             run_label(odo, s),
-            {"odometer": odo, "identity": identity[odo], "route": dataclasses.asdict(s), "route_key": s.key()},
+            {"odometer": odo, "identity": identity[odo], "route": s.to_dict(), "route_key": s.key()},
         )
         for odo in scale.odometers
         for s in scale.specs()
@@ -535,8 +534,8 @@ def findings(rows: list[dict[str, Any]], routes: list[dict[str, Any]]) -> list[s
             + ", ".join(f"{100 * np.mean(v):.0f} % ({L} m)" for L, v in net.items() if v)
             + " of its length apart (on a straight drive: 100 %). A segment's translation error is the distance "
             "between its true and its estimated displacement, so a heading error moves a short displacement "
-            "little: routes that loop through one floor plan show less t_rel than a straight drive with the same "
-            "heading drift would; r_rel does not depend on it."
+            "little: routes whose segments end near their start show less t_rel than a straight drive with the "
+            "same heading drift would; r_rel does not depend on it."
         )
     overall = [r for r in rows if r["route"] == "all" and math.isfinite(r["t_rel"])]
     if overall:
@@ -634,7 +633,7 @@ def draw_route(route: dict[str, Any], runs: list[tuple[str, dict[str, Any]]], na
     gt = np.asarray(route["path"], float)
     building = float(route.get("building", 0.0))
     scene = generate_scene(route["scene_seed"], scale=route["scene_scale"], length=building or None)
-    panels = [f for f in FAMILIES if any(family(n) == f for n, _ in runs)]
+    panels = [f for f in FAMILIES if any(family(n) == f for n, _ in runs)] or ["references"]  # no run: the route
     everything = np.concatenate([gt] + [np.asarray(r["path"], float) for _, r in runs])
     lo, hi = everything.min(axis=0) - 2.0, everything.max(axis=0) + 2.0
     wide = building > 0 or (hi[0] - lo[0]) > 2 * (hi[1] - lo[1])
@@ -668,7 +667,7 @@ def draw_route(route: dict[str, Any], runs: list[tuple[str, dict[str, Any]]], na
         ax.set_xlabel("world x (m)")
         ax.set_ylabel("world y (m)")
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0) if wide else (0.0, -0.15), frameon=False)
-    stretched = " (y stretched: the building is long)" if wide else ""
+    stretched = " (x and y drawn to different scales: the building is long)" if wide else ""
     fig.suptitle(f"Route {route['route']}, {len(gt) - 1} steps: true path (black) and each odometer's{stretched}")
     fig.tight_layout()
     save_figure_atomic(fig, path)
@@ -696,7 +695,13 @@ def intro(scale_name: str, scale: Scale, rows: list[dict[str, Any]], note: str) 
         " ".join(__doc__.split("\n\n")[2].split()),
         (
             f"Scale {scale_name}: {scale.routes} route(s) of {scale.length:g} m ({scale.split} split, seed {scale.seed}) "
-            f"through floor plans of {scale.scene_scale:g} x an episode's sides, goals {scale.min_leg:g}-"
+            + (
+                f"across buildings {scale.building:g} m long (an episode's plan width x {scale.scene_scale:g}), "
+                "each goal ahead along it, "
+                if scale.building
+                else f"through floor plans of {scale.scene_scale:g} x an episode's sides, "
+            )
+            + f"goals {scale.min_leg:g}-"
             f"{scale.max_leg:g} m apart; camera {scale.camera[0]} x {scale.camera[1]} px. Segment lengths held: "
             f"{held} m. Rows: each odometer over all routes (route 'all'), then route by route; t_rel in %, r_rel in "
             f"deg/100 m, ATE in m, drift in m per 100 m travelled, dx dz dyaw x 1e-2 (m, m, rad) and their signed means (the bias, which integrates into drift), fps in steps/s.{note}"

@@ -524,6 +524,12 @@ def test_rows_computes_only_those_rows_and_reports_the_rest_as_missing(tmp_path:
     assert float(rows["21"]["dx"]) > 0 and rows["18"]["dx"] == "nan" and not (out / "models").exists()
     from odolab.cli import UsageError
 
-    for bad, words in (("19", "row 19 is not a row of --scale ci"), ("4,x", "expected row numbers")):
+    for bad, words in (
+        ("19", "row 19 is not a row of --scale ci"),
+        ("4,x", "expected row numbers"),
+        ("1_8", "expected"),
+    ):
         with pytest.raises(UsageError, match=words):
             ablations.main(["--scale", "ci", "--out", str(out), "--rows", bad])
+    with pytest.raises(UsageError, match="--redraw computes none"):
+        ablations.main(["--scale", "ci", "--out", str(out), "--rows", "21", "--redraw"])

@@ -383,6 +383,26 @@ def test_step_by_step_guards_a_closed_loop_as_the_runner_guards_a_sequence(relea
             reused[2, 3] += 0.25
             return api.Estimate(reused)
 
+    class BatchOnly(api.Odometer):  # answers through step_batch alone, as the runner asks it
+        batch_size = 4
+
+        def step_batch(self, pairs):
+            return [api.Estimate(FORWARD) for _ in pairs]
+
+    class Unprintable(Exception):
+        def __str__(self):
+            raise RuntimeError("no text")
+
+    class RaisesOddly(api.Odometer):
+        def step(self, prev, cur, action):
+            raise [GeneratorExit(), Unprintable()][int(cur.timestamp * 10) % 2]
+
+    with runner.StepByStep(BatchOnly(), "batch-only") as asked:
+        assert [asked.step(*pair) is not None for pair in _pairs(2)] == [True, True]
+    with runner.StepByStep(RaisesOddly(), "odd") as asked:  # failed steps, not a traceback
+        assert [asked.step(*pair) for pair in _pairs(2)] == [None, None] and asked.reasons == {"raised": 2}
+        assert "Unprintable: (its message could not be read)" in " ".join(asked.errors)
+
     with runner.StepByStep(Reusing(), "reusing") as asked:
         asked.reset(Tiny().intrinsics)
         got = [asked.step(asked.frame(p), asked.frame(c), a) for p, c, a in _pairs(3)]

@@ -166,6 +166,10 @@ def _run(
             f"SPL {r['spl']:.2f}  SoftSPL {r['soft_spl']:.2f}  final belief error {r['belief_error']:.2f} m  "
             f"{failed_steps_text(r['failed_steps'], r['steps'] * r['episodes'])}  ({counted(r['episodes'], 'episode')})"
         )
+    for name in names:  # why an odometer's steps failed, once, as compare says it
+        said = next((e for r in rows if r["odometer"] == name for e in r.get("errors", []) if isinstance(e, str)), None)
+        if said:
+            print(f"note: {name}: {said[:300]}", file=sys.stderr)
     print(f"wrote {args.out}/report.html")
     return 0
 

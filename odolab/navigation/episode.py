@@ -30,7 +30,8 @@ from odolab.types import Action
 @dataclass(frozen=True)
 class NavigationRun:
     """What happened: the metrics' inputs, the true and believed positions (world x, y m; the
-    belief mapped into the world through the true start pose), the goal (world) and the actions."""
+    belief mapped into the world through the true start pose), the goal (world), the actions, the
+    failed steps and the first few failures' messages."""
 
     spec: EpisodeSpec
     outcome: EpisodeOutcome
@@ -39,6 +40,7 @@ class NavigationRun:
     goal: tuple[float, float]
     actions: np.ndarray
     failed_steps: int
+    errors: tuple[str, ...] = ()  # the first few failures' messages (what raised or timed out, and where)
 
 
 def navigate(
@@ -62,7 +64,7 @@ def navigate(
     goal = in_agent_frame(begin.goal, begin.start.x, begin.start.y, begin.start.yaw)  # the point-goal sensor's reading
     agent = MapPlanAgent(tuple(goal), cam.intrinsics, cam.mount_height, policy)
     true_xy, believed_xy, actions = [(env.state.x, env.state.y)], [(0.0, 0.0)], []
-    stopped, failed = False, 0
+    stopped, failed, errors = False, 0, []
     with StepByStep(odometer, "navigation", step_timeout) as asked:
         asked.reset(cam.intrinsics)
         frame = env.observe(0.0)
@@ -86,6 +88,7 @@ def navigate(
             actions.append(action.value)
             true_xy.append((env.state.x, env.state.y))
             believed_xy.append(agent.belief[:2])
+        errors = [*asked.errors, *(f"{n} step(s) {r}" for r, n in sorted(asked.reasons.items()) if r != "raised")]
     clock.add("planning", agent.plan_seconds)
     clock.add("steps", len(actions))
     true = np.array(true_xy)
@@ -100,7 +103,7 @@ def navigate(
         steps=len(actions),
         collisions=env.collisions,
     )
-    return NavigationRun(spec, outcome, true, believed, begin.goal, np.array(actions, np.int8), failed)
+    return NavigationRun(spec, outcome, true, believed, begin.goal, np.array(actions, np.int8), failed, tuple(errors))
 
 
 class _Clock:

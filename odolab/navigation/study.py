@@ -121,6 +121,7 @@ def run_task(task: NavTask) -> dict[str, Any]:
         "spl": o.spl,
         "soft_spl": o.soft_spl,
         "failed_steps": run.failed_steps,
+        "errors": list(run.errors),  # why steps failed (not checked on reading: a note, no number)
         "weights": task.identity_digest,
         "goal": list(run.goal),
         "true_xy": run.true_xy.round(4).tolist(),
