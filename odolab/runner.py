@@ -28,7 +28,7 @@ odometer's ``reset`` and ``step_batch`` calls run in a worker thread (a daemon) 
 at most ``step_timeout`` per pair; a call past it fails its steps (``timed-out``). Python cannot stop
 a thread, so the call is abandoned, not killed: it may go on in the background until it returns
 (or the process ends), and the next call gets a fresh worker. After
-:data:`MAX_TIMEOUTS_IN_A_ROW` timed-out calls in a row the odometer is stopped for the rest of the
+:data:`MAX_TIMEOUTS` timed-out calls (in all, not only in a row) the odometer is stopped for the rest of the
 sequence (its remaining steps fail as ``timed-out`` without being asked). ``reset`` and the steps of
 one sequence share one thread, so thread-local state an odometer sets in ``reset`` holds in its
 steps. A ``step_batch`` that yields without end is read for at most one item more than it was given
@@ -73,8 +73,9 @@ ROTATION_TOLERANCE = 1e-3
 #: Seconds one step (one pair; a batch gets this per pair) may take before it counts as failed
 #: (``timed-out``): generous, as the slowest odometer here takes well under a second per step.
 DEFAULT_STEP_TIMEOUT = 60.0
-#: Timed-out calls in a row after which an odometer is stopped for the rest of its sequence.
-MAX_TIMEOUTS_IN_A_ROW = 3
+#: Timed-out calls after which an odometer is stopped for the rest of its sequence (in all: one that
+#: hangs on every other step is stopped too, so a sequence waits at most this many time limits).
+MAX_TIMEOUTS = 3
 #: The largest ``batch_size`` an odometer may declare (far above any sequence here).
 MAX_BATCH_SIZE = 1_000_000
 #: The :class:`Frame` fields only oracle odometers see (removed for the others, :func:`guarded_frame`).
@@ -448,22 +449,21 @@ def _run_steps(
     observer: RunObserver | None,
 ) -> None:
     """Ask the odometer about every pair, one ``step_batch`` call per chunk, timed and time-limited;
-    after :data:`MAX_TIMEOUTS_IN_A_ROW` timed-out calls in a row, the remaining pairs are not asked."""
-    in_a_row = 0
+    after :data:`MAX_TIMEOUTS` timed-out calls, the remaining pairs are not asked."""
+    timeouts = 0
     for first, chunk in _step_chunks(seq, attrs.oracle, attrs.batch_size, log):
         count = len(chunk)
-        if in_a_row >= MAX_TIMEOUTS_IN_A_ROW:
+        if timeouts >= MAX_TIMEOUTS:
             log.fail(first, count, "timed-out")
         else:
             call = caller.call(lambda chunk=chunk: _ask(odometer, chunk), count)
             if call is None:
-                in_a_row += 1
+                timeouts += 1
                 log.asked[first : first + count] = True
                 log.fail(first, count, "timed-out", caller.timeout * count)
-                stopped = "; stopped for the rest of the sequence" if in_a_row == MAX_TIMEOUTS_IN_A_ROW else ""
+                stopped = "; stopped for the rest of the sequence" if timeouts == MAX_TIMEOUTS else ""
                 log.note(_steps_text(first, count), f"timed out after {caller.timeout * count:g} s{stopped}")
             else:
-                in_a_row = 0
                 if call.error is not None:
                     log.note(_steps_text(first, count), call.error)
                 log.answer(first, count, None if call.error is not None else call.value, call.seconds)
@@ -593,7 +593,7 @@ class StepByStep:
     """One odometer asked one pair at a time as its caller decides (closed-loop navigation, probes),
     under the runner's guards: its attributes read once (unusable: every step fails), ``reset`` and
     each ``step`` time-limited (``step_timeout`` s per pair, None: none), stopped after
-    :data:`MAX_TIMEOUTS_IN_A_ROW` timed-out steps in a row, each answer copied and checked.
+    :data:`MAX_TIMEOUTS` timed-out steps, each answer copied and checked.
     :meth:`frame` guards a frame as the runner does (ground truth only for oracles); :meth:`step`
     answers the copied :class:`Estimate` or None, the reason counted in ``reasons`` and the first
     few messages in ``errors``. Use as a context manager (:meth:`close` lets the worker thread go)."""
@@ -605,7 +605,7 @@ class StepByStep:
         self._caller = _Caller(name, step_timeout)
         self._log = _StepLog(0, max_errors)
         self.reasons: Counter[str] = Counter()
-        self._in_a_row = 0
+        self._timeouts = 0
         try:
             self.attributes: Attributes | None = read_attributes(odometer)
         except AttributeProblem as exc:
@@ -640,19 +640,18 @@ class StepByStep:
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
         """The odometer's answer for one pair of guarded frames (:meth:`frame`), asked as the runner
         asks (``step_batch`` of the one pair: an odometer may define either), or None (failed)."""
-        if self._broken is None and self._in_a_row >= MAX_TIMEOUTS_IN_A_ROW:
+        if self._broken is None and self._timeouts >= MAX_TIMEOUTS:
             self._broken = "timed-out"
         if self._broken is not None:
             self.reasons[self._broken] += 1
             return None
         call = self._call(lambda: _ask(self.odometer, [(prev, cur, action)]))
         if call is None:
-            self._in_a_row += 1
+            self._timeouts += 1
             self.reasons["timed-out"] += 1
-            stopped = "; stopped" if self._in_a_row == MAX_TIMEOUTS_IN_A_ROW else ""
+            stopped = "; stopped" if self._timeouts == MAX_TIMEOUTS else ""
             self._log.note("step", f"timed out after {self._caller.timeout:g} s{stopped}")
             return None
-        self._in_a_row = 0
         if call.error is not None:
             self.reasons["raised"] += 1
             self._log.note("step", call.error)

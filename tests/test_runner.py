@@ -154,7 +154,7 @@ def test_an_odometer_that_keeps_timing_out_is_stopped_for_the_sequence(release):
     t0 = time.perf_counter()
     res = runner.run_sequence(odo, Tiny(frames=11), "stuck", PRIOR, step_timeout=0.03)
     assert time.perf_counter() - t0 < 0.5  # 3 waits, not 10
-    assert res.failure_reasons == {"timed-out": 10} and odo.calls == runner.MAX_TIMEOUTS_IN_A_ROW
+    assert res.failure_reasons == {"timed-out": 10} and odo.calls == runner.MAX_TIMEOUTS
     assert res.asked.sum() == 3 and res.step_seconds[3:].sum() == 0
     assert "stopped for the rest of the sequence" in res.errors[-1]
     assert len(res.timestamps) == 11  # every frame was still read
@@ -349,14 +349,14 @@ def _pairs(n: int) -> list[tuple[Frame, Frame, Action]]:
 
 
 def test_step_by_step_guards_a_closed_loop_as_the_runner_guards_a_sequence(release):
-    """StepByStep (navigation, probes): a hanging step times out and is stopped after three in a row,
+    """StepByStep (navigation, probes): a hanging step times out and is stopped after three timeouts,
     a raising reset or attribute fails every step, answers are copies, frames hide the truth."""
     with runner.StepByStep(Stuck(range(100), release), "stuck", step_timeout=0.03) as asked:
         assert asked.reset(Tiny().intrinsics)
         t0 = time.perf_counter()
         answers = [asked.step(asked.frame(p), asked.frame(c), a) for p, c, a in _pairs(6)]
         assert time.perf_counter() - t0 < 0.5 and answers == [None] * 6  # 3 waits, not 6
-        assert asked.reasons == {"timed-out": 6} and asked.odometer.calls == runner.MAX_TIMEOUTS_IN_A_ROW
+        assert asked.reasons == {"timed-out": 6} and asked.odometer.calls == runner.MAX_TIMEOUTS
         assert asked.errors[-1] == "step: timed out after 0.03 s; stopped"
 
     class BadReset(api.Odometer):
@@ -407,3 +407,10 @@ def test_step_by_step_guards_a_closed_loop_as_the_runner_guards_a_sequence(relea
         asked.reset(Tiny().intrinsics)
         got = [asked.step(asked.frame(p), asked.frame(c), a) for p, c, a in _pairs(3)]
         assert [e.transform[2, 3] for e in got] == [0.25, 0.5, 0.75] and not asked.reasons
+
+
+def test_an_odometer_that_hangs_on_every_other_step_is_stopped_too(release):
+    """Timeouts count in all, not only in a row: a sequence waits at most MAX_TIMEOUTS time limits."""
+    odo = Stuck(range(0, 100, 2), release)
+    res = runner.run_sequence(odo, Tiny(frames=11), "every-other", PRIOR, step_timeout=0.03)
+    assert res.failure_reasons["timed-out"] == 10 - 2 and odo.calls == 2 * runner.MAX_TIMEOUTS - 1

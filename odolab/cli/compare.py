@@ -107,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--step-timeout",
         type=number("--step-timeout", float, 0.001, 86400.0),
         default=60.0,
-        help="seconds one step of an odometer may take before it fails as timed-out; after 3 in a row the "
+        help="seconds one step of an odometer may take before it fails as timed-out; after 3 such steps the "
         "odometer is stopped for the sequence (default 60)",
     )
     for kind, default, what in (
