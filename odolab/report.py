@@ -570,22 +570,7 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     drawn = [n for n in names if n != "ground-truth"]  # drawn as the black ground truth: no colour of its own
     fig, ax = plt.subplots(figsize=(5.6, 6.0))
     if plan is not None:
-        h, w = plan.free.shape
-        extent = (
-            plan.origin[0],
-            plan.origin[0] + w * plan.resolution,
-            plan.origin[1],
-            plan.origin[1] + h * plan.resolution,
-        )
-        ax.imshow(
-            np.where(plan.free, 1.0, OBSTACLE_SHADE),
-            cmap="gray",
-            vmin=0,
-            vmax=1,
-            origin="lower",
-            extent=extent,
-            interpolation="nearest",
-        )
+        draw_floor_plan(ax, plan)
     ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2.5, label="ground truth")
     ax.plot(gt[-1, 0], gt[-1, 1], "ks", ms=7, zorder=4)
     for r in mine:
@@ -631,6 +616,20 @@ def plot_sequence(mine: list[SequenceResult], path: Path, names: list[str], plan
     fig.tight_layout()
     save_figure_atomic(fig, path)
     plt.close(fig)
+
+
+def draw_floor_plan(ax: Any, plan: FloorPlan, aspect: str | None = None) -> None:
+    """Draw ``plan`` under a top-down figure's paths: free cells white, the rest grey
+    (:data:`OBSTACLE_SHADE`), at their world x, y (m); ``aspect`` as :meth:`~matplotlib.axes.Axes.imshow`'s."""
+    h, w = plan.free.shape
+    extent = (
+        plan.origin[0],
+        plan.origin[0] + w * plan.resolution,
+        plan.origin[1],
+        plan.origin[1] + h * plan.resolution,
+    )
+    ax.imshow(np.where(plan.free, 1.0, OBSTACLE_SHADE), cmap="gray", vmin=0, vmax=1, origin="lower", extent=extent,
+              interpolation="nearest", aspect=aspect)  # fmt: skip
 
 
 def _draw_goal(ax: Any, goal: np.ndarray, centre: np.ndarray, half: float, end: np.ndarray) -> Any:

@@ -627,7 +627,7 @@ def draw_route(route: dict[str, Any], runs: list[tuple[str, dict[str, Any]]], na
     import matplotlib.pyplot as plt
 
     from odolab.io.atomic import save_figure_atomic
-    from odolab.report import OBSTACLE_SHADE, trajectory_style
+    from odolab.report import FloorPlan, draw_floor_plan, trajectory_style
     from odolab.sim.scenes import generate_scene
 
     gt = np.asarray(route["path"], float)
@@ -639,17 +639,9 @@ def draw_route(route: dict[str, Any], runs: list[tuple[str, dict[str, Any]]], na
     wide = building > 0 or (hi[0] - lo[0]) > 2 * (hi[1] - lo[1])
     size = (16, 2.2 * len(panels) + 1.2) if wide else (5.2 * len(panels), 6.2)
     fig, axes = plt.subplots(*((len(panels), 1) if wide else (1, len(panels))), figsize=size, squeeze=False)
-    h, w = scene.free.shape
-    extent = (
-        scene.origin[0],
-        scene.origin[0] + w * scene.resolution,
-        scene.origin[1],
-        scene.origin[1] + h * scene.resolution,
-    )
     drawn = [n for n in names if n != "ground-truth"]
     for ax, fam in zip(axes.ravel(), panels):
-        ax.imshow(np.where(scene.free, 1.0, OBSTACLE_SHADE), cmap="gray", vmin=0, vmax=1, origin="lower",
-                  extent=extent, interpolation="nearest", aspect="auto")  # fmt: skip
+        draw_floor_plan(ax, FloorPlan(scene.free, scene.origin, scene.resolution), aspect="auto")
         ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2.2, label="ground truth", zorder=3)
         for name, r in runs:
             if family(name) != fam:

@@ -147,6 +147,7 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
     import matplotlib.pyplot as plt
 
     from odolab.episodes import start_environment
+    from odolab.report import FloorPlan, draw_floor_plan
 
     env, begin = start_environment(spec, sensors=False)
     scene = env.scene
@@ -164,23 +165,9 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
     fig, axes = plt.subplots(
         rows_n, cols, figsize=(3.6 * cols, 3.6 * rows_n + 0.9), squeeze=False, sharex=True, sharey=True
     )
-    h, w = scene.navigable.shape
-    extent = (
-        scene.origin[0],
-        scene.origin[0] + w * scene.resolution,
-        scene.origin[1],
-        scene.origin[1] + h * scene.resolution,
-    )
+    plan = FloorPlan(scene.navigable, scene.origin, scene.resolution)
     for ax, (name, row) in zip(axes.flat, runs):
-        ax.imshow(
-            np.where(scene.navigable, 1.0, 0.75),
-            cmap="gray",
-            vmin=0,
-            vmax=1,
-            origin="lower",
-            interpolation="nearest",
-            extent=extent,
-        )
+        draw_floor_plan(ax, plan)
         verdict = ""
         if row is not None:
             true, belief = np.array(row["true_xy"]), np.array(row["believed_xy"])
