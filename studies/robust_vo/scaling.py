@@ -3,7 +3,7 @@ Validation error per action and component against samples seen and training hour
 robust-VO training runs, with the classical odometers' test errors as horizontal lines.
 
     python -m studies.robust_vo.scaling [--runs reports/robust-vo/shipped reports/robust-vo/shipped-341]
-        [--classical reports/compare-test-20x100/table_per_action.csv] [--out reports/robust-vo/scaling]
+        [--classical reports/compare-val-20x100/table_per_action.csv] [--out reports/robust-vo/scaling]
 
 Reads only committed reports: each run's ``curves.csv`` (written by ``python -m
 odolab.robust_vo.train``) and a comparison's ``table_per_action.csv`` (``python -m odolab.compare``).
@@ -321,8 +321,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--classical",
         type=path_arg("--classical"),
-        default=Path("reports/compare-test-20x100/table_per_action.csv"),
-        help="a compare run's table_per_action.csv (default reports/compare-test-20x100/...)",
+        default=Path("reports/compare-val-20x100/table_per_action.csv"),
+        help="a compare run's table_per_action.csv (default reports/compare-val-20x100/...: validation episodes, "
+        "as the curves)",
     )
     ap.add_argument(
         "--out",
