@@ -274,12 +274,14 @@ def _needs_action(name: str, odometer: Odometer) -> bool:
 
 
 def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple[Iterator, int | None]:
-    """Episodes in spec order and the total step count when known. With a cache the missing ones
-    are generated first and each is read back when its turn comes, so memory holds one."""
+    """Episodes in spec order and the total step count (for the progress bar). With a cache the
+    missing ones are generated first and each is read back when its turn comes, so memory holds
+    one; without one, all are made and held."""
     from odolab.episodes import EpisodeCache, generate_episodes, load_episodes, stream_episodes
 
-    if config.cache is None:
-        return iter(load_episodes(specs, None, execution=config.execution)), None
+    if config.cache is None:  # every episode in memory: the total is known too
+        episodes = load_episodes(specs, None, execution=config.execution)
+        return iter(episodes), sum(len(ep) - 1 for ep in episodes)
     cache = EpisodeCache(config.cache)
     generate_episodes(specs, cache, execution=config.execution)
     return stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)

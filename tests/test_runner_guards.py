@@ -188,6 +188,28 @@ def test_progress_reaches_an_observer(episode):
     assert sum(e[1] for e in ear.events[1:-1]) == n
 
 
+def test_a_comparison_without_an_episode_cache_tells_its_progress_the_total_at_the_start():
+    from odolab.api import SERIAL, ComparisonConfig, run_comparison
+
+    class Listener:
+        def __init__(self):
+            self.total = "not told"
+
+        def start(self, total):
+            self.total = total
+
+        def advance(self, name, steps):
+            pass
+
+        def close(self):
+            pass
+
+    ear = Listener()
+    config = ComparisonConfig(odometers=["ground-truth"], episodes=2, max_steps=4, cache=None, execution=SERIAL)
+    result = run_comparison(config, observer=ear)
+    assert ear.total == sum(len(r.actions) for r in result.results) and ear.total > 0
+
+
 def test_compare_prints_failure_reasons(tmp_path, capsys):
     from odolab.cli import run_cli
     from odolab.compare import main
