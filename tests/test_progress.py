@@ -35,3 +35,31 @@ def test_the_progress_bar_keeps_its_width_and_shows_each_odometers_own_rate(tota
     assert "11.6 step/s" in texts[-1]  # the time before it started again (9 s) is not feature-essential's
     assert bar.rate("icp") == pytest.approx(100 / 0.775)
     bar.close()
+
+
+def test_a_terminal_too_narrow_for_a_bar_gets_a_line_at_the_start_each_quarter_and_the_end(monkeypatch):
+    import odolab.progress as progress
+
+    class Narrow(io.StringIO):
+        def isatty(self):
+            return True
+
+        def fileno(self):
+            return 2
+
+    monkeypatch.setattr(progress.os, "get_terminal_size", lambda fd: progress.os.terminal_size((0, 24)))
+    out, now = Narrow(), [0.0]
+    bar = progress.StepProgressBar(file=out, clock=lambda: now[0])
+    assert bar.plain and not progress.plain_terminal(io.StringIO())  # a log file keeps tqdm's lines
+    bar.start(100)
+    for _ in range(10):
+        now[0] += 1.0
+        bar.advance("icp", 10)
+    bar.close()
+    assert out.getvalue().splitlines() == [
+        "odometry steps: 100 to run",
+        "odometry steps: 30/100 (25 %), icp",
+        "odometry steps: 50/100 (50 %), icp",
+        "odometry steps: 80/100 (75 %), icp",
+        "odometry steps: 100 done in 10 s",
+    ]
