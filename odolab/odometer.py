@@ -123,18 +123,30 @@ class Odometer:
 
 
 def own_copy(answer: Any) -> Any:
-    """An :class:`Estimate` with its own copies of ``transform``, ``covariance`` and ``unverified``
-    (same dtype and values), so that the odometer that made it can no longer change it; anything else
-    (not an Estimate, or one whose arrays cannot be copied) is returned as it is, for the runner's checks."""
+    """An :class:`Estimate` with ``valid`` as a plain bool and its own float64 copy of
+    ``transform`` (read once, here: a plug-in's odd array or truth value cannot answer one thing to
+    the checks and another to the integration), and its own copies of ``covariance`` and
+    ``unverified`` (same dtype; kept as given where they cannot be copied, for the runner's checks);
+    anything else (not an Estimate) is returned as it is. Raises where ``valid`` or ``transform``
+    cannot be read so (a tensor on a GPU, a truth value that raises): that step fails, with the reason."""
     if not isinstance(answer, Estimate):
         return answer
-    try:
-        covariance = None if answer.covariance is None else np.array(answer.covariance, copy=True)
-        unverified = None if answer.unverified is None else np.array(answer.unverified, copy=True)
-        transform = np.array(answer.transform, copy=True)
-        return dataclasses.replace(answer, transform=transform, covariance=covariance, unverified=unverified)
-    except Exception:  # noqa: BLE001 - e.g. a tensor on a GPU: the runner's checks say what is wrong with it
-        return answer
+    valid = bool(answer.valid)
+    transform = np.array(answer.transform, dtype=np.float64, copy=True)
+
+    def copied(a: Any) -> Any:
+        try:
+            return None if a is None else np.array(a, copy=True)
+        except Exception:  # noqa: BLE001 - the runner's checks say what is wrong with it
+            return a
+
+    return dataclasses.replace(
+        answer,
+        valid=valid,
+        transform=transform,
+        covariance=copied(answer.covariance),
+        unverified=copied(answer.unverified),
+    )
 
 
 def _actions_checked_step(step: Callable) -> Callable:

@@ -414,3 +414,32 @@ def test_an_odometer_that_hangs_on_every_other_step_is_stopped_too(release):
     odo = Stuck(range(0, 100, 2), release)
     res = runner.run_sequence(odo, Tiny(frames=11), "every-other", PRIOR, step_timeout=0.03)
     assert res.failure_reasons["timed-out"] == 10 - 2 and odo.calls == 2 * runner.MAX_TIMEOUTS - 1
+
+
+def test_an_answer_is_read_once_so_it_cannot_tell_the_checks_one_motion_and_the_path_another():
+    """own_copy reads valid and transform once, in the step's own thread: a truth value that exits
+    fails its step; an object array that answers 0 m then 1e6 m is scored as the 0 m it first said."""
+
+    class Flip:
+        calls = 0
+
+        def __float__(self):
+            Flip.calls += 1
+            return 0.0 if Flip.calls == 1 else 1e6
+
+    class Exits:
+        def __bool__(self):
+            raise SystemExit(9)
+
+    class Odd(api.Odometer):
+        def step(self, prev, cur, action):
+            if cur.timestamp < 0.15:
+                return api.Estimate(FORWARD, valid=Exits())
+            t = np.array(FORWARD, dtype=object)
+            Flip.calls = 0
+            t[0, 3] = Flip()
+            return api.Estimate(t)
+
+    res = runner.run_sequence(Odd(), Tiny(frames=3), "odd", PRIOR)
+    assert res.failure_reasons == {"raised": 1} and "SystemExit" in res.errors[0]
+    assert res.valid[1] and res.estimates[1][0, 3] == 0.0 and abs(res.poses[-1][0, 3]) < 1.0
