@@ -87,7 +87,8 @@ def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
     }
     rows = (out / "table.csv").read_text().splitlines()
     assert rows[0].startswith("odometer,action,seeds,steps,dx,dx_sd") and len(rows) > 3
-    assert "8 units computed" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "8 units computed" in said and f"open {out.resolve() / 'index.html'}" in said  # the page to open, named
     assert e_table.main(args) == 0  # everything saved: nothing computed again
     assert "0 units computed" in capsys.readouterr().out
     html = (out / "index.html").read_text()
