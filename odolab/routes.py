@@ -31,7 +31,7 @@ from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import SPLITS, Scene, generate_scene, scene_seed
 from odolab.types import Action, Frame, Intrinsics
 
-__all__ = ["Route", "RouteFrames", "RouteSpec", "tour"]
+__all__ = ["Route", "RouteFrames", "RouteSpec", "route_scene", "tour"]
 
 #: Mixed into the routes' seed sequence: routes and episodes of equal (seed, split, index) draw apart.
 _ROUTE_STREAMS = 0x70_0E
@@ -193,6 +193,12 @@ def _next_goal(
     )
 
 
+def route_scene(spec: RouteSpec, seed: int) -> Scene:
+    """The scene of seed ``seed`` as ``spec`` has it: a long building (``spec.building`` m) or a floor
+    plan ``spec.scene_scale`` times an episode's; the route's motion and its frames use this one."""
+    return generate_scene(seed, scale=spec.scene_scale, length=spec.building or None)
+
+
 def tour(spec: RouteSpec) -> Route:
     """The route of ``spec``: scene and start from its first stream, then goal after goal, each
     followed by Habitat's greedy follower with the noisy actuation (its look-ahead drawing from the
@@ -202,7 +208,7 @@ def tour(spec: RouteSpec) -> Route:
     rng, act_rng, _, _ = spec.streams()
     for _ in range(MAX_SCENE_DRAWS):  # a floor plan takes the first draw; a building one that runs end to end
         seed = scene_seed(spec.split, int(rng.integers(1 << 31)))
-        scene = generate_scene(seed, scale=spec.scene_scale, length=spec.building or None)
+        scene = route_scene(spec, seed)
         cells = np.argwhere(largest_component(scene))
         x = scene.cell_to_world(cells[:, 0], cells[:, 1])[0]
         if not spec.building or np.ptp(x) >= BUILDING_SPAN * spec.building:
@@ -289,7 +295,7 @@ class RouteFrames:
             return self._last[1]
         if self._sensors is None or i < self._next:  # the noise streams are drawn in order: start again
             if self._scene is None:
-                self._scene = generate_scene(self.route.scene_seed, scale=self.route.scene_scale)
+                self._scene = route_scene(self.spec, self.route.scene_seed)
             _, _, rgb_rng, depth_rng = self.spec.streams()
             noise, camera = self.spec.noise, self.spec.camera
             self._sensors = Sensors(self._scene, camera, noise.rgb, noise.depth, rgb_rng, depth_rng)

@@ -56,6 +56,23 @@ def test_a_route_through_a_building_goes_somewhere_and_a_plans_route_keeps_its_k
     for bad in ({"building": 10.0}, {"length": 300.0}):  # too short for a route's legs, or for its length
         with pytest.raises(ValueError, match=r"building: expected 0 \(a floor plan\) or a length in \[20, 2000\] m"):
             dataclasses.replace(spec, **bad)
+    # the frames are rendered in the building the route crossed (noiseless depth: no noise stream to follow)
+    from odolab.environment import Sensors
+    from odolab.routes import route_scene
+
+    small = dataclasses.replace(spec, camera=CameraSpec(width=32, height=18))
+    frames = RouteFrames(small, tour(small))
+    _, _, rgb_rng, depth_rng = small.streams()
+    sensors = Sensors(
+        route_scene(small, frames.route.scene_seed),
+        small.camera,
+        small.noise.rgb,
+        small.noise.depth,
+        rgb_rng,
+        depth_rng,
+    )
+    last = len(frames) - 1  # far along the building, where no floor plan of its seed reaches
+    assert np.array_equal(frames[last].clean_depth, sensors.read(frames.gt_pose(last)).clean_depth)
     # a loop folds back: its 100 m segments' ends lie close together
     loop = [[10 * np.cos(t), 10 * np.sin(t)] for t in np.linspace(0, 4 * np.pi, 400)]
     assert kitti_style.end_to_end_ratio(loop) < 0.3 and math.isnan(kitti_style.end_to_end_ratio(loop[:100]))

@@ -38,7 +38,7 @@ def test_the_progress_bar_keeps_its_width_and_shows_each_odometers_own_rate(tota
 
 
 def test_a_terminal_too_narrow_for_a_bar_gets_a_line_at_the_start_each_quarter_and_the_end(monkeypatch):
-    import odolab.progress as progress
+    from odolab import progress
 
     class Narrow(io.StringIO):
         def isatty(self):
