@@ -127,10 +127,17 @@ def own_copy(answer: Any) -> Any:
     ``transform`` (read once, here: a plug-in's odd array or truth value cannot answer one thing to
     the checks and another to the integration), and its own copies of ``covariance`` and
     ``unverified`` (same dtype; kept as given where they cannot be copied, for the runner's checks);
-    anything else (not an Estimate) is returned as it is. Raises where ``valid`` or ``transform``
-    cannot be read so (a tensor on a GPU, a truth value that raises): that step fails, with the reason."""
+    anything else (not an Estimate) is returned as it is. Raises where ``valid`` is no bool (or 0 / 1)
+    or ``transform`` cannot be read as real numbers (a tensor on a GPU, complex numbers): that step
+    fails, with the reason."""
     if not isinstance(answer, Estimate):
         return answer
+    if not isinstance(answer.valid, (bool, np.bool_)) and not (
+        isinstance(answer.valid, (int, np.integer)) and answer.valid in (0, 1)
+    ):
+        raise TypeError(f"Estimate.valid must be True or False, got {type(answer.valid).__name__}")
+    if np.iscomplexobj(answer.transform):
+        raise TypeError("Estimate.transform must be real, got complex numbers")
     valid = bool(answer.valid)
     transform = np.array(answer.transform, dtype=np.float64, copy=True)
 

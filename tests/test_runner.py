@@ -417,8 +417,9 @@ def test_an_odometer_that_hangs_on_every_other_step_is_stopped_too(release):
 
 
 def test_an_answer_is_read_once_so_it_cannot_tell_the_checks_one_motion_and_the_path_another():
-    """own_copy reads valid and transform once, in the step's own thread: a truth value that exits
-    fails its step; an object array that answers 0 m then 1e6 m is scored as the 0 m it first said."""
+    """own_copy reads valid and transform once, in the step's own thread: a valid that is no bool
+    fails its step (its truth value is never asked); an object array that answers 0 m then 1e6 m
+    is scored as the 0 m it first said; a complex transform fails."""
 
     class Flip:
         calls = 0
@@ -441,5 +442,8 @@ def test_an_answer_is_read_once_so_it_cannot_tell_the_checks_one_motion_and_the_
             return api.Estimate(t)
 
     res = runner.run_sequence(Odd(), Tiny(frames=3), "odd", PRIOR)
-    assert res.failure_reasons == {"raised": 1} and "SystemExit" in res.errors[0]
+    assert res.failure_reasons == {"raised": 1} and "valid must be True or False, got Exits" in res.errors[0]
     assert res.valid[1] and res.estimates[1][0, 3] == 0.0 and abs(res.poses[-1][0, 3]) < 1.0
+    with pytest.raises(TypeError, match="must be real"):
+        own_copy(api.Estimate(FORWARD.astype(complex)))
+    assert own_copy(api.Estimate(FORWARD, valid=np.bool_(False))).valid is False
