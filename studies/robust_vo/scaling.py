@@ -206,7 +206,10 @@ def classical_split(path: Path) -> str:
     """The split of the comparison whose ``table_per_action.csv`` is ``path``, as the names of its
     ``trajectories/<split>-s<seed>-e<index>`` folders say; "" when they do not (one split or none)."""
     folder = path.parent / "trajectories"
-    names = {p.name.split("-")[0] for p in folder.iterdir()} if folder.is_dir() else set()
+    try:
+        names = {p.name.split("-")[0] for p in folder.iterdir()} if folder.is_dir() else set()
+    except OSError:  # unreadable: the split is not known
+        names = set()
     return names.pop() if len(names) == 1 and names <= {"train", "val", "test"} else ""
 
 
