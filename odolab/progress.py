@@ -60,9 +60,8 @@ class StepProgressBar:
 
     def start(self, total_steps: int | None) -> None:
         """Open the bar; ``total_steps`` may be None (unknown)."""
-        self._last = self.clock()
-        self._spent = {}
         if self.plain:
+            self._last, self._spent = self.clock(), {}
             self._plain_done, self._plain_total, self._plain_said, self._plain_start = 0, total_steps, 0, self._last
             self._say(f"{self.desc}: {'?' if total_steps is None else total_steps} to run")
             return

@@ -386,19 +386,25 @@ class _StepLog:
         self.seconds[first : first + count] = seconds / count
         self.asked[first : first + count] = True
         for k, i in enumerate(range(first, first + count)):
-            if answers is None:
-                self.reasons[i] = "raised"
-            elif len(answers) != count:
-                self.reasons[i] = "batch-length"
-            elif answers[k] is SHARED:
-                self.reasons[i] = "shared-array"
-            else:
+            if answers is not None and len(answers) == count and answers[k] is not SHARED:
                 self.raw[i] = answers[k]  # a copy already (:func:`_ask`)
-                try:
-                    self.reasons[i] = failure_reason(self.raw[i])
-                except Exception as exc:  # noqa: BLE001 - not an Estimate at all
-                    self.note(f"step {i}", exc)
-                    self.reasons[i] = "raised"
+            self.reasons[i] = self.checked(answers, k, count, f"step {i}")
+
+    def checked(self, answers: list | None, k: int, count: int, where: str) -> str | None:
+        """Why the ``k``-th of the ``answers`` to ``count`` pairs (None: the call raised) cannot be
+        used (a key of :data:`FAILURE_REASONS`), or None; an answer that is no Estimate at all is
+        noted at ``where``."""
+        if answers is None:
+            return "raised"
+        if len(answers) != count:
+            return "batch-length"
+        if answers[k] is SHARED:
+            return "shared-array"
+        try:
+            return failure_reason(answers[k])
+        except Exception as exc:  # noqa: BLE001 - not an Estimate at all
+            self.note(where, exc)
+            return "raised"
 
 
 def _sharing(answers: list) -> set[int]:
@@ -653,22 +659,12 @@ class StepByStep:
             self._log.note("step", f"timed out after {self._caller.timeout:g} s{stopped}")
             return None
         if call.error is not None:
-            self.reasons["raised"] += 1
             self._log.note("step", call.error)
-            return None
-        if len(call.value) != 1:
-            self.reasons["batch-length"] += 1
-            return None
-        (answer,) = call.value
-        try:
-            reason = failure_reason(answer)
-        except Exception as exc:  # noqa: BLE001 - not an Estimate at all
-            self._log.note("step", exc)
-            reason = "raised"
+        reason = self._log.checked(None if call.error is not None else call.value, 0, 1, "step")
         if reason is not None:
             self.reasons[reason] += 1
             return None
-        return answer
+        return call.value[0]
 
     def close(self) -> None:
         """Let the worker thread go (a step it stopped waiting for may still be running)."""

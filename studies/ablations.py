@@ -1084,7 +1084,7 @@ def _paired_values(
     a, b = [], []
     if measure == "error":
         for seed in scale.seeds:
-            got = [errors.get(f"errors row {r} seed {seed}", {}).get("episodes") for r in rows]
+            got = [errors.get(f"errors {run_label(r)} seed {seed}", {}).get("episodes") for r in rows]
             if all(got) and len(got[0]) == len(got[1]):
                 a += [float(np.mean(e)) for e in got[0]]
                 b += [float(np.mean(e)) for e in got[1]]
@@ -1092,7 +1092,7 @@ def _paired_values(
     key = "success" if measure == "success" else "spl"
     for seed in scale.nav_seeds:
         for e in range(scale.nav_episodes):
-            got = [navigation.get(f"navigate row {r} seed {seed} episode {e}") for r in rows]
+            got = [navigation.get(f"navigate {run_label(r)} seed {seed} episode {e}") for r in rows]
             if all(got):
                 a.append(float(got[0][key]))
                 b.append(float(got[1][key]))
@@ -1117,7 +1117,7 @@ def claims(
     (the other direction) or ``undecided``."""
     from odolab.stats import holm, mcnemar, paired_t
 
-    lines = []
+    lines, expected = [], []  # expected: the sign of diff the paper's numbers give (A better where it is silent)
     for a_row, b_row in CLAIMS:
         if a_row not in scale.rows or b_row not in scale.rows:
             continue
@@ -1141,19 +1141,16 @@ def claims(
             else:
                 diff, line["p"] = paired_t((a - b) * scale_by)
                 line["diff"] = diff
-            paper_gap = line["paper_a"] - line["paper_b"]  # the sign of diff the paper says (A better, if it is silent)
-            a_better = 1.0 if higher_better else -1.0
-            line["_expected"] = (
-                a_better if not math.isfinite(paper_gap) or paper_gap == 0 else float(np.sign(paper_gap))
-            )
+            gap = line["paper_a"] - line["paper_b"]
+            silent = not math.isfinite(gap) or gap == 0
+            expected.append((1.0 if higher_better else -1.0) if silent else float(np.sign(gap)))
             lines.append(line)
-    for line, adjusted in zip(lines, holm([line["p"] for line in lines])):
-        expected = line.pop("_expected")
+    for line, adjusted, sign in zip(lines, holm([line["p"] for line in lines]), expected):
         line["p_holm"] = adjusted
         if not (math.isfinite(adjusted) and adjusted < ALPHA and line["diff"] != 0):
             line["verdict"] = "undecided"
         else:
-            line["verdict"] = "supports" if np.sign(line["diff"]) == expected else "contradicts"
+            line["verdict"] = "supports" if np.sign(line["diff"]) == sign else "contradicts"
     return lines
 
 

@@ -203,7 +203,7 @@ def route_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
     as ``groundtruth.{tum,kitti}``. ``net_share``: per KITTI segment length the route holds, the mean
     straight-line distance between a segment's ends over its length (1 on a straight drive);
     ``building``: the long building's length (m; 0: a floor plan)."""
-    from odolab.metrics import kitti_relative_errors, path_lengths
+    from odolab.metrics import path_lengths
     from odolab.report import GROUND_TRUTH_FILE
     from odolab.routes import RouteSpec, tour
     from odolab.types import Action
@@ -211,8 +211,7 @@ def route_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
     spec = RouteSpec.from_dict(key["route"])
     route = tour(spec)
     poses = route.camera_poses(spec.camera.mount_height)
-    k = kitti_relative_errors(poses, poses)
-    net = np.linalg.norm(poses[k.last, :3, 3] - poses[k.first, :3, 3], axis=1) / k.length
+    lengths, net = net_shares(poses)
     return {
         "route": spec.name,
         "scene_seed": route.scene_seed,
@@ -223,7 +222,7 @@ def route_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
         "collision_share": float(np.mean(route.collisions)),
         "goals": _xy(np.array(route.goals)),
         "reached": route.reached,
-        "net_share": {str(L): float(net[k.length == L].mean()) for L in LENGTHS if np.any(k.length == L)},
+        "net_share": {str(L): float(net[lengths == L].mean()) for L in LENGTHS if np.any(lengths == L)},
         "building": float(spec.building),
         "path": _xy(poses[:, :3, 3]),
         "files": write_trajectory(out, spec.name, GROUND_TRUTH_FILE, poses),
@@ -428,19 +427,22 @@ def summary_row(odometer: str, route: str, results: list[dict[str, Any]]) -> dic
 PER_STEP = ("dx", "dz", "dyaw", "dx_bias", "dz_bias", "dyaw_bias")
 
 
+def net_shares(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """KITTI's segments of a path of (N, 4, 4) poses: each segment's length (m) and the straight-line
+    distance between its ends over that length (1 on a straight drive)."""
+    from odolab.metrics import kitti_relative_errors
+
+    k = kitti_relative_errors(poses, poses)
+    return k.length, np.linalg.norm(poses[k.last, :3, 3] - poses[k.first, :3, 3], axis=1) / k.length
+
+
 def end_to_end_ratio(path: list[list[float]]) -> float:
     """The median over a route's 100 m segments (KITTI's, of its true path: world x, y m) of the
     straight-line distance between a segment's ends over its path length: near 1 a route that goes
     somewhere, near 0 one that folds back (where t_rel measures loop geometry more than drift); NaN
     for a route shorter than 100 m."""
-    from odolab.metrics import kitti_relative_errors
-
-    poses = _poses(path)
-    k = kitti_relative_errors(poses, poses)
-    hundred = k.length == 100
-    if not np.any(hundred):
-        return float("nan")
-    return float(np.median(np.linalg.norm(poses[k.last, :3, 3] - poses[k.first, :3, 3], axis=1)[hundred] / 100.0))
+    lengths, net = net_shares(_poses(path))
+    return float(np.median(net[lengths == 100])) if np.any(lengths == 100) else float("nan")
 
 
 #: The columns of the pooled rows' 95 % intervals over routes (Student's t over the per-route values).
