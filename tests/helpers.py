@@ -184,7 +184,7 @@ epochs = 1
 
 def robust_job(tmp_path: Path, *argv: str, stage: str = "forward"):
     """The robust VO trainer's command line parsed with ``argv`` on a tiny recipe in ``tmp_path``."""
-    from odolab.learning.cli import parse_training_command, training_parser
+    from odolab.cli.train import parse_training_command, training_parser
     from odolab.robust_vo.config import load_train_config
 
     recipe = tmp_path / "recipe.toml"

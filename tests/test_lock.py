@@ -121,7 +121,7 @@ def test_a_second_navigate_or_simcard_into_the_same_out_is_refused(tmp_path, hel
 
 def test_a_second_training_into_the_same_work_or_reports_is_refused(tmp_path, held):
     from odolab.cli import UsageError
-    from odolab.learning.cli import hold_training_folders
+    from odolab.cli.train import hold_training_folders
 
     work, reports = tmp_path / "work", tmp_path / "reports"
     reports.mkdir()

@@ -222,9 +222,9 @@ def test_the_deepvo_export_never_replaces_its_training_state_and_saving_never_re
     from baselines.deepvo.config import load_training
     from baselines.deepvo.train import state_files
     from odolab.cli import UsageError
+    from odolab.cli.train import parse_training_command, training_parser
     from odolab.learning import CheckpointError
     from odolab.learning.checkpoints import save_model
-    from odolab.learning.cli import parse_training_command, training_parser
 
     recipe = tmp_path / "deepvo.toml"
     recipe.write_text("epochs = 1\n")

@@ -458,11 +458,11 @@ def test_the_shipped_recipe_is_the_papers_row_18_with_the_nominal_warp():
 
 
 def test_train_cli_errors_are_one_line(tmp_path, capsys):
-    from odolab.cli import run_cli
+    from odolab.cli.train import command
 
     bad = tmp_path / "bad.toml"
     bad.write_text("[model\n")
-    code = run_cli(trainer.main, "python -m odolab.robust_vo.train", ["--config", str(bad), "--work", str(tmp_path)])
+    code = command("robust-vo", ["--config", str(bad), "--work", str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and "bad.toml: not valid TOML" in err and "Traceback" not in err
 

@@ -37,6 +37,7 @@ from odolab.learning import (
 )
 from odolab.learning.distributed import Team, run_on_ray
 from odolab.learning.epochs import EpochTracker
+from odolab.learning.trainer import Trainer
 from odolab.learning.validation import error_rows, write_report
 
 
@@ -280,28 +281,24 @@ def train_windows(job: dict) -> dict:
     return {"finished": finished}
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.learning.cli import training_main
-
-    return training_main(
-        argv,
-        prog="python -m baselines.deepvo.train",
-        description=__doc__.split("\n")[0],
-        family="deepvo",
-        load_config=load_training,
-        run=run,
-        state_files=state_files,
-        check_start=first_stage,
-        set_example="seed=1 --set lr=1e-4 --set epochs=2",
-    )
-
-
 def state_files(cfg: DeepVOTraining, work: Path) -> dict[str, Path]:
     """Where the training keeps its state (what ``--export`` must never replace): ``<work>/deepvo.pt``."""
     return {"the DeepVO training": work / "deepvo.pt"}
 
 
-if __name__ == "__main__":
-    from odolab.learning.cli import run_training_cli
+#: What the training command line (odolab.cli.train) needs of this trainer.
+TRAINER = Trainer(
+    family="deepvo",
+    description=__doc__.split("\n")[0],
+    load_config=load_training,
+    run=run,
+    state_files=state_files,
+    check_start=first_stage,
+    set_example="seed=1 --set lr=1e-4 --set epochs=2",
+)
 
-    sys.exit(run_training_cli(main, "python -m baselines.deepvo.train"))
+
+if __name__ == "__main__":  # python -m baselines.deepvo.train: the command line is odolab.cli.train's
+    import importlib
+
+    sys.exit(importlib.import_module("odolab.cli.train").command("deepvo"))

@@ -15,9 +15,10 @@ import contextlib
 import importlib
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
-#: subcommand -> (its ``python -m`` module, the module of its ``main``, one line of help)
+#: subcommand -> (its ``python -m`` module, the module of its ``main`` (``module:family`` for a trainer,
+#: :func:`odolab.cli.train.main_for`), one line of help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
     "compare": (
         "odolab.compare",
@@ -52,10 +53,24 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     ),
     "train-robust-vo": (
         "odolab.robust_vo.train",
-        "odolab.robust_vo.train",
+        "odolab.cli.train:robust-vo",
         "train the robust VO from a TOML recipe (resumable)",
     ),
-    "train-deepvo": ("baselines.deepvo.train", "baselines.deepvo.train", "train DeepVO from a TOML recipe (resumable)"),
+    "train-deepvo": (
+        "baselines.deepvo.train",
+        "odolab.cli.train:deepvo",
+        "train DeepVO from a TOML recipe (resumable)",
+    ),
+    "train-depth-corrector": (
+        "odolab.depth_corrector.train",
+        "odolab.cli.train:depth-corrector",
+        "train the depth corrector of denoised(...) from a TOML recipe (resumable)",
+    ),
+    "train-pose-corrector": (
+        "odolab.pose_corrector.train",
+        "odolab.cli.train:pose-corrector",
+        "train the pose corrector of corrected(...) from a TOML recipe (resumable)",
+    ),
     "calibrate-fusion": (
         "odolab.fusion.calibrate",
         "odolab.cli.calibrate_fusion",
@@ -97,10 +112,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         hint = f"; did you mean {near[0]!r}?" if near else ""
         print(f"odolab: unknown command {name!r}; expected one of {', '.join(COMMANDS)}{hint}", file=sys.stderr)
         return 2
-    _, module, _ = COMMANDS[name]
-    entry = importlib.import_module(module).main
+    entry = entry_of(name)
     with command_face(f"odolab {name}"), _current_folder_importable():  # as under python -m
         return run_cli(entry, f"odolab {name}", rest)
+
+
+def entry_of(name: str) -> Callable[[Sequence[str] | None], int | None]:
+    """``main(argv)`` of subcommand ``name`` (its module imported now)."""
+    module, _, family = COMMANDS[name][1].partition(":")
+    loaded = importlib.import_module(module)
+    return loaded.main_for(family) if family else loaded.main
 
 
 @contextlib.contextmanager

@@ -31,6 +31,7 @@ from odolab.depth_corrector.config import CorrectorTraining, load_training
 from odolab.depth_corrector.model import DepthCorrectorNet, pixel_place
 from odolab.learning import Curves, EpochLoop, Execution, TrainingData, make_training_data, require_finite
 from odolab.learning.epochs import EpochTracker
+from odolab.learning.trainer import Trainer
 
 #: Upper edges (m) of the true-distance bins of the validation rows; the last bin is open.
 BIN_EDGES = (1.0, 2.0, 3.0, 4.0, 5.0)
@@ -253,22 +254,18 @@ def state_files(cfg: CorrectorTraining, work: Path) -> dict[str, Path]:
     return {"the depth corrector's training": work / "depth-corrector.pt"}
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.learning.cli import training_main
-
-    return training_main(
-        argv,
-        prog="python -m odolab.depth_corrector.train",
-        description=__doc__.split("\n")[0],
-        family="depth-corrector",
-        load_config=load_training,
-        run=run,
-        state_files=state_files,
-        set_example="seed=1 --set epochs=2",
-    )
+#: What the training command line (odolab.cli.train) needs of this trainer.
+TRAINER = Trainer(
+    family="depth-corrector",
+    description=__doc__.split("\n")[0],
+    load_config=load_training,
+    run=run,
+    state_files=state_files,
+    set_example="seed=1 --set epochs=2",
+)
 
 
-if __name__ == "__main__":
-    from odolab.learning.cli import run_training_cli
+if __name__ == "__main__":  # python -m odolab.depth_corrector.train: the command line is odolab.cli.train's
+    import importlib
 
-    sys.exit(run_training_cli(main, "python -m odolab.depth_corrector.train"))
+    sys.exit(importlib.import_module("odolab.cli.train").command("depth-corrector"))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import torch
@@ -33,3 +34,20 @@ def pick_device(name: str | None = None) -> torch.device:
     if getattr(torch.backends, "mps", None) is not None and torch.backends.mps.is_available():
         return torch.device("mps")
     return torch.device("cpu")
+
+
+def set_threads(threads: int) -> None:
+    """Have torch use ``threads`` CPU threads in this process."""
+    torch.set_num_threads(threads)
+
+
+def local_ray_resources() -> tuple[float, float]:
+    """The CPUs and GPUs a local Ray instance started here would have (Ray's own count of the
+    CPUs, which heeds a container's limit; torch's count of the CUDA GPUs)."""
+    try:
+        from ray._private.utils import get_num_cpus
+
+        cpus = float(get_num_cpus())
+    except Exception:  # noqa: BLE001 - a Ray without this helper: the machine's count
+        cpus = float(os.cpu_count() or 1)
+    return cpus, float(torch.cuda.device_count() if torch.cuda.is_available() else 0)

@@ -31,6 +31,7 @@ from tqdm.auto import tqdm
 from odolab.api import MOTION_ACTIONS, Action, load_inputs, load_odometer, transform_to_planar, wrap_angle
 from odolab.learning import Curves, EpochLoop, Execution, TrainingData, make_training_data, require_finite
 from odolab.learning.epochs import EpochTracker
+from odolab.learning.trainer import Trainer
 from odolab.pose_corrector.checkpoint import save_model
 from odolab.pose_corrector.config import PoseCorrectorModel, PoseCorrectorTraining, load_training
 from odolab.pose_corrector.estimates import InnerEstimates, make_estimates
@@ -304,22 +305,18 @@ def state_files(cfg: PoseCorrectorTraining, work: Path) -> dict[str, Path]:
     return {"the pose corrector's training": work / "pose-corrector.pt"}
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.learning.cli import training_main
-
-    return training_main(
-        argv,
-        prog="python -m odolab.pose_corrector.train",
-        description=__doc__.split("\n")[0],
-        family="pose-corrector",
-        load_config=load_training,
-        run=run,
-        state_files=state_files,
-        set_example="seed=1 --set inner=icp",
-    )
+#: What the training command line (odolab.cli.train) needs of this trainer.
+TRAINER = Trainer(
+    family="pose-corrector",
+    description=__doc__.split("\n")[0],
+    load_config=load_training,
+    run=run,
+    state_files=state_files,
+    set_example="seed=1 --set inner=icp",
+)
 
 
-if __name__ == "__main__":
-    from odolab.learning.cli import run_training_cli
+if __name__ == "__main__":  # python -m odolab.pose_corrector.train: the command line is odolab.cli.train's
+    import importlib
 
-    sys.exit(run_training_cli(main, "python -m odolab.pose_corrector.train"))
+    sys.exit(importlib.import_module("odolab.cli.train").command("pose-corrector"))

@@ -26,6 +26,7 @@ from odolab.learning import EpochLoop, Execution, TrainingData, make_training_da
 from odolab.learning.compute import Compute
 from odolab.learning.distributed import Team
 from odolab.learning.epochs import EpochTracker
+from odolab.learning.trainer import Trainer
 from odolab.learning.validation import error_rows, write_report
 from odolab.robust_vo.batches import Batch, Pairs, Samples, network_inputs, read_pairs, stage_samples
 from odolab.robust_vo.checkpoint import apply_start, init_stages, load_start, resized_start, save_model
@@ -395,22 +396,18 @@ def _stage_status(loop: EpochLoop) -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.learning.cli import training_main
-
-    return training_main(
-        argv,
-        prog="python -m odolab.robust_vo.train",
-        description=__doc__.split("\n")[0],
-        family="robust-vo",
-        load_config=load_train_config,
-        run=run,
-        check_start=lambda cfg, export: load_start(cfg.init, cfg, export),
-        set_example="seed=1 --set stages.forward.lr=1e-4 --set model.dropout=0.1",
-    )
+#: What the training command line (odolab.cli.train) needs of this trainer.
+TRAINER = Trainer(
+    family="robust-vo",
+    description=__doc__.split("\n")[0],
+    load_config=load_train_config,
+    run=run,
+    check_start=lambda cfg, export: load_start(cfg.init, cfg, export),
+    set_example="seed=1 --set stages.forward.lr=1e-4 --set model.dropout=0.1",
+)
 
 
-if __name__ == "__main__":
-    from odolab.learning.cli import run_training_cli
+if __name__ == "__main__":  # python -m odolab.robust_vo.train: the command line is odolab.cli.train's
+    import importlib
 
-    sys.exit(run_training_cli(main, "python -m odolab.robust_vo.train"))
+    sys.exit(importlib.import_module("odolab.cli.train").command("robust-vo"))

@@ -1,4 +1,4 @@
-"""odolab/learning/cli.py, the trainers' shared command line: workers a local Ray cannot hold, a dead
+"""odolab/cli/train.py, the trainers' shared command line: workers a local Ray cannot hold, a dead
 RAY_ADDRESS, exports and reports folders that are not the run's, and ``--set`` changes to the recipe;
 each refused in one line before any folder is made."""
 
@@ -22,7 +22,7 @@ def test_workers_a_local_ray_instance_cannot_hold_are_refused_before_any_work(tm
     """Ray Train waits forever for workers a fixed local instance lacks (8 workers on 2 CPUs, GPUs
     on a machine without any): refused in one line, before the work and reports folders exist."""
     torch = pytest.importorskip("torch")
-    from odolab.learning.cli import check_workers
+    from odolab.cli.train import check_workers
 
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     cpu = torch.device("cpu")
@@ -41,7 +41,7 @@ def test_workers_a_local_ray_instance_cannot_hold_are_refused_before_any_work(tm
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:6379")
     check_workers(64, 0.0, None, cpu, None, two_cpus)
     monkeypatch.delenv("RAY_ADDRESS")
-    monkeypatch.setattr("odolab.learning.cli.local_ray_resources", two_cpus)
+    monkeypatch.setattr("odolab.learning.device.local_ray_resources", two_cpus)
     with pytest.raises(UsageError, match="--workers 3: a local Ray instance"):
         _job(tmp_path, "--workers", "3")
     assert not (tmp_path / "work").exists() and not (tmp_path / "reports").exists()
@@ -126,11 +126,11 @@ def test_a_trainer_refuses_the_reports_of_another_training(tmp_path):
 
 
 def test_the_trainers_check_ray_address_with_the_shared_function(tmp_path, monkeypatch):
-    """odolab.learning.cli words RAY_ADDRESS as every other command does (the tests above run the
+    """odolab.cli.train words RAY_ADDRESS as every other command does (the tests above run the
     trainers' command line itself)."""
     import inspect
 
     pytest.importorskip("torch")
-    from odolab.learning import cli
+    from odolab.cli import train as cli
 
     assert "check_ray_option(args.ray_address)" in inspect.getsource(cli.parse_training_command)

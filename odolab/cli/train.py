@@ -1,11 +1,19 @@
-"""The command line every trainer shares (``python -m odolab.robust_vo.train``,
-``python -m baselines.deepvo.train``): a TOML recipe, where states, curves and the model go, a time
-budget, the device and thread count. Mistakes are one line and exit code 2, before any work."""
+"""The trainers' command line, one for every learned model (:data:`TRAINERS`):
+
+    odolab train-robust-vo --config RECIPE [options] = python -m odolab.robust_vo.train --config RECIPE ...
+    odolab train-deepvo ...                          = python -m baselines.deepvo.train ...
+    odolab train-depth-corrector ...                 = python -m odolab.depth_corrector.train ...
+    odolab train-pose-corrector ...                  = python -m odolab.pose_corrector.train ...
+
+A TOML recipe, where states, curves and the model go, a time budget, the device and thread count;
+each trainer module describes itself in a :class:`odolab.learning.trainer.Trainer` named
+``TRAINER``. Mistakes are one line and exit code 2, before any work."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -13,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from odolab.cli import (
+from odolab.cli.args import (
     ArgumentParser,
     UsageError,
     check_not_nested,
@@ -31,13 +39,28 @@ from odolab.config import ChangeError
 from odolab.parallel import Execution
 
 __all__ = [
+    "TRAINERS",
     "TrainingJob",
     "check_workers",
+    "command",
+    "main_for",
     "parse_training_command",
-    "run_training_cli",
-    "training_main",
+    "train",
     "training_parser",
 ]
+
+#: family -> the module whose ``TRAINER`` describes it (its ``python -m`` name)
+TRAINERS: dict[str, str] = {
+    "robust-vo": "odolab.robust_vo.train",
+    "deepvo": "baselines.deepvo.train",
+    "depth-corrector": "odolab.depth_corrector.train",
+    "pose-corrector": "odolab.pose_corrector.train",
+}
+
+
+def trainer_of(family: str):
+    """The :class:`~odolab.learning.trainer.Trainer` of ``family`` (its module imported now: torch loads)."""
+    return importlib.import_module(TRAINERS[family]).TRAINER
 
 
 @dataclass(frozen=True)
@@ -126,35 +149,22 @@ def training_parser(prog: str, description: str, family: str, set_example: str =
     return ap
 
 
-#: What keeps a training state -> its file, given the recipe and ``--work``.
-StateFiles = Callable[[Any, Path], dict[str, Path]]
-#: A check of the model a recipe starts from (its ``init``), given the recipe and ``--export``:
-#: ``ValueError`` when it cannot start this recipe.
-StartCheck = Callable[[Any, Path], object]
-
-
-def stage_states(config: Any, work: Path) -> dict[str, Path]:
-    """The training states of a recipe with ``stages`` (the robust VO): one per stage,
-    ``<work>/<stage name>.pt``; none for a recipe without stages."""
-    return {f"stage {s.name!r}": work / f"{s.name}.pt" for s in getattr(config, "stages", ())}
-
-
 def parse_training_command(
     ap: ArgumentParser,
     argv: Sequence[str] | None,
     load_config: Callable[[str, Sequence[str]], Any],
-    state_files: StateFiles | None = None,
-    check_start: StartCheck | None = None,
+    state_files: Callable[[Any, Path], dict[str, Path]] | None = None,
+    check_start: Callable[[Any, Path], object] | None = None,
 ) -> TrainingJob:
     """Parse, read the recipe with ``load_config(path, --set changes)`` (its ``ValueError`` becomes a
     usage error), pick the device, set the thread count and check every output path and the model
     the recipe starts from (``check_start``) before any folder is made: ``--export`` must not be the
-    recipe, a training state (``state_files``, default :func:`stage_states`) or a file that is not
+    recipe, a training state (``state_files``, default
+    :func:`~odolab.learning.trainer.stage_states`) or a file that is not
     a model odolab exported."""
-    import torch
-
     from odolab.learning.checkpoints import check_export
-    from odolab.learning.device import pick_device
+    from odolab.learning.device import pick_device, set_threads
+    from odolab.learning.trainer import stage_states
     from odolab.learning.validation import other_training
 
     args = ap.parse_args(argv)
@@ -203,7 +213,7 @@ def parse_training_command(
     check_output_dir(work, "--work")  # made only once every check above has passed
     check_output_file(export, "--export")
     if args.threads:
-        torch.set_num_threads(args.threads)
+        set_threads(args.threads)
     argv = list(argv) if argv is not None else sys.argv[1:]
     return TrainingJob(
         config,
@@ -246,20 +256,6 @@ def _same_path(a: Path, b: Path) -> bool:
         return False
 
 
-def local_ray_resources() -> tuple[float, float]:
-    """The CPUs and GPUs a local Ray instance started here would have (Ray's own count of the
-    CPUs, which heeds a container's limit; torch's count of the CUDA GPUs)."""
-    import torch
-
-    try:
-        from ray._private.utils import get_num_cpus
-
-        cpus = float(get_num_cpus())
-    except Exception:  # noqa: BLE001 - a Ray without this helper: the machine's count
-        cpus = float(os.cpu_count() or 1)
-    return cpus, float(torch.cuda.device_count() if torch.cuda.is_available() else 0)
-
-
 def check_workers(
     workers: int,
     gpus_per_worker: float,
@@ -298,7 +294,9 @@ def check_workers(
             )
     if ray_address is not None or os.environ.get("RAY_ADDRESS"):
         return
-    cpus, gpus = (resources or local_ray_resources)()
+    if resources is None:
+        from odolab.learning.device import local_ray_resources as resources
+    cpus, gpus = resources()
     if workers > cpus:
         raise UsageError(
             f"--workers {workers}: a local Ray instance here has {cpus:g} CPUs and each worker "
@@ -312,36 +310,30 @@ def check_workers(
         )
 
 
-def run_training_cli(
-    main: Callable[[Sequence[str] | None], int | None], prog: str, argv: Sequence[str] | None = None
-) -> int:
-    """:func:`odolab.cli.run_cli` for trainers (one line and exit 2 for a user's mistake)."""
-    return run_cli(main, prog, argv)
-
-
-def training_main(
-    argv: Sequence[str] | None,
-    *,
-    prog: str,
-    description: str,
-    family: str,
-    load_config: Callable[[str, Sequence[str]], Any],
-    run: Callable[..., bool],
-    state_files: StateFiles | None = None,
-    check_start: StartCheck | None = None,
-    set_example: str = "seed=1",
-) -> int:
-    """A whole trainer's ``main``: parse (:func:`parse_training_command`), call
-    ``run(config, work=, reports=, export=, device=, hours=, execution=, command=, workers=,
-    gpus_per_worker=)``
-    (its ``ValueError`` becomes one line and exit 2) and say whether it finished or stopped."""
-    ap = training_parser(prog, description, family, set_example)
-    job = parse_training_command(ap, argv, load_config, state_files, check_start)
+def train(family: str, argv: Sequence[str] | None, prog: str) -> int:
+    """The trainer of ``family`` as a command named ``prog``: parse (:func:`parse_training_command`),
+    hold the folders, run the trainer (its ``ValueError`` becomes one line and exit 2) and say
+    whether it finished or stopped."""
+    trainer = trainer_of(family)
+    ap = training_parser(prog, trainer.description, family, trainer.set_example)
+    job = parse_training_command(ap, argv, trainer.load_config, trainer.state_files, trainer.check_start)
     with hold_training_folders(job):
-        done = _train(job, run)
+        done = _train(job, trainer.run)
     said = f"finished; model written to {job.export}" if done else "stopped; run the same command to resume"
     print(f"{said} (curves: {job.reports / 'curves.png'})")
     return 0
+
+
+def main_for(family: str) -> Callable[[Sequence[str] | None], int]:
+    """``main(argv)`` of the ``odolab train-<family>`` subcommand."""
+    return lambda argv: train(family, argv, f"odolab train-{family}")
+
+
+def command(family: str, argv: Sequence[str] | None = None) -> int:
+    """``python -m <the trainer's module>``: :func:`train` under :func:`~odolab.cli.args.run_cli`
+    (one line and exit 2 for a user's mistake; 130 for Ctrl-C)."""
+    prog = f"python -m {TRAINERS[family]}"
+    return run_cli(lambda args: train(family, args, prog), prog, argv)
 
 
 @contextlib.contextmanager
