@@ -14,8 +14,6 @@ passes. Prints a markdown table; bad input is one line on stderr and exit code 2
 
 from __future__ import annotations
 
-import argparse
-import math
 import sys
 from dataclasses import dataclass
 
@@ -25,7 +23,6 @@ from baselines.depth_geometry import DepthRange
 from odolab.api import (
     SequenceResult,
     UnknownCameraError,
-    UnknownOdometerError,
     invert,
     load_odometer,
     load_tum_sequence,
@@ -89,88 +86,29 @@ def markdown_table(rows: list[Row], width: int, height: int) -> str:
     return "\n".join(lines)
 
 
-def _positive(kind):
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got {text!r}") from None
-        if not math.isfinite(value) or value <= 0 or value > 1000:
-            raise argparse.ArgumentTypeError(f"must be in (0, 1000], got {text}")
-        return value
-
-    return parse
-
-
-def _pinhole(text: str) -> tuple[float, float, float, float]:
-    """``fx,fy,cx,cy`` (pixels) as four finite numbers, the focal lengths positive."""
-    try:
-        values = [float(p) for p in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 4 or not all(math.isfinite(v) for v in values) or min(values[:2]) <= 0:
-        raise argparse.ArgumentTypeError(
-            f"expected four numbers fx,fy,cx,cy (pixels, fx and fy positive), got {text!r:.80}"
-        )
-    fx, fy, cx, cy = values
-    return fx, fy, cx, cy
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m baselines.measure_tum", description=__doc__.split("\n\n")[0])
-    parser.add_argument("folder", help="TUM RGB-D sequence folder (rgb.txt, depth.txt, groundtruth.txt)")
-    parser.add_argument(
-        "--odometers",
-        nargs="+",
-        default=list(DEFAULT_ODOMETERS),
-        metavar="NAME",
-        help=f"registered odometer names, or {NO_MOTION!r} (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--max-depth",
-        type=_positive(float),
-        default=4.0,
-        help=f"depth cut for every odometer (open3d-rgbd's own default is 6), metres, "
-        f"({DepthRange().min_depth:g}, 1000] (4)",
-    )
-    parser.add_argument("--repeat", type=_positive(int), default=3, help="timed passes per odometer, 1-1000 (3)")
-    parser.add_argument(
-        "--depth-scale",
-        type=_positive(float),
-        default=None,
-        metavar="S",
-        help="depth PNG values per metre (default TUM's 5000; millimetres: 1000)",
-    )
-    parser.add_argument(
-        "--intrinsics",
-        type=_pinhole,
-        default=None,
-        metavar="FX,FY,CX,CY",
-        help="the camera's pinhole in pixels (default: the TUM camera the folder's name says)",
-    )
-    args = parser.parse_args(argv)
+def run(args) -> int:
+    """Measure as the command line (:mod:`odolab.cli.measure_tum`) asks: ``args.folder``,
+    ``odometers``, ``max_depth`` (m), ``repeat``, ``depth_scale`` (None: TUM's), ``intrinsics``
+    (None: from the folder's name) and ``prog`` (for a warning); prints the table. ``ValueError``
+    (and the loaders' errors) for bad input, in one line."""
     if args.max_depth <= DepthRange().min_depth:
-        parser.error(
+        raise ValueError(
             f"--max-depth must be above the odometers' min_depth {DepthRange().min_depth:g} m, got {args.max_depth:g}"
         )
+    scale = {} if args.depth_scale is None else {"depth_scale": args.depth_scale}
     try:
-        scale = {} if args.depth_scale is None else {"depth_scale": args.depth_scale}
-        try:
-            seq = load_tum_sequence(args.folder, args.intrinsics, **scale)
-        except UnknownCameraError:
-            raise ValueError(
-                f"{args.folder}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
-                "in it); give it with --intrinsics fx,fy,cx,cy (pixels)"
-            ) from None
-        if len(seq) < 2:
-            raise ValueError(f"{args.folder}: needs at least 2 frames with depth and ground truth")
-        odometers = {name: load(name, args.max_depth) for name in dict.fromkeys(args.odometers)}
-    except (OSError, ValueError, UnknownOdometerError, TypeError) as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2
+        seq = load_tum_sequence(args.folder, args.intrinsics, **scale)
+    except UnknownCameraError:
+        raise ValueError(
+            f"{args.folder}: cannot tell the camera from the folder's name (no fr1, fr2 or fr3 "
+            "in it); give it with --intrinsics fx,fy,cx,cy (pixels)"
+        ) from None
+    if len(seq) < 2:
+        raise ValueError(f"{args.folder}: needs at least 2 frames with depth and ground truth")
+    odometers = {name: load(name, args.max_depth) for name in dict.fromkeys(args.odometers)}
     warning = seq.depth_warning()
     if warning:
-        print(f"{parser.prog}: warning: {warning} (--depth-scale)", file=sys.stderr)
+        print(f"{args.prog}: warning: {warning} (--depth-scale)", file=sys.stderr)
     rows = []
     for name, odo in odometers.items():
         timed = name not in (NO_MOTION, "action-prior", "ground-truth")
@@ -183,5 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # python -m baselines.measure_tum: the command line is odolab.cli.measure_tum's
+    import runpy
+
+    runpy.run_module("odolab.cli.measure_tum", run_name="__main__", alter_sys=True)

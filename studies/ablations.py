@@ -1517,7 +1517,14 @@ def make_data(recipes: list[TrainConfig | DeepVOTraining], execution: Execution)
                 made.add(folder)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def study_config() -> framework.StudyConfig:
+    """The study part of ``studies/ablations.toml`` (:func:`load_definition`; ``ValueError`` names
+    the file and field)."""
+    return load_definition().study
+
+
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.cli import UsageError, execution_of
     from odolab.config import ConfigError
     from odolab.report import counted
@@ -1526,15 +1533,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         definition = load_definition()
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
-    ap = framework.study_arguments(f"python -m studies.{NAME}", definition.study)
-    ap.add_argument(
-        "--rows",
-        default=None,
-        metavar="N,N,...",
-        help="compute only these rows' units (their models, errors and navigation; the report shows every "
-        "row from the saved results): a long scale in chunks, each committed as it finishes",
-    )
-    args = ap.parse_args(argv)
     scale = definition.scales[args.scale]
     if args.rows is not None and args.redraw:
         raise UsageError("--rows chooses units to compute; --redraw computes none: give one of them")
@@ -1624,7 +1622,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         figures={"success-vs-error.png": (figure_caption(lines), lambda p: draw(lines, p))},
         findings=[*findings(lines), *floor_findings(lines), *claim_findings(lines)],
         tables=[claims_table(claims(definition, scale, errors.results, navigation.results))],
-        command=framework.command_line(f"python -m studies.{NAME}", argv),
+        command=args.command,
         machine=framework.machines(outcomes),
         cpu_hours=sum(o.seconds for o in outcomes) / 3600,
     )
@@ -1639,7 +1637,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.ablations: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, f"python -m studies.{NAME}"))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("ablations"))

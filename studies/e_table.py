@@ -17,7 +17,6 @@ on test episodes: the ordering is what compares, not the values.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,6 @@ import numpy as np
 
 from studies import framework
 
-PROG = "python -m studies.e_table"
 COMPONENTS = ("dx", "dz", "dyaw")
 ACTIONS = ("all", "move_forward", "turn_left", "turn_right")
 #: The paper's Table S4 (x 1e-2, its validation set) and which of our odometers each row is.
@@ -255,10 +253,16 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def study_config() -> framework.StudyConfig:
+    """``studies/e_table.toml`` (``ValueError`` names the file and field)."""
+    return framework.load_study("e_table")
+
+
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.report import counted
 
-    study = framework.begin("e_table", PROG, argv, scale_of)
+    study = framework.begin("e_table", args, scale_of)
     scale: Scale = study.scale
     outcome = study.run(unit_result, units(scale, study.identity), valid_result)
     rows = table(scale, outcome.results)
@@ -282,7 +286,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.e_table: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, PROG))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("e-table"))

@@ -33,11 +33,10 @@ import tomllib
 
 from odolab.io.lock import FolderLock
 from odolab.parallel import Execution, fan_out
+from studies.reports_index import DEFAULT_REPORTS
 
 SCALES = ("ci", "cpu", "paper")
 HERE = Path(__file__).resolve().parent
-#: Where reports go by default (relative to the working folder); its ``index.html`` lists them.
-DEFAULT_REPORTS = Path("reports")
 #: The name of a unit's saved result (:class:`ResultStore`): its digest.
 RESULT_NAME = re.compile(r"[0-9a-f]{16}\.json")
 #: The files a study's report consists of (what its manifest may list and a rerun replaces).
@@ -534,38 +533,6 @@ def say_done(outcome: Outcome, rows: int, out: Path) -> None:
     say_missing(outcome.missing)
 
 
-def command_line(prog: str, argv: Sequence[str] | None) -> str:
-    """The command as typed: ``prog`` and its arguments."""
-    import shlex
-
-    return " ".join([prog, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
-
-
-def study_arguments(prog: str, config: StudyConfig):
-    """The argument parser every study shares: ``--scale``, ``--out``, ``--ray-address``, ``--redraw``."""
-    from odolab.cli import ArgumentParser, path_arg
-
-    ap = ArgumentParser(prog=prog, description=config.title)
-    ap.add_argument(
-        "--scale",
-        choices=list(config.scales),
-        default="cpu",
-        help="ci: seconds; cpu: the committed report (default); paper: the paper's size, for a cluster"
-        + "".join(f"; {s}: see the study's definition" for s in config.scales if s not in SCALES),
-    )
-    ap.add_argument(
-        "--out",
-        type=path_arg("--out"),
-        default=None,
-        help=f"report folder (default reports/{config.name.replace('_', '-')})",
-    )
-    ap.add_argument("--ray-address", default=None, help="Ray cluster for the units (default: a local instance)")
-    ap.add_argument("--serial", action="store_true", help="run the units one after another in this process")
-    ap.add_argument("--redraw", action="store_true", help="rebuild the report from saved results only")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    return ap
-
-
 def check_out(out: Path, config: StudyConfig, claim: bool = True) -> None:
     """Refuse an ``--out`` folder a study cannot own (a user's files, another command's report,
     links); then, when ``claim`` (the run will go on), make it and mark it as the study's. With
@@ -667,8 +634,6 @@ class StudyRun:
     identity digest (``identity``, :func:`identities`)."""
 
     config: StudyConfig
-    prog: str
-    argv: Sequence[str] | None
     args: Any
     scale: Any
     out: Path
@@ -703,7 +668,7 @@ class StudyRun:
             rows=rows,
             figures=figures,
             findings=findings,
-            command=command_line(self.prog, self.argv),
+            command=self.args.command,
             machine=machines([outcome]),
             cpu_hours=outcome.seconds / 3600,
         )
@@ -732,23 +697,23 @@ def scale_params(config: StudyConfig, scale: str, scale_of: Callable[[StudyConfi
     return params
 
 
-def begin(name: str, prog: str, argv: Sequence[str] | None, scale_of: Callable[[StudyConfig, str], Any]) -> StudyRun:
-    """Everything a study checks before any work: ``<name>.toml``, the command line, the asked
-    scale's parameters (``scale_of(config, scale)``, which has ``odometers`` and may have
-    ``options``), the odometers (loaded for their identity digests) and the ``--out`` folder. Bad
-    input is one ``UsageError`` line naming the file and field or the option."""
+def begin(name: str, args: Any, scale_of: Callable[[StudyConfig, str], Any]) -> StudyRun:
+    """Everything a study checks before any work, given its parsed command line ``args``
+    (:mod:`odolab.cli.study`): ``<name>.toml``, the asked scale's parameters (``scale_of(config,
+    scale)``, which has ``odometers`` and may have ``options``), the odometers (loaded for their
+    identity digests) and the ``--out`` folder. Bad input is one ``UsageError`` line naming the file
+    and field or the option."""
     from odolab.cli import UsageError
 
     try:
         config = load_study(name)
-        args = study_arguments(prog, config).parse_args(argv)
         scale = scale_params(config, args.scale, scale_of)
         identity = identities(config, args.scale, scale.odometers, getattr(scale, "options", None))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = args.out or default_out(config)
     held = check_options(args, out, config)
-    return StudyRun(config, prog, argv, args, scale, out, identity, held)
+    return StudyRun(config, args, scale, out, identity, held)
 
 
 def write_reports_index(reports: Path) -> Path:

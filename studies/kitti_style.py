@@ -23,7 +23,6 @@ import functools
 import hashlib
 import math
 import re
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -36,7 +35,6 @@ from studies import framework
 if TYPE_CHECKING:
     from odolab.routes import RouteSpec
 
-PROG = "python -m studies.kitti_style"
 #: The folder under ``<out>`` of the trajectory files (the units write them, beside their results).
 TRAJECTORIES = "trajectories"
 #: KITTI's segment lengths (m), as whole numbers; a route holds those shorter than itself.
@@ -711,13 +709,18 @@ def intro(scale_name: str, scale: Scale, rows: list[dict[str, Any]], note: str) 
     ]
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def study_config() -> framework.StudyConfig:
+    """``studies/kitti_style.toml`` (``ValueError`` names the file and field)."""
+    return framework.load_study("kitti_style")
+
+
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.cli import UsageError, execution_of
     from odolab.report import counted
 
     try:
-        config = framework.load_study("kitti_style")
-        args = framework.study_arguments(PROG, config).parse_args(argv)
+        config = study_config()
         scale = framework.scale_params(config, args.scale, scale_of)
         identity = framework.identities(config, args.scale, scale.odometers)
     except ValueError as exc:
@@ -778,7 +781,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows=rows,
         figures=figures,
         findings=findings(rows, route_rows),
-        command=framework.command_line(PROG, argv),
+        command=args.command,
         machine=framework.machines([routes, runs]),
         cpu_hours=outcome.seconds / 3600,
     )
@@ -789,7 +792,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.kitti_style: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, PROG))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("kitti-style"))

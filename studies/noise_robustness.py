@@ -16,14 +16,12 @@ is a level's error divided by the error at level 1.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from studies import framework
 
-PROG = "python -m studies.noise_robustness"
 COMPONENTS = ("dx", "dz", "dyaw")
 UNITS = {"dx": "m", "dz": "m", "dyaw": "rad"}
 #: The numbers a unit's result holds (the own errors may be None: an odometer that never answered).
@@ -287,8 +285,14 @@ def _draw(scale: Scale, rows: list[dict[str, Any]], path: Path, growth: bool) ->
     plt.close(fig)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    study = framework.begin("noise_robustness", PROG, argv, scale_of)
+def study_config() -> framework.StudyConfig:
+    """``studies/noise_robustness.toml`` (``ValueError`` names the file and field)."""
+    return framework.load_study("noise_robustness")
+
+
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
+    study = framework.begin("noise_robustness", args, scale_of)
     scale: Scale = study.scale
     outcome = study.run(unit_result, units(scale, study.identity), valid_result)
     rows = table(scale, outcome.results)
@@ -324,7 +328,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.noise_robustness: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, PROG))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("noise-robustness"))

@@ -17,11 +17,11 @@ from __future__ import annotations
 import html
 import os
 import re
-from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import quote
 
-PROG = "python -m studies.reports_index"
+#: The reports folder of every odolab command run without --out (relative to the working folder).
+DEFAULT_REPORTS = Path("reports")
 
 #: The title of the reports index: a page with another is a user's, never written over.
 INDEX_TITLE = "<title>odolab reports</title>"
@@ -122,19 +122,11 @@ def is_reports_index(path: Path) -> bool:
         return False
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, path_arg
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks."""
+    from odolab.cli import UsageError
     from odolab.io.owned import UnsafeOutputError
-    from studies.framework import DEFAULT_REPORTS
 
-    ap = ArgumentParser(prog=PROG, description=__doc__.split("\n")[0].replace("``", ""))
-    ap.add_argument(
-        "--reports",
-        type=path_arg("--reports"),
-        default=DEFAULT_REPORTS,
-        help=f"the reports folder (default {DEFAULT_REPORTS})",
-    )
-    args = ap.parse_args(argv)
     if not args.reports.is_dir():
         raise UsageError(f"--reports {args.reports}: not a folder")
     try:
@@ -145,7 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.reports_index: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, PROG))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("reports-index"))

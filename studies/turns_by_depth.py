@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,7 +28,6 @@ import numpy as np
 from odolab.api import StepByStep, invert, transform_to_planar, wrap_angle
 from studies import framework
 
-PROG = "python -m studies.turns_by_depth"
 #: Bins of the first frame's median depth, m.
 BINS = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, np.inf))
 COLUMNS = ["odometer", "bin", "turns", "failed_share", "yaw_rms_deg", "over_2deg_share"]
@@ -304,10 +303,16 @@ def draw(scale: Scale, turns: dict[str, list], path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def study_config() -> framework.StudyConfig:
+    """``studies/turns_by_depth.toml`` (``ValueError`` names the file and field)."""
+    return framework.load_study("turns_by_depth")
+
+
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.report import counted
 
-    study = framework.begin("turns_by_depth", PROG, argv, scale_of)
+    study = framework.begin("turns_by_depth", args, scale_of)
     scale: Scale = study.scale
     valid = functools.partial(valid_result, per_scene=scale.per_scene)
     outcome = study.run(unit_result, units(scale, study.identity), valid)
@@ -341,7 +346,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.turns_by_depth: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, PROG))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("turns-by-depth"))

@@ -52,8 +52,11 @@ def command_main(name: str):
         "simcard": "odolab.cli.simcard",
         "training_data": "odolab.cli.training_data",
         "calibrate": "odolab.cli.calibrate_fusion",
-        "e_table": "studies.e_table",
-    }[name]
+    }.get(name)
+    if module is None:  # a study: its command line is odolab.cli.study's
+        from odolab.cli.study import study
+
+        return lambda argv: study(name.replace("_", "-"), argv)
     return importlib.import_module(module).main
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from odolab.cli.study import command, study
 from odolab.config import ConfigError
 from studies import ablations
 
@@ -190,7 +191,7 @@ def test_a_paper_row_without_the_papers_numbers_is_refused(tmp_path: Path):
 @pytest.fixture(scope="module")
 def ci_run(tmp_path_factory) -> tuple[Path, str]:
     out = tmp_path_factory.mktemp("ablations") / "out"
-    assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+    assert study("ablations", ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
     return out, (out / "table.csv").read_text()
 
 
@@ -318,7 +319,7 @@ def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     data, aside = out / "data", out.parent / "data-aside"
     data.rename(aside)
     try:
-        assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+        assert study("ablations", ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
         assert not data.exists()  # every model is trained: no training data made again
     finally:
         shutil.rmtree(data, ignore_errors=True)
@@ -333,7 +334,7 @@ def test_redraw_needs_only_the_saved_results(ci_run, tmp_path: Path, capsys):
     copy = tmp_path / "copy"
     shutil.copytree(out / "results", copy / "results")
     shutil.copy(out / "manifest.txt", copy / "manifest.txt")  # no models, data or work folders
-    assert ablations.main(["--scale", "ci", "--out", str(copy), "--redraw", "--quiet"]) == 0
+    assert study("ablations", ["--scale", "ci", "--out", str(copy), "--redraw", "--quiet"]) == 0
     assert "0 units computed" in capsys.readouterr().out
     assert (copy / "table.csv").read_text() == table and (copy / "success-vs-error.png").is_file()
 
@@ -343,7 +344,7 @@ def test_a_damaged_model_file_is_trained_again(ci_run, tmp_path: Path, capsys):
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
     (copy / ablations.model_file(4)).write_bytes(b"not a model")
-    assert ablations.main(["--scale", "ci", "--out", str(copy), "--serial", "--quiet"]) == 0
+    assert study("ablations", ["--scale", "ci", "--out", str(copy), "--serial", "--quiet"]) == 0
     from odolab.learning.checkpoints import what_file
 
     assert what_file(copy / ablations.model_file(4)) is None  # a model again
@@ -351,14 +352,13 @@ def test_a_damaged_model_file_is_trained_again(ci_run, tmp_path: Path, capsys):
 
 
 def test_a_folder_where_a_model_file_goes_is_refused_before_training(ci_run, tmp_path: Path, capsys):
-    from odolab.cli import run_cli
 
     out, _ = ci_run
     copy = tmp_path / "copy"
     shutil.copytree(out / "results", copy / "results")
     shutil.copy(out / "manifest.txt", copy / "manifest.txt")
     (copy / ablations.model_file(4)).mkdir(parents=True)
-    assert run_cli(ablations.main, "prog", ["--scale", "ci", "--out", str(copy), "--serial", "--quiet"]) == 2
+    assert command("ablations", ["--scale", "ci", "--out", str(copy), "--serial", "--quiet"]) == 2
     assert "expected row 4's model file or nothing, found a folder" in capsys.readouterr().err
     assert not (copy / "data").exists()
 
@@ -378,13 +378,10 @@ def test_the_paper_scale_on_a_machine_without_gpus_is_refused_before_anything_is
     render 14,000 episodes and then wait for ever: one line, exit 2, nothing made."""
     import torch
 
-    from odolab.cli import run_cli
-    from studies import ablations
-
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 0)
     out = tmp_path / "paper"
-    assert run_cli(ablations.main, "prog", ["--scale", "paper", "--out", str(out)]) == 2
+    assert command("ablations", ["--scale", "paper", "--out", str(out)]) == 2
     assert "asks Ray for 1 GPU per training unit" in capsys.readouterr().err and not out.exists()
 
 
@@ -510,14 +507,14 @@ def test_the_committed_cpu_report_redraws_to_its_own_table(tmp_path: Path):
     copy = tmp_path / "ablations"
     shutil.copytree(committed / "results", copy / "results")
     shutil.copy(committed / "manifest.txt", copy / "manifest.txt")
-    assert ablations.main(["--scale", "cpu", "--out", str(copy), "--redraw", "--quiet"]) == 0
+    assert study("ablations", ["--scale", "cpu", "--out", str(copy), "--redraw", "--quiet"]) == 0
     assert (copy / "table.csv").read_text() == (committed / "table.csv").read_text()
 
 
 def test_rows_computes_only_those_rows_and_reports_the_rest_as_missing(tmp_path: Path, capsys):
     """--rows: a long scale in chunks; the chosen rows' units are computed, the others read or missing."""
     out = tmp_path / "chunk"
-    assert ablations.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet", "--rows", "21"]) == 0
+    assert study("ablations", ["--scale", "ci", "--out", str(out), "--serial", "--quiet", "--rows", "21"]) == 0
     said = capsys.readouterr()
     assert "2 units computed (0 training, 1 error, 1 navigation)" in said.out and "no saved result" in said.err
     rows = {r["row"]: r for r in csv.DictReader((out / "table.csv").read_text().splitlines())}
@@ -530,6 +527,6 @@ def test_rows_computes_only_those_rows_and_reports_the_rest_as_missing(tmp_path:
         ("1_8", "expected"),
     ):
         with pytest.raises(UsageError, match=words):
-            ablations.main(["--scale", "ci", "--out", str(out), "--rows", bad])
+            study("ablations", ["--scale", "ci", "--out", str(out), "--rows", bad])
     with pytest.raises(UsageError, match="--redraw computes none"):
-        ablations.main(["--scale", "ci", "--out", str(out), "--rows", "21", "--redraw"])
+        study("ablations", ["--scale", "ci", "--out", str(out), "--rows", "21", "--redraw"])

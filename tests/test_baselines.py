@@ -444,7 +444,7 @@ def test_beats_the_action_prior_on_the_simulator(name, short_sim_episodes):
 
 
 def test_measure_tum_runs_reference_rows_and_names_an_unknown_odometer(capsys):
-    from baselines.measure_tum import main as measure_main
+    from odolab.cli.measure_tum import command as measure_main
 
     assert measure_main([str(TUM), "--odometers", "ground-truth", "action-prior", "no-motion", "--repeat", "1"]) == 0
     out = capsys.readouterr().out

@@ -271,7 +271,11 @@ def test_the_command_refuses_a_start_of_another_shape_before_making_its_folders(
     work, reports = tmp_path / "w", tmp_path / "r"
     argv = ["--config", "studies/deepvo/shipped.toml", "--set", f"init={trained / 'model.pt'}"]
     with pytest.raises(UsageError, match=r"differs from this recipe's in width \(48 there, 170 here\)"):
-        train("deepvo", [*argv, "--work", str(work), "--reports", str(reports), "--quiet"], "python -m baselines.deepvo.train")
+        train(
+            "deepvo",
+            [*argv, "--work", str(work), "--reports", str(reports), "--quiet"],
+            "python -m baselines.deepvo.train",
+        )
     assert not work.exists() and not reports.exists()
 
 

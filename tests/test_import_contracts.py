@@ -36,3 +36,24 @@ def test_a_broken_contract_is_reported(tmp_path):
     )
     proc = _lint("--config", str(cfg))
     assert proc.returncode != 0 and "BROKEN" in proc.stdout
+
+
+def test_no_contract_ignores_an_import():
+    """The contracts hold as written: none lists an import it lets through."""
+    import tomllib
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    layers = next(c for c in contracts if c["type"] == "layers")
+    assert layers["layers"][0].startswith("odolab.cli") and "ignore_imports" not in layers
+
+
+def test_only_the_command_wing_builds_argument_parsers():
+    """Every command line lives in odolab/cli/ (the examples are a user's own code); elsewhere a
+    command's python -m face hands over to it."""
+    builders = [
+        path.relative_to(ROOT).as_posix()
+        for folder in ("odolab", "baselines", "studies")
+        for path in sorted((ROOT / folder).rglob("*.py"))
+        if "ArgumentParser(" in path.read_text(encoding="utf-8") and "odolab/cli/" not in path.as_posix()
+    ]
+    assert builders == []

@@ -20,6 +20,7 @@ from evo.core import metrics, sync
 from evo.tools import file_interface
 
 from odolab.cli import evaluate
+from odolab.cli.study import study
 from odolab.metrics import KITTI_LENGTHS, path_lengths
 from odolab.routes import RouteFrames, RouteSpec, tour
 from odolab.sim.camera import CameraSpec
@@ -123,7 +124,7 @@ def test_a_bad_scale_value_names_the_file_and_field(tmp_path: Path):
 @pytest.fixture(scope="module")
 def ci_run(tmp_path_factory) -> tuple[Path, str]:
     out = tmp_path_factory.mktemp("kitti") / "out"
-    assert kitti_style.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+    assert study("kitti-style", ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
     return out, (out / "table.csv").read_text()
 
 
@@ -160,7 +161,7 @@ def test_the_ci_scale_reports_kitti_errors_of_every_odometer(ci_run):
 def test_a_second_run_reuses_every_saved_unit(ci_run, capsys):
     out, table = ci_run
     files = {p: p.stat().st_mtime_ns for p in (out / "trajectories").rglob("*.*")}
-    assert kitti_style.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+    assert study("kitti-style", ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
     assert "0 units computed" in capsys.readouterr().out
     assert {p: p.stat().st_mtime_ns for p in (out / "trajectories").rglob("*.*")} == files
     assert (out / "table.csv").read_text() == table
@@ -171,7 +172,7 @@ def test_a_missing_trajectory_file_computes_its_unit_again(ci_run, capsys):
     lost = _route(out) / "action-prior.tum"
     text = lost.read_text()
     lost.unlink()
-    assert kitti_style.main(["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
+    assert study("kitti-style", ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]) == 0
     assert "1 unit computed" in capsys.readouterr().out
     assert lost.read_text() == text and (out / "table.csv").read_text() == table
 
@@ -181,7 +182,7 @@ def test_redraw_needs_only_the_saved_results(ci_run, tmp_path: Path, capsys):
     copy = tmp_path / "copy"
     shutil.copytree(out / "results", copy / "results")
     shutil.copy(out / "manifest.txt", copy / "manifest.txt")  # no trajectory files
-    assert kitti_style.main(["--scale", "ci", "--out", str(copy), "--redraw", "--quiet"]) == 0
+    assert study("kitti-style", ["--scale", "ci", "--out", str(copy), "--redraw", "--quiet"]) == 0
     assert "0 units computed" in capsys.readouterr().out
     assert (copy / "table.csv").read_text() == table and (copy / "kitti-errors.png").is_file()
     assert len(list(copy.glob("route-*.png"))) == CI["routes"]

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 import studies.noise_robustness as noise
-from odolab.cli import run_cli
+from odolab.cli.study import command, study
 from studies import framework
 
 CONFIG = framework.load_study("noise_robustness")
@@ -27,7 +27,7 @@ def _args(out: Path, *more: str) -> list[str]:
 @pytest.fixture(scope="module")
 def ci_run(tmp_path_factory) -> tuple[Path, str]:
     out = tmp_path_factory.mktemp("noise") / "out"
-    assert noise.main(_args(out)) == 0
+    assert study("noise-robustness", _args(out)) == 0
     return out, (out / "table.csv").read_text()
 
 
@@ -54,7 +54,7 @@ def test_the_ci_scale_reports_every_level_and_odometer(ci_run):
 def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     out, table = ci_run
     capsys.readouterr()
-    assert noise.main(_args(out)) == 0
+    assert study("noise-robustness", _args(out)) == 0
     assert "0 units computed" in capsys.readouterr().out
     assert (out / "table.csv").read_text() == table
 
@@ -77,7 +77,7 @@ def test_a_changed_model_and_a_damaged_result_are_computed_again(ci_run, tmp_pat
 
     monkeypatch.setattr(framework, "identities", retrained)
     capsys.readouterr()
-    assert noise.main(_args(copy)) == 0
+    assert study("noise-robustness", _args(copy)) == 0
     assert f"{1 + len(CI.levels)} units computed" in capsys.readouterr().out  # icp at every level, and the damaged one
     assert (copy / "table.csv").read_text() == table  # the same numbers: only the key changed
 
@@ -119,7 +119,7 @@ def test_a_bad_definition_is_refused_naming_file_and_field(tmp_path, monkeypatch
     ):
         assert old in text, old
         (tmp_path / "noise_robustness.toml").write_text(text.replace(old, new, 1))
-        assert run_cli(noise.main, noise.PROG, _args(tmp_path / "out")) == 2
+        assert command("noise-robustness", _args(tmp_path / "out")) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and f"{tmp_path / 'noise_robustness.toml'}: scales.ci." in err and said in err, err
     assert not (tmp_path / "out").exists()  # refused before any folder was made
@@ -165,12 +165,12 @@ def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, caps
     doc = {"label": unit.label, "key": unit.key, "result": {"value": _noise_row(), "seconds": 10**400}}
     (out / "results" / f"{unit.digest}.json").write_text(json.dumps(doc))
     argv = ["--scale", "ci", "--redraw", "--quiet", "--out", str(out)]
-    assert run_cli(noise.main, noise.PROG, argv) == 0  # its seconds damaged: counted as none
+    assert command("noise-robustness", argv) == 0  # its seconds damaged: counted as none
     big = json.dumps(doc).replace('"dx": 1.0', '"dx": 1' + "0" * 400, 1)
     for text in (big, '{"a":' * 100_000):
         (out / "results" / f"{unit.digest}.json").write_text(text)
         capsys.readouterr()
-        assert run_cli(noise.main, noise.PROG, argv) == 2
+        assert command("noise-robustness", argv) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err and "no saved results in" in err, err
 

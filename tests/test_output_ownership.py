@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from odolab.cli import run_cli
+from odolab.cli.study import command
 from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
 from tests.helpers import robust_job
 
@@ -169,14 +170,13 @@ def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
 
 
 def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
-    import studies.turns_by_depth as study
 
     out = tmp_path / "t"
     out.mkdir()
     (out / "results.json").write_text(json.dumps({"my": "own results"}))
     (out / "table.md").write_text("my table")
     argv = ["--scale", "ci", "--serial", "--quiet", "--out", str(out)]
-    assert run_cli(study.main, study.PROG, argv) == 2
+    assert command("turns-by-depth", argv) == 2
     _one_line(capsys, "holds files odolab did not write")
     assert (out / "table.md").read_text() == "my table"
     assert json.loads((out / "results.json").read_text()) == {"my": "own results"}
@@ -336,7 +336,6 @@ def test_an_output_file_of_another_kind_is_never_replaced(tmp_path, capsys):
     both refuse before any work."""
     pytest.importorskip("torch")
     from odolab.cli.bench import main as bench_main
-    from studies.robust_vo.forward_dz_probe import main as probe_main
 
     summary = tmp_path / "training.json"
     summary.write_text(json.dumps({"command": "x", "stages": {}}))
@@ -345,8 +344,8 @@ def test_an_output_file_of_another_kind_is_never_replaced(tmp_path, capsys):
     assert json.loads(summary.read_text()) == {"command": "x", "stages": {}}
     model = tmp_path / "model.pt"
     model.write_bytes(b"\x80weights")
-    assert run_cli(probe_main, "probe", ["--out", str(model)]) == 2
+    assert command("forward-dz-probe", ["--out", str(model)]) == 2
     assert "expected a new file or an earlier report of this probe" in _one_line(capsys)
     assert model.read_bytes() == b"\x80weights"
-    assert run_cli(probe_main, "probe", ["--out", "/dev/null"]) == 2
+    assert command("forward-dz-probe", ["--out", "/dev/null"]) == 2
     assert "is not a regular file" in _one_line(capsys)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from odolab.cli import run_cli
+from odolab.cli.study import command
 from studies.robust_vo import scaling
 
 CURVES = """epoch,split,stage,loss,pairs,pairs_per_s,epochs,action,component,mae,prior_mae
@@ -101,22 +101,18 @@ _CURVES_HEAD = "epoch,split,stage,pairs,pairs_per_s,action,component,mae,prior_m
 )
 def test_scaling_refuses_unusable_curves_in_one_line_and_makes_nothing(tmp_path, capsys, curves, words):
     """These were tracebacks (ValueError, UnicodeDecodeError) after --out was made, or an empty plot."""
-    from studies.robust_vo.scaling import main
-
     run = tmp_path / "run"
     run.mkdir()
     getattr(run / "curves.csv", "write_bytes" if isinstance(curves, bytes) else "write_text")(curves)
     (tmp_path / "t.csv").write_text("odometer,action,dx,dz,dyaw\nicp,move_forward,1,1,1\n")
     argv = ["--runs", str(run), "--classical", str(tmp_path / "t.csv"), "--out", str(tmp_path / "out")]
-    assert run_cli(main, "python -m studies.robust_vo.scaling", argv) == 2
+    assert command("robust-vo-scaling", argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith("python -m studies.robust_vo.scaling: error: --runs: ")
     assert words in err and not (tmp_path / "out").exists()
 
 
 def test_scaling_names_a_bad_classical_table_and_keeps_same_named_runs_apart(tmp_path, capsys):
-    from studies.robust_vo.scaling import main
-
     curves = _CURVES_HEAD + "1,train,forward,100,10,,,,\n1,val,forward,,,move_forward,dz,0.1,0.2\n"
     for parent in ("a", "b"):
         (tmp_path / parent / "run").mkdir(parents=True)
@@ -125,12 +121,12 @@ def test_scaling_names_a_bad_classical_table_and_keeps_same_named_runs_apart(tmp
     table.write_text("odometer,action,dx,dz,dyaw\nicp,move_forward,x,1,1\n")
     runs = ["--runs", str(tmp_path / "a" / "run"), str(tmp_path / "b" / "run" / "curves.csv")]
     out = ["--out", str(tmp_path / "out")]
-    assert run_cli(main, "scaling", [*runs, "--classical", str(table), *out]) == 2
+    assert command("robust-vo-scaling", [*runs, "--classical", str(table), *out]) == 2
     err = capsys.readouterr().err
     assert f"--classical: {table}: row 2: dx: expected a number" in err and len(err.strip().splitlines()) == 1
-    assert run_cli(main, "scaling", [*runs[:2], runs[1] + "/", "--classical", str(table), *out]) == 2
+    assert command("robust-vo-scaling", [*runs[:2], runs[1] + "/", "--classical", str(table), *out]) == 2
     assert "given twice" in capsys.readouterr().err
     table.write_text("odometer,action,dx,dz,dyaw\nicp,move_forward,1,1,1\n")
-    assert run_cli(main, "scaling", [*runs, "--classical", str(table), *out]) == 0
+    assert command("robust-vo-scaling", [*runs, "--classical", str(table), *out]) == 0
     labels = {line.split(",")[0] for line in (tmp_path / "out" / "scaling.csv").read_text().splitlines()[1:]}
     assert labels == {str(tmp_path / "a" / "run"), str(tmp_path / "b" / "run")}

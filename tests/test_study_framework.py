@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from odolab.cli import UsageError, run_cli
+from odolab.cli import UsageError
+from odolab.cli.study import command, study
 from odolab.parallel import SERIAL
 from studies import e_table, framework, reports_index
 from tests.helpers import refused
@@ -57,8 +58,9 @@ def test_a_report_names_the_machines_its_units_ran_on_not_the_one_that_redraws(t
             doc["result"]["machine"] = where
         path.write_text(json.dumps(doc))
     again = framework.run_units(_square, units, store, execution=SERIAL, redraw=True)
+    first_two = sorted(["Another CPU, 64 cores", here])  # one unit each: by name
     assert framework.machines([again]) == (
-        f"Another CPU, 64 cores (1 of 3 units); {here} (1 of 3 units); machine not recorded (1 of 3 units)"
+        f"{first_two[0]} (1 of 3 units); {first_two[1]} (1 of 3 units); machine not recorded (1 of 3 units)"
     )
     assert framework.machines([framework.Outcome()]) == here
     assert framework.machines([framework.Outcome(machines={"": 2})]) == "not recorded (all 2 units)"
@@ -81,7 +83,7 @@ def test_study_definitions_are_checked(tmp_path: Path):
 def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
     out = tmp_path / "e"
     args = ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]
-    assert e_table.main(args) == 0
+    assert study("e-table", args) == 0
     assert {"index.html", "table.csv", "table.md", "errors.png", "manifest.txt", "results"} <= {
         p.name for p in out.iterdir()
     }
@@ -89,7 +91,7 @@ def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
     assert rows[0].startswith("odometer,action,seeds,steps,dx,dx_sd") and len(rows) > 3
     said = capsys.readouterr().out
     assert "8 units computed" in said and f"open {out.resolve() / 'index.html'}" in said  # the page to open, named
-    assert e_table.main(args) == 0  # everything saved: nothing computed again
+    assert study("e-table", args) == 0  # everything saved: nothing computed again
     assert "0 units computed" in capsys.readouterr().out
     html = (out / "index.html").read_text()
     assert "E1 (15.9, 21.3, 8.51)" in html and "Against the paper" in html
@@ -102,7 +104,7 @@ def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
 def test_a_folder_of_the_users_own_files_is_refused(tmp_path: Path):
     (tmp_path / "thesis.docx").write_text("mine")
     with pytest.raises(UsageError, match="holds files odolab did not write"):
-        e_table.main(["--scale", "ci", "--out", str(tmp_path), "--serial", "--quiet"])
+        study("e-table", ["--scale", "ci", "--out", str(tmp_path), "--serial", "--quiet"])
     assert (tmp_path / "thesis.docx").read_text() == "mine"
 
 
@@ -139,13 +141,11 @@ def test_a_report_among_the_default_reports_refreshes_their_index(tmp_path: Path
 
 
 def test_the_reports_index_command(tmp_path: Path, capsys):
-    from odolab.cli import run_cli
-    from studies import reports_index
 
     _page(tmp_path / "n" / "report.html", "odolab navigation")
-    assert run_cli(reports_index.main, reports_index.PROG, ["--reports", str(tmp_path)]) == 0
+    assert command("reports-index", ["--reports", str(tmp_path)]) == 0
     assert "odolab navigation" in (tmp_path / "index.html").read_text()
-    assert run_cli(reports_index.main, reports_index.PROG, ["--reports", str(tmp_path / "none")]) == 2
+    assert command("reports-index", ["--reports", str(tmp_path / "none")]) == 2
     assert "not a folder" in capsys.readouterr().err
 
 
@@ -189,26 +189,22 @@ def test_missing_units_are_named_as_ranges():
 def test_a_study_checks_ray_address_and_redraw_before_making_its_folder(tmp_path, capsys):
     """A dead --ray-address was a traceback after --out was made; with --serial it was ignored; --redraw
     on a new folder made it, empty."""
-    from studies.e_table import main
-
     out = tmp_path / "e"
     for argv, words in [
         (["--ray-address", "127.0.0.1:1"], "--ray-address 127.0.0.1:1: no Ray cluster there"),
         (["--ray-address", "127.0.0.1:1", "--serial"], "exclude each other"),
         (["--redraw"], "--redraw: no saved results in"),
     ]:
-        assert run_cli(main, "python -m studies.e_table", ["--scale", "ci", "--out", str(out), *argv]) == 2
+        assert command("e-table", ["--scale", "ci", "--out", str(out), *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and words in err, err
         assert not out.exists()
 
 
 def test_a_study_names_another_commands_folder_once(tmp_path, capsys):
-    from studies.e_table import main
-
     (tmp_path / "manifest.txt").write_text("# odolab compare\ntable.csv\n")
     (tmp_path / "table.csv").write_text("x")
-    assert run_cli(main, "python -m studies.e_table", ["--scale", "ci", "--out", str(tmp_path), "--redraw"]) == 2
+    assert command("e-table", ["--scale", "ci", "--out", str(tmp_path), "--redraw"]) == 2
     err = capsys.readouterr().err.strip()
     assert "holds the results of odolab compare" in err and err.count(str(tmp_path)) == 1, err
 
@@ -238,7 +234,7 @@ def test_a_saved_study_result_of_the_wrong_shape_is_computed_again(tmp_path):
 def test_a_study_stopped_before_its_report_resumes_instead_of_refusing_its_folder(tmp_path, monkeypatch, capsys):
     """Killed after some units, before its report: the rerun read 'holds files odolab did not
     write (no manifest.txt)' and could neither resume nor redraw."""
-    from studies import e_table, framework
+    from studies import framework
 
     out = tmp_path / "e"
     config = framework.load_study("e_table")
@@ -249,7 +245,7 @@ def test_a_study_stopped_before_its_report_resumes_instead_of_refusing_its_folde
 
     monkeypatch.setattr(framework, "run_units", stopped)
     argv = ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]
-    assert run_cli(e_table.main, "python -m studies.e_table", argv) == 130
+    assert command("e-table", argv) == 130
     assert (out / "manifest.txt").read_text() == "# odolab study e_table\n"
     framework.check_out(out, config)  # the rerun may use its folder
     (out / "manifest.txt").unlink()  # a folder left by a run from before the manifest came first
@@ -273,17 +269,13 @@ CI = ["--scale", "ci", "--serial", "--quiet"]
 @pytest.fixture(scope="module")
 def ci_run(tmp_path_factory) -> Path:
     """One finished ci run of studies.e_table (copied by the tests that change it)."""
-    from studies.e_table import main
-
     out = tmp_path_factory.mktemp("e") / "run"
-    assert main([*CI, "--out", str(out)]) == 0
+    assert study("e-table", [*CI, "--out", str(out)]) == 0
     return out
 
 
 def _run(argv: list[str], capsys) -> tuple[int, str]:
-    from studies.e_table import main
-
-    rc = run_cli(main, PROG, argv)
+    rc = command("e-table", argv)
     return rc, capsys.readouterr().err.strip()
 
 

@@ -9,14 +9,14 @@ import pytest
 
 import studies.noise_robustness as noise
 import studies.turns_by_depth as turns
-from odolab.cli import run_cli
+from odolab.cli.study import command
 from studies import framework
 
 CI = ["--scale", "ci", "--serial", "--quiet"]
 
 
 def _turns(*args) -> int:
-    return run_cli(turns.main, turns.PROG, [*CI, *map(str, args)])
+    return command("turns-by-depth", [*CI, *map(str, args)])
 
 
 def _counting(monkeypatch) -> list[str]:
@@ -65,14 +65,14 @@ def test_the_turns_study_resumes_scene_by_scene_and_redraws_without_computing(tm
     assert _turns("--redraw", "--out", copy) == 0
     assert "0 units computed" in capsys.readouterr().out
     assert calls == [] and (copy / "table.csv").read_text() == table and (copy / "turns.png").stat().st_size > 10_000
-    assert run_cli(turns.main, turns.PROG, ["--scale", "ci", "--redraw", "--out", str(tmp_path / "none")]) == 2
+    assert command("turns-by-depth", ["--scale", "ci", "--redraw", "--out", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err
     assert "no saved results in" in err and err.count("\n") == 1
 
 
 def test_the_noise_study_redraws_from_its_results_without_computing(tmp_path, monkeypatch, capsys):
     def cli(*args) -> int:
-        return run_cli(noise.main, noise.PROG, [*CI, *map(str, args)])
+        return command("noise-robustness", [*CI, *map(str, args)])
 
     out = tmp_path / "n"
     assert cli("--out", out) == 0

@@ -6,6 +6,7 @@ import csv
 
 import studies.turns_by_depth as study
 from odolab.api import invert, load_odometer
+from odolab.cli.study import command
 from studies import framework
 
 CONFIG = framework.load_study("turns_by_depth")
@@ -13,9 +14,8 @@ CI = study.scale_of(CONFIG, "ci")
 
 
 def _run(args) -> int:
-    from odolab.cli import run_cli
 
-    return run_cli(study.main, study.PROG, [str(a) for a in args])
+    return command("turns-by-depth", [str(a) for a in args])
 
 
 def test_the_ci_scale_scores_every_odometer_on_the_same_turns(tmp_path):

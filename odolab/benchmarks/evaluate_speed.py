@@ -61,9 +61,3 @@ def run(data_dir: str | os.PathLike = DEFAULT_DATA, repeats: int = 3) -> dict:
         "evo_ape_s": theirs,
         "ratio": None if theirs is None else ours / theirs,
     }
-
-
-if __name__ == "__main__":
-    import json
-
-    print(json.dumps(run(), indent=2))

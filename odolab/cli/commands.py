@@ -1,6 +1,7 @@
 """The ``odolab`` command: one entry point whose subcommands are the ``python -m`` commands.
 
     odolab compare [options]        = python -m odolab.compare [options]
+    odolab study NAME [options]     = python -m studies.<module> [options] (odolab.cli.study)
     odolab --help                   lists them (odolab help compare = odolab compare --help)
     odolab --version                the installed version
 
@@ -71,6 +72,12 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "odolab.cli.train:pose-corrector",
         "train the pose corrector of corrected(...) from a TOML recipe (resumable)",
     ),
+    "measure-tum": (
+        "baselines.measure_tum",
+        "odolab.cli.measure_tum",
+        "per-pair errors and speed of odometers on a TUM RGB-D folder",
+    ),
+    "study": ("studies.<name>", "odolab.cli.study", "run a study of studies/ (odolab study --help lists them)"),
     "calibrate-fusion": (
         "odolab.fusion.calibrate",
         "odolab.cli.calibrate_fusion",

@@ -46,22 +46,10 @@ def batch(data: TrainingData, idx: np.ndarray, warp: np.ndarray | None, model) -
     return x, torch.from_numpy(b["planar"]).float()
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, number, path_arg
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks."""
+    from odolab.cli import UsageError
 
-    ap = ArgumentParser(prog="python -m studies.robust_vo.derotation_probe", description=__doc__.split("\n")[0])
-    ap.add_argument("--config", type=path_arg("--config"), default="studies/robust_vo/shipped.toml")
-    ap.add_argument(
-        "--seconds", type=number("--seconds", float, 1.0, 86_400.0), default=300.0, help="training budget (wall clock)"
-    )
-    ap.add_argument(
-        "--samples",
-        type=number("--samples", int, 0, 10**8),
-        default=0,
-        help="training budget in samples instead (0: use --seconds)",
-    )
-    ap.add_argument("--derotate", action="store_true", help="warp the current frame by the commanded turn")
-    args = ap.parse_args(argv)
     try:
         cfg = load_train_config(str(args.config))
     except ValueError as exc:
@@ -101,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     )
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.robust_vo.derotation_probe: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, "python -m studies.robust_vo.derotation_probe"))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("derotation-probe"))

@@ -94,30 +94,10 @@ def _is_report(path: Path) -> bool:
         return f.readline().startswith("move_forward val pairs: ")
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, check_output_file, check_replaceable, number, path_arg
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks."""
+    from odolab.cli import UsageError, check_output_file, check_replaceable
 
-    ap = ArgumentParser(prog="python -m studies.robust_vo.forward_dz_probe", description=__doc__.split("\n")[0])
-    ap.add_argument(
-        "--config",
-        type=path_arg("--config"),
-        default=Path("studies/robust_vo/shipped.toml"),
-        help="recipe whose val data is read (made by its training command; of the probed model's input size)",
-    )
-    ap.add_argument(
-        "--checkpoint",
-        type=path_arg("--checkpoint"),
-        default=SHIPPED,
-        help="robust-VO model file to probe (default: the shipped model)",
-    )
-    ap.add_argument(
-        "--passes",
-        type=number("--passes", int, 1, 10),
-        default=2,
-        help="passes of the network, 1-10 (default 2)",
-    )
-    ap.add_argument("--out", type=path_arg("--out"), default=None, help="also write the report to this text file")
-    args = ap.parse_args(argv)
     if args.out is not None:  # found now, not after the work; only an earlier report is replaced
         check_output_file(args.out, "--out")
         check_replaceable(args.out, "--out", _is_report, "an earlier report of this probe")
@@ -155,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.robust_vo.forward_dz_probe: the command line is odolab.cli.study's
+    import importlib
 
-    sys.exit(run_cli(main, "python -m studies.robust_vo.forward_dz_probe"))
+    sys.exit(importlib.import_module("odolab.cli.study").command("forward-dz-probe"))

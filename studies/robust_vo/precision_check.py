@@ -60,24 +60,10 @@ def last_val_rows(reports: Path) -> list[dict]:
     return [r for r in rows if int(r["epoch"]) == last[r["stage"]]]
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, check_report_dir, path_arg
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks."""
+    from odolab.cli import UsageError, check_report_dir
 
-    ap = ArgumentParser(prog="python -m studies.robust_vo.precision_check", description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--out",
-        type=path_arg("--out"),
-        default=Path("reports") / "robust-vo" / "precision",
-        help="where runs.csv and comparison.md go (default reports/robust-vo/precision)",
-    )
-    ap.add_argument(
-        "--work",
-        type=path_arg("--work"),
-        default=Path("runs") / "robust-vo" / "precision",
-        help="training states, one folder per run (default runs/robust-vo/precision)",
-    )
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="at least two seeds (default 0 1)")
-    args = ap.parse_args(argv)
     if len(set(args.seeds)) < 2 or any(not 0 <= s < 2**32 for s in args.seeds):
         raise UsageError(
             f"--seeds: expected at least two different seeds in [0, 2^32) (their spread is the noise), "
@@ -174,7 +160,7 @@ def comparison(table: list[dict], seeds: list[int]) -> str:
     return "\n".join(lines)
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.robust_vo.precision_check: the command line is odolab.cli.study's
+    import importlib
 
-    sys.exit(run_cli(main, "python -m studies.robust_vo.precision_check"))
+    sys.exit(importlib.import_module("odolab.cli.study").command("precision-check"))

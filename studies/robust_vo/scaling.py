@@ -310,31 +310,10 @@ def write_points(points: list[Point], path: Path) -> None:
     write_text_atomic(path, buf.getvalue())
 
 
-def main(argv: list[str] | None = None) -> int:
-    from odolab.cli import ArgumentParser, UsageError, check_report_dir, path_arg
+def run(args) -> int:
+    """The study as its command line (:mod:`odolab.cli.study`) asks."""
+    from odolab.cli import UsageError, check_report_dir
 
-    ap = ArgumentParser(prog="python -m studies.robust_vo.scaling", description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--runs",
-        type=path_arg("--runs"),
-        nargs="+",
-        default=[Path("reports/robust-vo/shipped"), Path("reports/robust-vo/shipped-341")],
-        help="training report folders, each with a curves.csv (default: the shipped recipes' runs)",
-    )
-    ap.add_argument(
-        "--classical",
-        type=path_arg("--classical"),
-        default=Path("reports/compare-val-20x100/table_per_action.csv"),
-        help="a compare run's table_per_action.csv (default reports/compare-val-20x100/...: validation episodes, "
-        "as the curves)",
-    )
-    ap.add_argument(
-        "--out",
-        type=path_arg("--out"),
-        default=Path("reports/robust-vo/scaling"),
-        help="where scaling.png, scaling-hours.png and scaling.csv go (default reports/robust-vo/scaling)",
-    )
-    args = ap.parse_args(argv)
     if args.out.exists() and not args.out.is_dir():
         check_report_dir(args.out, "--out", manifest="scaling.csv")  # its one-line refusal
     files = [curves_file(folder).resolve() for folder in args.runs]
@@ -361,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    from odolab.cli import run_cli
+if __name__ == "__main__":  # python -m studies.robust_vo.scaling: the command line is odolab.cli.study's
+    import importlib
 
-    raise SystemExit(run_cli(main, "python -m studies.robust_vo.scaling"))
+    raise SystemExit(importlib.import_module("odolab.cli.study").command("robust-vo-scaling"))
