@@ -107,7 +107,7 @@ def planar_from_output(out: torch.Tensor, actions: list[Action | None]) -> torch
 
 class TinyLearnedOdometer(Odometer):
     """The tiny CNN as an odometer. Options: ``checkpoint`` (path, required), ``threads`` (torch
-    threads while it runs, default 1: see :mod:`odolab.threads`), ``batch_size`` (pairs per forward pass)."""
+    threads while it runs, default 1: see :mod:`odolab.running.threads`), ``batch_size`` (pairs per forward pass)."""
 
     def __init__(self, checkpoint: str, threads: int = 1, batch_size: int = 8) -> None:
         if int(threads) < 1 or int(batch_size) < 1:

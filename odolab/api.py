@@ -9,25 +9,15 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from odolab.config import ConfigError, Setting, assign, check, describe, range_text, setting
-from odolab.geometry import (
+from odolab.core.geometry import (
     integrate,
     invert,
     planar_to_transform,
     transform_to_planar,
     wrap_angle,
 )
-from odolab.odometer import (
-    Odometer,
-    UnknownOdometerError,
-    available_odometers,
-    load_odometer,
-    register_odometer,
-    split_odometer_names,
-)
-from odolab.options import whole_number
-from odolab.parallel import SERIAL, Execution
-from odolab.threads import check_threads
-from odolab.types import (
+from odolab.core.parallel import SERIAL, Execution
+from odolab.core.types import (
     FORWARD_STEP,
     MOTION_ACTIONS,
     TURN_ANGLE,
@@ -40,6 +30,16 @@ from odolab.types import (
     nominal_motion,
     nominal_planar,
 )
+from odolab.odometry.odometer import (
+    Odometer,
+    UnknownOdometerError,
+    available_odometers,
+    load_odometer,
+    register_odometer,
+    split_odometer_names,
+)
+from odolab.odometry.options import whole_number
+from odolab.running.threads import check_threads
 
 __all__ = [
     "DEFAULT_CACHE",
@@ -113,10 +113,21 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and import-linter
-    from odolab.comparison import DEFAULT_CACHE, ComparisonConfig, ComparisonError, ComparisonResult, run_comparison
-    from odolab.composites import load_inputs, one_input
-    from odolab.datasets import Pair, PairDataset, episode_specs, true_motions
-    from odolab.episodes import (
+    from odolab.core.trajectory import Trajectory
+    from odolab.io.atomic import write_bytes_atomic, write_json_atomic
+    from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
+    from odolab.odometry.composites import load_inputs, one_input
+    from odolab.reporting.comparison import (
+        DEFAULT_CACHE,
+        ComparisonConfig,
+        ComparisonError,
+        ComparisonResult,
+        run_comparison,
+    )
+    from odolab.running.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
+    from odolab.running.runner import SequenceResult, StepByStep, failure_reason
+    from odolab.sim.datasets import Pair, PairDataset, episode_specs, true_motions
+    from odolab.sim.episodes import (
         EpisodeCache,
         EpisodeSpec,
         NoiseConfig,
@@ -124,49 +135,44 @@ if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and
         load_episodes,
         stream_episodes,
     )
-    from odolab.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
-    from odolab.io.atomic import write_bytes_atomic, write_json_atomic
-    from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
-    from odolab.runner import SequenceResult, StepByStep, failure_reason
     from odolab.sim.scenes import SPLITS
-    from odolab.trajectory import Trajectory
 
 _LAZY = {
-    "EpisodeCache": "odolab.episodes",
-    "EpisodeSpec": "odolab.episodes",
-    "NoiseConfig": "odolab.episodes",
-    "generate_episodes": "odolab.episodes",
-    "load_episodes": "odolab.episodes",
-    "stream_episodes": "odolab.episodes",
+    "EpisodeCache": "odolab.sim.episodes",
+    "EpisodeSpec": "odolab.sim.episodes",
+    "NoiseConfig": "odolab.sim.episodes",
+    "generate_episodes": "odolab.sim.episodes",
+    "load_episodes": "odolab.sim.episodes",
+    "stream_episodes": "odolab.sim.episodes",
     "SPLITS": "odolab.sim.scenes",
-    "Pair": "odolab.datasets",
-    "PairDataset": "odolab.datasets",
-    "episode_specs": "odolab.datasets",
-    "true_motions": "odolab.datasets",
-    "ComparisonConfig": "odolab.comparison",
-    "ComparisonResult": "odolab.comparison",
-    "ComparisonError": "odolab.comparison",
-    "run_comparison": "odolab.comparison",
-    "DEFAULT_CACHE": "odolab.comparison",
-    "SequenceResult": "odolab.runner",
-    "StepByStep": "odolab.runner",
-    "failure_reason": "odolab.runner",
-    "load_inputs": "odolab.composites",
-    "one_input": "odolab.composites",
+    "Pair": "odolab.sim.datasets",
+    "PairDataset": "odolab.sim.datasets",
+    "episode_specs": "odolab.sim.datasets",
+    "true_motions": "odolab.sim.datasets",
+    "ComparisonConfig": "odolab.reporting.comparison",
+    "ComparisonResult": "odolab.reporting.comparison",
+    "ComparisonError": "odolab.reporting.comparison",
+    "run_comparison": "odolab.reporting.comparison",
+    "DEFAULT_CACHE": "odolab.reporting.comparison",
+    "SequenceResult": "odolab.running.runner",
+    "StepByStep": "odolab.running.runner",
+    "failure_reason": "odolab.running.runner",
+    "load_inputs": "odolab.odometry.composites",
+    "one_input": "odolab.odometry.composites",
     "load_tum_sequence": "odolab.io.tum_rgbd",
     "UnknownCameraError": "odolab.io.tum_rgbd",
     "write_bytes_atomic": "odolab.io.atomic",
     "write_json_atomic": "odolab.io.atomic",
-    "Evaluation": "odolab.evaluation",
-    "evaluate_trajectory": "odolab.evaluation",
-    "pair_trajectories": "odolab.evaluation",
-    "Trajectory": "odolab.trajectory",
+    "Evaluation": "odolab.running.evaluation",
+    "evaluate_trajectory": "odolab.running.evaluation",
+    "pair_trajectories": "odolab.running.evaluation",
+    "Trajectory": "odolab.core.trajectory",
 }
 
 
 def run_odometers(odometers, sequences, **kw):
-    """Every odometer on every sequence (see :func:`odolab.runner.run`)."""
-    from odolab.runner import run
+    """Every odometer on every sequence (see :func:`odolab.running.runner.run`)."""
+    from odolab.running.runner import run
 
     return run(odometers, sequences, **kw)
 

@@ -18,13 +18,13 @@ import numpy as np
 
 def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> list[dict]:
     """Per test scene: bare cast_rays, clean render, and the noisy frame as episodes make it
-    (:class:`~odolab.environment.Sensors`, depth path in a second thread) and in one thread (median ms
+    (:class:`~odolab.sim.environment.Sensors`, depth path in a second thread) and in one thread (median ms
     per frame), with the median per-pose ratios noisy / bare."""
     import open3d as o3d
 
-    from odolab.environment import Sensors
-    from odolab.geometry import camera_pose_from_agent
+    from odolab.core.geometry import camera_pose_from_agent
     from odolab.sim.camera import CameraSpec
+    from odolab.sim.environment import Sensors
     from odolab.sim.scenes import generate_scene, scene_seed
 
     rows = []
@@ -77,7 +77,7 @@ def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> l
 
 def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
     """End-to-end episode generation in one process (scene, planning, noisy motion, rendering)."""
-    from odolab.episodes import EpisodeSpec, render_episode
+    from odolab.sim.episodes import EpisodeSpec, render_episode
 
     frames, t0 = 0, time.perf_counter()
     for i in range(n):
@@ -97,11 +97,11 @@ def bench_odometers(
     """Steps per second of each odometer's ``step`` on test-split episodes (341 x 192); ``options``:
     constructor options by odometer name. Each odometer's row is appended to ``rows`` (a new list
     when None, returned) as soon as it is timed, then ``after_each()`` is called."""
-    from odolab import runner, summary
-    from odolab.episodes import EpisodeSpec, load_episodes
-    from odolab.odometer import load_odometer
-    from odolab.parallel import SERIAL
-    from odolab.threads import odometer_threads
+    from odolab.core.parallel import SERIAL
+    from odolab.odometry.odometer import load_odometer
+    from odolab.running import runner, summary
+    from odolab.running.threads import odometer_threads
+    from odolab.sim.episodes import EpisodeSpec, load_episodes
 
     eps = load_episodes(
         [EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps) for i in range(episodes)],
@@ -132,9 +132,9 @@ def bench_navigation(
     policy) on the first test episodes: steps per second and milliseconds per step in the policy (of
     which fast-marching planning), the sensors, the odometer and the rest (episode set-up). The action prior's agent believes a
     wrong map and plans over the whole of it more often: the costly case."""
-    from odolab.episodes import EpisodeSpec
     from odolab.navigation.episode import navigate
-    from odolab.odometer import load_odometer
+    from odolab.odometry.odometer import load_odometer
+    from odolab.sim.episodes import EpisodeSpec
 
     rows = []
     for name in odometers:
@@ -180,7 +180,7 @@ def bench_training(
     from odolab.learning import pick_device
     from odolab.robust_vo.config import load_train_config
     from odolab.robust_vo.speed import training_speed
-    from odolab.threads import torch_threads
+    from odolab.running.threads import torch_threads
 
     dev = pick_device(device)
     with torch_threads(threads):

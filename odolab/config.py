@@ -48,7 +48,7 @@ from typing import Any, TypeVar
 import numpy as np
 import tomllib
 
-from odolab.errors import InputError
+from odolab.core.errors import InputError
 from odolab.io.tomlfile import read_toml as read_toml_document
 
 __all__ = [
@@ -577,7 +577,7 @@ def _whole_number(text: str) -> int:
 
 def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigError, base: T | None = None) -> T:
     """``base`` (default ``cls()``) with ``key=value`` changes (``heading_tolerance=30``); ``error``
-    (e.g. a subclass of :class:`odolab.errors.InputError`) naming the item, cut short, for an
+    (e.g. a subclass of :class:`odolab.core.errors.InputError`) naming the item, cut short, for an
     unknown key, a key given twice, a value that is not of the field's kind or out of its range;
     the config's own checks (two fields together) raise ``error(message, joiner=": ")`` when
     ``error`` takes a joiner, else ``error(message)``. A field with a range takes a number typed

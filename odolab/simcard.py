@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from odolab.parallel import Execution, fan_out
+from odolab.core.parallel import Execution, fan_out
 
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
 PAPER_MIX = {"move_forward": 57.32, "turn_left": 21.34, "turn_right": 21.33}  # % of 1,000,000 steps
@@ -50,8 +50,8 @@ class MotionStats:
 
 
 def motion_stats(spec) -> MotionStats:
-    """Roll out ``spec`` (an :class:`~odolab.episodes.EpisodeSpec`) and keep what the card needs."""
-    from odolab.episodes import rollout
+    """Roll out ``spec`` (an :class:`~odolab.sim.episodes.EpisodeSpec`) and keep what the card needs."""
+    from odolab.sim.episodes import rollout
 
     r = rollout(spec)
     return MotionStats(
@@ -126,7 +126,7 @@ def render_stats(spec, max_frames: int = 30, keep: int = 0) -> tuple[ImageStats,
     frames (clean rgb, noisy rgb, clean depth, noisy depth) for the contact sheet."""
     from itertools import islice
 
-    from odolab.episodes import render_frames, rollout
+    from odolab.sim.episodes import render_frames, rollout
 
     motion = rollout(spec)
     n = min(max_frames, len(motion.states))
@@ -156,7 +156,7 @@ def merge_images(parts: list[ImageStats]) -> ImageStats:
 
 def summarize_motion(stats: list[MotionStats]) -> dict:
     """Action mix and collision rate per action (%), distances, ratios and lengths."""
-    from odolab.types import MOTION_ACTIONS
+    from odolab.core.types import MOTION_ACTIONS
 
     acts = np.concatenate([s.actions for s in stats]).astype(int)
     hits = np.concatenate([s.collisions for s in stats]).astype(bool)
@@ -243,7 +243,7 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     import matplotlib.pyplot as plt
 
     from odolab.io.atomic import save_figure_atomic, write_text_atomic
-    from odolab.report import OutputFolder
+    from odolab.reporting.report import OutputFolder
 
     folder = OutputFolder(
         out, "simcard", CARD_NAMES
@@ -368,8 +368,8 @@ def measure(
 ) -> tuple[dict, ImageStats, list[tuple]]:
     """The card's numbers: the motion summary of ``episodes`` rollouts, the image statistics of
     ``rendered`` episodes of ``frames`` frames, and the sample frames of the first four (for the
-    contact sheet); as Ray tasks (:func:`odolab.parallel.fan_out`) unless ``execution.parallel`` is False."""
-    from odolab.episodes import EpisodeSpec
+    contact sheet); as Ray tasks (:func:`odolab.core.parallel.fan_out`) unless ``execution.parallel`` is False."""
+    from odolab.sim.episodes import EpisodeSpec
 
     specs = [EpisodeSpec(split=split, index=i, seed=seed, max_steps=max_steps) for i in range(episodes)]
     motion = summarize_motion(fan_out(motion_stats, specs, desc="rollouts", execution=execution))

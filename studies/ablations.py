@@ -38,7 +38,7 @@ from studies import framework
 
 if TYPE_CHECKING:
     from baselines.deepvo.config import DeepVOTraining
-    from odolab.parallel import Execution
+    from odolab.core.parallel import Execution
     from odolab.robust_vo.config import TrainConfig
 
 NAME = "ablations"
@@ -295,7 +295,7 @@ def _row_place(doc: Any, k: int) -> str:
 def _check_scale(where: str, scale: Scale) -> None:
     """Refuse, as the file is read, a scale whose lists or counts no run could use."""
     from odolab.config import ConfigError
-    from odolab.episodes import MAX_EPISODE_STEPS
+    from odolab.sim.episodes import MAX_EPISODE_STEPS
 
     for name, values in (("rows", scale.rows), ("seeds", scale.seeds), ("nav_seeds", scale.nav_seeds)):
         if not values or len(set(values)) != len(values):
@@ -341,8 +341,8 @@ def _check_scale(where: str, scale: Scale) -> None:
 def _check_options(path: Path, row: Row) -> None:
     """Refuse, as the file is read, options that are no table or that row's odometer does not take."""
     from odolab.config import ConfigError
-    from odolab.odometer import REGISTRY
-    from odolab.options import OptionError, check_options
+    from odolab.odometry.odometer import REGISTRY
+    from odolab.odometry.options import OptionError, check_options
 
     if not isinstance(row.options, dict):
         raise ConfigError(f"{path}: row {row.row}: options: expected a table, got {row.options!r}")
@@ -358,7 +358,7 @@ def check_option_values(definition: Definition, number: int) -> None:
     """Refuse row ``number``'s options that its odometer refuses when made (with its shipped model
     in place of the row's own, which the study has not trained yet)."""
     from odolab.config import ConfigError
-    from odolab.odometer import REGISTRY
+    from odolab.odometry.odometer import REGISTRY
 
     row = definition.rows[number]
     if row.options:
@@ -507,9 +507,9 @@ def train_row(
     run of that seed) with its family's own trainer: work states under ``<out>/work/<model>/<key
     digest>``, curves under ``<out>/training/<model>``, the model at :func:`model_file`, where
     <model> is :func:`model_id`; returns :func:`model_summary`."""
+    from odolab.core.parallel import SERIAL
     from odolab.learning import pick_device
     from odolab.learning.checkpoints import what_file
-    from odolab.parallel import SERIAL
 
     number, seed = key["row"], key.get("train_seed")
     cfg, name = recipes[(number, seed)], model_id(number, seed)
@@ -627,7 +627,7 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     (``episodes``, in episode order: the paired tests' input), steps, failure share, and steps per
     second of the odometer's own ``step`` calls (``fps``)."""
     from odolab.api import SERIAL, ComparisonConfig, run_comparison
-    from odolab.episodes import NoiseConfig
+    from odolab.sim.episodes import NoiseConfig
 
     name, options = _odometer(key, out)
     result = run_comparison(
@@ -642,7 +642,7 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
             execution=SERIAL,
         )
     )
-    from odolab.summary import step_errors as abs_errors
+    from odolab.running.summary import step_errors as abs_errors
 
     (row,) = [r for r in result.rows if r.odometer == name]
     mine = [r for r in result.results if r.odometer == name]
@@ -674,9 +674,9 @@ def navigate_episode(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     policy, the challenge's noise): success (0/1), SPL, SoftSPL, d_G (geodesic distance to the goal
     at the end, m), steps, collisions and failed steps."""
     from odolab.api import load_odometer
-    from odolab.episodes import EpisodeSpec, NoiseConfig
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.episode import navigate
+    from odolab.sim.episodes import EpisodeSpec, NoiseConfig
 
     name, options = _odometer(key, out)
     spec = EpisodeSpec(
@@ -748,8 +748,8 @@ def evaluation_units(
     """The error units (row x seed) and navigation units (row x seed x episode) of every row whose
     model is trained, and of each further training seed's run of the ``train_seed_rows``
     (:func:`run_label`), and the rows left out for want of a model."""
-    from odolab.episodes import NoiseConfig
     from odolab.navigation.agent import PolicyConfig
+    from odolab.sim.episodes import NoiseConfig
 
     noise = dataclasses.asdict(NoiseConfig())
     policy = dataclasses.asdict(PolicyConfig())
@@ -822,7 +822,7 @@ def table(
     Each line also carries ``S_range``, ``SPL_range``, ``SoftSPL_range``, ``d_G_range`` (the 95 %
     intervals as numbers) and ``error_ci`` (the mean error's interval over the seeds) for the
     verdicts and the figure."""
-    from odolab.stats import mean_ci
+    from odolab.core.stats import mean_ci
 
     lines = []
     for number in scale.rows:
@@ -954,7 +954,7 @@ def _for_seeds(seeds: Sequence[int]) -> str:
 def findings(lines: list[dict[str, Any]]) -> list[str]:
     """Per measure, which rows come on the same side of row 18 as in the paper, and of those which
     are apart from row 18 by more than our 95 % intervals."""
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     out = []
     for column, measure in (("S_vs_18", "Success"), ("error_vs_18", "Per-step error (mean of dx, dz, dyaw)")):
@@ -1115,7 +1115,7 @@ def claims(
     every test of the table; ``verdict``: ``supports`` (``p_holm`` < :data:`ALPHA` and ours differs in
     the direction the paper's numbers go, or where the paper gives none, A better), ``contradicts``
     (the other direction) or ``undecided``."""
-    from odolab.stats import holm, mcnemar, paired_t
+    from odolab.core.stats import holm, mcnemar, paired_t
 
     lines, expected = [], []  # expected: the sign of diff the paper's numbers give (A better where it is silent)
     for a_row, b_row in CLAIMS:
@@ -1156,7 +1156,7 @@ def claims(
 
 def claims_table(lines: list[dict[str, Any]]) -> framework.Table:
     """The claims' lines as a report table, with what each test is and what the verdicts count."""
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     said = {v: sum(line["verdict"] == v for line in lines) for v in ("supports", "contradicts", "undecided")}
     return framework.Table(
@@ -1506,7 +1506,7 @@ def make_data(recipes: list[TrainConfig | DeepVOTraining], execution: Execution)
     """Every data set the recipes train on, made here (once each) before the training units start,
     so that no two units make the same folder at once; the caller passes the recipes of the models
     still to train."""
-    from odolab.training_data import make_training_data
+    from odolab.sim.training_data import make_training_data
 
     made = set()
     for cfg in recipes:
@@ -1527,7 +1527,7 @@ def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.cli import UsageError, execution_of
     from odolab.config import ConfigError
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     try:
         definition = load_definition()

@@ -260,7 +260,7 @@ def study_config() -> framework.StudyConfig:
 
 def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     study = framework.begin("e_table", args, scale_of)
     scale: Scale = study.scale

@@ -31,8 +31,8 @@ from typing import Any
 
 import tomllib
 
+from odolab.core.parallel import Execution, fan_out
 from odolab.io.lock import FolderLock
-from odolab.parallel import Execution, fan_out
 from studies.reports_index import DEFAULT_REPORTS
 
 SCALES = ("ci", "cpu", "paper")
@@ -422,7 +422,7 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
     replacing the previous run's report files (never its results); returns the files written."""
     from odolab.io.atomic import write_text_atomic
     from odolab.io.owned import UnsafeOutputError
-    from odolab.report import OutputFolder
+    from odolab.reporting.report import OutputFolder
 
     folder = OutputFolder(out, owner=owner, names=REPORT_NAMES)
     write_text_atomic(folder.path("table.csv"), table_csv(report.columns, report.rows))
@@ -525,7 +525,7 @@ def require_results(outcome: Outcome, out: Path, scale: str) -> None:
 
 def say_done(outcome: Outcome, rows: int, out: Path) -> None:
     """Print how many units were computed and rows written; name the missing units on stderr."""
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     print(
         f"{counted(len(outcome.computed), 'unit')} computed, {counted(rows, 'row')} -> {out}; open {out / 'index.html'}"
@@ -539,7 +539,7 @@ def check_out(out: Path, config: StudyConfig, claim: bool = True) -> None:
     ``claim`` False only checked: a run that may still be refused writes nothing."""
     from odolab.cli import UsageError, check_not_nested, check_report_dir
     from odolab.io.owned import UnsafeOutputError
-    from odolab.report import ManifestError, OutputFolder
+    from odolab.reporting.report import ManifestError, OutputFolder
 
     owner = f"study {config.name}"
     check_not_nested(out, "--out")  # before a stopped first run's folder is claimed

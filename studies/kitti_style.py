@@ -4,7 +4,7 @@ route, and its integrated path is scored as KITTI's odometry benchmark scores on
 
     python -m studies.kitti_style [--scale ci|cpu|paper] [--out reports/kitti-style] [--ray-address ADDR] [--redraw]
 
-A route (odolab.routes) has the episodes' laws: the challenge's actuation noise, collisions that stop
+A route (odolab.sim.routes) has the episodes' laws: the challenge's actuation noise, collisions that stop
 the agent at contact, Habitat's greedy shortest-path follower, RGB and Redwood depth noise; each
 next goal is drawn from the route's seed among the navigable points within a set geodesic distance
 of the agent, on a floor plan larger than an episode's, or, crossing a long building, ahead of the
@@ -29,11 +29,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from odolab.metrics import KITTI_LENGTHS
+from odolab.core.metrics import KITTI_LENGTHS
 from studies import framework
 
 if TYPE_CHECKING:
-    from odolab.routes import RouteSpec
+    from odolab.sim.routes import RouteSpec
 
 #: The folder under ``<out>`` of the trajectory files (the units write them, beside their results).
 TRAJECTORIES = "trajectories"
@@ -68,8 +68,8 @@ class Scale:
 
     def specs(self) -> list[RouteSpec]:
         """The routes' specs (the challenge's noise, the camera's other settings as an episode's)."""
-        from odolab.routes import RouteSpec
         from odolab.sim.camera import CameraSpec
+        from odolab.sim.routes import RouteSpec
 
         camera = CameraSpec(width=self.camera[0], height=self.camera[1])
         return [
@@ -158,8 +158,8 @@ def run_units_of(scale: Scale, identity: dict[str, str | None]) -> list[framewor
 
 def file_name(odometer: str) -> str:
     """An odometer's trajectory file name without suffix, as ``odolab.compare`` names it
-    (:func:`odolab.report.file_stem`: ``fused(a,b)`` -> ``fused_a_b_``, one file per name)."""
-    from odolab.report import file_stem
+    (:func:`odolab.reporting.report.file_stem`: ``fused(a,b)`` -> ``fused_a_b_``, one file per name)."""
+    from odolab.reporting.report import file_stem
 
     return file_stem(odometer)
 
@@ -175,11 +175,11 @@ def write_trajectory(out: Path, route: str, name: str, poses: np.ndarray) -> dic
     """``<out>/trajectories/<route>/<name>.tum`` (``T_world_cam``, frame i at i s) and ``.kitti``
     (poses in the first camera's frame) of ``poses`` (N, 4, 4) m, as ``odolab.compare`` writes them;
     returns each file's SHA-256 by format."""
-    from odolab.geometry import invert
+    from odolab.core.geometry import invert
+    from odolab.core.trajectory import Trajectory
     from odolab.io.kitti import write_kitti_poses
     from odolab.io.owned import owned_path
     from odolab.io.tum import write_tum_trajectory
-    from odolab.trajectory import Trajectory
 
     paths = {f: owned_path(out, f"{TRAJECTORIES}/{route}/{name}.{f}") for f in FORMATS}
     write_tum_trajectory(paths["tum"], Trajectory(np.arange(len(poses), dtype=float), poses))
@@ -201,10 +201,10 @@ def route_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
     as ``groundtruth.{tum,kitti}``. ``net_share``: per KITTI segment length the route holds, the mean
     straight-line distance between a segment's ends over its length (1 on a straight drive);
     ``building``: the long building's length (m; 0: a floor plan)."""
-    from odolab.metrics import path_lengths
-    from odolab.report import GROUND_TRUTH_FILE
-    from odolab.routes import RouteSpec, tour
-    from odolab.types import Action
+    from odolab.core.metrics import path_lengths
+    from odolab.core.types import Action
+    from odolab.reporting.report import GROUND_TRUTH_FILE
+    from odolab.sim.routes import RouteSpec, tour
 
     spec = RouteSpec.from_dict(key["route"])
     route = tour(spec)
@@ -232,10 +232,10 @@ def score(gt_poses: np.ndarray, est_poses: np.ndarray) -> dict[str, Any]:
     computed by ``odolab.evaluate``'s library on the poses its KITTI files hold: t_rel %, r_rel
     deg/100 m, per segment length the segments and their summed errors (m/m, rad/m), ATE (m) with no
     alignment and SE(3)-aligned, the path length (m) and the final position error per 100 m (m)."""
-    from odolab.evaluation import evaluate_trajectory, pair_trajectories
-    from odolab.geometry import invert
-    from odolab.metrics import ate, path_lengths
-    from odolab.trajectory import Trajectory
+    from odolab.core.geometry import invert
+    from odolab.core.metrics import ate, path_lengths
+    from odolab.core.trajectory import Trajectory
+    from odolab.running.evaluation import evaluate_trajectory, pair_trajectories
 
     gt = Trajectory(None, invert(gt_poses[0]) @ gt_poses)
     est = Trajectory(None, invert(est_poses[0]) @ est_poses)
@@ -271,11 +271,11 @@ def run_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
     """One odometer on one route: the route's frames rendered as the runner asks for them, the
     integrated path scored (:func:`score`), the per-step error as used (x 1e-2), failures and speed,
     and the trajectory written as ``<odometer>.{tum,kitti}``."""
-    from odolab.action_prior import ActionPrior
-    from odolab.comparison import load_odometers
-    from odolab.routes import RouteFrames, RouteSpec, tour
-    from odolab.runner import run_sequence
-    from odolab.summary import summarize
+    from odolab.odometry.action_prior import ActionPrior
+    from odolab.reporting.comparison import load_odometers
+    from odolab.running.runner import run_sequence
+    from odolab.running.summary import summarize
+    from odolab.sim.routes import RouteFrames, RouteSpec, tour
 
     spec = RouteSpec.from_dict(key["route"])
     name = key["odometer"]
@@ -330,7 +330,7 @@ def _files_ok(value: dict[str, Any], name: str, out: Path, check_files: bool) ->
 
 def valid_route(value: Any, out: Path, check_files: bool = True) -> bool:
     """Whether a saved value has :func:`route_result`'s shape (and, with ``check_files``, its files)."""
-    from odolab.report import GROUND_TRUTH_FILE
+    from odolab.reporting.report import GROUND_TRUTH_FILE
 
     return (
         isinstance(value, dict)
@@ -428,7 +428,7 @@ PER_STEP = ("dx", "dz", "dyaw", "dx_bias", "dz_bias", "dyaw_bias")
 def net_shares(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """KITTI's segments of a path of (N, 4, 4) poses: each segment's length (m) and the straight-line
     distance between its ends over that length (1 on a straight drive)."""
-    from odolab.metrics import kitti_relative_errors
+    from odolab.core.metrics import kitti_relative_errors
 
     k = kitti_relative_errors(poses, poses)
     return k.length, np.linalg.norm(poses[k.last, :3, 3] - poses[k.first, :3, 3], axis=1) / k.length
@@ -451,7 +451,7 @@ def table(scale: Scale, runs: dict[str, Any], routes: dict[str, Any] | None = No
     """Rows odometer x route: each odometer's routes pooled ("all"), then route by route. Each row has
     the route's ``end_to_end_ratio`` (:func:`end_to_end_ratio`; pooled: the median of the routes'),
     and the pooled rows 95 % intervals over routes of t_rel, r_rel and drift (``<column>_ci``)."""
-    from odolab.stats import mean_ci
+    from odolab.core.stats import mean_ci
 
     ratio = {
         s.name: end_to_end_ratio(routes[route_label(s)]["path"])
@@ -506,7 +506,7 @@ def findings(rows: list[dict[str, Any]], routes: list[dict[str, Any]]) -> list[s
     """The paper has no KITTI-style table: which lengths the routes hold (against KITTI's), who drifts
     least, and whether the per-step error (the paper's measure) orders the odometers as t_rel and
     r_rel do."""
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     held = held_lengths(rows)
     said = ", ".join(f"{L}" for L in held) or "none"
@@ -620,14 +620,14 @@ def family(odometer: str) -> str:
 def draw_route(route: dict[str, Any], runs: list[tuple[str, dict[str, Any]]], names: list[str], path: Path) -> None:
     """Top-down figure of one route, one panel per odometer family (:data:`FAMILIES`) with the true
     path (black) and the floor plan in each: world x, y in m; each odometer keeps its colour
-    (:func:`odolab.report.trajectory_style`) in every route's figure."""
+    (:func:`odolab.reporting.report.trajectory_style`) in every route's figure."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from odolab.io.atomic import save_figure_atomic
-    from odolab.report import FloorPlan, draw_floor_plan, trajectory_style
+    from odolab.reporting.report import FloorPlan, draw_floor_plan, trajectory_style
     from odolab.sim.scenes import generate_scene
 
     gt = np.asarray(route["path"], float)
@@ -717,7 +717,7 @@ def study_config() -> framework.StudyConfig:
 def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.cli import UsageError, execution_of
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     try:
         config = study_config()

@@ -70,9 +70,9 @@ def turn_pairs(split: str, seed: int, scenes: int, per_scene: int, first: int = 
     """Yield (scene index, median depth m, action, prev frame, cur frame, true yaw rad) for random
     turns in the scenes of ``split``'s first ``scenes`` episodes, from scene ``first`` on (each
     scene's turns are the same whichever scene the run starts from)."""
-    from odolab.episodes import EpisodeSpec, start_environment
+    from odolab.core.types import Action
     from odolab.sim.agent import AgentState
-    from odolab.types import Action
+    from odolab.sim.episodes import EpisodeSpec, start_environment
 
     for e in range(first, scenes):
         env, _ = start_environment(EpisodeSpec(split=split, index=e, seed=seed, max_steps=1))
@@ -120,7 +120,7 @@ def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]
 def unit_result(key: dict[str, Any]) -> list[list]:
     """One odometer on one scene's turns: per turn [median depth m, answered, |yaw error| deg or None]."""
     from odolab.api import load_odometer
-    from odolab.episodes import EpisodeSpec
+    from odolab.sim.episodes import EpisodeSpec
 
     pairs = turn_pairs(key["split"], key["seed"], key["scene"] + 1, key["per_scene"], first=key["scene"])
     with StepByStep(load_odometer(key["odometer"], **key["options"]), key["odometer"]) as asked:
@@ -310,7 +310,7 @@ def study_config() -> framework.StudyConfig:
 
 def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     study = framework.begin("turns_by_depth", args, scale_of)
     scale: Scale = study.scale

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from odolab.episodes import EpisodeSpec
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec
 from tests.helpers import TUM_DIR, BlindComposite, Truth
 
 SMALL_CAMERA = CameraSpec(width=96, height=54)
@@ -24,8 +24,8 @@ def small_spec() -> EpisodeSpec:
 
 @pytest.fixture(autouse=True)
 def _registered_odometers_are_the_tests_own():
-    """An odometer a test registers is gone after it: no test sees another's (odolab.odometer.REGISTRY)."""
-    from odolab.odometer import REGISTRY
+    """An odometer a test registers is gone after it: no test sees another's (odolab.odometry.odometer.REGISTRY)."""
+    from odolab.odometry.odometer import REGISTRY
 
     before = dict(REGISTRY._extra)
     yield

@@ -10,7 +10,7 @@ import numpy as np
 
 from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, planar_to_transform
 from odolab.cli import run_cli
-from odolab.odometer import load_odometer
+from odolab.odometry.odometer import load_odometer
 
 ROOT = Path(__file__).resolve().parents[1]
 TUM_DIR = ROOT / "tests" / "data" / "tum_fr1_xyz_10"

@@ -1,4 +1,4 @@
-"""odolab/action_prior.py and ``python -m odolab.action_prior``: bounded options, refused out paths, and
+"""odolab/odometry/action_prior.py and ``python -m odolab.action_prior``: bounded options, refused out paths, and
 prior files that are pipes, repeat a key or hold bad fields named in one line."""
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def test_an_action_prior_file_that_is_a_pipe_or_repeats_a_key_is_one_line(tmp_pa
 def test_an_action_prior_file_with_bad_fields_names_the_field(tmp_path, change, words):
     import json
 
-    from odolab.action_prior import ActionPrior
+    from odolab.odometry.action_prior import ActionPrior
 
     doc = ActionPrior.shipped().to_json()
     for field in ("means", "samples"):

@@ -291,7 +291,7 @@ def test_a_ray_client_address_without_ray_client_is_one_line(monkeypatch):
     """ray:// needs Ray Client (ray[client]); without it ray.init() raised after the folders were made."""
     from odolab.cli.args import check_ray_option
 
-    monkeypatch.setattr("odolab.parallel.has_ray_client", lambda: False)
+    monkeypatch.setattr("odolab.core.parallel.has_ray_client", lambda: False)
     with pytest.raises(UsageError, match=r"--ray-address ray://127.0.0.1:1: a ray:// address needs Ray Client"):
         check_ray_option("ray://127.0.0.1:1")
     monkeypatch.setenv("RAY_ADDRESS", "ray://127.0.0.1:1")

@@ -28,7 +28,7 @@ from odolab.api import (
     planar_to_transform,
     transform_to_planar,
 )
-from odolab.parallel import SERIAL
+from odolab.core.parallel import SERIAL
 from tests.helpers import refused_option
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
@@ -420,7 +420,7 @@ def test_point_to_point_covariance_matches_open3d_information():
 @pytest.fixture(scope="module")
 def short_sim_episodes():
     """Four 25-step validation episodes at the challenge's 341 x 192 (about 1.5 s to render)."""
-    from odolab.episodes import EpisodeSpec, load_episodes
+    from odolab.sim.episodes import EpisodeSpec, load_episodes
 
     specs = [EpisodeSpec(split="val", index=i, max_steps=25) for i in (2, 4, 5, 6)]
     return load_episodes(specs, execution=SERIAL)
@@ -431,7 +431,7 @@ def short_sim_episodes():
 def test_beats_the_action_prior_on_the_simulator(name, short_sim_episodes):
     """Pooled per-step error (failed steps replaced by the prior and scored) below 0.8 x the prior's
     on each of dx, dz, dyaw (measured: ratios 0.25-0.7)."""
-    from odolab import runner, summary
+    from odolab.running import runner, summary
 
     rows = summary.summarize(
         runner.run(
@@ -499,7 +499,7 @@ def test_open3d_depth_and_nesting_are_one_line(tmp_path, option, value, words):
 
 def test_equal_settings_give_equal_digests():
     """6 and 6.0 set the same depth cut: a rerun with either reuses the other's episodes."""
-    from odolab.odometer import load_odometer
+    from odolab.odometry.odometer import load_odometer
 
     assert load_odometer("open3d-rgbd", max_depth=6).identity_digest == load_odometer("open3d-rgbd").identity_digest
     assert load_odometer("open3d-rgbd", max_depth=5).identity_digest != load_odometer("open3d-rgbd").identity_digest

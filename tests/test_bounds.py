@@ -17,8 +17,8 @@ def _nested(depth: int, inner: str = "icp") -> str:
 
 @pytest.mark.parametrize("depth", [9, 400, 1000, 5000])
 def test_composites_nested_too_deep_are_one_line_in_every_entry_point(depth):
-    from odolab.comparison import ComparisonError, load_odometers, odometer_names
-    from odolab.odometer import inner_names, load_odometer, parse_odometer_list, unknown_odometer
+    from odolab.odometry.odometer import inner_names, load_odometer, parse_odometer_list, unknown_odometer
+    from odolab.reporting.comparison import ComparisonError, load_odometers, odometer_names
 
     name = _nested(depth)
     for call in (parse_odometer_list, load_odometer, inner_names, unknown_odometer):
@@ -84,7 +84,7 @@ def test_training_data_integers_are_checked_before_rendering(tmp_path, args, wor
 
 
 def test_a_training_data_config_refuses_an_episode_index_its_shards_cannot_store():
-    from odolab.training_data import DataConfig
+    from odolab.sim.training_data import DataConfig
 
     with pytest.raises(ValueError, match=r"first must be in \[0, 2147483646\]"):
         DataConfig(first=2**31 - 1, episodes=2)
@@ -112,8 +112,8 @@ def test_the_example_trainer_checks_its_integers_first(args, words, capsys):
 def test_json_nested_too_deeply_in_a_manifest_or_a_cache_file_is_damage_not_a_traceback(tmp_path, small_spec):
     import numpy as np
 
-    from odolab.episodes import EpisodeCache
-    from odolab.training_data import MANIFEST, TrainingData
+    from odolab.sim.episodes import EpisodeCache
+    from odolab.sim.training_data import MANIFEST, TrainingData
 
     deep = "[" * 100_000 + "]" * 100_000
     (tmp_path / MANIFEST).write_text(deep)

@@ -9,7 +9,7 @@ from odolab import api
 from odolab.api import register_odometer
 from odolab.cli import run_cli
 from odolab.compare import main
-from odolab.parallel import SERIAL, Execution
+from odolab.core.parallel import SERIAL, Execution
 from tests.helpers import FR1, Never
 
 
@@ -63,7 +63,7 @@ def test_run_comparison_reports_bad_configuration_as_one_line():
 
 def test_each_configurable_odometers_settings_reach_the_result():
     from odolab.api import load_odometer
-    from odolab.comparison import odometer_configs
+    from odolab.reporting.comparison import odometer_configs
 
     configs = odometer_configs({"icp": load_odometer("icp", max_depth=3.0), "gt": load_odometer("ground-truth")})
     assert list(configs) == ["icp"] and "depth.max_depth=3.0" in configs["icp"]
@@ -72,7 +72,7 @@ def test_each_configurable_odometers_settings_reach_the_result():
 def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
     import numpy as np
 
-    from odolab.summary import COLLIDED_FORWARD
+    from odolab.running.summary import COLLIDED_FORWARD
 
     config = api.ComparisonConfig(
         odometers=["ground-truth", "action-prior"],
@@ -94,7 +94,7 @@ def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
 
 
 def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale(millimetre_folder):
-    from odolab.comparison import ComparisonConfig, run_comparison
+    from odolab.reporting.comparison import ComparisonConfig, run_comparison
 
     def run(scale):
         config = ComparisonConfig(
@@ -111,8 +111,8 @@ def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale
 
 
 def test_an_odometer_failing_every_step_is_said_on_the_compare_console():
-    from odolab.comparison import ComparisonConfig, run_comparison
-    from odolab.summary import every_step_failed
+    from odolab.reporting.comparison import ComparisonConfig, run_comparison
+    from odolab.running.summary import every_step_failed
 
     register_odometer("test-never", Never)
     result = run_comparison(

@@ -1,4 +1,4 @@
-"""odolab/comparison.py: a broken entry point left out of the default list with one warning; the step
+"""odolab/reporting/comparison.py: a broken entry point left out of the default list with one warning; the step
 time limit reaches the runner; frames without depth and one-frame TUM folders said in one line;
 a plug-in's attribute that raises read inside a guard."""
 
@@ -12,9 +12,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from odolab import api, comparison, odometer
-from odolab.comparison import ComparisonConfig, ComparisonError, load_odometers
-from odolab.runner import SequenceResult
+from odolab import api
+from odolab.odometry import odometer
+from odolab.reporting import comparison
+from odolab.reporting.comparison import ComparisonConfig, ComparisonError, load_odometers
+from odolab.running.runner import SequenceResult
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 

@@ -1,4 +1,4 @@
-"""odolab.comparison against a committed run (tests/data/compare-reference/, its README says how it
+"""odolab.reporting.comparison against a committed run (tests/data/compare-reference/, its README says how it
 was made): what is the same on every CPU is the same here, what may differ in its last digits stays
 within the tolerance docs/evaluation.md states (#same-seed-same-numbers)."""
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from odolab import api
+from odolab.core.parallel import SERIAL
+from odolab.core.trajectory import Trajectory
 from odolab.io.tum import write_tum_trajectory
-from odolab.parallel import SERIAL
-from odolab.trajectory import Trajectory
 
 REFERENCE = Path(__file__).resolve().parent / "data" / "compare-reference"
 #: The columns of table.csv that are numbers of the run (not its speed, nor the spread over one sequence).

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from odolab.config import ConfigError, assign, build, check, choices, describe, from_toml, range_text, setting
-from odolab.errors import InputError
+from odolab.core.errors import InputError
 
 
 @dataclass(frozen=True)

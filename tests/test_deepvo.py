@@ -16,8 +16,8 @@ from baselines.deepvo.config import DeepVOModel, DeepVOTraining, load_training
 from baselines.deepvo.model import DeepVONet
 from baselines.deepvo.odometer import DeepVOOdometer, load_model
 from odolab.api import Action, integrate, invert, planar_to_transform
+from odolab.core.parallel import SERIAL, Execution
 from odolab.learning import CheckpointError, DataConfig, TrainingData, make_training_data
-from odolab.parallel import SERIAL, Execution
 
 W, H = 48, 32
 NAME = "baselines.deepvo.odometer:DeepVOOdometer"
@@ -120,7 +120,7 @@ def test_a_model_smaller_than_its_data_trains_on_frames_resized_as_the_odometer_
 
 
 def test_the_lstm_state_carries_across_steps_and_reset_clears_it(trained, recipe):
-    from odolab.episodes import render_episode
+    from odolab.sim.episodes import render_episode
 
     ep = render_episode(dataclasses.replace(recipe.val_data.specs[0], max_steps=6))
     odo = DeepVOOdometer(checkpoint=str(trained / "model.pt"))
@@ -316,7 +316,7 @@ def test_a_deepvo_with_actions_needs_them(trained, recipe, tmp_path):
     """A model trained with ``actions`` answers each step by the action given (another action,
     another answer), refuses a step without one, and its network names a missing action input."""
     from odolab.api import load_odometer
-    from odolab.episodes import EpisodeSpec, render_episode
+    from odolab.sim.episodes import EpisodeSpec, render_episode
 
     first = trained / "model.pt"
     grown = dataclasses.replace(

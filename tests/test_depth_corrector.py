@@ -13,8 +13,8 @@ from odolab.depth_corrector.checkpoint import load_model, save_model
 from odolab.depth_corrector.config import CorrectorModel, CorrectorTraining
 from odolab.depth_corrector.model import DepthCorrectorNet, base_spread, pixel_place
 from odolab.depth_corrector.train import bin_labels, depth_edges, depth_error_rows
-from odolab.episodes import EpisodeSpec, render_episode
 from odolab.learning import CheckpointError, DataConfig
+from odolab.sim.episodes import EpisodeSpec, render_episode
 from tests.conftest import SMALL_CAMERA
 
 TINY = CorrectorModel(base=2, levels=2)
@@ -112,8 +112,8 @@ def test_a_recipe_needs_clean_depth_and_a_crop_that_fits():
 
 @pytest.mark.slow
 def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path, monkeypatch):
+    from odolab.core.parallel import SERIAL
     from odolab.depth_corrector.train import run
-    from odolab.parallel import SERIAL
 
     data = {"episodes": 2, "max_steps": 4, "width": 64, "height": 40, "clean_depth": True}
     cfg = CorrectorTraining(

@@ -12,11 +12,11 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("ray.train.torch")
 
+from odolab.core.parallel import SERIAL, Execution
 from odolab.learning import ComputeConfig, make_training_data
-from odolab.parallel import SERIAL, Execution
 from odolab.robust_vo import train as trainer
 from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
-from odolab.training_data import DataConfig
+from odolab.sim.training_data import DataConfig
 
 pytestmark = pytest.mark.slow
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from odolab.api import Action
-from odolab.episodes import EpisodeSpec, render_episode, start_environment
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec, render_episode, start_environment
 
 
 def test_driving_the_environment_as_the_generator_does_sees_the_episodes_frames():
@@ -44,8 +44,8 @@ def test_driving_the_environment_as_the_generator_does_sees_the_episodes_frames(
 
 def test_sensors_give_the_same_frames_with_the_depth_path_in_a_second_thread():
     """The two-thread reading is an optimisation only: bit for bit the one-thread frames, in order."""
-    from odolab.environment import Sensors
-    from odolab.geometry import camera_pose_from_agent
+    from odolab.core.geometry import camera_pose_from_agent
+    from odolab.sim.environment import Sensors
     from odolab.sim.scenes import generate_scene, scene_seed
 
     scene = generate_scene(scene_seed("test", 0))

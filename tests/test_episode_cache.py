@@ -1,4 +1,4 @@
-"""EpisodeCache (odolab.episodes) against hostile disks (issue 56): links in an entry's place, the
+"""EpisodeCache (odolab.sim.episodes) against hostile disks (issue 56): links in an entry's place, the
 temporary files of killed writers, a full disk and a read-only cache; a damaged entry named and made again."""
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ import time
 import numpy as np
 import pytest
 
-from odolab.episodes import CACHE_TEMPORARY, EpisodeCache, EpisodeSpec, render_episode, stream_episodes
+from odolab.core.parallel import SERIAL
 from odolab.io import atomic
-from odolab.parallel import SERIAL
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import CACHE_TEMPORARY, EpisodeCache, EpisodeSpec, render_episode, stream_episodes
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +133,7 @@ def test_the_noiseless_depth_goes_through_the_cache_and_reaches_frames_in_metres
 def test_damaged_cache_entry_is_named_and_regenerated(tmp_path, small_spec, capsys, damage):
     import dataclasses
 
-    from odolab.episodes import EpisodeCache, load_episodes, render_episode
+    from odolab.sim.episodes import EpisodeCache, load_episodes, render_episode
 
     small_spec = dataclasses.replace(small_spec, max_steps=4)
     cache = EpisodeCache(tmp_path)

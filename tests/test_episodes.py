@@ -5,11 +5,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from odolab import episodes
-from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, load_episodes, render_episode, rollout
-from odolab.geometry import invert, transform_to_planar
-from odolab.parallel import SERIAL, Execution
-from odolab.types import Action, Sequence
+from odolab.core.geometry import invert, transform_to_planar
+from odolab.core.parallel import SERIAL, Execution
+from odolab.core.types import Action, Sequence
+from odolab.sim import episodes
+from odolab.sim.episodes import EpisodeCache, EpisodeSpec, NoiseConfig, load_episodes, render_episode, rollout
 
 
 def test_same_spec_same_episode_bit_for_bit(small_spec):

@@ -1,4 +1,4 @@
-"""``python -m odolab.evaluate --plot`` (odolab/cli/evaluate.py, odolab/trajectory_plot.py): the figure
+"""``python -m odolab.evaluate --plot`` (odolab/cli/evaluate.py, odolab/reporting/trajectory_plot.py): the figure
 never replaces an input, its path is checked before work, and its time axis says what the files' stamps
 count."""
 
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from odolab.cli.args import run_cli
+from odolab.core.trajectory import Trajectory
 from odolab.evaluate import main
-from odolab.evaluation import evaluate_trajectory, pair_trajectories, stamps_are_steps
 from odolab.io.kitti import write_kitti_poses
 from odolab.io.tum import write_tum_trajectory
-from odolab.trajectory import Trajectory
+from odolab.running.evaluation import evaluate_trajectory, pair_trajectories, stamps_are_steps
 from tests.helpers import TUM_OK, one_line_error
 
 PROG = "python -m odolab.evaluate"
@@ -71,7 +71,7 @@ def test_step_stamps_are_told_from_seconds():
     ],
 )
 def test_the_plots_time_axis_says_what_it_counts(tmp_path, monkeypatch, stamps, label):
-    from odolab import trajectory_plot
+    from odolab.reporting import trajectory_plot
 
     if stamps is None:
         gt, est = tmp_path / "gt.kitti", tmp_path / "est.kitti"

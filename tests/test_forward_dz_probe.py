@@ -9,9 +9,9 @@ import pytest
 pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
 from odolab.api import Action
-from odolab.episodes import NoiseConfig
+from odolab.core.parallel import SERIAL
 from odolab.learning import DataConfig, TrainingData, make_training_data
-from odolab.parallel import SERIAL
+from odolab.sim.episodes import NoiseConfig
 from studies.robust_vo.forward_dz_probe import residual
 
 

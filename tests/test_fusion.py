@@ -13,8 +13,6 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")  # a declared dependency; skip only where it is truly absent
 
-from odolab import runner
-from odolab.action_prior import ActionPrior
 from odolab.api import Action, Estimate, Odometer, planar_to_transform, register_odometer
 from odolab.cli import run_cli
 from odolab.fusion.calibration import CHI2_6_95, Calibration, InputCalibration, debiased, ellipsoid_share, fit_input
@@ -28,7 +26,9 @@ from odolab.fusion.graph import (
     smooth,
 )
 from odolab.io.inputs import MAX_INPUT_BYTES
-from odolab.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer
+from odolab.odometry.action_prior import ActionPrior
+from odolab.odometry.odometer import REGISTRY, split_odometer_names, standalone_odometers, unknown_odometer
+from odolab.running import runner
 from tests.helpers import Steps, refused
 
 
@@ -366,8 +366,8 @@ def _frames():
 
 
 def test_when_every_input_fails_the_step_is_the_action_prior_and_invalid(calibration):
-    from odolab.action_prior import ActionPrior
     from odolab.api import Intrinsics
+    from odolab.odometry.action_prior import ActionPrior
 
     odo = REGISTRY.load("fused(test-never)", calibration=calibration)
     odo.reset(Intrinsics.from_hfov(4, 4, 79.0))

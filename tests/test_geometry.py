@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from odolab.geometry import (
+from odolab.core.geometry import (
     agent_from_camera_pose,
     camera_pose_from_agent,
     integrate,

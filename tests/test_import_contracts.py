@@ -31,8 +31,8 @@ def test_a_broken_contract_is_reported(tmp_path):
     cfg = tmp_path / "contracts.toml"
     cfg.write_text(
         '[tool.importlinter]\nroot_packages = ["odolab"]\n\n[[tool.importlinter.contracts]]\n'
-        'name = "runner without geometry"\ntype = "forbidden"\nsource_modules = ["odolab.runner"]\n'
-        'forbidden_modules = ["odolab.geometry"]\n'
+        'name = "runner without geometry"\ntype = "forbidden"\nsource_modules = ["odolab.running.runner"]\n'
+        'forbidden_modules = ["odolab.core.geometry"]\n'
     )
     proc = _lint("--config", str(cfg))
     assert proc.returncode != 0 and "BROKEN" in proc.stdout

@@ -1,4 +1,4 @@
-"""studies.kitti_style and the touring routes it runs on (odolab.routes): a route is its seed's and
+"""studies.kitti_style and the touring routes it runs on (odolab.sim.routes): a route is its seed's and
 ends at its length; the default scenes are unchanged by the floor plan's scale; the ci scale reports
 every odometer with KITTI's errors and writes its KITTI and TUM files, resumes from its saved units
 and redraws from them alone; and ``odolab.evaluate`` scores a written pair as evo does."""
@@ -21,9 +21,9 @@ from evo.tools import file_interface
 
 from odolab.cli import evaluate
 from odolab.cli.study import study
-from odolab.metrics import KITTI_LENGTHS, path_lengths
-from odolab.routes import RouteFrames, RouteSpec, tour
+from odolab.core.metrics import KITTI_LENGTHS, path_lengths
 from odolab.sim.camera import CameraSpec
+from odolab.sim.routes import RouteFrames, RouteSpec, tour
 from odolab.sim.scenes import generate_scene, scene_seed
 from studies import framework, kitti_style
 
@@ -58,8 +58,8 @@ def test_a_route_through_a_building_goes_somewhere_and_a_plans_route_keeps_its_k
         with pytest.raises(ValueError, match=r"building: expected 0 \(a floor plan\) or a length in \[20, 2000\] m"):
             dataclasses.replace(spec, **bad)
     # the frames are rendered in the building the route crossed (noiseless depth: no noise stream to follow)
-    from odolab.environment import Sensors
-    from odolab.routes import route_scene
+    from odolab.sim.environment import Sensors
+    from odolab.sim.routes import route_scene
 
     small = dataclasses.replace(spec, camera=CameraSpec(width=32, height=18))
     frames = RouteFrames(small, tour(small))

@@ -11,7 +11,6 @@ import torch
 import torch.nn.functional as F
 
 from odolab.api import Action, Intrinsics, load_odometer
-from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
 from odolab.learning import DataConfig
 from odolab.robust_vo import odometer as robust_odometer
 from odolab.robust_vo.checkpoint import save_model
@@ -19,6 +18,7 @@ from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
 from odolab.robust_vo.model import build_networks
 from odolab.robust_vo.warp import FALLBACK_DEPTH, nominal_transforms, warp_current
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec, NoiseConfig, render_episode
 
 W, H = 48, 32
 

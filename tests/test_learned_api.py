@@ -9,9 +9,9 @@ import pytest
 from odolab import api
 from odolab.cli import run_cli
 from odolab.compare import main
+from odolab.core.parallel import SERIAL
 from odolab.io.npz_mmap import mmap_npz_member
-from odolab.options import OptionError, parse_assignments, read_options_file
-from odolab.parallel import SERIAL
+from odolab.odometry.options import OptionError, parse_assignments, read_options_file
 from odolab.sim.camera import CameraSpec
 
 
@@ -253,7 +253,7 @@ def test_a_bad_value_from_an_options_file_names_the_file(tmp_path, capsys):
 def test_numpy_scalars_set_options_as_the_numbers_they_hold():
     import numpy as np
 
-    from odolab.options import check_options
+    from odolab.odometry.options import check_options
 
     check_options("scaled", Scaled, {"step": np.float32(0.5)})  # accepted, as 0.5 is
     with pytest.raises(OptionError, match="expected a number"):
@@ -265,7 +265,7 @@ def test_numpy_scalars_set_options_as_the_numbers_they_hold():
 
 
 def test_a_named_default_is_not_a_change_of_settings():
-    from odolab.options import without_defaults
+    from odolab.odometry.options import without_defaults
 
     assert without_defaults(Scaled, {"step": 0.25}) == {}
     assert without_defaults(Scaled, {"step": 0.3}) == {"step": 0.3}

@@ -12,8 +12,8 @@ from evo.core.geometry import umeyama_alignment as evo_umeyama
 from evo.core.trajectory import PosePath3D
 from evo.core.units import Unit
 
-from odolab import metrics as M
-from odolab.geometry import integrate, rotation_angle
+from odolab.core import metrics as M
+from odolab.core.geometry import integrate, rotation_angle
 from odolab.io.kitti import read_kitti_poses
 from odolab.io.tum import associate, quaternion_to_matrix, read_tum_trajectory
 

@@ -1,11 +1,11 @@
-"""odolab/metrics.py: errors near 1e300 m give finite statistics, and usual ones are unchanged to the bit."""
+"""odolab/core/metrics.py: errors near 1e300 m give finite statistics, and usual ones are unchanged to the bit."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from odolab import metrics
+from odolab.core import metrics
 
 
 def test_huge_errors_give_finite_statistics():

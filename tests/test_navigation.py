@@ -15,11 +15,11 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from odolab.api import Action, invert, load_odometer, register_odometer
-from odolab.episodes import EpisodeSpec, render_episode, rollout
+from odolab.core.parallel import SERIAL
 from odolab.navigation.agent import MapPlanAgent, in_agent_frame
 from odolab.navigation.episode import navigate
-from odolab.parallel import SERIAL
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec, render_episode, rollout
 from tests.helpers import Never, captured_figures, command_argv, refused
 
 

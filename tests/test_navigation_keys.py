@@ -46,9 +46,9 @@ def test_an_episode_of_another_max_steps_or_contradicting_itself_is_run_again_an
 def test_rows_without_a_key_must_fit_the_step_limit_and_agree_with_themselves(tmp_path):
     """Rows of an older version have no key: their odometer, episode, split, seed and weights are
     checked, and their step count against the limit (an episode ends at STOP before it, or at it)."""
-    from odolab.episodes import EpisodeSpec
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.study import NavTask, read_row
+    from odolab.sim.episodes import EpisodeSpec
 
     out = tmp_path / "out"
     assert _navigate(ARGS + ["--max-steps", "5", "--out", out]) == 0

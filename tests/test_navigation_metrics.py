@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from odolab.core.stats import mean_ci
 from odolab.navigation.metrics import SUCCESS_DISTANCE, EpisodeOutcome, path_length
-from odolab.stats import mean_ci
 
 
 def test_spl_and_soft_spl_on_known_paths():

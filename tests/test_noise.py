@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
+from odolab.core.types import Action
 from odolab.sim.noise import ActuationNoise, GaussianTable, RedwoodDepthNoise, RGBNoise, habitat_normalized_depth
 from odolab.sim.redwood import load_table, surrogate_table
-from odolab.types import Action
 
 TRUNC3_VAR = 1 - 2 * 3 * norm.pdf(3) / (norm.cdf(3) - norm.cdf(-3))  # variance factor of a +-3 sigma cut
 

@@ -1,4 +1,4 @@
-"""odolab/odometer.py: an entry point whose module cannot be imported, whatever it raises, is named
+"""odolab/odometry/odometer.py: an entry point whose module cannot be imported, whatever it raises, is named
 in one line; the list of every odometer still forms. Odometers load from a file's path; a class that
 is no Odometer or overrides no step, a composite hiding an oracle input and an empty name are refused."""
 
@@ -8,9 +8,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from odolab import odometer
 from odolab.api import Odometer, register_odometer
-from odolab.odometer import REGISTRY, IncompleteOdometerError, OracleInputError, load_odometer
+from odolab.odometry import odometer
+from odolab.odometry.odometer import REGISTRY, IncompleteOdometerError, OracleInputError, load_odometer
 from tests.helpers import Steps, one_line_error
 
 
@@ -48,7 +48,7 @@ def test_an_odometer_list_with_an_empty_name_is_refused(tmp_path, module):
 
 
 def test_a_class_that_is_not_an_odometer_is_refused_at_load(tmp_path):
-    from odolab.odometer import IncompleteOdometerError, load_odometer
+    from odolab.odometry.odometer import IncompleteOdometerError, load_odometer
 
     source = tmp_path / "plain_class.py"
     source.write_text("class PlainClass:\n    def step(self, prev, cur, action):\n        return None\n")
@@ -73,7 +73,7 @@ def test_an_odometer_without_step_is_refused_when_loaded():
 
 
 def test_a_comparison_names_an_odometer_without_step_in_one_line():
-    from odolab.comparison import ComparisonError, load_odometers
+    from odolab.reporting.comparison import ComparisonError, load_odometers
 
     register_odometer("test-abstract", _Abstract)
     with pytest.raises(ComparisonError, match=r"^odometer 'test-abstract': class _Abstract overrides neither"):
@@ -110,7 +110,7 @@ def test_an_odometer_loads_from_a_file_path_without_pythonpath(tmp_path, monkeyp
 
 
 def test_an_odometer_file_that_is_missing_or_broken_is_named(tmp_path):
-    from odolab.comparison import ComparisonError, load_odometers
+    from odolab.reporting.comparison import ComparisonError, load_odometers
 
     with pytest.raises(ComparisonError, match="no such file"):
         load_odometers([f"{tmp_path / 'nothing.py'}:Forward"])

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
-from odolab import api, runner, summary
-from odolab.action_prior import ActionPrior, fit_action_prior
-from odolab.episodes import EpisodeSpec, load_episodes
-from odolab.parallel import SERIAL
+from odolab import api
+from odolab.core.parallel import SERIAL
+from odolab.odometry.action_prior import ActionPrior, fit_action_prior
+from odolab.running import runner, summary
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec, load_episodes
 
 
 @pytest.fixture(scope="module")

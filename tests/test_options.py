@@ -1,4 +1,4 @@
-"""odolab/options.py: per-odometer options from ``--odometer-option`` and ``--config`` files; unknown,
+"""odolab/odometry/options.py: per-odometer options from ``--odometer-option`` and ``--config`` files; unknown,
 repeated, too long or too deeply nested values, files that are no option tables and absurd integer
 options are one line, refused before any folder is made."""
 
@@ -91,7 +91,7 @@ def test_a_deeply_nested_options_file_and_a_huge_option_are_short_lines(tmp_path
     deep.write_text('[odometers."open3d-rgbd"]\nfallback_iterations = ' + "[" * 3000 + "]" * 3000 + "\n")
     compare_refused(tmp_path, "--odometers", "open3d-rgbd", "--config", deep, words="holds a value nested too deeply")
     huge = "[" + ",".join(["5"] * 20000) + "]"  # the odometer's message cuts the value; the loader's did not
-    from odolab.comparison import ComparisonError, load_odometers
+    from odolab.reporting.comparison import ComparisonError, load_odometers
 
     with pytest.raises(ComparisonError) as info:
         load_odometers(["open3d-rgbd"], {"open3d-rgbd": {"fallback_iterations": [5] * 20000}})

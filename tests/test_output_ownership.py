@@ -63,7 +63,7 @@ def test_owned_paths_never_pass_a_link_a_file_for_a_folder_or_leave_the_root(tmp
 def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(tmp_path):
     """A linked ``trajectories/<episode>`` and a crafted manifest line through a linked subfolder:
     nothing outside is deleted, the cleanup never raises, and the folder is refused by check()."""
-    from odolab.report import MANIFEST, OutputFolder
+    from odolab.reporting.report import MANIFEST, OutputFolder
 
     outside = _outside(tmp_path)
     (outside / "keep.txt").write_text("mine")

@@ -1,15 +1,15 @@
-"""odolab/paired.py: paired differences of per-step error, their intervals and verdicts."""
+"""odolab/running/paired.py: paired differences of per-step error, their intervals and verdicts."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from odolab.geometry import planar_to_transform
-from odolab.paired import default_pairs, paired_differences, paired_verdicts
-from odolab.runner import SequenceResult
-from odolab.stats import MeanCI, verdict
-from odolab.types import Action
+from odolab.core.geometry import planar_to_transform
+from odolab.core.stats import MeanCI, verdict
+from odolab.core.types import Action
+from odolab.running.paired import default_pairs, paired_differences, paired_verdicts
+from odolab.running.runner import SequenceResult
 
 
 def _result(odometer: str, sequence: str, errors: np.ndarray, actions: np.ndarray) -> SequenceResult:

@@ -1,4 +1,4 @@
-"""odolab/parallel.py: Ray addresses checked before Ray starts (dead, not Ray, from RAY_ADDRESS), the
+"""odolab/core/parallel.py: Ray addresses checked before Ray starts (dead, not Ray, from RAY_ADDRESS), the
 command's signal handlers kept while Ray starts, GPUs per task, and no token notice for a local Ray."""
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ import time
 
 import pytest
 
-from odolab.parallel import Execution
+from odolab.core.parallel import Execution
 from tests.helpers import ROOT
 
 
 def test_fan_out_checks_the_address_before_starting_ray():
-    from odolab.parallel import fan_out
+    from odolab.core.parallel import fan_out
 
     start = time.monotonic()
     with pytest.raises(ValueError, match="no Ray cluster there"):
@@ -32,7 +32,7 @@ def test_tasks_that_ask_for_gpus_get_one_each_or_a_clear_refusal():
 
     import ray
 
-    from odolab.parallel import RayAddressError, fan_out
+    from odolab.core.parallel import RayAddressError, fan_out
 
     quiet = Execution(progress=False)
     visible = ["CUDA_VISIBLE_DEVICES"] * 2  # each task's os.getenv of it
@@ -55,7 +55,7 @@ def test_starting_ray_keeps_the_commands_signal_handlers(monkeypatch):
 
     import ray
 
-    from odolab.parallel import start_ray
+    from odolab.core.parallel import start_ray
 
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
 
@@ -85,7 +85,7 @@ def test_a_sigterm_while_ray_starts_reaches_the_commands_handler(monkeypatch):
 
     import ray
 
-    from odolab.parallel import start_ray
+    from odolab.core.parallel import start_ray
 
     class Mine(Exception):
         pass
@@ -118,7 +118,7 @@ def test_an_address_where_no_ray_cluster_answers_is_one_line_at_once():
     import http.server
     import threading
 
-    from odolab.parallel import RayAddressError, check_ray_address
+    from odolab.core.parallel import RayAddressError, check_ray_address
 
     server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -135,7 +135,7 @@ def test_an_address_where_no_ray_cluster_answers_is_one_line_at_once():
 def test_the_library_checks_ray_address_before_ray_init_and_names_it(monkeypatch):
     """Library callers (odolab.api) get the typed error, named after the variable, not a hang."""
     pytest.importorskip("ray")
-    from odolab.parallel import RayAddressError, start_ray
+    from odolab.core.parallel import RayAddressError, start_ray
 
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
     with pytest.raises(RayAddressError, match=r"^RAY_ADDRESS \(environment\) 127.0.0.1:1: no Ray cluster"):
@@ -144,7 +144,7 @@ def test_the_library_checks_ray_address_before_ray_init_and_names_it(monkeypatch
 
 def test_a_local_ray_start_prints_no_token_notice():
     code = (
-        "from odolab.parallel import Execution, fan_out\n"
+        "from odolab.core.parallel import Execution, fan_out\n"
         "def neg(x):\n    return -x\n"
         "assert fan_out(neg, [1, 2], execution=Execution(progress=True)) == [-1, -2]\n"
     )
@@ -157,7 +157,7 @@ def test_a_local_ray_start_prints_no_token_notice():
 
 
 def test_token_notices_are_kept_for_a_users_cluster_and_hidden_for_a_local_one(caplog):
-    from odolab.parallel import _TOKEN_NOTICES, _token_notices_hidden
+    from odolab.core.parallel import _TOKEN_NOTICES, _token_notices_hidden
 
     notices = logging.getLogger(_TOKEN_NOTICES)
     for local, quiet, shown in ((True, False, False), (False, True, False), (False, False, True)):

@@ -12,7 +12,7 @@ import studies.turns_by_depth as study
 from baselines.depth_geometry import backproject
 from baselines.planar_depth import PlanarDepthOdometer, _surface
 from odolab.api import invert, load_odometer, planar_to_transform, transform_to_planar
-from odolab.episodes import EpisodeSpec
+from odolab.sim.episodes import EpisodeSpec
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +99,7 @@ def test_blank_depth_and_bad_options_are_refused(near_wall_turns):
 def _wall_frames(slide: float, noise: float, seed: int = 0):
     """A fronto-parallel wall 0.8 m ahead, then after a 0.25 m step towards it with ``slide`` m to
     the right (invisible: the wall looks the same), each depth with ``noise`` relative noise."""
-    from odolab.types import Frame
+    from odolab.core.types import Frame
 
     cam = EpisodeSpec().camera
     rng = np.random.default_rng(seed)
@@ -116,7 +116,7 @@ def _wall_frames(slide: float, noise: float, seed: int = 0):
 
 
 def test_one_wall_leaves_the_slide_along_it_to_the_prior():
-    from odolab.types import Action
+    from odolab.core.types import Action
 
     intr, (prev, cur) = _wall_frames(slide=0.15, noise=0.002)
     sigmas = {}

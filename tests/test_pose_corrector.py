@@ -15,16 +15,16 @@ import pytest
 import torch
 
 from odolab.api import Action, Estimate, Odometer, load_odometer, register_odometer, transform_to_planar
-from odolab.episodes import EpisodeSpec, render_episode
+from odolab.core.parallel import SERIAL
 from odolab.learning import CheckpointError, DataConfig
-from odolab.parallel import SERIAL
 from odolab.pose_corrector.checkpoint import load_model, save_model, shipped_model
 from odolab.pose_corrector.config import PoseCorrectorModel, PoseCorrectorTraining, load_training
 from odolab.pose_corrector.estimates import EstimatesError, estimates_folder, make_estimates
 from odolab.pose_corrector.model import PoseCorrectorNet, apply_correction, pair_inputs
 from odolab.pose_corrector.train import COLLIDED, correction_rows, pair_targets
 from odolab.robust_vo.odometer import PLANAR_VARIANCE
-from odolab.training_data import TrainingData, make_training_data
+from odolab.sim.episodes import EpisodeSpec, render_episode
+from odolab.sim.training_data import TrainingData, make_training_data
 from tests.conftest import SMALL_CAMERA
 
 TINY = PoseCorrectorModel(width=48, height=32, base=2, hidden=8)

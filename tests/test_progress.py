@@ -1,4 +1,4 @@
-"""odolab/progress.py: the step progress bar keeps its width and shows each odometer's own rate."""
+"""odolab/core/progress.py: the step progress bar keeps its width and shows each odometer's own rate."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 @pytest.mark.parametrize("total", [1000, None])
 def test_the_progress_bar_keeps_its_width_and_shows_each_odometers_own_rate(total):
-    from odolab.progress import StepProgressBar
+    from odolab.core.progress import StepProgressBar
 
     now = [0.0]
     bar = StepProgressBar(file=io.StringIO(), clock=lambda: now[0])
@@ -38,7 +38,7 @@ def test_the_progress_bar_keeps_its_width_and_shows_each_odometers_own_rate(tota
 
 
 def test_a_terminal_too_narrow_for_a_bar_gets_a_line_at_the_start_each_quarter_and_the_end(monkeypatch):
-    from odolab import progress
+    from odolab.core import progress
 
     class Narrow(io.StringIO):
         def isatty(self):

@@ -1,4 +1,4 @@
-"""odolab.report: trajectory file names, the error figure's layout and the trajectory palette, the
+"""odolab.reporting.report: trajectory file names, the error figure's layout and the trajectory palette, the
 top-down figure's colours and markers, and the output folder's manifest."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_rgb
 
-from odolab.report import GROUND_TRUTH_FILE, OutputFolder, file_stem, write_trajectories
-from odolab.runner import SequenceResult
+from odolab.reporting.report import GROUND_TRUTH_FILE, OutputFolder, file_stem, write_trajectories
+from odolab.running.runner import SequenceResult
 from tests.helpers import captured_figures
 
 
@@ -96,9 +96,9 @@ def test_sequences_whose_names_differ_in_unsafe_characters_keep_two_folders(tmp_
 
 
 def test_names_that_would_still_share_a_file_are_refused_before_any_is_written(tmp_path, monkeypatch):
-    import odolab.report
+    import odolab.reporting.report
 
-    monkeypatch.setattr(odolab.report, "file_stem", lambda name: "same")  # a digest collision, forced
+    monkeypatch.setattr(odolab.reporting.report, "file_stem", lambda name: "same")  # a digest collision, forced
     out = OutputFolder(tmp_path / "out")
     with pytest.raises(ValueError, match="'a' and 'b' would share the file name 'same'"):
         write_trajectories([_result("a", 0.1), _result("b", 0.2)], out)
@@ -121,7 +121,7 @@ def test_plain_names_keep_their_place_in_the_manifest(tmp_path):
 def _action_rows(names: tuple[str, ...] = ("action-prior", "ground-truth", "icp", "deepvo")) -> list:
     """Per-action rows as a compare run gives them: zero for ground truth, no failures for the
     references, a tall collided dz bar for the prior."""
-    from odolab.summary import ActionRow
+    from odolab.running.summary import ActionRow
 
     rows = []
     for k, name in enumerate(names):
@@ -139,12 +139,14 @@ def _action_rows(names: tuple[str, ...] = ("action-prior", "ground-truth", "icp"
 def _drawn_errors(monkeypatch, rows: list):
     import matplotlib
 
-    import odolab.report
+    import odolab.reporting.report
 
     matplotlib.use("Agg")
     figures: list = []
-    monkeypatch.setattr(odolab.report, "save_figure_atomic", lambda fig, path, dpi=110: figures.append((fig, dpi)))
-    odolab.report.plot_errors(rows, Path("errors.png"))
+    monkeypatch.setattr(
+        odolab.reporting.report, "save_figure_atomic", lambda fig, path, dpi=110: figures.append((fig, dpi))
+    )
+    odolab.reporting.report.plot_errors(rows, Path("errors.png"))
     return figures[0]
 
 
@@ -215,7 +217,7 @@ def _lab(rgb: np.ndarray) -> np.ndarray:
 def test_trajectory_colours_stay_apart_for_colour_blind_readers():
     from matplotlib.colors import to_rgb
 
-    from odolab.report import TRAJECTORY_COLORS
+    from odolab.reporting.report import TRAJECTORY_COLORS
 
     linear = [
         np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
@@ -228,7 +230,7 @@ def test_trajectory_colours_stay_apart_for_colour_blind_readers():
 
 
 def test_every_odometer_has_its_own_colour_marker_and_line_style():
-    from odolab.report import TRAJECTORY_COLORS, trajectory_style
+    from odolab.reporting.report import TRAJECTORY_COLORS, trajectory_style
 
     styles = [trajectory_style(k) for k in range(24)]
     assert len(set(styles)) == len(styles)
@@ -241,7 +243,7 @@ def test_every_odometer_has_its_own_colour_marker_and_line_style():
 
 
 def test_one_of_a_thing_reads_in_the_singular():
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     assert counted(1, "test episode") == "1 test episode"
     assert counted(5, "test episode") == "5 test episodes" and counted(0, "step") == "0 steps"
@@ -249,7 +251,7 @@ def test_one_of_a_thing_reads_in_the_singular():
 
 
 def test_an_interrupted_rerun_never_mixes_two_runs(tmp_path):
-    from odolab.report import MANIFEST, OutputFolder
+    from odolab.reporting.report import MANIFEST, OutputFolder
 
     first = OutputFolder(tmp_path)
     for rel in ("table.csv", "report.html", "trajectories/a/icp.tum"):
@@ -265,7 +267,7 @@ def test_an_interrupted_rerun_never_mixes_two_runs(tmp_path):
 
 
 def test_a_manifest_naming_a_users_file_never_deletes_it(tmp_path):
-    from odolab.report import ManifestError, OutputFolder
+    from odolab.reporting.report import ManifestError, OutputFolder
 
     (tmp_path / "thesis.docx").write_text("years of work")
     (tmp_path / "table.csv").write_text("old")
@@ -278,7 +280,7 @@ def test_a_manifest_naming_a_users_file_never_deletes_it(tmp_path):
 
 
 def test_one_command_never_takes_over_anothers_folder(tmp_path):
-    from odolab.report import ManifestError, OutputFolder
+    from odolab.reporting.report import ManifestError, OutputFolder
     from odolab.simcard import CARD_NAMES
 
     folder = OutputFolder(tmp_path)
@@ -292,7 +294,7 @@ def test_one_command_never_takes_over_anothers_folder(tmp_path):
 
 
 def test_an_unreadable_manifest_is_refused_not_ignored(tmp_path):
-    from odolab.report import ManifestError, OutputFolder
+    from odolab.reporting.report import ManifestError, OutputFolder
 
     (tmp_path / "manifest.txt").write_bytes(b"table.csv\n\xff\xfe garbage\n")
     with pytest.raises(ManifestError, match="cannot be read"):
@@ -300,7 +302,7 @@ def test_an_unreadable_manifest_is_refused_not_ignored(tmp_path):
 
 
 def test_a_meaningless_manifest_line_is_named(tmp_path):
-    from odolab.report import ManifestError, OutputFolder
+    from odolab.reporting.report import ManifestError, OutputFolder
 
     (tmp_path / "table.csv").write_text("old")
     (tmp_path / "manifest.txt").write_text("table.csv/x\n")
@@ -313,7 +315,7 @@ def test_a_pipe_named_manifest_in_a_parent_does_not_block(tmp_path, capsys):
 
     (tmp_path / "p").mkdir()
     os.mkfifo(tmp_path / "p" / "manifest.txt")
-    from odolab.report import manifest_owner
+    from odolab.reporting.report import manifest_owner
 
     assert manifest_owner(tmp_path / "p") is None  # returns, does not wait for a writer
 
@@ -324,8 +326,8 @@ def _grey(color) -> bool:
 
 
 def test_top_down_trajectories_never_take_the_obstacles_grey_and_show_start_end_and_goal(monkeypatch):
-    from odolab import report
-    from odolab.runner import SequenceResult
+    from odolab.reporting import report
+    from odolab.running.runner import SequenceResult
 
     obstacle = (report.OBSTACLE_SHADE,) * 3
     for k in range(40):
@@ -364,7 +366,7 @@ def test_top_down_trajectories_never_take_the_obstacles_grey_and_show_start_end_
 
 
 def _collided_action_rows():
-    from odolab.summary import ActionRow
+    from odolab.running.summary import ActionRow
 
     rows = []
     for name, scale in (("action-prior", 1.0), ("icp", 0.4)):
@@ -380,7 +382,7 @@ def _collided_action_rows():
 
 
 def test_the_error_bars_are_not_squashed_by_the_few_collided_steps(monkeypatch):
-    from odolab import report
+    from odolab.reporting import report
 
     figures = captured_figures(monkeypatch, report)
     report.plot_errors(_collided_action_rows(), Path("errors.png"))

@@ -130,12 +130,12 @@ def test_rerun_removes_what_the_previous_run_owned(tmp_path):
 
 
 def test_a_failing_figure_costs_nothing_else(tmp_path, monkeypatch, capsys):
-    import odolab.report
+    import odolab.reporting.report
 
     def broken(*args, **kwargs):
         raise RuntimeError("no room on the canvas")
 
-    monkeypatch.setattr(odolab.report, "plot_errors", broken)
+    monkeypatch.setattr(odolab.reporting.report, "plot_errors", broken)
     out = tmp_path / "run"
     args = [
         "--odometers",

@@ -13,11 +13,10 @@ import pytest
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
 from odolab.api import Action, Intrinsics, invert, load_odometer, transform_to_planar
-from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
+from odolab.core.parallel import SERIAL
 from odolab.learning import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
 from odolab.learning.checkpoints import load_checkpoint
 from odolab.learning.epochs import STATE_FORMAT, STATE_KIND
-from odolab.parallel import SERIAL
 from odolab.robust_vo import train as trainer
 from odolab.robust_vo.batches import Samples, make_batch, stage_samples
 from odolab.robust_vo.checkpoint import load_model, save_model
@@ -27,6 +26,7 @@ from odolab.robust_vo.model import build_networks, predict
 from odolab.robust_vo.motion import compose, geoinv_loss, inverse, mirror, swap_action
 from odolab.robust_vo.odometer import RobustVOOdometer
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec, NoiseConfig, render_episode
 
 W, H = 48, 32
 TINY = ModelConfig(width=W, height=H, base_planes=8, groups=4, hidden=32, compress_channels=8, dropout=0.2)

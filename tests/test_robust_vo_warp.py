@@ -11,9 +11,8 @@ import pytest
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
 from odolab.api import Action, invert, load_odometer, nominal_motion
-from odolab.episodes import EpisodeSpec, NoiseConfig, render_episode
+from odolab.core.parallel import SERIAL
 from odolab.learning import DataConfig, TrainingData, make_training_data
-from odolab.parallel import SERIAL
 from odolab.robust_vo.batches import Samples, make_batch
 from odolab.robust_vo.checkpoint import save_model
 from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
@@ -21,6 +20,7 @@ from odolab.robust_vo.inputs import pair_channels
 from odolab.robust_vo.model import build_networks
 from odolab.robust_vo.warp import nominal_transforms, warp_current, warp_pairs
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec, NoiseConfig, render_episode
 
 W, H = 48, 32
 WARPED = ModelConfig(width=W, height=H, base_planes=8, groups=4, hidden=32, compress_channels=8, warp="nominal")

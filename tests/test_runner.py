@@ -1,4 +1,4 @@
-"""odolab/runner.py: answers copied at the step, the per-step time limit, attributes read inside a
+"""odolab/running/runner.py: answers copied at the step, the per-step time limit, attributes read inside a
 guard, frames without depth counted, an odometer calling sys.exit failed; on a tiny synthetic sequence
 (no simulator) or the 10-frame TUM folder, so each test is fast."""
 
@@ -11,11 +11,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from odolab import api, runner
-from odolab.action_prior import ActionPrior
-from odolab.geometry import planar_to_transform
-from odolab.odometer import own_copy
-from odolab.types import Action, Frame, Intrinsics
+from odolab import api
+from odolab.core.geometry import planar_to_transform
+from odolab.core.types import Action, Frame, Intrinsics
+from odolab.odometry.action_prior import ActionPrior
+from odolab.odometry.odometer import own_copy
+from odolab.running import runner
 from tests.helpers import TUM_DIR
 
 PRIOR = ActionPrior.shipped()
@@ -294,7 +295,7 @@ def test_oracle_only_fields_are_removed_for_other_odometers():
     seen = runner.guarded_frame(frame, oracle=True).gt_pose
     assert np.array_equal(seen, frame.gt_pose) and not seen.flags.writeable
     assert runner.ORACLE_ONLY_FIELDS == ("gt_pose", "clean_depth")
-    from odolab.types import Frame
+    from odolab.core.types import Frame
 
     simulated = Frame(frame.rgb, frame.depth, gt_pose=frame.gt_pose, clean_depth=frame.depth + 0.1)
     assert runner.guarded_frame(simulated, oracle=False).clean_depth is None

@@ -6,11 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from odolab import api, runner
-from odolab.action_prior import ActionPrior
-from odolab.episodes import EpisodeSpec, load_episodes
-from odolab.parallel import SERIAL
+from odolab import api
+from odolab.core.parallel import SERIAL
+from odolab.odometry.action_prior import ActionPrior
+from odolab.running import runner
 from odolab.sim.camera import CameraSpec
+from odolab.sim.episodes import EpisodeSpec, load_episodes
 
 PRIOR = ActionPrior.shipped()
 

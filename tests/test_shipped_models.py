@@ -8,8 +8,8 @@ import pytest
 pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
 from odolab.api import Action, available_odometers, load_odometer
-from odolab.episodes import EpisodeSpec, render_episode
 from odolab.robust_vo.checkpoint import SHIPPED
+from odolab.sim.episodes import EpisodeSpec, render_episode
 
 
 @pytest.fixture(scope="module")

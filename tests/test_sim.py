@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from odolab.geometry import camera_pose_from_agent, invert
+from odolab.core.geometry import camera_pose_from_agent, invert
+from odolab.core.types import Action
 from odolab.sim.agent import AgentState, apply_motion, step_agent
 from odolab.sim.camera import CameraSpec, Renderer
 from odolab.sim.noise import ActuationNoise, Motion
 from odolab.sim.planner import ShortestPathFollower, geodesic_field, largest_component
 from odolab.sim.scenes import generate_scene, scene_seed, split_of_seed
-from odolab.types import Action
 
 
 def test_scene_is_deterministic_and_splits_are_disjoint():

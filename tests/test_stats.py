@@ -1,4 +1,4 @@
-"""odolab/stats.py: the paired tests the studies' verdicts rest on, checked against scipy.stats'
+"""odolab/core/stats.py: the paired tests the studies' verdicts rest on, checked against scipy.stats'
 reference implementations and by hand."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest, ttest_rel
 
-from odolab.stats import holm, mcnemar, paired_t
+from odolab.core.stats import holm, mcnemar, paired_t
 
 
 def test_mcnemar_is_the_exact_binomial_test_of_the_discordant_episodes():

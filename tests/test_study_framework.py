@@ -12,7 +12,7 @@ import pytest
 
 from odolab.cli import UsageError
 from odolab.cli.study import command, study
-from odolab.parallel import SERIAL
+from odolab.core.parallel import SERIAL
 from studies import e_table, framework, reports_index
 from tests.helpers import refused
 

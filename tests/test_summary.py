@@ -1,4 +1,4 @@
-"""odolab/summary.py: zero-step sequences, steps/s of steps never asked, the cell formatter, the bias and the paper's protocol (raw) columns."""
+"""odolab/running/summary.py: zero-step sequences, steps/s of steps never asked, the cell formatter, the bias and the paper's protocol (raw) columns."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import warnings
 import numpy as np
 import pytest
 
-from odolab import summary
-from odolab.runner import SequenceResult
+from odolab.running import summary
+from odolab.running.runner import SequenceResult
 
 
 def _result(n: int, odometer: str = "odo", seconds: float = 0.0, asked: bool | None = True) -> SequenceResult:
@@ -67,7 +67,7 @@ def test_fmt_says_does_not_apply_overflow_and_huge_apart(value, std, text):
 
 
 def test_the_bias_is_the_signed_mean_error_which_cancels_where_the_absolute_error_does_not():
-    from odolab.geometry import planar_to_transform
+    from odolab.core.geometry import planar_to_transform
 
     def moved(dz_errors: list[float], name: str) -> SequenceResult:
         r = _result(len(dz_errors), odometer=name)
@@ -88,8 +88,8 @@ def test_the_papers_protocol_scores_a_refused_steps_unverified_motion_and_counts
     refused with nothing computed, and refused with a motion that is no rigid motion. As used, the
     three refused steps keep the prior's motion (here exact); raw, the second scores its own 3 cm and
     the last two stay with the prior and count in ``raw_missing``."""
-    from odolab.geometry import planar_to_transform
-    from odolab.types import Estimate
+    from odolab.core.geometry import planar_to_transform
+    from odolab.core.types import Estimate
 
     truth = planar_to_transform(0.0, 0.25, 0.0)
     off = {k: planar_to_transform(0.0, 0.25 + k * 0.01, 0.0) for k in (1, 3)}
@@ -113,8 +113,8 @@ def test_the_papers_protocol_scores_a_refused_steps_unverified_motion_and_counts
 
 
 def test_a_refused_estimate_keeps_its_own_copy_of_the_unverified_motion():
-    from odolab.odometer import own_copy
-    from odolab.types import Estimate
+    from odolab.core.types import Estimate
+    from odolab.odometry.odometer import own_copy
 
     motion = np.eye(4)
     kept = own_copy(Estimate.invalid(motion))
@@ -123,7 +123,7 @@ def test_a_refused_estimate_keeps_its_own_copy_of_the_unverified_motion():
 
 
 def test_an_unverified_motion_that_is_no_rigid_motion_counts_as_missing_and_never_raises():
-    from odolab.types import Estimate
+    from odolab.core.types import Estimate
 
     class Raising:
         def __array__(self, *args, **kwargs):

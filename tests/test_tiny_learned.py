@@ -130,8 +130,8 @@ def test_a_checkpoint_with_pickled_code_is_refused(tmp_path):
 
 
 def test_the_runner_applies_an_odometers_torch_threads_and_restores_them():
-    from odolab import runner
-    from odolab.action_prior import ActionPrior
+    from odolab.odometry.action_prior import ActionPrior
+    from odolab.running import runner
 
     class Watcher(api.Odometer):
         threads = 1

@@ -1,4 +1,4 @@
-"""odolab/training_data.py: shards made once and resumed, refused when made otherwise, frames resized
+"""odolab/sim/training_data.py: shards made once and resumed, refused when made otherwise, frames resized
 with holes kept, windows of consecutive pairs, a damaged shard named when first read (checked once per
 process)."""
 
@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from odolab import training_data as td
-from odolab.parallel import SERIAL
-from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
+from odolab.core.parallel import SERIAL
+from odolab.sim import training_data as td
+from odolab.sim.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 CFG = DataConfig(split="train", episodes=3, max_steps=6, width=40, height=24, episodes_per_shard=2)
 
@@ -225,7 +225,7 @@ def test_clean_depth_is_stored_beside_the_noisy_depth_of_the_same_frames(tmp_pat
 
 @pytest.fixture(scope="module")
 def shards(tmp_path_factory) -> Path:
-    from odolab.training_data import DataConfig, make_training_data
+    from odolab.sim.training_data import DataConfig, make_training_data
 
     root = tmp_path_factory.mktemp("data") / "train"
     make_training_data(
@@ -249,7 +249,7 @@ def _flip_a_frame_byte(shard: Path) -> None:
 def test_a_shard_with_a_flipped_byte_is_named_when_its_frames_are_first_read(shards, tmp_path, old):
     import json
 
-    from odolab.training_data import MANIFEST, DamagedShardError, TrainingData
+    from odolab.sim.training_data import MANIFEST, DamagedShardError, TrainingData
 
     copy = tmp_path / "copy"
     shutil.copytree(shards, copy)
@@ -269,7 +269,7 @@ def test_a_shard_with_a_flipped_byte_is_named_when_its_frames_are_first_read(sha
 
 
 def test_a_shard_is_checked_once_per_process(shards, monkeypatch):
-    from odolab import training_data as td
+    from odolab.sim import training_data as td
 
     calls = []
     real = td.file_crc32

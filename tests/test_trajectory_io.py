@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from odolab.cli import run_cli
+from odolab.core.trajectory import Trajectory
 from odolab.io.errors import FileFormatError
 from odolab.io.kitti import read_kitti_poses, write_kitti_poses
 from odolab.io.tum import (
@@ -18,7 +19,6 @@ from odolab.io.tum import (
     read_tum_trajectory,
     write_tum_trajectory,
 )
-from odolab.trajectory import Trajectory
 from tests.helpers import TUM_OK
 
 DATA = Path(__file__).parent / "data" / "evo"

@@ -74,7 +74,7 @@ def test_open3d_rgbd_accepts_the_true_turn_of_a_far_view():
     """In views reaching past 4 m the simulator's depth noise outgrows the shared tolerance
     0.01 + 0.01 z^2 m: the true motion failed open3d-rgbd's image check. Its own 0.015 z^2 passes it."""
     from baselines.verification import verify
-    from odolab.episodes import EpisodeSpec
+    from odolab.sim.episodes import EpisodeSpec
 
     odo = load_odometer("open3d-rgbd")
     intr = EpisodeSpec().camera.intrinsics
@@ -93,8 +93,8 @@ def test_the_classical_odometers_give_the_same_answer_every_run():
     a closed loop grows into different navigation runs: its solvers run on one thread."""
     import open3d as o3d
 
-    from odolab.episodes import EpisodeSpec
-    from odolab.runner import guarded_frame
+    from odolab.running.runner import guarded_frame
+    from odolab.sim.episodes import EpisodeSpec
 
     intr = EpisodeSpec().camera.intrinsics
     pairs = [p for _, p in zip(range(3), study.turn_pairs("val", 7, 1, 3))]

@@ -3,7 +3,7 @@
 ``training_data``, ``action_prior``, ``calibrate_fusion``; ``commands`` is the ``odolab`` console
 script). :mod:`odolab.cli.args` is their shared plumbing (argument types, output checks, one-line
 errors and exit code 2); its names are importable from here too. The library below never imports
-this package: it raises typed errors (:mod:`odolab.errors`) that the commands word with their options.
+this package: it raises typed errors (:mod:`odolab.core.errors`) that the commands word with their options.
 """
 
 from odolab.cli.args import (

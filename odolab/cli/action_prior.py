@@ -1,14 +1,14 @@
 """``python -m odolab.action_prior``: fit the action prior, the train split's mean motion per action
-(:func:`odolab.action_prior.fit_action_prior`), and print or write it."""
+(:func:`odolab.odometry.action_prior.fit_action_prior`), and print or write it."""
 
 from __future__ import annotations
 
 import json
 from collections.abc import Sequence
 
-from odolab import action_prior
 from odolab.cli.args import MAX_SEED, ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli, seed
-from odolab.report import counted
+from odolab.odometry import action_prior
+from odolab.reporting.report import counted
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -20,8 +20,8 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from odolab.cli.help_text import PlainHelp
+from odolab.core.parallel import Execution
 from odolab.io.lock import FolderLock
-from odolab.parallel import Execution
 
 #: Largest accepted seed (seeds feed numpy's SeedSequence; 2^32 - 1 keeps them portable).
 MAX_SEED = 2**32 - 1
@@ -179,7 +179,7 @@ def check_ray_option(address: str | None, serial: bool = False, *, starts_ray: b
     (no Ray then). Without it, the ``RAY_ADDRESS`` variable, which Ray heeds as it would the option,
     is checked alike (:func:`check_ray_environment`), unless the run starts no Ray (``serial``, or
     ``starts_ray`` False: e.g. a study's ``--redraw``)."""
-    from odolab.parallel import RayAddressError, check_ray_address
+    from odolab.core.parallel import RayAddressError, check_ray_address
 
     if address is None:
         if starts_ray and not serial:
@@ -197,7 +197,7 @@ def check_ray_environment() -> None:
     """The ``RAY_ADDRESS`` environment variable, where Ray connects when given no ``--ray-address``:
     :class:`UsageError` with one line naming it when it is malformed or nothing answers there (Ray
     would hang or end in a traceback)."""
-    from odolab.parallel import ENVIRONMENT, RayAddressError, check_environment_ray_address
+    from odolab.core.parallel import ENVIRONMENT, RayAddressError, check_environment_ray_address
 
     try:
         check_environment_ray_address()
@@ -268,8 +268,8 @@ def folder_owner(path: Path) -> str | None:
     owner (compare, simcard, a study), navigation's ``config.json``, a training's ``training.json``
     or the training data's ``dataset.json``; None when it has none of them."""
     from odolab.io.inputs import read_input_json
-    from odolab.report import manifest_owner
-    from odolab.training_data import MANIFEST as DATASET
+    from odolab.reporting.report import manifest_owner
+    from odolab.sim.training_data import MANIFEST as DATASET
 
     said = manifest_owner(path)
     if said is not None and said.startswith("study "):
@@ -476,7 +476,7 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
 
     watched = (signal.SIGINT, signal.SIGTERM)
     previous = {s: signal.signal(s, on_signal) for s in watched} if in_main else {}
-    from odolab.parallel import RayAddressError
+    from odolab.core.parallel import RayAddressError
 
     try:
         code = int(main(argv) or 0)

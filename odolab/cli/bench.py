@@ -21,7 +21,7 @@ from odolab.cli.args import (
 def _table(rows: list[dict]) -> str:
     if not rows:
         return ""
-    from odolab.summary import text_table
+    from odolab.running.summary import text_table
 
     keys = list(dict.fromkeys(k for r in rows for k in r))  # every row's columns ('-' where one has none)
     return text_table(
@@ -32,7 +32,7 @@ def _table(rows: list[dict]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.odometer import (
+    from odolab.odometry.odometer import (
         OdometerListError,
         available_odometers,
         parse_odometer_list,
@@ -137,8 +137,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError(
             f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}"
         )
-    from odolab.comparison import ComparisonError, load_odometers
-    from odolab.options import OptionError, parse_assignments
+    from odolab.odometry.options import OptionError, parse_assignments
+    from odolab.reporting.comparison import ComparisonError, load_odometers
 
     try:
         options = parse_assignments(args.odometer_option)

@@ -28,8 +28,8 @@ from odolab.cli.args import (
     path_arg,
     run_cli,
 )
-from odolab.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
-from odolab.episodes import MAX_EPISODE_STEPS, EpisodeCache
+from odolab.core.progress import StepProgressBar
+from odolab.core.types import MOTION_ACTIONS
 from odolab.fusion import calibrate
 from odolab.fusion.calibrate import check_input, near_views, steps_of
 from odolab.fusion.calibration import (
@@ -42,11 +42,11 @@ from odolab.fusion.calibration import (
     what_file,
 )
 from odolab.fusion.odometer import is_fused
-from odolab.odometer import OdometerListError, parse_odometer_list, standalone_odometers
-from odolab.progress import StepProgressBar
-from odolab.runner import run
+from odolab.odometry.odometer import OdometerListError, parse_odometer_list, standalone_odometers
+from odolab.reporting.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
+from odolab.running.runner import run
+from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeCache
 from odolab.sim.scenes import SPLITS
-from odolab.types import MOTION_ACTIONS
 
 #: Fewest steps (--episodes x --max-steps) worth calibrating on.
 MIN_RUN_STEPS = 30

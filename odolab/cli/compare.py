@@ -29,7 +29,10 @@ from odolab.cli.args import (
     run_cli,
     seed,
 )
-from odolab.comparison import (
+from odolab.io.lock import FolderLock
+from odolab.odometry.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
+from odolab.odometry.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
+from odolab.reporting.comparison import (
     DEFAULT_CACHE,
     ComparisonConfig,
     ComparisonError,
@@ -39,10 +42,7 @@ from odolab.comparison import (
     run_comparison,
     tum_sequences,
 )
-from odolab.episodes import MAX_EPISODE_STEPS
-from odolab.io.lock import FolderLock
-from odolab.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
-from odolab.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
+from odolab.sim.episodes import MAX_EPISODE_STEPS
 from odolab.sim.scenes import SPLITS
 
 #: Documented ranges of the numeric options (enforced with one line by odolab.cli.args.number).
@@ -72,7 +72,7 @@ _EVERY = "<every odometer>"
 
 class _Parser(ArgumentParser):
     """Lists every odometer in ``--help`` only when the help is shown: telling the composites apart
-    imports each odometer's class (:func:`odolab.odometer.standalone_odometers`)."""
+    imports each odometer's class (:func:`odolab.odometry.odometer.standalone_odometers`)."""
 
     def format_help(self) -> str:
         for action in self._actions:
@@ -221,7 +221,7 @@ def _check_folders(args: argparse.Namespace) -> FolderLock:
         check_cache_dir(args.cache, "--cache")  # read-only: read; what it lacks is made, not written
     check_report_dir(args.out, "--out")
     from odolab.io.owned import UnsafeOutputError
-    from odolab.report import MANIFEST, ManifestError, OutputFolder
+    from odolab.reporting.report import MANIFEST, ManifestError, OutputFolder
 
     held = hold_folder(args.out, "--out")
     try:  # what the previous run wrote, and this run's fixed files, can be replaced without leaving --out
@@ -240,7 +240,7 @@ def _check_folders(args: argparse.Namespace) -> FolderLock:
 
 
 def _config(args: argparse.Namespace) -> ComparisonConfig:
-    from odolab.episodes import NoiseConfig
+    from odolab.sim.episodes import NoiseConfig
 
     try:
         from_file = read_options_file(args.config) if args.config else {}
@@ -298,7 +298,7 @@ def _chosen(args: argparse.Namespace) -> list[tuple[str, object]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse, check, run the comparison (:func:`odolab.comparison.run_comparison`), print and write."""
+    """Parse, check, run the comparison (:func:`odolab.reporting.comparison.run_comparison`), print and write."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     config = _config(args)
@@ -316,10 +316,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ComparisonError as exc:
             raise UsageError(f"--tum {args.tum}: {exc}") from None
     with _check_folders(args):  # --out held until the report is written
-        from odolab.paired import paired_verdicts
-        from odolab.progress import StepProgressBar
-        from odolab.report import format_table, write_report
-        from odolab.summary import every_step_failed
+        from odolab.core.progress import StepProgressBar
+        from odolab.reporting.report import format_table, write_report
+        from odolab.running.paired import paired_verdicts
+        from odolab.running.summary import every_step_failed
 
         try:
             result = run_comparison(

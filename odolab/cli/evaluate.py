@@ -12,9 +12,9 @@ KITTI files pair line by line (unequal lengths are an error); TUM files pair by 
 exactly as ``evo`` does (:func:`odolab.io.tum.associate`). The estimate is aligned to the ground
 truth once (``--align``, default ``se3``: rigid Umeyama, as ``evo_ape -a``); ATE, RPE and the
 KITTI errors are then computed on the aligned estimate (a rigid alignment changes neither RPE nor
-the KITTI errors; ``sim3`` rescales them). Definitions: :mod:`odolab.metrics`. Every figure is
+the KITTI errors; ``sim3`` rescales them). Definitions: :mod:`odolab.core.metrics`. Every figure is
 printed with its pairing, the poses used and dropped, the alignment and the coverage.
-This module parses, calls :mod:`odolab.evaluation` (the library: pairing, metrics, JSON summary)
+This module parses, calls :mod:`odolab.running.evaluation` (the library: pairing, metrics, JSON summary)
 and prints.
 """
 
@@ -26,12 +26,12 @@ import os
 import sys
 from collections.abc import Sequence
 
-from odolab import metrics
 from odolab.cli.args import ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli
-from odolab.evaluation import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
+from odolab.core import metrics
+from odolab.core.trajectory import Trajectory
 from odolab.io.errors import FileFormatError
-from odolab.trajectory import Trajectory
-from odolab.trajectory_plot import IMAGE_SUFFIXES
+from odolab.reporting.trajectory_plot import IMAGE_SUFFIXES
+from odolab.running.evaluation import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
 
 __all__ = ["main"]
 
@@ -168,8 +168,8 @@ def _table(gt_path: str, fmt: str, args: argparse.Namespace, rows: list[tuple[st
         "segments",
     ]
 
-    from odolab.summary import fmt as f
-    from odolab.summary import text_table
+    from odolab.running.summary import fmt as f
+    from odolab.running.summary import text_table
 
     body = []
     for path, ev in rows:
@@ -275,7 +275,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if note:
                 print(note)
     if args.plot:  # after the table: a failing figure never loses it
-        from odolab.trajectory_plot import plot_evaluations
+        from odolab.reporting.trajectory_plot import plot_evaluations
 
         try:
             plot_evaluations(args.plot, [(os.path.basename(p), ev) for p, ev in rows])

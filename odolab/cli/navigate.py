@@ -29,7 +29,7 @@ from odolab.cli.args import (
     path_arg,
     run_cli,
 )
-from odolab.report import counted
+from odolab.reporting.report import counted
 from odolab.sim.scenes import SPLITS
 
 #: The options that set what the library calls a navigation run's settings (odolab.navigation.study.Setting).
@@ -43,13 +43,11 @@ SETTING_OPTIONS = {
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.comparison import ComparisonError, load_odometers
     from odolab.config import describe
-    from odolab.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
     from odolab.navigation.agent import PolicyConfig, PolicyError
     from odolab.navigation.study import NavTask
-    from odolab.odometer import REGISTRY, OdometerListError, parse_odometer_list
-    from odolab.options import (
+    from odolab.odometry.odometer import REGISTRY, OdometerListError, parse_odometer_list
+    from odolab.odometry.options import (
         OptionError,
         merge_options,
         naming_the_file,
@@ -57,6 +55,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         read_options_file,
         without_defaults,
     )
+    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument(
@@ -139,7 +139,7 @@ def _run(
     from odolab.io.owned import UnsafeOutputError, check_owned_path
     from odolab.navigation.report import output_files, write_outputs
     from odolab.navigation.study import RunFolderError, config_doc, run_navigation
-    from odolab.summary import failed_steps_text
+    from odolab.running.summary import failed_steps_text
 
     try:
         for name in output_files(specs):  # the report's files, found unusable now rather than after every episode

@@ -70,7 +70,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from odolab.io.owned import UnsafeOutputError
-    from odolab.report import MANIFEST, ManifestError, OutputFolder
+    from odolab.reporting.report import MANIFEST, ManifestError, OutputFolder
     from odolab.sim.redwood import default_table
 
     try:

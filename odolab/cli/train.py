@@ -36,7 +36,7 @@ from odolab.cli.args import (
     run_cli,
 )
 from odolab.config import ChangeError
-from odolab.parallel import Execution
+from odolab.core.parallel import Execution
 
 __all__ = [
     "TRAINERS",

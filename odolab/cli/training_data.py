@@ -1,5 +1,5 @@
 """``python -m odolab.training_data``: render simulator episodes into memory-mappable training shards
-(:func:`odolab.training_data.make_training_data`; resumable).
+(:func:`odolab.sim.training_data.make_training_data`; resumable).
 
     python -m odolab.training_data --split train --episodes 1200 --width 170 --height 96 --out data/vo/train
 """
@@ -10,10 +10,10 @@ import sys
 from collections.abc import Sequence
 
 from odolab.cli.args import ArgumentParser, check_report_dir, execution_of, number, path_arg, run_cli, seed
-from odolab.episodes import MAX_EPISODE_STEPS
-from odolab.report import counted
+from odolab.reporting.report import counted
+from odolab.sim.episodes import MAX_EPISODE_STEPS
 from odolab.sim.scenes import SPLITS
-from odolab.training_data import (
+from odolab.sim.training_data import (
     MANIFEST,
     MAX_EPISODE_INDEX,
     MAX_EPISODES,

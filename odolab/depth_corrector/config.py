@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from odolab.learning import check, from_toml, setting
 from odolab.learning.configs import RecipeConfig
-from odolab.training_data import DataConfig
+from odolab.sim.training_data import DataConfig
 
 
 @dataclass(frozen=True)

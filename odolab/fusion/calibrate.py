@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from odolab.core.types import MOTION_ACTIONS, Action
 from odolab.fusion.calibration import Calibration, debiased, ellipsoid_share, view_is_near
 from odolab.fusion.graph import residual, right_covariance
-from odolab.runner import failure_reason
-from odolab.types import MOTION_ACTIONS, Action
+from odolab.running.runner import failure_reason
 
 
 def near_views(episodes, near_depth: float) -> dict[str, np.ndarray]:
@@ -39,7 +39,7 @@ def near_views(episodes, near_depth: float) -> dict[str, np.ndarray]:
 def steps_of(
     results, near: dict[str, np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray | None], np.ndarray, np.ndarray]:
-    """From one odometer's :class:`~odolab.runner.SequenceResult` list: residuals (N, 6), action
+    """From one odometer's :class:`~odolab.running.runner.SequenceResult` list: residuals (N, 6), action
     values (N,), own covariances (right perturbation), the raw transforms of its valid steps and
     whether each one's view was near (``near``: per sequence name, from :func:`near_views`)."""
     xi, actions, own, Ts, close = [], [], [], [], []

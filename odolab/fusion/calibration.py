@@ -35,9 +35,9 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from odolab.core.types import MOTION_ACTIONS, Action
 from odolab.io.atomic import write_bytes_atomic
 from odolab.io.inputs import parse_input_json, read_input_bytes, read_input_json
-from odolab.types import MOTION_ACTIONS, Action
 
 #: Sigmas outside this range (rad or m) are refused in a calibration file: their squares misbehave.
 SIGMA_RANGE = (1e-6, 1e3)

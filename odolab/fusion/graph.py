@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from odolab.runner import failure_reason
-from odolab.types import Estimate
+from odolab.core.types import Estimate
+from odolab.running.runner import failure_reason
 
 #: Sigmas of the prior that pins the first pose (rad, rad, rad, m, m, m).
 ANCHOR_SIGMAS = np.full(6, 1e-6)
@@ -84,7 +84,7 @@ def _factor(m: Measurement, kernel: str, k: float) -> gtsam.BetweenFactorPose3:
 
 def check_measurement(m: Measurement, what: str = "measurement") -> None:
     """``ValueError`` naming ``what`` unless ``m.T_ij`` passes the runner's test of a usable motion
-    (:func:`~odolab.runner.failure_reason`: a finite rigid 4x4 transform) and
+    (:func:`~odolab.running.runner.failure_reason`: a finite rigid 4x4 transform) and
     ``m.cov`` is a finite, symmetric positive-definite 6x6 matrix."""
     reason = failure_reason(Estimate(np.asarray(m.T_ij)))  # the runner's own test of a usable motion
     if reason is not None:

@@ -38,9 +38,9 @@ from typing import Literal
 
 import numpy as np
 
-from odolab.action_prior import ActionPrior
-from odolab.composites import load_inputs
 from odolab.config import check, setting
+from odolab.core.geometry import planar_to_transform
+from odolab.core.types import Action, Estimate, Frame, Intrinsics
 from odolab.fusion.calibration import Calibration, view_is_near
 from odolab.fusion.graph import (
     Measurement,
@@ -50,10 +50,10 @@ from odolab.fusion.graph import (
     right_covariance,
     smooth,
 )
-from odolab.geometry import planar_to_transform
-from odolab.odometer import COMPOSITE, REGISTRY, Odometer, UnknownOdometerError, split_odometer_names
-from odolab.runner import failure_reason
-from odolab.types import Action, Estimate, Frame, Intrinsics
+from odolab.odometry.action_prior import ActionPrior
+from odolab.odometry.composites import load_inputs
+from odolab.odometry.odometer import COMPOSITE, REGISTRY, Odometer, UnknownOdometerError, split_odometer_names
+from odolab.running.runner import failure_reason
 
 #: The calibration shipped with odolab (its command is in the file's ``source``).
 SHIPPED_CALIBRATION = Path(__file__).resolve().parent.parent / "data" / "fusion" / "calibration.json"

@@ -12,10 +12,10 @@ import os
 
 import numpy as np
 
+from odolab.core.trajectory import Trajectory
 from odolab.io.atomic import write_text_atomic
 from odolab.io.errors import FileFormatError
 from odolab.io.textfiles import format_rows, read_numeric_rows
-from odolab.trajectory import Trajectory
 
 __all__ = ["ROTATION_TOLERANCE", "read_kitti_poses", "write_kitti_poses"]
 

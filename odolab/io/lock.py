@@ -18,7 +18,7 @@ import weakref
 from pathlib import Path
 from typing import Self
 
-from odolab.errors import InputError
+from odolab.core.errors import InputError
 
 __all__ = ["FolderInUseError", "FolderLock", "holder_pid", "lock_folder"]
 

@@ -31,12 +31,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from odolab.core.trajectory import Trajectory
+from odolab.core.types import Action, Frame, Intrinsics
 from odolab.io.errors import FileFormatError
 from odolab.io.inputs import not_regular
 from odolab.io.textfiles import read_lines
 from odolab.io.tum import associate, read_tum_trajectory
-from odolab.trajectory import Trajectory
-from odolab.types import Action, Frame, Intrinsics
 
 __all__ = [
     "PLAUSIBLE_MEDIAN_DEPTH",
@@ -95,9 +95,9 @@ class _FrameFiles:
 
 
 class TumSequence:
-    """A TUM RGB-D recording as an :class:`odolab.odometer.Sequence` (frames decoded lazily).
+    """A TUM RGB-D recording as an :class:`odolab.odometry.odometer.Sequence` (frames decoded lazily).
 
-    ``seq[i]`` is a :class:`~odolab.odometer.Frame`: ``rgb`` (H, W, 3) uint8 in RGB order,
+    ``seq[i]`` is a :class:`~odolab.odometry.odometer.Frame`: ``rgb`` (H, W, 3) uint8 in RGB order,
     ``depth`` (H, W) float32 metres (0 = no reading), ``timestamp`` (s, the colour image's) and
     ``gt_pose`` ``T_world_cam`` (4x4, the nearest ground-truth sample). ``action(i)`` is always
     None (real data has no discrete actions); ``collisions`` is None (unknown).

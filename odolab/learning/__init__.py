@@ -7,6 +7,7 @@ The public face for learned code beside :mod:`odolab.api` (which stays torch-fre
 
 from __future__ import annotations
 
+from odolab.core.parallel import SERIAL, Execution
 from odolab.learning.checkpoints import (
     CheckpointError,
     differences_from_init,
@@ -20,8 +21,7 @@ from odolab.learning.curves import Curves
 from odolab.learning.device import pick_device
 from odolab.learning.epochs import EpochLoop, StopRequested, require_finite
 from odolab.learning.loading import prefetched
-from odolab.parallel import SERIAL, Execution
-from odolab.training_data import DataConfig, TrainingData, make_training_data, resize_frame
+from odolab.sim.training_data import DataConfig, TrainingData, make_training_data, resize_frame
 
 __all__ = [
     "SERIAL",

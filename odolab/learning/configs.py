@@ -21,7 +21,7 @@ from odolab.config import (
     setting,
 )
 from odolab.learning.compute import ComputeConfig
-from odolab.training_data import DataConfig
+from odolab.sim.training_data import DataConfig
 
 
 @dataclass(frozen=True)

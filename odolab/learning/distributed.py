@@ -95,7 +95,7 @@ def run_on_ray(
     from ray.train import RunConfig, ScalingConfig
     from ray.train.torch import TorchConfig, TorchTrainer
 
-    from odolab.parallel import start_ray
+    from odolab.core.parallel import start_ray
 
     started = start_ray(ray_address, log_to_driver=True)
     use_gpu = gpus_per_worker > 0

@@ -37,9 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from odolab.config import assign, check, setting
-from odolab.errors import InputError
-from odolab.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap_angle
-from odolab.types import FORWARD_STEP, Action, Intrinsics
+from odolab.core.errors import InputError
+from odolab.core.geometry import agent_from_camera_pose, camera_pose_from_agent, wrap_angle
+from odolab.core.types import FORWARD_STEP, Action, Intrinsics
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """One PointGoal navigation episode, closed loop: the environment renders, the odometer estimates,
 the agent decides; the metrics use the true positions.
 
-The odometer is asked under the runner's guards (:class:`odolab.runner.StepByStep`): it sees each
+The odometer is asked under the runner's guards (:class:`odolab.running.runner.StepByStep`): it sees each
 frame pair as the runner would show it (read-only copies, ground truth only for oracles), its
 attributes are read once, ``reset`` and each step are time-limited; a failed step (invalid, raising,
 timed out or not a rigid motion) is replaced by the action prior's mean motion, as in ``compare``.
@@ -16,15 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.action_prior import ActionPrior
-from odolab.episodes import EpisodeSpec, start_environment
-from odolab.geometry import planar_to_transform
+from odolab.core.geometry import planar_to_transform
+from odolab.core.types import Action
 from odolab.navigation.agent import MapPlanAgent, PolicyConfig, in_agent_frame
 from odolab.navigation.metrics import EpisodeOutcome, path_length
-from odolab.odometer import Odometer
-from odolab.runner import DEFAULT_STEP_TIMEOUT, StepByStep
+from odolab.odometry.action_prior import ActionPrior
+from odolab.odometry.odometer import Odometer
+from odolab.running.runner import DEFAULT_STEP_TIMEOUT, StepByStep
+from odolab.sim.episodes import EpisodeSpec, start_environment
 from odolab.sim.planner import geodesic_field
-from odolab.types import Action
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """PointNav metrics exactly as habitat-lab defines them (``habitat/tasks/nav/nav.py``; facts in
-``docs/reference-facts.md`` section 9); their means with 95 % intervals come from :mod:`odolab.stats`.
+``docs/reference-facts.md`` section 9); their means with 95 % intervals come from :mod:`odolab.core.stats`.
 
 With d_0 the geodesic distance from start to goal, d_T the geodesic distance at the end, p the
 agent's path length (the summed straight-line lengths of its actual steps, true positions):

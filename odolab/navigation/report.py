@@ -22,12 +22,12 @@ from typing import Any
 import numpy as np
 
 from odolab.config import describe
-from odolab.episodes import EpisodeSpec
+from odolab.core.stats import mean_ci
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.owned import owned_path
 from odolab.navigation.agent import PolicyConfig
 from odolab.navigation.metrics import belief_error
-from odolab.stats import mean_ci
+from odolab.sim.episodes import EpisodeSpec
 
 METRICS = ("success", "spl", "soft_spl", "d_end", "belief_error")
 UNBOUNDED = {"d_end", "belief_error"}  # metres: their intervals are clipped at 0 only
@@ -146,8 +146,8 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from odolab.episodes import start_environment
-    from odolab.report import FloorPlan, draw_floor_plan
+    from odolab.reporting.report import FloorPlan, draw_floor_plan
+    from odolab.sim.episodes import start_environment
 
     env, begin = start_environment(spec, sensors=False)
     scene = env.scene

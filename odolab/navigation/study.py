@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from odolab.episodes import EpisodeSpec
+from odolab.core.parallel import Execution, fan_out
 from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
 from odolab.io.owned import check_owned_path, owned_path
 from odolab.navigation.agent import PolicyConfig
-from odolab.parallel import Execution, fan_out
+from odolab.sim.episodes import EpisodeSpec
 
 
 @dataclass(frozen=True)
@@ -102,7 +102,7 @@ class NavTask:
 def run_task(task: NavTask) -> dict[str, Any]:
     """Run one task (in a Ray worker or here): a plain-data row with the outcome and the paths."""
     from odolab.navigation.episode import navigate
-    from odolab.odometer import load_odometer
+    from odolab.odometry.odometer import load_odometer
 
     run = navigate(task.spec, load_odometer(task.odometer, **task.options), task.policy)
     o = run.outcome
@@ -170,8 +170,8 @@ def _number(v: Any, low: float = -np.inf, high: float = np.inf) -> bool:
 
 def _path(v: Any) -> bool:
     """(x, y) rows of finite JSON numbers (not text, not bools), no step longer than the runner's
-    bound on a step (:data:`odolab.runner.MAX_STEP_TRANSLATION`)."""
-    from odolab.runner import MAX_STEP_TRANSLATION
+    bound on a step (:data:`odolab.running.runner.MAX_STEP_TRANSLATION`)."""
+    from odolab.running.runner import MAX_STEP_TRANSLATION
 
     if (
         not isinstance(v, list)

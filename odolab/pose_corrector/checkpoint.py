@@ -10,7 +10,7 @@ from pathlib import Path
 from odolab.learning import checkpoints
 from odolab.pose_corrector.config import PoseCorrectorModel, PoseCorrectorTraining
 from odolab.pose_corrector.model import PoseCorrectorNet
-from odolab.report import file_stem
+from odolab.reporting.report import file_stem
 
 KIND = "odolab-pose-corrector"
 #: Where the shipped models lie, one per corrected odometer (:func:`shipped_model`).
@@ -21,7 +21,7 @@ SHIPPED_RECIPE = "studies/pose_corrector/shipped.toml"
 
 def shipped_model(inner: str) -> Path:
     """The shipped model that corrects odometer ``inner``: ``<SHIPPED_FOLDER>/<file stem of the
-    name>.pt`` (e.g. ``open3d-rgbd.pt``; :func:`odolab.report.file_stem`)."""
+    name>.pt`` (e.g. ``open3d-rgbd.pt``; :func:`odolab.reporting.report.file_stem`)."""
     return SHIPPED_FOLDER / f"{file_stem(inner)}.pt"
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from odolab.learning import check, from_toml, setting
 from odolab.learning.configs import RecipeConfig
-from odolab.training_data import DataConfig
+from odolab.sim.training_data import DataConfig
 
 #: The camera's frame size (px), at which X runs at run time: X runs on the stored frames of the
 #: training data, so a recipe's data should be of this size (a test's may be smaller).

@@ -6,7 +6,7 @@
 
 X runs on the stored frames, one episode after another (``reset`` at each episode's start, then its
 pairs in order), as the runner would run it; one Ray task per data shard
-(:func:`odolab.parallel.fan_out`), each chunk written atomically as it finishes and listed in
+(:func:`odolab.core.parallel.fan_out`), each chunk written atomically as it finishes and listed in
 ``estimates.json``, so an interrupted run resumes with the chunks it lacks. A chunk holds, per pair
 of its shard (in the data's pair order): ``frames`` (the pair's first global frame, to check it
 matches the data), ``transform`` (4x4 ``T_prev_cur`` of X; the identity where X failed), ``valid``
@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from odolab.api import Action, Estimate, Frame, Odometer, failure_reason, load_inputs
+from odolab.core.parallel import Execution, fan_out
 from odolab.io.atomic import atomic_open, remove_stale_temporaries, write_bytes_atomic
 from odolab.io.owned import owned_path
-from odolab.parallel import Execution, fan_out
-from odolab.report import file_stem
-from odolab.training_data import TrainingData, making
+from odolab.reporting.report import file_stem
+from odolab.sim.training_data import TrainingData, making
 
 FORMAT = 1
 MANIFEST = "estimates.json"

@@ -1,6 +1,6 @@
 """Planar motions on torch batches, the two pair augmentations and the geometric-invariance loss.
 
-Planar motion ``(dx, dz, dyaw)`` as :mod:`odolab.geometry` defines it: in the previous frame, x right,
+Planar motion ``(dx, dz, dyaw)`` as :mod:`odolab.core.geometry` defines it: in the previous frame, x right,
 z forward (m), yaw positive to the left (rad). As an SE(2) element acting on (x, z):
 R(dyaw) = [[cos, -sin], [sin, cos]], so composing a then b gives p = p_a + R(yaw_a) p_b,
 yaw = yaw_a + yaw_b.

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.geometry import wrap_angle
+from odolab.core.geometry import wrap_angle
+from odolab.core.types import Action
 from odolab.sim.noise import ActuationNoise, Motion
 from odolab.sim.scenes import Scene
-from odolab.types import Action
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ The camera is a level pinhole (LoCoBot-like, Habitat PointNav Challenge 2020): 3
 70 degree horizontal field of view, 0.88 m above the floor, depth range 0.1-10 m. Ray directions
 are computed once in the camera frame with z = 1, so the ray parameter of a hit *is* the z-depth;
 per pose they are only rotated. Each ray passes through a pixel centre, at integer image coordinates
-with cx = (W - 1) / 2 (the convention of :class:`~odolab.types.Intrinsics`, used everywhere).
+with cx = (W - 1) / 2 (the convention of :class:`~odolab.core.types.Intrinsics`, used everywhere).
 Noise is added separately (:mod:`odolab.sim.noise`).
 """
 
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from odolab.core.types import Intrinsics
 from odolab.sim.scenes import Scene
 from odolab.sim.textures import TEXEL_SIZE, make_tiles, mip_stack
-from odolab.types import Intrinsics
 
 _KEY_LIGHT = np.array([0.45, 0.3, 0.84]) / np.linalg.norm([0.45, 0.3, 0.84])  # world direction to the light
 AMBIENT, KEY, FILL = 0.4, 0.7, 0.25  # shading = AMBIENT + KEY max(n.l, 0) + FILL max(-n.l, 0)

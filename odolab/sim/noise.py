@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
+from odolab.core.types import FORWARD_STEP, TURN_ANGLE, Action  # the nominal motions, defined once
 from odolab.sim.redwood import BINS, COLS, DistortionTable, cell_lookup, default_table
-from odolab.types import FORWARD_STEP, TURN_ANGLE, Action  # the nominal motions, defined once
 
 _DISPARITY = 35.130  # Redwood's baseline x focal length, m px / 8
 _CELL_BITS = 13  # table cells (6400) fit in 13 bits of the packed index

@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from odolab.core.types import FORWARD_STEP, TURN_ANGLE, Action
 from odolab.sim.agent import AgentState, advance, apply_motion
 from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import Scene
-from odolab.types import FORWARD_STEP, TURN_ANGLE, Action
 
 UNREACHABLE = np.inf
 

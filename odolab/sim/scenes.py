@@ -2,7 +2,7 @@
 
 A :class:`Scene` is pure data (numpy): a triangle soup with one material per triangle, and the
 top-down occupancy grid the agent moves on. World frame: X east, Y north, Z up, metres; the floor
-is Z = 0 (see :mod:`odolab.geometry`).
+is Z = 0 (see :mod:`odolab.core.geometry`).
 
 Scene seeds are split into disjoint pools, so no test scene is ever seen in training::
 

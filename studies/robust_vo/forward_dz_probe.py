@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from odolab.api import FORWARD_STEP, Action, nominal_motion
-from odolab.geometry import planar_to_transform, transform_to_planar
+from odolab.core.geometry import planar_to_transform, transform_to_planar
 from odolab.io.atomic import write_text_atomic
 from odolab.learning import TrainingData
 from odolab.robust_vo.checkpoint import SHIPPED, load_model

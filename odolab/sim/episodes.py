@@ -26,15 +26,15 @@ from typing import Literal
 import numpy as np
 
 from odolab.config import check, setting
-from odolab.environment import PointNavEnv, Sensors
-from odolab.geometry import camera_pose_from_agent
+from odolab.core.geometry import camera_pose_from_agent
+from odolab.core.parallel import Execution, fan_out
+from odolab.core.types import Action, Frame, Intrinsics
 from odolab.io.atomic import atomic_open, remove_stale_temporaries
-from odolab.parallel import Execution, fan_out
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
+from odolab.sim.environment import PointNavEnv, Sensors
 from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import SPLITS, generate_scene, scene_seed
-from odolab.types import Action, Frame, Intrinsics
 
 _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
 FORMAT_VERSION = 2  # the .npz layout (2: clean_depth_mm added)
@@ -221,7 +221,7 @@ def rollout(spec: EpisodeSpec) -> Rollout:
 
 @dataclass(frozen=True)
 class Episode:
-    """A rendered episode; a :class:`~odolab.types.Sequence` of T + 1 frames and T actions.
+    """A rendered episode; a :class:`~odolab.core.types.Sequence` of T + 1 frames and T actions.
 
     ``rgb`` (T+1, H, W, 3) uint8; ``depth`` (T+1, H, W) float32 m (0 = no reading);
     ``poses`` (T+1, 4, 4) ``T_world_cam``; ``actions`` (T,) int8 :class:`Action` values;

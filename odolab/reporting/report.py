@@ -2,13 +2,13 @@
 
 Layout of ``DIR``::
 
-    table.csv              one row per odometer (columns: odolab.summary.Row)
+    table.csv              one row per odometer (columns: odolab.running.summary.Row)
     table_per_action.csv   per-step error per odometer and action (simulator runs), and on the
                            forward steps a collision blocked ("move_forward_collided")
     errors.png             per-step error bars per odometer and action (simulator runs)
     table_paired.csv       each composite against each of its inputs on the same steps: the
                            paired difference of the per-step error, its 95 % interval and verdict
-                           (columns: odolab.paired.PairedRow; when a composite and an input ran)
+                           (columns: odolab.running.paired.PairedRow; when a composite and an input ran)
     report.html            all of the above on one page, with the definitions and a gallery
     trajectories/<sequence>/top-down.png            true vs estimated trajectories, top-down
     trajectories/<sequence>/<odometer>.{tum,kitti}  every estimate, and groundtruth.{tum,kitti}
@@ -38,15 +38,15 @@ from typing import Any
 
 import numpy as np
 
-from odolab.geometry import invert
+from odolab.core.geometry import invert
+from odolab.core.trajectory import Trajectory
 from odolab.io.atomic import save_figure_atomic, write_text_atomic
 from odolab.io.kitti import write_kitti_poses
 from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
 from odolab.io.tum import write_tum_trajectory
-from odolab.paired import COMPONENTS, PairedRow
-from odolab.runner import SequenceResult
-from odolab.summary import REFERENCE_ODOMETERS, ActionRow, Row, fmt, text_table
-from odolab.trajectory import Trajectory
+from odolab.running.paired import COMPONENTS, PairedRow
+from odolab.running.runner import SequenceResult
+from odolab.running.summary import REFERENCE_ODOMETERS, ActionRow, Row, fmt, text_table
 
 _ACTION_COLORS = {
     "move_forward": "#4C72B0",
@@ -395,7 +395,7 @@ ERROR_FIGURE_TWO_COLUMNS = 10
 def error_panel_odometers(action_rows: list[ActionRow]) -> tuple[list[str], list[str]]:
     """The odometers :func:`plot_errors` draws in its error panels and in its failure panel, in
     order: an odometer whose every error is zero (``ground-truth``) has no bar to draw, and the
-    reference rows (:data:`~odolab.summary.REFERENCE_ODOMETERS`) never fail."""
+    reference rows (:data:`~odolab.running.summary.REFERENCE_ODOMETERS`) never fail."""
     names = list(dict.fromkeys(r.odometer for r in action_rows))
     errors = [
         n
@@ -817,8 +817,8 @@ def write_report(
     paired_rows: list[PairedRow] | None = None,
 ) -> None:
     """Write the tables, figures, trajectories and ``report.html`` into ``out`` (layout: module
-    docstring), the fields of a :class:`~odolab.comparison.ComparisonResult` given by name; files of the previous run into ``out`` that this one did not write are removed."""
-    from odolab.summary import __doc__ as summary_doc
+    docstring), the fields of a :class:`~odolab.reporting.comparison.ComparisonResult` given by name; files of the previous run into ``out`` that this one did not write are removed."""
+    from odolab.running.summary import __doc__ as summary_doc
 
     folder = OutputFolder(out)
     for rel in folder.not_removed:

@@ -6,7 +6,7 @@ Poses are ``(N, 4, 4)`` arrays ``T_world_cam`` (metres); ground truth ``G_i`` an
 Per-step error (the paper's tables, Zhao et al. ICCV 2021, Table S4)
 ---------------------------------------------------------------------
 For each step t with estimated planar motion ``(dx, dz, dyaw)_t`` and the true one (conventions in
-:mod:`odolab.geometry`)::
+:mod:`odolab.core.geometry`)::
 
     e_t = ( |dx_t - dx*_t|, |dz_t - dz*_t|, |wrap(dyaw_t - dyaw*_t)| )      (m, m, rad)
 
@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from odolab.geometry import invert, rotation_angle, wrap_angle
+from odolab.core.geometry import invert, rotation_angle, wrap_angle
 
 __all__ = [
     "ALIGNMENTS",

@@ -2,7 +2,7 @@
 
 :class:`Action` (with the task's nominal motions), :class:`Intrinsics`, :class:`Frame`,
 :class:`Estimate` and the :class:`Sequence` protocol. Conventions (frames, planar motion) are
-those of :mod:`odolab.geometry`. This module knows no odometer, no file format and no simulator.
+those of :mod:`odolab.core.geometry`. This module knows no odometer, no file format and no simulator.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from odolab.geometry import planar_to_transform, transform_to_planar
+from odolab.core.geometry import planar_to_transform, transform_to_planar
 
 __all__ = [
     "FORWARD_STEP",
@@ -180,7 +180,7 @@ class Estimate:
 
     @classmethod
     def from_planar(cls, dx: float, dz: float, dyaw: float, **kw) -> Estimate:
-        """Build from the paper's planar motion (signs: :mod:`odolab.geometry`)."""
+        """Build from the paper's planar motion (signs: :mod:`odolab.core.geometry`)."""
         return cls(planar_to_transform(dx, dz, dyaw), **kw)
 
     @classmethod

@@ -57,11 +57,11 @@ from typing import Any, Protocol, Self
 
 import numpy as np
 
-from odolab.action_prior import ActionPrior
-from odolab.geometry import integrate, invert, planar_to_transform
-from odolab.odometer import Odometer, own_copy
-from odolab.threads import MAX_THREADS, torch_threads
-from odolab.types import Action, Estimate, Frame, Sequence
+from odolab.core.geometry import integrate, invert, planar_to_transform
+from odolab.core.types import Action, Estimate, Frame, Sequence
+from odolab.odometry.action_prior import ActionPrior
+from odolab.odometry.odometer import Odometer, own_copy
+from odolab.running.threads import MAX_THREADS, torch_threads
 
 NO_ACTION = -1
 

@@ -1,6 +1,6 @@
 """Turn runner results into the comparison tables (one row per odometer), and format any table.
 
-Definitions (each metric's formula lives in :mod:`odolab.metrics`):
+Definitions (each metric's formula lives in :mod:`odolab.core.metrics`):
 
 * ``dx, dz, dyaw``: the paper's per-step error *as used*: mean absolute error over all steps of
   all sequences pooled, x 1e-2 (m, m, rad), where a failed step is scored with the action prior's
@@ -37,10 +37,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.geometry import transform_to_planar
-from odolab.metrics import ate, per_step_abs_error, per_step_signed_error, relative_motion_errors
-from odolab.runner import SequenceResult, failure_reason
-from odolab.types import MOTION_ACTIONS, Action, Estimate
+from odolab.core.geometry import transform_to_planar
+from odolab.core.metrics import ate, per_step_abs_error, per_step_signed_error, relative_motion_errors
+from odolab.core.types import MOTION_ACTIONS, Action, Estimate
+from odolab.running.runner import SequenceResult, failure_reason
 
 #: Rows that bracket every real odometer: zero error (an oracle) and the paper's ``sys_error``.
 REFERENCE_ODOMETERS = ("action-prior", "ground-truth")

@@ -17,8 +17,8 @@ import contextlib
 import sys
 from collections.abc import Iterator
 
-from odolab.odometer import Odometer
-from odolab.options import whole_number
+from odolab.odometry.odometer import Odometer
+from odolab.odometry.options import whole_number
 
 __all__ = ["MAX_THREADS", "check_threads", "odometer_threads", "torch_threads"]
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from odolab.errors import InputError
+from odolab.core.errors import InputError
 
 
 @dataclass(frozen=True)

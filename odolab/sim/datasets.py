@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from odolab.episodes import EpisodeCache, EpisodeSpec, NoiseConfig
-from odolab.geometry import invert, transform_to_planar
+from odolab.core.geometry import invert, transform_to_planar
+from odolab.core.types import Action, Frame, Intrinsics, Sequence
 from odolab.io.npz_mmap import mmap_npz_member
-from odolab.types import Action, Frame, Intrinsics, Sequence
+from odolab.sim.episodes import EpisodeCache, EpisodeSpec, NoiseConfig
 
 __all__ = ["Pair", "PairDataset", "episode_specs", "true_motions"]
 

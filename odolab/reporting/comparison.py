@@ -5,7 +5,7 @@ prints and writes: it loads the odometers with their options, makes the episode 
 the missing episodes into the cache (or keeps them in memory without one), streams them through
 the runner, and summarises. A study, a notebook or a navigation loop calls it directly::
 
-    from odolab.comparison import ComparisonConfig, run_comparison
+    from odolab.reporting.comparison import ComparisonConfig, run_comparison
     result = run_comparison(ComparisonConfig(odometers=["icp"], episodes=2, max_steps=20, cache=None))
     result.rows[0].ate_m
 
@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from odolab import paired, runner, summary
-from odolab.odometer import (
+from odolab.core.parallel import Execution
+from odolab.odometry.odometer import (
     REGISTRY,
     IncompleteOdometerError,
     Odometer,
@@ -34,14 +34,14 @@ from odolab.odometer import (
     standalone_odometers,
     unknown_odometer,
 )
-from odolab.options import OptionError, check_options
-from odolab.parallel import Execution
-from odolab.report import FloorPlan
-from odolab.runner import RunObserver, SequenceResult
+from odolab.odometry.options import OptionError, check_options
+from odolab.reporting.report import FloorPlan
+from odolab.running import paired, runner, summary
+from odolab.running.runner import RunObserver, SequenceResult
 from odolab.sim.scenes import SPLITS
 
 if TYPE_CHECKING:  # the simulator's modules load only when episodes are made
-    from odolab.episodes import EpisodeSpec, NoiseConfig
+    from odolab.sim.episodes import EpisodeSpec, NoiseConfig
 
 __all__ = [
     "DEFAULT_CACHE",
@@ -71,14 +71,14 @@ class ComparisonConfig:
     """What to compare on what. ``odometers``: names or ``module:Class`` (None = all available);
     ``options``: constructor keyword arguments per odometer name. Simulator episodes: ``episodes``
     of ``split`` from ``seed``, at most ``max_steps`` steps, ``noise`` multipliers (None = the
-    challenge's defaults, :class:`~odolab.episodes.NoiseConfig`); ``cache``: the
+    challenge's defaults, :class:`~odolab.sim.episodes.NoiseConfig`); ``cache``: the
     episode cache folder, or None to keep episodes in memory only. ``tum``: a TUM RGB-D folder
     instead of the simulator, its depth PNG values per metre ``tum_depth_scale`` (None: TUM's 5000)
     and its camera ``tum_intrinsics`` ``(fx, fy, cx, cy)`` (None: the TUM camera its name says).
     ``execution``: where missing episodes are generated, and whether with progress bars
-    (:class:`~odolab.parallel.Execution`). ``command``: the command line that asked
+    (:class:`~odolab.core.parallel.Execution`). ``command``: the command line that asked
     (its caller's words, recorded in the notes), or None. ``step_timeout``: seconds one step of an
-    odometer may take before it fails as ``timed-out`` (None: no limit; :mod:`odolab.runner`)."""
+    odometer may take before it fails as ``timed-out`` (None: no limit; :mod:`odolab.running.runner`)."""
 
     odometers: list[str] | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -99,7 +99,7 @@ class ComparisonConfig:
 @dataclass(frozen=True, kw_only=True)
 class ComparisonResult:
     """Per-sequence results, the summary tables, a title and notes for reports, floor plans
-    (sequence name -> :class:`~odolab.report.FloorPlan`, simulator only) and warnings."""
+    (sequence name -> :class:`~odolab.reporting.report.FloorPlan`, simulator only) and warnings."""
 
     results: list[SequenceResult]
     rows: list[summary.Row]
@@ -112,7 +112,7 @@ class ComparisonResult:
     configs: dict[str, str] = field(default_factory=dict)
     """Each configurable odometer's settings (:func:`odometer_configs`), for the report."""
     paired_rows: list[paired.PairedRow] = field(default_factory=list)
-    """Each composite against its inputs on the same steps (:mod:`odolab.paired`)."""
+    """Each composite against its inputs on the same steps (:mod:`odolab.running.paired`)."""
 
 
 def odometer_names(names: list[str] | None) -> list[str]:
@@ -205,7 +205,7 @@ def _short(value: object) -> str:
 
 
 def failure_reasons(results: list[SequenceResult]) -> dict[str, dict[str, int]]:
-    """Failed steps per reason (:data:`odolab.runner.FAILURE_REASONS`), summed per odometer; odometers
+    """Failed steps per reason (:data:`odolab.running.runner.FAILURE_REASONS`), summed per odometer; odometers
     without failures are left out."""
     out: dict[str, dict[str, int]] = {}
     for r in results:
@@ -277,7 +277,7 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     """Episodes in spec order and the total step count (for the progress bar). With a cache the
     missing ones are generated first and each is read back when its turn comes, so memory holds
     one; without one, all are made and held."""
-    from odolab.episodes import EpisodeCache, generate_episodes, load_episodes, stream_episodes
+    from odolab.sim.episodes import EpisodeCache, generate_episodes, load_episodes, stream_episodes
 
     if config.cache is None:  # every episode in memory: the total is known too
         episodes = load_episodes(specs, None, execution=config.execution)
@@ -402,8 +402,8 @@ def run_comparison(
             paired_rows=_paired_rows(results),
         )
 
-    from odolab.datasets import episode_specs
-    from odolab.episodes import NoiseConfig
+    from odolab.sim.datasets import episode_specs
+    from odolab.sim.episodes import NoiseConfig
     from odolab.sim.redwood import default_table
 
     try:
@@ -440,7 +440,7 @@ def run_comparison(
     notes += _options_note(config)
     notes += no_depth
     plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
-    from odolab.report import counted
+    from odolab.reporting.report import counted
 
     title = f"odolab compare: {counted(config.episodes, config.split + ' episode')}, seed {config.seed}"
     return ComparisonResult(
@@ -457,6 +457,6 @@ def run_comparison(
 
 
 def _paired_rows(results: list[SequenceResult]) -> list[paired.PairedRow]:
-    """Each composite row against each of its inputs that ran too (:func:`odolab.paired.default_pairs`)."""
+    """Each composite row against each of its inputs that ran too (:func:`odolab.running.paired.default_pairs`)."""
     names = list(dict.fromkeys(r.odometer for r in results))
     return paired.paired_differences(results, paired.default_pairs(names))

@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.odometer import COMPOSITE, split_odometer_names
-from odolab.runner import SequenceResult
-from odolab.stats import mean_ci, verdict
-from odolab.summary import COLLIDED_FORWARD, action_groups, step_errors
-from odolab.types import MOTION_ACTIONS
+from odolab.core.stats import mean_ci, verdict
+from odolab.core.types import MOTION_ACTIONS
+from odolab.odometry.odometer import COMPOSITE, split_odometer_names
+from odolab.running.runner import SequenceResult
+from odolab.running.summary import COLLIDED_FORWARD, action_groups, step_errors
 
 COMPONENTS = ("dx", "dz", "dyaw")
 #: The groups of steps, in the order the rows list them.
@@ -60,7 +60,7 @@ def default_pairs(names: list[str]) -> list[tuple[str, str]]:
 
 
 def _groups(result: SequenceResult) -> list[tuple[str, np.ndarray]]:
-    """(label, step mask) of every step, then of each action (:func:`odolab.summary.action_groups`)."""
+    """(label, step mask) of every step, then of each action (:func:`odolab.running.summary.action_groups`)."""
     return [("all", np.ones(len(result.actions), bool)), *action_groups(result.actions, result.collisions)]
 
 

@@ -5,7 +5,7 @@ An episode is 1-30 m long; KITTI's relative errors need segments of 100-800 m. A
 ``RouteSpec`` -> :func:`tour` (scene, start, then goal after goal: each next goal drawn from the
 route's own random stream among the navigable points whose geodesic distance from the agent lies in
 ``[min_leg, max_leg]``, followed by Habitat's greedy follower with the noisy actuation, exactly as an
-episode's rollout; no images) -> :class:`RouteFrames` (the runner's :class:`~odolab.types.Sequence`,
+episode's rollout; no images) -> :class:`RouteFrames` (the runner's :class:`~odolab.core.types.Sequence`,
 rendering each noisy frame when asked: a 400 m route has some 2,500 frames, over 1 GB held at once).
 Everything is a pure function of the spec, bit for bit. Four independent random streams
 (scene/start/goals, actuation, RGB, depth) are spawned from ``(seed, split, index)`` and a tag of
@@ -22,14 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from odolab.environment import PointNavEnv, Sensors
-from odolab.episodes import MAX_EPISODE_STEPS, SIMULATOR_VERSION, NoiseConfig
-from odolab.geometry import camera_pose_from_agent
+from odolab.core.geometry import camera_pose_from_agent
+from odolab.core.types import Action, Frame, Intrinsics
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
+from odolab.sim.environment import PointNavEnv, Sensors
+from odolab.sim.episodes import MAX_EPISODE_STEPS, SIMULATOR_VERSION, NoiseConfig
 from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import SPLITS, Scene, generate_scene, scene_seed
-from odolab.types import Action, Frame, Intrinsics
 
 __all__ = ["Route", "RouteFrames", "RouteSpec", "route_scene", "tour"]
 
@@ -260,7 +260,7 @@ def tour(spec: RouteSpec) -> Route:
 
 
 class RouteFrames:
-    """A route as the runner's :class:`~odolab.types.Sequence` of T + 1 noisy frames and T actions.
+    """A route as the runner's :class:`~odolab.core.types.Sequence` of T + 1 noisy frames and T actions.
 
     Frames are rendered when asked for, in order, from the spec's RGB and depth streams, and only
     the last one is kept: walking forward renders each frame once; asking for an earlier frame

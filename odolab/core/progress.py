@@ -1,4 +1,4 @@
-"""A progress bar over odometry steps (tqdm), as a :class:`odolab.runner.RunObserver`; on a
+"""A progress bar over odometry steps (tqdm), as a :class:`odolab.running.runner.RunObserver`; on a
 terminal that cannot draw one (fewer than :data:`MIN_COLUMNS` columns, or ``TERM=dumb``) a plain
 line at the start, at each quarter and at the end instead."""
 

@@ -7,10 +7,10 @@
 
 from __future__ import annotations
 
-from odolab.action_prior import ActionPrior
-from odolab.geometry import invert
-from odolab.odometer import Odometer
-from odolab.types import Action, Estimate, Frame
+from odolab.core.geometry import invert
+from odolab.core.types import Action, Estimate, Frame
+from odolab.odometry.action_prior import ActionPrior
+from odolab.odometry.odometer import Odometer
 
 
 class GroundTruthOdometer(Odometer):
@@ -25,7 +25,7 @@ class GroundTruthOdometer(Odometer):
 
 
 class ActionPriorOdometer(Odometer):
-    """Predicts the train-split mean motion of the action (see :mod:`odolab.action_prior`)."""
+    """Predicts the train-split mean motion of the action (see :mod:`odolab.odometry.action_prior`)."""
 
     def __init__(self, prior: ActionPrior | str | None = None) -> None:
         """``prior``: a table, the path of one written by ``python -m odolab.action_prior``, or None

@@ -3,7 +3,7 @@
 The library behind ``python -m odolab.evaluate`` (a study, a notebook or a test calls these
 directly). KITTI files pair line by line; TUM files pair by nearest timestamp exactly as ``evo``
 does (:func:`odolab.io.tum.associate`). The estimate is aligned to the ground truth once; ATE, RPE
-and the KITTI errors are computed on the aligned estimate. Definitions: :mod:`odolab.metrics`.
+and the KITTI errors are computed on the aligned estimate. Definitions: :mod:`odolab.core.metrics`.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab import metrics
-from odolab.trajectory import Trajectory
+from odolab.core import metrics
+from odolab.core.trajectory import Trajectory
 
 __all__ = [
     "Evaluation",
@@ -52,7 +52,7 @@ class Pairing:
 
 @dataclass(frozen=True)
 class Evaluation:
-    """All metrics of one estimate against the ground truth (units in :mod:`odolab.metrics`)."""
+    """All metrics of one estimate against the ground truth (units in :mod:`odolab.core.metrics`)."""
 
     pairing: Pairing
     ate: metrics.ATEResult

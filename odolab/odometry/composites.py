@@ -3,8 +3,8 @@ each with its own options from a TOML file (``options_file``, as ``compare --con
 
 from __future__ import annotations
 
-from odolab.odometer import REGISTRY, Odometer, split_odometer_names
-from odolab.options import check_options, read_options_file
+from odolab.odometry.odometer import REGISTRY, Odometer, split_odometer_names
+from odolab.odometry.options import check_options, read_options_file
 
 __all__ = ["load_inputs", "one_input"]
 

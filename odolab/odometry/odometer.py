@@ -1,7 +1,7 @@
-"""The one interface every odometer implements, and the name registry (value types: :mod:`odolab.types`).
+"""The one interface every odometer implements, and the name registry (value types: :mod:`odolab.core.types`).
 
 An odometer sees a sequence of :class:`Frame` pairs and answers, for each pair, an
-:class:`Estimate` of ``T_prev_cur`` (conventions in :mod:`odolab.geometry`)::
+:class:`Estimate` of ``T_prev_cur`` (conventions in :mod:`odolab.core.geometry`)::
 
     odo = load_odometer("icp")
     odo.reset(intrinsics)
@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from odolab.errors import InputError
-from odolab.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence, as_action  # noqa: F401
+from odolab.core.errors import InputError
+from odolab.core.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence, as_action  # noqa: F401
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -65,7 +65,7 @@ class Odometer:
     ``Frame.gt_pose``; reports mark such rows; a composite with an oracle input must be one too),
     ``batch_size`` (how many consecutive pairs the
     runner hands to :meth:`step_batch` at once; 1 = one :meth:`step` per pair), ``threads``
-    (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.threads`),
+    (torch threads while this odometer runs, or None to leave torch alone; see :mod:`odolab.running.threads`),
     ``needs_action`` (True if it cannot answer without the action taken, e.g. a learned model with one
     network per action: it is refused on real data, which has no actions), ``composite`` (True for an
     odometer built on others, named with its inputs as ``head(a,b)``: it is never part of "every
@@ -86,7 +86,7 @@ class Odometer:
 
     def __init_subclass__(cls, **kwargs) -> None:
         """A subclass's own ``step`` and ``step_batch`` see actions as :class:`Action` or None: an
-        integer 0-3 is turned into its Action, anything else refused (:func:`~odolab.types.as_action`),
+        integer 0-3 is turned into its Action, anything else refused (:func:`~odolab.core.types.as_action`),
         so that a caller's ``1`` is not silently read as "not MOVE_FORWARD"."""
         super().__init_subclass__(**kwargs)
         if "step" in cls.__dict__:
@@ -254,8 +254,8 @@ def check_nesting(text: str) -> None:
 def _registry() -> dict[str, Callable[..., Odometer] | str]:
     """Name -> class or "module:attr" string, from entry points (installed built-ins included)."""
     reg: dict[str, Callable[..., Odometer] | str] = {
-        "ground-truth": "odolab.reference_odometers:GroundTruthOdometer",
-        "action-prior": "odolab.reference_odometers:ActionPriorOdometer",
+        "ground-truth": "odolab.odometry.reference_odometers:GroundTruthOdometer",
+        "action-prior": "odolab.odometry.reference_odometers:ActionPriorOdometer",
         "fused": "odolab.fusion.odometer:FusedOdometer",
     }
     for ep in entry_points(group=ENTRY_POINT_GROUP):

@@ -3,7 +3,7 @@
 :class:`Sensors` turns a camera pose into a noisy RGB-D frame (renderer + RGB noise + Redwood depth
 noise, each drawing from its own random stream in order); :class:`PointNavEnv` holds the agent's
 true state in a scene and moves it by noisy actions (``step``), seeing through ``Sensors``
-(``observe``). The episode generator (:func:`odolab.episodes.rollout`, :func:`~odolab.episodes.render_frames`)
+(``observe``). The episode generator (:func:`odolab.sim.episodes.rollout`, :func:`~odolab.sim.episodes.render_frames`)
 and closed-loop navigation both go through these two classes: the same laws of motion and sensing,
 and the generator's policy driven step by step sees exactly the stored frames.
 """
@@ -15,12 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from odolab.geometry import camera_pose_from_agent
+from odolab.core.geometry import camera_pose_from_agent
+from odolab.core.types import Action, Frame
 from odolab.sim.agent import AgentState, step_agent
 from odolab.sim.camera import CameraSpec, Renderer
 from odolab.sim.noise import ActuationNoise, RedwoodDepthNoise, RGBNoise
 from odolab.sim.scenes import Scene
-from odolab.types import Action, Frame
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,1 @@
+"""Values, math and the plumbing every wing shares: frames and planar motions (`geometry`), the value types (`types`), typed input errors, trajectories, metric definitions, statistics, Ray fan-out (`parallel`) and progress bars."""

@@ -1,0 +1,1 @@
+"""Running odometers over sequences under guards (`runner`, `threads`) and scoring them: the comparison tables (`summary`), paired differences (`paired`), trajectory-file evaluation (`evaluation`)."""
