@@ -65,6 +65,7 @@ __all__ = [
     "range_text",
     "read_toml",
     "setting",
+    "toml_value",
     "valid_text",
 ]
 
@@ -628,9 +629,23 @@ def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigE
         raise error(str(exc)) from None
 
 
-def _toml_value(text: str) -> Any:
-    """``text`` as a TOML value when it is one (``3``, ``true``, ``"x"``), else as plain text."""
+def toml_value(text: str) -> Any:
+    """``text`` as a TOML value when it is one (``3``, ``0.5``, ``true``, ``"x"``, ``[1, 2]``), else as
+    plain text (``runs/tiny.pt``): how a ``key=value`` of a command line or a recipe change is read.
+    :class:`ConfigError` for a value nested too deeply or a number too long for Python to read."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
-    except (tomllib.TOMLDecodeError, ValueError, RecursionError):
+    except tomllib.TOMLDecodeError:
+        return text
+    except RecursionError:  # [[[[...]]]] thousands deep
+        raise ConfigError("value nested too deeply") from None
+    except ValueError:  # Python refuses to read integers of over 4300 digits
+        raise ConfigError("a number too long to read (over 4300 digits)") from None
+
+
+def _toml_value(text: str) -> Any:
+    """:func:`toml_value`, or ``text`` itself where that cannot read it (its check then names why)."""
+    try:
+        return toml_value(text)
+    except ConfigError:
         return text

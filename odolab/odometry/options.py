@@ -22,8 +22,8 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
-import tomllib
 
+from odolab.config import ConfigError, toml_value
 from odolab.io.tomlfile import read_toml
 
 __all__ = [
@@ -44,15 +44,6 @@ class OptionError(ValueError):
     """A per-odometer option that cannot be used; the message is one line naming it."""
 
 
-def _value(text: str) -> Any:
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-    except RecursionError:  # [[[[...]]]] thousands deep
-        raise OptionError("value nested too deeply") from None
-
-
 def parse_assignments(assignments: Iterable[str]) -> Options:
     """``["NAME.key=value", ...]`` -> ``{NAME: {key: value}}`` (see the module docstring)."""
     out: Options = {}
@@ -64,13 +55,9 @@ def parse_assignments(assignments: Iterable[str]) -> Options:
         if key in out.get(name, {}):  # the last would win silently: which one was meant is unknown
             raise OptionError(f"--odometer-option {target.strip()} is given twice")
         try:
-            out.setdefault(name, {})[key] = _value(value.strip())
-        except OptionError as exc:
+            out.setdefault(name, {})[key] = toml_value(value.strip())
+        except ConfigError as exc:
             raise OptionError(f"--odometer-option {target.strip()}: {exc}") from None
-        except ValueError:  # tomllib's own limit: Python refuses integers of over 4300 digits
-            raise OptionError(
-                f"--odometer-option {target.strip()}: a number too long to read (over 4300 digits)"
-            ) from None
     return out
 
 
