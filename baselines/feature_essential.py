@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from baselines.config import OdometerConfig, config_digest, configure, options_signature
+from baselines.config import OdometerConfig
 from baselines.covariance import point_to_point_covariance
 from baselines.depth_geometry import (
     FrameMemo,
@@ -45,6 +45,8 @@ from odolab.api import (
     Frame,
     Intrinsics,
     Odometer,
+    config_digest,
+    configure,
     invert,
     planar_to_transform,
     transform_to_planar,
@@ -162,7 +164,7 @@ class FeatureEssentialOdometer(Odometer):
     :func:`baselines.covariance.point_to_point_covariance`.
     """
 
-    __signature__ = options_signature(FeatureEssentialConfig)  # the options, not just (config, **overrides)
+    Config = FeatureEssentialConfig  # its options: every field of FeatureEssentialConfig (odolab.odometry.configured)
 
     def __init__(self, config: FeatureEssentialConfig | None = None, **overrides) -> None:
         self.config = configure(FeatureEssentialConfig, config, **overrides)

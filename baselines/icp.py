@@ -22,13 +22,24 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, config_digest, configure, options_signature
+from baselines.config import OdometerConfig
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import FrameMemo, backproject, normal_constraint
 from baselines.motion_search import initial_guesses
 from baselines.open3d_threads import one_thread
 from baselines.verification import first_verified
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check, setting
+from odolab.api import (
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Odometer,
+    check,
+    check_choice,
+    config_digest,
+    configure,
+    setting,
+)
 
 __all__ = ["ICPConfig", "ICPOdometer"]
 
@@ -103,7 +114,7 @@ class ICPOdometer(Odometer):
     independent, so it is optimistic in absolute terms; use it to compare steps.
     """
 
-    __signature__ = options_signature(ICPConfig)  # the options, not just (config, **overrides)
+    Config = ICPConfig  # its options: every field of ICPConfig (odolab.odometry.configured)
 
     def __init__(self, config: ICPConfig | None = None, **overrides) -> None:
         self.config = configure(ICPConfig, config, **overrides)

@@ -30,6 +30,7 @@ from odolab.api import (
     Intrinsics,
     Odometer,
     check,
+    configure,
     failure_reason,
     load_inputs,
     load_odometer,
@@ -149,19 +150,10 @@ class ManhattanOdometer(Odometer):
 
     composite = True
 
+    Config = ManhattanConfig  # its options: every field of ManhattanConfig (odolab.odometry.configured)
+
     def __init__(
-        self,
-        inputs: str = "",
-        step_sigma_deg: float = ManhattanConfig.step_sigma_deg,
-        prior_sigma_deg: float = ManhattanConfig.prior_sigma_deg,
-        wall_sigma_deg: float = ManhattanConfig.wall_sigma_deg,
-        anchor_steps: int = ManhattanConfig.anchor_steps,
-        relock_views: int = ManhattanConfig.relock_views,
-        relock_spread_deg: float = ManhattanConfig.relock_spread_deg,
-        relock_support: float = ManhattanConfig.relock_support,
-        min_support: float = ManhattanConfig.min_support,
-        max_depth: float = ManhattanConfig.max_depth,
-        options_file: str = "",
+        self, inputs: str = "", config: ManhattanConfig | None = None, options_file: str = "", **overrides
     ) -> None:
         names = split_odometer_names(inputs) if isinstance(inputs, str) else []
         if len(names) != 1:
@@ -171,17 +163,7 @@ class ManhattanOdometer(Odometer):
             )
         if names[0].startswith("manhattan"):
             raise ValueError(f"manhattan({names[0]}) would hold the heading to the walls twice; use one manhattan(...)")
-        self.config = cfg = ManhattanConfig(
-            step_sigma_deg=step_sigma_deg,
-            prior_sigma_deg=prior_sigma_deg,
-            wall_sigma_deg=wall_sigma_deg,
-            anchor_steps=anchor_steps,
-            relock_views=relock_views,
-            relock_spread_deg=relock_spread_deg,
-            relock_support=relock_support,
-            min_support=min_support,
-            max_depth=max_depth,
-        )
+        self.config = cfg = configure(ManhattanConfig, config, **overrides)
         self.inner = load_inputs("manhattan", names, options_file)[names[0]]
         self.prior = load_odometer("action-prior")
         self.step_var, self.prior_var = np.radians(cfg.step_sigma_deg) ** 2, np.radians(cfg.prior_sigma_deg) ** 2

@@ -22,13 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from baselines.config import OdometerConfig, check_choice, config_digest, configure, options_signature
+from baselines.config import OdometerConfig
 from baselines.covariance import covariance_from_information
 from baselines.depth_geometry import DepthRange, FrameMemo, depth_mask, image_texture, normal_constraint
 from baselines.motion_search import initial_guesses
 from baselines.open3d_threads import one_thread
 from baselines.verification import first_verified
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer
+from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_choice, config_digest, configure
 
 __all__ = ["Open3DRGBDConfig", "Open3DRGBDOdometer"]
 
@@ -105,7 +105,7 @@ class Open3DRGBDOdometer(Odometer):
     not independent).
     """
 
-    __signature__ = options_signature(Open3DRGBDConfig)  # the options, not just (config, **overrides)
+    Config = Open3DRGBDConfig  # its options: every field of Open3DRGBDConfig (odolab.odometry.configured)
 
     def __init__(self, config: Open3DRGBDConfig | None = None, **overrides) -> None:
         self.config = configure(Open3DRGBDConfig, config, **overrides)

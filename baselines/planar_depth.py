@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from baselines.config import OdometerConfig, config_digest, configure, options_signature
+from baselines.config import OdometerConfig
 from baselines.depth_geometry import DepthRange, FrameMemo, backproject, backproject_pixels, depth_mask
 from baselines.motion_search import initial_guesses
 from baselines.verification import VerifyConfig, verify
@@ -34,6 +34,8 @@ from odolab.api import (
     Intrinsics,
     Odometer,
     check,
+    config_digest,
+    configure,
     nominal_motion,
     planar_to_transform,
     setting,
@@ -162,7 +164,7 @@ class _Fit:
 class PlanarDepthOdometer(Odometer):
     """Planar point-to-plane alignment of the depth images (module docstring), with a covariance."""
 
-    __signature__ = options_signature(PlanarDepthConfig)
+    Config = PlanarDepthConfig  # its options: every field of PlanarDepthConfig (odolab.odometry.configured)
     needs_action = True  # the prior and the starts come from the action; hand-held data need not be planar
 
     def __init__(self, config: PlanarDepthConfig | None = None, **overrides) -> None:

@@ -30,6 +30,7 @@ from odolab.core.types import (
     nominal_motion,
     nominal_planar,
 )
+from odolab.odometry.configured import check_choice, config_digest, configure
 from odolab.odometry.odometer import (
     Odometer,
     UnknownOdometerError,
@@ -80,7 +81,10 @@ __all__ = [
     "assign",
     "available_odometers",
     "check",
+    "check_choice",
     "check_threads",
+    "config_digest",
+    "configure",
     "describe",
     "episode_specs",
     "evaluate_trajectory",

@@ -52,6 +52,7 @@ from odolab.fusion.graph import (
 )
 from odolab.odometry.action_prior import ActionPrior
 from odolab.odometry.composites import load_inputs
+from odolab.odometry.configured import configure
 from odolab.odometry.odometer import COMPOSITE, REGISTRY, Odometer, UnknownOdometerError, split_odometer_names
 from odolab.running.runner import failure_reason
 
@@ -90,16 +91,9 @@ class FusedOdometer(Odometer):
 
     composite = True
 
-    def __init__(
-        self,
-        inputs: str = "",
-        calibration: str = FusionConfig.calibration,
-        kernel: str = FusionConfig.kernel,
-        kernel_width: float = FusionConfig.kernel_width,
-        span: int = FusionConfig.span,
-        span_inputs: str = FusionConfig.span_inputs,
-        options_file: str = FusionConfig.options_file,
-    ) -> None:
+    Config = FusionConfig  # its options: every field of FusionConfig (odolab.odometry.configured)
+
+    def __init__(self, inputs: str = "", config: FusionConfig | None = None, **overrides) -> None:
         names = split_odometer_names(inputs)
         if not names:
             raise ValueError(
@@ -109,14 +103,7 @@ class FusedOdometer(Odometer):
             raise ValueError(f"fused: an input is named twice in {names}")
         if any(map(is_fused, names)):
             raise ValueError("fused: an input cannot itself be fused(...)")
-        self.config = cfg = FusionConfig(
-            calibration=calibration,
-            kernel=kernel,
-            kernel_width=kernel_width,
-            span=span,
-            span_inputs=span_inputs,
-            options_file=options_file,
-        )
+        self.config = cfg = configure(FusionConfig, config, **overrides)
         spanning = split_odometer_names(cfg.span_inputs)
         if [n for n in spanning if n not in names]:
             raise ValueError(f"span_inputs must be among the inputs {names}, got {spanning}")

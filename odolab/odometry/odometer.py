@@ -72,7 +72,10 @@ class Odometer:
     odometer"; a class whose constructor takes ``inputs`` counts as one when it does not say), ``identity_digest`` (a digest of
     what its answers depend on besides code: a learned odometer's model file, a baseline's
     configuration, a fused one's inputs' digests and its calibration; or None: studies that keep
-    results per odometer redo them when it changes).
+    results per odometer redo them when it changes), ``Config`` (the frozen config dataclass the
+    odometer takes as ``config`` and keeps as ``self.config``, or None: its signature then lists
+    every field as a keyword option, and the registry checks and describes options from the fields;
+    :mod:`odolab.odometry.configured`).
     """
 
     name: str = "odometer"
@@ -82,13 +85,19 @@ class Odometer:
     threads: int | None = None
     composite: bool = False
     identity_digest: str | None = None
+    Config: type | None = None
     _intrinsics: Intrinsics | None = None
 
     def __init_subclass__(cls, **kwargs) -> None:
         """A subclass's own ``step`` and ``step_batch`` see actions as :class:`Action` or None: an
         integer 0-3 is turned into its Action, anything else refused (:func:`~odolab.core.types.as_action`),
-        so that a caller's ``1`` is not silently read as "not MOVE_FORWARD"."""
+        so that a caller's ``1`` is not silently read as "not MOVE_FORWARD". A subclass that
+        declares ``Config`` gets the signature of its options (every field, keyword-only)."""
         super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("Config") is not None and "__signature__" not in cls.__dict__:
+            from odolab.odometry.configured import configured_signature
+
+            cls.__signature__ = configured_signature(cls.__init__, cls.Config)
         if "step" in cls.__dict__:
             cls.step = _actions_checked_step(cls.__dict__["step"])
         if "step_batch" in cls.__dict__:
