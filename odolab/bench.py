@@ -7,7 +7,6 @@ textured frame should cost at most 2x that (aim 1.5x).
 
 from __future__ import annotations
 
-import platform
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -187,34 +186,10 @@ def bench_training(
         return [training_speed(load_train_config(str(p)), p.stem, dev, data_folder=data) for p in recipes]
 
 
-def _cpu_model() -> str:
-    """The CPU's model name (Linux ``/proc/cpuinfo``), or ``"unknown"``: ratios differ between CPUs."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown"
-
-
 def default_recipes() -> list[Path]:
     """The recipes the training part times by default (:data:`TRAINING_RECIPES`, in this checkout)."""
     root = Path(__file__).resolve().parents[1]
     return [root / r for r in TRAINING_RECIPES]
-
-
-def machine() -> dict:
-    """What the figures were measured on: CPU count, processor, CPU model and Python version."""
-    import os
-
-    return {
-        "cpus": os.cpu_count(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_model": _cpu_model(),
-        "python": platform.python_version(),
-    }
 
 
 if __name__ == "__main__":  # python -m odolab.bench: the command line is odolab.cli.bench's

@@ -337,8 +337,8 @@ def run_units(
 
 def machine() -> str:
     """The machine a report ran on, in one line (CPU model, cores, Python, torch), from
-    :func:`odolab.bench.machine`, as the benchmarks record it."""
-    from odolab.bench import machine as measured
+    :func:`odolab.core.machine.machine`, as the benchmarks record it."""
+    from odolab.core.machine import machine as measured
 
     m = measured()
     try:  # the installed version, read without importing torch (a Ray worker may never need it)

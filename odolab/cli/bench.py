@@ -16,6 +16,7 @@ from odolab.cli.args import (
     number,
     run_cli,
 )
+from odolab.core.machine import machine
 
 
 def _table(rows: list[dict]) -> str:
@@ -147,7 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OptionError, ComparisonError) as exc:
         raise UsageError(str(exc)) from None
 
-    report: dict = {"machine": bench.machine()}
+    report: dict = {"machine": machine()}
     print(f"machine: {report['machine']}")
 
     running: set[str] = set()
