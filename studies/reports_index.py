@@ -127,8 +127,18 @@ def run(args) -> int:
     from odolab.cli import UsageError
     from odolab.io.owned import UnsafeOutputError
 
+    if args.reports.is_symlink():
+        raise UsageError(
+            f"--reports {args.reports}: is a link; give the folder itself (nothing is written through a link)"
+        )
     if not args.reports.is_dir():
         raise UsageError(f"--reports {args.reports}: not a folder")
+    pages = [f for f in _report_files(args.reports) if f.name in PAGE_NAMES and len(f.parts) > 1]
+    if not pages and not (args.reports / "index.html").is_file():
+        raise UsageError(
+            f"--reports {args.reports}: holds no report page (no <folder>/index.html or report.html); "
+            "expected the folder an odolab command wrote its reports into"
+        )
     try:
         path = write_reports_index(args.reports)
     except UnsafeOutputError as exc:

@@ -84,3 +84,13 @@ def test_an_output_file_that_is_a_link_to_nothing_is_refused_before_work(tmp_pat
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "is a link to nothing" in err and "--out" in err
     assert not (tmp_path / "elsewhere").exists()
+
+
+def test_out_replaces_only_an_action_prior(tmp_path):
+    """--out writes JSON: a recipe or another JSON file given by mistake is refused, untouched."""
+    recipe, other = tmp_path / "recipe.toml", tmp_path / "other.json"
+    recipe.write_text("x = 1\n")
+    other.write_text('{"a": 1}')
+    one_line_error("odolab.action_prior", "--out", recipe, words="unknown file type '.toml'")
+    one_line_error("odolab.action_prior", "--out", other, words="found a file of another kind")
+    assert recipe.read_text() == "x = 1\n" and other.read_text() == '{"a": 1}'

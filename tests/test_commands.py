@@ -86,3 +86,14 @@ def test_the_odolab_command_help_version_and_near_names(capsys):
     assert main(["--version"]) == 0 and capsys.readouterr().out.startswith("odolab ")
     assert main(["navigation_diff"]) == 2
     assert "did you mean 'navigation-diff'?" in capsys.readouterr().err
+
+
+def test_a_study_is_named_in_full_under_the_odolab_face(capsys):
+    """odolab study NAME: its usage and errors carry the study's name; options go after it."""
+    assert main(["study", "e-table", "--scale", "nope"]) == 2
+    assert capsys.readouterr().err.startswith("odolab study e-table: error: argument --scale")
+    assert main(["study", "--scale", "ci", "e-table"]) == 2
+    assert "expected the study's name first" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # argparse's --help exits, as under python -m
+        main(["help", "study", "e-table"])
+    assert exit_.value.code == 0 and capsys.readouterr().out.startswith("usage: odolab study e-table")

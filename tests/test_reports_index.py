@@ -80,3 +80,17 @@ def test_link_encodes_and_escapes():
     assert reports_index.link(Path("javascript:alert(1)/index.html")) == "javascript%3Aalert%281%29/index.html"
     assert reports_index.link(Path('"<>&'), folder=True) == "%22%3C%3E%26/"
     assert reports_index.link(Path("/etc/passwd")) is None and reports_index.link(Path("a/../b")) is None
+
+
+def test_a_folder_of_the_users_files_or_a_link_is_refused(tmp_path: Path, capsys):
+    """The index is written only into a folder of reports, never into a user's own folder or through a link."""
+    from odolab.cli.study import command
+
+    own = tmp_path / "own"
+    own.mkdir()
+    (own / "mine.md").write_text("mine")
+    (tmp_path / "link").symlink_to(own)
+    for folder, words in ((own, "holds no report page"), (tmp_path / "link", "is a link")):
+        assert command("reports-index", ["--reports", str(folder)]) == 2
+        assert words in capsys.readouterr().err
+    assert sorted(p.name for p in own.iterdir()) == ["mine.md"]

@@ -134,3 +134,21 @@ def test_the_trainers_check_ray_address_with_the_shared_function(tmp_path, monke
     from odolab.cli import train as cli
 
     assert "check_ray_option(args.ray_address)" in inspect.getsource(cli.parse_training_command)
+
+
+def test_an_empty_recipe_or_a_work_path_that_is_a_file_makes_nothing(tmp_path, monkeypatch):
+    """An empty recipe (every field at its default) is never what was asked for; a --work that is a
+    file is refused before --reports is made."""
+    from odolab.cli.train import train
+
+    monkeypatch.chdir(tmp_path)
+    empty = tmp_path / "empty.toml"
+    empty.write_text("\n")
+    with pytest.raises(UsageError, match="an empty recipe"):
+        train("deepvo", ["--config", str(empty)], "python -m baselines.deepvo.train")
+    (tmp_path / "afile").write_text("x")
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("epochs = 1\n")
+    with pytest.raises(UsageError, match="--work afile: is a file"):
+        train("depth-corrector", ["--config", str(recipe), "--work", "afile"], "python -m odolab.depth_corrector.train")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "empty.toml", "r.toml"]

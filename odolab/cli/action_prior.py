@@ -6,7 +6,17 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 
-from odolab.cli.args import MAX_SEED, ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli, seed
+from odolab.cli.args import (
+    MAX_SEED,
+    ArgumentParser,
+    UsageError,
+    check_output_file,
+    check_replaceable,
+    file_arg,
+    number,
+    run_cli,
+    seed,
+)
 from odolab.odometry import action_prior
 from odolab.reporting.report import counted
 
@@ -25,7 +35,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--out", type=file_arg("--out"), default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
     if args.out is not None:
-        check_output_file(args.out, "--out")  # its folder must exist: nothing is created on a typo
+        check_output_file(args.out, "--out", [".json"])  # its folder must exist: nothing is created on a typo
+        check_replaceable(args.out, "--out", _is_prior_file, "an action prior (python -m odolab.action_prior --out)")
     prior = action_prior.fit_action_prior(args.episodes, args.max_steps, args.seed)
     unseen = [a.label for a, n in prior.samples.items() if n == 0]
     if unseen:
@@ -40,6 +51,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_text_atomic(args.out, text)
     print(f"wrote {args.out}")
     return 0
+
+
+def _is_prior_file(path) -> bool:
+    """Whether ``path`` holds what ``--out`` writes (a JSON object with the prior's fields)."""
+    doc = json.loads(path.read_text(encoding="utf-8")[:1_000_000])
+    return isinstance(doc, dict) and {"source", "means", "samples"} <= set(doc)
 
 
 if __name__ == "__main__":

@@ -309,10 +309,10 @@ def check_no_dotdot_after_link(path: Path, option: str) -> None:
             )
 
 
-def check_output_dir(path: Path, option: str) -> None:
-    """Create folder ``path`` if needed and prove it writable, or raise :class:`UsageError` naming
-    ``option`` (e.g. a path that is a file, or a read-only location, or a ``..`` after a link:
-    :func:`check_no_dotdot_after_link`)."""
+def check_folder_path(path: Path, option: str) -> None:
+    """:class:`UsageError` naming ``option`` for a path that cannot be a folder (a file, a link to
+    nothing, a ``..`` after a link: :func:`check_no_dotdot_after_link`), without making anything:
+    what a command checks of every output folder before it makes the first."""
     check_no_dotdot_after_link(path, option)
     if path.is_symlink() and not path.exists():
         raise UsageError(
@@ -321,6 +321,13 @@ def check_output_dir(path: Path, option: str) -> None:
         )
     if path.exists() and not path.is_dir():
         raise UsageError(f"{option} {path}: is a file, not a folder")
+
+
+def check_output_dir(path: Path, option: str) -> None:
+    """Create folder ``path`` if needed and prove it writable, or raise :class:`UsageError` naming
+    ``option`` (e.g. a path that is a file, or a read-only location, or a ``..`` after a link:
+    :func:`check_folder_path`)."""
+    check_folder_path(path, option)
     try:
         path.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test"):

@@ -101,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = list(sys.argv[1:] if argv is None else argv)
     if args[:1] == ["help"] and len(args) > 1:  # odolab help compare = odolab compare --help
-        args = [args[1], "--help"]
+        args = [*args[1:], "--help"]
     if not args or args[0] in ("-h", "--help", "help"):
         return _print(usage(), sys.stdout if args else sys.stderr, 0 if args else 2)
     if args[0] in ("-V", "--version"):
@@ -120,8 +120,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"odolab: unknown command {name!r}; expected one of {', '.join(COMMANDS)}{hint}", file=sys.stderr)
         return 2
     entry = entry_of(name)
-    with command_face(f"odolab {name}"), _current_folder_importable():  # as under python -m
-        return run_cli(entry, f"odolab {name}", rest)
+    face = f"odolab {name}"
+    if name == "study" and rest and not rest[0].startswith("-"):  # odolab study e-table: named in full
+        face = f"odolab study {rest[0]}"
+    with command_face(face), _current_folder_importable():  # as under python -m
+        return run_cli(entry, face, rest)
 
 
 def entry_of(name: str) -> Callable[[Sequence[str] | None], int | None]:

@@ -16,16 +16,17 @@ __all__ = ["command", "main", "parser"]
 PROG = "python -m baselines.measure_tum"
 
 
-def _positive(kind: type) -> Callable[[str], float]:
-    """An argparse ``type``: ``kind`` (int or float) in (0, 1000]."""
+def _positive(kind: type, high: float = 1000) -> Callable[[str], float]:
+    """An argparse ``type``: ``kind`` (int or float) in (0, ``high``]."""
+    noun = "an integer" if kind is int else "a number"
 
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got {text!r}") from None
-        if not math.isfinite(value) or value <= 0 or value > 1000:
-            raise argparse.ArgumentTypeError(f"must be in (0, 1000], got {text}")
+            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
+        if not math.isfinite(value) or value <= 0 or value > high:
+            raise argparse.ArgumentTypeError(f"must be in (0, {high:g}], got {text}")
         return value
 
     return parse
@@ -56,7 +57,7 @@ def parser(prog: str = PROG) -> ArgumentParser:
     ap.add_argument("--repeat", type=_positive(int), default=3, help="timed passes per odometer, 1-1000 (3)")
     ap.add_argument(
         "--depth-scale",
-        type=_positive(float),
+        type=_positive(float, 1e6),
         default=None,
         metavar="S",
         help="depth PNG values per metre (default TUM's 5000; millimetres: 1000)",
@@ -76,8 +77,9 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     from baselines.measure_tum import run
     from odolab.api import UnknownOdometerError
 
-    args = parser(prog).parse_args(list(sys.argv[1:] if argv is None else argv))
-    args.prog = prog
+    ap = parser(prog)
+    args = ap.parse_args(list(sys.argv[1:] if argv is None else argv))
+    args.prog = ap.prog  # the name it was typed with (odolab measure-tum), for its warning
     try:
         return run(args)
     except (OSError, ValueError, UnknownOdometerError, TypeError) as exc:

@@ -18,7 +18,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from odolab.cli.args import ArgumentParser, UsageError, number, path_arg, run_cli
+from odolab.cli.args import ArgumentParser, UsageError, number, path_arg, quiet_broken_pipe, run_cli
 
 __all__ = ["STUDIES", "command", "main", "study", "study_parser"]
 
@@ -237,9 +237,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         text = f"usage: odolab study NAME [options]   (odolab study NAME --help for its options)\n\nstudies:\n{listing}"
         if not args:
             raise UsageError(f"expected a study name, one of {', '.join(STUDIES)}")
-        print(text)
+        try:
+            print(text, flush=True)
+        except BrokenPipeError:  # odolab study --help | head -1: the reader went away, no error
+            quiet_broken_pipe()
         return 0
     name = args[0]
+    if name.startswith("-"):
+        raise UsageError(f"expected the study's name first (odolab study NAME [options]), got {name!r}")
     if name not in STUDIES:
         import difflib
 

@@ -24,6 +24,7 @@ from typing import Any
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
+    check_folder_path,
     check_not_nested,
     check_output_dir,
     check_output_file,
@@ -168,6 +169,7 @@ def parse_training_command(
     from odolab.learning.validation import other_training
 
     args = ap.parse_args(argv)
+    _check_not_blank(args.config)
     try:
         config = load_config(str(args.config), args.set)
     except ChangeError as exc:
@@ -209,8 +211,10 @@ def parse_training_command(
     _check_work_files(work)
     if not export.parent.is_dir() and not any(_same_path(export.parent, p) for p in (work, reports)):
         check_output_file(export, "--export")  # its folder is missing: refused before any folder is made
-    check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
+    check_folder_path(work, "--work")  # both found fit before either is made
+    check_folder_path(reports, "--reports")
     check_output_dir(work, "--work")  # made only once every check above has passed
+    check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
     check_output_file(export, "--export")
     if args.threads:
         set_threads(args.threads)
@@ -231,6 +235,19 @@ def parse_training_command(
 
 #: The files a training writes under ``--reports`` (odolab.learning.validation).
 REPORT_FILES = ("training.json", "curves.csv", "curves.png")
+
+
+def _check_not_blank(config: Path) -> None:
+    """:class:`UsageError` for a recipe file with nothing in it (an empty file, ``/dev/null``):
+    every field at its default is never what a training was asked for."""
+    try:
+        blank = config.stat().st_size == 0 or (config.is_file() and not config.read_bytes()[:65536].strip())
+    except OSError:
+        return  # the recipe's reader words it
+    if blank:
+        raise UsageError(
+            f"--config {config}: an empty recipe; expected a TOML training recipe (the shipped ones are in studies/)"
+        )
 
 
 def _check_work_files(work: Path) -> None:

@@ -46,20 +46,29 @@ def batch(data: TrainingData, idx: np.ndarray, warp: np.ndarray | None, model) -
     return x, torch.from_numpy(b["planar"]).float()
 
 
+#: Training pairs per step.
+BATCH = 32
+
+
 def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks."""
     from odolab.cli import UsageError
 
     try:
         cfg = load_train_config(str(args.config))
+        train, val = (TrainingData(cfg.data_folder(d)) for d in (cfg.train_data, cfg.val_data))
     except ValueError as exc:
-        raise UsageError(str(exc)) from None
+        raise UsageError(f"--config {args.config}: {exc}") from None
     model = cfg.model
-    train, val = (TrainingData(cfg.data_folder(d)) for d in (cfg.train_data, cfg.val_data))
+    train_idx, val_idx = train.select([Action.TURN_LEFT]), val.select([Action.TURN_LEFT])
+    for data, idx, need in ((train, train_idx, BATCH), (val, val_idx, 1)):
+        if len(idx) < need:
+            raise UsageError(
+                f"--config {args.config}: {data.root}: expected at least {need} turn_left pairs, found {len(idx)}"
+            )
     warp = derotation(train, TURN_ANGLE) if args.derotate else None
     torch.manual_seed(0)
     net = build_networks(model)["turn_left"]
-    train_idx, val_idx = train.select([Action.TURN_LEFT]), val.select([Action.TURN_LEFT])
     mean = train.pair_planar[train_idx].mean(axis=0)
     with torch.no_grad():
         net.head[-1].bias.copy_(torch.from_numpy(mean).float())
@@ -68,12 +77,12 @@ def run(args) -> int:
     start, seen = time.monotonic(), 0
     while (seen < args.samples) if args.samples else (time.monotonic() - start < args.seconds):
         net.train()
-        x, y = batch(train, np.sort(rng.choice(train_idx, 32, replace=False)), warp, model)
+        x, y = batch(train, np.sort(rng.choice(train_idx, BATCH, replace=False)), warp, model)
         loss = (net(x) - y).pow(2).sum(1).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
-        seen += 32
+        seen += BATCH
     net.eval()
     x, y = batch(val, val_idx, warp, model)
     with torch.no_grad():

@@ -63,13 +63,15 @@ def last_val_rows(reports: Path) -> list[dict]:
 def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks."""
     from odolab.cli import UsageError, check_report_dir
+    from odolab.cli.args import check_folder_path
 
     if len(set(args.seeds)) < 2 or any(not 0 <= s < 2**32 for s in args.seeds):
         raise UsageError(
             f"--seeds: expected at least two different seeds in [0, 2^32) (their spread is the noise), "
             f"got {' '.join(map(str, args.seeds))}"
         )
-    check_report_dir(args.out, "--out", manifest="runs.csv")  # before hours of training, not after
+    check_folder_path(args.work, "--work")  # both found fit before hours of training, not after
+    check_report_dir(args.out, "--out", manifest="runs.csv")
     table: list[dict] = []
     speed: list[str] = []
     for precision in PRECISIONS:
