@@ -40,11 +40,12 @@ from odolab.odometry.odometer import (
     split_odometer_names,
 )
 from odolab.odometry.options import whole_number
-from odolab.running.threads import check_threads
+from odolab.running.threads import MAX_THREADS, check_threads
 
 __all__ = [
     "DEFAULT_CACHE",
     "FORWARD_STEP",
+    "MAX_THREADS",
     "MOTION_ACTIONS",
     "SERIAL",
     "SPLITS",

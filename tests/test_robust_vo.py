@@ -594,7 +594,7 @@ def test_real_data_without_actions_is_refused_for_an_action_model_and_bad_seeds_
         run_comparison(
             ComparisonConfig(odometers=["robust-vo"], tum=__import__("pathlib").Path("tests/data/tum_fr1_xyz_10"))
         )
-    with pytest.raises(ValueError, match=r"seed must be an integer in \[0, 4294967295\], got -1"):
+    with pytest.raises(ValueError, match=r"seed must be in \[0, 4294967295\], got -1"):
         RobustVOOdometer(seed=-1)
 
 

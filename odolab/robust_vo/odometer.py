@@ -5,7 +5,7 @@
 
 Each frame is resized to the model's input size (:func:`odolab.learning.resize_frame`, as the
 training data was), the pair's channels psi are computed and the network of the action taken
-predicts ``(dx, dz, dyaw)``. Options: ``checkpoint`` (default: the shipped model), ``mirror_tta``
+predicts ``(dx, dz, dyaw)``. Options (the fields of :class:`RobustVOOptions`): ``checkpoint`` (default: the shipped model), ``mirror_tta``
 (also run the mirrored pair through the opposite action's network and average; Partsey et al.
 2022), ``mc_samples`` (> 1: that many passes with dropout on, whose spread gives
 ``Estimate.covariance``; the paper's "rnd" mode; its dropout draws are seeded by ``seed`` and the
@@ -18,10 +18,12 @@ the action: on real data (no action) it answers ``valid=False``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads, whole_number
+from odolab.api import MAX_THREADS, Action, Estimate, Frame, Intrinsics, Odometer, check, configure, setting
 from odolab.learning import pick_device, resize_frame
 from odolab.robust_vo.checkpoint import SHIPPED, load_model
 from odolab.robust_vo.inputs import frame_channels, residual_channel
@@ -43,26 +45,35 @@ def planar_covariance_to_6d(cov: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class RobustVOOptions:
+    """The options of ``robust-vo`` (module docstring); the network itself comes from ``checkpoint``."""
+
+    checkpoint: str = setting("", doc="robust-VO model file (default: the shipped model)")
+    mirror_tta: bool = setting(
+        False, doc="also run the mirrored pair through the opposite action's network and average"
+    )
+    mc_samples: int = setting(0, range=(0, 1000), doc="passes with dropout on for a covariance: 0 (off) or 2-1000")
+    threads: int = setting(1, range=(1, MAX_THREADS), doc="torch threads while it runs")
+    batch_size: int = setting(1, range=(1, 4096), doc="consecutive pairs per network pass")
+    device: str = setting("", doc="torch device (default cpu)")
+    seed: int = setting(0, range=(0, 2**32 - 1), doc="seed of the dropout draws")
+
+    def __post_init__(self) -> None:
+        check(self)
+        if self.mc_samples == 1:
+            raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {self.mc_samples}")
+
+
 class RobustVOOdometer(Odometer):
     """The robust VO. See the module docstring for the options."""
 
-    def __init__(
-        self,
-        checkpoint: str = "",
-        mirror_tta: bool = False,
-        mc_samples: int = 0,
-        threads: int = 1,
-        batch_size: int = 1,
-        device: str = "",
-        seed: int = 0,
-    ) -> None:
-        if whole_number("mc_samples", mc_samples, 0, 1000) == 1:
-            raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {mc_samples}")
-        threads = check_threads(threads)
-        whole_number("batch_size", batch_size, 1, 4096)
-        whole_number("seed", seed, 0, 2**32 - 1)
-        if not isinstance(mirror_tta, (bool, np.bool_)):
-            raise ValueError(f"mirror_tta must be true or false, got {mirror_tta!r}")
+    Config = RobustVOOptions  # its options: every field (odolab.odometry.configured)
+
+    def __init__(self, config: RobustVOOptions | None = None, **overrides) -> None:
+        self.options = opts = configure(RobustVOOptions, config, **overrides)
+        checkpoint, mirror_tta, mc_samples = opts.checkpoint, opts.mirror_tta, opts.mc_samples
+        threads, batch_size, device, seed = opts.threads, opts.batch_size, opts.device, opts.seed
         self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
         self.identity_digest = self.info["sha256"]
         self.device = pick_device(device or "cpu")
