@@ -14,6 +14,7 @@ odometers do; a model with ``actions`` answers ``valid=False`` where no action i
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ import torch
 
 from baselines.deepvo.config import DeepVOModel, DeepVOTraining
 from baselines.deepvo.model import DeepVONet, frame_tensor
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads
+from odolab.api import MAX_THREADS, Action, Estimate, Frame, Intrinsics, Odometer, check, configure, setting
 from odolab.learning import checkpoints, pick_device, resize_frame
 
 KIND = "odolab-deepvo"
@@ -46,11 +47,26 @@ def load_model(path) -> tuple[DeepVOModel, DeepVONet, dict]:
     return cfg, nets["deepvo"], info
 
 
-class DeepVOOdometer(Odometer):
-    """DeepVO. Options: ``checkpoint`` (default: the shipped model), ``threads``, ``device``."""
+@dataclass(frozen=True)
+class DeepVOOptions:
+    """The options of ``deepvo``; the network itself comes from ``checkpoint``."""
 
-    def __init__(self, checkpoint: str = "", threads: int = 1, device: str = "") -> None:
-        threads = check_threads(threads)
+    checkpoint: str = setting("", doc="DeepVO model file (default: the shipped model)")
+    threads: int = setting(1, range=(1, MAX_THREADS), doc="torch threads while it runs")
+    device: str = setting("", doc="torch device (default cpu)")
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
+class DeepVOOdometer(Odometer):
+    """DeepVO. Options: the fields of :class:`DeepVOOptions`."""
+
+    Config = DeepVOOptions  # its options: every field (odolab.odometry.configured)
+
+    def __init__(self, config: DeepVOOptions | None = None, **overrides) -> None:
+        opts = configure(DeepVOOptions, config, **overrides)
+        checkpoint, threads, device = opts.checkpoint, opts.threads, opts.device
         self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
         self.identity_digest = self.info["sha256"]
         self.device = pick_device(device or "cpu")
