@@ -17,15 +17,42 @@ model's are resized to it and the correction (a per-pixel ratio) resized back.
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import torch
 
-from odolab.api import Action, Estimate, Frame, Intrinsics, Odometer, check_threads, load_inputs, one_input
+from odolab.api import (
+    MAX_THREADS,
+    Action,
+    Estimate,
+    Frame,
+    Intrinsics,
+    Odometer,
+    check,
+    configure,
+    load_inputs,
+    one_input,
+    setting,
+)
 from odolab.depth_corrector.checkpoint import SHIPPED, load_model
 from odolab.depth_corrector.model import pixel_place
 from odolab.learning import resize_frame
+
+
+@dataclass(frozen=True)
+class DenoisedOptions:
+    """The options of ``denoised(X)`` (module docstring); X's own come from ``options_file``."""
+
+    checkpoint: str = setting("", doc="depth-corrector model file (default: the shipped model)")
+    max_spread: float = setting(
+        0.0, range=(0.0, 100.0), doc="drop pixels whose corrected depth's spread is above this, m (0: keep every pixel)"
+    )
+    threads: int = setting(2, range=(1, MAX_THREADS), doc="torch threads while it runs")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 class DenoisedOdometer(Odometer):
@@ -33,17 +60,16 @@ class DenoisedOdometer(Odometer):
 
     composite = True
 
+    Config = DenoisedOptions  # its options: every field (odolab.odometry.configured)
+
     def __init__(
-        self, inputs: str = "", checkpoint: str = "", max_spread: float = 0.0, threads: int = 2, options_file: str = ""
+        self, inputs: str = "", config: DenoisedOptions | None = None, options_file: str = "", **overrides
     ) -> None:
         name = one_input("denoised", inputs)
-        if isinstance(max_spread, bool) or not isinstance(max_spread, (int, float)) or not 0 <= max_spread <= 100:
-            raise ValueError(
-                f"max_spread must be a number of metres in [0, 100] (0: keep every pixel), got {max_spread!r}"
-            )
-        self.threads = check_threads(threads)
-        self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
-        self.max_spread = float(max_spread)
+        opts = configure(DenoisedOptions, config, **overrides)
+        self.threads = int(opts.threads)
+        self.cfg, self.net, self.info = load_model(opts.checkpoint or SHIPPED)
+        self.max_spread = float(opts.max_spread)
         self.inner = load_inputs("denoised", [name], options_file)[name]
         self.oracle, self.needs_action = self.inner.oracle, self.inner.needs_action
         settings = f"{name}={self.inner.identity_digest};{self.info['sha256']};{self.max_spread!r}"

@@ -24,21 +24,25 @@ from __future__ import annotations
 
 import hashlib
 from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from odolab.api import (
+    MAX_THREADS,
     Action,
     Estimate,
     Frame,
     Intrinsics,
     Odometer,
-    check_threads,
+    check,
+    configure,
     failure_reason,
     load_inputs,
     load_odometer,
     one_input,
+    setting,
 )
 from odolab.learning import resize_frame
 from odolab.pose_corrector.checkpoint import SHIPPED_RECIPE, load_model, shipped_model
@@ -47,16 +51,30 @@ from odolab.pose_corrector.model import apply_correction, pair_inputs
 from odolab.robust_vo.odometer import planar_covariance_to_6d
 
 
+@dataclass(frozen=True)
+class CorrectedOptions:
+    """The options of ``corrected(X)`` (module docstring); X's own come from ``options_file``."""
+
+    checkpoint: str = setting("", doc="pose-corrector model file (default: the one shipped for X)")
+    threads: int = setting(1, range=(1, MAX_THREADS), doc="torch threads while it runs")
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
 class CorrectedOdometer(Odometer):
     """X's estimate corrected by the learned pose corrector (module docstring)."""
 
     composite = True
 
-    def __init__(self, inputs: str = "", checkpoint: str = "", threads: int = 1, options_file: str = "") -> None:
+    Config = CorrectedOptions  # its options: every field (odolab.odometry.configured)
+
+    def __init__(
+        self, inputs: str = "", config: CorrectedOptions | None = None, options_file: str = "", **overrides
+    ) -> None:
         name = one_input("corrected", inputs)
-        self.threads = check_threads(threads)
-        if not isinstance(checkpoint, str):
-            raise ValueError(f"checkpoint must be the path of a model file, got {checkpoint!r:.80}")
+        opts = configure(CorrectedOptions, config, **overrides)
+        self.threads, checkpoint = int(opts.threads), opts.checkpoint
         path = checkpoint or shipped_model(name)
         if not checkpoint and not path.is_file():
             change = "" if name == PoseCorrectorTraining().inner else f" --set 'inner={name}'"
