@@ -54,10 +54,9 @@ def test_a_declared_config_gives_the_options_their_signature_and_checks():
 
 
 def test_the_registry_checks_a_plug_ins_options_by_its_fields():
-    api.register_odometer("configured-test", Configured)
     from odolab.odometry.options import OptionError, check_options
 
     check_options("configured-test", Configured, {"gain": 3.0})
     with pytest.raises(OptionError, match="has no option 'gian'.*did you mean 'gain'"):
         check_options("configured-test", Configured, {"gian": 3.0})
-    assert api.load_odometer("configured-test", gain=3.0).config.inner.gain == 3.0
+    assert api.load_odometer("tests.test_configured:Configured", gain=3.0).config.inner.gain == 3.0  # by module:Class
