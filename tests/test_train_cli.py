@@ -151,4 +151,10 @@ def test_an_empty_recipe_or_a_work_path_that_is_a_file_makes_nothing(tmp_path, m
     recipe.write_text("epochs = 1\n")
     with pytest.raises(UsageError, match="--work afile: is a file"):
         train("depth-corrector", ["--config", str(recipe), "--work", "afile"], "python -m odolab.depth_corrector.train")
+    with pytest.raises(UsageError, match="--work /proc/odolab/x: not a writable folder"):  # made nowhere
+        train(
+            "depth-corrector",
+            ["--config", str(recipe), "--work", "/proc/odolab/x"],
+            "python -m odolab.depth_corrector.train",
+        )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "empty.toml", "r.toml"]

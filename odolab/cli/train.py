@@ -213,8 +213,13 @@ def parse_training_command(
         check_output_file(export, "--export")  # its folder is missing: refused before any folder is made
     check_folder_path(work, "--work")  # both found fit before either is made
     check_folder_path(reports, "--reports")
+    made = _first_missing(work)
     check_output_dir(work, "--work")  # made only once every check above has passed
-    check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
+    try:
+        check_report_dir(reports, "--reports", manifest="training.json")  # never over a folder of the user's files
+    except UsageError:
+        _remove_empty(made)  # a refused run leaves no folder behind
+        raise
     check_output_file(export, "--export")
     if args.threads:
         set_threads(args.threads)
@@ -235,6 +240,26 @@ def parse_training_command(
 
 #: The files a training writes under ``--reports`` (odolab.learning.validation).
 REPORT_FILES = ("training.json", "curves.csv", "curves.png")
+
+
+def _first_missing(path: Path) -> Path | None:
+    """The outermost folder of ``path`` that does not exist yet (what making it would create), or None."""
+    missing = None
+    for p in [path, *path.parents]:
+        if p.exists() or p.is_symlink():
+            break
+        missing = p
+    return missing
+
+
+def _remove_empty(top: Path | None) -> None:
+    """Remove folder ``top`` if it holds nothing but empty folders (what this run made of it)."""
+    if top is None or not top.is_dir() or top.is_symlink():
+        return
+    if any(files for _, _, files in os.walk(top)):
+        return
+    for root, dirs, _ in sorted(os.walk(top), key=lambda w: -len(w[0])):
+        os.rmdir(root)
 
 
 def _check_not_blank(config: Path) -> None:
