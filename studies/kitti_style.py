@@ -769,8 +769,9 @@ def run(args) -> int:
             figures[f"route-{s.name}.png"] = (
                 (
                     f"Route {s.name}, top-down (world x, y in m), a panel per family of odometers: the true path "
-                    "(black) and each odometer's integrated path over the floor plan (grey: obstacles); circle: "
-                    "start, squares: ends"
+                    "(black) and each odometer's integrated path"
+                    + (" (x and y to different scales)" if s.building else " over the floor plan (grey: obstacles)")
+                    + "; circle: start, squares: ends"
                 ),
                 functools.partial(draw_route, routes.results[route_label(s)], mine, list(scale.odometers)),
             )
