@@ -1491,7 +1491,7 @@ def _only_rows(text: str | None, scale: Scale, name: str) -> Callable[[framework
     if text is None:
         return None
     parts = [t.strip() for t in text.split(",")]
-    if not all(re.fullmatch(r"[0-9]{1,3}", t) for t in parts):
+    if not all(re.fullmatch(r"[0-9]{1,9}", t) for t in parts):
         raise UsageError(f"--rows: expected row numbers separated by commas, got {text!r}")
     chosen = {int(t) for t in parts}
     unknown = sorted(chosen - set(scale.rows))

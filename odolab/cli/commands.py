@@ -117,7 +117,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         near = difflib.get_close_matches(name.lower().replace("_", "-"), COMMANDS, n=1, cutoff=0.6)
         hint = f"; did you mean {near[0]!r}?" if near else ""
-        print(f"odolab: unknown command {name!r}; expected one of {', '.join(COMMANDS)}{hint}", file=sys.stderr)
+        print(f"odolab: error: unknown command {name!r}; expected one of {', '.join(COMMANDS)}{hint}", file=sys.stderr)
         return 2
     entry = entry_of(name)
     face = f"odolab {name}"

@@ -18,7 +18,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from odolab.cli.args import ArgumentParser, UsageError, number, path_arg, quiet_broken_pipe, run_cli
+from odolab.cli.args import ArgumentParser, UsageError, file_arg, number, path_arg, quiet_broken_pipe, run_cli
 
 __all__ = ["STUDIES", "command", "main", "study", "study_parser"]
 
@@ -148,7 +148,7 @@ def _forward_dz_probe(module) -> Callable[[ArgumentParser], None]:
         ap.add_argument(
             "--passes", type=number("--passes", int, 1, 10), default=2, help="passes of the network, 1-10 (default 2)"
         )
-        ap.add_argument("--out", type=path_arg("--out"), default=None, help="also write the report to this text file")
+        ap.add_argument("--out", type=file_arg("--out"), default=None, help="also write the report to this text file")
 
     return add
 
@@ -187,7 +187,13 @@ def _precision_check(module) -> Callable[[ArgumentParser], None]:
             default=Path("runs") / "robust-vo" / "precision",
             help="training states, one folder per run (default runs/robust-vo/precision)",
         )
-        ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="at least two seeds (default 0 1)")
+        ap.add_argument(
+            "--seeds",
+            type=number("--seeds", int, 0, 2**32 - 1),
+            nargs="+",
+            default=[0, 1],
+            help="at least two seeds (default 0 1)",
+        )
 
     return add
 
