@@ -589,7 +589,7 @@ def draw_errors(rows: list[dict[str, Any]], path: Path) -> None:
     axes[2].set_xticks(held)
     axes[2].grid(alpha=0.3)
     axes[2].legend(fontsize=7, loc="best")
-    fig.suptitle("KITTI's relative errors on the touring routes (segments of the lengths the routes hold)")
+    fig.suptitle("KITTI's relative errors on the long routes (segments of the lengths the routes hold)")
     fig.legend(*axes[0].get_legend_handles_labels(), loc="lower left", ncol=2, fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.08, 1, 1))
     save_figure_atomic(fig, path)
