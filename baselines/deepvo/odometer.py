@@ -66,12 +66,11 @@ class DeepVOOdometer(Odometer):
 
     def __init__(self, config: DeepVOOptions | None = None, **overrides) -> None:
         opts = configure(DeepVOOptions, config, **overrides)
-        checkpoint, threads, device = opts.checkpoint, opts.threads, opts.device
-        self.cfg, self.net, self.info = load_model(checkpoint or SHIPPED)
+        self.cfg, self.net, self.info = load_model(opts.checkpoint or SHIPPED)
         self.identity_digest = self.info["sha256"]
-        self.device = pick_device(device or "cpu")
+        self.device = pick_device(opts.device or "cpu")
         self.net.to(self.device)
-        self.threads = int(threads)
+        self.threads = int(opts.threads)
         self._state: tuple[torch.Tensor, torch.Tensor] | None = None
         self._last: tuple[np.ndarray, torch.Tensor] | None = None  # (the last frame's pixels, its tensor)
         self.needs_action = self.cfg.actions

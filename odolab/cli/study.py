@@ -65,141 +65,119 @@ def add_study_options(ap: ArgumentParser, config) -> None:
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def _computing(module) -> Callable[[ArgumentParser], None]:
+def _computing(ap: ArgumentParser, module) -> None:
     """Options of a study that computes units: the shared ones, from its definition."""
-
-    def add(ap: ArgumentParser) -> None:
-        try:
-            config = module.study_config()
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-        ap.description = config.title
-        add_study_options(ap, config)
-
-    return add
+    try:
+        config = module.study_config()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    ap.description = config.title
+    add_study_options(ap, config)
 
 
-def _ablations(module) -> Callable[[ArgumentParser], None]:
-    def add(ap: ArgumentParser) -> None:
-        _computing(module)(ap)
-        ap.add_argument(
-            "--rows",
-            default=None,
-            metavar="N,N,...",
-            help="compute only these rows' units (their models, errors and navigation; the report shows every "
-            "row from the saved results): a long scale in chunks, each committed as it finishes",
-        )
-
-    return add
+def _ablations(ap: ArgumentParser, module) -> None:
+    _computing(ap, module)
+    ap.add_argument(
+        "--rows",
+        default=None,
+        metavar="N,N,...",
+        help="compute only these rows' units (their models, errors and navigation; the report shows every "
+        "row from the saved results): a long scale in chunks, each committed as it finishes",
+    )
 
 
-def _reports_index(module) -> Callable[[ArgumentParser], None]:
-    def add(ap: ArgumentParser) -> None:
-        ap.add_argument(
-            "--reports",
-            type=path_arg("--reports"),
-            default=module.DEFAULT_REPORTS,
-            help=f"the reports folder (default {module.DEFAULT_REPORTS})",
-        )
-
-    return add
+def _reports_index(ap: ArgumentParser, module) -> None:
+    ap.add_argument(
+        "--reports",
+        type=path_arg("--reports"),
+        default=module.DEFAULT_REPORTS,
+        help=f"the reports folder (default {module.DEFAULT_REPORTS})",
+    )
 
 
-def _scaling(module) -> Callable[[ArgumentParser], None]:
-    def add(ap: ArgumentParser) -> None:
-        ap.add_argument(
-            "--runs",
-            type=path_arg("--runs"),
-            nargs="+",
-            default=[Path("reports/robust-vo/shipped"), Path("reports/robust-vo/shipped-341")],
-            help="training report folders, each with a curves.csv (default: the shipped recipes' runs)",
-        )
-        ap.add_argument(
-            "--classical",
-            type=path_arg("--classical"),
-            default=Path("reports/compare-val-20x100/table_per_action.csv"),
-            help="a compare run's table_per_action.csv (default reports/compare-val-20x100/...: validation "
-            "episodes, as the curves)",
-        )
-        ap.add_argument(
-            "--out",
-            type=path_arg("--out"),
-            default=Path("reports/robust-vo/scaling"),
-            help="where scaling.png, scaling-hours.png and scaling.csv go (default reports/robust-vo/scaling)",
-        )
-
-    return add
+def _scaling(ap: ArgumentParser, module) -> None:
+    ap.add_argument(
+        "--runs",
+        type=path_arg("--runs"),
+        nargs="+",
+        default=[Path("reports/robust-vo/shipped"), Path("reports/robust-vo/shipped-341")],
+        help="training report folders, each with a curves.csv (default: the shipped recipes' runs)",
+    )
+    ap.add_argument(
+        "--classical",
+        type=path_arg("--classical"),
+        default=Path("reports/compare-val-20x100/table_per_action.csv"),
+        help="a compare run's table_per_action.csv (default reports/compare-val-20x100/...: validation "
+        "episodes, as the curves)",
+    )
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("reports/robust-vo/scaling"),
+        help="where scaling.png, scaling-hours.png and scaling.csv go (default reports/robust-vo/scaling)",
+    )
 
 
-def _forward_dz_probe(module) -> Callable[[ArgumentParser], None]:
-    def add(ap: ArgumentParser) -> None:
-        ap.add_argument(
-            "--config",
-            type=path_arg("--config"),
-            default=Path("studies/robust_vo/shipped.toml"),
-            help="recipe whose val data is read (made by its training command; of the probed model's input size)",
-        )
-        ap.add_argument(
-            "--checkpoint",
-            type=path_arg("--checkpoint"),
-            default=module.SHIPPED,
-            help="robust-VO model file to probe (default: the shipped model)",
-        )
-        ap.add_argument(
-            "--passes", type=number("--passes", int, 1, 10), default=2, help="passes of the network, 1-10 (default 2)"
-        )
-        ap.add_argument("--out", type=file_arg("--out"), default=None, help="also write the report to this text file")
-
-    return add
+def _forward_dz_probe(ap: ArgumentParser, module) -> None:
+    ap.add_argument(
+        "--config",
+        type=path_arg("--config"),
+        default=Path("studies/robust_vo/shipped.toml"),
+        help="recipe whose val data is read (made by its training command; of the probed model's input size)",
+    )
+    ap.add_argument(
+        "--checkpoint",
+        type=path_arg("--checkpoint"),
+        default=module.SHIPPED,
+        help="robust-VO model file to probe (default: the shipped model)",
+    )
+    ap.add_argument(
+        "--passes", type=number("--passes", int, 1, 10), default=2, help="passes of the network, 1-10 (default 2)"
+    )
+    ap.add_argument("--out", type=file_arg("--out"), default=None, help="also write the report to this text file")
 
 
-def _derotation_probe(module) -> Callable[[ArgumentParser], None]:
-    def add(ap: ArgumentParser) -> None:
-        ap.add_argument("--config", type=path_arg("--config"), default="studies/robust_vo/shipped.toml")
-        ap.add_argument(
-            "--seconds",
-            type=number("--seconds", float, 1.0, 86_400.0),
-            default=300.0,
-            help="training budget (wall clock)",
-        )
-        ap.add_argument(
-            "--samples",
-            type=number("--samples", int, 0, 10**8),
-            default=0,
-            help="training budget in samples instead (0: use --seconds)",
-        )
-        ap.add_argument("--derotate", action="store_true", help="warp the current frame by the commanded turn")
-
-    return add
+def _derotation_probe(ap: ArgumentParser, module) -> None:
+    ap.add_argument("--config", type=path_arg("--config"), default="studies/robust_vo/shipped.toml")
+    ap.add_argument(
+        "--seconds",
+        type=number("--seconds", float, 1.0, 86_400.0),
+        default=300.0,
+        help="training budget (wall clock)",
+    )
+    ap.add_argument(
+        "--samples",
+        type=number("--samples", int, 0, 10**8),
+        default=0,
+        help="training budget in samples instead (0: use --seconds)",
+    )
+    ap.add_argument("--derotate", action="store_true", help="warp the current frame by the commanded turn")
 
 
-def _precision_check(module) -> Callable[[ArgumentParser], None]:
-    def add(ap: ArgumentParser) -> None:
-        ap.add_argument(
-            "--out",
-            type=path_arg("--out"),
-            default=Path("reports") / "robust-vo" / "precision",
-            help="where runs.csv and comparison.md go (default reports/robust-vo/precision)",
-        )
-        ap.add_argument(
-            "--work",
-            type=path_arg("--work"),
-            default=Path("runs") / "robust-vo" / "precision",
-            help="training states, one folder per run (default runs/robust-vo/precision)",
-        )
-        ap.add_argument(
-            "--seeds",
-            type=number("--seeds", int, 0, 2**32 - 1),
-            nargs="+",
-            default=[0, 1],
-            help="at least two seeds (default 0 1)",
-        )
-
-    return add
+def _precision_check(ap: ArgumentParser, module) -> None:
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("reports") / "robust-vo" / "precision",
+        help="where runs.csv and comparison.md go (default reports/robust-vo/precision)",
+    )
+    ap.add_argument(
+        "--work",
+        type=path_arg("--work"),
+        default=Path("runs") / "robust-vo" / "precision",
+        help="training states, one folder per run (default runs/robust-vo/precision)",
+    )
+    ap.add_argument(
+        "--seeds",
+        type=number("--seeds", int, 0, 2**32 - 1),
+        nargs="+",
+        default=[0, 1],
+        help="at least two seeds (default 0 1)",
+    )
 
 
-#: study name -> the options it adds to its parser, given its module
-OPTIONS: dict[str, Callable[[object], Callable[[ArgumentParser], None]]] = {
+#: study name -> what adds its options to its parser, given its module
+OPTIONS: dict[str, Callable[[ArgumentParser, object], None]] = {
     "e-table": _computing,
     "ablations": _ablations,
     "kitti-style": _computing,
@@ -218,7 +196,7 @@ def study_parser(name: str, prog: str) -> ArgumentParser:
     module = importlib.import_module(STUDIES[name][0])
     description = (module.__doc__ or STUDIES[name][1]).strip().split("\n")[0].replace("``", "")
     ap = ArgumentParser(prog=prog, description=description)
-    OPTIONS[name](module)(ap)
+    OPTIONS[name](ap, module)
     return ap
 
 

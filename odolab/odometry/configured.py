@@ -109,11 +109,11 @@ def configured_signature(init: Callable[..., Any], config_cls: type) -> inspect.
         for name, p in inspect.signature(init).parameters.items()
         if name != "self" and p.kind is not inspect.Parameter.VAR_KEYWORD
     ]
+    config_param, *fields_ = options_signature(config_cls).parameters.values()
     if not any(p.name == "config" for p in own):
-        own.append(next(iter(options_signature(config_cls).parameters.values())))
+        own.append(config_param)
     taken = {p.name for p in own}
-    fields_ = [p for p in list(options_signature(config_cls).parameters.values())[1:] if p.name not in taken]
-    return inspect.Signature([*own, *fields_])
+    return inspect.Signature([*own, *(p for p in fields_ if p.name not in taken)])
 
 
 def config_digest(config: object) -> str:

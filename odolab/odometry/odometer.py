@@ -35,6 +35,7 @@ import numpy as np
 
 from odolab.core.errors import InputError
 from odolab.core.types import MOTION_ACTIONS, Action, Estimate, Frame, Intrinsics, Sequence, as_action  # noqa: F401
+from odolab.odometry.configured import configured_signature
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -95,8 +96,6 @@ class Odometer:
         declares ``Config`` gets the signature of its options (every field, keyword-only)."""
         super().__init_subclass__(**kwargs)
         if cls.__dict__.get("Config") is not None and "__signature__" not in cls.__dict__:
-            from odolab.odometry.configured import configured_signature
-
             cls.__signature__ = configured_signature(cls.__init__, cls.Config)
         if "step" in cls.__dict__:
             cls.step = _actions_checked_step(cls.__dict__["step"])

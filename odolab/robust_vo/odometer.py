@@ -72,15 +72,13 @@ class RobustVOOdometer(Odometer):
 
     def __init__(self, config: RobustVOOptions | None = None, **overrides) -> None:
         self.options = opts = configure(RobustVOOptions, config, **overrides)
-        checkpoint, mirror_tta, mc_samples = opts.checkpoint, opts.mirror_tta, opts.mc_samples
-        threads, batch_size, device, seed = opts.threads, opts.batch_size, opts.device, opts.seed
-        self.cfg, self.nets, self.info = load_model(checkpoint or SHIPPED)
+        self.cfg, self.nets, self.info = load_model(opts.checkpoint or SHIPPED)
         self.identity_digest = self.info["sha256"]
-        self.device = pick_device(device or "cpu")
+        self.device = pick_device(opts.device or "cpu")
         self.nets.to(self.device)
-        self.mirror_tta, self.mc_samples = bool(mirror_tta), int(mc_samples)
-        self.threads, self.batch_size = int(threads), int(batch_size)
-        self.seed, self._draws = int(seed), 0  # MC-dropout draws: seeded per call, counted from reset
+        self.mirror_tta, self.mc_samples = bool(opts.mirror_tta), int(opts.mc_samples)
+        self.threads, self.batch_size = int(opts.threads), int(opts.batch_size)
+        self.seed, self._draws = int(opts.seed), 0  # MC-dropout draws: seeded per call, counted from reset
         # SepAct and ActEmbed pick by action, the nominal warp moves by it
         self.needs_action = self.cfg.kind != "unified" or self.cfg.warp != "none"
         self._input_intrinsics: Intrinsics | None = None
