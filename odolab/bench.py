@@ -173,12 +173,12 @@ TRAINING_RECIPES = (
 def bench_training(
     recipes: Sequence[Path], device: str | None = None, threads: int | None = None, data: Path | None = None
 ) -> list[dict]:
-    """Training throughput per robust-VO recipe (:mod:`odolab.robust_vo.speed`), with ``threads``
+    """Training throughput per robust-VO recipe (:mod:`odolab.learned.robust_vo.speed`), with ``threads``
     torch threads (None: torch's own choice; the setting is restored afterwards), the end-to-end
     epoch on training-data folder ``data`` (None: 20 val episodes rendered per recipe)."""
-    from odolab.learning import pick_device
-    from odolab.robust_vo.config import load_train_config
-    from odolab.robust_vo.speed import training_speed
+    from odolab.learned.robust_vo.config import load_train_config
+    from odolab.learned.robust_vo.speed import training_speed
+    from odolab.learned.training import pick_device
     from odolab.running.threads import torch_threads
 
     dev = pick_device(device)

@@ -37,9 +37,9 @@ import numpy as np
 from studies import framework
 
 if TYPE_CHECKING:
-    from baselines.deepvo.config import DeepVOTraining
     from odolab.core.parallel import Execution
-    from odolab.robust_vo.config import TrainConfig
+    from odolab.learned.deepvo.config import DeepVOTraining
+    from odolab.learned.robust_vo.config import TrainConfig
 
 NAME = "ablations"
 DEFINITION = framework.HERE / f"{NAME}.toml"
@@ -402,12 +402,12 @@ def recipe(
 
     row = definition.rows[number]
     if row.odometer == "deepvo":
-        from baselines.deepvo.config import DeepVOTraining
+        from odolab.learned.deepvo.config import DeepVOTraining
 
         path, cls, changes = scale.deepvo_recipe, DeepVOTraining, (*scale.deepvo_changes, *row.changes)
         doc = read_toml(ROOT / path)
     else:
-        from odolab.robust_vo.config import TrainConfig
+        from odolab.learned.robust_vo.config import TrainConfig
 
         assert row.switches is not None
         path, cls = scale.robust_vo_recipe, TrainConfig
@@ -508,17 +508,17 @@ def train_row(
     digest>``, curves under ``<out>/training/<model>``, the model at :func:`model_file`, where
     <model> is :func:`model_id`; returns :func:`model_summary`."""
     from odolab.core.parallel import SERIAL
-    from odolab.learning import pick_device
-    from odolab.learning.checkpoints import what_file
+    from odolab.learned.training import pick_device
+    from odolab.learned.training.checkpoints import what_file
 
     number, seed = key["row"], key.get("train_seed")
     cfg, name = recipes[(number, seed)], model_id(number, seed)
     if recipe_identity(cfg) != key["recipe"]:
         raise ValueError(f"row {number}: the recipe handed over is not the unit's")
     if key["family"] == "deepvo":
-        from baselines.deepvo.train import run
+        from odolab.learned.deepvo.train import run
     else:
-        from odolab.robust_vo.train import run
+        from odolab.learned.robust_vo.train import run
     export = out / model_file(number, seed)
     if export.is_file() and not export.is_symlink() and what_file(export) is not None:
         export.unlink()  # the study's own model path holds no model (a damaged file): export it again
@@ -556,7 +556,7 @@ def model_summary(path: Path, family: str, out: Path) -> dict[str, Any]:
     """A model file's SHA-256, parameters (all networks) and networks, the pairs its training saw
     (a DeepVO window of n frames counts n - 1) and the hours it took."""
     if family == "deepvo":
-        from baselines.deepvo.odometer import load_model
+        from odolab.learned.deepvo.odometer import load_model
 
         _, net, info = load_model(path)
         nets = [net]
@@ -564,7 +564,7 @@ def model_summary(path: Path, family: str, out: Path) -> dict[str, Any]:
         pairs = int(training.get("windows_seen", 0)) * (int(info["recipe"]["window"]) - 1)
         hours = float(training.get("hours", 0.0))
     else:
-        from odolab.robust_vo.checkpoint import load_model
+        from odolab.learned.robust_vo.checkpoint import load_model
 
         _, modules, info = load_model(path)
         nets = list(modules.values())

@@ -188,11 +188,11 @@ epochs = 1
 def robust_job(tmp_path: Path, *argv: str, stage: str = "forward"):
     """The robust VO trainer's command line parsed with ``argv`` on a tiny recipe in ``tmp_path``."""
     from odolab.cli.train import parse_training_command, training_parser
-    from odolab.robust_vo.config import load_train_config
+    from odolab.learned.robust_vo.config import load_train_config
 
     recipe = tmp_path / "recipe.toml"
     recipe.write_text(ROBUST_RECIPE.replace("{stage}", stage))  # parsed only: no data is made
-    ap = training_parser("python -m odolab.robust_vo.train", "train", "robust-vo")
+    ap = training_parser("python -m odolab.learned.robust_vo.train", "train", "robust-vo")
     return parse_training_command(
         ap,
         ["--config", str(recipe), "--work", str(tmp_path / "work"), "--reports", str(tmp_path / "reports"), *argv],

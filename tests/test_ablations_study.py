@@ -30,8 +30,8 @@ def _recipes(scale: str, root: Path) -> dict[int, object]:
 
 @pytest.mark.parametrize("scale", ["ci", "cpu", "cpu-4x", "paper"])
 def test_each_rows_changes_give_the_recipe_of_its_switches(scale: str, tmp_path: Path):
-    from baselines.deepvo.config import DeepVOTraining
-    from odolab.robust_vo.config import TrainConfig
+    from odolab.learned.deepvo.config import DeepVOTraining
+    from odolab.learned.robust_vo.config import TrainConfig
 
     recipes = _recipes(scale, tmp_path)
     assert 19 not in DEFINITION.rows and {0, 20} <= set(DEFINITION.rows)
@@ -84,7 +84,7 @@ def test_the_row_18_recipes_of_the_warp_probe_are_the_studys_row_18_at_its_cpu_s
     cpu scale (with the shared base of the rows that know the action); row18-cpu.toml, the paper's
     input, differs from it in the warp and the mirrored turns alone; row18-cpu-4x.toml in its epochs alone
     (four times each stage's)."""
-    from odolab.robust_vo.config import load_train_config
+    from odolab.learned.robust_vo.config import load_train_config
 
     folder = ablations.ROOT / "studies" / "robust_vo" / "ablations"
     study = ablations.recipe_identity(ablations.recipe(DEFINITION, DEFINITION.scales["cpu"], 18, Path("data")))
@@ -345,7 +345,7 @@ def test_a_damaged_model_file_is_trained_again(ci_run, tmp_path: Path, capsys):
     shutil.copytree(out, copy)
     (copy / ablations.model_file(4)).write_bytes(b"not a model")
     assert study("ablations", ["--scale", "ci", "--out", str(copy), "--serial", "--quiet"]) == 0
-    from odolab.learning.checkpoints import what_file
+    from odolab.learned.training.checkpoints import what_file
 
     assert what_file(copy / ablations.model_file(4)) is None  # a model again
     assert "1 training" in capsys.readouterr().out

@@ -46,7 +46,7 @@ def test_a_deep_name_on_the_command_line_is_one_short_line(tmp_path):
 
 
 def test_a_base_chain_too_long_is_one_line(tmp_path):
-    from odolab.learning.configs import MAX_BASE_CHAIN, ConfigError, read_toml
+    from odolab.learned.training.configs import MAX_BASE_CHAIN, ConfigError, read_toml
 
     for i in range(1000):
         (tmp_path / f"r{i}.toml").write_text(f'base = "r{i + 1}.toml"\n' if i < 999 else "x = 1\n")
@@ -57,7 +57,7 @@ def test_a_base_chain_too_long_is_one_line(tmp_path):
 
 
 def test_tables_nested_too_deep_to_merge_are_one_line(tmp_path):
-    from odolab.learning.configs import ConfigError, read_toml
+    from odolab.learned.training.configs import ConfigError, read_toml
 
     deep = ".".join(["t"] * 2000)
     (tmp_path / "base.toml").write_text(f"{deep} = 1\n")

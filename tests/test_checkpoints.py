@@ -1,4 +1,4 @@
-"""odolab/learning/checkpoints.py: model files and training states carry a checksum, checked on load;
+"""odolab/learned/training/checkpoints.py: model files and training states carry a checksum, checked on load;
 one trainer never replaces another's model; an export or --init that is a dead link is named as one."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from odolab.learning import CheckpointError, checkpoints
+from odolab.learned.training import CheckpointError, checkpoints
 
 KIND = "odolab-test-model"
 
@@ -132,8 +132,8 @@ def test_the_shipped_file_without_a_checksum_must_match_its_bytes_digest(tmp_pat
 
 def test_the_shipped_models_match_their_recorded_digests():
     """Both shipped models verify: by their bytes (written before checksums) or their own checksum."""
-    from baselines.deepvo import odometer as deepvo
-    from odolab.robust_vo import checkpoint as robust_vo
+    from odolab.learned.deepvo import odometer as deepvo
+    from odolab.learned.robust_vo import checkpoint as robust_vo
 
     for module in (robust_vo, deepvo):
         doc_has_checksum = checkpoints.CHECKSUM_KEY in torch.load(module.SHIPPED, weights_only=True, mmap=True)
@@ -161,7 +161,7 @@ def test_one_trainer_never_replaces_anothers_model(tmp_path):
     torch = pytest.importorskip("torch")
     import dataclasses
 
-    from odolab.learning.checkpoints import CheckpointError, check_export, save_model
+    from odolab.learned.training.checkpoints import CheckpointError, check_export, save_model
 
     @dataclasses.dataclass
     class R:
@@ -178,7 +178,7 @@ def test_one_trainer_never_replaces_anothers_model(tmp_path):
 
 
 def test_an_export_that_is_a_dangling_link_is_named_as_one(tmp_path):
-    from odolab.learning.checkpoints import check_export
+    from odolab.learned.training.checkpoints import check_export
 
     (tmp_path / "model.pt").symlink_to(tmp_path / "nowhere.pt")
     with pytest.raises(ValueError, match="link to nothing"):
@@ -186,7 +186,7 @@ def test_an_export_that_is_a_dangling_link_is_named_as_one(tmp_path):
 
 
 def test_an_init_that_is_a_dead_link_or_absolute_is_named_as_such(tmp_path):
-    from odolab.learning.checkpoints import load_init
+    from odolab.learned.training.checkpoints import load_init
 
     def never(path):
         raise AssertionError("not to be loaded")

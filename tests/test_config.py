@@ -166,7 +166,7 @@ def test_change_document_sets_dotted_paths_and_leaves_the_original_alone():
 def test_a_refused_change_among_several_is_the_one_named(tmp_path):
     """The message's ``stages[0].lr`` is the change ``stages.forward.lr``: that change alone is named."""
     from odolab.config import ChangeError
-    from odolab.robust_vo.config import TrainConfig
+    from odolab.learned.robust_vo.config import TrainConfig
 
     recipe = Path(__file__).resolve().parents[1] / "studies" / "robust_vo" / "shipped.toml"
     for changes, named in (
@@ -182,7 +182,7 @@ def test_a_refused_change_among_several_is_the_one_named(tmp_path):
 
 
 def test_a_bad_value_in_a_base_file_names_that_file(tmp_path):
-    from odolab.robust_vo.config import TrainConfig
+    from odolab.learned.robust_vo.config import TrainConfig
 
     shipped = Path(__file__).resolve().parents[1] / "studies" / "robust_vo" / "shipped.toml"
     (tmp_path / "bad.toml").write_text(f'base = "{shipped}"\n[model]\ndropout = "x"\n')
@@ -197,7 +197,7 @@ def test_a_bad_value_in_a_base_file_names_that_file(tmp_path):
 
 
 def test_a_linked_recipe_takes_its_base_beside_the_file_it_links_to(tmp_path):
-    from odolab.robust_vo.config import TrainConfig
+    from odolab.learned.robust_vo.config import TrainConfig
 
     recipe = Path(__file__).resolve().parents[1] / "studies" / "robust_vo" / "ablations" / "no-dropout.toml"
     (tmp_path / "links").mkdir()

@@ -1,11 +1,11 @@
-"""odolab.learning.curves: training curves kept as CSV and drawn as small multiples, the figure redrawn
+"""odolab.learned.training.curves: training curves kept as CSV and drawn as small multiples, the figure redrawn
 after an epoch (``final=False``) at most once a minute."""
 
 from __future__ import annotations
 
 import os
 
-from odolab.learning.curves import Curves
+from odolab.learned.training.curves import Curves
 
 
 def _curves() -> Curves:

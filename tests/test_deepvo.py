@@ -1,4 +1,4 @@
-"""baselines/deepvo: targets by SE(3) composition, a tiny DeepVO that learns, an LSTM state that
+"""odolab/learned/deepvo: targets by SE(3) composition, a tiny DeepVO that learns, an LSTM state that
 carries across steps and resets between sequences, resumable training, the odometer in compare."""
 
 from __future__ import annotations
@@ -11,16 +11,16 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from baselines.deepvo import train as trainer
-from baselines.deepvo.config import DeepVOModel, DeepVOTraining, load_training
-from baselines.deepvo.model import DeepVONet
-from baselines.deepvo.odometer import DeepVOOdometer, load_model
 from odolab.api import Action, integrate, invert, planar_to_transform
 from odolab.core.parallel import SERIAL, Execution
-from odolab.learning import CheckpointError, DataConfig, TrainingData, make_training_data
+from odolab.learned.deepvo import train as trainer
+from odolab.learned.deepvo.config import DeepVOModel, DeepVOTraining, load_training
+from odolab.learned.deepvo.model import DeepVONet
+from odolab.learned.deepvo.odometer import DeepVOOdometer, load_model
+from odolab.learned.training import CheckpointError, DataConfig, TrainingData, make_training_data
 
 W, H = 48, 32
-NAME = "baselines.deepvo.odometer:DeepVOOdometer"
+NAME = "odolab.learned.deepvo.odometer:DeepVOOdometer"
 
 
 def _recipe(root, **kw) -> DeepVOTraining:
@@ -101,7 +101,7 @@ def test_a_model_smaller_than_its_data_trains_on_frames_resized_as_the_odometer_
     """A recipe may take data larger than its model: the windows' frames are the stored frames
     through resize_frame (what the odometer applies to the camera's frames); a smaller data set, or
     any other size for the robust VO's exact-size check, is refused with both sizes named."""
-    from odolab.learning import resize_frame
+    from odolab.learned.training import resize_frame
 
     data = TrainingData(recipe.data_folder(recipe.train_data))
     small = dataclasses.replace(recipe.model, width=W // 2, height=H // 2)
@@ -274,7 +274,7 @@ def test_the_command_refuses_a_start_of_another_shape_before_making_its_folders(
         train(
             "deepvo",
             [*argv, "--work", str(work), "--reports", str(reports), "--quiet"],
-            "python -m baselines.deepvo.train",
+            "python -m odolab.learned.deepvo.train",
         )
     assert not work.exists() and not reports.exists()
 
@@ -363,8 +363,8 @@ def test_the_shipped_deepvo_is_registered_and_runs_in_a_comparison():
 
 
 def test_a_model_too_large_for_float32_is_stored_in_float16_and_answers_alike(trained, recipe, tmp_path, monkeypatch):
-    from baselines.deepvo.odometer import save_model
-    from odolab.learning import checkpoints
+    from odolab.learned.deepvo.odometer import save_model
+    from odolab.learned.training import checkpoints
 
     model, net, info = load_model(trained / "model.pt")
     assert torch.load(trained / "model.pt", weights_only=True)["weights_dtype"] == "float32"

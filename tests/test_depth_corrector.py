@@ -1,4 +1,4 @@
-"""odolab/depth_corrector: the U-Net answers the input depth until trained, ``denoised(X)`` answers
+"""odolab/learned/depth_corrector: the U-Net answers the input depth until trained, ``denoised(X)`` answers
 exactly X with an untrained model, a model file that does not fit its network is refused in one
 line, the validation rows are what they say, and a tiny training run resumes and exports."""
 
@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from odolab.api import load_odometer
-from odolab.depth_corrector.checkpoint import load_model, save_model
-from odolab.depth_corrector.config import CorrectorModel, CorrectorTraining
-from odolab.depth_corrector.model import DepthCorrectorNet, base_spread, pixel_place
-from odolab.depth_corrector.train import bin_labels, depth_edges, depth_error_rows
-from odolab.learning import CheckpointError, DataConfig
+from odolab.learned.depth_corrector.checkpoint import load_model, save_model
+from odolab.learned.depth_corrector.config import CorrectorModel, CorrectorTraining
+from odolab.learned.depth_corrector.model import DepthCorrectorNet, base_spread, pixel_place
+from odolab.learned.depth_corrector.train import bin_labels, depth_edges, depth_error_rows
+from odolab.learned.training import CheckpointError, DataConfig
 from odolab.sim.episodes import EpisodeSpec, render_episode
 from tests.conftest import SMALL_CAMERA
 
@@ -113,7 +113,7 @@ def test_a_recipe_needs_clean_depth_and_a_crop_that_fits():
 @pytest.mark.slow
 def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path, monkeypatch):
     from odolab.core.parallel import SERIAL
-    from odolab.depth_corrector.train import run
+    from odolab.learned.depth_corrector.train import run
 
     data = {"episodes": 2, "max_steps": 4, "width": 64, "height": 40, "clean_depth": True}
     cfg = CorrectorTraining(
@@ -138,7 +138,7 @@ def test_a_tiny_training_resumes_lowers_the_error_and_exports(tmp_path, monkeypa
     assert run(more, device=torch.device("cpu"), hours=None, execution=SERIAL, **{**kw, "export": tmp_path / "m3.pt"})
     assert load_model(tmp_path / "m3.pt")[2]["training"]["epochs_done"] == 3  # resumed: one more epoch
     # interrupted (Ctrl-C): the figure, redrawn after an epoch at most once a minute, is drawn as it stops
-    from odolab.learning import EpochLoop
+    from odolab.learned.training import EpochLoop
 
     figure = tmp_path / "rep" / "curves.png"
     figure.write_bytes(b"drawn a moment ago")

@@ -13,9 +13,9 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("ray.train.torch")
 
 from odolab.core.parallel import SERIAL, Execution
-from odolab.learning import ComputeConfig, make_training_data
-from odolab.robust_vo import train as trainer
-from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
+from odolab.learned.robust_vo import train as trainer
+from odolab.learned.robust_vo.config import ModelConfig, StageConfig, TrainConfig
+from odolab.learned.training import ComputeConfig, make_training_data
 from odolab.sim.training_data import DataConfig
 
 pytestmark = pytest.mark.slow

@@ -10,7 +10,7 @@ pytest.importorskip("torch")  # a declared dependency; skip only where it is tru
 
 from odolab.api import Action
 from odolab.core.parallel import SERIAL
-from odolab.learning import DataConfig, TrainingData, make_training_data
+from odolab.learned.training import DataConfig, TrainingData, make_training_data
 from odolab.sim.episodes import NoiseConfig
 from studies.robust_vo.forward_dz_probe import residual
 

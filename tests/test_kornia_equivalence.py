@@ -1,4 +1,4 @@
-"""kornia in the robust VO's warp (odolab.robust_vo.warp): its back-projection gives the same bits as
+"""kornia in the robust VO's warp (odolab.learned.robust_vo.warp): its back-projection gives the same bits as
 the plain-torch formulas d * ((u - cx) / fx, (v - cy) / fy, 1), on random frames with depth holes,
 every action and an off-centre principal point, and the odometer's answers on a tiny episode do not
 change by a bit."""
@@ -11,12 +11,12 @@ import torch
 import torch.nn.functional as F
 
 from odolab.api import Action, Intrinsics, load_odometer
-from odolab.learning import DataConfig
-from odolab.robust_vo import odometer as robust_odometer
-from odolab.robust_vo.checkpoint import save_model
-from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
-from odolab.robust_vo.model import build_networks
-from odolab.robust_vo.warp import FALLBACK_DEPTH, nominal_transforms, warp_current
+from odolab.learned.robust_vo import odometer as robust_odometer
+from odolab.learned.robust_vo.checkpoint import save_model
+from odolab.learned.robust_vo.config import ModelConfig, StageConfig, TrainConfig
+from odolab.learned.robust_vo.model import build_networks
+from odolab.learned.robust_vo.warp import FALLBACK_DEPTH, nominal_transforms, warp_current
+from odolab.learned.training import DataConfig
 from odolab.sim.camera import CameraSpec
 from odolab.sim.episodes import EpisodeSpec, NoiseConfig, render_episode
 
@@ -116,7 +116,7 @@ def test_the_odometer_answers_the_same_bits_with_the_plain_warp(tmp_path, monkey
     ep = render_episode(spec)
 
     def answers() -> list[np.ndarray]:
-        odo = load_odometer("odolab.robust_vo.odometer:RobustVOOdometer", checkpoint=str(tmp_path / "m.pt"))
+        odo = load_odometer("odolab.learned.robust_vo.odometer:RobustVOOdometer", checkpoint=str(tmp_path / "m.pt"))
         odo.reset(ep.intrinsics)
         return [odo.step(ep[i], ep[i + 1], ep.action(i)).transform for i in range(len(ep) - 1)]
 

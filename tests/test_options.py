@@ -66,8 +66,8 @@ def test_numbers_too_long_to_read_are_one_line_errors(tmp_path):
         tmp_path / "o2",
         words=f"{cfg}: holds a number too long to read",
     )
-    from odolab.learning import ConfigError
-    from odolab.robust_vo.config import load_train_config
+    from odolab.learned.robust_vo.config import load_train_config
+    from odolab.learned.training import ConfigError
 
     with pytest.raises(ConfigError, match="holds a number too long to read"):
         load_train_config(str(cfg))

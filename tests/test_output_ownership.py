@@ -189,7 +189,7 @@ def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys
 def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(tmp_path):
     pytest.importorskip("torch")
     from odolab.cli import UsageError
-    from odolab.learning import save_checkpoint
+    from odolab.learned.training import save_checkpoint
 
     recipe = tmp_path / "recipe.toml"
     with pytest.raises(
@@ -219,16 +219,16 @@ def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(
 
 def test_the_deepvo_export_never_replaces_its_training_state_and_saving_never_replaces_a_recipe(tmp_path):
     torch = pytest.importorskip("torch")
-    from baselines.deepvo.config import load_training
-    from baselines.deepvo.train import state_files
     from odolab.cli import UsageError
     from odolab.cli.train import parse_training_command, training_parser
-    from odolab.learning import CheckpointError
-    from odolab.learning.checkpoints import save_model
+    from odolab.learned.deepvo.config import load_training
+    from odolab.learned.deepvo.train import state_files
+    from odolab.learned.training import CheckpointError
+    from odolab.learned.training.checkpoints import save_model
 
     recipe = tmp_path / "deepvo.toml"
     recipe.write_text("epochs = 1\n")
-    ap = training_parser("python -m baselines.deepvo.train", "train", "deepvo")
+    ap = training_parser("python -m odolab.learned.deepvo.train", "train", "deepvo")
     with pytest.raises(UsageError, match="found the file where the DeepVO training keeps its training state"):
         parse_training_command(
             ap,
@@ -266,7 +266,7 @@ def test_a_training_keeps_its_work_out_of_other_runs_folders_but_may_keep_it_in_
     with pytest.raises(UsageError, match=r"--work .*: lies inside the report folder of study ablations"):
         robust_job(tmp_path, "--work", str(study / "states"))
     (tmp_path / "reports").mkdir()
-    same = f"python -m odolab.robust_vo.train --config {tmp_path / 'recipe.toml'}"  # this training's summary
+    same = f"python -m odolab.learned.robust_vo.train --config {tmp_path / 'recipe.toml'}"  # this training's summary
     (tmp_path / "reports" / "training.json").write_text(json.dumps({"command": same, "stages": []}))
     job = robust_job(tmp_path, "--work", str(tmp_path / "reports" / "state"))  # its own reports
     assert job.work == tmp_path / "reports" / "state"
@@ -283,7 +283,9 @@ def test_a_training_report_folder_is_a_run_folder_for_nesting(tmp_path, capsys):
 
     reports = tmp_path / "training"
     reports.mkdir()
-    (reports / "training.json").write_text(json.dumps({"command": "python -m odolab.robust_vo.train", "stages": []}))
+    (reports / "training.json").write_text(
+        json.dumps({"command": "python -m odolab.learned.robust_vo.train", "stages": []})
+    )
     assert run_cli(main, "compare", ["--out", str(reports / "cmp"), "--episodes", "1"]) == 2
     assert "lies inside a training's report folder" in capsys.readouterr().err
     assert not (reports / "cmp").exists()

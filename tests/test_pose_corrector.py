@@ -1,4 +1,4 @@
-"""odolab/pose_corrector: an untrained ``corrected(X)`` answers exactly X, where X fails it answers
+"""odolab/learned/pose_corrector: an untrained ``corrected(X)`` answers exactly X, where X fails it answers
 the corrected action prior (valid), its covariance is a 6x6 symmetric positive definite matrix, a
 model file that does not fit its network (or was trained for another X) is refused in one line,
 X's estimates on the training pairs are stored once and reused (refused for another X), and a tiny
@@ -16,13 +16,13 @@ import torch
 
 from odolab.api import Action, Estimate, Odometer, load_odometer, register_odometer, transform_to_planar
 from odolab.core.parallel import SERIAL
-from odolab.learning import CheckpointError, DataConfig
-from odolab.pose_corrector.checkpoint import load_model, save_model, shipped_model
-from odolab.pose_corrector.config import PoseCorrectorModel, PoseCorrectorTraining, load_training
-from odolab.pose_corrector.estimates import EstimatesError, estimates_folder, make_estimates
-from odolab.pose_corrector.model import PoseCorrectorNet, apply_correction, pair_inputs
-from odolab.pose_corrector.train import COLLIDED, correction_rows, pair_targets
-from odolab.robust_vo.odometer import PLANAR_VARIANCE
+from odolab.learned.pose_corrector.checkpoint import load_model, save_model, shipped_model
+from odolab.learned.pose_corrector.config import PoseCorrectorModel, PoseCorrectorTraining, load_training
+from odolab.learned.pose_corrector.estimates import EstimatesError, estimates_folder, make_estimates
+from odolab.learned.pose_corrector.model import PoseCorrectorNet, apply_correction, pair_inputs
+from odolab.learned.pose_corrector.train import COLLIDED, correction_rows, pair_targets
+from odolab.learned.robust_vo.odometer import PLANAR_VARIANCE
+from odolab.learned.training import CheckpointError, DataConfig
 from odolab.sim.episodes import EpisodeSpec, render_episode
 from odolab.sim.training_data import TrainingData, make_training_data
 from tests.conftest import SMALL_CAMERA
@@ -274,7 +274,7 @@ def _tiny_recipe(root: Path, inner: str, **kw) -> PoseCorrectorTraining:
 
 
 def test_a_tiny_training_resumes_and_exports_a_model_corrected_x_loads(tmp_path, episode):
-    from odolab.pose_corrector.train import run
+    from odolab.learned.pose_corrector.train import run
 
     cfg = _tiny_recipe(tmp_path / "data", "icp", batch=4, epochs=2, pairs_per_epoch=8)
     kw = {"work": tmp_path / "work", "reports": tmp_path / "rep", "export": tmp_path / "model.pt"}
@@ -296,7 +296,7 @@ def test_a_tiny_training_resumes_and_exports_a_model_corrected_x_loads(tmp_path,
 
 @pytest.mark.parametrize("inner", ["nosuch", "fused(icp", "denoised(nosuch)"])
 def test_an_x_that_cannot_be_built_is_refused_before_any_data_is_made(tmp_path, inner):
-    from odolab.pose_corrector.train import run
+    from odolab.learned.pose_corrector.train import run
 
     cfg = _tiny_recipe(tmp_path / "data", inner)
     kw = {"work": tmp_path / "work", "reports": tmp_path / "rep", "export": tmp_path / "model.pt"}

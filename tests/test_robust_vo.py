@@ -1,4 +1,4 @@
-"""The robust VO (odolab/robust_vo): inputs psi, the motion maps behind its augmentations, the GeoInv
+"""The robust VO (odolab/learned/robust_vo): inputs psi, the motion maps behind its augmentations, the GeoInv
 loss, training (loss falls, resumes bit for bit), checkpoints and the odometer. Tiny models on tiny
 data: 48 x 32 px, 8 base planes."""
 
@@ -14,17 +14,17 @@ torch = pytest.importorskip("torch")  # a declared dependency; skip only where i
 
 from odolab.api import Action, Intrinsics, invert, load_odometer, transform_to_planar
 from odolab.core.parallel import SERIAL
-from odolab.learning import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
-from odolab.learning.checkpoints import load_checkpoint
-from odolab.learning.epochs import STATE_FORMAT, STATE_KIND
-from odolab.robust_vo import train as trainer
-from odolab.robust_vo.batches import Samples, make_batch, stage_samples
-from odolab.robust_vo.checkpoint import load_model, save_model
-from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config
-from odolab.robust_vo.inputs import frame_channels, pair_channels, top_down_projection
-from odolab.robust_vo.model import build_networks, predict
-from odolab.robust_vo.motion import compose, geoinv_loss, inverse, mirror, swap_action
-from odolab.robust_vo.odometer import RobustVOOdometer
+from odolab.learned.robust_vo import train as trainer
+from odolab.learned.robust_vo.batches import Samples, make_batch, stage_samples
+from odolab.learned.robust_vo.checkpoint import load_model, save_model
+from odolab.learned.robust_vo.config import ModelConfig, StageConfig, TrainConfig, load_train_config
+from odolab.learned.robust_vo.inputs import frame_channels, pair_channels, top_down_projection
+from odolab.learned.robust_vo.model import build_networks, predict
+from odolab.learned.robust_vo.motion import compose, geoinv_loss, inverse, mirror, swap_action
+from odolab.learned.robust_vo.odometer import RobustVOOdometer
+from odolab.learned.training import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
+from odolab.learned.training.checkpoints import load_checkpoint
+from odolab.learned.training.epochs import STATE_FORMAT, STATE_KIND
 from odolab.sim.camera import CameraSpec
 from odolab.sim.episodes import EpisodeSpec, NoiseConfig, render_episode
 
@@ -364,7 +364,7 @@ def test_the_odometer_is_deterministic_and_reads_weights_only(trained, recipe, m
     calls = []
     real = torch.load
     monkeypatch.setattr(torch, "load", lambda *a, **k: calls.append(k.get("weights_only")) or real(*a, **k))
-    odo = load_odometer("odolab.robust_vo.odometer:RobustVOOdometer", checkpoint=str(trained / "model.pt"))
+    odo = load_odometer("odolab.learned.robust_vo.odometer:RobustVOOdometer", checkpoint=str(trained / "model.pt"))
     assert calls == [True]
     pairs, ep = _pairs(recipe)
     odo.reset(ep.intrinsics)
@@ -529,7 +529,7 @@ def test_hostile_recipe_values_are_refused_with_their_field(tmp_path):
 
 
 def test_a_non_finite_loss_stops_training_with_a_message():
-    from odolab.learning import require_finite
+    from odolab.learned.training import require_finite
 
     require_finite(torch.tensor(1.0), 1)
     with pytest.raises(ValueError, match="loss became nan in epoch 3"):
@@ -547,7 +547,7 @@ def test_mc_dropout_draws_are_the_same_for_the_same_seed(trained, recipe):
 
 
 def test_a_resumed_state_names_what_changed(trained, recipe):
-    from odolab.learning.epochs import differences
+    from odolab.learned.training.epochs import differences
 
     assert differences({"m": {"a": 1, "b": [1, 2]}}, {"m": {"a": 2, "b": [1, 2]}}) == ["m.a (saved 1, now 2)"]
     assert differences({"s": {"blocked_repeat": 4}}, {"s": {}}) == ["s.blocked_repeat (saved 4, now unset)"]
@@ -636,8 +636,8 @@ def test_a_run_from_an_init_records_the_start_and_its_training(recipe, trained, 
 
 
 def test_a_start_from_another_input_size_keeps_the_convolutions_and_a_fresh_head(recipe, trained, tmp_path):
-    from odolab.robust_vo.checkpoint import apply_start, load_model, load_start, resized_start
-    from odolab.robust_vo.model import build_networks
+    from odolab.learned.robust_vo.checkpoint import apply_start, load_model, load_start, resized_start
+    from odolab.learned.robust_vo.model import build_networks
 
     _, small, _ = load_model(trained / "model.pt")
     size = {"width": 64, "height": 40}
@@ -667,7 +667,7 @@ def test_a_start_from_another_input_size_keeps_the_convolutions_and_a_fresh_head
 def test_the_input_normaliser_keeps_the_running_moments_of_every_batch():
     """RunningNorm's batch moments (float32 sums combined in float64) against float64 moments of
     all the batches together, for channels far from zero mean and one constant channel."""
-    from odolab.robust_vo.model import RunningNorm, batch_moments
+    from odolab.learned.robust_vo.model import RunningNorm, batch_moments
 
     gen = torch.Generator().manual_seed(0)
     batches = [torch.rand(4, 3, 24, 40, generator=gen) * torch.tensor([1.0, 0.1, 0.0])[:, None, None] for _ in range(3)]

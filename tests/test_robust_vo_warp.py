@@ -1,4 +1,4 @@
-"""The nominal-motion warp of the robust VO's input (odolab.robust_vo.warp): geometry against the
+"""The nominal-motion warp of the robust VO's input (odolab.learned.robust_vo.warp): geometry against the
 simulator, its place in training batches, and the same input at inference."""
 
 from __future__ import annotations
@@ -12,13 +12,13 @@ torch = pytest.importorskip("torch")  # a declared dependency; skip only where i
 
 from odolab.api import Action, invert, load_odometer, nominal_motion
 from odolab.core.parallel import SERIAL
-from odolab.learning import DataConfig, TrainingData, make_training_data
-from odolab.robust_vo.batches import Samples, make_batch
-from odolab.robust_vo.checkpoint import save_model
-from odolab.robust_vo.config import ModelConfig, StageConfig, TrainConfig
-from odolab.robust_vo.inputs import pair_channels
-from odolab.robust_vo.model import build_networks
-from odolab.robust_vo.warp import nominal_transforms, warp_current, warp_pairs
+from odolab.learned.robust_vo.batches import Samples, make_batch
+from odolab.learned.robust_vo.checkpoint import save_model
+from odolab.learned.robust_vo.config import ModelConfig, StageConfig, TrainConfig
+from odolab.learned.robust_vo.inputs import pair_channels
+from odolab.learned.robust_vo.model import build_networks
+from odolab.learned.robust_vo.warp import nominal_transforms, warp_current, warp_pairs
+from odolab.learned.training import DataConfig, TrainingData, make_training_data
 from odolab.sim.camera import CameraSpec
 from odolab.sim.episodes import EpisodeSpec, NoiseConfig, render_episode
 
@@ -128,7 +128,7 @@ def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path, d
     torch.manual_seed(0)
     model = dataclasses.replace(WARPED, depth_residual=depth_residual)
     save_model(tmp_path / "m.pt", dataclasses.replace(recipe, model=model), build_networks(model), {})
-    odo = load_odometer("odolab.robust_vo.odometer:RobustVOOdometer", checkpoint=str(tmp_path / "m.pt"))
+    odo = load_odometer("odolab.learned.robust_vo.odometer:RobustVOOdometer", checkpoint=str(tmp_path / "m.pt"))
     assert odo.needs_action
     data = TrainingData(recipe.data_folder(recipe.train_data))
     ep = render_episode(recipe.train_data.specs[0])
@@ -151,7 +151,7 @@ def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path, d
 
 
 def test_the_residual_channel_is_the_depth_change_scaled_clipped_and_zero_on_holes():
-    from odolab.robust_vo.inputs import residual_channel
+    from odolab.learned.robust_vo.inputs import residual_channel
 
     prev = torch.tensor([[[2.0, 2.0, 0.0, 3.0]]])
     cur = torch.tensor([[[1.99, 2.5, 1.0, 0.0]]])
@@ -164,7 +164,7 @@ def test_the_residual_sees_a_longer_step_as_a_nearer_scene(episode):
     """A forward step 2 cm longer than the true one, undone by warping with the true motion plus
     2 cm: the residual channel's median is then +2 cm / scale (the warp expected the scene 2 cm
     nearer than it is), and about 0 with the true motion."""
-    from odolab.robust_vo.inputs import residual_channel
+    from odolab.learned.robust_vo.inputs import residual_channel
 
     ep = episode
     t = next(i for i in range(len(ep) - 1) if Action(int(ep.actions[i])) is Action.MOVE_FORWARD)
@@ -192,8 +192,8 @@ def test_a_start_from_a_model_without_the_residual_answers_as_that_model(recipe,
     """``init``: the exported model's weights, with a zero stem and an identity normaliser for the
     channel it lacks, so the grown network answers exactly as the old one whatever the new channel
     holds; another model (here, other widths) is refused by name."""
-    from odolab.robust_vo.checkpoint import apply_start, load_start
-    from odolab.robust_vo.model import predict
+    from odolab.learned.robust_vo.checkpoint import apply_start, load_start
+    from odolab.learned.robust_vo.model import predict
 
     torch.manual_seed(0)
     old_nets = build_networks(WARPED)
@@ -236,8 +236,8 @@ def test_a_start_from_a_model_without_the_residual_answers_as_that_model(recipe,
 
 
 def test_mirror_turns_answers_a_right_turn_with_the_mirrored_left_network():
-    from odolab.robust_vo.model import predict
-    from odolab.robust_vo.motion import mirror
+    from odolab.learned.robust_vo.model import predict
+    from odolab.learned.robust_vo.motion import mirror
 
     cfg = dataclasses.replace(WARPED, mirror_turns=True, dropout=0.0)
     assert cfg.model_names() == ("move_forward", "turn_left")
@@ -259,7 +259,7 @@ def test_mirror_turns_answers_a_right_turn_with_the_mirrored_left_network():
 
 
 def test_mirror_turns_leaves_the_forward_stage_resumable():
-    from odolab.robust_vo.train import _identity
+    from odolab.learned.robust_vo.train import _identity
 
     stages = (StageConfig("forward", ("move_forward",), 1), StageConfig("turns", ("turn_left", "turn_right"), 1))
     data = DataConfig(split="train", episodes=1, width=W, height=H)
@@ -272,8 +272,8 @@ def test_mirror_turns_leaves_the_forward_stage_resumable():
 def test_batches_made_in_the_loader_or_on_the_device_are_the_same(recipe):
     """A GPU trainer's loader reads only the frames and the device makes the inputs (warp, psi);
     a CPU trainer's loader makes them whole: the same batch either way (swapped GeoInv half too)."""
-    from odolab.robust_vo.batches import Pairs
-    from odolab.robust_vo.train import StepBatches
+    from odolab.learned.robust_vo.batches import Pairs
+    from odolab.learned.robust_vo.train import StepBatches
 
     data = TrainingData(recipe.data_folder(recipe.train_data))
     model = dataclasses.replace(WARPED, dd_bins=4, sproj=True)

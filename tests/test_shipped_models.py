@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
 from odolab.api import Action, available_odometers, load_odometer
-from odolab.robust_vo.checkpoint import SHIPPED
+from odolab.learned.robust_vo.checkpoint import SHIPPED
 from odolab.sim.episodes import EpisodeSpec, render_episode
 
 
@@ -61,8 +61,8 @@ def test_the_odometer_bench_sets_a_learned_odometer_beside_its_network_alone():
 def test_a_model_file_with_non_finite_weights_is_refused_naming_the_entry(tmp_path):
     import torch
 
-    from odolab.learning import CheckpointError
-    from odolab.robust_vo.checkpoint import load_model
+    from odolab.learned.robust_vo.checkpoint import load_model
+    from odolab.learned.training import CheckpointError
 
     doc = torch.load(SHIPPED, weights_only=True)
     name = next(iter(doc["networks"]))

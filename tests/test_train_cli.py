@@ -41,7 +41,7 @@ def test_workers_a_local_ray_instance_cannot_hold_are_refused_before_any_work(tm
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:6379")
     check_workers(64, 0.0, None, cpu, None, two_cpus)
     monkeypatch.delenv("RAY_ADDRESS")
-    monkeypatch.setattr("odolab.learning.device.local_ray_resources", two_cpus)
+    monkeypatch.setattr("odolab.learned.training.device.local_ray_resources", two_cpus)
     with pytest.raises(UsageError, match="--workers 3: a local Ray instance"):
         _job(tmp_path, "--workers", "3")
     assert not (tmp_path / "work").exists() and not (tmp_path / "reports").exists()
@@ -114,13 +114,13 @@ def test_a_trainer_refuses_the_reports_of_another_training(tmp_path):
     reports = tmp_path / "reports"
     reports.mkdir()
     (reports / "training.json").write_text(
-        json.dumps({"command": "python -m baselines.deepvo.train --config studies/deepvo/shipped.toml"})
+        json.dumps({"command": "python -m odolab.learned.deepvo.train --config studies/deepvo/shipped.toml"})
     )
     with pytest.raises(UsageError, match=r"--reports .*reports: .*training.json is the summary of another training"):
         _job(tmp_path)
     assert not (tmp_path / "work").exists()  # refused before anything was made
     (reports / "training.json").write_text(
-        json.dumps({"command": f"python -m odolab.robust_vo.train --config {tmp_path / 'recipe.toml'} --quiet"})
+        json.dumps({"command": f"python -m odolab.learned.robust_vo.train --config {tmp_path / 'recipe.toml'} --quiet"})
     )
     assert _job(tmp_path, "--set", f"data_root={tmp_path / 'd'}").reports == reports  # the same recipe, elsewhere
 
@@ -145,16 +145,20 @@ def test_an_empty_recipe_or_a_work_path_that_is_a_file_makes_nothing(tmp_path, m
     empty = tmp_path / "empty.toml"
     empty.write_text("\n")
     with pytest.raises(UsageError, match="an empty recipe"):
-        train("deepvo", ["--config", str(empty)], "python -m baselines.deepvo.train")
+        train("deepvo", ["--config", str(empty)], "python -m odolab.learned.deepvo.train")
     (tmp_path / "afile").write_text("x")
     recipe = tmp_path / "r.toml"
     recipe.write_text("epochs = 1\n")
     with pytest.raises(UsageError, match="--work afile: is a file"):
-        train("depth-corrector", ["--config", str(recipe), "--work", "afile"], "python -m odolab.depth_corrector.train")
+        train(
+            "depth-corrector",
+            ["--config", str(recipe), "--work", "afile"],
+            "python -m odolab.learned.depth_corrector.train",
+        )
     with pytest.raises(UsageError, match="--work /proc/odolab/x: not a writable folder"):  # made nowhere
         train(
             "depth-corrector",
             ["--config", str(recipe), "--work", "/proc/odolab/x"],
-            "python -m odolab.depth_corrector.train",
+            "python -m odolab.learned.depth_corrector.train",
         )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "empty.toml", "r.toml"]

@@ -11,7 +11,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from odolab.learning import (
+from odolab.learned.training import (
     SERIAL,
     ComputeConfig,
     DataConfig,
@@ -20,8 +20,8 @@ from odolab.learning import (
     make_training_data,
     prefetched,
 )
-from odolab.learning.compute import cpu_flags, native_bf16
-from odolab.learning.epochs import EpochLoop, EpochTracker
+from odolab.learned.training.compute import cpu_flags, native_bf16
+from odolab.learned.training.epochs import EpochLoop, EpochTracker
 
 CPU = torch.device("cpu")
 X86_BF16 = "processor\t: 0\nflags\t\t: fpu sse avx512f avx512_bf16\n"
@@ -42,7 +42,7 @@ def test_auto_picks_bf16_only_where_the_cpu_has_it():
 
 
 def test_the_device_is_a_gpu_when_present_else_the_cpu(monkeypatch):
-    from odolab.learning import pick_device
+    from odolab.learned.training import pick_device
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     assert pick_device().type in ("cpu", "mps")
@@ -107,7 +107,7 @@ def test_on_a_gpu_auto_makes_batches_in_the_training_process():
 
 
 def test_a_compute_table_is_read_from_toml(tmp_path):
-    from odolab.learning import from_toml
+    from odolab.learned.training import from_toml
 
     path = tmp_path / "c.toml"
     path.write_text('precision = "fp32"\nloader_workers = "auto"\n')
@@ -210,8 +210,8 @@ def test_a_run_killed_within_an_epoch_resumes_to_the_same_numbers(tmp_path):
 
 
 def test_a_compacted_state_keeps_the_networks_not_the_optimiser_and_still_resumes(tmp_path):
-    from odolab.learning.checkpoints import load_checkpoint, save_checkpoint
-    from odolab.learning.epochs import STATE_FORMAT, STATE_KIND
+    from odolab.learned.training.checkpoints import load_checkpoint, save_checkpoint
+    from odolab.learned.training.epochs import STATE_FORMAT, STATE_KIND
 
     whole = _toy_run(tmp_path / "whole.pt", None, 600.0)
     assert "optimizer" in load_checkpoint(tmp_path / "whole.pt", STATE_KIND, STATE_FORMAT)
@@ -327,7 +327,7 @@ def test_the_projection_filters_only_its_band_with_the_same_numbers():
     import torch.nn.functional as F
 
     from odolab.api import Intrinsics
-    from odolab.robust_vo.inputs import top_down_projection
+    from odolab.learned.robust_vo.inputs import top_down_projection
 
     rng = np.random.default_rng(0)
     depth = torch.from_numpy(rng.uniform(0.0, 8.0, (3, 48, 85)).astype(np.float32))
@@ -367,18 +367,18 @@ def test_a_state_that_is_a_link_to_nothing_is_refused_not_written_through(tmp_pa
 
 
 def test_reports_of_another_recipe_are_named(tmp_path):
-    from odolab.learning.validation import other_training
+    from odolab.learned.training.validation import other_training
 
-    cmd = "python -m odolab.robust_vo.train --config studies/robust_vo/shipped.toml --set seed=1 --hours 2"
+    cmd = "python -m odolab.learned.robust_vo.train --config studies/robust_vo/shipped.toml --set seed=1 --hours 2"
     assert other_training(tmp_path, cmd) is None  # nothing there yet
     (tmp_path / "training.json").write_text(json.dumps({"command": cmd.replace("--hours 2", "--quiet")}))
     assert other_training(tmp_path, cmd) is None  # the same recipe, another chunk
     for longer in ("--set epochs=3", "--set stages.forward.epochs=8", "--set=stages.0.epochs=2"):
         assert other_training(tmp_path, f"{cmd} {longer}") is None  # the same training, given more epochs
     for other in (
-        "python -m baselines.deepvo.train --config studies/deepvo/shipped.toml --set seed=1",
-        "python -m odolab.robust_vo.train --config=studies/robust_vo/shipped-341.toml --set seed=1",
-        "python -m odolab.robust_vo.train --config studies/robust_vo/shipped.toml",
+        "python -m odolab.learned.deepvo.train --config studies/deepvo/shipped.toml --set seed=1",
+        "python -m odolab.learned.robust_vo.train --config=studies/robust_vo/shipped-341.toml --set seed=1",
+        "python -m odolab.learned.robust_vo.train --config studies/robust_vo/shipped.toml",
     ):
         (tmp_path / "training.json").write_text(json.dumps({"command": other}))
         assert "is the summary of another training" in other_training(tmp_path, cmd)
@@ -401,7 +401,7 @@ def test_reports_of_another_recipe_are_named(tmp_path):
     ],
 )
 def test_a_device_name_is_one_of_four_forms_and_on_this_machine(monkeypatch, name, said):
-    from odolab.learning import pick_device
+    from odolab.learned.training import pick_device
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)

@@ -282,7 +282,7 @@ def folder_owner(path: Path) -> str | None:
         (
             "training.json",
             ("command", "stages"),
-            "a training's report folder (python -m odolab.robust_vo.train or baselines.deepvo.train)",
+            "a training's report folder (python -m odolab.learned.robust_vo.train or odolab.learned.deepvo.train)",
         ),
         (DATASET, ("format", "shards"), "a training data folder (python -m odolab.training_data)"),
     ):

@@ -96,8 +96,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parts = args.only or ["simulator", "odometers", "navigation", "evaluate", "training"]
     recipes = args.recipe or bench.default_recipes()
     if "training" in parts:
-        from odolab.learning import ConfigError
-        from odolab.robust_vo.config import load_train_config
+        from odolab.learned.robust_vo.config import load_train_config
+        from odolab.learned.training import ConfigError
 
         configs = []
         for r in recipes:
@@ -106,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             except ConfigError as exc:
                 raise UsageError(f"--recipe: {exc}") from None
         if args.bench_data is not None:
-            from odolab.robust_vo.speed import open_bench_data
+            from odolab.learned.robust_vo.speed import open_bench_data
 
             try:
                 args.bench_data = open_bench_data(args.bench_data, configs)

@@ -53,22 +53,22 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "render episodes into training shards (resumable, on Ray)",
     ),
     "train-robust-vo": (
-        "odolab.robust_vo.train",
+        "odolab.learned.robust_vo.train",
         "odolab.cli.train:robust-vo",
         "train the robust VO from a TOML recipe (resumable)",
     ),
     "train-deepvo": (
-        "baselines.deepvo.train",
+        "odolab.learned.deepvo.train",
         "odolab.cli.train:deepvo",
         "train DeepVO from a TOML recipe (resumable)",
     ),
     "train-depth-corrector": (
-        "odolab.depth_corrector.train",
+        "odolab.learned.depth_corrector.train",
         "odolab.cli.train:depth-corrector",
         "train the depth corrector of denoised(...) from a TOML recipe (resumable)",
     ),
     "train-pose-corrector": (
-        "odolab.pose_corrector.train",
+        "odolab.learned.pose_corrector.train",
         "odolab.cli.train:pose-corrector",
         "train the pose corrector of corrected(...) from a TOML recipe (resumable)",
     ),

@@ -1,12 +1,12 @@
 """The trainers' command line, one for every learned model (:data:`TRAINERS`):
 
-    odolab train-robust-vo --config RECIPE [options] = python -m odolab.robust_vo.train --config RECIPE ...
-    odolab train-deepvo ...                          = python -m baselines.deepvo.train ...
-    odolab train-depth-corrector ...                 = python -m odolab.depth_corrector.train ...
-    odolab train-pose-corrector ...                  = python -m odolab.pose_corrector.train ...
+    odolab train-robust-vo --config RECIPE [options] = python -m odolab.learned.robust_vo.train --config RECIPE ...
+    odolab train-deepvo ...                          = python -m odolab.learned.deepvo.train ...
+    odolab train-depth-corrector ...                 = python -m odolab.learned.depth_corrector.train ...
+    odolab train-pose-corrector ...                  = python -m odolab.learned.pose_corrector.train ...
 
 A TOML recipe, where states, curves and the model go, a time budget, the device and thread count;
-each trainer module describes itself in a :class:`odolab.learning.trainer.Trainer` named
+each trainer module describes itself in a :class:`odolab.learned.training.trainer.Trainer` named
 ``TRAINER``. Mistakes are one line and exit code 2, before any work."""
 
 from __future__ import annotations
@@ -52,15 +52,15 @@ __all__ = [
 
 #: family -> the module whose ``TRAINER`` describes it (its ``python -m`` name)
 TRAINERS: dict[str, str] = {
-    "robust-vo": "odolab.robust_vo.train",
-    "deepvo": "baselines.deepvo.train",
-    "depth-corrector": "odolab.depth_corrector.train",
-    "pose-corrector": "odolab.pose_corrector.train",
+    "robust-vo": "odolab.learned.robust_vo.train",
+    "deepvo": "odolab.learned.deepvo.train",
+    "depth-corrector": "odolab.learned.depth_corrector.train",
+    "pose-corrector": "odolab.learned.pose_corrector.train",
 }
 
 
 def trainer_of(family: str):
-    """The :class:`~odolab.learning.trainer.Trainer` of ``family`` (its module imported now: torch loads)."""
+    """The :class:`~odolab.learned.training.trainer.Trainer` of ``family`` (its module imported now: torch loads)."""
     return importlib.import_module(TRAINERS[family]).TRAINER
 
 
@@ -161,12 +161,12 @@ def parse_training_command(
     usage error), pick the device, set the thread count and check every output path and the model
     the recipe starts from (``check_start``) before any folder is made: ``--export`` must not be the
     recipe, a training state (``state_files``, default
-    :func:`~odolab.learning.trainer.stage_states`) or a file that is not
+    :func:`~odolab.learned.training.trainer.stage_states`) or a file that is not
     a model odolab exported."""
-    from odolab.learning.checkpoints import check_export
-    from odolab.learning.device import pick_device, set_threads
-    from odolab.learning.trainer import stage_states
-    from odolab.learning.validation import other_training
+    from odolab.learned.training.checkpoints import check_export
+    from odolab.learned.training.device import pick_device, set_threads
+    from odolab.learned.training.trainer import stage_states
+    from odolab.learned.training.validation import other_training
 
     args = ap.parse_args(argv)
     _check_not_blank(args.config)
@@ -238,7 +238,7 @@ def parse_training_command(
     )
 
 
-#: The files a training writes under ``--reports`` (odolab.learning.validation).
+#: The files a training writes under ``--reports`` (odolab.learned.training.validation).
 REPORT_FILES = ("training.json", "curves.csv", "curves.png")
 
 
@@ -337,7 +337,7 @@ def check_workers(
     if ray_address is not None or os.environ.get("RAY_ADDRESS"):
         return
     if resources is None:
-        from odolab.learning.device import local_ray_resources as resources
+        from odolab.learned.training.device import local_ray_resources as resources
     cpus, gpus = resources()
     if workers > cpus:
         raise UsageError(

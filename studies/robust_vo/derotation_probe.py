@@ -20,10 +20,10 @@ import numpy as np
 import torch
 
 from odolab.api import TURN_ANGLE, Action, planar_to_transform
-from odolab.learning import TrainingData
-from odolab.robust_vo.config import load_train_config
-from odolab.robust_vo.inputs import pair_channels
-from odolab.robust_vo.model import build_networks
+from odolab.learned.robust_vo.config import load_train_config
+from odolab.learned.robust_vo.inputs import pair_channels
+from odolab.learned.robust_vo.model import build_networks
+from odolab.learned.training import TrainingData
 
 
 def derotation(data: TrainingData, angle: float) -> np.ndarray:

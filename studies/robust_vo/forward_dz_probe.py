@@ -28,12 +28,12 @@ import torch
 from odolab.api import FORWARD_STEP, Action, nominal_motion
 from odolab.core.geometry import planar_to_transform, transform_to_planar
 from odolab.io.atomic import write_text_atomic
-from odolab.learning import TrainingData
-from odolab.robust_vo.checkpoint import SHIPPED, load_model
-from odolab.robust_vo.config import load_train_config
-from odolab.robust_vo.inputs import pair_channels
-from odolab.robust_vo.model import predict
-from odolab.robust_vo.warp import nominal_transforms, warp_current
+from odolab.learned.robust_vo.checkpoint import SHIPPED, load_model
+from odolab.learned.robust_vo.config import load_train_config
+from odolab.learned.robust_vo.inputs import pair_channels
+from odolab.learned.robust_vo.model import predict
+from odolab.learned.robust_vo.warp import nominal_transforms, warp_current
+from odolab.learned.training import TrainingData
 
 BATCH = 128
 

@@ -24,9 +24,9 @@ import numpy as np
 import torch
 
 from odolab.io.atomic import write_text_atomic
-from odolab.learning import ComputeConfig
-from odolab.robust_vo import train as trainer
-from odolab.robust_vo.config import StageConfig, TrainConfig, load_train_config
+from odolab.learned.robust_vo import train as trainer
+from odolab.learned.robust_vo.config import StageConfig, TrainConfig, load_train_config
+from odolab.learned.training import ComputeConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 PRECISIONS = ("fp32", "bf16")

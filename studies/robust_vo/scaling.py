@@ -6,7 +6,7 @@ robust-VO training runs, with the classical odometers' test errors as horizontal
         [--classical reports/compare-val-20x100/table_per_action.csv] [--out reports/robust-vo/scaling]
 
 Reads only committed reports: each run's ``curves.csv`` (written by ``python -m
-odolab.robust_vo.train``) and a comparison's ``table_per_action.csv`` (``python -m odolab.compare``).
+odolab.learned.robust_vo.train``) and a comparison's ``table_per_action.csv`` (``python -m odolab.compare``).
 A panel's samples seen count the training pairs of the stages that train its action (a stage trains
 the actions it validates), up to that validation, in the order the stages ran, after those of the
 model the run started from (its ``init``, as its ``training.json`` records it; that model's stages
@@ -143,7 +143,7 @@ def read_curves(folder: Path, name: str | None = None) -> list[Point]:
     wanted = {"epoch", "split", "stage", "pairs", "pairs_per_s", "action", "component", "mae", "prior_mae"}
     if not rows or not wanted <= set(rows[0]):
         raise ValueError(
-            f"{path}: expected a training curves file (python -m odolab.robust_vo.train) with a header and "
+            f"{path}: expected a training curves file (python -m odolab.learned.robust_vo.train) with a header and "
             f"rows, columns {', '.join(sorted(wanted))}"
         )
     points = []
