@@ -40,11 +40,33 @@ def test_a_broken_contract_is_reported(tmp_path):
 
 def test_no_contract_ignores_an_import():
     """The contracts hold as written: none lists an import it lets through."""
+    assert all("ignore_imports" not in c for c in _contracts())
+
+
+def test_the_plug_in_contracts_name_every_wing_but_the_public_faces():
+    """A wing added to odolab/ falls under the plug-in contracts: each forbids every module and
+    package directly in odolab/ but odolab.api (and, for the learned plug-ins, odolab.learned.training)."""
+    wings = {
+        f"odolab.{p.stem}" for p in (ROOT / "odolab").iterdir() if p.suffix == ".py" or (p / "__init__.py").exists()
+    }
+    wings -= {"odolab.__init__", "odolab.api", "odolab.data"}  # odolab/data holds the shipped files, no code
+    learned = {
+        f"odolab.learned.{p.name}" for p in (ROOT / "odolab" / "learned").iterdir() if (p / "__init__.py").exists()
+    }
+    forbidden = {
+        tuple(c["source_modules"]): set(c["forbidden_modules"]) for c in _contracts() if c["type"] == "forbidden"
+    }
+    assert forbidden[("baselines",)] == wings
+    assert forbidden[("odolab.learned.deepvo", "examples")] == wings - {"odolab.learned"} | learned - {
+        "odolab.learned.training",
+        "odolab.learned.deepvo",
+    }
+
+
+def _contracts() -> list[dict]:
     import tomllib
 
-    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
-    layers = next(c for c in contracts if c["type"] == "layers")
-    assert layers["layers"][0].startswith("odolab.cli") and "ignore_imports" not in layers
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
 
 
 def test_only_the_command_wing_builds_argument_parsers():
