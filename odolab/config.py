@@ -78,7 +78,7 @@ MAX_TABLE_DEPTH = 32
 #: Longest ``key=value`` value read as a number: no setting needs 40 digits (Python refuses 4300).
 MAX_NUMBER_CHARS = 40
 
-_RANGE, _OPEN, _DOC = "odolab.range", "odolab.open", "odolab.doc"
+_RANGE, _OPEN, _DOC, _LIST = "odolab.range", "odolab.open", "odolab.doc", "odolab.list"
 
 
 class ConfigError(ValueError):
@@ -101,14 +101,20 @@ def setting(
     open_low: bool = False,
     open_high: bool = False,
     default_factory: Any = dataclasses.MISSING,
+    min_items: int = 0,
+    distinct: bool = False,
 ) -> Any:
     """A dataclass field with its valid range ``(low, high)`` (closed, unless ``open_low`` /
-    ``open_high``; None: no range) and a one-line description ``doc``."""
+    ``open_high``; None: no range) and a one-line description ``doc``. For a list field
+    (``tuple[int, ...]``) the range holds for each item, and ``min_items`` and ``distinct`` (no
+    value twice) for the list."""
     metadata: dict[str, Any] = {_DOC: doc}
     if range is not None:
         low, high = range
         metadata[_RANGE] = (low, high)
         metadata[_OPEN] = (bool(open_low), bool(open_high))
+    if min_items or distinct:
+        metadata[_LIST] = (int(min_items), bool(distinct))
     return dataclasses.field(default=default, default_factory=default_factory, metadata=metadata)
 
 
@@ -125,8 +131,17 @@ def _type_parts(f: dataclasses.Field) -> list[str]:
     return [p.strip() for p in str(kind).split("|")]
 
 
+def _item_type(f: dataclasses.Field) -> str | None:
+    """``"int, ..."`` for a field annotated ``tuple[int, ...]`` (a list field); None for any other."""
+    if not isinstance(f.type, str) and typing.get_origin(f.type) in (tuple, list):
+        return ", ".join(getattr(a, "__name__", str(a)) for a in typing.get_args(f.type))
+    first = _type_parts(f)[0]
+    return first[first.index("[") + 1 : -1] if first.startswith(("tuple[", "list[")) else None
+
+
 def _whole(f: dataclasses.Field) -> bool:
-    return "int" in _type_parts(f) and "float" not in _type_parts(f)
+    parts = _type_parts(f) if _item_type(f) is None else [p.strip() for p in _item_type(f).split(",")]
+    return "int" in parts and "float" not in parts
 
 
 def _show(bound: float) -> str:
@@ -202,8 +217,13 @@ def check(config: Any, prefix: str = "") -> None:
     """``ValueError`` (led by ``prefix``, e.g. ``"stage 'f': "``) for the first field of ``config``
     with a range whose value is not a number of its kind or lies outside it, or with ``Literal[...]``
     choices whose value is none of them (nor, with a range too, such a number); each number is
-    stored as a Python ``int`` or ``float``. Call it from ``__post_init__``."""
+    stored as a Python ``int`` or ``float``; a list field's items are checked one by one
+    (``seeds[1] must be ...``), and its length and repeats as its setting says. Call it from
+    ``__post_init__``."""
     for f in dataclasses.fields(config):
+        if _item_type(f) is not None:
+            _check_items(config, f, prefix)
+            continue
         options = choices(config, f.name)
         if _RANGE not in f.metadata and not options:
             continue
@@ -231,6 +251,30 @@ def check(config: Any, prefix: str = "") -> None:
         object.__setattr__(config, f.name, value)
         if not in_range(config, f.name, value):
             raise ValueError(f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {value!r}")
+
+
+def _check_items(config: Any, f: dataclasses.Field, prefix: str) -> None:
+    """:func:`check` for a list field: its length, its repeats and each item's range."""
+    value = getattr(config, f.name)
+    if value is None and "None" in _type_parts(f):
+        return
+    if not isinstance(value, (tuple, list)):
+        raise ValueError(f"{prefix}{f.name} must be a list, got {value!r:.80}")
+    min_items, distinct = f.metadata.get(_LIST, (0, False))
+    if len(value) < min_items:
+        raise ValueError(f"{prefix}{f.name} must hold at least {min_items} item{'s' * (min_items > 1)}, got []")
+    if distinct and len(set(value)) != len(value):
+        raise ValueError(f"{prefix}{f.name} must hold no value twice, got {list(value)!r:.80}")
+    if _RANGE not in f.metadata:
+        return
+    whole = _whole(f)
+    for k, item in enumerate(value):
+        if (
+            isinstance(item, (bool, np.bool_))
+            or not isinstance(item, numbers.Integral if whole else numbers.Real)
+            or not in_range(config, f.name, item)
+        ):
+            raise ValueError(f"{prefix}{f.name}[{k}] must be {_noun(f)} in {range_text(config, f.name)}, got {item!r:.80}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from odolab.config import check, setting
+from odolab.sim.episodes import MAX_EPISODE_STEPS
 from studies import framework
 
 if TYPE_CHECKING:
@@ -149,26 +151,49 @@ class Scale:
     sees every GPU of its node); ``train_seed_rows`` are trained once more for each of
     ``train_seeds`` (the recipe's ``seed`` changed), so the table shows the training-seed spread."""
 
-    rows: tuple[int, ...]
-    robust_vo_recipe: str
-    robust_vo_changes: tuple[str, ...]
-    sepact_stages: tuple[dict[str, Any], ...]
-    single_stages: tuple[dict[str, Any], ...]
-    wide_changes: tuple[str, ...]
-    deepvo_recipe: str
-    deepvo_changes: tuple[str, ...]
-    data_root: str
-    device: str
-    train_threads: int
-    seeds: tuple[int, ...]
-    episodes: int
-    max_steps: int
-    nav_seeds: tuple[int, ...]
-    nav_episodes: int
-    nav_max_steps: int
-    train_gpus: float = 0.0
-    train_seed_rows: tuple[int, ...] = ()
-    train_seeds: tuple[int, ...] = ()
+    rows: tuple[int, ...] = setting(min_items=1, distinct=True, doc="the table's rows, by number")
+    robust_vo_recipe: str = setting(doc="the robust-VO rows' recipe (a TOML file)")
+    robust_vo_changes: tuple[str, ...] = setting(doc="key=value changes to that recipe")
+    sepact_stages: tuple[dict[str, Any], ...] = setting(doc="the SepAct rows' stages")
+    single_stages: tuple[dict[str, Any], ...] = setting(doc="the one-network rows' stages")
+    wide_changes: tuple[str, ...] = setting(doc="the wide rows' changes")
+    deepvo_recipe: str = setting(doc="DeepVO's recipe (a TOML file)")
+    deepvo_changes: tuple[str, ...] = setting(doc="key=value changes to it")
+    data_root: str = setting(doc='the training data\'s folder ("": <out>/data)')
+    device: str = setting(doc='where a unit trains ("": a GPU where it sees one, else the CPU)')
+    train_threads: int = setting(range=(0, 1024), doc="torch threads per training unit (0: as it is)")
+    seeds: tuple[int, ...] = setting(range=(0, 2**32 - 1), min_items=1, distinct=True, doc="per-step error seeds")
+    episodes: int = setting(range=(1, 1000), doc="per-step error episodes per seed")
+    max_steps: int = setting(range=(1, MAX_EPISODE_STEPS), doc="per-step error steps per episode at most")
+    nav_seeds: tuple[int, ...] = setting(range=(0, 2**32 - 1), min_items=1, distinct=True, doc="navigation seeds")
+    nav_episodes: int = setting(range=(1, 1000), doc="navigation episodes per seed")
+    nav_max_steps: int = setting(range=(1, MAX_EPISODE_STEPS), doc="actions per navigation episode at most")
+    train_gpus: float = setting(0.0, doc="GPUs each training unit asks Ray for (0: none)")
+    train_seed_rows: tuple[int, ...] = setting((), distinct=True, doc="rows trained under the further seeds too")
+    train_seeds: tuple[int, ...] = setting((), range=(0, 2**32 - 1), distinct=True, doc="the further training seeds")
+
+    def __post_init__(self) -> None:
+        check(self)
+        if bool(self.train_seed_rows) != bool(self.train_seeds):
+            raise ValueError(
+                f"train_seeds must be given with train_seed_rows (both or neither), "
+                f"got {list(self.train_seeds)} for rows {list(self.train_seed_rows)}"
+            )
+        if not set(self.train_seed_rows) <= set(self.rows):
+            raise ValueError(f"train_seed_rows must be rows of the scale, got {list(self.train_seed_rows)}")
+        if not (self.train_gpus == 0 or (math.isfinite(self.train_gpus) and 1e-4 <= self.train_gpus <= 64)):
+            raise ValueError(f"train_gpus must be 0 (none) or a number in [0.0001, 64], got {self.train_gpus}")
+        if self.device and not re.fullmatch(r"(cpu|cuda|mps|xpu)(:\d+)?", self.device):
+            raise ValueError(
+                'device must be "" (a GPU where a unit sees one, else the CPU) or a torch device '
+                f'such as "cpu" or "cuda:0", got {self.device!r}'
+            )
+        if self.train_gpus and self.device == "cpu":
+            raise ValueError(f'device "cpu" with train_gpus {self.train_gpus:g} asks Ray for GPUs it would not use')
+        if self.train_gpus and re.fullmatch(r"cuda:[1-9]\d*", self.device):
+            raise ValueError(
+                f'device {self.device!r} with train_gpus: a unit sees only the GPU Ray gives it; use "cuda" or ""'
+            )
 
 
 @dataclass(frozen=True)
@@ -254,7 +279,6 @@ def load_definition(path: Path = DEFINITION) -> Definition:
         unknown = sorted(set(scale.rows) - set(by_number))
         if unknown:
             raise ConfigError(f"{path}: scales.{s}.rows: no such row {unknown[0]}")
-        _check_scale(f"{path}: scales.{s}", scale)
         for r in scale.train_seed_rows:
             if model_row(by_number[r]) != r:
                 raise ConfigError(f"{path}: scales.{s}.train_seed_rows: row {r} trains no model of its own")
@@ -290,52 +314,6 @@ def _row_place(doc: Any, k: int) -> str:
     """How messages name the ``k``-th ``[[rows]]`` table: ``row N`` by its number, else ``rows[k]``."""
     number = doc.get("row") if isinstance(doc, dict) else None
     return f"row {number}" if isinstance(number, int) and not isinstance(number, bool) else f"rows[{k}]"
-
-
-def _check_scale(where: str, scale: Scale) -> None:
-    """Refuse, as the file is read, a scale whose lists or counts no run could use."""
-    from odolab.config import ConfigError
-    from odolab.sim.episodes import MAX_EPISODE_STEPS
-
-    for name, values in (("rows", scale.rows), ("seeds", scale.seeds), ("nav_seeds", scale.nav_seeds)):
-        if not values or len(set(values)) != len(values):
-            raise ConfigError(f"{where}.{name}: expected a non-empty list without repeats, got {list(values)}")
-        if name != "rows" and min(values) < 0:
-            raise ConfigError(f"{where}.{name}: expected seeds >= 0, got {min(values)}")
-    for name, value, low, high in (
-        ("episodes", scale.episodes, 1, 1000),
-        ("max_steps", scale.max_steps, 1, MAX_EPISODE_STEPS),
-        ("nav_episodes", scale.nav_episodes, 1, 1000),
-        ("nav_max_steps", scale.nav_max_steps, 1, MAX_EPISODE_STEPS),
-        ("train_threads", scale.train_threads, 0, 1024),
-    ):
-        if not low <= value <= high:
-            raise ConfigError(f"{where}.{name}: expected an integer in [{low}, {high}], got {value}")
-    if bool(scale.train_seed_rows) != bool(scale.train_seeds) or len(set(scale.train_seeds)) != len(scale.train_seeds):
-        raise ConfigError(
-            f"{where}.train_seeds: expected seeds without repeats for the train_seed_rows (both or neither), "
-            f"got {list(scale.train_seeds)} for rows {list(scale.train_seed_rows)}"
-        )
-    if not set(scale.train_seed_rows) <= set(scale.rows) or (scale.train_seeds and min(scale.train_seeds) < 0):
-        raise ConfigError(
-            f"{where}.train_seed_rows: expected rows of the scale and seeds >= 0, got rows {list(scale.train_seed_rows)}, "
-            f"seeds {list(scale.train_seeds)}"
-        )
-    if not (scale.train_gpus == 0 or (math.isfinite(scale.train_gpus) and 1e-4 <= scale.train_gpus <= 64)):
-        raise ConfigError(f"{where}.train_gpus: expected 0 (none) or a number in [0.0001, 64], got {scale.train_gpus}")
-    if scale.train_gpus and scale.device == "cpu":
-        raise ConfigError(
-            f'{where}.device: "cpu" with train_gpus {scale.train_gpus:g}: asks Ray for GPUs it would not use'
-        )
-    if scale.train_gpus and re.fullmatch(r"cuda:[1-9]\d*", scale.device):
-        raise ConfigError(
-            f'{where}.device: {scale.device!r} with train_gpus: a unit sees only the GPU Ray gives it; use "cuda" or ""'
-        )
-    if scale.device and not re.fullmatch(r"(cpu|cuda|mps|xpu)(:\d+)?", scale.device):
-        raise ConfigError(
-            f'{where}.device: expected "" (a GPU where a unit sees one, else the CPU) or a torch device '
-            f'such as "cpu" or "cuda:0", got {scale.device!r}'
-        )
 
 
 def _check_options(path: Path, row: Row) -> None:

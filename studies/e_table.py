@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from odolab.config import check, setting
+from odolab.sim.episodes import MAX_EPISODE_STEPS
 from studies import framework
 
 COMPONENTS = ("dx", "dz", "dyaw")
@@ -108,32 +110,17 @@ def _finite(v: float) -> float | None:
 
 @dataclass(frozen=True)
 class Scale:
-    """A scale's parameters: the ``seeds`` (each draws other test episodes and other noise),
-    ``episodes`` test episodes of at most ``max_steps`` steps per seed, and the ``odometers``."""
+    """A scale's parameters (``[scales.*]`` of ``studies/e_table.toml``)."""
 
-    seeds: tuple[int, ...]
-    episodes: int
-    max_steps: int
-    odometers: tuple[str, ...]
-
-
-def scale_of(config: framework.StudyConfig, scale: str) -> Scale:
-    """The checked parameters of ``scale``; ``ValueError`` naming the file, field, expected and got."""
-    seeds = framework.checked(
-        config,
-        scale,
-        "seeds",
-        lambda v: (
-            isinstance(v, list) and v and all(type(x) is int and 0 <= x < 2**32 for x in v) and len(set(v)) == len(v)
-        ),
-        "a list of distinct integers in [0, 4294967295]",
+    seeds: tuple[int, ...] = setting(
+        range=(0, 2**32 - 1), min_items=1, distinct=True, doc="test seeds: each draws other episodes and noise"
     )
-    return Scale(
-        seeds=tuple(seeds),
-        episodes=framework.integer(config, scale, "episodes", 1, 1000),
-        max_steps=framework.integer(config, scale, "max_steps", 1, 500),
-        odometers=framework.name_list(config, scale, "odometers"),
-    )
+    episodes: int = setting(range=(1, 1000), doc="test episodes per seed")
+    max_steps: int = setting(range=(1, MAX_EPISODE_STEPS), doc="steps per episode at most")
+    odometers: tuple[str, ...] = setting(min_items=1, distinct=True, doc="the odometers, by name")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]:
@@ -262,7 +249,7 @@ def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.reporting.report import counted
 
-    study = framework.begin("e_table", args, scale_of)
+    study = framework.begin("e_table", args, Scale)
     scale: Scale = study.scale
     outcome = study.run(unit_result, units(scale, study.identity), valid_result)
     rows = table(scale, outcome.results)

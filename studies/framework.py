@@ -27,13 +27,15 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import tomllib
 
 from odolab.core.parallel import Execution, fan_out
 from odolab.io.lock import FolderLock
 from studies.reports_index import DEFAULT_REPORTS
+
+T = TypeVar("T")
 
 SCALES = ("ci", "cpu", "paper")
 HERE = Path(__file__).resolve().parent
@@ -83,50 +85,6 @@ def load_study(name: str, folder: Path = HERE) -> StudyConfig:
     if stray:
         raise ValueError(f"{path}: {stray[0]}: not a study field (expected title and scales)")
     return StudyConfig(name, title, {s: dict(scales[s]) for s in SCALES}, path)
-
-
-def checked(config: StudyConfig, scale: str, key: str, ok: Callable[[Any], bool], expected: str) -> Any:
-    """``config.at(scale)[key]`` when ``ok`` accepts it; else ``ValueError`` naming the file, the field,
-    what was expected and what it got."""
-    value = config.at(scale).get(key)
-    if not _accepts(ok, value):
-        raise ValueError(f"{config.path or config.name}: scales.{scale}.{key}: expected {expected}, got {value!r}")
-    return value
-
-
-def integer(config: StudyConfig, scale: str, key: str, low: int, high: int) -> int:
-    """An integer field in ``[low, high]`` (:func:`checked`)."""
-    return checked(config, scale, key, lambda v: type(v) is int and low <= v <= high, f"an integer in [{low}, {high}]")
-
-
-def number_list(config: StudyConfig, scale: str, key: str, low: float, high: float) -> tuple[float, ...]:
-    """A non-empty list of distinct numbers in ``[low, high]``, as floats (:func:`checked`)."""
-
-    def ok(v: Any) -> bool:
-        return (
-            isinstance(v, list)
-            and len(v) > 0
-            and all(type(x) in (int, float) and low <= x <= high for x in v)
-            and len({float(x) for x in v}) == len(v)
-        )
-
-    return tuple(
-        float(x) for x in checked(config, scale, key, ok, f"a list of distinct numbers in [{low:g}, {high:g}]")
-    )
-
-
-def name_list(config: StudyConfig, scale: str, key: str, empty: bool = False) -> tuple[str, ...]:
-    """A list of distinct non-empty strings (odometer names), empty only with ``empty`` (:func:`checked`)."""
-
-    def ok(v: Any) -> bool:
-        return (
-            isinstance(v, list)
-            and (empty or len(v) > 0)
-            and all(isinstance(x, str) and x.strip() == x != "" for x in v)
-            and len(set(v)) == len(v)
-        )
-
-    return tuple(checked(config, scale, key, ok, "a list of distinct names" + ("" if empty else ", at least one")))
 
 
 def identities(
@@ -679,35 +637,27 @@ class StudyRun:
         say_done(outcome, len(rows), self.out)
 
 
-def scale_params(config: StudyConfig, scale: str, scale_of: Callable[[StudyConfig, str], Any]) -> Any:
-    """``scale_of(config, scale)``, the study's checked parameters (a dataclass), and ``ValueError``
-    naming the file and field for a key of the scale's table that is none of its fields (a typo
-    would otherwise be ignored)."""
-    import dataclasses
+def scale_params(config: StudyConfig, scale: str, cls: type[T]) -> T:
+    """The asked scale's parameters: its table of ``<name>.toml`` built into ``cls``, a dataclass of
+    :func:`odolab.config.setting` fields (their types, ranges and the class's own checks);
+    :class:`odolab.config.ConfigError` (a ``ValueError``) names the file and field, a key that is
+    none of the fields included."""
+    from odolab.config import build
 
-    params = scale_of(config, scale)
-    if dataclasses.is_dataclass(params):
-        fields = {f.name for f in dataclasses.fields(params)}
-        stray = sorted(set(config.at(scale)) - fields)
-        if stray:
-            raise ValueError(
-                f"{config.path or config.name}: scales.{scale}.{stray[0]}: not a field of this study "
-                f"(expected {', '.join(sorted(fields))})"
-            )
-    return params
+    return build(cls, config.at(scale), f"{config.path or config.name}: scales.{scale}")
 
 
-def begin(name: str, args: Any, scale_of: Callable[[StudyConfig, str], Any]) -> StudyRun:
+def begin(name: str, args: Any, scale_class: type) -> StudyRun:
     """Everything a study checks before any work, given its parsed command line ``args``
-    (:mod:`odolab.cli.study`): ``<name>.toml``, the asked scale's parameters (``scale_of(config,
-    scale)``, which has ``odometers`` and may have ``options``), the odometers (loaded for their
+    (:mod:`odolab.cli.study`): ``<name>.toml``, the asked scale's parameters (:func:`scale_params`
+    into ``scale_class``, which has ``odometers`` and may have ``options``), the odometers (loaded for their
     identity digests) and the ``--out`` folder. Bad input is one ``UsageError`` line naming the file
     and field or the option."""
     from odolab.cli import UsageError
 
     try:
         config = load_study(name)
-        scale = scale_params(config, args.scale, scale_of)
+        scale = scale_params(config, args.scale, scale_class)
         identity = identities(config, args.scale, scale.odometers, getattr(scale, "options", None))
     except ValueError as exc:
         raise UsageError(str(exc)) from None

@@ -25,10 +25,11 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from odolab.config import check, setting
 from odolab.core.metrics import KITTI_LENGTHS
 from studies import framework
 
@@ -55,16 +56,22 @@ class Scale:
     ``scene_scale`` times an episode's sides, each next goal ``min_leg``-``max_leg`` m (geodesic)
     from the agent, seen by a ``camera`` of (width, height) pixels; the ``odometers``."""
 
-    split: str
-    seed: int
-    routes: int
-    length: float
-    scene_scale: float
-    min_leg: float
-    max_leg: float
-    camera: tuple[int, int]
-    odometers: tuple[str, ...]
-    building: float = 0.0
+    split: Literal["train", "val", "test"] = setting(doc="the split whose scenes the routes run through")
+    seed: int = setting(range=(0, 2**31 - 1), doc="the routes' seed")
+    routes: int = setting(range=(1, 1000), doc="routes")
+    length: float = setting(range=(1.0, 100_000.0), doc="metres travelled per route")
+    scene_scale: float = setting(range=(1.0, 10.0), doc="the floor plan's sides over an episode's")
+    min_leg: float = setting(range=(0.5, 1000.0), doc="the next goal's least geodesic distance, m")
+    max_leg: float = setting(range=(0.5, 1000.0), doc="the next goal's greatest geodesic distance, m")
+    camera: tuple[int, int] = setting(range=(16, 4096), doc="[width, height] in pixels")
+    odometers: tuple[str, ...] = setting(min_items=1, distinct=True, doc="the odometers, by name")
+    building: float = setting(0.0, range=(0.0, 2000.0), doc="a long building's length, m (0: rooms)")
+
+    def __post_init__(self) -> None:
+        check(self)
+        if len(self.camera) != 2:
+            raise ValueError(f"camera must be [width, height], got {list(self.camera)}")
+        self.specs()  # RouteSpec names its field: "max_leg: expected ..., got ..."
 
     def specs(self) -> list[RouteSpec]:
         """The routes' specs (the challenge's noise, the camera's other settings as an episode's)."""
@@ -86,43 +93,6 @@ class Scale:
             )
             for k in range(self.routes)
         ]
-
-
-def _number(config: framework.StudyConfig, scale: str, key: str, low: float, high: float) -> float:
-    """A number field in ``[low, high]`` (:func:`framework.checked`), as a float."""
-
-    def ok(v: Any) -> bool:
-        return type(v) in (int, float) and low <= v <= high  # NaN and inf fail here
-
-    return float(framework.checked(config, scale, key, ok, f"a number in [{low:g}, {high:g}]"))
-
-
-def scale_of(config: framework.StudyConfig, scale: str) -> Scale:
-    """The checked parameters of ``scale``; ``ValueError`` naming the file, field, expected and got."""
-    camera = framework.checked(
-        config,
-        scale,
-        "camera",
-        lambda v: isinstance(v, list) and len(v) == 2 and all(type(x) is int and 16 <= x <= 4096 for x in v),
-        "[width, height] in pixels, each an integer in [16, 4096]",
-    )
-    params = Scale(
-        split=framework.checked(config, scale, "split", lambda v: v in ("train", "val", "test"), "train, val or test"),
-        seed=framework.integer(config, scale, "seed", 0, 2**31 - 1),
-        routes=framework.integer(config, scale, "routes", 1, 1000),
-        length=_number(config, scale, "length", 1.0, 100_000.0),
-        scene_scale=_number(config, scale, "scene_scale", 1.0, 10.0),
-        min_leg=_number(config, scale, "min_leg", 0.5, 1000.0),
-        max_leg=_number(config, scale, "max_leg", 0.5, 1000.0),
-        camera=(camera[0], camera[1]),
-        odometers=framework.name_list(config, scale, "odometers"),
-        building=_number(config, scale, "building", 0.0, 2000.0),
-    )
-    try:
-        params.specs()
-    except ValueError as exc:  # RouteSpec names its field: "max_leg: expected ..., got ..."
-        raise ValueError(f"{config.path or config.name}: scales.{scale}.{exc}") from None
-    return params
 
 
 def route_label(spec: RouteSpec) -> str:
@@ -721,7 +691,7 @@ def run(args) -> int:
 
     try:
         config = study_config()
-        scale = framework.scale_params(config, args.scale, scale_of)
+        scale = framework.scale_params(config, args.scale, Scale)
         identity = framework.identities(config, args.scale, scale.odometers)
     except ValueError as exc:
         raise UsageError(str(exc)) from None

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from odolab.config import check, setting
+from odolab.sim.episodes import MAX_EPISODE_STEPS
 from studies import framework
 
 COMPONENTS = ("dx", "dz", "dyaw")
@@ -34,30 +36,23 @@ COLUMNS = [
 
 @dataclass(frozen=True)
 class Scale:
-    """A scale's parameters: noise ``levels`` (multipliers, 1 among them), ``episodes`` test
-    episodes of at most ``max_steps`` steps, the ``odometers`` and which of them are ``learned``."""
+    """A scale's parameters (``[scales.*]`` of ``studies/noise_robustness.toml``); ``levels`` are kept sorted."""
 
-    levels: tuple[float, ...]
-    episodes: int
-    max_steps: int
-    odometers: tuple[str, ...]
-    learned: tuple[str, ...]
-
-
-def scale_of(config: framework.StudyConfig, scale: str) -> Scale:
-    """The checked parameters of ``scale``; ``ValueError`` naming the file, field, expected and got."""
-    levels = framework.number_list(config, scale, "levels", 0.0, 10.0)
-    framework.checked(config, scale, "levels", lambda v: 1 in v, "a list holding 1 (the base of the growth factors)")
-    odometers = framework.name_list(config, scale, "odometers")
-    learned = framework.name_list(config, scale, "learned", empty=True)
-    framework.checked(config, scale, "learned", lambda v: set(v) <= set(odometers), "names among the odometers")
-    return Scale(
-        levels=tuple(sorted(levels)),
-        episodes=framework.integer(config, scale, "episodes", 1, 1000),
-        max_steps=framework.integer(config, scale, "max_steps", 1, 500),
-        odometers=odometers,
-        learned=learned,
+    levels: tuple[float, ...] = setting(
+        range=(0.0, 10.0), min_items=1, distinct=True, doc="noise multipliers, 1 among them (the growth's base)"
     )
+    episodes: int = setting(range=(1, 1000), doc="test episodes")
+    max_steps: int = setting(range=(1, MAX_EPISODE_STEPS), doc="steps per episode at most")
+    odometers: tuple[str, ...] = setting(min_items=1, distinct=True, doc="the odometers, by name")
+    learned: tuple[str, ...] = setting(distinct=True, doc="which of the odometers are learned")
+
+    def __post_init__(self) -> None:
+        check(self)
+        if 1 not in self.levels:
+            raise ValueError(f"levels must hold 1 (the base of the growth factors), got {list(self.levels)}")
+        if not set(self.learned) <= set(self.odometers):
+            raise ValueError(f"learned must name odometers among the odometers, got {list(self.learned)}")
+        object.__setattr__(self, "levels", tuple(sorted(self.levels)))
 
 
 def label(odometer: str, level: float) -> str:
@@ -292,7 +287,7 @@ def study_config() -> framework.StudyConfig:
 
 def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
-    study = framework.begin("noise_robustness", args, scale_of)
+    study = framework.begin("noise_robustness", args, Scale)
     scale: Scale = study.scale
     outcome = study.run(unit_result, units(scale, study.identity), valid_result)
     rows = table(scale, outcome.results)

@@ -21,11 +21,12 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from odolab.api import StepByStep, invert, transform_to_planar, wrap_angle
+from odolab.config import check, setting
 from studies import framework
 
 #: Bins of the first frame's median depth, m.
@@ -35,35 +36,27 @@ COLUMNS = ["odometer", "bin", "turns", "failed_share", "yaw_rms_deg", "over_2deg
 
 @dataclass(frozen=True)
 class Scale:
-    """A scale's parameters: ``per_scene`` turns in each of the first ``scenes`` scenes of ``split``
-    from ``seed``, the ``odometers`` and their constructor ``options`` (name -> {key: value})."""
+    """A scale's parameters (``[scales.*]`` of ``studies/turns_by_depth.toml``): ``per_scene`` turns
+    in each of the first ``scenes`` scenes of ``split`` from ``seed``, the ``odometers`` and their
+    constructor ``options`` (name -> {key: value})."""
 
-    split: str
-    seed: int
-    scenes: int
-    per_scene: int
-    odometers: tuple[str, ...]
-    options: dict[str, dict[str, Any]]
+    split: Literal["train", "val", "test"] = setting(doc="the split whose scenes are drawn")
+    seed: int = setting(range=(0, 2**31 - 1), doc="the seed of the scenes and turns")
+    scenes: int = setting(range=(1, 1000), doc="scenes")
+    per_scene: int = setting(range=(1, 1000), doc="turns per scene")
+    odometers: tuple[str, ...] = setting(min_items=1, distinct=True, doc="the odometers, by name")
+    options: dict[str, dict[str, Any]] = setting(doc="option tables, one per odometer among the odometers")
 
-
-def scale_of(config: framework.StudyConfig, scale: str) -> Scale:
-    """The checked parameters of ``scale``; ``ValueError`` naming the file, field, expected and got."""
-    odometers = framework.name_list(config, scale, "odometers")
-    options = framework.checked(
-        config,
-        scale,
-        "options",
-        lambda v: isinstance(v, dict) and set(v) <= set(odometers) and all(isinstance(o, dict) for o in v.values()),
-        "a table of option tables, one per odometer among the odometers",
-    )
-    return Scale(
-        split=framework.checked(config, scale, "split", lambda v: v in ("train", "val", "test"), "train, val or test"),
-        seed=framework.integer(config, scale, "seed", 0, 2**31 - 1),
-        scenes=framework.integer(config, scale, "scenes", 1, 1000),
-        per_scene=framework.integer(config, scale, "per_scene", 1, 1000),
-        odometers=odometers,
-        options=options,
-    )
+    def __post_init__(self) -> None:
+        check(self)
+        if not (
+            isinstance(self.options, dict)
+            and set(self.options) <= set(self.odometers)
+            and all(isinstance(o, dict) for o in self.options.values())
+        ):
+            raise ValueError(
+                f"options must be a table of option tables, one per odometer among the odometers, got {self.options!r:.80}"
+            )
 
 
 def turn_pairs(split: str, seed: int, scenes: int, per_scene: int, first: int = 0) -> Iterator[tuple]:
@@ -312,7 +305,7 @@ def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.reporting.report import counted
 
-    study = framework.begin("turns_by_depth", args, scale_of)
+    study = framework.begin("turns_by_depth", args, Scale)
     scale: Scale = study.scale
     valid = functools.partial(valid_result, per_scene=scale.per_scene)
     outcome = study.run(unit_result, units(scale, study.identity), valid)

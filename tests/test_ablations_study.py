@@ -161,15 +161,15 @@ def test_a_definition_naming_an_unknown_row_is_refused(tmp_path: Path):
             'odometer = "action-prior"\npaper = { success = 1, spl = 1, d_g = 1, soft_spl = 1, params = "" }',
             r"row 21: paper: expected none",
         ),
-        ("seeds = [0, 1, 2]", "seeds = []", r"scales.cpu.seeds: expected a non-empty list without repeats, got \[\]"),
-        ("rows = [0, 1, 4,", "rows = [0, 0, 1, 4,", r"scales.ci.rows: expected a non-empty list without repeats"),
+        ("seeds = [0, 1, 2]", "seeds = []", r"scales.cpu: seeds must hold at least 1 item, got \[\]"),
+        ("rows = [0, 1, 4,", "rows = [0, 0, 1, 4,", r"scales.ci: rows must hold no value twice"),
         (
             "nav_episodes = 50",
             "nav_episodes = -4",
-            r"scales.cpu.nav_episodes: expected an integer in \[1, 1000\], got -4",
+            r"scales.cpu: nav_episodes must be in \[1, 1000\], got -4",
         ),
-        ('device = "cpu"', 'device = "tpu9"', r"scales.ci.device: expected .* got 'tpu9'"),
-        ("train_threads = 1", "train_threads = -1", r"scales.ci.train_threads: expected an integer in \[0, 1024\]"),
+        ('device = "cpu"', 'device = "tpu9"', r"scales.ci: device must be .* got 'tpu9'"),
+        ("train_threads = 1", "train_threads = -1", r"scales.ci: train_threads must be in \[0, 1024\]"),
     ],
 )
 def test_a_bad_row_or_scale_is_refused_when_the_definition_is_read(tmp_path: Path, old: str, new: str, said: str):

@@ -204,3 +204,29 @@ def test_a_linked_recipe_takes_its_base_beside_the_file_it_links_to(tmp_path):
     (tmp_path / "links" / "r.toml").symlink_to(recipe)
     (tmp_path / "shipped.toml").write_text("seed = 99\n")  # where '../shipped.toml' would be beside the link
     assert from_toml(TrainConfig, tmp_path / "links" / "r.toml") == from_toml(TrainConfig, recipe)
+
+
+def test_a_list_setting_checks_each_item_its_length_and_repeats():
+    """A list field's range holds for each item; min_items and distinct for the list (build names the place)."""
+    from dataclasses import dataclass
+
+    from odolab.config import ConfigError, build, check, setting
+
+    @dataclass(frozen=True)
+    class Seeds:
+        seeds: tuple[int, ...] = setting(range=(0, 9), min_items=1, distinct=True)
+        levels: tuple[float, ...] = setting((1.0,), range=(0.0, 10.0))
+
+        def __post_init__(self):
+            check(self)
+
+    assert build(Seeds, {"seeds": [0, 9]}, "f.toml: s").seeds == (0, 9)
+    for doc, said in [
+        ({"seeds": []}, "f.toml: s: seeds must hold at least 1 item, got []"),
+        ({"seeds": [3, 3]}, "f.toml: s: seeds must hold no value twice, got [3, 3]"),
+        ({"seeds": [0, 10]}, "f.toml: s: seeds[1] must be a whole number in [0, 9], got 10"),
+        ({"seeds": [0], "levels": [float("nan")]}, "f.toml: s: levels[0] must be a number in [0, 10], got nan"),
+    ]:
+        with pytest.raises(ConfigError) as exc:
+            build(Seeds, doc, "f.toml: s")
+        assert str(exc.value) == said

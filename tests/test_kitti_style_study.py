@@ -114,11 +114,11 @@ def test_a_bad_scale_value_names_the_file_and_field(tmp_path: Path):
     text = (framework.HERE / "kitti_style.toml").read_text().replace("max_leg = 20.0", "max_leg = 2.0", 1)
     (tmp_path / "kitti_style.toml").write_text(text)
     config = framework.load_study("kitti_style", tmp_path)
-    said = r"kitti_style.toml: scales.ci.max_leg: expected .* above min_leg \(3\), got 2.0"
+    said = r"kitti_style.toml: scales.ci: max_leg: expected .* above min_leg \(3\), got 2.0"
     with pytest.raises(ValueError, match=said):
-        kitti_style.scale_of(config, "ci")
+        framework.scale_params(config, "ci", kitti_style.Scale)
     for scale in framework.SCALES:  # the shipped definition is valid at every scale
-        kitti_style.scale_of(framework.load_study("kitti_style"), scale)
+        framework.scale_params(framework.load_study("kitti_style"), scale, kitti_style.Scale)
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from odolab.cli.study import command, study
 from studies import framework
 
 CONFIG = framework.load_study("noise_robustness")
-CI = noise.scale_of(CONFIG, "ci")
+CI = framework.scale_params(CONFIG, "ci", noise.Scale)
 
 
 def _args(out: Path, *more: str) -> list[str]:
@@ -113,15 +113,15 @@ def test_a_bad_definition_is_refused_naming_file_and_field(tmp_path, monkeypatch
     real = framework.load_study
     monkeypatch.setattr(framework, "load_study", lambda name: real(name, tmp_path))
     for old, new, said in (
-        ("levels = [1, 1.5, 2, 3]\nepisodes = 1\n", "levels = [1.5, 2]\nepisodes = 1\n", "a list holding 1"),
-        ("learned = []\n\n# cpu", 'learned = ["deepvo"]\n\n# cpu', "learned: expected names among the odometers"),
+        ("levels = [1, 1.5, 2, 3]\nepisodes = 1\n", "levels = [1.5, 2]\nepisodes = 1\n", "levels must hold 1"),
+        ("learned = []\n\n# cpu", 'learned = ["deepvo"]\n\n# cpu', "learned must name odometers among the odometers"),
         ('odometers = ["action-prior", "icp"]', 'odometers = ["action-prior", "nope"]', "odometers: nope: unknown"),
     ):
         assert old in text, old
         (tmp_path / "noise_robustness.toml").write_text(text.replace(old, new, 1))
         assert command("noise-robustness", _args(tmp_path / "out")) == 2
         err = capsys.readouterr().err
-        assert err.count("\n") == 1 and f"{tmp_path / 'noise_robustness.toml'}: scales.ci." in err and said in err, err
+        assert err.count("\n") == 1 and f"{tmp_path / 'noise_robustness.toml'}: scales.ci" in err and said in err, err
     assert not (tmp_path / "out").exists()  # refused before any folder was made
 
 
@@ -157,7 +157,7 @@ def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, caps
         ("steps", 1.5),
     ):
         assert not noise.valid_result({**_noise_row(), key: value}), key
-    scale = noise.scale_of(framework.load_study("noise_robustness"), "ci")
+    scale = framework.scale_params(framework.load_study("noise_robustness"), "ci", noise.Scale)
     unit = noise.units(scale, {o: None for o in scale.odometers})[0]
     out = tmp_path / "n"
     (out / "results").mkdir(parents=True)

@@ -161,17 +161,18 @@ def test_the_committed_index_links_every_committed_report_page():
 def test_e_table_scale_fields_are_checked():
     base = framework.load_study("e_table")
     for field, bad, words in [
-        ("seeds", [0, 0], "scales.ci.seeds: expected a list of distinct integers in [0, 4294967295], got [0, 0]"),
-        ("episodes", 0, "scales.ci.episodes: expected an integer in [1, 1000], got 0"),
-        ("odometers", [], "scales.ci.odometers: expected a list of distinct names, at least one, got []"),
+        ("seeds", [0, 0], "scales.ci: seeds must hold no value twice, got [0, 0]"),
+        ("seeds", [0, -1], "scales.ci: seeds[1] must be a whole number in [0, 4294967295], got -1"),
+        ("episodes", 0, "scales.ci: episodes must be in [1, 1000], got 0"),
+        ("odometers", [], "scales.ci: odometers must hold at least 1 item, got []"),
     ]:
         config = framework.StudyConfig(
             base.name, base.title, {**base.scales, "ci": {**base.at("ci"), field: bad}}, base.path
         )
         with pytest.raises(ValueError) as exc:
-            e_table.scale_of(config, "ci")
+            framework.scale_params(config, "ci", e_table.Scale)
         assert str(exc.value) == f"{base.path}: {words}"
-    assert e_table.scale_of(base, "cpu").seeds == (0, 1, 2)
+    assert framework.scale_params(base, "cpu", e_table.Scale).seeds == (0, 1, 2)
 
 
 def test_missing_units_are_named_as_ranges():
@@ -342,9 +343,9 @@ def test_a_scale_key_that_is_no_field_is_refused():
         base.name, base.title, {**base.scales, "ci": {**base.at("ci"), "seed": 3}}, base.path
     )
     with pytest.raises(ValueError) as exc:
-        framework.scale_params(config, "ci", e_table.scale_of)
-    assert str(exc.value).startswith(f"{base.path}: scales.ci.seed: not a field of this study (expected episodes")
-    assert json.dumps(framework.scale_params(base, "ci", e_table.scale_of).seeds) == "[0, 1]"
+        framework.scale_params(config, "ci", e_table.Scale)
+    assert str(exc.value).startswith(f"{base.path}: scales.ci: unknown field(s) seed; expected some of episodes")
+    assert json.dumps(framework.scale_params(base, "ci", e_table.Scale).seeds) == "[0, 1]"
 
 
 def test_an_out_folder_inside_another_runs_folder_is_refused(ci_run, capsys):

@@ -34,7 +34,7 @@ def _counting(monkeypatch) -> list[str]:
 
 def test_the_turns_study_resumes_scene_by_scene_and_redraws_without_computing(tmp_path, monkeypatch, capsys):
     out = tmp_path / "t"
-    scale = turns.scale_of(framework.load_study("turns_by_depth"), "ci")
+    scale = framework.scale_params(framework.load_study("turns_by_depth"), "ci", turns.Scale)
     per_run = len(scale.odometers) * scale.scenes * scale.per_scene
     calls = _counting(monkeypatch)
     assert _turns("--out", out) == 0

@@ -10,7 +10,7 @@ from odolab.cli.study import command
 from studies import framework
 
 CONFIG = framework.load_study("turns_by_depth")
-CI = study.scale_of(CONFIG, "ci")
+CI = framework.scale_params(CONFIG, "ci", study.Scale)
 
 
 def _run(args) -> int:
@@ -49,7 +49,10 @@ def test_a_bad_definition_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
     assert ci in text
     for new, said in (
         ('odometers = ["nope"]\noptions = {}\n', "scales.ci.odometers: nope: unknown odometer 'nope'"),
-        ('odometers = ["icp"]\noptions = { "open3d-rgbd" = { noise_growth = 0.01 } }\n', "scales.ci.options: expected"),
+        (
+            'odometers = ["icp"]\noptions = { "open3d-rgbd" = { noise_growth = 0.01 } }\n',
+            "scales.ci: options must be a table of option tables",
+        ),
         (
             'odometers = ["open3d-rgbd"]\noptions = { "open3d-rgbd" = { noise_growth = 2.0 } }\n',
             "scales.ci.options: open3d-rgbd: noise_growth must be in [0, 1]",
@@ -57,7 +60,7 @@ def test_a_bad_definition_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
         ('odometers = ["open3d-rgbd"]\noptions = { "open3d-rgbd" = { bogus = 1 } }\n', "has no option 'bogus'"),
         (
             'odometers = ["icp"]\noptions = {}\nscenes = 0\n',
-            "scales.ci.scenes: expected an integer in [1, 1000], got 0",
+            "scales.ci: scenes must be in [1, 1000], got 0",
         ),
     ):
         changed = text.replace(ci, new, 1)
