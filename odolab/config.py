@@ -62,6 +62,8 @@ __all__ = [
     "choices",
     "describe",
     "from_toml",
+    "in_range",
+    "number_kind",
     "range_text",
     "read_toml",
     "setting",
@@ -153,6 +155,11 @@ def range_text(cls_or_config: Any, name: str) -> str:
     f = _field(cls_or_config, name)
     (low, high), (open_low, open_high) = f.metadata[_RANGE], f.metadata[_OPEN]
     return f"{'(' if open_low else '['}{_show(low)}, {_show(high)}{')' if open_high else ']'}"
+
+
+def number_kind(cls_or_config: Any, name: str) -> type:
+    """``int`` for a field (or a list field's items) of whole numbers, else ``float``."""
+    return int if _whole(_field(cls_or_config, name)) else float
 
 
 def in_range(cls_or_config: Any, name: str, value: float) -> bool:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -337,3 +338,25 @@ def test_a_folder_odolab_wrote_is_named_by_its_owner(tmp_path, monkeypatch, caps
     err = refused(capsys, name, command_argv(name, out) + ["--serial"])
     assert f"--out {out}: is {owner}; choose another --out" in err, err
     assert sorted(p.name for p in out.iterdir()) == before
+
+
+def test_setting_type_takes_what_the_config_field_takes():
+    """An option made from a config field (setting_type) has the field's kind and range, so the
+    command line and a TOML file take the same values."""
+    import argparse
+
+    from odolab.cli.args import setting_help, setting_type
+    from odolab.sim.training_data import DataConfig
+
+    width = setting_type("--width", DataConfig, "width")
+    assert width("341") == 341 and type(width("1")) is int
+    for bad, said in [
+        ("342", "--width must be in [1, 341], got 342"),
+        ("2.5", "--width must be an integer, got '2.5'"),
+    ]:
+        with pytest.raises(argparse.ArgumentTypeError, match=re.escape(said)):
+            width(bad)
+    assert (
+        setting_help(DataConfig, "width")
+        == "stored frame width, px (resized from the camera's), [1, 341] (default 170)"
+    )

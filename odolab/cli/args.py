@@ -76,6 +76,33 @@ def number(
     return parse
 
 
+def setting_type(name: str, cls: type, field: str) -> Callable[[str], float]:
+    """An argparse ``type`` for config field ``field`` of ``cls`` (an :func:`odolab.config.setting`
+    with a range): a number of its kind in its range, so the option and the config file take the
+    same values; the error names the option as :func:`number`'s do: ``--depth-noise must be in [0, 10], got 11``."""
+    from odolab.config import in_range, number_kind, range_text
+
+    parse_number = number(name, number_kind(cls, field))
+
+    def parse(text: str):
+        value = parse_number(text)
+        if not in_range(cls, field, value):
+            raise argparse.ArgumentTypeError(f"{name} must be in {range_text(cls, field)}, got {text}")
+        return value
+
+    return parse
+
+
+def setting_help(cls: type, field: str, default: object = None) -> str:
+    """``--help`` text for an option of config field ``field``: its description, range and default
+    (the field's own unless ``default`` is given)."""
+    from odolab.config import describe
+
+    row = next(s for s in describe(cls) if s.name == field)
+    shown = row.value if default is None else default
+    return f"{row.doc}, {row.range} (default {f'{shown:g}' if isinstance(shown, float) else shown})"
+
+
 def seed(name: str = "--seed") -> Callable[[str], int]:
     """An argparse ``type`` for a seed: an integer in ``[0, MAX_SEED]``."""
     return number(name, int, 0, MAX_SEED)

@@ -28,6 +28,8 @@ from odolab.cli.args import (
     pinhole,
     run_cli,
     seed,
+    setting_help,
+    setting_type,
 )
 from odolab.io.lock import FolderLock
 from odolab.odometry.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
@@ -42,14 +44,13 @@ from odolab.reporting.comparison import (
     run_comparison,
     tum_sequences,
 )
-from odolab.sim.episodes import MAX_EPISODE_STEPS
+from odolab.sim.episodes import MAX_EPISODE_STEPS, NoiseConfig
 from odolab.sim.scenes import SPLITS
 
 #: Documented ranges of the numeric options (enforced with one line by odolab.cli.args.number).
 MAX_EPISODES = 1000
 #: --depth-scale: PNG values per metre, from metres to micrometres (odolab.io.tum_rgbd.DEPTH_SCALE_RANGE).
 DEPTH_SCALE_RANGE = (1.0, 1e6)
-MAX_NOISE = 10.0
 #: Options that choose simulator episodes; with --tum they would be silently meaningless.
 SIMULATOR_OPTIONS = (
     "--episodes",
@@ -110,17 +111,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds one step of an odometer may take before it fails as timed-out; after 3 such steps the "
         "odometer is stopped for the sequence (default 60)",
     )
-    for kind, default, what in (
-        ("rgb", 1.0, "RGB Gaussian (sigma 0.1 x M)"),
-        ("depth", 1.0, "Redwood depth"),
-        ("actuation", 0.5, "PyRobot actuation"),
-    ):
+    for kind in ("rgb", "depth", "actuation"):
         ap.add_argument(
             f"--{kind}-noise",
-            type=number(f"--{kind}-noise", float, 0, MAX_NOISE),
-            default=default,
+            type=setting_type(f"--{kind}-noise", NoiseConfig, kind),
+            default=getattr(NoiseConfig(), kind),
             metavar="M",
-            help=f"{what} noise multiplier, 0-{MAX_NOISE:g}, 0 = none (default {default:g})",
+            help=setting_help(NoiseConfig, kind),
         )
     ap.add_argument(
         "--out",
@@ -240,7 +237,6 @@ def _check_folders(args: argparse.Namespace) -> FolderLock:
 
 
 def _config(args: argparse.Namespace) -> ComparisonConfig:
-    from odolab.sim.episodes import NoiseConfig
 
     try:
         from_file = read_options_file(args.config) if args.config else {}

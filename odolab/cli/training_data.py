@@ -9,15 +9,20 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from odolab.cli.args import ArgumentParser, check_report_dir, execution_of, number, path_arg, run_cli, seed
+from odolab.cli.args import (
+    ArgumentParser,
+    check_report_dir,
+    execution_of,
+    path_arg,
+    run_cli,
+    setting_help,
+    setting_type,
+)
 from odolab.reporting.report import counted
-from odolab.sim.episodes import MAX_EPISODE_STEPS
 from odolab.sim.scenes import SPLITS
 from odolab.sim.training_data import (
     MANIFEST,
     MAX_EPISODE_INDEX,
-    MAX_EPISODES,
-    MAX_EPISODES_PER_SHARD,
     DataConfig,
     TrainingData,
     make_training_data,
@@ -33,35 +38,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     d = DataConfig()
     ap.add_argument("--split", choices=SPLITS, default=d.split, help=f"scene pool (default {d.split})")
-    ap.add_argument(
-        "--episodes",
-        type=number("--episodes", int, 1, MAX_EPISODES),
-        default=d.episodes,
-        help=f"episodes, 1-{MAX_EPISODES} (default {d.episodes})",
-    )
-    ap.add_argument(
-        "--first",
-        type=number("--first", int, 0, MAX_EPISODE_INDEX),
-        default=0,
-        help="index of the first episode; the last one's is at most 2^31 - 1 (default 0)",
-    )
-    ap.add_argument("--seed", type=seed(), default=0, help="episode seed (default 0)")
-    ap.add_argument(
-        "--max-steps",
-        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
-        default=d.max_steps,
-        help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {d.max_steps})",
-    )
-    ap.add_argument("--width", type=number("--width", int, 8, 341), default=d.width, help=f"pixels (default {d.width})")
-    ap.add_argument(
-        "--height", type=number("--height", int, 8, 192), default=d.height, help=f"pixels (default {d.height})"
-    )
-    ap.add_argument(
-        "--episodes-per-shard",
-        type=number("--episodes-per-shard", int, 1, MAX_EPISODES_PER_SHARD),
-        default=d.episodes_per_shard,
-        help=f"1-{MAX_EPISODES_PER_SHARD} (default {d.episodes_per_shard})",
-    )
+    for field in ("episodes", "first", "seed", "max_steps", "width", "height", "episodes_per_shard"):
+        option = "--" + field.replace("_", "-")
+        ap.add_argument(
+            option,
+            type=setting_type(option, DataConfig, field),
+            default=getattr(d, field),
+            help=setting_help(DataConfig, field),
+        )
     ap.add_argument(
         "--clean-depth", action="store_true", help="also store the noiseless depth (the target of a depth corrector)"
     )
