@@ -281,7 +281,9 @@ def _check_items(config: Any, f: dataclasses.Field, prefix: str) -> None:
             or not isinstance(item, numbers.Integral if whole else numbers.Real)
             or not in_range(config, f.name, item)
         ):
-            raise ValueError(f"{prefix}{f.name}[{k}] must be {_noun(f)} in {range_text(config, f.name)}, got {item!r:.80}")
+            raise ValueError(
+                f"{prefix}{f.name}[{k}] must be {_noun(f)} in {range_text(config, f.name)}, got {item!r:.80}"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
