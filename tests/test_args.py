@@ -15,6 +15,7 @@ import pytest
 
 from odolab.cli import run_cli
 from odolab.cli.args import NAME_MAX, UsageError, check_cache_dir, disk_error
+from odolab.cli.study import command
 from odolab.io import atomic
 from tests.helpers import command_argv, refused
 
@@ -360,3 +361,49 @@ def test_setting_type_takes_what_the_config_field_takes():
         setting_help(DataConfig, "width")
         == "stored frame width, px (resized from the camera's), [1, 341] (default 170)"
     )
+
+
+def _error_line(capsys, *words: str) -> str:
+    """The command's stderr: one line, no traceback, holding ``words``."""
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+def test_dotdot_after_a_link_is_refused_before_anything_is_made(tmp_path):
+    """``a/link/../z`` would be made beside the link's target, not in ``a``: refused in one line."""
+    from odolab.cli import UsageError, check_output_dir, check_output_file
+
+    (tmp_path / "far" / "target").mkdir(parents=True)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "link").symlink_to(tmp_path / "far" / "target")
+    odd = tmp_path / "a" / "link" / ".." / "z"
+    with pytest.raises(UsageError, match=r"found '\.\.' after the link .*link, which leads to .*far.z"):
+        check_output_dir(odd, "--out")
+    with pytest.raises(UsageError, match=r"'\.\.' after the link"):
+        check_output_file(odd / ".." / "f.json", "--json")
+    assert not (tmp_path / "far" / "z").exists() and not (tmp_path / "a" / "z").exists()
+    check_output_dir(tmp_path / "a" / ".." / "b", "--out")  # '..' after a real folder is fine
+    assert (tmp_path / "b").is_dir()
+
+
+def test_an_output_file_of_another_kind_is_never_replaced(tmp_path, capsys):
+    """bench --json replaces only a bench JSON; the forward-dz probe's --out only its own report;
+    both refuse before any work."""
+    pytest.importorskip("torch")
+    from odolab.cli.bench import main as bench_main
+
+    summary = tmp_path / "training.json"
+    summary.write_text(json.dumps({"command": "x", "stages": {}}))
+    assert run_cli(bench_main, "bench", ["--only", "evaluate", "--json", str(summary)]) == 2
+    assert "expected a new file or a bench JSON file" in _error_line(capsys)
+    assert json.loads(summary.read_text()) == {"command": "x", "stages": {}}
+    model = tmp_path / "model.pt"
+    model.write_bytes(b"\x80weights")
+    assert command("forward-dz-probe", ["--out", str(model)]) == 2
+    assert "expected a new file or an earlier report of this probe" in _error_line(capsys)
+    assert model.read_bytes() == b"\x80weights"
+    assert command("forward-dz-probe", ["--out", "/dev/null"]) == 2
+    assert "is not a regular file" in _error_line(capsys)

@@ -13,7 +13,9 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
+
 from odolab.learned.training import CheckpointError, checkpoints
+from tests.helpers import robust_job
 
 KIND = "odolab-test-model"
 
@@ -220,3 +222,34 @@ def test_a_pipe_a_link_to_nothing_and_a_pickle_each_say_what_they_are_in_one_lin
             checkpoints.load_checkpoint(path, "odolab-model", 1)
         assert str(err.value).startswith(f"{path}: {said}") and "\n" not in str(err.value)
     assert not [w for w in recwarn if "pickle" in str(w.message)]  # torch's warning before the refusal: not shown
+
+
+def test_an_export_never_replaces_the_recipe_a_state_or_a_file_it_did_not_write(tmp_path):
+    pytest.importorskip("torch")
+    from odolab.cli import UsageError
+    from odolab.learned.training import save_checkpoint
+
+    recipe = tmp_path / "recipe.toml"
+    with pytest.raises(
+        UsageError, match="--export .*recipe.toml: expected a new file or a model odolab exported, found the recipe"
+    ):
+        robust_job(tmp_path, "--export", str(recipe))
+    assert "[[stages]]" in recipe.read_text()
+    with pytest.raises(UsageError, match="found the file where stage 'forward' keeps its training state"):
+        robust_job(tmp_path, "--export", str(tmp_path / "work" / "forward.pt"))
+    # a stage named "model": its state is where the model goes by default
+    with pytest.raises(
+        UsageError, match=r"stage 'model' keeps its training state.*default --export is <work>/model.pt"
+    ):
+        robust_job(tmp_path, stage="model")
+    state = tmp_path / "elsewhere.pt"
+    save_checkpoint(state, "odolab-training-state", 1, {"epoch": 1})
+    data = tmp_path / "shard.npz"
+    data.write_bytes(b"PK\x03\x04 not a model")
+    for path, found in ((state, "found a training state"), (data, "found a file that is not an odolab model")):
+        before = path.read_bytes()
+        with pytest.raises(UsageError, match=found):
+            robust_job(tmp_path, "--export", str(path))
+        assert path.read_bytes() == before
+    job = robust_job(tmp_path, "--export", str(tmp_path / "new.pt"))  # a new file is fine
+    assert job.export == tmp_path / "new.pt"

@@ -2,6 +2,7 @@
 --out and --cache, --tum folders and their camera, Ray addresses), each before any folder is made."""
 
 import csv
+import json
 import subprocess
 import sys
 import time
@@ -158,7 +159,6 @@ def test_compare_on_a_broken_tum_folder_is_one_line(tmp_path):
 
 
 def test_evaluate_reads_what_compare_wrote(tmp_path):
-    import json
 
     out = tmp_path / "one"
     args = [
@@ -445,3 +445,45 @@ def test_a_terminal_sees_a_line_at_once_that_the_next_one_writes_over(monkeypatc
     assert err.startswith("loading odometers\r") and err.count("\n") == 1 and "no shipped model" in err
     assert run_cli(main, "python -m odolab.compare", [*args, "--quiet"]) == 2
     assert not capsys.readouterr().err.startswith("loading")
+
+
+def _outside(tmp_path: Path) -> Path:
+    """A folder beside the output folder, holding a file no run may touch."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim.tum").write_text("precious")
+    return outside
+
+
+def _one_line(capsys, *words: str) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+def _compare(argv) -> int:
+    from odolab.compare import main
+
+    return run_cli(main, "python -m odolab.compare", [str(a) for a in argv])
+
+
+COMPARE = ["--odometers", "action-prior", "--episodes", "1", "--max-steps", "3", "--no-cache", "--serial", "--quiet"]
+
+
+def test_compare_refuses_a_linked_or_misplaced_folder_before_any_work(tmp_path, capsys):
+    outside = _outside(tmp_path)
+    out = tmp_path / "run"
+    (out / "trajectories").mkdir(parents=True)
+    (out / "manifest.txt").write_text("trajectories/test-0000/victim.tum\n")
+    (out / "trajectories" / "test-0000").symlink_to(outside, target_is_directory=True)
+    assert _compare(COMPARE + ["--out", out]) == 2
+    _one_line(capsys, "trajectories/test-0000", "expected a file or folder", "found a symbolic link to")
+    assert (outside / "victim.tum").read_text() == "precious" and not (out / "table.csv").exists()
+    (out / "trajectories" / "test-0000").unlink()
+    (out / "trajectories").rmdir()
+    (out / "trajectories").write_text("a file where compare keeps a folder")
+    assert _compare(COMPARE + ["--out", out]) == 2
+    _one_line(capsys, "trajectories", "expected a folder, found a file")
+    assert not (out / "table.csv").exists()

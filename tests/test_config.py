@@ -230,3 +230,24 @@ def test_a_list_setting_checks_each_item_its_length_and_repeats():
         with pytest.raises(ConfigError) as exc:
             build(Seeds, doc, "f.toml: s")
         assert str(exc.value) == said
+
+
+def test_a_base_chain_too_long_is_one_line(tmp_path):
+    from odolab.learned.training.configs import MAX_BASE_CHAIN, ConfigError, read_toml
+
+    for i in range(1000):
+        (tmp_path / f"r{i}.toml").write_text(f'base = "r{i + 1}.toml"\n' if i < 999 else "x = 1\n")
+    with pytest.raises(ConfigError, match=f"chain of {MAX_BASE_CHAIN} base files"):
+        read_toml(tmp_path / "r0.toml")
+    (tmp_path / "r10.toml").write_text("x = 2\n")  # a chain of 10: fine
+    assert read_toml(tmp_path / "r0.toml") == {"x": 2}
+
+
+def test_tables_nested_too_deep_to_merge_are_one_line(tmp_path):
+    from odolab.learned.training.configs import ConfigError, read_toml
+
+    deep = ".".join(["t"] * 2000)
+    (tmp_path / "base.toml").write_text(f"{deep} = 1\n")
+    (tmp_path / "top.toml").write_text(f'base = "base.toml"\n{deep} = 2\n')
+    with pytest.raises(ConfigError, match="top.toml: t.t.*tables nested more than 32 deep"):
+        read_toml(tmp_path / "top.toml")

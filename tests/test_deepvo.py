@@ -11,6 +11,7 @@ import pytest
 
 torch = pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
+
 from odolab.api import Action, integrate, invert, planar_to_transform
 from odolab.core.parallel import SERIAL, Execution
 from odolab.learned.deepvo import train as trainer
@@ -379,3 +380,40 @@ def test_a_model_too_large_for_float32_is_stored_in_float16_and_answers_alike(tr
     with torch.no_grad():
         a, b = net(x)[0], half(x)[0]
     assert torch.allclose(a, b, rtol=1e-2, atol=1e-3) and not torch.equal(a, b)
+
+
+def test_the_deepvo_export_never_replaces_its_training_state_and_saving_never_replaces_a_recipe(tmp_path):
+    torch = pytest.importorskip("torch")
+    from odolab.cli import UsageError
+    from odolab.cli.train import parse_training_command, training_parser
+    from odolab.learned.deepvo.config import load_training
+    from odolab.learned.deepvo.train import state_files
+    from odolab.learned.training import CheckpointError
+    from odolab.learned.training.checkpoints import save_model
+
+    recipe = tmp_path / "deepvo.toml"
+    recipe.write_text("epochs = 1\n")
+    ap = training_parser("python -m odolab.learned.deepvo.train", "train", "deepvo")
+    with pytest.raises(UsageError, match="found the file where the DeepVO training keeps its training state"):
+        parse_training_command(
+            ap,
+            [
+                "--config",
+                str(recipe),
+                "--work",
+                str(tmp_path / "work"),
+                "--reports",
+                str(tmp_path / "r"),
+                "--export",
+                str(tmp_path / "work" / "deepvo.pt"),
+            ],
+            load_training,
+            state_files,
+        )
+    cfg = load_training(str(recipe))
+    with pytest.raises(CheckpointError, match="found a file that is not an odolab model"):
+        save_model(recipe, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})
+    assert recipe.read_text() == "epochs = 1\n"
+    model = tmp_path / "m.pt"
+    save_model(model, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})
+    save_model(model, "odolab-deepvo", cfg, {"net": torch.nn.Linear(1, 1)}, {})  # a model it exported: replaced

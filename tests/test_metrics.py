@@ -1,5 +1,6 @@
 """Trajectory metrics: cross-checked against evo's Python API, the KITTI devkit rules and the
-reference figures of evo's shipped test data (tests/data/evo/README.md)."""
+reference figures of evo's shipped test data (tests/data/evo/README.md); errors near 1e300 m give
+finite statistics."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from evo.core.geometry import umeyama_alignment as evo_umeyama
 from evo.core.trajectory import PosePath3D
 from evo.core.units import Unit
 
+from odolab.core import metrics
 from odolab.core import metrics as M
 from odolab.core.geometry import integrate, rotation_angle
 from odolab.io.kitti import read_kitti_poses
@@ -272,3 +274,27 @@ def test_tum_fr1_xyz_reference_figure():
     a = M.ate(gt.poses[i], est.poses[j], "se3")  # evo_ape tum gt est -a -> rmse 0.013470
     assert round(a.rmse, 4) == 0.0135 and a.rmse == pytest.approx(0.013470, abs=5e-7)
     assert M.ate(gt.poses[i], est.poses[j], "none").rmse == pytest.approx(0.020079, abs=5e-7)
+
+
+def test_huge_errors_give_finite_statistics():
+    stats = metrics.ErrorStats.of(np.array([1e300, 2e300, 3.0]))
+    assert stats.rmse == pytest.approx(np.sqrt(5 / 3) * 1e300) and stats.mean == pytest.approx(1e300)
+    assert stats.std == pytest.approx(np.sqrt(2 / 3) * 1e300) and stats.max == 2e300
+
+
+def test_usual_errors_are_computed_as_before():
+    e = np.random.default_rng(0).random(50)
+    stats = metrics.ErrorStats.of(e)
+    assert stats.rmse == float(np.sqrt(np.mean(e * e))) and stats.std == float(np.std(e))
+    assert np.isinf(metrics.ErrorStats.of(np.array([1.0, np.inf])).rmse)  # a non-finite error stays so
+
+
+def test_ate_and_rpe_of_a_trajectory_gone_to_1e300_are_finite():
+    gt = np.tile(np.eye(4), (4, 1, 1))
+    est = gt.copy()
+    est[2:, 0, 3] = 1e300
+    assert metrics.ate(gt, est).rmse == pytest.approx(np.sqrt(0.5) * 1e300)
+    assert np.isfinite(metrics.rpe(gt, est, 1).trans.rmse)
+    v = np.array([[3.0, 4.0, 0.0], [3e300, 4e300, 0.0], [np.nan, 0.0, 0.0]])
+    norms = metrics.row_norms(v)
+    assert norms[0] == 5.0 and norms[1] == pytest.approx(5e300) and np.isnan(norms[2])

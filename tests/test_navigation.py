@@ -15,6 +15,7 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from odolab.api import Action, invert, load_odometer, register_odometer
+from odolab.cli import run_cli
 from odolab.core.parallel import SERIAL
 from odolab.navigation.agent import MapPlanAgent, in_agent_frame
 from odolab.navigation.episode import navigate
@@ -219,10 +220,9 @@ def test_a_folder_of_another_format_is_refused_with_how_to_run_it_again(tmp_path
 
 
 def _navigate(argv):
-    from odolab.cli import run_cli
     from odolab.navigate import main
 
-    return run_cli(main, "python -m odolab.navigate", argv)
+    return run_cli(main, "python -m odolab.navigate", [str(a) for a in argv])
 
 
 def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
@@ -649,7 +649,6 @@ def test_the_navigation_metrics_legend_hides_no_bar(monkeypatch):
 
 @pytest.mark.slow
 def test_the_navigate_console_counts_failed_steps(tmp_path, capsys):
-    from odolab.cli import run_cli
     from odolab.navigate import main as navigate
 
     register_odometer("test-never", Never)
@@ -669,3 +668,50 @@ def test_the_navigate_console_counts_failed_steps(tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert "failed steps: every one of 3" in next(ln for ln in lines if "test-never:" in ln)
     assert "no failed steps" in next(ln for ln in lines if "action-prior:" in ln)
+
+
+def _outside(tmp_path: Path) -> Path:
+    """A folder beside the output folder, holding a file no run may touch."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim.tum").write_text("precious")
+    return outside
+
+
+def _one_line(capsys, *words: str) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
+    """One rule for every file navigate writes: nav.md, config.json and a linked episodes folder
+    are refused before any episode, as a linked episode file is."""
+    args = ["--odometers", "ground-truth", "--episodes", "1", "--max-steps", "3", "--serial", "--quiet"]
+    out = tmp_path / "nav"
+    assert _navigate(args + ["--out", out]) == 0
+    outside = _outside(tmp_path)
+    for rel, target in (
+        ("nav.md", outside / "victim.tum"),
+        ("config.json", outside / "config.json"),
+        ("episodes/ground-truth", outside / "episodes"),
+    ):
+        original = out / rel
+        moved = tmp_path / "moved"
+        original.rename(moved)
+        if moved.is_dir():
+            import shutil
+
+            shutil.copytree(moved, target)
+        elif rel == "config.json":
+            target.write_text(moved.read_text())
+        original.symlink_to(target)
+        before = {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()}
+        assert _navigate(args + ["--out", out]) == 2, rel
+        _one_line(capsys, rel, "found a symbolic link to")
+        assert {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()} == before, rel
+        original.unlink()
+        moved.rename(original)
+    assert _navigate(args + ["--out", out]) == 0

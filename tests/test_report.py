@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_rgb
 
+from odolab.io.owned import UnsafeOutputError
 from odolab.reporting.report import GROUND_TRUTH_FILE, OutputFolder, file_stem, write_trajectories
 from odolab.running.runner import SequenceResult
 from tests.helpers import captured_figures
@@ -394,3 +395,38 @@ def test_the_error_bars_are_not_squashed_by_the_few_collided_steps(monkeypatch):
         assert "16.7" in [t.get_text() for t in ax.texts]  # and carries its value
     labels = [t.get_text() for t in axes[0].get_legend().get_texts()]
     assert "move_forward (n=123)" in labels and "move_forward_collided (n=11)" in labels
+
+
+def _outside(tmp_path: Path) -> Path:
+    """A folder beside the output folder, holding a file no run may touch."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim.tum").write_text("precious")
+    return outside
+
+
+def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(tmp_path):
+    """A linked ``trajectories/<episode>`` and a crafted manifest line through a linked subfolder:
+    nothing outside is deleted, the cleanup never raises, and the folder is refused by check()."""
+    from odolab.reporting.report import MANIFEST, OutputFolder
+
+    outside = _outside(tmp_path)
+    (outside / "keep.txt").write_text("mine")
+    root = tmp_path / "out"
+    (root / "trajectories").mkdir(parents=True)
+    (root / "trajectories" / "ep").symlink_to(outside, target_is_directory=True)
+    (root / "sub").symlink_to(outside, target_is_directory=True)
+    (root / "table.csv").write_text("old")
+    (root / MANIFEST).write_text("table.csv\n" + "x" * 300 + "/a.tum\n")  # a name no file system holds: ignored
+    OutputFolder.check(root, files=("table.csv",), folders=("trajectories",))
+    (root / MANIFEST).write_text("trajectories/ep/victim.tum\nsub/keep.txt\ntable.csv\n")
+    with pytest.raises(UnsafeOutputError, match="ep: expected a folder, found a symbolic link to"):
+        OutputFolder.check(root)
+    folder = OutputFolder(root)
+    assert folder.removed == ["table.csv"] and folder.not_removed == ["trajectories/ep/victim.tum", "sub/keep.txt"]
+    assert (outside / "victim.tum").read_text() == "precious" and (outside / "keep.txt").read_text() == "mine"
+    folder.path("table.csv").write_text("new")  # a result is written and listed
+    with pytest.raises(UnsafeOutputError):
+        folder.path("trajectories/ep/icp.tum")
+    assert sorted(p.name for p in outside.iterdir()) == ["keep.txt", "victim.tum"]
+    assert (root / MANIFEST).read_text() == "# odolab compare\ntable.csv\n"

@@ -153,3 +153,20 @@ def test_the_runner_applies_an_odometers_torch_threads_and_restores_them():
         assert odo.seen == {1} and torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--episodes", str(10**9)], "--episodes must be in [1, 1000]"),
+        (["--iterations", str(10**12)], "--iterations must be in [1, 1000000]"),
+        (["--seed", "-1"], "--seed must be in [0, 4294967295]"),
+    ],
+)
+def test_the_example_trainer_checks_its_integers_first(args, words, capsys):
+    pytest.importorskip("torch")
+    from examples import tiny_learned
+
+    with pytest.raises(SystemExit) as info:
+        tiny_learned.main(args)
+    assert info.value.code == 2 and words in capsys.readouterr().err

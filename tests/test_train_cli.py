@@ -162,3 +162,65 @@ def test_an_empty_recipe_or_a_work_path_that_is_a_file_makes_nothing(tmp_path, m
             "python -m odolab.learned.depth_corrector.train",
         )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "empty.toml", "r.toml"]
+
+
+def test_a_training_keeps_its_work_out_of_other_runs_folders_but_may_keep_it_in_its_own_reports(tmp_path):
+    """--work inside a study's folder, or a folder another command owns, is refused in one line; the
+    states in the training's own --reports folder (the shipped-341 layout) are fine."""
+    pytest.importorskip("torch")
+    from odolab.cli import UsageError
+
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "manifest.txt").write_text("# odolab study ablations\n")
+    with pytest.raises(UsageError, match=r"--work .*: lies inside the report folder of study ablations"):
+        robust_job(tmp_path, "--work", str(study / "states"))
+    (tmp_path / "reports").mkdir()
+    same = f"python -m odolab.learned.robust_vo.train --config {tmp_path / 'recipe.toml'}"  # this training's summary
+    (tmp_path / "reports" / "training.json").write_text(json.dumps({"command": same, "stages": []}))
+    job = robust_job(tmp_path, "--work", str(tmp_path / "reports" / "state"))  # its own reports
+    assert job.work == tmp_path / "reports" / "state"
+    with pytest.raises(UsageError, match=r"--work .*: is a comparison report folder"):
+        compare = tmp_path / "compare"
+        compare.mkdir()
+        (compare / "manifest.txt").write_text("# odolab compare\n")
+        robust_job(tmp_path, "--work", str(compare))
+
+
+def test_a_training_report_folder_is_a_run_folder_for_nesting(tmp_path, capsys):
+    """A compare --out inside a training's --reports folder is refused: the training owns it."""
+    from odolab.cli.compare import main
+
+    reports = tmp_path / "training"
+    reports.mkdir()
+    (reports / "training.json").write_text(
+        json.dumps({"command": "python -m odolab.learned.robust_vo.train", "stages": []})
+    )
+    assert run_cli(main, "compare", ["--out", str(reports / "cmp"), "--episodes", "1"]) == 2
+    assert "lies inside a training's report folder" in capsys.readouterr().err
+    assert not (reports / "cmp").exists()
+
+
+def test_a_training_work_folder_of_other_files_is_refused_and_a_refusal_makes_no_folder(tmp_path):
+    """--work holding a user's files is refused (its states would be written among them), and a run
+    refused for its --reports or --export leaves no --work folder behind."""
+    pytest.importorskip("torch")
+    from odolab.cli import UsageError
+
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    with pytest.raises(
+        UsageError, match=r"--work .*user: expected a new folder or one of training states .*'notes.txt'"
+    ):
+        robust_job(tmp_path, "--work", str(user))
+    with pytest.raises(UsageError, match=r"--reports .*user: holds files odolab did not write"):
+        robust_job(tmp_path, "--work", str(tmp_path / "w" / "deep"), "--reports", str(user))
+    with pytest.raises(UsageError, match=r"--export .*: folder .*nodir does not exist"):
+        robust_job(tmp_path, "--work", str(tmp_path / "w2"), "--export", str(tmp_path / "nodir" / "m.pt"))
+    assert not (tmp_path / "w").exists() and not (tmp_path / "w2").exists() and not (tmp_path / "reports").exists()
+    states = tmp_path / "states"
+    states.mkdir()
+    (states / "forward.pt").write_bytes(b"")  # a folder of states (and an atomic write's leftover) is fine
+    (states / ".forward.pt.x.tmp").write_bytes(b"")
+    assert robust_job(tmp_path, "--work", str(states)).work == states

@@ -14,6 +14,7 @@ import pytest
 from odolab.core.parallel import SERIAL
 from odolab.sim import training_data as td
 from odolab.sim.training_data import DataConfig, TrainingData, make_training_data, resize_frame
+from tests.helpers import one_line_error
 
 CFG = DataConfig(split="train", episodes=3, max_steps=6, width=40, height=24, episodes_per_shard=2)
 
@@ -285,3 +286,48 @@ def test_a_shard_is_checked_once_per_process(shards, monkeypatch):
     assert len(calls) == len(data.shards)
     td.TrainingData(shards).frames(np.array([0]))  # a new opening checks again
     assert len(calls) == len(data.shards) + 1
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--first", str(2**31)], "--first must be in [0, 2147483647]"),
+        (["--first", str(2**63)], "--first must be in [0, 2147483647]"),
+        (["--first", str(2**31 - 1), "--episodes", "2"], "the last episode's index would be 2147483648"),
+        (["--episodes", str(10**12)], "--episodes must be in [1, 1000000]"),
+        (["--max-steps", str(2**40)], "--max-steps must be in [1, 500]"),
+        (["--episodes-per-shard", str(2**40)], "--episodes-per-shard must be in [1, 1000]"),
+        (["--seed", str(2**32)], "--seed must be in [0, 4294967295]"),
+    ],
+)
+def test_training_data_integers_are_checked_before_rendering(tmp_path, args, words):
+    one_line_error("odolab.training_data", *args, "--serial", "--out", tmp_path / "d", words=words)
+    assert not (tmp_path / "d").exists()  # refused before any work
+
+
+def test_a_training_data_config_refuses_an_episode_index_its_shards_cannot_store():
+    from odolab.sim.training_data import DataConfig
+
+    with pytest.raises(ValueError, match=r"first must be in \[0, 2147483646\]"):
+        DataConfig(first=2**31 - 1, episodes=2)
+    with pytest.raises(ValueError, match=r"max_steps must be in \[1, 500\]"):
+        DataConfig(max_steps=10**9)
+
+
+def test_json_nested_too_deeply_in_a_manifest_or_a_cache_file_is_damage_not_a_traceback(tmp_path, small_spec):
+    import numpy as np
+
+    from odolab.sim.episodes import EpisodeCache
+    from odolab.sim.training_data import MANIFEST, TrainingData
+
+    deep = "[" * 100_000 + "]" * 100_000
+    (tmp_path / MANIFEST).write_text(deep)
+    with pytest.raises(ValueError, match="not a readable training-data manifest"):
+        TrainingData(tmp_path)
+    cache = EpisodeCache(tmp_path / "cache")
+    for info in (deep, "[1]"):  # too deep to read, and not an object
+        path = cache.path(small_spec)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as f:
+            np.savez(f, info=np.array(info))
+        assert not cache.has(small_spec) and not path.exists()  # discarded, to be made again

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 
 import studies.turns_by_depth as study
 from odolab.api import invert, load_odometer
@@ -180,3 +181,25 @@ def test_every_bar_of_the_turns_figure_carries_its_failed_share():
     finally:
         plt.close(fig)
     assert [study.share_text(v) for v in (0.0, 0.009, 0.115, 1.0, float("nan"))] == ["0", "0.9", "12", "100", "-"]
+
+
+def _one_line(capsys, *words: str) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
+
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "results.json").write_text(json.dumps({"my": "own results"}))
+    (out / "table.md").write_text("my table")
+    argv = ["--scale", "ci", "--serial", "--quiet", "--out", str(out)]
+    assert command("turns-by-depth", argv) == 2
+    _one_line(capsys, "holds files odolab did not write")
+    assert (out / "table.md").read_text() == "my table"
+    assert json.loads((out / "results.json").read_text()) == {"my": "own results"}
+    assert sorted(p.name for p in out.iterdir()) == ["results.json", "table.md"]
