@@ -204,6 +204,7 @@ def _units(scale: ablations.Scale) -> int:
     return len(models) + further + (len(scale.rows) + further) * per_row
 
 
+@pytest.mark.slow
 def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
     out, table = ci_run
     assert {"index.html", "table.csv", "table.md", "success-vs-error.png", "manifest.txt", "results"} <= {
@@ -313,6 +314,7 @@ def test_the_papers_claims_get_a_verdict_from_paired_tests_on_the_shared_episode
     assert table.name == "claims" and "McNemar" in table.intro[0] and "Holm" in table.intro[0]
 
 
+@pytest.mark.slow
 def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     out, table = ci_run
     models = {p: p.stat().st_mtime_ns for p in (out / "models").rglob("model.pt")}
@@ -329,6 +331,7 @@ def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     assert (out / "table.csv").read_text() == table
 
 
+@pytest.mark.slow
 def test_redraw_needs_only_the_saved_results(ci_run, tmp_path: Path, capsys):
     out, table = ci_run
     copy = tmp_path / "copy"
@@ -339,6 +342,7 @@ def test_redraw_needs_only_the_saved_results(ci_run, tmp_path: Path, capsys):
     assert (copy / "table.csv").read_text() == table and (copy / "success-vs-error.png").is_file()
 
 
+@pytest.mark.slow
 def test_a_damaged_model_file_is_trained_again(ci_run, tmp_path: Path, capsys):
     out, _ = ci_run
     copy = tmp_path / "copy"
@@ -351,6 +355,7 @@ def test_a_damaged_model_file_is_trained_again(ci_run, tmp_path: Path, capsys):
     assert "1 training" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_a_folder_where_a_model_file_goes_is_refused_before_training(ci_run, tmp_path: Path, capsys):
 
     out, _ = ci_run
@@ -363,6 +368,7 @@ def test_a_folder_where_a_model_file_goes_is_refused_before_training(ci_run, tmp
     assert not (copy / "data").exists()
 
 
+@pytest.mark.slow
 def test_a_changed_model_file_is_not_taken_for_its_result(ci_run, tmp_path: Path):
     out, _ = ci_run
     value = ablations.model_summary(out / ablations.model_file(18), "robust-vo", out)
@@ -500,6 +506,7 @@ def test_the_figures_row_labels_cover_no_other_label_or_point():
         plt.close(fig)
 
 
+@pytest.mark.slow
 def test_the_committed_cpu_report_redraws_to_its_own_table(tmp_path: Path):
     """reports/ablations is redrawn from its saved results alone: every unit's key still matches
     (a recipe setting added since, at its default, leaves the keys as they were)."""

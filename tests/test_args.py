@@ -161,6 +161,7 @@ def test_numbers_are_plain_ascii_digits(text):
     assert number("--rgb-noise", float, 0, 10)(" 2.5e0 ") == 2.5 and number("--episodes", int, 1)("+3") == 3
 
 
+@pytest.mark.slow
 def test_sigterm_ends_a_command_after_its_clean_up(tmp_path):
     """SIGTERM (what `kill` and job schedulers send) ends a command like Ctrl-C, exit 143 after its
     `with` blocks ran: the training bench's temporary data folder is removed, not left in the

@@ -55,6 +55,7 @@ def test_a_plug_in_beside_the_user_loads_under_the_odolab_face(tmp_path, monkeyp
     assert sys.path == path  # the folder is importable only while the command runs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "module",
     [

@@ -49,6 +49,7 @@ def test_compare_writes_table_report_and_trajectories(tmp_path, capsys):
     assert "--odometers ground-truth,action-prior" in page  # the report's command names its odometers
 
 
+@pytest.mark.slow
 def test_same_seed_same_errors_other_seed_other_errors(tmp_path):
     tables = {}
     for name, seed in (("a", "3"), ("b", "3"), ("c", "4")):
@@ -60,6 +61,7 @@ def test_same_seed_same_errors_other_seed_other_errors(tmp_path):
     assert tables["a"] != tables["c"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "args,words",
     [
@@ -82,6 +84,7 @@ def test_bad_input_is_one_line_and_exit_2(args, words):
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_compare_loads_a_user_class_by_module_path(tmp_path):
     out = tmp_path / "run"
     args = [
@@ -252,6 +255,7 @@ def test_compare_numeric_options_have_ranges(args, words):
     one_line_error("odolab.compare", *args, words=words)
 
 
+@pytest.mark.slow
 def test_compare_output_paths_are_checked_before_work(tmp_path):
     a_file = tmp_path / "file"
     a_file.write_text("x")

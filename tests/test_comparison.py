@@ -80,6 +80,7 @@ def test_each_configurable_odometers_settings_reach_the_result():
     assert list(configs) == ["icp"] and "depth.max_depth=3.0" in configs["icp"]
 
 
+@pytest.mark.slow
 def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
     import numpy as np
 

@@ -80,6 +80,7 @@ def test_targets_reintegrate_to_the_true_poses(recipe):
         assert np.any(np.abs(data.pair_planar[k, 2]) > 0.4)  # there are 30 degree turns in it
 
 
+@pytest.mark.slow
 def test_a_tiny_deepvo_learns_its_batch(recipe):
     torch.manual_seed(0)
     data = TrainingData(recipe.data_folder(recipe.train_data))
@@ -120,6 +121,7 @@ def test_a_model_smaller_than_its_data_trains_on_frames_resized_as_the_odometer_
         recipe.train_data.require_size(W // 2, H // 2)
 
 
+@pytest.mark.slow
 def test_the_lstm_state_carries_across_steps_and_reset_clears_it(trained, recipe):
     from odolab.sim.episodes import render_episode
 
@@ -141,6 +143,7 @@ def test_the_lstm_state_carries_across_steps_and_reset_clears_it(trained, recipe
     assert np.array_equal(odo.step(ep[0], ep[1], Action.STOP).transform, np.eye(4))
 
 
+@pytest.mark.slow
 def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
     one = dataclasses.replace(recipe, epochs=1)
     assert trainer.run(
@@ -171,6 +174,7 @@ def test_training_resumes_to_the_same_weights(trained, recipe, tmp_path):
     assert (tmp_path / "r" / "curves.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_compare_runs_deepvo_with_finite_errors(trained, tmp_path):
     from odolab.api import ComparisonConfig, run_comparison
 
@@ -188,6 +192,7 @@ def test_compare_runs_deepvo_with_finite_errors(trained, tmp_path):
     assert np.all(np.isfinite([row.dx, row.dz, row.dyaw, row.ate_m])) and row.failures == 0
 
 
+@pytest.mark.slow
 def test_bad_checkpoints_and_recipes_are_named(trained, tmp_path):
     with pytest.raises(CheckpointError, match="no such checkpoint"):
         load_model(tmp_path / "none.pt")
@@ -202,6 +207,7 @@ def test_bad_checkpoints_and_recipes_are_named(trained, tmp_path):
     assert load_training("studies/deepvo/shipped.toml").model.width_scale == 0.125
 
 
+@pytest.mark.slow
 def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_path):
     first = trained / "model.pt"
     _, first_net, info = load_model(first)
@@ -263,6 +269,7 @@ def test_a_second_stage_starts_from_the_first_stages_model(trained, recipe, tmp_
         )
 
 
+@pytest.mark.slow
 def test_the_command_refuses_a_start_of_another_shape_before_making_its_folders(trained, tmp_path):
     """A recipe whose ``init`` cannot start it is refused by the command in one line naming both
     values, before its --work and --reports are made."""
@@ -280,6 +287,7 @@ def test_the_command_refuses_a_start_of_another_shape_before_making_its_folders(
     assert not work.exists() and not reports.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("gain", ["depth", "actions"])
 def test_a_model_gains_an_input_and_answers_alike(trained, recipe, tmp_path, gain):
     """``init`` may gain the depth input or the action input (zero weights on the new inputs: the
@@ -313,6 +321,7 @@ def test_a_model_gains_an_input_and_answers_alike(trained, recipe, tmp_path, gai
         trainer.first_stage(back, tmp_path / "m2.pt")
 
 
+@pytest.mark.slow
 def test_a_deepvo_with_actions_needs_them(trained, recipe, tmp_path):
     """A model trained with ``actions`` answers each step by the action given (another action,
     another answer), refuses a step without one, and its network names a missing action input."""
@@ -363,6 +372,7 @@ def test_the_shipped_deepvo_is_registered_and_runs_in_a_comparison():
     assert all(np.isfinite(getattr(row, c)) for c in ("dx", "dz", "dyaw"))
 
 
+@pytest.mark.slow
 def test_a_model_too_large_for_float32_is_stored_in_float16_and_answers_alike(trained, recipe, tmp_path, monkeypatch):
     from odolab.learned.deepvo.odometer import save_model
     from odolab.learned.training import checkpoints

@@ -131,6 +131,7 @@ BAD_INPUTS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case,fmt,text,bad,line,words", BAD_INPUTS, ids=[c[0] for c in BAD_INPUTS])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, case, fmt, text, bad, line, words):
     good = TUM_OK if fmt == "tum" else KITTI_OK

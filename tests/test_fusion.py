@@ -536,6 +536,7 @@ def _calibrate(argv):
     return run_cli(main, "python -m odolab.fusion.calibrate", argv)
 
 
+@pytest.mark.slow
 def test_calibrate_writes_a_file_that_check_reads(tmp_path, capsys):
     out = tmp_path / "sub" / "cal.json"
     base = ["--episodes", "2", "--max-steps", "40", "--serial", "--cache", str(tmp_path / "cache")]

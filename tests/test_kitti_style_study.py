@@ -45,6 +45,7 @@ def test_a_route_is_its_seeds_and_ends_at_its_length():
     assert dataclasses.replace(SHORT, length=13.0).key() != SHORT.key()
 
 
+@pytest.mark.slow
 def test_a_route_through_a_building_goes_somewhere_and_a_plans_route_keeps_its_key():
     """building > 0: a long building crossed from its first end with every goal ahead, so a 100 m
     segment's ends lie far apart (end_to_end_ratio >= 0.5); a floor plan's route keeps its old key."""
@@ -133,6 +134,7 @@ def _route(out: Path) -> Path:
     return folder
 
 
+@pytest.mark.slow
 def test_the_ci_scale_reports_kitti_errors_of_every_odometer(ci_run):
     out, table = ci_run
     assert {"index.html", "table.csv", "table.md", "kitti-errors.png", "manifest.txt", "results"} <= {
@@ -158,6 +160,7 @@ def test_the_ci_scale_reports_kitti_errors_of_every_odometer(ci_run):
     assert len(list((out / "results").glob("*.json"))) == CI["routes"] * (1 + len(CI["odometers"]))
 
 
+@pytest.mark.slow
 def test_a_second_run_reuses_every_saved_unit(ci_run, capsys):
     out, table = ci_run
     files = {p: p.stat().st_mtime_ns for p in (out / "trajectories").rglob("*.*")}
@@ -167,6 +170,7 @@ def test_a_second_run_reuses_every_saved_unit(ci_run, capsys):
     assert (out / "table.csv").read_text() == table
 
 
+@pytest.mark.slow
 def test_a_missing_trajectory_file_computes_its_unit_again(ci_run, capsys):
     out, table = ci_run
     lost = _route(out) / "action-prior.tum"
@@ -177,6 +181,7 @@ def test_a_missing_trajectory_file_computes_its_unit_again(ci_run, capsys):
     assert lost.read_text() == text and (out / "table.csv").read_text() == table
 
 
+@pytest.mark.slow
 def test_redraw_needs_only_the_saved_results(ci_run, tmp_path: Path, capsys):
     out, table = ci_run
     copy = tmp_path / "copy"
@@ -216,6 +221,7 @@ def _evo_ape(ref, est) -> float:
     return ape.get_statistic(metrics.StatisticsType.rmse)
 
 
+@pytest.mark.slow
 def test_evaluate_scores_a_written_pair_as_evo_does(ci_run, capsys):
     out, table = ci_run
     folder = _route(out)

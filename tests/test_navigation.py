@@ -50,6 +50,7 @@ def test_an_agent_with_true_odometry_stops_at_the_goal():
     assert np.array_equal(again.true_xy, run.true_xy)  # same seed, same run
 
 
+@pytest.mark.slow
 def test_an_agent_with_the_action_prior_believes_a_different_path():
     run = navigate(EpisodeSpec(split="test", index=1, seed=0, max_steps=60), load_odometer("action-prior"))
     assert np.abs(run.true_xy - run.believed_xy).max() > 0.05
@@ -225,6 +226,7 @@ def _navigate(argv):
     return run_cli(main, "python -m odolab.navigate", [str(a) for a in argv])
 
 
+@pytest.mark.slow
 def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     args = ["--odometers", "ground-truth,action-prior", "--episodes", "2", "--max-steps", "12", "--serial", "--quiet"]
     assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
@@ -313,6 +315,7 @@ def test_navigate_refuses_bad_input_in_one_line(tmp_path, capsys):
         assert words in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_navigation_runs_unchanged_on_a_two_node_ray_cluster(tmp_path, ray_cluster):
     """A local two-node cluster (ray.cluster_utils): the same command through its address gives the
     same table as a serial run."""

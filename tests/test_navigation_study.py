@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import shutil
 
+import pytest
+
 from odolab.cli import run_cli
 
 ARGS = ["--odometers", "ground-truth", "--episodes", "1", "--serial", "--quiet"]
@@ -22,6 +24,7 @@ def _notes(capsys) -> list[str]:
     return [line for line in capsys.readouterr().err.splitlines() if line.startswith("note:")]
 
 
+@pytest.mark.slow
 def test_an_episode_of_another_max_steps_or_contradicting_itself_is_run_again_and_named(tmp_path, capsys):
     short, out = tmp_path / "short", tmp_path / "out"
     assert _navigate(ARGS + ["--max-steps", "4", "--out", short]) == 0

@@ -31,6 +31,7 @@ def ci_run(tmp_path_factory) -> tuple[Path, str]:
     return out, (out / "table.csv").read_text()
 
 
+@pytest.mark.slow
 def test_the_ci_scale_reports_every_level_and_odometer(ci_run):
     out, table = ci_run
     assert {"index.html", "table.csv", "table.md", "errors.png", "growth.png", "manifest.txt", "results"} <= {
@@ -59,6 +60,7 @@ def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     assert (out / "table.csv").read_text() == table
 
 
+@pytest.mark.slow
 def test_a_changed_model_and_a_damaged_result_are_computed_again(ci_run, tmp_path, monkeypatch, capsys):
     out, table = ci_run
     copy = tmp_path / "copy"
@@ -139,6 +141,7 @@ def _noise_row() -> dict:
     }
 
 
+@pytest.mark.slow
 def test_the_noise_study_names_a_damaged_results_file_in_one_line(tmp_path, capsys):
     """A result with an integer of 400 digits, a bool, a negative error or a share above 1 is damage
     (the unit is computed again, or missing with --redraw), and results files of JSON nested 100,000

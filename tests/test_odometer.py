@@ -203,6 +203,7 @@ def test_action_prior_error_has_the_size_the_noise_implies(episodes):
     assert row.failures == 0 and row.ate_m > 0.01
 
 
+@pytest.mark.slow
 def test_shipped_action_prior_matches_a_fresh_fit():
     shipped = ActionPrior.shipped()
     fresh = fit_action_prior(n_episodes=40, max_steps=200, seed=123)

@@ -24,6 +24,7 @@ def test_fan_out_checks_the_address_before_starting_ray():
     assert time.monotonic() - start < 10
 
 
+@pytest.mark.slow
 def test_tasks_that_ask_for_gpus_get_one_each_or_a_clear_refusal():
     """The ablation study's paper scale asks Ray for a GPU per training unit: Ray then shows each task
     only its GPU; a cluster with fewer GPUs than a task asks for refuses in one line at once instead of
@@ -48,6 +49,7 @@ def test_tasks_that_ask_for_gpus_get_one_each_or_a_clear_refusal():
         ray.shutdown()
 
 
+@pytest.mark.slow
 def test_starting_ray_keeps_the_commands_signal_handlers(monkeypatch):
     """ray.init() puts in a SIGTERM handler of its own that exits at once; start_ray puts the
     command's back, so SIGTERM still ends a command that fans out on Ray after its clean-up (143)."""
@@ -142,6 +144,7 @@ def test_the_library_checks_ray_address_before_ray_init_and_names_it(monkeypatch
         start_ray(None)
 
 
+@pytest.mark.slow
 def test_a_local_ray_start_prints_no_token_notice():
     code = (
         "from odolab.core.parallel import Execution, fan_out\n"

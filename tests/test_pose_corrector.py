@@ -259,7 +259,6 @@ def test_stored_estimates_of_another_x_are_refused_in_one_line(tmp_path, tiny_da
     assert _Counting.steps == []
 
 
-@pytest.mark.slow
 def _tiny_recipe(root: Path, inner: str, **kw) -> PoseCorrectorTraining:
     """A recipe of 2 train and 2 val episodes of 4 steps at 64 x 40, data under ``root``."""
     data = {"episodes": 2, "max_steps": 4, "width": 64, "height": 40, "episodes_per_shard": 1}
@@ -273,6 +272,7 @@ def _tiny_recipe(root: Path, inner: str, **kw) -> PoseCorrectorTraining:
     )
 
 
+@pytest.mark.slow
 def test_a_tiny_training_resumes_and_exports_a_model_corrected_x_loads(tmp_path, episode):
     from odolab.learned.pose_corrector.train import run
 

@@ -98,6 +98,7 @@ def test_navigation_page_table_is_the_report():
             assert line in page, line
 
 
+@pytest.mark.slow
 def test_readme_defaults_are_compares():
     """The defaults README's "Run" states: episodes, --max-steps and the odometers."""
     text = README.read_text()

@@ -65,6 +65,7 @@ def tum_report(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 @needs_browser
 def test_simulator_report_loads_in_a_browser(sim_report):
     found = assert_readable(sim_report / "report.html")
@@ -78,6 +79,7 @@ def test_tum_report_loads_in_a_browser(tum_report):
     assert len(found["tables"]) == 1  # no empty per-action table on real data
 
 
+@pytest.mark.slow
 @needs_browser
 @pytest.mark.parametrize("page", sorted((ROOT / "reports").glob("*/report.html")), ids=lambda p: p.parent.name)
 def test_committed_reports_load_in_a_browser(page):
@@ -115,6 +117,7 @@ def test_report_reads_well(sim_report, tum_report):
     assert "groundtruth.tum" in names and "ground-truth.tum" not in names  # one name for the truth
 
 
+@pytest.mark.slow
 def test_rerun_removes_what_the_previous_run_owned(tmp_path):
     out = tmp_path / "run"
     base = ["--odometers", "action-prior", "--max-steps", "6", "--serial", "--quiet", "--no-cache", "--out", str(out)]

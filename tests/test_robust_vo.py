@@ -262,6 +262,7 @@ def test_a_batch_swaps_and_mirrors_frames_targets_and_actions_together(data):
 # --- training -------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_tiny_model_learns_its_batch(data):
     torch.manual_seed(0)
     cfg = dataclasses.replace(TINY, dropout=0.0)
@@ -279,6 +280,7 @@ def test_a_tiny_model_learns_its_batch(data):
     assert losses[-1] < 0.2 * losses[0]
 
 
+@pytest.mark.slow
 def test_training_writes_curves_and_a_model_that_loads(trained, recipe):
     rows = (trained / "reports" / "curves.csv").read_text().splitlines()
     header = rows[0].split(",")
@@ -297,6 +299,7 @@ def test_training_writes_curves_and_a_model_that_loads(trained, recipe):
     assert all(d["modules"] for d in states)
 
 
+@pytest.mark.slow
 def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_path):
     """Stopped after the first stage (here: a recipe of that stage alone), then the whole recipe
     again: the same weights, bit for bit, as the run that was never stopped."""
@@ -336,6 +339,7 @@ def test_an_interrupted_run_resumes_to_the_same_weights(trained, recipe, tmp_pat
             assert torch.equal(value, b["networks"][name][key]), (name, key)
 
 
+@pytest.mark.slow
 def test_a_changed_recipe_does_not_continue_an_old_run(trained, recipe):
     changed = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, dd_bins=5))
     with pytest.raises(ValueError, match="another run"):
@@ -360,6 +364,7 @@ def _pairs(recipe):
     return [(frames[i], frames[i + 1], ep.action(i)) for i in range(len(ep) - 1)], ep
 
 
+@pytest.mark.slow
 def test_the_odometer_is_deterministic_and_reads_weights_only(trained, recipe, monkeypatch):
     calls = []
     real = torch.load
@@ -378,6 +383,7 @@ def test_the_odometer_is_deterministic_and_reads_weights_only(trained, recipe, m
     assert not odo.step(pairs[0][0], pairs[0][1], None).valid  # SepAct needs the action
 
 
+@pytest.mark.slow
 def test_mc_dropout_gives_a_covariance_and_mirror_tta_runs(trained, recipe):
     pairs, ep = _pairs(recipe)
     odo = RobustVOOdometer(checkpoint=str(trained / "model.pt"), mc_samples=8, mirror_tta=True)
@@ -388,6 +394,7 @@ def test_mc_dropout_gives_a_covariance_and_mirror_tta_runs(trained, recipe):
     assert cov[1, 1] > 1e-8 and cov[5, 5] > 1e-8  # yaw and forward spread from dropout
 
 
+@pytest.mark.slow
 def test_checkpoint_errors_name_the_file(trained, tmp_path):
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
@@ -536,6 +543,7 @@ def test_a_non_finite_loss_stops_training_with_a_message():
         require_finite(torch.tensor(float("nan")), 3)
 
 
+@pytest.mark.slow
 def test_mc_dropout_draws_are_the_same_for_the_same_seed(trained, recipe):
     pairs, ep = _pairs(recipe)
     runs = []
@@ -546,6 +554,7 @@ def test_mc_dropout_draws_are_the_same_for_the_same_seed(trained, recipe):
     assert np.array_equal(runs[0], runs[1]) and not np.array_equal(runs[0], runs[2])
 
 
+@pytest.mark.slow
 def test_a_resumed_state_names_what_changed(trained, recipe):
     from odolab.learned.training.epochs import differences
 
@@ -611,6 +620,7 @@ def _train_in(cfg, folder) -> bool:
     )
 
 
+@pytest.mark.slow
 def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path):
     tied = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, mirror_turns=True))
     assert _train_in(tied, tmp_path)
@@ -624,6 +634,7 @@ def test_a_mirror_turns_recipe_trains_one_turn_network_and_runs(recipe, tmp_path
     assert "turn_right" in rows  # right turns are still validated, through the mirrored network
 
 
+@pytest.mark.slow
 def test_a_run_from_an_init_records_the_start_and_its_training(recipe, trained, tmp_path):
     """training.json names the model a run started from and that model's own stages, which the
     scaling study adds to the run's samples seen and hours."""
@@ -635,6 +646,7 @@ def test_a_run_from_an_init_records_the_start_and_its_training(recipe, trained, 
     assert status["init"]["stages"] == before and before["forward"]["pairs_seen"] > 0
 
 
+@pytest.mark.slow
 def test_a_start_from_another_input_size_keeps_the_convolutions_and_a_fresh_head(recipe, trained, tmp_path):
     from odolab.learned.robust_vo.checkpoint import apply_start, load_model, load_start, resized_start
     from odolab.learned.robust_vo.model import build_networks

@@ -122,6 +122,7 @@ def test_a_batch_warps_each_sample_by_the_action_it_now_stands_for(recipe):
     assert torch.equal(unswapped.x[:, :c], plain.x[:, :c]) and not torch.allclose(unswapped.x[:, c:], plain.x[:, c:])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("depth_residual", [0.0, 0.1])
 def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path, depth_residual):
     """Frames of the data's own episode, given to the odometer at full size, become the same network
@@ -364,6 +365,7 @@ def test_the_warp_gives_the_bits_of_the_plain_formulas(intrinsics: Intrinsics, u
     assert 0.2 < (got[1] > 0).float().mean() < 0.95  # both kept pixels and holes are compared
 
 
+@pytest.mark.slow
 def test_the_odometer_answers_the_same_bits_with_the_plain_warp(tmp_path, monkeypatch) -> None:
     """A warped robust-VO model (random weights) on a tiny episode: the same transforms, to the bit,
     whether its warp is :func:`warp_current` or the plain formulas."""

@@ -112,6 +112,7 @@ def test_scaling_refuses_unusable_curves_in_one_line_and_makes_nothing(tmp_path,
     assert words in err and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_scaling_names_a_bad_classical_table_and_keeps_same_named_runs_apart(tmp_path, capsys):
     curves = _CURVES_HEAD + "1,train,forward,100,10,,,,\n1,val,forward,,,move_forward,dz,0.1,0.2\n"
     for parent in ("a", "b"):

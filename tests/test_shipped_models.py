@@ -22,6 +22,7 @@ def test_the_shipped_robust_vo_is_small_and_registered():
     assert "robust-vo" in available_odometers()
 
 
+@pytest.mark.slow
 def test_the_shipped_robust_vo_gets_known_motions_right(episode):
     """Every motion of a test episode (scenes never trained on) comes out with the right sign and
     about the right size: turns of 30 +- 4 degrees, forward steps of 0.25 m unless blocked."""

@@ -4,6 +4,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from odolab.cli import run_cli
 from odolab.cli.simcard import main
@@ -27,6 +28,7 @@ def test_image_stats_count_holes_and_depth_error_per_bin():
     assert s.grey_mean[0] == 100.0 and s.grey_std[0] == 0.0
 
 
+@pytest.mark.slow
 def test_simcard_command_writes_the_card(tmp_path, capsys):
     out = tmp_path / "card"
     assert (

@@ -80,6 +80,7 @@ def test_study_definitions_are_checked(tmp_path: Path):
     assert framework.load_study("e_table").at("ci")["seeds"] == [0, 1]
 
 
+@pytest.mark.slow
 def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
     out = tmp_path / "e"
     args = ["--scale", "ci", "--out", str(out), "--serial", "--quiet"]
@@ -295,6 +296,7 @@ def test_ray_address_auto_without_a_cluster_is_one_line_before_any_folder(tmp_pa
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_users_own_reports_index_is_left_alone(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     page = tmp_path / "reports" / "index.html"
@@ -314,6 +316,7 @@ def test_a_users_folder_of_json_files_is_not_taken_for_a_stopped_study(tmp_path,
     assert sorted(p.name for p in out.rglob("*")) == ["exp1.json", "results"]
 
 
+@pytest.mark.slow
 def test_a_refused_redraw_writes_nothing(ci_run, tmp_path, capsys):
     out = tmp_path / "e"
     shutil.copytree(ci_run / "results", out / "results")  # a run stopped before its report
@@ -324,6 +327,7 @@ def test_a_refused_redraw_writes_nothing(ci_run, tmp_path, capsys):
     assert rc == 0 and (out / "manifest.txt").read_text().startswith("# odolab study e_table")
 
 
+@pytest.mark.slow
 def test_a_result_that_could_not_be_saved_is_refused_before_any_work(ci_run, tmp_path, capsys):
     out = tmp_path / "e"
     shutil.copytree(ci_run, out)
@@ -348,6 +352,7 @@ def test_a_scale_key_that_is_no_field_is_refused():
     assert json.dumps(framework.scale_params(base, "ci", e_table.Scale).seeds) == "[0, 1]"
 
 
+@pytest.mark.slow
 def test_an_out_folder_inside_another_runs_folder_is_refused(ci_run, capsys):
     inner = ci_run / "results" / "mine"
     rc, err = _run([*CI, "--out", str(inner)], capsys)
@@ -358,6 +363,7 @@ def test_an_out_folder_inside_another_runs_folder_is_refused(ci_run, capsys):
     assert not inner.exists()
 
 
+@pytest.mark.slow
 def test_nesting_is_found_through_links_and_before_a_stopped_run_is_claimed(ci_run, tmp_path, capsys):
     link = tmp_path / "link"
     link.symlink_to(ci_run / "results")

@@ -32,6 +32,7 @@ def _counting(monkeypatch) -> list[str]:
     return calls
 
 
+@pytest.mark.slow
 def test_the_turns_study_resumes_scene_by_scene_and_redraws_without_computing(tmp_path, monkeypatch, capsys):
     out = tmp_path / "t"
     scale = framework.scale_params(framework.load_study("turns_by_depth"), "ci", turns.Scale)
@@ -70,6 +71,7 @@ def test_the_turns_study_resumes_scene_by_scene_and_redraws_without_computing(tm
     assert "no saved results in" in err and err.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_the_noise_study_redraws_from_its_results_without_computing(tmp_path, monkeypatch, capsys):
     def cli(*args) -> int:
         return command("noise-robustness", [*CI, *map(str, args)])

@@ -236,6 +236,7 @@ def test_a_compacted_state_keeps_the_networks_not_the_optimiser_and_still_resume
         _toy_run(tmp_path / "cut.pt", None, 600.0)
 
 
+@pytest.mark.slow
 def test_bench_training_prints_and_writes_one_row_per_recipe(tmp_path, capsys):
     """``python -m odolab.bench --only training --recipe R --json F`` on a tiny recipe."""
     import json

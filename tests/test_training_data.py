@@ -152,6 +152,7 @@ def test_a_killed_runs_leftovers_are_cleared_and_a_bad_manifest_named(folder, tm
         make_training_data(CFG, copy, execution=SERIAL)
 
 
+@pytest.mark.slow
 def test_a_second_maker_of_a_folder_waits_for_the_first(tmp_path, capsys):
     """Two runs sharing a data_root (two trainings, a study's rows) never render into one folder at
     once: the second waits while the first holds it, then finds the shards made."""

@@ -230,6 +230,7 @@ def test_frames_without_depth_or_ground_truth_are_counted(copy):
     assert seq.dropped["no depth"] == 2 and len(seq) == 8
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["odolab.compare", "baselines.measure_tum"])
 def test_a_bad_image_stops_before_any_odometer_runs(tmp_path, command):
     import shutil

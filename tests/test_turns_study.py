@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import json
 
+import pytest
+
 import studies.turns_by_depth as study
 from odolab.api import invert, load_odometer
 from odolab.cli.study import command
@@ -74,6 +76,7 @@ def test_a_bad_definition_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_open3d_rgbd_accepts_the_true_turn_of_a_far_view():
     """In views reaching past 4 m the simulator's depth noise outgrows the shared tolerance
     0.01 + 0.01 z^2 m: the true motion failed open3d-rgbd's image check. Its own 0.015 z^2 passes it."""
@@ -126,6 +129,7 @@ def _same(name, runs):
             assert a.covariance is None or (a.covariance == b.covariance).all(), name
 
 
+@pytest.mark.slow
 def test_the_ci_scale_runs_unchanged_on_a_two_node_ray_cluster(tmp_path, ray_cluster):
     """The study's units as Ray tasks on a local two-node cluster (ray.cluster_utils), through its
     address: the same table as run one after another in this process."""
