@@ -122,15 +122,15 @@ if TYPE_CHECKING:  # the lazily loaded names below, visible to type checkers and
     from odolab.io.atomic import write_bytes_atomic, write_json_atomic
     from odolab.io.tum_rgbd import UnknownCameraError, load_tum_sequence
     from odolab.odometry.composites import load_inputs, one_input
-    from odolab.reporting.comparison import (
+    from odolab.reporting.pipeline import (
         DEFAULT_CACHE,
         ComparisonConfig,
         ComparisonError,
         ComparisonResult,
         run_comparison,
     )
-    from odolab.running.evaluation import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.running.runner import SequenceResult, StepByStep, failure_reason
+    from odolab.running.scoring import Evaluation, evaluate_trajectory, pair_trajectories
     from odolab.sim.datasets import Pair, PairDataset, episode_specs, true_motions
     from odolab.sim.episodes import (
         EpisodeCache,
@@ -154,11 +154,11 @@ _LAZY = {
     "PairDataset": "odolab.sim.datasets",
     "episode_specs": "odolab.sim.datasets",
     "true_motions": "odolab.sim.datasets",
-    "ComparisonConfig": "odolab.reporting.comparison",
-    "ComparisonResult": "odolab.reporting.comparison",
-    "ComparisonError": "odolab.reporting.comparison",
-    "run_comparison": "odolab.reporting.comparison",
-    "DEFAULT_CACHE": "odolab.reporting.comparison",
+    "ComparisonConfig": "odolab.reporting.pipeline",
+    "ComparisonResult": "odolab.reporting.pipeline",
+    "ComparisonError": "odolab.reporting.pipeline",
+    "run_comparison": "odolab.reporting.pipeline",
+    "DEFAULT_CACHE": "odolab.reporting.pipeline",
     "SequenceResult": "odolab.running.runner",
     "StepByStep": "odolab.running.runner",
     "failure_reason": "odolab.running.runner",
@@ -168,9 +168,9 @@ _LAZY = {
     "UnknownCameraError": "odolab.io.tum_rgbd",
     "write_bytes_atomic": "odolab.io.atomic",
     "write_json_atomic": "odolab.io.atomic",
-    "Evaluation": "odolab.running.evaluation",
-    "evaluate_trajectory": "odolab.running.evaluation",
-    "pair_trajectories": "odolab.running.evaluation",
+    "Evaluation": "odolab.running.scoring",
+    "evaluate_trajectory": "odolab.running.scoring",
+    "pair_trajectories": "odolab.running.scoring",
     "Trajectory": "odolab.core.trajectory",
 }
 

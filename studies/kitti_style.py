@@ -205,7 +205,7 @@ def score(gt_poses: np.ndarray, est_poses: np.ndarray) -> dict[str, Any]:
     from odolab.core.geometry import invert
     from odolab.core.metrics import ate, path_lengths
     from odolab.core.trajectory import Trajectory
-    from odolab.running.evaluation import evaluate_trajectory, pair_trajectories
+    from odolab.running.scoring import evaluate_trajectory, pair_trajectories
 
     gt = Trajectory(None, invert(gt_poses[0]) @ gt_poses)
     est = Trajectory(None, invert(est_poses[0]) @ est_poses)
@@ -242,7 +242,7 @@ def run_result(key: dict[str, Any], out: Path) -> dict[str, Any]:
     integrated path scored (:func:`score`), the per-step error as used (x 1e-2), failures and speed,
     and the trajectory written as ``<odometer>.{tum,kitti}``."""
     from odolab.odometry.action_prior import ActionPrior
-    from odolab.reporting.comparison import load_odometers
+    from odolab.reporting.pipeline import load_odometers
     from odolab.running.runner import run_sequence
     from odolab.running.summary import summarize
     from odolab.sim.routes import RouteFrames, RouteSpec, tour

@@ -1,4 +1,4 @@
-"""``python -m odolab.bench`` (odolab/bench.py, odolab/cli/bench.py): its --json path checked before
+"""``python -m odolab.bench`` (odolab/cli/bench.py, odolab/benchmarks/): its --json path checked before
 work, odometer options it would ignore refused, and each part saved as it finishes."""
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def test_bench_refuses_odometer_options_it_would_ignore():
 def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
     import json
 
-    from odolab import bench
+    from odolab.benchmarks import speed as bench
     from odolab.cli.bench import main
 
     out = tmp_path / "b.json"

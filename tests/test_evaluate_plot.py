@@ -15,7 +15,7 @@ from odolab.core.trajectory import Trajectory
 from odolab.evaluate import main
 from odolab.io.kitti import write_kitti_poses
 from odolab.io.tum import write_tum_trajectory
-from odolab.running.evaluation import evaluate_trajectory, pair_trajectories, stamps_are_steps
+from odolab.running.scoring import evaluate_trajectory, pair_trajectories, stamps_are_steps
 from tests.helpers import TUM_OK, one_line_error
 
 PROG = "python -m odolab.evaluate"

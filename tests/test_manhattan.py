@@ -219,7 +219,7 @@ def test_the_inner_odometer_gets_its_options_from_a_file_and_names_are_checked(t
 def test_options_for_a_row_that_is_also_an_inner_odometer_are_refused():
     """``--odometer-option deepvo.x`` with both ``deepvo`` and ``manhattan(deepvo)`` listed would
     leave the inner deepvo at its defaults without a word: refused, naming the way that works."""
-    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
 
     with pytest.raises(ComparisonError, match="options_file"):
         load_odometers(["icp", "manhattan(icp)"], {"icp": {"voxel": 0.05}})
@@ -285,7 +285,7 @@ def test_an_options_file_that_is_not_a_path_is_named():
 
 def test_options_for_an_input_alone_point_to_the_options_file():
     """Options for ``icp`` when only ``manhattan(icp)`` runs would be lost; the refusal says where they go."""
-    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
 
     with pytest.raises(ComparisonError, match=r"input of 'manhattan\(icp\)'.*options_file=FILE"):
         load_odometers(["manhattan(icp)"], {"icp": {"voxel": 0.05}})

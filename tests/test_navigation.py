@@ -583,7 +583,7 @@ def test_policy_values_and_reports_are_checked_and_escaped():
 
 
 def test_the_navigation_benchmark_accounts_for_its_time():
-    from odolab.bench import bench_navigation
+    from odolab.benchmarks.speed import bench_navigation
 
     rows = bench_navigation(("ground-truth",), episodes=1, max_steps=3)
     r = rows[0]

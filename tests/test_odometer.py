@@ -81,7 +81,7 @@ def test_an_odometer_without_step_is_refused_when_loaded():
 
 
 def test_a_comparison_names_an_odometer_without_step_in_one_line():
-    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
 
     register_odometer("test-abstract", _Abstract)
     with pytest.raises(ComparisonError, match=r"^odometer 'test-abstract': class _Abstract overrides neither"):
@@ -118,7 +118,7 @@ def test_an_odometer_loads_from_a_file_path_without_pythonpath(tmp_path, monkeyp
 
 
 def test_an_odometer_file_that_is_missing_or_broken_is_named(tmp_path):
-    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
 
     with pytest.raises(ComparisonError, match="no such file"):
         load_odometers([f"{tmp_path / 'nothing.py'}:Forward"])
@@ -346,7 +346,7 @@ def _nested(depth: int, inner: str = "icp") -> str:
 @pytest.mark.parametrize("depth", [9, 400, 1000, 5000])
 def test_composites_nested_too_deep_are_one_line_in_every_entry_point(depth):
     from odolab.odometry.odometer import inner_names, load_odometer, parse_odometer_list, unknown_odometer
-    from odolab.reporting.comparison import ComparisonError, load_odometers, odometer_names
+    from odolab.reporting.pipeline import ComparisonError, load_odometers, odometer_names
 
     name = _nested(depth)
     for call in (parse_odometer_list, load_odometer, inner_names, unknown_odometer):

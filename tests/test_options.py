@@ -91,7 +91,7 @@ def test_a_deeply_nested_options_file_and_a_huge_option_are_short_lines(tmp_path
     deep.write_text('[odometers."open3d-rgbd"]\nfallback_iterations = ' + "[" * 3000 + "]" * 3000 + "\n")
     compare_refused(tmp_path, "--odometers", "open3d-rgbd", "--config", deep, words="holds a value nested too deeply")
     huge = "[" + ",".join(["5"] * 20000) + "]"  # the odometer's message cuts the value; the loader's did not
-    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
 
     with pytest.raises(ComparisonError) as info:
         load_odometers(["open3d-rgbd"], {"open3d-rgbd": {"fallback_iterations": [5] * 20000}})

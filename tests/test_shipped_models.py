@@ -49,7 +49,7 @@ def _true_planar(ep):
 
 def test_the_odometer_bench_sets_a_learned_odometer_beside_its_network_alone():
     """``--only odometers`` reports the robust VO's network pass alone (its limit) and the ratio."""
-    from odolab.bench import bench_odometers
+    from odolab.benchmarks.speed import bench_odometers
 
     (row,) = bench_odometers(["robust-vo"], episodes=1, max_steps=4)
     assert row["steps"] > 0 and row["failures"] == 0

@@ -1,12 +1,12 @@
 """``python -m odolab.bench``: speed of the simulator, the odometers, closed-loop navigation, the
-evaluator and training (:mod:`odolab.bench` times them)."""
+evaluator and training (:mod:`odolab.benchmarks` times them)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
 
-from odolab import bench
+from odolab.benchmarks import speed as bench
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
@@ -139,7 +139,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}"
         )
     from odolab.odometry.options import OptionError, parse_assignments
-    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
 
     try:
         options = parse_assignments(args.odometer_option)

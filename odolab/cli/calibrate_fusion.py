@@ -43,7 +43,7 @@ from odolab.fusion.calibration import (
 )
 from odolab.fusion.odometer import is_fused
 from odolab.odometry.odometer import OdometerListError, parse_odometer_list, standalone_odometers
-from odolab.reporting.comparison import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
+from odolab.reporting.pipeline import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.running.runner import run
 from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeCache
 from odolab.sim.scenes import SPLITS

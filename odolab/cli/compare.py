@@ -34,7 +34,7 @@ from odolab.cli.args import (
 from odolab.io.lock import FolderLock
 from odolab.odometry.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
 from odolab.odometry.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
-from odolab.reporting.comparison import (
+from odolab.reporting.pipeline import (
     DEFAULT_CACHE,
     ComparisonConfig,
     ComparisonError,
@@ -294,7 +294,7 @@ def _chosen(args: argparse.Namespace) -> list[tuple[str, object]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse, check, run the comparison (:func:`odolab.reporting.comparison.run_comparison`), print and write."""
+    """Parse, check, run the comparison (:func:`odolab.reporting.pipeline.run_comparison`), print and write."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     config = _config(args)

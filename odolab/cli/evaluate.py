@@ -14,7 +14,7 @@ truth once (``--align``, default ``se3``: rigid Umeyama, as ``evo_ape -a``); ATE
 KITTI errors are then computed on the aligned estimate (a rigid alignment changes neither RPE nor
 the KITTI errors; ``sim3`` rescales them). Definitions: :mod:`odolab.core.metrics`. Every figure is
 printed with its pairing, the poses used and dropped, the alignment and the coverage.
-This module parses, calls :mod:`odolab.running.evaluation` (the library: pairing, metrics, JSON summary)
+This module parses, calls :mod:`odolab.running.scoring` (the library: pairing, metrics, JSON summary)
 and prints.
 """
 
@@ -31,7 +31,7 @@ from odolab.core import metrics
 from odolab.core.trajectory import Trajectory
 from odolab.io.errors import FileFormatError
 from odolab.reporting.trajectory_plot import IMAGE_SUFFIXES
-from odolab.running.evaluation import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
+from odolab.running.scoring import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
 
 __all__ = ["main"]
 

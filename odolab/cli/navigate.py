@@ -55,7 +55,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         read_options_file,
         without_defaults,
     )
-    from odolab.reporting.comparison import ComparisonError, load_odometers
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
     from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))

@@ -817,7 +817,7 @@ def write_report(
     paired_rows: list[PairedRow] | None = None,
 ) -> None:
     """Write the tables, figures, trajectories and ``report.html`` into ``out`` (layout: module
-    docstring), the fields of a :class:`~odolab.reporting.comparison.ComparisonResult` given by name; files of the previous run into ``out`` that this one did not write are removed."""
+    docstring), the fields of a :class:`~odolab.reporting.pipeline.ComparisonResult` given by name; files of the previous run into ``out`` that this one did not write are removed."""
     from odolab.running.summary import __doc__ as summary_doc
 
     folder = OutputFolder(out)

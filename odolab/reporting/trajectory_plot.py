@@ -11,7 +11,7 @@ import numpy as np
 from odolab.io.atomic import save_figure_atomic
 
 if TYPE_CHECKING:
-    from odolab.running.evaluation import Evaluation
+    from odolab.running.scoring import Evaluation
 
 __all__ = ["IMAGE_SUFFIXES", "plot_evaluations", "time_axis_label", "top_down_axes"]
 

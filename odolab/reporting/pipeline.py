@@ -5,7 +5,7 @@ prints and writes: it loads the odometers with their options, makes the episode 
 the missing episodes into the cache (or keeps them in memory without one), streams them through
 the runner, and summarises. A study, a notebook or a navigation loop calls it directly::
 
-    from odolab.reporting.comparison import ComparisonConfig, run_comparison
+    from odolab.reporting.pipeline import ComparisonConfig, run_comparison
     result = run_comparison(ComparisonConfig(odometers=["icp"], episodes=2, max_steps=20, cache=None))
     result.rows[0].ate_m
 

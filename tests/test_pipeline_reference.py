@@ -1,4 +1,4 @@
-"""odolab.reporting.comparison against a committed run (tests/data/compare-reference/, its README says how it
+"""odolab.reporting.pipeline against a committed run (tests/data/compare-reference/, its README says how it
 was made): what is the same on every CPU is the same here, what may differ in its last digits stays
 within the tolerance docs/evaluation.md states (#same-seed-same-numbers)."""
 

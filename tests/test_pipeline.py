@@ -18,8 +18,8 @@ from odolab.cli import run_cli
 from odolab.compare import main
 from odolab.core.parallel import SERIAL, Execution
 from odolab.odometry import odometer
-from odolab.reporting import comparison
-from odolab.reporting.comparison import ComparisonConfig, ComparisonError, load_odometers
+from odolab.reporting import pipeline
+from odolab.reporting.pipeline import ComparisonConfig, ComparisonError, load_odometers
 from odolab.running.runner import SequenceResult
 from tests.helpers import FR1, Never
 
@@ -74,7 +74,7 @@ def test_run_comparison_reports_bad_configuration_as_one_line():
 
 def test_each_configurable_odometers_settings_reach_the_result():
     from odolab.api import load_odometer
-    from odolab.reporting.comparison import odometer_configs
+    from odolab.reporting.pipeline import odometer_configs
 
     configs = odometer_configs({"icp": load_odometer("icp", max_depth=3.0), "gt": load_odometer("ground-truth")})
     assert list(configs) == ["icp"] and "depth.max_depth=3.0" in configs["icp"]
@@ -106,7 +106,7 @@ def test_collided_forward_steps_get_their_own_row_with_what_each_odometer_saw():
 
 
 def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale(millimetre_folder):
-    from odolab.reporting.comparison import ComparisonConfig, run_comparison
+    from odolab.reporting.pipeline import ComparisonConfig, run_comparison
 
     def run(scale):
         config = ComparisonConfig(
@@ -123,7 +123,7 @@ def test_compare_takes_the_depth_scale_and_the_camera_and_warns_of_a_wrong_scale
 
 
 def test_an_odometer_failing_every_step_is_said_on_the_compare_console():
-    from odolab.reporting.comparison import ComparisonConfig, run_comparison
+    from odolab.reporting.pipeline import ComparisonConfig, run_comparison
     from odolab.running.summary import every_step_failed
 
     register_odometer("test-never", Never)
@@ -202,8 +202,8 @@ def test_a_broken_entry_point_named_or_given_options_is_still_an_error(broken_de
 
 
 def test_no_odometer_left_is_an_error(monkeypatch):
-    monkeypatch.setattr(comparison, "standalone_odometers", lambda: ["broken-plugin"])
-    monkeypatch.setattr(comparison, "unknown_odometer", lambda name: None)
+    monkeypatch.setattr(pipeline, "standalone_odometers", lambda: ["broken-plugin"])
+    monkeypatch.setattr(pipeline, "unknown_odometer", lambda name: None)
     with pytest.raises(ComparisonError, match="^no odometer could be loaded"):
         load_odometers(None, warn=lambda line: None)
 
@@ -211,18 +211,18 @@ def test_no_odometer_left_is_an_error(monkeypatch):
 @pytest.mark.parametrize("value", [0, -1.0, float("nan"), "60", True])
 def test_a_step_timeout_must_be_a_positive_number(value):
     with pytest.raises(ComparisonError, match=f"step_timeout must be a number of seconds > 0 .*got {value!r}"):
-        comparison.check_step_timeout(value)
+        pipeline.check_step_timeout(value)
 
 
 def test_step_timeouts_kept():
-    assert comparison.check_step_timeout(None) is None and comparison.check_step_timeout(float("inf")) is None
-    assert comparison.check_step_timeout(2) == 2.0 and ComparisonConfig().step_timeout == 60.0
+    assert pipeline.check_step_timeout(None) is None and pipeline.check_step_timeout(float("inf")) is None
+    assert pipeline.check_step_timeout(2) == 2.0 and ComparisonConfig().step_timeout == 60.0
 
 
 def test_a_tum_folder_of_one_frame_is_one_line(tmp_path):
     config = ComparisonConfig(odometers=["action-prior"], tum=_tum_folder(tmp_path, 1), cache=None)
     with pytest.raises(ComparisonError) as err:
-        comparison.run_comparison(config)
+        pipeline.run_comparison(config)
     assert str(err.value) == (
         "1 usable frame (a colour image with a depth image and a ground-truth pose); "
         "a comparison needs at least 2, one step between them"
@@ -239,10 +239,10 @@ def test_the_step_timeout_reaches_the_runner(tmp_path):
 
     config = ComparisonConfig(odometers=["stuck"], tum=_tum_folder(tmp_path, 3), cache=None, step_timeout=0.02)
     try:
-        result = comparison.run_comparison(config, odometers={"stuck": Stuck()})
+        result = pipeline.run_comparison(config, odometers={"stuck": Stuck()})
     finally:
         release.set()
-    assert comparison.failure_reasons(result.results) == {"stuck": {"timed-out": 2}}
+    assert pipeline.failure_reasons(result.results) == {"stuck": {"timed-out": 2}}
 
 
 def test_a_needs_action_that_raises_is_one_line(tmp_path):
@@ -253,7 +253,7 @@ def test_a_needs_action_that_raises_is_one_line(tmp_path):
 
     config = ComparisonConfig(odometers=["odd"], tum=_tum_folder(tmp_path, 2), cache=None)
     with pytest.raises(ComparisonError, match="^odometer 'odd': reading needs_action raised RuntimeError: unknown$"):
-        comparison.run_comparison(config, odometers={"odd": Odd()})
+        pipeline.run_comparison(config, odometers={"odd": Odd()})
 
 
 def test_a_config_property_that_raises_shows_no_settings():
@@ -262,12 +262,12 @@ def test_a_config_property_that_raises_shows_no_settings():
         def config(self):
             raise RuntimeError("no config")
 
-    assert comparison.odometer_configs({"odd": Odd()}) == {}
+    assert pipeline.odometer_configs({"odd": Odd()}) == {}
 
 
 def test_frames_without_depth_give_one_warning_per_sequence():
     results = [_with_empty("a", "x", 2), _with_empty("a", "y", 2), _with_empty("b", "x", 0), _with_empty("c", "x", 5)]
-    assert comparison.empty_depth_warnings(results) == [
+    assert pipeline.empty_depth_warnings(results) == [
         "a: 2 of 5 frames have no depth at all (every depth pixel is 0); odometers that use depth cannot use them",
         "c: 5 of 5 frames have no depth at all (every depth pixel is 0); odometers that use depth cannot use them",
     ]
