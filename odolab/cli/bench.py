@@ -4,6 +4,7 @@ evaluator and training (:mod:`odolab.benchmarks` times them)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from odolab.benchmarks import speed as bench
@@ -32,22 +33,38 @@ def _table(rows: list[dict]) -> str:
     )
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    from odolab.odometry.odometer import (
-        OdometerListError,
-        available_odometers,
-        parse_odometer_list,
-        standalone_odometers,
-        unknown_odometer,
-    )
+#: The parts, in the order they run.
+PARTS = ("simulator", "odometers", "navigation", "evaluate", "training")
+#: Each table's heading, by its key in the report.
+TITLES = {
+    "simulator": "Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path "
+    "not in a second thread)",
+    "episodes": "Episode generation, end to end, one process",
+    "odometers": "Odometers (steps/s of step() on test-split episodes, 341x192)",
+    "navigation": "Navigation, closed loop, one process (first 3 test episodes, at most 100 steps; ms per step; "
+    "planning is part of the policy; planning_share of the whole time)",
+    "evaluate": "Trajectory evaluation on KITTI 00 (wall seconds per command)",
+    "training": "Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
+    "own epoch end to end; fp32 bare beside the chosen precision)",
+}
 
-    ap = ArgumentParser(prog="python -m odolab.bench", description=bench.__doc__.splitlines()[0])
-    ap.add_argument(
-        "--only",
-        choices=["simulator", "odometers", "navigation", "evaluate", "training"],
-        action="append",
-        help="run only these parts (repeatable; default all)",
-    )
+
+@dataclass(frozen=True)
+class Plan:
+    """What a run times, every input checked: the ``parts``, the training part's ``recipes`` (path,
+    config) and ``data``, the odometer part's ``names`` and ``options``."""
+
+    parts: tuple[str, ...]
+    recipes: list[Path]
+    data: object
+    names: list[str]
+    options: dict
+
+
+def build_parser() -> ArgumentParser:
+    """The command line of ``python -m odolab.bench``."""
+    ap = ArgumentParser(prog="python -m odolab.bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=PARTS, action="append", help="run only these parts (repeatable; default all)")
     ap.add_argument(
         "--recipe",
         type=file_arg("--recipe"),
@@ -89,119 +106,134 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="NAME.key=value",
         help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'",
     )
-    args = ap.parse_args(argv)
-    if args.json is not None:
-        check_output_file(args.json, "--json", [".json"])
-        check_replaceable(args.json, "--json", _bench_json, "a bench JSON file (python -m odolab.bench --json)")
-    parts = args.only or ["simulator", "odometers", "navigation", "evaluate", "training"]
-    recipes = args.recipe or bench.default_recipes()
-    if "training" in parts:
-        from odolab.learned.robust_vo.config import load_train_config
-        from odolab.learned.training import ConfigError
+    return ap
 
-        configs = []
-        for r in recipes:
-            try:
-                configs.append((str(r), load_train_config(str(r))))
-            except ConfigError as exc:
-                raise UsageError(f"--recipe: {exc}") from None
-        if args.bench_data is not None:
-            from odolab.learned.robust_vo.speed import open_bench_data
 
-            try:
-                args.bench_data = open_bench_data(args.bench_data, configs)
-            except ValueError as exc:
-                raise UsageError(f"--bench-data: {exc}") from None
-    elif args.recipe or args.train_threads or args.bench_data:
-        option = "--recipe" if args.recipe else "--train-threads" if args.train_threads else "--bench-data"
-        raise UsageError(
-            f"{option} chooses how the training part runs; --only {' '.join(dict.fromkeys(parts))} does not run it"
-        )
-    if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
-        raise UsageError(
-            f"--odometers and --odometer-option choose what the odometer part times; "
-            f"--only {' '.join(dict.fromkeys(parts))} does not run it"
-            + (
-                " (navigation always times ground-truth and action-prior, with their defaults)"
-                if "navigation" in parts
-                else ""
-            )
-        )
-    try:
-        names = standalone_odometers() if args.odometers is None else parse_odometer_list(args.odometers)
-    except OdometerListError as exc:
-        raise UsageError(exc.named("--odometers")) from None
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    unknown = [u for u in map(unknown_odometer, names) if u]
-    if unknown or not names:
-        raise UsageError(
-            f"unknown odometer {(unknown or [args.odometers])[0]!r}; available: {', '.join(available_odometers())}"
-        )
-    from odolab.odometry.options import OptionError, parse_assignments
-    from odolab.reporting.pipeline import ComparisonError, load_odometers
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(build_parser().parse_args(argv))
 
-    try:
-        options = parse_assignments(args.odometer_option)
-        if "odometers" in parts:
-            load_odometers(names, options)  # every name and option checked before anything is timed
-    except (OptionError, ComparisonError) as exc:
-        raise UsageError(str(exc)) from None
 
+def run(args) -> int:
+    """Time the asked parts, printing each table and saving the JSON after each (a stop keeps the
+    parts already timed); 0 when done."""
+    plan = _plan(args)
     report: dict = {"machine": machine()}
     print(f"machine: {report['machine']}")
-
     running: set[str] = set()
 
-    def save() -> None:  # after every part, so that a stop keeps the parts already timed
-        report["parts_pending"] = [p for p in parts if p not in report or p in running]
+    def save() -> None:
+        report["parts_pending"] = [p for p in plan.parts if p not in report or p in running]
         if args.json:
             from odolab.io.atomic import write_json_atomic
 
             write_json_atomic(args.json, report, indent=2)
 
     save()  # at once: a stop before the first part ends leaves no older, complete-looking file
-    if "simulator" in parts:
-        report["simulator"] = bench.bench_simulator()
-        print(
-            "\n## Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path not in a second thread)\n"
-        )
-        print(_table(report["simulator"]))
-        report["episodes"] = bench.bench_episodes()
-        print("\n## Episode generation, end to end, one process\n")
-        print(_table([report["episodes"]]))
-        save()
-    if "odometers" in parts:
-        running.add("odometers")  # saved odometer by odometer, pending until the last is timed
-        bench.bench_odometers(names, options=options, rows=report.setdefault("odometers", []), after_each=save)
-        running.discard("odometers")
-        print("\n## Odometers (steps/s of step() on test-split episodes, 341x192)\n")
-        print(_table(report["odometers"]))
-        save()
-    if "navigation" in parts:
-        report["navigation"] = bench.bench_navigation()
-        print(
-            "\n## Navigation, closed loop, one process (first 3 test episodes, at most 100 steps; ms per step; "
-            "planning is part of the policy; planning_share of the whole time)\n"
-        )
-        print(_table(report["navigation"]))
-        save()
-    if "evaluate" in parts:
-        from odolab.benchmarks.evaluate_speed import run as bench_evaluate
-
-        report["evaluate"] = bench_evaluate()
-        print("\n## Trajectory evaluation on KITTI 00 (wall seconds per command)\n")
-        print(_table([report["evaluate"]]))
-        save()
-    if "training" in parts:
-        report["training"] = bench.bench_training(recipes, threads=args.train_threads, data=args.bench_data)
-        print(
-            "\n## Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
-            "own epoch end to end; fp32 bare beside the chosen precision)\n"
-        )
-        print(_table(report["training"]))
+    for part in plan.parts:
+        running.add(part)  # the odometer part saves odometer by odometer, pending until the last is timed
+        timed = _time(part, plan, args.train_threads, report, save)
+        running.discard(part)
+        for key, rows in timed.items():
+            report[key] = rows
+            print(f"\n## {TITLES[key]}\n")
+            print(_table(rows if isinstance(rows, list) else [rows]))
         save()
     return 0
+
+
+def _time(part: str, plan: Plan, threads: int | None, report: dict, save) -> dict:
+    """Time one part: its tables by report key."""
+    if part == "simulator":
+        return {"simulator": bench.bench_simulator(), "episodes": bench.bench_episodes()}
+    if part == "odometers":
+        rows = report.setdefault("odometers", [])
+        bench.bench_odometers(plan.names, options=plan.options, rows=rows, after_each=save)
+        return {"odometers": rows}
+    if part == "navigation":
+        return {"navigation": bench.bench_navigation()}
+    if part == "evaluate":
+        from odolab.benchmarks.evaluate_speed import run as bench_evaluate
+
+        return {"evaluate": bench_evaluate()}
+    return {"training": bench.bench_training(plan.recipes, threads=threads, data=plan.data)}
+
+
+def _plan(args) -> Plan:
+    """Every input checked before anything is timed; ``UsageError`` in one line."""
+    if args.json is not None:
+        check_output_file(args.json, "--json", [".json"])
+        check_replaceable(args.json, "--json", _bench_json, "a bench JSON file (python -m odolab.bench --json)")
+    parts = tuple(p for p in PARTS if p in (args.only or PARTS))
+    asked = " ".join(dict.fromkeys(args.only or PARTS))
+    recipes, data = args.recipe or bench.default_recipes(), None
+    if "training" in parts:
+        data = _training_data(recipes, args.bench_data)
+    elif args.recipe or args.train_threads or args.bench_data:
+        option = "--recipe" if args.recipe else "--train-threads" if args.train_threads else "--bench-data"
+        raise UsageError(f"{option} chooses how the training part runs; --only {asked} does not run it")
+    if "odometers" not in parts and (args.odometers is not None or args.odometer_option):
+        raise UsageError(
+            f"--odometers and --odometer-option choose what the odometer part times; --only {asked} does not run it"
+            + (
+                " (navigation always times ground-truth and action-prior, with their defaults)"
+                if "navigation" in parts
+                else ""
+            )
+        )
+    names, options = _odometers(args.odometers, args.odometer_option, load="odometers" in parts)
+    return Plan(parts, recipes, data, names, options)
+
+
+def _training_data(recipes: list[Path], bench_data: str | None) -> object:
+    """Check the training part's recipes and open ``--bench-data`` (None: the part renders its own)."""
+    from odolab.learned.robust_vo.config import load_train_config
+    from odolab.learned.training import ConfigError
+
+    configs = []
+    for r in recipes:
+        try:
+            configs.append((str(r), load_train_config(str(r))))
+        except ConfigError as exc:
+            raise UsageError(f"--recipe: {exc}") from None
+    if bench_data is None:
+        return None
+    from odolab.learned.robust_vo.speed import open_bench_data
+
+    try:
+        return open_bench_data(bench_data, configs)
+    except ValueError as exc:
+        raise UsageError(f"--bench-data: {exc}") from None
+
+
+def _odometers(text: str | None, assignments: list[str], load: bool) -> tuple[list[str], dict]:
+    """The odometer part's names (``--odometers``; default every standalone one) and options, each
+    loaded once (when the part runs) so that a bad name or option stops the run before any timing."""
+    from odolab.odometry.odometer import (
+        OdometerListError,
+        available_odometers,
+        parse_odometer_list,
+        standalone_odometers,
+        unknown_odometer,
+    )
+    from odolab.odometry.options import OptionError, parse_assignments
+    from odolab.reporting.pipeline import ComparisonError, load_odometers
+
+    try:
+        names = standalone_odometers() if text is None else parse_odometer_list(text)
+    except OdometerListError as exc:
+        raise UsageError(exc.named("--odometers")) from None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    unknown = [u for u in map(unknown_odometer, names) if u]
+    if unknown or not names:
+        raise UsageError(f"unknown odometer {(unknown or [text])[0]!r}; available: {', '.join(available_odometers())}")
+    try:
+        options = parse_assignments(assignments)
+        if load:
+            load_odometers(names, options)
+    except (OptionError, ComparisonError) as exc:
+        raise UsageError(str(exc)) from None
+    return names, options
 
 
 def _bench_json(path: Path) -> bool:
