@@ -65,6 +65,22 @@ def _aligned_empty(shape: tuple[int, ...], align: int = 64) -> np.ndarray:
     return buf[offset : offset + n].view(np.float32).reshape(shape)
 
 
+def _normals(scene: Scene) -> np.ndarray:
+    """(F, 3) unit normals of the scene's triangles (float64)."""
+    v = scene.vertices[scene.triangles].astype(np.float64)
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    return n / (np.linalg.norm(n, axis=1, keepdims=True) + 1e-12)
+
+
+def shaded_colours(scene: Scene) -> np.ndarray:
+    """(F, 3) uint8: each triangle's material colour under the renderer's lights (ambient, key and
+    fill), before its texture: what a flat texture (reflectance 0.6, brightness factor 1) shows."""
+    lit = _normals(scene) @ _KEY_LIGHT
+    shade = AMBIENT + KEY * np.maximum(lit, 0.0) + FILL * np.maximum(-lit, 0.0)
+    colors = np.array([m.color for m in scene.materials], dtype=np.float32)
+    return np.clip(np.round(colors[scene.triangle_material] * shade[:, None] * 255.0), 0, 255).astype(np.uint8)
+
+
 class Renderer:
     """Ray-casts one scene; :meth:`render` returns clean (noise-free) RGB and z-depth.
 
@@ -95,15 +111,9 @@ class Renderer:
         self._rc = o3d.t.geometry.RaycastingScene(nthreads=nthreads)
         self._rc.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
 
-        v = scene.vertices[scene.triangles].astype(np.float64)
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
-        axis = np.argmax(np.abs(n), axis=1)
+        axis = np.argmax(np.abs(_normals(scene)), axis=1)
         self._tri_axis = np.append(axis, 2).astype(np.int8)  # dominant normal axis: the texture plane
-        lit = n @ _KEY_LIGHT
-        shade = AMBIENT + KEY * np.maximum(lit, 0.0) + FILL * np.maximum(-lit, 0.0)
-        colors = np.array([m.color for m in scene.materials], dtype=np.float32)
-        rgb = np.clip(np.round(colors[scene.triangle_material] * shade[:, None] * 255.0), 0, 255)
+        rgb = shaded_colours(scene)
         # (3, F + 1) 8-bit colour x shading, and each triangle's tile; the last entry is for misses
         self._tri_rgb_t = np.ascontiguousarray(np.append(rgb, np.zeros((1, 3)), axis=0).T, dtype=np.uint16)
         tile = np.array([m.tile for m in scene.materials])[scene.triangle_material] % len(tiles)
@@ -126,6 +136,7 @@ class Renderer:
         norm = np.linalg.norm(self._dirs_cam, axis=1)
         tilt = np.round(0.5 * np.log2(norm / np.maximum(np.abs(self._dirs_cam[:, 1]), 1e-3)) + np.log2(norm))
         self._floor_bias = (np.clip(tilt, 0, self._levels - 1) * self._level_stride).astype(np.int32)
+        self._look = None if scene.appearance is None else _MeshLook(scene.appearance)
         self._rays = _aligned_empty((self._dirs_cam.shape[0], 6))
         self._dirs_world = np.empty((3, self._dirs_cam.shape[0]), np.float32)  # rays' directions, by axis
 
@@ -187,8 +198,11 @@ class Renderer:
         return np.where((t >= cam.min_depth) & (t < cam.max_depth), t, np.float32(0.0)).reshape(cam.height, cam.width)
 
     def colour(self, hit: Hits) -> np.ndarray:
-        """Clean RGB (H, W, 3) uint8 of a :meth:`cast`: albedo x shading x texture."""
+        """Clean RGB (H, W, 3) uint8 of a :meth:`cast`: albedo x shading x texture (a mesh file's
+        scene: the file's own colours at each hit)."""
         cam, t, tri = self.camera, hit.t, hit.tri
+        if self._look is not None:
+            return self._look.colour(tri, hit.keep["primitive_uvs"].numpy()).reshape(cam.height, cam.width, 3)
         # Hit point coordinates, then the triangle's texture plane:
         # normal along X -> (Y, Z), along Y -> (X, Z), along Z (floor, ceiling) -> (X, Y). np.take: 3x faster than [].
         with np.errstate(invalid="ignore"):  # misses: inf / nan coordinates, cast to any int, unseen
@@ -208,3 +222,35 @@ class Renderer:
         for k in range(3):  # one 1-D gather per channel: 3x faster than gathering (N, 3) rows
             rgb[:, k] = np.minimum((np.take(self._tri_rgb_t[k], tri, mode="wrap") * tex) >> 7, 255)
         return rgb.reshape(cam.height, cam.width, 3)
+
+
+class _MeshLook:
+    """A mesh file's colours at ray hits: its corner colours interpolated across each face, or its
+    texture at the interpolated UV (nearest texel); black where a ray meets nothing."""
+
+    def __init__(self, look) -> None:
+        colors = np.asarray(look.corner_colors, np.float32)
+        self._colors = np.concatenate([colors, np.zeros((1, 3, 3), np.float32)])  # the last row: misses
+        self._textured = look.texture_of is not None
+        if self._textured:
+            self._uv = np.concatenate([np.asarray(look.corner_uv, np.float32), np.zeros((1, 3, 2), np.float32)])
+            self._texture_of = np.append(np.asarray(look.texture_of, np.int32), -1)
+            self._textures = [np.asarray(tex, np.uint8) for tex in look.textures]
+
+    def colour(self, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        """(N, 3) uint8 RGB of hits on triangles ``tri`` (-1: a miss) at barycentric ``bary`` (N, 2):
+        the point is (1 - u - v) corner 0 + u corner 1 + v corner 2."""
+        f = np.where(tri < 0, len(self._colors) - 1, tri)
+        w = np.stack([1.0 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], axis=1).astype(np.float32)
+        rgb = np.einsum("nk,nkc->nc", w, self._colors[f])
+        if self._textured:
+            uv = np.einsum("nk,nkc->nc", w, self._uv[f])
+            which = self._texture_of[f]
+            for k, tex in enumerate(self._textures):
+                sel = which == k
+                if sel.any():
+                    h, wd = tex.shape[:2]
+                    col = np.clip(np.floor(np.mod(uv[sel, 0], 1.0) * wd), 0, wd - 1).astype(np.int64)
+                    row = np.clip(np.floor((1.0 - np.mod(uv[sel, 1], 1.0)) * h), 0, h - 1).astype(np.int64)
+                    rgb[sel] = tex[row, col]
+        return np.clip(np.round(rgb), 0, 255).astype(np.uint8)

@@ -12,6 +12,7 @@ Scene seeds are split into disjoint pools, so no test scene is ever seen in trai
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +59,8 @@ class Scene:
     x in [origin_x + c * res, +res), y in [origin_y + r * res, +res), True = no obstacle at any height
     the agent occupies. ``navigable`` = free cells whose centre is at least ``agent_radius`` from
     any obstacle. ``scale``: the floor plan's linear scale (:func:`generate_scene`; 1 in every
-    episode's scene).
+    episode's scene). ``appearance``: None for a procedural scene (materials and texture tiles),
+    else a mesh file's own look (:class:`odolab.sim.mesh_scenes.MeshAppearance`).
     """
 
     seed: int
@@ -72,6 +74,7 @@ class Scene:
     resolution: float
     agent_radius: float
     scale: float = 1.0
+    appearance: Any = None
 
     def world_to_cell(self, x: np.ndarray | float, y: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """(row, col) integer indices of world points (not clipped)."""
@@ -289,7 +292,7 @@ def _occupancy(
     return free, (ox, oy)
 
 
-def _without_slivers(navigable: np.ndarray, width: float = 0.1) -> np.ndarray:
+def without_slivers(navigable: np.ndarray, width: float = 0.1) -> np.ndarray:
     """Remove navigable strips narrower than about ``width`` m (a morphological opening with a
     disk), as a navmesh's region filtering does: the agent's centre cannot follow a 5 cm sliver."""
     from scipy.ndimage import binary_opening
@@ -360,7 +363,7 @@ def generate_scene(
         triangle_material=np.concatenate(mats),
         materials=materials,
         free=free,
-        navigable=_without_slivers(clearance >= agent_radius),
+        navigable=without_slivers(clearance >= agent_radius),
         origin=origin,
         resolution=GRID_RESOLUTION,
         agent_radius=agent_radius,

@@ -1,0 +1,115 @@
+"""odolab/sim/mesh_scenes.py: scenes from mesh files. A procedural scene written as GLB (Y-up, its
+colours in a texture) or PLY (Z-up, vertex colours) and read back is the same scene: the same
+depth bit for bit, the same RGB as the procedural renderer shows with flat texture tiles, and the
+same free cells but for at most 0.5 % of them, each within half a cell (2.5 cm) of a surface: a
+cylinder's facets (a 16-sided prism in the mesh, a circle in the procedural map) or the faces of
+solids that touch, where the inside test is undecided. Bad files are one line naming the file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from odolab.core.geometry import camera_pose_from_agent
+from odolab.sim.camera import CameraSpec, Renderer
+from odolab.sim.mesh_scenes import MeshError, export_scene, mesh_scene, read_mesh
+from odolab.sim.scenes import generate_scene, scene_seed
+from odolab.sim.textures import make_tiles
+
+CAMERA = CameraSpec(width=96, height=54)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return generate_scene(scene_seed("test", 0))
+
+
+def _near_a_surface(scene, cells: np.ndarray) -> np.ndarray:
+    """Distance (m) from each cell's centre, 0.5 m above the floor, to the scene's nearest surface."""
+    import open3d as o3d
+
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
+    x, y = scene.cell_to_world(cells[:, 0], cells[:, 1])
+    return rc.compute_distance(o3d.core.Tensor(np.stack([x, y, np.full_like(x, 0.5)], 1).astype(np.float32))).numpy()
+
+
+def _window(mesh, scene):
+    """The mesh scene's free cells over the procedural scene's grid (the grids line up)."""
+    dr, dc = (round((scene.origin[k] - mesh.origin[k]) / scene.resolution) for k in (1, 0))
+    rows, cols = scene.free.shape
+    assert mesh.free[:dr].sum() + mesh.free[dr + rows :].sum() + mesh.free[:, :dc].sum() == 0
+    return mesh.free[dr : dr + rows, dc : dc + cols]
+
+
+@pytest.mark.parametrize("name,up", [("scene.glb", "y"), ("scene.ply", "z")])
+def test_a_procedural_scene_written_and_read_back_is_the_same_scene(tmp_path, scene, name, up):
+
+    mesh = mesh_scene(read_mesh(export_scene(scene, tmp_path / name, up=up), up=up))
+    ours, theirs = Renderer(mesh, CAMERA), Renderer(scene, CAMERA, tiles=np.full_like(make_tiles(), 0.6))
+    rng = np.random.default_rng(0)
+    cells = np.argwhere(scene.navigable)
+    for k in rng.integers(len(cells), size=6):
+        x, y = scene.cell_to_world(*cells[k])
+        pose = camera_pose_from_agent(float(x), float(y), float(rng.uniform(-np.pi, np.pi)), 0.88)
+        (rgb, depth), (rgb_p, depth_p) = ours.render(pose), theirs.render(pose)
+        assert np.array_equal(depth, depth_p) and (depth > 0).mean() > 0.5
+        assert np.array_equal(rgb, rgb_p)
+    free = _window(mesh, scene)
+    differ = np.argwhere(free != scene.free)
+    assert len(differ) <= 0.005 * scene.free.sum()
+    assert (_near_a_surface(scene, differ) <= 0.026).all()
+
+
+def test_touching_solids_and_cylinders_are_the_only_differences_in_another_scene(tmp_path):
+    scene = generate_scene(scene_seed("val", 6))  # outer walls touching inner ones: the hardest seen
+    mesh = mesh_scene(read_mesh(export_scene(scene, tmp_path / "scene.ply", up="z"), up="z"))
+    differ = np.argwhere(_window(mesh, scene) != scene.free)
+    assert len(differ) <= 0.005 * scene.free.sum() and (_near_a_surface(scene, differ) <= 0.026).all()
+
+
+def test_a_y_up_and_a_z_up_file_of_one_room_give_the_same_scene(tmp_path, scene):
+    y = mesh_scene(read_mesh(export_scene(scene, tmp_path / "y.ply", up="y"), up="y"))
+    z = mesh_scene(read_mesh(export_scene(scene, tmp_path / "z.ply", up="z"), up="z"))
+    assert np.array_equal(y.vertices, z.vertices) and np.array_equal(y.navigable, z.navigable)
+    assert y.origin == z.origin and y.navigable.any()
+
+
+def _ply(path, vertices, faces):
+    import trimesh
+
+    trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces), process=False).export(path)
+    return path
+
+
+def test_a_mesh_that_cannot_be_a_scene_is_one_line_naming_the_file(tmp_path, monkeypatch):
+    from odolab.sim import mesh_scenes
+
+    wall = _ply(tmp_path / "wall.ply", [[0, 0, 0], [4, 0, 0], [4, 0, 2], [0, 0, 2]], [[0, 1, 2], [0, 2, 3]])
+    floor = [[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0]]
+    covered = _ply(
+        tmp_path / "covered.ply",
+        [*floor, *[[x, y, 0.5] for x, y, _ in floor]],
+        [[0, 1, 2], [0, 2, 3], [6, 5, 4], [7, 6, 4]],
+    )
+    (tmp_path / "empty.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 0\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    (tmp_path / "junk.glb").write_bytes(b"not a mesh at all")
+    (tmp_path / "scene.stl").write_bytes(b"solid x\nendsolid x\n")
+    cases = [
+        (wall, "z", "no up-facing surface: no floor to stand on"),
+        (covered, "z", "no free floor"),
+        (tmp_path / "empty.ply", "z", "holds no triangles"),
+        (tmp_path / "junk.glb", "y", "not a readable GLB mesh"),
+        (tmp_path / "scene.stl", "y", "unknown mesh type '.stl'"),
+        (tmp_path / "missing.ply", "y", "no such file"),
+        (wall, "x", "up: expected 'y' or 'z'"),
+    ]
+    for path, up, said in cases:
+        with pytest.raises(MeshError) as exc:
+            mesh_scene(read_mesh(path, up=up), name=str(path))
+        assert str(exc.value).startswith(str(path)) and said in str(exc.value) and "\n" not in str(exc.value), exc.value
+    monkeypatch.setattr(mesh_scenes, "MAX_FILE_BYTES", 100)
+    with pytest.raises(MeshError, match=r"wall.ply: .* GB, above the .* GB a scene may be"):
+        read_mesh(wall, up="z")
