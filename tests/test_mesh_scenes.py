@@ -113,3 +113,42 @@ def test_a_mesh_that_cannot_be_a_scene_is_one_line_naming_the_file(tmp_path, mon
     monkeypatch.setattr(mesh_scenes, "MAX_FILE_BYTES", 100)
     with pytest.raises(MeshError, match=r"wall.ply: .* GB, above the .* GB a scene may be"):
         read_mesh(wall, up="z")
+
+
+def test_compare_runs_in_a_mesh_file_keyed_by_its_content(tmp_path, scene, capsys):
+    """compare --scenes: episodes in the file's scene, the same on a rerun and for a copy of the file
+    elsewhere (the cache is keyed by the content), and a bad file refused in one line."""
+    import csv
+    import shutil
+
+    from odolab.cli import run_cli
+    from odolab.cli.compare import main
+    from odolab.sim.mesh_scenes import scene_files
+    from tests.helpers import refused
+
+    room = export_scene(scene, tmp_path / "room.glb", up="y")
+    (tmp_path / "copy").mkdir()
+    copy = shutil.copy(room, tmp_path / "copy" / "same.glb")
+    assert scene_files(room, "test").digests == scene_files(copy, "val").digests  # one file: every split's scene
+    tables = []
+    for k, path in enumerate([room, room, copy]):
+        argv = ["--scenes", str(path), "--odometers", "ground-truth,action-prior", "--episodes", "2"]
+        argv += [
+            "--max-steps",
+            "8",
+            "--serial",
+            "--quiet",
+            "--cache",
+            str(tmp_path / "cache"),
+            "--out",
+            str(tmp_path / f"o{k}"),
+        ]
+        assert run_cli(main, "python -m odolab.compare", argv) == 0
+        with open(tmp_path / f"o{k}" / "table.csv") as f:
+            tables.append([{c: r[c] for c in ("odometer", "dx", "dz", "dyaw", "steps")} for r in csv.DictReader(f)])
+    assert tables[0] == tables[1] == tables[2] and tables[0][0]["steps"] != "0"
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 2  # the copy reused the same two episodes
+    capsys.readouterr()
+    (tmp_path / "bad.ply").write_text("not a mesh")
+    line = refused(capsys, "compare", ["--scenes", str(tmp_path / "bad.ply"), "--out", str(tmp_path / "x")])
+    assert "--scenes" in line and "bad.ply: not a readable PLY mesh" in line and not (tmp_path / "x").exists()

@@ -38,6 +38,7 @@ from odolab.odometry.options import OptionError, check_options
 from odolab.reporting.report import FloorPlan
 from odolab.running import paired, runner, summary
 from odolab.running.runner import RunObserver, SequenceResult
+from odolab.sim.mesh_scenes import SceneFiles
 from odolab.sim.scenes import SPLITS
 
 if TYPE_CHECKING:  # the simulator's modules load only when episodes are made
@@ -78,7 +79,9 @@ class ComparisonConfig:
     ``execution``: where missing episodes are generated, and whether with progress bars
     (:class:`~odolab.core.parallel.Execution`). ``command``: the command line that asked
     (its caller's words, recorded in the notes), or None. ``step_timeout``: seconds one step of an
-    odometer may take before it fails as ``timed-out`` (None: no limit; :mod:`odolab.running.runner`)."""
+    odometer may take before it fails as ``timed-out`` (None: no limit; :mod:`odolab.running.runner`).
+    ``scenes``: mesh files to run the episodes in (:func:`odolab.sim.mesh_scenes.scene_files`), or
+    None for the split's procedural scenes."""
 
     odometers: list[str] | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -94,6 +97,7 @@ class ComparisonConfig:
     execution: Execution = Execution()
     command: str | None = None
     step_timeout: float | None = runner.DEFAULT_STEP_TIMEOUT
+    scenes: SceneFiles | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -215,10 +219,10 @@ def failure_reasons(results: list[SequenceResult]) -> dict[str, dict[str, int]]:
     return out
 
 
-def _floor_plan(scene_seed: int, goal: tuple[float, float] | None = None) -> FloorPlan:
+def _floor_plan(scene_seed: int, goal: tuple[float, float] | None, scenes: SceneFiles | None) -> FloorPlan:
     from odolab.sim.scenes import generate_scene
 
-    scene = generate_scene(scene_seed)
+    scene = generate_scene(scene_seed) if scenes is None else scenes.scene(scene_seed)
     return FloorPlan(scene.free, scene.origin, scene.resolution, goal)
 
 
@@ -411,7 +415,9 @@ def run_comparison(
     except ValueError as exc:
         raise ComparisonError(str(exc)) from None
     noise = config.noise or NoiseConfig()
-    specs = episode_specs(config.split, config.episodes, seed=config.seed, max_steps=config.max_steps, noise=noise)
+    specs = episode_specs(
+        config.split, config.episodes, seed=config.seed, max_steps=config.max_steps, noise=noise, scenes=config.scenes
+    )
     episodes, total = _episode_stream(config, specs)
     scenes: dict[str, int] = {}
     goals: dict[str, tuple[float, float]] = {}
@@ -439,7 +445,7 @@ def run_comparison(
     notes += [f"Command: {config.command}"] if config.command else []
     notes += _options_note(config)
     notes += no_depth
-    plans = {name: _floor_plan(seed, goals.get(name)) for name, seed in scenes.items()}
+    plans = {name: _floor_plan(seed, goals.get(name), config.scenes) for name, seed in scenes.items()}
     from odolab.reporting.report import counted
 
     title = f"odolab compare: {counted(config.episodes, config.split + ' episode')}, seed {config.seed}"

@@ -27,16 +27,28 @@ from odolab.core.geometry import invert, transform_to_planar
 from odolab.core.types import Action, Frame, Intrinsics, Sequence
 from odolab.io.npz_mmap import mmap_npz_member
 from odolab.sim.episodes import EpisodeCache, EpisodeSpec, NoiseConfig
+from odolab.sim.mesh_scenes import SceneFiles
 
 __all__ = ["Pair", "PairDataset", "episode_specs", "true_motions"]
 
 
 def episode_specs(
-    split: str, n: int, *, seed: int = 0, max_steps: int = 100, noise: NoiseConfig | None = None, first: int = 0
+    split: str,
+    n: int,
+    *,
+    seed: int = 0,
+    max_steps: int = 100,
+    noise: NoiseConfig | None = None,
+    first: int = 0,
+    scenes: SceneFiles | None = None,
 ) -> list[EpisodeSpec]:
-    """Specs of episodes ``first .. first + n - 1`` of ``split`` from ``seed`` (same args, same episodes)."""
+    """Specs of episodes ``first .. first + n - 1`` of ``split`` from ``seed`` (same args, same
+    episodes), in the split's procedural scenes or in mesh ``scenes``."""
     noise = noise or NoiseConfig()
-    return [EpisodeSpec(split=split, index=first + i, seed=seed, max_steps=max_steps, noise=noise) for i in range(n)]
+    return [
+        EpisodeSpec(split=split, index=first + i, seed=seed, max_steps=max_steps, noise=noise, scenes=scenes)
+        for i in range(n)
+    ]
 
 
 def true_motions(seq: Sequence) -> np.ndarray:

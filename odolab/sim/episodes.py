@@ -33,6 +33,7 @@ from odolab.io.atomic import atomic_open, remove_stale_temporaries
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
 from odolab.sim.environment import PointNavEnv, Sensors
+from odolab.sim.mesh_scenes import SceneFiles
 from odolab.sim.noise import ActuationNoise
 from odolab.sim.scenes import SPLITS, generate_scene, scene_seed
 
@@ -78,6 +79,7 @@ class EpisodeSpec:
     stop_at_contact: bool = True  # blocked steps stop at contact (habitat-sim) or, if False, stay put
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     camera: CameraSpec = field(default_factory=CameraSpec)
+    scenes: SceneFiles | None = None  # mesh files (odolab.sim.mesh_scenes); None: the split's procedural scenes
 
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
@@ -89,8 +91,13 @@ class EpisodeSpec:
         """Stable short hash of the spec (the cache file name)."""
         from odolab.sim.redwood import table_digest
 
+        fields = asdict(self)
+        if self.scenes is None:
+            del fields["scenes"]  # the procedural scenes' keys stay those made before mesh scenes
+        else:
+            fields["scenes"] = self.scenes.identity()  # digests, not paths
         blob = json.dumps(
-            {"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **asdict(self)}, sort_keys=True
+            {"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **fields}, sort_keys=True
         )
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
@@ -167,6 +174,12 @@ class EpisodeStart:
     euclidean_distance: float
 
 
+def scene_of(spec: EpisodeSpec, seed: int):
+    """The scene an episode of ``spec`` runs in: the procedural scene of ``seed``, or, with mesh
+    ``scenes``, the file ``seed`` picks (:meth:`odolab.sim.mesh_scenes.SceneFiles.scene`)."""
+    return generate_scene(seed) if spec.scenes is None else spec.scenes.scene(seed)
+
+
 def start_environment(spec: EpisodeSpec, sensors: bool = True) -> tuple[PointNavEnv, EpisodeStart]:
     """The environment of an episode at its start: scene, start and goal sampled from the spec's
     first stream, actuation noise from the second, sensors (if ``sensors``) from the third and
@@ -174,8 +187,9 @@ def start_environment(spec: EpisodeSpec, sensors: bool = True) -> tuple[PointNav
     stream too), it sees the stored episode's frames exactly; another policy gets other noise draws
     from the same laws."""
     rng, act_rng, rgb_rng, depth_rng = spec.streams()
-    seed = scene_seed(spec.split, int(rng.integers(1 << 31)))
-    scene = generate_scene(seed)
+    draw = int(rng.integers(1 << 31))
+    seed = draw if spec.scenes is not None else scene_seed(spec.split, draw)
+    scene = scene_of(spec, seed)
     (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
     start = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
     seeing = Sensors(scene, spec.camera, spec.noise.rgb, spec.noise.depth, rgb_rng, depth_rng) if sensors else None
@@ -268,7 +282,7 @@ def render_frames(
     with the sensor noise of ``spec`` drawn from its own streams (so any consumer sees the same frames)."""
     _, _, rgb_rng, depth_rng = spec.streams()
     cam = spec.camera
-    sensors = Sensors(generate_scene(motion.scene_seed), cam, spec.noise.rgb, spec.noise.depth, rgb_rng, depth_rng)
+    sensors = Sensors(scene_of(spec, motion.scene_seed), cam, spec.noise.rgb, spec.noise.depth, rgb_rng, depth_rng)
     for pose in motion.camera_poses(cam.mount_height):
         r = sensors.read(pose)
         yield r.clean_rgb, r.clean_depth, r.rgb, r.depth

@@ -24,6 +24,7 @@ space, as the faces of scans rendered with back-face culling do.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from dataclasses import dataclass, field
@@ -289,3 +290,66 @@ def export_scene(scene: Scene, path: str | os.PathLike, up: Literal["y", "z"] = 
         mesh = trimesh.Trimesh(v, faces, process=False)
     path.write_bytes(mesh.export(file_type=kind[1:]))
     return path
+
+
+#: Which split a file of a folder of scenes belongs to: the first 8 hex digits of its digest,
+#: modulo 10: 0-7 train, 8 val, 9 test (about 80/10/10, the same on every machine).
+SPLIT_OF_REMAINDER = {**dict.fromkeys(range(8), "train"), 8: "val", 9: "test"}
+
+
+@dataclass(frozen=True)
+class SceneFiles:
+    """Mesh files as the scenes of a split: ``files`` (absolute paths), their ``digests``
+    (:func:`read_mesh`, which episodes are cached by), read with ``up`` and ``unit``. Episode after
+    episode draws one of them, as the procedural split draws a seed."""
+
+    files: tuple[str, ...]
+    digests: tuple[str, ...]
+    up: Literal["y", "z"] = "y"
+    unit: float = 1.0
+
+    def scene(self, draw: int) -> Scene:
+        """The scene of file ``draw`` modulo their number (read once per process)."""
+        k = int(draw) % len(self.files)
+        return _mesh_scene_of(self.files[k], self.digests[k], self.up, float(self.unit))
+
+    def identity(self) -> dict:
+        """What episodes depend on: the files' digests and the reading settings, not their paths."""
+        return {"digests": list(self.digests), "up": self.up, "unit": float(self.unit)}
+
+
+def scene_files(path: str | os.PathLike, split: str, up: Literal["y", "z"] = "y", unit: float = 1.0) -> SceneFiles:
+    """The scenes of ``split`` from ``path``: a mesh file is every split's one scene; a folder's
+    mesh files (of :data:`SUFFIXES`, not in subfolders) are split by :data:`SPLIT_OF_REMAINDER`.
+    Every file is read and made a scene here, so a bad one is one :class:`MeshError` line before any
+    episode."""
+    path = Path(path).resolve()
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES and p.is_file())
+        if not files:
+            raise MeshError(f"{path}: no mesh file ({', '.join(SUFFIXES)}) in this folder")
+    else:
+        files = [path]
+    chosen = []
+    for f in files:
+        digest = read_mesh(f, up, unit).digest
+        if len(files) == 1 or SPLIT_OF_REMAINDER[int(digest[:8], 16) % 10] == split:
+            _mesh_scene_of(str(f), digest, up, float(unit))  # a bad scene stops here
+            chosen.append((str(f), digest))
+    if not chosen:
+        raise MeshError(
+            f"{path}: none of its {len(files)} mesh files falls in the {split} split (a file's split: the first 8 hex "
+            "digits of its digest modulo 10, 0-7 train, 8 val, 9 test); give one file to use it for every split"
+        )
+    chosen.sort(key=lambda fd: fd[1])
+    return SceneFiles(tuple(f for f, _ in chosen), tuple(d for _, d in chosen), up, float(unit))
+
+
+@functools.lru_cache(maxsize=4)
+def _mesh_scene_of(path: str, digest: str, up: str, unit: float) -> Scene:
+    """The scene of a mesh file, made once per process (the last few kept); :class:`MeshError` when
+    the file changed since its digest was taken."""
+    data = read_mesh(path, up, unit)
+    if data.digest != digest:
+        raise MeshError(f"{path}: changed since the episodes were specified (another digest); run again")
+    return mesh_scene(data, name=path)
