@@ -93,7 +93,7 @@ class NavTask:
             "odometer": self.odometer,
             "options": self.options,
             "weights": self.identity_digest,  # the key saved results were made with
-            "spec": dataclasses.asdict(self.spec),
+            "spec": self.spec.record(),
             "policy": dataclasses.asdict(self.policy),
         }
         return hashlib.sha256(json.dumps(doc, sort_keys=True, default=repr).encode()).hexdigest()
@@ -513,6 +513,6 @@ def config_doc(odometers: list[str], options: dict, specs: list[EpisodeSpec], po
     return {
         "format": FORMAT,
         "options": {n: options.get(n, {}) for n in odometers},
-        "episodes": [dataclasses.asdict(s) for s in specs],
+        "episodes": [s.record() for s in specs],
         "policy": dataclasses.asdict(policy),
     }

@@ -87,17 +87,23 @@ class EpisodeSpec:
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
 
+    def record(self) -> dict:
+        """The spec as plain data, what keys and saved results hold: its fields, with mesh ``scenes``
+        as their digests and reading settings (not their paths), and without them for the procedural
+        scenes (so those records are what they were before mesh scenes)."""
+        fields = asdict(self)
+        if self.scenes is None:
+            del fields["scenes"]
+        else:
+            fields["scenes"] = self.scenes.identity()
+        return fields
+
     def key(self) -> str:
         """Stable short hash of the spec (the cache file name)."""
         from odolab.sim.redwood import table_digest
 
-        fields = asdict(self)
-        if self.scenes is None:
-            del fields["scenes"]  # the procedural scenes' keys stay those made before mesh scenes
-        else:
-            fields["scenes"] = self.scenes.identity()  # digests, not paths
         blob = json.dumps(
-            {"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **fields}, sort_keys=True
+            {"v": FORMAT_VERSION, "sim": SIMULATOR_VERSION, "redwood": table_digest(), **self.record()}, sort_keys=True
         )
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
