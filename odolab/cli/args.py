@@ -12,6 +12,7 @@ import errno
 import math
 import os
 import re
+import shlex
 import signal
 import sys
 import tempfile
@@ -101,6 +102,47 @@ def setting_help(cls: type, field: str, default: object = None) -> str:
     row = next(s for s in describe(cls) if s.name == field)
     shown = row.value if default is None else default
     return f"{row.doc}, {row.range} (default {f'{shown:g}' if isinstance(shown, float) else shown})"
+
+
+def add_scene_options(ap: argparse.ArgumentParser) -> None:
+    """``--scenes``, ``--scene-up`` and ``--scene-unit``: episodes in mesh files (:func:`scenes_of`)."""
+    ap.add_argument(
+        "--scenes",
+        type=path_arg("--scenes"),
+        default=None,
+        metavar="PATH",
+        help="run the episodes in mesh files instead of procedural scenes: a GLB/glTF, PLY or OBJ file, or a "
+        "folder of them (split by their digests: docs/simulator.md#scenes-from-mesh-files)",
+    )
+    ap.add_argument("--scene-up", choices=("y", "z"), default="y", help="--scenes: the files' up axis (default y)")
+    ap.add_argument(
+        "--scene-unit",
+        type=number("--scene-unit", float, 1e-6, 1e6),
+        default=1.0,
+        metavar="M",
+        help="--scenes: metres per file unit (default 1)",
+    )
+
+
+def scenes_of(args: argparse.Namespace):
+    """The mesh scenes of ``args.split`` that ``--scenes`` names, every file read and made a scene
+    (:func:`odolab.sim.mesh_scenes.scene_files`), or None without ``--scenes``; a bad file is one
+    ``UsageError`` line."""
+    if args.scenes is None:
+        return None
+    from odolab.sim.mesh_scenes import MeshError, scene_files
+
+    try:
+        return scene_files(args.scenes, args.split, args.scene_up, args.scene_unit)
+    except MeshError as exc:
+        raise UsageError(f"--scenes {exc}") from None
+
+
+def scene_words(args: argparse.Namespace) -> str:
+    """``--scenes`` and its settings as command-line words ("" without it), for a report's command."""
+    if args.scenes is None:
+        return ""
+    return f" --scenes {shlex.quote(str(args.scenes))} --scene-up {args.scene_up} --scene-unit {args.scene_unit:g}"
 
 
 def seed(name: str = "--seed") -> Callable[[str], int]:

@@ -17,6 +17,7 @@ from odolab.cli.args import (
     MAX_SEED,
     ArgumentParser,
     UsageError,
+    add_scene_options,
     check_cache_dir,
     check_ray_option,
     check_report_dir,
@@ -27,6 +28,8 @@ from odolab.cli.args import (
     path_arg,
     pinhole,
     run_cli,
+    scene_words,
+    scenes_of,
     seed,
     setting_help,
     setting_type,
@@ -101,22 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
     ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
-    ap.add_argument(
-        "--scenes",
-        type=path_arg("--scenes"),
-        default=None,
-        metavar="PATH",
-        help="run the episodes in mesh files instead of procedural scenes: a GLB/glTF, PLY or OBJ file, or a "
-        "folder of them (split by their digests: docs/simulator.md#scenes-from-mesh-files)",
-    )
-    ap.add_argument("--scene-up", choices=("y", "z"), default="y", help="--scenes: the files' up axis (default y)")
-    ap.add_argument(
-        "--scene-unit",
-        type=number("--scene-unit", float, 1e-6, 1e6),
-        default=1.0,
-        metavar="M",
-        help="--scenes: metres per file unit (default 1)",
-    )
+    add_scene_options(ap)
     ap.add_argument(
         "--max-steps",
         type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
@@ -277,14 +265,7 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
             names = odometer_names(names)
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
-    scenes = None
-    if args.scenes is not None and args.tum is None:  # with --tum, refused below as every simulator option
-        from odolab.sim.mesh_scenes import MeshError, scene_files
-
-        try:
-            scenes = scene_files(args.scenes, args.split, args.scene_up, args.scene_unit)
-        except MeshError as exc:
-            raise UsageError(f"--scenes {exc}") from None
+    scenes = scenes_of(args) if args.tum is None else None  # with --tum, refused below as every simulator option
     return ComparisonConfig(
         odometers=names,
         scenes=scenes,
@@ -310,11 +291,7 @@ def _command(args: argparse.Namespace) -> str:
         f"python -m odolab.compare --episodes {args.episodes} --seed {args.seed} "
         f"--split {args.split} --max-steps {args.max_steps} --rgb-noise {args.rgb_noise:g} "
         f"--depth-noise {args.depth_noise:g} --actuation-noise {args.actuation_noise:g}"
-        + (
-            f" --scenes {shlex.quote(str(args.scenes))} --scene-up {args.scene_up} --scene-unit {args.scene_unit:g}"
-            if args.scenes is not None
-            else ""
-        )
+        + scene_words(args)
         + "".join(f" --{flag} {shlex.quote(str(value))}" for flag, value in _chosen(args))
     )
 

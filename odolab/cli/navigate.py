@@ -21,6 +21,7 @@ from odolab.cli.args import (
     MAX_SEED,
     ArgumentParser,
     UsageError,
+    add_scene_options,
     check_ray_option,
     check_report_dir,
     execution_of,
@@ -28,6 +29,7 @@ from odolab.cli.args import (
     number,
     path_arg,
     run_cli,
+    scenes_of,
 )
 from odolab.reporting.report import counted
 from odolab.sim.scenes import SPLITS
@@ -67,6 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=10, help="episodes (default 10)")
     ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
     ap.add_argument("--split", default="test", help=f"{' | '.join(SPLITS)} (default test)")
+    add_scene_options(ap)
     ap.add_argument(
         "--max-steps",
         type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
@@ -115,9 +118,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
-    noise = NoiseConfig()
+    noise, scenes = NoiseConfig(), scenes_of(args)
     specs = [
-        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise)
+        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise, scenes=scenes)
         for i in range(args.episodes)
     ]
     tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].identity_digest) for n in names for s in specs]
