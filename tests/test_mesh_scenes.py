@@ -170,3 +170,40 @@ def test_navigate_runs_in_a_mesh_file(tmp_path, scene):
     assert config["episodes"][0]["scenes"]["digests"] == [read_mesh(room, up="z").digest]
     (saved,) = (tmp_path / "nav" / "episodes" / "ground-truth").glob("*.json")
     assert json.loads(saved.read_text())["steps"] > 0
+
+
+def test_a_scan_in_the_wrong_unit_or_up_axis_and_scene_options_alone_are_refused(tmp_path, scene, capsys):
+    from tests.helpers import refused
+
+    room = export_scene(scene, tmp_path / "room.glb", up="y")
+    with pytest.raises(MeshError, match=r"room.glb: spans .* m, above the 200 m a scene may; .* \(--scene-unit\)"):
+        read_mesh(room, up="y", unit=1000.0)  # millimetres read as metres
+    with pytest.raises(
+        MeshError, match=r"room.glb: .* m tall above its floor and .* m across at most: is its up axis the one given"
+    ):
+        mesh_scene(read_mesh(room, up="z"), name=str(room))
+    for name in ("compare", "navigate"):
+        line = refused(capsys, name, ["--scene-up", "z", "--out", str(tmp_path / "o")])
+        assert "--scene-up is for --scenes" in line
+
+
+def test_obj_materials_and_a_gltf_with_its_buffer_beside_it_are_read(tmp_path):
+    """An OBJ's material colour (its .mtl beside it) and a .gltf whose buffer is a file of its own."""
+    import trimesh
+
+    (tmp_path / "obj").mkdir()
+    floor = trimesh.Trimesh([[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+    floor.visual = trimesh.visual.TextureVisuals(
+        material=trimesh.visual.material.SimpleMaterial(diffuse=[255, 0, 0, 255])
+    )
+    floor.export(tmp_path / "obj" / "floor.obj")
+    assert (read_mesh(tmp_path / "obj" / "floor.obj", up="z").appearance.corner_colors == [255, 0, 0]).all()
+    (tmp_path / "gltf").mkdir()
+    files = floor.export(file_type="gltf")  # {"model.gltf": ..., "gltf_buffer_....bin": ...}
+    for name, data in files.items():
+        (tmp_path / "gltf" / name).write_bytes(data)
+    data = read_mesh(tmp_path / "gltf" / "model.gltf", up="z")
+    assert len(data.triangles) == 2
+    bin_file = next(p for p in (tmp_path / "gltf").iterdir() if p.suffix == ".bin")
+    bin_file.write_bytes(bin_file.read_bytes())  # the same bytes: the same digest
+    assert read_mesh(tmp_path / "gltf" / "model.gltf", up="z").digest == data.digest

@@ -124,11 +124,16 @@ def add_scene_options(ap: argparse.ArgumentParser) -> None:
     )
 
 
-def scenes_of(args: argparse.Namespace):
+def scenes_of(args: argparse.Namespace, argv: Sequence[str] | None):
     """The mesh scenes of ``args.split`` that ``--scenes`` names, every file read and made a scene
-    (:func:`odolab.sim.mesh_scenes.scene_files`), or None without ``--scenes``; a bad file is one
-    ``UsageError`` line."""
+    (:func:`odolab.sim.mesh_scenes.scene_files`), or None without ``--scenes`` (where ``argv``, the
+    command's arguments, may not name the other scene options); a bad file is one ``UsageError`` line."""
     if args.scenes is None:
+        given = given_options(argv, ["--scene-up", "--scene-unit"])
+        if given:
+            raise UsageError(
+                f"{given[0]} is for --scenes (mesh files); without it the episodes run in procedural scenes"
+            )
         return None
     from odolab.sim.mesh_scenes import MeshError, scene_files
 
@@ -142,7 +147,7 @@ def scene_words(args: argparse.Namespace) -> str:
     """``--scenes`` and its settings as command-line words ("" without it), for a report's command."""
     if args.scenes is None:
         return ""
-    return f" --scenes {shlex.quote(str(args.scenes))} --scene-up {args.scene_up} --scene-unit {args.scene_unit:g}"
+    return f" --scenes {shlex.quote(str(args.scenes))} --scene-up {args.scene_up} --scene-unit {args.scene_unit:.17g}"
 
 
 def seed(name: str = "--seed") -> Callable[[str], int]:

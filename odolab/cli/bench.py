@@ -1,5 +1,6 @@
-"""``python -m odolab.bench``: speed of the simulator, the odometers, closed-loop navigation, the
-evaluator and training (:mod:`odolab.benchmarks` times them)."""
+"""``python -m odolab.bench``: speed of the simulator, odometers, navigation, evaluation and training.
+
+:mod:`odolab.benchmarks` times them; this module is the command line."""
 
 from __future__ import annotations
 

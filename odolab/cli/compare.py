@@ -243,7 +243,7 @@ def _check_folders(args: argparse.Namespace) -> FolderLock:
     return held
 
 
-def _config(args: argparse.Namespace) -> ComparisonConfig:
+def _config(args: argparse.Namespace, argv: Sequence[str]) -> ComparisonConfig:
 
     try:
         from_file = read_options_file(args.config) if args.config else {}
@@ -265,7 +265,7 @@ def _config(args: argparse.Namespace) -> ComparisonConfig:
             names = odometer_names(names)
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
-    scenes = scenes_of(args) if args.tum is None else None  # with --tum, refused below as every simulator option
+    scenes = scenes_of(args, argv) if args.tum is None else None  # with --tum, refused below as every simulator option
     return ComparisonConfig(
         odometers=names,
         scenes=scenes,
@@ -307,7 +307,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse, check, run the comparison (:func:`odolab.reporting.pipeline.run_comparison`), print and write."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
-    config = _config(args)
+    config = _config(args, argv)
     _check_before_work(args, argv)
     if not args.quiet and sys.stderr.isatty():  # at once on a terminal: loading the odometers takes seconds
         print("loading odometers", end="\r", file=sys.stderr, flush=True)  # the next line writes over it

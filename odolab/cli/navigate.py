@@ -118,7 +118,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
-    noise, scenes = NoiseConfig(), scenes_of(args)
+    noise, scenes = NoiseConfig(), scenes_of(args, argv)
     specs = [
         EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise, scenes=scenes)
         for i in range(args.episodes)

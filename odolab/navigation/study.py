@@ -247,7 +247,9 @@ def row_problem(row: dict, task: NavTask) -> str | None:
     if "max_steps" in row and row["max_steps"] != spec.max_steps:
         return f"made with --max-steps {row['max_steps']!r}, not {spec.max_steps}"
     if "key" in row and row["key"] != task.key():
-        return "made with other settings (its key differs: odometer options, episode noise or camera, or policy)"
+        return (
+            "made with other settings (its key differs: odometer options, episode noise, camera or scenes, or policy)"
+        )
     steps, stopped = row["steps"], row["stopped"]
     if steps > spec.max_steps:
         return f"{steps} steps, above --max-steps {spec.max_steps}"
@@ -330,7 +332,7 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[Setting]:
     for key in ("seed", "split", "max_steps"):
         if saved[0].get(key) != episodes[0].get(key):
             said.append(Setting(key, f"({saved[0].get(key)} there, {episodes[0].get(key)} now)"))
-    return said or [Setting(None, "the episodes' noise or camera")]
+    return said or [Setting(None, "the episodes' noise, camera or scenes")]
 
 
 def _differing(saved: dict, policy: dict) -> list[str]:

@@ -35,6 +35,11 @@ import numpy as np
 
 from odolab.sim.scenes import GRID_RESOLUTION, Material, Scene, without_slivers
 
+#: Widest scene (m, along either horizontal axis): a home or an office floor; its occupancy grid
+#: holds (MAX_SPAN / 0.05)^2 cells at most.
+MAX_SPAN = 200.0
+#: Files beside a .gltf or .obj that it may draw on (buffers, materials, textures): in its digest.
+COMPANIONS = (".bin", ".mtl", ".png", ".jpg", ".jpeg")
 #: Largest mesh file read (bytes): a scan of a home is tens to hundreds of megabytes.
 MAX_FILE_BYTES = 2 * 1024**3
 #: File types read (trimesh's readers).
@@ -98,7 +103,7 @@ def read_mesh(path: str | os.PathLike, up: Literal["y", "z"] = "y", unit: float 
         raise MeshError(f"{path}: {size / 1024**3:.1f} GB, above the {MAX_FILE_BYTES / 1024**3:.0f} GB a scene may be")
     blob = path.read_bytes()
     try:
-        loaded = trimesh.load(trimesh.util.wrap_as_stream(blob), file_type=path.suffix.lower()[1:], process=False)
+        loaded = trimesh.load(str(path), file_type=path.suffix.lower()[1:], process=False)
     except Exception as exc:  # noqa: BLE001 (trimesh raises whatever its parsers raise)
         raise MeshError(
             f"{path}: not a readable {path.suffix.lower()[1:].upper()} mesh ({type(exc).__name__}: {exc})"
@@ -126,14 +131,32 @@ def read_mesh(path: str | os.PathLike, up: Literal["y", "z"] = "y", unit: float 
         v = np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1)
     if not np.isfinite(v).all():
         raise MeshError(f"{path}: vertices hold NaN or infinity")
+    span = v[:, :2].max(axis=0) - v[:, :2].min(axis=0)
+    if span.max() > MAX_SPAN:
+        raise MeshError(
+            f"{path}: spans {span[0]:.3g} x {span[1]:.3g} m, above the {MAX_SPAN:g} m a scene may; a scan in "
+            "millimetres or centimetres needs a unit of 0.001 or 0.01 (--scene-unit)"
+        )
     appearance = MeshAppearance(
         corner_colors=np.concatenate(colors),
         corner_uv=np.concatenate(uvs) if textures else None,
         texture_of=np.concatenate(texture_of) if textures else None,
         textures=tuple(textures),
     )
-    digest = hashlib.sha256(blob + f"|up={up}|unit={float(unit)!r}".encode()).hexdigest()
+    digest = hashlib.sha256(blob + _companions(path) + f"|up={up}|unit={float(unit)!r}".encode()).hexdigest()
     return MeshData(v.astype(np.float32), np.concatenate(triangles).astype(np.int32), appearance, digest)
+
+
+def _companions(path: Path) -> bytes:
+    """The bytes of the files beside a .gltf or .obj that it may draw on (:data:`COMPANIONS`), named
+    and in name order, so that a changed buffer, material or texture changes the digest."""
+    if path.suffix.lower() not in (".gltf", ".obj"):
+        return b""
+    parts = []
+    for f in sorted(path.parent.iterdir()):
+        if f.suffix.lower() in COMPANIONS and f.is_file():
+            parts += [f.name.encode(), hashlib.sha256(f.read_bytes()).digest()]
+    return b"".join(parts)
 
 
 def _look(mesh, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -142,12 +165,15 @@ def _look(mesh, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.nd
     visual = mesh.visual
     grey = np.full((len(faces), 3, 3), GREY, np.uint8)
     if visual.kind == "texture":
-        image = getattr(visual.material, "baseColorTexture", None) or getattr(visual.material, "image", None)
+        material = visual.material  # glTF's PBR material or OBJ's simple one
+        image = getattr(material, "baseColorTexture", None)
+        image = getattr(material, "image", None) if image is None else image
         uv = getattr(visual, "uv", None)
         if image is not None and uv is not None and len(uv) == len(mesh.vertices):
             texture = np.asarray(image.convert("RGB"), np.uint8)
             return grey, np.asarray(uv, np.float32)[faces], texture
-        color = getattr(visual.material, "baseColorFactor", None)
+        color = getattr(material, "baseColorFactor", None)
+        color = getattr(material, "diffuse", None) if color is None else color
         if color is not None:
             return np.broadcast_to(np.asarray(color, np.uint8)[:3], grey.shape).copy(), None, None
         return grey, None, None
@@ -187,6 +213,12 @@ def mesh_scene(data: MeshData, agent_radius: float = 0.18, name: str = "mesh") -
     except MeshError as exc:
         raise MeshError(f"{name}: {exc}") from None
     vertices = (data.vertices - np.array([0.0, 0.0, floor], np.float32)).astype(np.float32)
+    side, height = float((vertices[:, :2].max(axis=0) - vertices[:, :2].min(axis=0)).max()), float(vertices[:, 2].max())
+    if height > side:  # a wall read as the floor: the file's up axis is another
+        raise MeshError(
+            f"{name}: {height:.3g} m tall above its floor and {side:.3g} m across at most: is its up axis the one "
+            "given (--scene-up)?"
+        )
     free, origin = occupancy(vertices, data.triangles)
     if not free.any():
         raise MeshError(f"{name}: no free floor: no cell with a floor and room above it for the agent")
@@ -271,6 +303,8 @@ def export_scene(scene: Scene, path: str | os.PathLike, up: Literal["y", "z"] = 
 
     path = Path(path)
     kind = path.suffix.lower()
+    if up not in ("y", "z"):
+        raise MeshError(f"{path}: up: expected 'y' or 'z', got {up!r}")
     if kind not in (".glb", ".ply", ".obj"):
         raise MeshError(f"{path}: cannot write {kind or '(no extension)'!r}; expected .glb, .ply or .obj")
     v = scene.vertices[scene.triangles].reshape(-1, 3).astype(np.float64)
@@ -288,7 +322,8 @@ def export_scene(scene: Scene, path: str | os.PathLike, up: Literal["y", "z"] = 
         mesh = trimesh.Trimesh(v, faces, visual=visual, process=False)
     else:
         mesh = trimesh.Trimesh(v, faces, process=False)
-    path.write_bytes(mesh.export(file_type=kind[1:]))
+    data = mesh.export(file_type=kind[1:])
+    path.write_bytes(data.encode() if isinstance(data, str) else data)
     return path
 
 
@@ -323,7 +358,7 @@ def scene_files(path: str | os.PathLike, split: str, up: Literal["y", "z"] = "y"
     mesh files (of :data:`SUFFIXES`, not in subfolders) are split by :data:`SPLIT_OF_REMAINDER`.
     Every file is read and made a scene here, so a bad one is one :class:`MeshError` line before any
     episode."""
-    path = Path(path).resolve()
+    path = Path(path).absolute()  # as typed: a link is named as the link
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES and p.is_file())
         if not files:
