@@ -210,3 +210,20 @@ def compare_refused(tmp_path, *args, words: str) -> None:
 def refused_option(tmp_path, odometer: str, option: str, *, words: str) -> None:
     """:func:`compare_refused` of ``--odometers odometer --odometer-option option``."""
     compare_refused(tmp_path, "--odometers", odometer, "--odometer-option", option, words=words)
+
+
+def outside_folder(tmp_path: Path) -> Path:
+    """A folder beside a command's output folder, holding a file no run may touch."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim.tum").write_text("precious")
+    return outside
+
+
+def stderr_line(capsys, *words: str) -> str:
+    """What the command wrote on stderr: one line, no traceback, holding ``words``."""
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    return err

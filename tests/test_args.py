@@ -17,7 +17,7 @@ from odolab.cli import run_cli
 from odolab.cli.args import NAME_MAX, UsageError, check_cache_dir, disk_error
 from odolab.cli.study import command
 from odolab.io import atomic
-from tests.helpers import command_argv, refused
+from tests.helpers import command_argv, refused, stderr_line
 
 TUM = Path(__file__).parent / "data" / "tum_fr1_xyz_10"
 
@@ -364,15 +364,6 @@ def test_setting_type_takes_what_the_config_field_takes():
     )
 
 
-def _error_line(capsys, *words: str) -> str:
-    """The command's stderr: one line, no traceback, holding ``words``."""
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, (w, err)
-    return err
-
-
 def test_dotdot_after_a_link_is_refused_before_anything_is_made(tmp_path):
     """``a/link/../z`` would be made beside the link's target, not in ``a``: refused in one line."""
     from odolab.cli import UsageError, check_output_dir, check_output_file
@@ -399,12 +390,12 @@ def test_an_output_file_of_another_kind_is_never_replaced(tmp_path, capsys):
     summary = tmp_path / "training.json"
     summary.write_text(json.dumps({"command": "x", "stages": {}}))
     assert run_cli(bench_main, "bench", ["--only", "evaluate", "--json", str(summary)]) == 2
-    assert "expected a new file or a bench JSON file" in _error_line(capsys)
+    assert "expected a new file or a bench JSON file" in stderr_line(capsys)
     assert json.loads(summary.read_text()) == {"command": "x", "stages": {}}
     model = tmp_path / "model.pt"
     model.write_bytes(b"\x80weights")
     assert command("forward-dz-probe", ["--out", str(model)]) == 2
-    assert "expected a new file or an earlier report of this probe" in _error_line(capsys)
+    assert "expected a new file or an earlier report of this probe" in stderr_line(capsys)
     assert model.read_bytes() == b"\x80weights"
     assert command("forward-dz-probe", ["--out", "/dev/null"]) == 2
-    assert "is not a regular file" in _error_line(capsys)
+    assert "is not a regular file" in stderr_line(capsys)

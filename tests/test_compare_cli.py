@@ -12,7 +12,7 @@ import pytest
 
 from odolab.cli import run_cli
 from odolab.compare import main
-from tests.helpers import FR1, ROOT, one_line_error
+from tests.helpers import FR1, ROOT, one_line_error, outside_folder, stderr_line
 
 FAST = ["--odometers", "ground-truth,action-prior", "--episodes", "2", "--max-steps", "12", "--serial", "--quiet"]
 
@@ -451,22 +451,6 @@ def test_a_terminal_sees_a_line_at_once_that_the_next_one_writes_over(monkeypatc
     assert not capsys.readouterr().err.startswith("loading")
 
 
-def _outside(tmp_path: Path) -> Path:
-    """A folder beside the output folder, holding a file no run may touch."""
-    outside = tmp_path / "outside"
-    outside.mkdir()
-    (outside / "victim.tum").write_text("precious")
-    return outside
-
-
-def _one_line(capsys, *words: str) -> str:
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, (w, err)
-    return err
-
-
 def _compare(argv) -> int:
     from odolab.compare import main
 
@@ -477,17 +461,17 @@ COMPARE = ["--odometers", "action-prior", "--episodes", "1", "--max-steps", "3",
 
 
 def test_compare_refuses_a_linked_or_misplaced_folder_before_any_work(tmp_path, capsys):
-    outside = _outside(tmp_path)
+    outside = outside_folder(tmp_path)
     out = tmp_path / "run"
     (out / "trajectories").mkdir(parents=True)
     (out / "manifest.txt").write_text("trajectories/test-0000/victim.tum\n")
     (out / "trajectories" / "test-0000").symlink_to(outside, target_is_directory=True)
     assert _compare(COMPARE + ["--out", out]) == 2
-    _one_line(capsys, "trajectories/test-0000", "expected a file or folder", "found a symbolic link to")
+    stderr_line(capsys, "trajectories/test-0000", "expected a file or folder", "found a symbolic link to")
     assert (outside / "victim.tum").read_text() == "precious" and not (out / "table.csv").exists()
     (out / "trajectories" / "test-0000").unlink()
     (out / "trajectories").rmdir()
     (out / "trajectories").write_text("a file where compare keeps a folder")
     assert _compare(COMPARE + ["--out", out]) == 2
-    _one_line(capsys, "trajectories", "expected a folder, found a file")
+    stderr_line(capsys, "trajectories", "expected a folder, found a file")
     assert not (out / "table.csv").exists()

@@ -21,7 +21,7 @@ from odolab.navigation.agent import MapPlanAgent, in_agent_frame
 from odolab.navigation.episode import navigate
 from odolab.sim.camera import CameraSpec
 from odolab.sim.episodes import EpisodeSpec, render_episode, rollout
-from tests.helpers import Never, captured_figures, command_argv, refused
+from tests.helpers import Never, captured_figures, command_argv, outside_folder, refused, stderr_line
 
 
 def test_the_goal_follows_the_true_relative_goal_when_the_odometry_is_true():
@@ -673,29 +673,13 @@ def test_the_navigate_console_counts_failed_steps(tmp_path, capsys):
     assert "no failed steps" in next(ln for ln in lines if "action-prior:" in ln)
 
 
-def _outside(tmp_path: Path) -> Path:
-    """A folder beside the output folder, holding a file no run may touch."""
-    outside = tmp_path / "outside"
-    outside.mkdir()
-    (outside / "victim.tum").write_text("precious")
-    return outside
-
-
-def _one_line(capsys, *words: str) -> str:
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, (w, err)
-    return err
-
-
 def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
     """One rule for every file navigate writes: nav.md, config.json and a linked episodes folder
     are refused before any episode, as a linked episode file is."""
     args = ["--odometers", "ground-truth", "--episodes", "1", "--max-steps", "3", "--serial", "--quiet"]
     out = tmp_path / "nav"
     assert _navigate(args + ["--out", out]) == 0
-    outside = _outside(tmp_path)
+    outside = outside_folder(tmp_path)
     for rel, target in (
         ("nav.md", outside / "victim.tum"),
         ("config.json", outside / "config.json"),
@@ -713,7 +697,7 @@ def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
         original.symlink_to(target)
         before = {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()}
         assert _navigate(args + ["--out", out]) == 2, rel
-        _one_line(capsys, rel, "found a symbolic link to")
+        stderr_line(capsys, rel, "found a symbolic link to")
         assert {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()} == before, rel
         original.unlink()
         moved.rename(original)

@@ -2,23 +2,14 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
 from odolab.io.owned import UnsafeOutputError, check_owned_folder, check_owned_path, owned_path, remove_owned
-
-
-def _outside(tmp_path: Path) -> Path:
-    """A folder beside the output folder, holding a file no run may touch."""
-    outside = tmp_path / "outside"
-    outside.mkdir()
-    (outside / "victim.tum").write_text("precious")
-    return outside
+from tests.helpers import outside_folder
 
 
 def test_owned_paths_never_pass_a_link_a_file_for_a_folder_or_leave_the_root(tmp_path):
-    outside = _outside(tmp_path)
+    outside = outside_folder(tmp_path)
     root = tmp_path / "out"
     root.mkdir()
     (root / "sub").symlink_to(outside)

@@ -12,7 +12,7 @@ from matplotlib.colors import to_rgb
 from odolab.io.owned import UnsafeOutputError
 from odolab.reporting.report import GROUND_TRUTH_FILE, OutputFolder, file_stem, write_trajectories
 from odolab.running.runner import SequenceResult
-from tests.helpers import captured_figures
+from tests.helpers import captured_figures, outside_folder
 
 
 def _result(odometer: str, shift: float, sequence: str = "seq", steps: int = 3) -> SequenceResult:
@@ -397,20 +397,12 @@ def test_the_error_bars_are_not_squashed_by_the_few_collided_steps(monkeypatch):
     assert "move_forward (n=123)" in labels and "move_forward_collided (n=11)" in labels
 
 
-def _outside(tmp_path: Path) -> Path:
-    """A folder beside the output folder, holding a file no run may touch."""
-    outside = tmp_path / "outside"
-    outside.mkdir()
-    (outside / "victim.tum").write_text("precious")
-    return outside
-
-
 def test_a_rerun_removes_nothing_through_a_linked_folder_and_keeps_its_results(tmp_path):
     """A linked ``trajectories/<episode>`` and a crafted manifest line through a linked subfolder:
     nothing outside is deleted, the cleanup never raises, and the folder is refused by check()."""
     from odolab.reporting.report import MANIFEST, OutputFolder
 
-    outside = _outside(tmp_path)
+    outside = outside_folder(tmp_path)
     (outside / "keep.txt").write_text("mine")
     root = tmp_path / "out"
     (root / "trajectories").mkdir(parents=True)

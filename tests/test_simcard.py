@@ -1,7 +1,6 @@
 """The simulator card: its statistics and files."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +8,7 @@ import pytest
 from odolab.cli import run_cli
 from odolab.cli.simcard import main
 from odolab.simcard import ImageStats
+from tests.helpers import outside_folder, stderr_line
 
 
 def test_image_stats_count_holes_and_depth_error_per_bin():
@@ -60,22 +60,6 @@ def test_simcard_command_writes_the_card(tmp_path, capsys):
     assert "collisions" in capsys.readouterr().out
 
 
-def _outside(tmp_path: Path) -> Path:
-    """A folder beside the output folder, holding a file no run may touch."""
-    outside = tmp_path / "outside"
-    outside.mkdir()
-    (outside / "victim.tum").write_text("precious")
-    return outside
-
-
-def _one_line(capsys, *words: str) -> str:
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, (w, err)
-    return err
-
-
 def test_simcard_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
     from odolab.cli.simcard import main
 
@@ -84,12 +68,12 @@ def test_simcard_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
     (out / "card.md").write_text("my own notes")
     argv = ["--episodes", "1", "--rendered", "1", "--frames", "2", "--max-steps", "5", "--serial", "--quiet"]
     assert run_cli(main, "python -m odolab.simcard", argv + ["--out", str(out)]) == 2
-    _one_line(capsys, "holds files odolab did not write")
+    stderr_line(capsys, "holds files odolab did not write")
     assert (out / "card.md").read_text() == "my own notes"
     linked = tmp_path / "linked"
     linked.mkdir()
     (linked / "manifest.txt").write_text("card.md\n")
-    (linked / "card.md").symlink_to(_outside(tmp_path) / "victim.tum")
+    (linked / "card.md").symlink_to(outside_folder(tmp_path) / "victim.tum")
     assert run_cli(main, "python -m odolab.simcard", argv + ["--out", str(linked)]) == 2
-    _one_line(capsys, "card.md", "found a symbolic link to")
+    stderr_line(capsys, "card.md", "found a symbolic link to")
     assert (tmp_path / "outside" / "victim.tum").read_text() == "precious"

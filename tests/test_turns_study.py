@@ -11,6 +11,7 @@ import studies.turns_by_depth as study
 from odolab.api import invert, load_odometer
 from odolab.cli.study import command
 from studies import framework
+from tests.helpers import stderr_line
 
 CONFIG = framework.load_study("turns_by_depth")
 CI = framework.scale_params(CONFIG, "ci", study.Scale)
@@ -187,14 +188,6 @@ def test_every_bar_of_the_turns_figure_carries_its_failed_share():
     assert [study.share_text(v) for v in (0.0, 0.009, 0.115, 1.0, float("nan"))] == ["0", "0.9", "12", "100", "-"]
 
 
-def _one_line(capsys, *words: str) -> str:
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, (w, err)
-    return err
-
-
 def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
 
     out = tmp_path / "t"
@@ -203,7 +196,7 @@ def test_the_turns_study_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys
     (out / "table.md").write_text("my table")
     argv = ["--scale", "ci", "--serial", "--quiet", "--out", str(out)]
     assert command("turns-by-depth", argv) == 2
-    _one_line(capsys, "holds files odolab did not write")
+    stderr_line(capsys, "holds files odolab did not write")
     assert (out / "table.md").read_text() == "my table"
     assert json.loads((out / "results.json").read_text()) == {"my": "own results"}
     assert sorted(p.name for p in out.iterdir()) == ["results.json", "table.md"]
