@@ -7,7 +7,8 @@ drift per metre of path), ``nav.md`` (the same as
 the README's Markdown table), ``episodes.csv``,
 ``metrics.png`` (bars with intervals), ``belief.png`` (success against the final belief error),
 ``paths-<episode>.png`` (one panel per odometer: the scene, start, goal, the true path and, dashed,
-where the agent believed it was) and ``report.html``.
+where the agent believed it was), ``paired.csv`` and ``paired.md`` (each composite against each of
+its inputs in the run, on the episodes both ran: :func:`paired_rows`) and ``report.html``.
 """
 
 from __future__ import annotations
@@ -200,7 +201,71 @@ def paths_figure(rows: list[dict], odometers: list[str], spec: EpisodeSpec, path
 
 
 #: The tables and figures every navigation report has (and ``paths-<episode>.png`` of a few episodes).
-REPORT_FILES = ("nav.csv", "nav.md", "episodes.csv", "metrics.png", "belief.png", "report.html")
+REPORT_FILES = (
+    "nav.csv",
+    "nav.md",
+    "episodes.csv",
+    "paired.csv",
+    "paired.md",
+    "metrics.png",
+    "belief.png",
+    "report.html",
+)
+#: paired.csv's columns.
+PAIRED_KEYS = (
+    "composite", "input", "episodes", "composite_only", "input_only", "success_p", "success",
+    "spl_diff", "spl_low", "spl_high", "spl", "belief_diff", "belief_low", "belief_high", "belief",
+)  # fmt: skip
+#: Below this McNemar p-value the success of a composite and its input differ.
+ALPHA = 0.05
+
+
+def paired_rows(rows: list[dict], odometers: list[str]) -> list[dict]:
+    """Each composite of ``odometers`` against each odometer inside it (at any depth) that the run
+    has too, on the episodes both ran: successes by McNemar's exact test (the episodes only the
+    composite, or only the input, succeeded in, and p), SPL and the final belief error (m) by the
+    mean paired difference composite - input with its 95 % Student-t interval; each verdict is
+    ``higher``, ``lower`` or ``undecided`` (success: p < :data:`ALPHA`; the others: the interval
+    clear of 0)."""
+    from odolab.core.stats import mcnemar, verdict
+    from odolab.odometry.odometer import inner_names
+
+    by = {(r["odometer"], (r["split"], r["seed"], r["episode"])): r for r in rows}
+    out = []
+    for composite in odometers:
+        for inner in [o for o in odometers if o in inner_names(composite)]:
+            shared = sorted(k for (o, k) in by if o == composite and (inner, k) in by)
+            if not shared:
+                continue
+            a = [by[(composite, k)] for k in shared]
+            b = [by[(inner, k)] for k in shared]
+            a_only, b_only, p = mcnemar([float(r["success"]) > 0.5 for r in a], [float(r["success"]) > 0.5 for r in b])
+            row = {"composite": composite, "input": inner, "episodes": len(shared), "composite_only": a_only}
+            row |= {"input_only": b_only, "success_p": p}
+            row["success"] = "undecided" if p >= ALPHA else "higher" if a_only > b_only else "lower"
+            for name, key in (("spl", "spl"), ("belief", "belief_error")):
+                ci = mean_ci(np.array([float(x[key]) - float(y[key]) for x, y in zip(a, b, strict=True)]))
+                row |= {f"{name}_diff": ci.mean, f"{name}_low": ci.low, f"{name}_high": ci.high, name: verdict(ci)}
+            out.append(row)
+    return out
+
+
+def paired_markdown(paired: list[dict]) -> str:
+    """:func:`paired_rows` as a Markdown table ("" when there is no pair)."""
+    if not paired:
+        return ""
+    lines = [
+        "| composite - input | episodes | success: only the composite / only the input (McNemar p) | SPL | final belief error m |",
+        "|---|---|---|---|---|",
+    ]
+    for r in paired:
+        spl = f"{r['spl_diff']:+.3f} ({r['spl_low']:+.3f} to {r['spl_high']:+.3f}) {r['spl']}"
+        bel = f"{r['belief_diff']:+.2f} ({r['belief_low']:+.2f} to {r['belief_high']:+.2f}) {r['belief']}"
+        success = f"{r['composite_only']} / {r['input_only']} (p = {r['success_p']:.2g}) {r['success']}"
+        lines.append(
+            f"| {markdown_cell(r['composite'])} - {markdown_cell(r['input'])} | {r['episodes']} | {success} | {spl} | {bel} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def paths_file(spec: EpisodeSpec) -> str:
@@ -252,6 +317,9 @@ def write_outputs(
         "belief_error",
     ]
     write_text_atomic(owned_path(out, "episodes.csv"), _csv(rows, ep_keys))
+    paired = paired_rows(rows, odometers)
+    write_text_atomic(owned_path(out, "paired.csv"), _csv(paired, list(PAIRED_KEYS)))
+    write_text_atomic(owned_path(out, "paired.md"), paired_markdown(paired))
     metrics_figure(table, owned_path(out, "metrics.png"))
     belief_figure(table, owned_path(out, "belief.png"))
     figures = []
@@ -259,7 +327,7 @@ def write_outputs(
         name = paths_file(spec)
         paths_figure(rows, odometers, spec, owned_path(out, name))
         figures.append(name)
-    write_text_atomic(owned_path(out, "report.html"), _html(table, figures, command, policy))
+    write_text_atomic(owned_path(out, "report.html"), _html(table, figures, command, policy, paired))
     return table
 
 
@@ -329,7 +397,9 @@ def _policy_html(policy: PolicyConfig) -> str:
     )
 
 
-def _html(table: list[dict], figures: list[str], command: str, policy: PolicyConfig | None = None) -> str:
+def _html(
+    table: list[dict], figures: list[str], command: str, policy: PolicyConfig | None = None, paired: list[dict] = ()
+) -> str:
     head = (
         "<tr>"
         + "".join(
@@ -387,5 +457,42 @@ def _html(table: list[dict], figures: list[str], command: str, policy: PolicyCon
         "Success: STOP within 0.36 m (geodesic) of the goal; SPL and SoftSPL as habitat-lab defines them. "
         "Final belief error: the distance between the agent's true and believed positions when the episode "
         "ends (the odometry's drift in the closed loop).</p>"
-        f"<table>{head}{body}</table>{imgs}</body></html>\n"
+        f"<table>{head}{body}</table>" + _paired_html(paired) + f"{imgs}</body></html>\n"
+    )
+
+
+def _paired_html(paired: list[dict]) -> str:
+    """The composites against their inputs (:func:`paired_rows`) as an HTML section ("" without any)."""
+    if not paired:
+        return ""
+    head = "".join(
+        f"<th>{h}</th>"
+        for h in (
+            "composite - input",
+            "episodes",
+            "success: only A / only B (McNemar p)",
+            "SPL difference",
+            "belief error difference (m)",
+        )
+    )
+    body = "".join(
+        "<tr>"
+        + "".join(
+            f"<td>{html.escape(v)}</td>"
+            for v in (
+                f"{r['composite']} - {r['input']}",
+                str(r["episodes"]),
+                f"{r['composite_only']} / {r['input_only']} (p = {r['success_p']:.2g}) {r['success']}",
+                f"{r['spl_diff']:+.3f} ({r['spl_low']:+.3f} to {r['spl_high']:+.3f}) {r['spl']}",
+                f"{r['belief_diff']:+.2f} ({r['belief_low']:+.2f} to {r['belief_high']:+.2f}) {r['belief']}",
+            )
+        )
+        + "</tr>"
+        for r in paired
+    )
+    return (
+        "<h2>Each composite against its inputs, on the same episodes</h2><p>A: the composite, B: its input. "
+        f"Success by McNemar's exact test (a verdict where p &lt; {ALPHA:g}); SPL and the final belief error "
+        "by the mean paired difference A - B with its 95 % Student-t interval.</p>"
+        f"<table><tr>{head}</tr>{body}</table>"
     )
