@@ -123,7 +123,8 @@ def belief_figure(table: list[dict], path: Path) -> None:
         x, y = max(r["belief_error"], floor), r["success"]
         xerr = [[max(x - max(r["belief_error_low"], floor), 0.0)], [max(r["belief_error_high"] - x, 0.0)]]
         yerr = [[y - r["success_low"]], [r["success_high"] - y]]
-        ax.errorbar(x, y, xerr=xerr, yerr=yerr, fmt="o", color=cmap(k % 10), capsize=3, label=r["odometer"])
+        marker = "osD^v"[(k // 10) % 5]  # a colour and marker pair each, past ten odometers too
+        ax.errorbar(x, y, xerr=xerr, yerr=yerr, fmt=marker, color=cmap(k % 10), capsize=3, label=r["odometer"])
     ax.set_xscale("log")
     ax.set_ylim(-0.02, 1.02)
     ax.set_xlabel(
