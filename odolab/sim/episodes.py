@@ -19,7 +19,7 @@ import sys
 import zipfile
 import zlib
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -68,24 +68,31 @@ class NoiseConfig:
 class EpisodeSpec:
     """Everything that determines an episode. ``index`` numbers episodes within (split, seed)."""
 
-    split: str = "test"
-    index: int = 0
-    seed: int = 0
-    max_steps: int = 100
-    min_goal_distance: float = 1.0  # m, geodesic (habitat-lab's PointNav generator: 1-30 m)
-    max_goal_distance: float = 30.0  # m, geodesic
-    min_geodesic_ratio: float = 1.1  # geodesic / euclidean below this is mostly rejected (as habitat-lab)
-    goal_radius: float = 0.36  # m: the follower calls STOP within this geodesic distance (PointNav success)
-    stop_at_contact: bool = True  # blocked steps stop at contact (habitat-sim) or, if False, stay put
-    noise: NoiseConfig = field(default_factory=NoiseConfig)
-    camera: CameraSpec = field(default_factory=CameraSpec)
-    scenes: SceneFiles | None = None  # mesh files (odolab.sim.mesh_scenes); None: the split's procedural scenes
+    split: str = setting("test", doc=f"the scene pool: one of {', '.join(SPLITS)}")
+    index: int = setting(0, range=(0, 2**31 - 1), doc="the episode's number within (split, seed)")
+    seed: int = setting(0, range=(0, 2**32 - 1), doc="the episodes' seed")
+    max_steps: int = setting(100, range=(1, 100_000), doc="actions at most")
+    min_goal_distance: float = setting(1.0, range=(0.0, 1000.0), doc="m, geodesic (habitat-lab's generator: 1-30 m)")
+    max_goal_distance: float = setting(30.0, range=(0.0, 1000.0), doc="m, geodesic")
+    min_geodesic_ratio: float = setting(
+        1.1, range=(1.0, 100.0), doc="geodesic / euclidean below this is mostly rejected (as habitat-lab)"
+    )
+    goal_radius: float = setting(
+        0.36, range=(0.0, 10.0), doc="m: the follower calls STOP within this geodesic distance (PointNav success)"
+    )
+    stop_at_contact: bool = setting(True, doc="blocked steps stop at contact (habitat-sim) or, if False, stay put")
+    noise: NoiseConfig = setting(default_factory=NoiseConfig, doc="noise multipliers")
+    camera: CameraSpec = setting(default_factory=CameraSpec, doc="the camera")
+    scenes: SceneFiles | None = setting(None, doc="mesh files (odolab.sim.mesh_scenes); None: procedural scenes")
 
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
             raise ValueError(f"unknown split {self.split!r}; expected one of {', '.join(SPLITS)}")
-        if self.max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+        check(self)
+        if self.min_goal_distance > self.max_goal_distance:
+            raise ValueError(
+                f"min_goal_distance must be at most max_goal_distance ({self.max_goal_distance:g}), got {self.min_goal_distance:g}"
+            )
 
     def record(self) -> dict:
         """The spec as plain data, what keys and saved results hold: its fields, with mesh ``scenes``
