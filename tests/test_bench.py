@@ -61,3 +61,12 @@ def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):
     assert "evaluate" not in saved and saved == seen[0]
     assert saved["odometers"] == [{"odometer": "action-prior", "steps_per_s": 1.0}]
     assert saved["parts_pending"] == ["odometers", "evaluate"]
+
+
+def test_bench_compare_times_a_comparison_against_its_odometers_own_steps():
+    from odolab.benchmarks.speed import bench_compare
+    from odolab.core.parallel import SERIAL
+
+    row = bench_compare(episodes=1, max_steps=4, odometers=["action-prior", "planar-depth"], execution=SERIAL)
+    assert row["odometers"] == 2 and row["cores"] >= 1 and 0 < row["odometer_step_s"] < row["wall_s"]
+    assert row["ratio"] == row["wall_s"] / (row["odometer_step_s"] / row["cores"])

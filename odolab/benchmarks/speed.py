@@ -86,6 +86,39 @@ def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
     return {"episodes": n, "frames": frames, "seconds": seconds, "frames_per_s": frames / seconds}
 
 
+def bench_compare(
+    episodes: int = 5, max_steps: int = 60, odometers: list[str] | None = None, execution: object = None
+) -> dict:
+    """The default comparison as ``python -m odolab.compare --no-cache`` runs it (episodes made in
+    memory, every available odometer unless ``odometers``), timed end to end: ``wall_s``, and its
+    ratio to the limit, the odometers' own step times summed (``steps / fps`` of each timed row)
+    over the machine's cores (``ratio``: 1 would be every core busy with odometer steps only);
+    ``execution``: where episodes are made (default: a local Ray instance, as the command does)."""
+    import os
+
+    from odolab.core.parallel import Execution
+    from odolab.reporting.pipeline import ComparisonConfig, run_comparison
+
+    execution = Execution(progress=False) if execution is None else execution
+    config = ComparisonConfig(
+        odometers=odometers, episodes=episodes, max_steps=max_steps, cache=None, execution=execution
+    )
+    t0 = time.perf_counter()
+    result = run_comparison(config)
+    wall = time.perf_counter() - t0
+    own = sum(r.steps / r.fps for r in result.rows if np.isfinite(r.fps) and r.fps > 0)
+    cores = os.cpu_count() or 1
+    return {
+        "episodes": episodes,
+        "max_steps": max_steps,
+        "odometers": len(result.rows),
+        "wall_s": wall,
+        "odometer_step_s": own,
+        "cores": cores,
+        "ratio": wall / (own / cores) if own > 0 else float("nan"),
+    }
+
+
 def bench_odometers(
     names: list[str],
     episodes: int = 4,

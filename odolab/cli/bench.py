@@ -35,7 +35,7 @@ def _table(rows: list[dict]) -> str:
 
 
 #: The parts, in the order they run.
-PARTS = ("simulator", "odometers", "navigation", "evaluate", "training")
+PARTS = ("simulator", "odometers", "navigation", "evaluate", "training", "compare")
 #: Each table's heading, by its key in the report.
 TITLES = {
     "simulator": "Simulator (341x192, ms per frame; ratio = noisy frame / bare cast_rays; 1thread: depth path "
@@ -47,6 +47,8 @@ TITLES = {
     "evaluate": "Trajectory evaluation on KITTI 00 (wall seconds per command)",
     "training": "Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
     "own epoch end to end; fp32 bare beside the chosen precision)",
+    "compare": "The default comparison (python -m odolab.compare --no-cache), end to end: wall seconds, and their "
+    "ratio to the odometers' own step times summed over the cores",
 }
 
 
@@ -156,6 +158,8 @@ def _time(part: str, plan: Plan, threads: int | None, report: dict, save) -> dic
         from odolab.benchmarks.evaluate_speed import run as bench_evaluate
 
         return {"evaluate": bench_evaluate()}
+    if part == "compare":
+        return {"compare": bench.bench_compare()}
     return {"training": bench.bench_training(plan.recipes, threads=threads, data=plan.data)}
 
 
@@ -242,7 +246,7 @@ def _bench_json(path: Path) -> bool:
     import json
 
     doc = json.loads(path.read_text(encoding="utf-8"))
-    parts = {"machine", "parts_pending", "simulator", "episodes", "odometers", "navigation", "evaluate", "training"}
+    parts = {"machine", "parts_pending", "simulator", "episodes", *PARTS}
     return isinstance(doc, dict) and "machine" in doc and set(doc) <= parts
 
 
