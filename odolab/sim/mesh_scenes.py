@@ -88,20 +88,7 @@ def read_mesh(path: str | os.PathLike, up: Literal["y", "z"] = "y", unit: float 
     import trimesh
 
     path = Path(path)
-    if up not in ("y", "z"):
-        raise MeshError(f"{path}: up: expected 'y' or 'z', got {up!r}")
-    if not (np.isfinite(unit) and 1e-6 <= unit <= 1e6):
-        raise MeshError(f"{path}: unit: expected metres per file unit in [1e-06, 1e+06], got {unit!r}")
-    if path.suffix.lower() not in SUFFIXES:
-        raise MeshError(
-            f"{path}: unknown mesh type {path.suffix or '(no extension)'!r}; expected {', '.join(SUFFIXES)}"
-        )
-    if not path.is_file():
-        raise MeshError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
-    size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise MeshError(f"{path}: {size / 1024**3:.1f} GB, above the {MAX_FILE_BYTES / 1024**3:.0f} GB a scene may be")
-    blob = path.read_bytes()
+    digest = file_digest(path, up, unit)
     try:
         loaded = trimesh.load(str(path), file_type=path.suffix.lower()[1:], process=False)
     except Exception as exc:  # noqa: BLE001 (trimesh raises whatever its parsers raise)
@@ -143,8 +130,29 @@ def read_mesh(path: str | os.PathLike, up: Literal["y", "z"] = "y", unit: float 
         texture_of=np.concatenate(texture_of) if textures else None,
         textures=tuple(textures),
     )
-    digest = hashlib.sha256(blob + _companions(path) + f"|up={up}|unit={float(unit)!r}".encode()).hexdigest()
     return MeshData(v.astype(np.float32), np.concatenate(triangles).astype(np.int32), appearance, digest)
+
+
+def file_digest(path: str | os.PathLike, up: Literal["y", "z"] = "y", unit: float = 1.0) -> str:
+    """SHA-256 of a mesh file's bytes, the files beside it that it may draw on and the reading
+    settings (what episodes are cached by), without parsing it; :class:`MeshError` names the file
+    for a setting, a type, a path or a size that :func:`read_mesh` refuses."""
+    path = Path(path)
+    if up not in ("y", "z"):
+        raise MeshError(f"{path}: up: expected 'y' or 'z', got {up!r}")
+    if not (np.isfinite(unit) and 1e-6 <= unit <= 1e6):
+        raise MeshError(f"{path}: unit: expected metres per file unit in [1e-06, 1e+06], got {unit!r}")
+    if path.suffix.lower() not in SUFFIXES:
+        raise MeshError(
+            f"{path}: unknown mesh type {path.suffix or '(no extension)'!r}; expected {', '.join(SUFFIXES)}"
+        )
+    if not path.is_file():
+        raise MeshError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise MeshError(f"{path}: {size / 1024**3:.1f} GB, above the {MAX_FILE_BYTES / 1024**3:.0f} GB a scene may be")
+    blob = path.read_bytes() + _companions(path) + f"|up={up}|unit={float(unit)!r}".encode()
+    return hashlib.sha256(blob).hexdigest()
 
 
 def _companions(path: Path) -> bytes:
@@ -366,11 +374,13 @@ def scene_files(path: str | os.PathLike, split: str, up: Literal["y", "z"] = "y"
     else:
         files = [path]
     chosen = []
-    for f in files:
-        digest = read_mesh(f, up, unit).digest
+    for f in files:  # each file parsed once: made a scene when in the split, else read to check it
+        digest = file_digest(f, up, unit)
         if len(files) == 1 or SPLIT_OF_REMAINDER[int(digest[:8], 16) % 10] == split:
             _mesh_scene_of(str(f), digest, up, float(unit))  # a bad scene stops here
             chosen.append((str(f), digest))
+        else:
+            read_mesh(f, up, unit)
     if not chosen:
         raise MeshError(
             f"{path}: none of its {len(files)} mesh files falls in the {split} split (a file's split: the first 8 hex "
