@@ -207,3 +207,39 @@ def test_obj_materials_and_a_gltf_with_its_buffer_beside_it_are_read(tmp_path):
     bin_file = next(p for p in (tmp_path / "gltf").iterdir() if p.suffix == ".bin")
     bin_file.write_bytes(bin_file.read_bytes())  # the same bytes: the same digest
     assert read_mesh(tmp_path / "gltf" / "model.gltf", up="z").digest == data.digest
+
+
+def test_training_data_runs_in_a_mesh_file_and_its_folder_keeps_to_those_scenes(tmp_path, scene, capsys):
+    """training_data --scenes: shards of episodes in the file's scene (their true poses those of the
+    same episodes rendered directly), the manifest keyed by the file's digest, not its path; the
+    folder refuses procedural episodes and a record that is not one of digests."""
+    import dataclasses
+    import json
+
+    from odolab.cli import run_cli
+    from odolab.cli.training_data import main
+    from odolab.sim.episodes import rollout
+    from odolab.sim.mesh_scenes import SceneFiles, scene_files
+    from odolab.sim.training_data import DataConfig, TrainingData, make_training_data
+    from tests.helpers import refused
+
+    room = export_scene(scene, tmp_path / "room.ply", up="z")
+    argv = ["--scenes", str(room), "--scene-up", "z", "--split", "val", "--episodes", "2", "--max-steps", "6"]
+    argv += ["--width", "48", "--height", "27", "--serial", "--out", str(tmp_path / "d")]
+    assert run_cli(main, "python -m odolab.training_data", argv) == 0
+    data = TrainingData(tmp_path / "d")
+    files = scene_files(room, "val", up="z")
+    assert data.scenes == dataclasses.replace(files, files=()) and len(data) > 0
+    spec = data.config.episode_specs(files)[1]
+    assert np.allclose(data.poses[data.episode == spec.index], rollout(spec).camera_poses(spec.camera.mount_height))
+    manifest = json.loads((tmp_path / "d" / "dataset.json").read_text())
+    assert manifest["scenes"] == files.identity() and str(tmp_path) not in json.dumps(manifest)
+    capsys.readouterr()
+    with pytest.raises(ValueError, match=r"made in mesh scenes of digests .* not in procedural scenes as asked"):
+        make_training_data(DataConfig(split="val", episodes=2, max_steps=6, width=48, height=27), tmp_path / "d")
+    line = refused(capsys, "training_data", ["--out", str(tmp_path / "e"), "--scene-unit", "0.01"])
+    assert "--scene-unit is for --scenes" in line and not (tmp_path / "e").exists()
+    with pytest.raises(MeshError, match=r"m.json: field scenes.digests: expected SHA-256 hex digests"):
+        SceneFiles.recorded({"digests": ["../x"], "up": "y", "unit": 1.0}, "m.json")
+    with pytest.raises(MeshError, match="known by their digests only"):
+        data.scenes.scene(0)

@@ -2,6 +2,7 @@
 (:func:`odolab.sim.training_data.make_training_data`; resumable).
 
     python -m odolab.training_data --split train --episodes 1200 --width 170 --height 96 --out data/vo/train
+    python -m odolab.training_data --scenes my-scans/ --split val --episodes 50 --out data/scans/val
 """
 
 from __future__ import annotations
@@ -11,10 +12,12 @@ from collections.abc import Sequence
 
 from odolab.cli.args import (
     ArgumentParser,
+    add_scene_options,
     check_report_dir,
     execution_of,
     path_arg,
     run_cli,
+    scenes_of,
     setting_help,
     setting_type,
 )
@@ -49,6 +52,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument(
         "--clean-depth", action="store_true", help="also store the noiseless depth (the target of a depth corrector)"
     )
+    add_scene_options(ap)
     ap.add_argument("--out", type=path_arg("--out"), required=True, help="folder (created; reused to resume)")
     ap.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     ap.add_argument("--serial", action="store_true", help="render in this process, without Ray")
@@ -70,9 +74,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         clean_depth=args.clean_depth,
     )
     check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
+    scenes = scenes_of(args, argv)  # every mesh file read: a bad one before --out is made
     check_report_dir(args.out, "--out", manifest=MANIFEST)  # a folder of the user's own files is refused
     try:
-        make_training_data(cfg, args.out, execution=execution_of(args))
+        make_training_data(cfg, args.out, scenes=scenes, execution=execution_of(args))
         data = TrainingData(args.out)
     except ValueError as exc:
         ap.error(str(exc))

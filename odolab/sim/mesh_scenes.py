@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -353,12 +354,31 @@ class SceneFiles:
 
     def scene(self, draw: int) -> Scene:
         """The scene of file ``draw`` modulo their number (read once per process)."""
+        if not self.files:
+            raise MeshError("these mesh scenes are known by their digests only (read from a record): no file to render")
         k = int(draw) % len(self.files)
         return _mesh_scene_of(self.files[k], self.digests[k], self.up, float(self.unit))
 
     def identity(self) -> dict:
         """What episodes depend on: the files' digests and the reading settings, not their paths."""
         return {"digests": list(self.digests), "up": self.up, "unit": float(self.unit)}
+
+    @classmethod
+    def recorded(cls, identity: object, source: str) -> SceneFiles:
+        """The scenes an :meth:`identity` record (read from ``source``) describes, without files:
+        enough for the episodes' keys, not to render them. :class:`MeshError` names the bad field."""
+        if not isinstance(identity, dict) or set(identity) != {"digests", "up", "unit"}:
+            raise MeshError(f"{source}: field scenes: expected digests, up and unit, got {identity!r:.80}")
+        digests, up, unit = identity["digests"], identity["up"], identity["unit"]
+        if not isinstance(digests, list) or not digests or not all(
+            isinstance(d, str) and re.fullmatch(r"[0-9a-f]{64}", d) for d in digests
+        ):
+            raise MeshError(f"{source}: field scenes.digests: expected SHA-256 hex digests, got {digests!r:.80}")
+        if up not in ("y", "z"):
+            raise MeshError(f"{source}: field scenes.up: expected 'y' or 'z', got {up!r:.40}")
+        if isinstance(unit, bool) or not isinstance(unit, (int, float)) or not 1e-6 <= unit <= 1e6:
+            raise MeshError(f"{source}: field scenes.unit: expected metres per unit in [1e-06, 1e+06], got {unit!r:.40}")
+        return cls((), tuple(digests), up, float(unit))
 
 
 def scene_files(path: str | os.PathLike, split: str, up: Literal["y", "z"] = "y", unit: float = 1.0) -> SceneFiles:
