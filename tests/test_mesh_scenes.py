@@ -235,7 +235,9 @@ def test_training_data_runs_in_a_mesh_file_and_its_folder_keeps_to_those_scenes(
     manifest = json.loads((tmp_path / "d" / "dataset.json").read_text())
     assert manifest["scenes"] == files.identity() and str(tmp_path) not in json.dumps(manifest)
     capsys.readouterr()
-    with pytest.raises(ValueError, match=r"made in mesh scenes of digests .* not in procedural scenes as asked"):
+    with pytest.raises(
+        ValueError, match=r"made in mesh scenes of digests .* not in procedural scenes of the boxes family as asked"
+    ):
         make_training_data(DataConfig(split="val", episodes=2, max_steps=6, width=48, height=27), tmp_path / "d")
     line = refused(capsys, "training_data", ["--out", str(tmp_path / "e"), "--scene-unit", "0.01"])
     assert "--scene-unit is for --scenes" in line and not (tmp_path / "e").exists()

@@ -169,7 +169,7 @@ def test_a_second_maker_of_a_folder_waits_for_the_first(tmp_path, capsys):
         assert second.is_alive() and not made  # waiting, nothing written
         assert not list(root.glob("shard-*"))
         assert "another process is making this data; waiting for it" in capsys.readouterr().err
-        td._make(cfg, root, None, SERIAL)  # the first maker's own work, the folder held
+        td._make(cfg, root, None, "boxes", SERIAL)  # the first maker's own work, the folder held
     second.join(timeout=60)
     assert not second.is_alive() and len(made[0]["shards"]) == 1
 

@@ -105,7 +105,17 @@ def setting_help(cls: type, field: str, default: object = None) -> str:
 
 
 def add_scene_options(ap: argparse.ArgumentParser) -> None:
-    """``--scenes``, ``--scene-up`` and ``--scene-unit``: episodes in mesh files (:func:`scenes_of`)."""
+    """``--scene-family`` (procedural scenes), or ``--scenes``, ``--scene-up`` and ``--scene-unit``:
+    episodes in mesh files (:func:`scenes_of`)."""
+    from odolab.sim.free_scenes import FAMILIES
+
+    ap.add_argument(
+        "--scene-family",
+        choices=FAMILIES,
+        default="boxes",
+        help="procedural scenes: boxes (axis-aligned rooms, exactly Manhattan; the default) or free (rooms at "
+        "other angles, furniture at any yaw, point lights: docs/simulator.md#scene-families)",
+    )
     ap.add_argument(
         "--scenes",
         type=path_arg("--scenes"),
@@ -135,6 +145,8 @@ def scenes_of(args: argparse.Namespace, argv: Sequence[str] | None):
                 f"{given[0]} is for --scenes (mesh files); without it the episodes run in procedural scenes"
             )
         return None
+    if args.scene_family != "boxes":
+        raise UsageError(f"--scene-family {args.scene_family} is for procedural scenes; --scenes runs mesh files")
     from odolab.sim.mesh_scenes import MeshError, scene_files
 
     try:
@@ -144,9 +156,10 @@ def scenes_of(args: argparse.Namespace, argv: Sequence[str] | None):
 
 
 def scene_words(args: argparse.Namespace) -> str:
-    """``--scenes`` and its settings as command-line words ("" without it), for a report's command."""
+    """``--scenes`` and its settings, or ``--scene-family`` but the default, as command-line words
+    ("" for neither), for a report's command."""
     if args.scenes is None:
-        return ""
+        return "" if args.scene_family == "boxes" else f" --scene-family {args.scene_family}"
     return f" --scenes {shlex.quote(str(args.scenes))} --scene-up {args.scene_up} --scene-unit {args.scene_unit:.17g}"
 
 

@@ -61,6 +61,7 @@ SIMULATOR_OPTIONS = (
     "--split",
     "--scenes",
     "--scene-up",
+    "--scene-family",
     "--scene-unit",
     "--max-steps",
     "--rgb-noise",
@@ -269,6 +270,7 @@ def _config(args: argparse.Namespace, argv: Sequence[str]) -> ComparisonConfig:
     return ComparisonConfig(
         odometers=names,
         scenes=scenes,
+        family=args.scene_family if args.tum is None else "boxes",
         options=options,
         episodes=args.episodes,
         seed=args.seed,

@@ -120,7 +120,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
     noise, scenes = NoiseConfig(), scenes_of(args, argv)
     specs = [
-        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps, noise=noise, scenes=scenes)
+        EpisodeSpec(
+            split=args.split,
+            index=i,
+            seed=args.seed,
+            max_steps=args.max_steps,
+            noise=noise,
+            scenes=scenes,
+            family=args.scene_family,
+        )
         for i in range(args.episodes)
     ]
     tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].identity_digest) for n in names for s in specs]

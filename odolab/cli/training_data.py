@@ -77,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     scenes = scenes_of(args, argv)  # every mesh file read: a bad one before --out is made
     check_report_dir(args.out, "--out", manifest=MANIFEST)  # a folder of the user's own files is refused
     try:
-        make_training_data(cfg, args.out, scenes=scenes, execution=execution_of(args))
+        make_training_data(cfg, args.out, scenes=scenes, family=args.scene_family, execution=execution_of(args))
         data = TrainingData(args.out)
     except ValueError as exc:
         ap.error(str(exc))

@@ -81,7 +81,7 @@ class ComparisonConfig:
     (its caller's words, recorded in the notes), or None. ``step_timeout``: seconds one step of an
     odometer may take before it fails as ``timed-out`` (None: no limit; :mod:`odolab.running.runner`).
     ``scenes``: mesh files to run the episodes in (:func:`odolab.sim.mesh_scenes.scene_files`), or
-    None for the split's procedural scenes."""
+    None for the split's procedural scenes of ``family`` (:data:`odolab.sim.free_scenes.FAMILIES`)."""
 
     odometers: list[str] | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -98,6 +98,7 @@ class ComparisonConfig:
     command: str | None = None
     step_timeout: float | None = runner.DEFAULT_STEP_TIMEOUT
     scenes: SceneFiles | None = None
+    family: str = "boxes"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -219,10 +220,11 @@ def failure_reasons(results: list[SequenceResult]) -> dict[str, dict[str, int]]:
     return out
 
 
-def _floor_plan(scene_seed: int, goal: tuple[float, float] | None, scenes: SceneFiles | None) -> FloorPlan:
-    from odolab.sim.scenes import generate_scene
+def _floor_plan(scene_seed: int, goal: tuple[float, float] | None, spec: EpisodeSpec) -> FloorPlan:
+    """The floor plan of scene ``scene_seed`` where episodes of ``spec`` run."""
+    from odolab.sim.episodes import scene_of
 
-    scene = generate_scene(scene_seed) if scenes is None else scenes.scene(scene_seed)
+    scene = scene_of(spec, scene_seed)
     return FloorPlan(scene.free, scene.origin, scene.resolution, goal)
 
 
@@ -416,7 +418,13 @@ def run_comparison(
         raise ComparisonError(str(exc)) from None
     noise = config.noise or NoiseConfig()
     specs = episode_specs(
-        config.split, config.episodes, seed=config.seed, max_steps=config.max_steps, noise=noise, scenes=config.scenes
+        config.split,
+        config.episodes,
+        seed=config.seed,
+        max_steps=config.max_steps,
+        noise=noise,
+        scenes=config.scenes,
+        family=config.family,
     )
     episodes, total = _episode_stream(config, specs)
     scenes: dict[str, int] = {}
@@ -445,7 +453,7 @@ def run_comparison(
     notes += [f"Command: {config.command}"] if config.command else []
     notes += _options_note(config)
     notes += no_depth
-    plans = {name: _floor_plan(seed, goals.get(name), config.scenes) for name, seed in scenes.items()}
+    plans = {name: _floor_plan(seed, goals.get(name), specs[0]) for name, seed in scenes.items()}
     from odolab.reporting.report import counted
 
     title = f"odolab compare: {counted(config.episodes, config.split + ' episode')}, seed {config.seed}"

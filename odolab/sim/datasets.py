@@ -41,12 +41,15 @@ def episode_specs(
     noise: NoiseConfig | None = None,
     first: int = 0,
     scenes: SceneFiles | None = None,
+    family: str = "boxes",
 ) -> list[EpisodeSpec]:
     """Specs of episodes ``first .. first + n - 1`` of ``split`` from ``seed`` (same args, same
-    episodes), in the split's procedural scenes or in mesh ``scenes``."""
+    episodes), in the split's procedural scenes of ``family`` or in mesh ``scenes``."""
     noise = noise or NoiseConfig()
     return [
-        EpisodeSpec(split=split, index=first + i, seed=seed, max_steps=max_steps, noise=noise, scenes=scenes)
+        EpisodeSpec(
+            split=split, index=first + i, seed=seed, max_steps=max_steps, noise=noise, scenes=scenes, family=family
+        )
         for i in range(n)
     ]
 

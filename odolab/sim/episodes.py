@@ -33,9 +33,10 @@ from odolab.io.atomic import atomic_open, remove_stale_temporaries
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
 from odolab.sim.environment import PointNavEnv, Sensors
+from odolab.sim.free_scenes import FAMILIES, family_scene
 from odolab.sim.mesh_scenes import SceneFiles
 from odolab.sim.noise import ActuationNoise
-from odolab.sim.scenes import SPLITS, generate_scene, scene_seed
+from odolab.sim.scenes import SPLITS, scene_seed
 
 _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
 FORMAT_VERSION = 2  # the .npz layout (2: clean_depth_mm added)
@@ -84,10 +85,17 @@ class EpisodeSpec:
     noise: NoiseConfig = setting(default_factory=NoiseConfig, doc="noise multipliers")
     camera: CameraSpec = setting(default_factory=CameraSpec, doc="the camera")
     scenes: SceneFiles | None = setting(None, doc="mesh files (odolab.sim.mesh_scenes); None: procedural scenes")
+    family: str = setting(
+        "boxes", doc=f"procedural scene family: one of {', '.join(FAMILIES)} (odolab.sim.free_scenes)"
+    )
 
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
             raise ValueError(f"unknown split {self.split!r}; expected one of {', '.join(SPLITS)}")
+        if self.family not in FAMILIES:
+            raise ValueError(f"family: expected one of {', '.join(FAMILIES)}, got {self.family!r:.40}")
+        if self.scenes is not None and self.family != "boxes":
+            raise ValueError(f"family {self.family!r} is a procedural scene family; mesh scenes have none")
         check(self)
         if self.min_goal_distance > self.max_goal_distance:
             raise ValueError(
@@ -97,8 +105,11 @@ class EpisodeSpec:
     def record(self) -> dict:
         """The spec as plain data, what keys and saved results hold: its fields, with mesh ``scenes``
         as their digests and reading settings (not their paths), and without them for the procedural
-        scenes (so those records are what they were before mesh scenes)."""
+        scenes; ``family`` only when not ``boxes`` (so the boxes' records are what they were before
+        mesh scenes and families)."""
         fields = asdict(self)
+        if self.family == "boxes":
+            del fields["family"]
         if self.scenes is None:
             del fields["scenes"]
         else:
@@ -188,9 +199,10 @@ class EpisodeStart:
 
 
 def scene_of(spec: EpisodeSpec, seed: int):
-    """The scene an episode of ``spec`` runs in: the procedural scene of ``seed``, or, with mesh
-    ``scenes``, the file ``seed`` picks (:meth:`odolab.sim.mesh_scenes.SceneFiles.scene`)."""
-    return generate_scene(seed) if spec.scenes is None else spec.scenes.scene(seed)
+    """The scene an episode of ``spec`` runs in: the procedural scene of ``seed`` in the spec's
+    family, or, with mesh ``scenes``, the file ``seed`` picks
+    (:meth:`odolab.sim.mesh_scenes.SceneFiles.scene`)."""
+    return family_scene(seed, spec.family) if spec.scenes is None else spec.scenes.scene(seed)
 
 
 def start_environment(spec: EpisodeSpec, sensors: bool = True) -> tuple[PointNavEnv, EpisodeStart]:

@@ -370,14 +370,18 @@ class SceneFiles:
         if not isinstance(identity, dict) or set(identity) != {"digests", "up", "unit"}:
             raise MeshError(f"{source}: field scenes: expected digests, up and unit, got {identity!r:.80}")
         digests, up, unit = identity["digests"], identity["up"], identity["unit"]
-        if not isinstance(digests, list) or not digests or not all(
-            isinstance(d, str) and re.fullmatch(r"[0-9a-f]{64}", d) for d in digests
+        if (
+            not isinstance(digests, list)
+            or not digests
+            or not all(isinstance(d, str) and re.fullmatch(r"[0-9a-f]{64}", d) for d in digests)
         ):
             raise MeshError(f"{source}: field scenes.digests: expected SHA-256 hex digests, got {digests!r:.80}")
         if up not in ("y", "z"):
             raise MeshError(f"{source}: field scenes.up: expected 'y' or 'z', got {up!r:.40}")
         if isinstance(unit, bool) or not isinstance(unit, (int, float)) or not 1e-6 <= unit <= 1e6:
-            raise MeshError(f"{source}: field scenes.unit: expected metres per unit in [1e-06, 1e+06], got {unit!r:.40}")
+            raise MeshError(
+                f"{source}: field scenes.unit: expected metres per unit in [1e-06, 1e+06], got {unit!r:.40}"
+            )
         return cls((), tuple(digests), up, float(unit))
 
 

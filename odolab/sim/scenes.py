@@ -60,7 +60,9 @@ class Scene:
     the agent occupies. ``navigable`` = free cells whose centre is at least ``agent_radius`` from
     any obstacle. ``scale``: the floor plan's linear scale (:func:`generate_scene`; 1 in every
     episode's scene). ``appearance``: None for a procedural scene (materials and texture tiles),
-    else a mesh file's own look (:class:`odolab.sim.mesh_scenes.MeshAppearance`).
+    else a mesh file's own look (:class:`odolab.sim.mesh_scenes.MeshAppearance`). ``lights``: None
+    (directional light only), or (K, 4) float32 point lights ``x, y, z`` (m) and power (about 1)
+    that the renderer adds (:mod:`odolab.sim.free_scenes`).
     """
 
     seed: int
@@ -75,6 +77,7 @@ class Scene:
     agent_radius: float
     scale: float = 1.0
     appearance: Any = None
+    lights: np.ndarray | None = None
 
     def world_to_cell(self, x: np.ndarray | float, y: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """(row, col) integer indices of world points (not clipped)."""
@@ -309,18 +312,23 @@ def scale_depth(scale: float) -> int:
     return int(round(2.0 * np.log2(scale)))
 
 
-def generate_scene(
-    seed: int, agent_radius: float = 0.18, n_tiles: int = 12, scale: float = 1.0, length: float | None = None
-) -> Scene:
-    """Build the scene of ``seed`` (deterministic): a 7-18 m x 6-14 m floor plan of 2-16 rooms and
-    corridors, walls with doorways, furniture. ``scale`` (1-10) multiplies both sides of the plan
-    and divides it :func:`scale_depth` levels deeper (rooms keep their sizes, doorways join them
-    all), for routes longer than an episode; at 1 the scene is the default one, bit for bit.
-    ``length`` (m, 20-2000): a long building instead, ``length`` m along x and the plan's width
-    (times ``scale``) along y, divided as many levels deeper as keep its rooms their sizes: a chain
-    of rooms a route can cross from end to end."""
-    from scipy.ndimage import distance_transform_edt
+@dataclass(frozen=True)
+class Plan:
+    """A floor plan before it is made a mesh: the building's ``bounds``, its ``rooms``, the
+    doorways' centres ``doors`` (x, y), ``materials``, the ``solids`` (outer and inner walls, door
+    lintels, furniture: :class:`Box`) and ``cylinders``, and the floor and ceiling ``slabs``."""
 
+    bounds: _Rect
+    rooms: list[_Rect]
+    doors: list[tuple[float, float]]
+    materials: tuple[Material, ...]
+    solids: list[Box]
+    cylinders: list[Cylinder]
+    slabs: list[Box]
+
+
+def floor_plan(seed: int, n_tiles: int = 12, scale: float = 1.0, length: float | None = None) -> Plan:
+    """The floor plan of ``seed`` (deterministic; :func:`generate_scene` says what it holds)."""
     if not 1.0 <= float(scale) <= 10.0:
         raise ValueError(f"generate_scene: scale: expected a number in [1, 10], got {scale!r}")
     if length is not None and not 20.0 <= float(length) <= 2000.0:
@@ -342,28 +350,56 @@ def generate_scene(
         Box((bounds.x1, bounds.y0, 0.0), (bounds.x1 + t, bounds.y1, WALL_HEIGHT), 2),
     ]
     furniture, cylinders = _furnish(rooms, doors, rng, len(materials))
-    boxes = outer + _wall_boxes(walls, rng) + furniture
     slabs = [  # floor and ceiling as thin boxes, so every surface is a closed solid
         Box((bounds.x0 - t, bounds.y0 - t, -0.05), (bounds.x1 + t, bounds.y1 + t, 0.0), 0),
         Box((bounds.x0 - t, bounds.y0 - t, WALL_HEIGHT), (bounds.x1 + t, bounds.y1 + t, WALL_HEIGHT + 0.05), 1),
     ]
-    parts = [(_box_mesh(b), b.material) for b in slabs + boxes] + [(_cylinder_mesh(c), c.material) for c in cylinders]
+    return Plan(bounds, rooms, doors, materials, outer + _wall_boxes(walls, rng) + furniture, cylinders, slabs)
+
+
+def join_meshes(parts: list[tuple[tuple[np.ndarray, np.ndarray], int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One mesh of ``parts`` ((vertices, triangles), material): float32 vertices, int32 triangles
+    and each triangle's material."""
     verts, faces, mats, offset = [], [], [], 0
     for (v, f), mat in parts:
         verts.append(v)
         faces.append(f + offset)
         mats.append(np.full(len(f), mat, dtype=np.int32))
         offset += len(v)
-    free, origin = _occupancy(boxes, cylinders, bounds, GRID_RESOLUTION)
-    clearance = distance_transform_edt(free) * GRID_RESOLUTION
+    return np.concatenate(verts).astype(np.float32), np.concatenate(faces).astype(np.int32), np.concatenate(mats)
+
+
+def navigable_of(free: np.ndarray, agent_radius: float) -> np.ndarray:
+    """Free cells whose centre is at least ``agent_radius`` (m) from any obstacle, slivers removed."""
+    from scipy.ndimage import distance_transform_edt
+
+    return without_slivers(distance_transform_edt(free) * GRID_RESOLUTION >= agent_radius)
+
+
+def generate_scene(
+    seed: int, agent_radius: float = 0.18, n_tiles: int = 12, scale: float = 1.0, length: float | None = None
+) -> Scene:
+    """Build the scene of ``seed`` (deterministic): a 7-18 m x 6-14 m floor plan of 2-16 rooms and
+    corridors, walls with doorways, furniture. ``scale`` (1-10) multiplies both sides of the plan
+    and divides it :func:`scale_depth` levels deeper (rooms keep their sizes, doorways join them
+    all), for routes longer than an episode; at 1 the scene is the default one, bit for bit.
+    ``length`` (m, 20-2000): a long building instead, ``length`` m along x and the plan's width
+    (times ``scale``) along y, divided as many levels deeper as keep its rooms their sizes: a chain
+    of rooms a route can cross from end to end."""
+    plan = floor_plan(seed, n_tiles, scale, length)
+    boxes = plan.solids
+    parts = [(_box_mesh(b), b.material) for b in plan.slabs + boxes]
+    parts += [(_cylinder_mesh(c), c.material) for c in plan.cylinders]
+    vertices, triangles, triangle_material = join_meshes(parts)
+    free, origin = _occupancy(boxes, plan.cylinders, plan.bounds, GRID_RESOLUTION)
     return Scene(
         seed=int(seed),
-        vertices=np.concatenate(verts).astype(np.float32),
-        triangles=np.concatenate(faces).astype(np.int32),
-        triangle_material=np.concatenate(mats),
-        materials=materials,
+        vertices=vertices,
+        triangles=triangles,
+        triangle_material=triangle_material,
+        materials=plan.materials,
         free=free,
-        navigable=without_slivers(clearance >= agent_radius),
+        navigable=navigable_of(free, agent_radius),
         origin=origin,
         resolution=GRID_RESOLUTION,
         agent_radius=agent_radius,

@@ -56,6 +56,7 @@ from odolab.io.atomic import atomic_open, write_bytes_atomic
 from odolab.io.npz_mmap import NpzRows
 from odolab.sim.camera import CameraSpec
 from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_frames, rollout
+from odolab.sim.free_scenes import FAMILIES
 from odolab.sim.mesh_scenes import SceneFiles
 from odolab.sim.scenes import SPLITS
 
@@ -169,9 +170,9 @@ class DataConfig:
         """The episodes, in procedural scenes."""
         return self.episode_specs()
 
-    def episode_specs(self, scenes: SceneFiles | None = None) -> list[EpisodeSpec]:
+    def episode_specs(self, scenes: SceneFiles | None = None, family: str = "boxes") -> list[EpisodeSpec]:
         """The episodes, in mesh ``scenes`` (:func:`odolab.sim.mesh_scenes.scene_files`) or, with
-        None, in procedural scenes."""
+        None, in procedural scenes of ``family``."""
         return [
             EpisodeSpec(
                 split=self.split,
@@ -180,6 +181,7 @@ class DataConfig:
                 max_steps=self.max_steps,
                 noise=self.noise,
                 scenes=scenes,
+                family=family,
             )
             for i in range(self.episodes)
         ]
@@ -207,9 +209,9 @@ class DataConfig:
         suffix = "-clean" if self.clean_depth else ""
         return Path(root) / f"{self.split}-{self.episodes}-s{self.seed}-{self.width}x{self.height}{suffix}"
 
-    def shard_specs(self, scenes: SceneFiles | None = None) -> list[list[EpisodeSpec]]:
+    def shard_specs(self, scenes: SceneFiles | None = None, family: str = "boxes") -> list[list[EpisodeSpec]]:
         """The episodes of each shard (:meth:`episode_specs`)."""
-        specs, k = self.episode_specs(scenes), self.episodes_per_shard
+        specs, k = self.episode_specs(scenes, family), self.episodes_per_shard
         return [specs[i : i + k] for i in range(0, len(specs), k)]
 
     def shard_name(self, index: int, specs: list[EpisodeSpec]) -> str:
@@ -296,12 +298,14 @@ def make_training_data(
     root: str | os.PathLike,
     *,
     scenes: SceneFiles | None = None,
+    family: str = "boxes",
     execution: Execution = Execution(),
 ) -> dict:
     """Render the shards of ``cfg`` that ``root`` lacks (as Ray tasks), each written atomically as it
     finishes, with ``dataset.json`` updated after each: an interrupted run resumes where it stopped.
     The episodes run in mesh ``scenes`` (:func:`odolab.sim.mesh_scenes.scene_files`; the manifest's
-    ``scenes`` holds their digests and reading settings) or, with None, in procedural scenes.
+    ``scenes`` holds their digests and reading settings) or, with None, in procedural scenes of
+    ``family`` (the manifest's ``family``, written when not ``boxes``).
     A folder made with another config or other scenes is refused (``ValueError`` naming the
     differing fields). One process at a time makes a folder: another one waits for it
     (:func:`making`), then finds the shards made. Returns the manifest."""
@@ -312,7 +316,7 @@ def make_training_data(
     except OSError as exc:
         raise ValueError(f"{root}: cannot make the data folder ({exc.strerror or exc})") from None
     with making(root):
-        return _make(cfg, root, scenes, execution)
+        return _make(cfg, root, scenes, family, execution)
 
 
 #: The lock file a process making a data folder holds (:func:`making`).
@@ -336,17 +340,19 @@ def making(root: Path) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-def _make(cfg: DataConfig, root: Path, scenes: SceneFiles | None, execution: Execution) -> dict:
+def _make(cfg: DataConfig, root: Path, scenes: SceneFiles | None, family: str, execution: Execution) -> dict:
     """:func:`make_training_data`'s work, with the folder held."""
     config = json.loads(json.dumps(asdict(cfg)))
     fresh = {"format": FORMAT, "config": config, "shards": {}}
     if scenes is not None:
         fresh["scenes"] = scenes.identity()
+    if family != "boxes":
+        fresh["family"] = family
     doc = _read_manifest(root) or fresh
-    if doc.get("scenes") != fresh.get("scenes"):
+    if (doc.get("scenes"), doc.get("family")) != (fresh.get("scenes"), fresh.get("family")):
         raise ValueError(
-            f"{root} holds training data made in {_scenes_words(doc.get('scenes'))}, not in "
-            f"{_scenes_words(fresh.get('scenes'))} as asked; choose another folder (--out)"
+            f"{root} holds training data made in {_scenes_words(doc)}, not in {_scenes_words(fresh)} as asked; "
+            "choose another folder (--out)"
         )
     with contextlib.suppress(ValueError, TypeError):  # a field added since the folder was made: its default
         doc["config"] = json.loads(json.dumps(asdict(DataConfig.from_dict(doc["config"], str(root / MANIFEST)))))
@@ -360,7 +366,7 @@ def _make(cfg: DataConfig, root: Path, scenes: SceneFiles | None, execution: Exe
             f"{root} holds training data made with another config: {'; '.join(diff)}; choose another "
             "folder (a recipe's data_root, or --out)"
         )
-    groups = cfg.shard_specs(scenes)
+    groups = cfg.shard_specs(scenes, family)
     names = [cfg.shard_name(i, g) for i, g in enumerate(groups)]
     todo = [i for i, name in enumerate(names) if name not in doc["shards"] or not (root / name).exists()]
 
@@ -399,10 +405,11 @@ def _make(cfg: DataConfig, root: Path, scenes: SceneFiles | None, execution: Exe
     return doc
 
 
-def _scenes_words(identity: object) -> str:
-    """A manifest's ``scenes`` (:meth:`SceneFiles.identity`) in words."""
+def _scenes_words(doc: dict) -> str:
+    """A manifest's ``scenes`` (:meth:`SceneFiles.identity`) or ``family`` in words."""
+    identity = doc.get("scenes")
     if identity is None:
-        return "procedural scenes"
+        return f"procedural scenes of the {doc.get('family', 'boxes')} family"
     if not isinstance(identity, dict) or not isinstance(identity.get("digests"), list):
         return f"unknown scenes ({identity!r:.60})"
     digests = [str(d)[:12] for d in identity["digests"]]
@@ -426,8 +433,17 @@ class TrainingData:
             raise ValueError(f"{self.root}: no {MANIFEST}; make the data first (python -m odolab.training_data ...)")
         self.config = DataConfig.from_dict(doc["config"], str(self.root / MANIFEST))
         #: The mesh scenes the episodes ran in, as their digests (no files), or None: procedural scenes.
-        self.scenes = None if doc.get("scenes") is None else SceneFiles.recorded(doc["scenes"], str(self.root / MANIFEST))
-        expected = [self.config.shard_name(i, g) for i, g in enumerate(self.config.shard_specs(self.scenes))]
+        self.scenes = (
+            None if doc.get("scenes") is None else SceneFiles.recorded(doc["scenes"], str(self.root / MANIFEST))
+        )
+        #: The procedural scene family (:data:`odolab.sim.free_scenes.FAMILIES`).
+        self.family = doc.get("family", "boxes")
+        if self.family not in FAMILIES:
+            raise ValueError(
+                f"{self.root / MANIFEST}: field family: expected one of {', '.join(FAMILIES)}, got {self.family!r:.40}"
+            )
+        groups = self.config.shard_specs(self.scenes, self.family)
+        expected = [self.config.shard_name(i, g) for i, g in enumerate(groups)]
         missing = [n for n in expected if n not in doc["shards"] or not (self.root / n).exists()]
         listed = [n for n in doc["shards"] if (self.root / n).exists()]
         if missing and listed and not set(listed) & set(expected):
