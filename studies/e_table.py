@@ -25,6 +25,7 @@ import numpy as np
 
 from odolab.config import check, setting
 from odolab.sim.episodes import MAX_EPISODE_STEPS
+from odolab.sim.free_scenes import FAMILIES
 from studies import framework
 
 COMPONENTS = ("dx", "dz", "dyaw")
@@ -49,6 +50,7 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
             max_steps=key["max_steps"],
             seed=key["seed"],
             split="test",
+            family=key.get("family", "boxes"),
             execution=SERIAL,
         )
     )
@@ -118,40 +120,53 @@ class Scale:
     episodes: int = setting(range=(1, 1000), doc="test episodes per seed")
     max_steps: int = setting(range=(1, MAX_EPISODE_STEPS), doc="steps per episode at most")
     odometers: tuple[str, ...] = setting(min_items=1, distinct=True, doc="the odometers, by name")
+    families: tuple[str, ...] = setting(
+        ("boxes",), min_items=1, distinct=True, doc=f"procedural scene families: of {', '.join(FAMILIES)}"
+    )
 
     def __post_init__(self) -> None:
         check(self)
+        odd = [f for f in self.families if f not in FAMILIES]
+        if odd:
+            raise ValueError(f"families: expected some of {', '.join(FAMILIES)}, got {odd[0]!r:.40}")
+
+
+def label(odometer: str, seed: int, family: str) -> str:
+    """A unit's label; the boxes family's as it was before families."""
+    return f"{odometer} seed {seed}" + ("" if family == "boxes" else f" {family}")
 
 
 def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]:
-    """One unit per (odometer, seed); its key holds everything its result depends on."""
+    """One unit per (family, odometer, seed); its key holds everything its result depends on (the
+    family only when not boxes: their keys are as before families)."""
     return [
         framework.Unit(
-            f"{odo} seed {seed}",
+            label(odo, seed, family),
             {
                 "odometer": odo,
                 "identity": identity[odo],
                 "seed": seed,
                 "episodes": scale.episodes,
                 "max_steps": scale.max_steps,
+                **({} if family == "boxes" else {"family": family}),
             },
         )
+        for family in scale.families
         for odo in scale.odometers
         for seed in scale.seeds
     ]
 
 
 def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
-    """Rows odometer x action: mean and standard deviation over the seeds that have a result."""
+    """Rows family x odometer x action: mean and standard deviation over the seeds that have a result."""
     rows = []
-    for odo in scale.odometers:
+    for family, odo in ((f, o) for f in scale.families for o in scale.odometers):
         for action in ACTIONS:
-            got = [
-                results[f"{odo} seed {s}"][action] for s in scale.seeds if action in results.get(f"{odo} seed {s}", {})
-            ]
+            done = [results.get(label(odo, s, family), {}) for s in scale.seeds]
+            got = [r[action] for r in done if action in r]
             if not got:
                 continue
-            row: dict[str, Any] = {"odometer": odo, "action": action, "seeds": len(got)}
+            row: dict[str, Any] = {"family": family, "odometer": odo, "action": action, "seeds": len(got)}
             for c in (
                 *COMPONENTS,
                 *(f"{c}_own" for c in COMPONENTS),
@@ -171,13 +186,22 @@ def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 COLUMNS = [
-    "odometer", "action", "seeds", "steps", "dx", "dx_sd", "dz", "dz_sd", "dyaw", "dyaw_sd",
+    "family", "odometer", "action", "seeds", "steps", "dx", "dx_sd", "dz", "dz_sd", "dyaw", "dyaw_sd",
     "dx_own", "dz_own", "dyaw_own", "dx_raw", "dz_raw", "dyaw_raw", "raw_missing", "dx_bias", "dz_bias",
     "dyaw_bias", "failure_share", "paper",
 ]  # fmt: skip
 
 
 def findings(rows: list[dict[str, Any]]) -> list[str]:
+    """Per family, :func:`order_findings`; with several families, :func:`family_findings` after."""
+    families = list(dict.fromkeys(r["family"] for r in rows))
+    if len(families) <= 1:
+        return order_findings(rows)
+    out = [f"{f}: {line}" for f in families for line in order_findings([r for r in rows if r["family"] == f])]
+    return out + family_findings(rows, families[0])
+
+
+def order_findings(rows: list[dict[str, Any]]) -> list[str]:
     """Per component, whether our E1 / E2 / E3 come in the paper's order, with mean +- sd over seeds
     (the sd "-" with one seed), as used (a refused step scored with the action prior) and under the
     paper's protocol (``*_raw``: every step's own estimate, unverified where refused); a verdict needs
@@ -200,6 +224,30 @@ def findings(rows: list[dict[str, Any]]) -> list[str]:
             paper_said = " < ".join(PAPER[o][0] for o in paper_order)
             out.append(f"{c}, {protocol}: ours {said} (x 1e-2, lowest first); {verdict} the paper's order {paper_said}")
     return out
+
+
+def family_findings(rows: list[dict[str, Any]], base: str) -> list[str]:
+    """Per odometer, its error as used (all steps) in each other family against ``base``'s, per
+    component: ``higher`` or ``lower`` where the two ranges mean +- sd over seeds do not overlap,
+    else ``undecided`` (a range of one seed is its value)."""
+    overall = {(r["family"], r["odometer"]): r for r in rows if r["action"] == "all"}
+    out = []
+    for (family, odo), row in overall.items():
+        ref = overall.get((base, odo))
+        if family == base or ref is None:
+            continue
+        said = []
+        for c in COMPONENTS:
+            lo, hi = (_range(r, c) for r in (ref, row))
+            verdict = "higher" if hi[0] > lo[1] else "lower" if hi[1] < lo[0] else "undecided"
+            said.append(f"{c} {ref[c]:.2f} -> {row[c]:.2f} ({verdict})")
+        out.append(f"{odo}, {base} -> {family} (x 1e-2, as used): {'; '.join(said)}")
+    return out
+
+
+def _range(row: dict[str, Any], c: str) -> tuple[float, float]:
+    sd = row[f"{c}_sd"] if math.isfinite(row[f"{c}_sd"]) else 0.0
+    return row[c] - sd, row[c] + sd
 
 
 def _sd(v: float) -> str:
@@ -229,7 +277,9 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
         )
         ax.set_xlabel(f"{c}: mean abs. error ({unit} x 1e-2)")
         ax.grid(axis="x", alpha=0.3)
-    axes[0].set_yticks(y, [f"{r['odometer']}\n({100 * r['failure_share']:.0f} % of steps failed)" for r in overall])
+    several = len({r["family"] for r in overall}) > 1
+    names = [f"{r['odometer']}" + (f" [{r['family']}]" if several else "") for r in overall]
+    axes[0].set_yticks(y, [f"{n}\n({100 * r['failure_share']:.0f} % of steps failed)" for n, r in zip(names, overall)])
     axes[0].invert_yaxis()
     fig.suptitle(
         "Per-step error as used (a failed step scored with the action prior), all test steps: "
@@ -260,7 +310,9 @@ def run(args) -> int:
             (
                 f"Scale {study.args.scale}: {'seed' if len(scale.seeds) == 1 else 'seeds'} "
                 f"{', '.join(map(str, scale.seeds))}, {counted(scale.episodes, 'test episode')} of at most "
-                f"{counted(scale.max_steps, 'step')} each per seed."
+                f"{counted(scale.max_steps, 'step')} each per seed, in the procedural scene "
+                f"{'family' if len(scale.families) == 1 else 'families'} {', '.join(scale.families)} "
+                "(docs/simulator.md#scene-families; the learned odometers as shipped, trained in boxes scenes)."
             ),
         ],
         columns=COLUMNS,

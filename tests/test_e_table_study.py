@@ -23,7 +23,16 @@ def test_hand_edited_results_are_computed_again_not_drawn():
 def test_findings_need_two_of_the_papers_odometers_and_say_a_missing_spread():
     from studies.e_table import findings
 
-    row = {"action": "all", "dx": 4.9, "dz": 3.0, "dyaw": 1.0, "dx_sd": float("nan"), "dz_sd": 0.1, "dyaw_sd": 0.2}
+    row = {
+        "family": "boxes",
+        "action": "all",
+        "dx": 4.9,
+        "dz": 3.0,
+        "dyaw": 1.0,
+        "dx_sd": float("nan"),
+        "dz_sd": 0.1,
+        "dyaw_sd": 0.2,
+    }
     row |= {f"{c}_raw{sd}": row[f"{c}{sd}"] for c in ("dx", "dz", "dyaw") for sd in ("", "_sd")}
     one = findings([{**row, "odometer": "feature-essential"}])
     assert len(one) == 1 and one[0].startswith("No order to compare") and "holds 1 of them" in one[0]
@@ -45,10 +54,39 @@ def test_the_error_figure_labels_each_odometer_with_its_failure_share(monkeypatc
 
     figures = captured_figures(monkeypatch, odolab.io.atomic)
     rows = [
-        {"odometer": name, "action": "all", "failure_share": share, **{c: 1.0 for c in e_table.COMPONENTS}}
+        {
+            "family": "boxes",
+            "odometer": name,
+            "action": "all",
+            "failure_share": share,
+            **{c: 1.0 for c in e_table.COMPONENTS},
+        }
         | {f"{c}_sd": 0.1 for c in e_table.COMPONENTS}
         for name, share in (("icp", 0.254), ("robust-vo", 0.0))
     ]
     e_table.draw(rows, None)
     labels = [t.get_text() for t in figures[0].axes[0].get_yticklabels()]
     assert labels == ["icp\n(25 % of steps failed)", "robust-vo\n(0 % of steps failed)"]
+
+
+def test_families_are_judged_against_the_first_only_where_the_spreads_are_apart():
+    """With two families: each family's order findings, named, then each odometer's change from the
+    first family, "higher" or "lower" only where the mean +- sd ranges over seeds do not overlap."""
+    from studies.e_table import findings
+
+    def row(family: str, odometer: str, dx: float, dz: float, sd: float) -> dict:
+        out = {"family": family, "odometer": odometer, "action": "all", "dx": dx, "dz": dz, "dyaw": 1.0}
+        out |= {"dx_sd": sd, "dz_sd": sd, "dyaw_sd": float("nan")}
+        return out | {f"{c}_raw{x}": out[f"{c}{x}"] for c in ("dx", "dz", "dyaw") for x in ("", "_sd")}
+
+    rows = [row("boxes", "icp", 1.0, 2.0, 0.1), row("free", "icp", 1.5, 2.1, 0.1), row("free", "deepvo", 5, 5, 0)]
+    said = findings(rows)
+    assert (
+        said[0] == "boxes: No order to compare: the paper's table ranks E1 (feature-essential), E2 "
+        "(feature-essential-oracle-rot), E3 (robust-vo); this table holds 0 of them."
+    )
+    assert said[1].startswith("free: No order to compare")
+    assert said[2:] == [
+        "icp, boxes -> free (x 1e-2, as used): dx 1.00 -> 1.50 (higher); dz 2.00 -> 2.10 (undecided); "
+        "dyaw 1.00 -> 1.00 (undecided)"
+    ]

@@ -89,17 +89,19 @@ def test_e_table_at_ci_scale_reports_and_resumes(tmp_path: Path, capsys):
         p.name for p in out.iterdir()
     }
     rows = (out / "table.csv").read_text().splitlines()
-    assert rows[0].startswith("odometer,action,seeds,steps,dx,dx_sd") and len(rows) > 3
+    assert rows[0].startswith("family,odometer,action,seeds,steps,dx,dx_sd") and len(rows) > 3
+    assert {r.split(",")[0] for r in rows[1:]} == {"boxes", "free"}
     said = capsys.readouterr().out
-    assert "8 units computed" in said and f"open {out.resolve() / 'index.html'}" in said  # the page to open, named
+    assert "16 units computed" in said and f"open {out.resolve() / 'index.html'}" in said  # the page to open, named
     assert study("e-table", args) == 0  # everything saved: nothing computed again
     assert "0 units computed" in capsys.readouterr().out
     html = (out / "index.html").read_text()
     assert "E1 (15.9, 21.3, 8.51)" in html and "Against the paper" in html
     md = (out / "table.md").read_text()
-    as_used = [line for line in md.splitlines() if ", as used: ours" in line]
+    as_used = [line for line in md.splitlines() if "boxes: " in line and ", as used: ours" in line]
     assert len(as_used) == 3 and all("the paper's order E2 < E1" in line for line in as_used), md  # E2 lower in each
-    assert len([line for line in md.splitlines() if ", the paper's protocol: ours" in line]) == 3
+    assert len([line for line in md.splitlines() if ", the paper's protocol: ours" in line]) == 6
+    assert len([line for line in md.splitlines() if ", boxes -> free (x 1e-2, as used): dx " in line]) == 4
 
 
 def test_a_folder_of_the_users_own_files_is_refused(tmp_path: Path):
