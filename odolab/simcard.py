@@ -364,16 +364,23 @@ def measure(
     max_steps: int,
     seed: int,
     *,
+    family: str = "boxes",
+    scenes=None,
     execution: Execution = Execution(),
 ) -> tuple[dict, ImageStats, list[tuple]]:
     """The card's numbers: the motion summary of ``episodes`` rollouts, the image statistics of
     ``rendered`` episodes of ``frames`` frames, and the sample frames of the first four (for the
-    contact sheet); as Ray tasks (:func:`odolab.core.parallel.fan_out`) unless ``execution.parallel`` is False."""
+    contact sheet), in procedural scenes of ``family`` or in mesh ``scenes``
+    (:class:`odolab.sim.mesh_scenes.SceneFiles`); as Ray tasks (:func:`odolab.core.parallel.fan_out`)
+    unless ``execution.parallel`` is False."""
     from odolab.sim.episodes import EpisodeSpec
 
-    specs = [EpisodeSpec(split=split, index=i, seed=seed, max_steps=max_steps) for i in range(episodes)]
+    def spec(i: int, steps: int) -> EpisodeSpec:
+        return EpisodeSpec(split=split, index=i, seed=seed, max_steps=steps, family=family, scenes=scenes)
+
+    specs = [spec(i, max_steps) for i in range(episodes)]
     motion = summarize_motion(fan_out(motion_stats, specs, desc="rollouts", execution=execution))
-    shown = [EpisodeSpec(split=split, index=i, seed=seed, max_steps=frames) for i in range(rendered)]
+    shown = [spec(i, frames) for i in range(rendered)]
     parts = fan_out(
         _render_part,
         [(s, frames, 1 if i < 4 else 0) for i, s in enumerate(shown)],

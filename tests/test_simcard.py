@@ -77,3 +77,13 @@ def test_simcard_keeps_out_of_a_folder_it_did_not_write(tmp_path, capsys):
     assert run_cli(main, "python -m odolab.simcard", argv + ["--out", str(linked)]) == 2
     stderr_line(capsys, "card.md", "found a symbolic link to")
     assert (tmp_path / "outside" / "victim.tum").read_text() == "precious"
+
+
+def test_simcard_of_the_free_family_measures_other_scenes_and_says_so(tmp_path):
+    argv = ["--episodes", "2", "--rendered", "1", "--frames", "2", "--max-steps", "20", "--serial", "--quiet"]
+    cards = {}
+    for family in ("boxes", "free"):
+        assert main([*argv, "--scene-family", family, "--out", str(tmp_path / family)]) == 0
+        cards[family] = json.loads((tmp_path / family / "card.json").read_text())
+    assert cards["free"]["command"].endswith("--scene-family free") and "--scene-family" not in cards["boxes"]["command"]
+    assert cards["free"]["motion"]["geodesic_m"] != cards["boxes"]["motion"]["geodesic_m"]

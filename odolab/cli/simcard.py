@@ -12,6 +12,7 @@ from odolab.cli.args import (
     MAX_SEED,
     ArgumentParser,
     UsageError,
+    add_scene_options,
     check_ray_option,
     check_report_dir,
     execution_of,
@@ -19,6 +20,8 @@ from odolab.cli.args import (
     number,
     path_arg,
     run_cli,
+    scene_words,
+    scenes_of,
     seed,
 )
 
@@ -51,6 +54,7 @@ def build_parser() -> ArgumentParser:
         help="steps per episode, 1-2000 (default 500)",
     )
     ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
+    add_scene_options(ap)
     ap.add_argument(
         "--out", type=path_arg("--out"), default=Path("runs/simcard"), help="output folder (default runs/simcard)"
     )
@@ -63,12 +67,13 @@ def build_parser() -> ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     check_ray_option(args.ray_address, args.serial)  # and RAY_ADDRESS: before --out is made
+    scenes = scenes_of(args, argv)  # every mesh file read: a bad one before --out is made
     check_report_dir(args.out, "--out")  # a folder of the user's own files is refused, as compare refuses it
     with hold_folder(args.out, "--out"):  # a second run into --out is refused until this one has written
-        return _run(args)
+        return _run(args, scenes)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace, scenes) -> int:
     from odolab.io.owned import UnsafeOutputError
     from odolab.reporting.report import MANIFEST, ManifestError, OutputFolder
     from odolab.sim.redwood import default_table
@@ -90,11 +95,13 @@ def _run(args: argparse.Namespace) -> int:
         args.frames,
         args.max_steps,
         args.seed,
+        family=args.scene_family,
+        scenes=scenes,
         execution=execution_of(args),
     )
     command = (
         f"python -m odolab.simcard --split {args.split} --episodes {args.episodes} --rendered {args.rendered} "
-        f"--frames {args.frames} --max-steps {args.max_steps} --seed {args.seed}"
+        f"--frames {args.frames} --max-steps {args.max_steps} --seed {args.seed}" + scene_words(args)
     )
     simcard.write_card(args.out, motion, images, samples, source, command)
     print((args.out / "card.md").read_text())
