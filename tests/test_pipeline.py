@@ -7,6 +7,7 @@ import csv
 import shutil
 import threading
 from pathlib import Path
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -271,3 +272,36 @@ def test_frames_without_depth_give_one_warning_per_sequence():
         "a: 2 of 5 frames have no depth at all (every depth pixel is 0); odometers that use depth cannot use them",
         "c: 5 of 5 frames have no depth at all (every depth pixel is 0); odometers that use depth cannot use them",
     ]
+
+
+@pytest.mark.slow
+def test_odometers_run_as_ray_tasks_answer_as_in_this_process(tmp_path):
+    """In parallel (a local Ray instance, one task per episode and odometer, a temporary episode
+    cache) the tables are the serial run's but for the steps/s; the observer hears every task's
+    steps with their own time, against the total from the start."""
+
+    class Heard:
+        def __init__(self):
+            self.total, self.steps, self.closed = None, [], False
+
+        def start(self, total):
+            self.total = total
+
+        def advance(self, name, steps, seconds=None):
+            self.steps.append((name, steps, seconds))
+
+        def close(self):
+            self.closed = True
+
+    config = ComparisonConfig(odometers=["planar-depth", "action-prior"], episodes=2, max_steps=6, cache=None)
+    heard = Heard()
+    fanned = pipeline.run_comparison(replace(config, execution=Execution(progress=False)), observer=heard)
+    serial = pipeline.run_comparison(replace(config, execution=SERIAL))
+    assert pipeline._fanned(replace(config, execution=Execution()), {"planar-depth": None})
+    without_fps = [{k: v for k, v in vars(r).items() if k != "fps"} for r in fanned.rows]
+    assert without_fps == [{k: v for k, v in vars(r).items() if k != "fps"} for r in serial.rows]
+    assert fanned.plans.keys() == serial.plans.keys() and [r.sequence for r in fanned.results] == [
+        r.sequence for r in serial.results
+    ]
+    assert heard.closed and heard.total == sum(s for _, s, _ in heard.steps) == sum(len(r.actions) for r in serial.results)
+    assert len(heard.steps) == 4 and all(seconds is not None and seconds >= 0 for _, _, seconds in heard.steps)

@@ -96,13 +96,15 @@ class StepProgressBar:
         shown = tqdm.format_sizeof(rate) if rate is not None else "?"
         return f"{fit_name(odometer)} {shown:>5} step/s"
 
-    def advance(self, odometer: str, steps: int) -> None:
-        """``steps`` more steps of ``odometer`` are done, in the time since the previous call; 0
-        steps: ``odometer`` starts a sequence (the time before it, e.g. loading, is nobody's)."""
+    def advance(self, odometer: str, steps: int, seconds: float | None = None) -> None:
+        """``steps`` more steps of ``odometer`` are done, in the time since the previous call or, where
+        they ran elsewhere, in their own ``seconds``; 0 steps: ``odometer`` starts a sequence (the
+        time before it, e.g. loading, is nobody's)."""
         now = self.clock()
         if steps:
-            done, seconds = self._spent.get(odometer, (0, 0.0))
-            self._spent[odometer] = (done + steps, seconds + max(now - self._last, 0.0))
+            done, spent = self._spent.get(odometer, (0, 0.0))
+            took = max(now - self._last, 0.0) if seconds is None else seconds
+            self._spent[odometer] = (done + steps, spent + took)
         self._last = now
         if self.plain and steps:
             self._plain_done += steps

@@ -14,15 +14,18 @@ Every mistake in the configuration raises :class:`ComparisonError` with one line
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from odolab.core.parallel import Execution
+import numpy as np
+
+from odolab.core.parallel import SERIAL, Execution
 from odolab.odometry.odometer import (
     REGISTRY,
     IncompleteOdometerError,
@@ -76,8 +79,10 @@ class ComparisonConfig:
     episode cache folder, or None to keep episodes in memory only. ``tum``: a TUM RGB-D folder
     instead of the simulator, its depth PNG values per metre ``tum_depth_scale`` (None: TUM's 5000)
     and its camera ``tum_intrinsics`` ``(fx, fy, cx, cy)`` (None: the TUM camera its name says).
-    ``execution``: where missing episodes are generated, and whether with progress bars
-    (:class:`~odolab.core.parallel.Execution`). ``command``: the command line that asked
+    ``execution``: where missing episodes are generated and the odometers run, and whether with
+    progress bars (:class:`~odolab.core.parallel.Execution`): in parallel on a local Ray instance,
+    each odometer runs each simulator episode as a task of its own (made anew from its name and
+    ``options``; the tables are the serial run's but for the steps/s). ``command``: the command line that asked
     (its caller's words, recorded in the notes), or None. ``step_timeout``: seconds one step of an
     odometer may take before it fails as ``timed-out`` (None: no limit; :mod:`odolab.running.runner`).
     ``scenes``: mesh files to run the episodes in (:func:`odolab.sim.mesh_scenes.scene_files`), or
@@ -293,6 +298,86 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     return stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
 
 
+def _fanned(config: ComparisonConfig, odometers: dict[str, Odometer]) -> bool:
+    """Whether the odometers run as Ray tasks (:func:`_run_fanned`): in parallel, on a local
+    instance (a cluster's nodes cannot read this machine's episode cache), more than one odometer
+    or episode, every odometer one a task can make anew by its name (a registered one or a
+    ``module:Class``, with ``config.options``)."""
+    from odolab.core.parallel import RAY_ADDRESS
+
+    local = config.execution.ray_address is None and not os.environ.get(RAY_ADDRESS)
+    named = all(unknown_odometer(name) is None for name in odometers)
+    return config.execution.parallel and local and named and len(odometers) * config.episodes > 1
+
+
+@dataclass(frozen=True)
+class _Unit:
+    """One odometer (by name, with its options) on one cached episode."""
+
+    name: str
+    options: dict[str, Any]
+    spec: EpisodeSpec
+    cache: Path
+    step_timeout: float | None
+
+
+def _run_unit(unit: _Unit) -> tuple[SequenceResult, dict]:
+    """A Ray task: a fresh odometer of ``unit`` on its episode (an odometer starts each sequence
+    anew at ``reset``, so it answers as one that ran other episodes before), and the episode's
+    scene seed and goal."""
+    from odolab.sim.episodes import EpisodeCache, load_episodes
+
+    odometer = load_odometers([unit.name], {unit.name: unit.options} if unit.options else None)[unit.name]
+    (episode,) = load_episodes([unit.spec], EpisodeCache(unit.cache), execution=SERIAL)
+    (result,) = runner.run({unit.name: odometer}, [episode], step_timeout=unit.step_timeout)
+    return result, {k: episode.info.get(k) for k in ("scene_seed", "goal")}
+
+
+def _run_fanned(
+    config: ComparisonConfig,
+    specs: list[EpisodeSpec],
+    names: list[str],
+    observer: RunObserver | None,
+    step_timeout: float | None,
+    note: Callable[[str, dict], None],
+) -> list[SequenceResult]:
+    """Every odometer on every episode as Ray tasks, one per (episode, odometer) on a local instance
+    (started once for the episodes and the odometers), the episodes read from the cache (a
+    temporary one without ``config.cache``); results in the serial runner's order. ``observer``
+    hears of each finished task's steps and their own time; ``note(name, info)`` of each episode."""
+    import tempfile
+
+    from odolab.core.parallel import fan_out, start_ray
+    from odolab.sim.episodes import EpisodeCache, generate_episodes
+
+    with contextlib.ExitStack() as stack:
+        started = start_ray(None, quiet=not config.execution.progress)
+        if started:
+            import ray
+
+            stack.callback(ray.shutdown)
+        folder = config.cache or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="odolab-episodes-")))
+        cache = EpisodeCache(folder)
+        generate_episodes(specs, cache, execution=config.execution)
+        units = [_Unit(n, config.options.get(n, {}), s, folder, step_timeout) for s in specs for n in names]
+        results: list[SequenceResult | None] = [None] * len(units)
+        if observer is not None:
+            observer.start(len(names) * sum(cache.steps(s) for s in specs))
+
+        def done(k: int, value: tuple[SequenceResult, dict]) -> None:
+            results[k], info = value
+            note(results[k].sequence, info)
+            if observer is not None:
+                observer.advance(units[k].name, len(results[k].actions), float(np.sum(results[k].step_seconds)))
+
+        try:
+            fan_out(_run_unit, units, on_result=done, execution=replace(config.execution, progress=False))
+        finally:
+            if observer is not None:
+                observer.close()
+    return [r for r in results if r is not None]
+
+
 def _run(
     odometers: dict[str, Odometer],
     sequences,
@@ -426,18 +511,25 @@ def run_comparison(
         scenes=config.scenes,
         family=config.family,
     )
-    episodes, total = _episode_stream(config, specs)
     scenes: dict[str, int] = {}
     goals: dict[str, tuple[float, float]] = {}
 
-    def noted(stream):
-        for ep in stream:
-            scenes[ep.name] = ep.info["scene_seed"]
-            if ep.info.get("goal") is not None:
-                goals[ep.name] = (float(ep.info["goal"][0]), float(ep.info["goal"][1]))
-            yield ep
+    def note(name: str, info: dict) -> None:
+        scenes[name] = info["scene_seed"]
+        if info.get("goal") is not None:
+            goals[name] = (float(info["goal"][0]), float(info["goal"][1]))
 
-    results = _run(odometers, noted(episodes), observer, step_timeout, total)
+    if _fanned(config, odometers):
+        results = _run_fanned(config, specs, list(odometers), observer, step_timeout, note)
+    else:
+        episodes, total = _episode_stream(config, specs)
+
+        def noted(stream):
+            for ep in stream:
+                note(ep.name, ep.info)
+                yield ep
+
+        results = _run(odometers, noted(episodes), observer, step_timeout, total)
     no_depth = empty_depth_warnings(results)
     one = [r for r in results if r.odometer == results[0].odometer]
     steps = sum(len(r.actions) for r in one)

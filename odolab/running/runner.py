@@ -144,9 +144,10 @@ class RunObserver(Protocol):
     def start(self, total_steps: int | None) -> None:
         """``total_steps``: steps summed over odometers and sequences, or None when unknown."""
 
-    def advance(self, odometer: str, steps: int) -> None:
+    def advance(self, odometer: str, steps: int, seconds: float | None = None) -> None:
         """``steps`` more steps of ``odometer`` are done; 0 steps: ``odometer`` starts a sequence
-        (its time counts from here)."""
+        (its time counts from here). ``seconds``: the steps' own time, where they ran elsewhere
+        (in a Ray task) and the time since the last call is not theirs."""
 
     def close(self) -> None:
         """The run ended (also after an exception)."""
