@@ -87,6 +87,8 @@ def test_families_are_judged_against_the_first_only_where_the_spreads_are_apart(
     )
     assert said[1].startswith("free: No order to compare")
     assert said[2:] == [
-        "icp, boxes -> free (x 1e-2, as used): dx 1.00 -> 1.50 (higher); dz 2.00 -> 2.10 (undecided); "
-        "dyaw 1.00 -> 1.00 (undecided)"
+        (
+            "icp, boxes -> free (x 1e-2, as used): dx 1.00 -> 1.50 (higher); dz 2.00 -> 2.10 (undecided); "
+            "dyaw 1.00 -> 1.00 (undecided)"
+        )
     ]

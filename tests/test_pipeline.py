@@ -6,8 +6,8 @@ without depth and one-frame TUM folders said in one line."""
 import csv
 import shutil
 import threading
-from pathlib import Path
 from dataclasses import replace
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -303,5 +303,7 @@ def test_odometers_run_as_ray_tasks_answer_as_in_this_process(tmp_path):
     assert fanned.plans.keys() == serial.plans.keys() and [r.sequence for r in fanned.results] == [
         r.sequence for r in serial.results
     ]
-    assert heard.closed and heard.total == sum(s for _, s, _ in heard.steps) == sum(len(r.actions) for r in serial.results)
+    assert heard.closed and heard.total == sum(s for _, s, _ in heard.steps) == sum(
+        len(r.actions) for r in serial.results
+    )
     assert len(heard.steps) == 4 and all(seconds is not None and seconds >= 0 for _, _, seconds in heard.steps)

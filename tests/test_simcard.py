@@ -85,5 +85,7 @@ def test_simcard_of_the_free_family_measures_other_scenes_and_says_so(tmp_path):
     for family in ("boxes", "free"):
         assert main([*argv, "--scene-family", family, "--out", str(tmp_path / family)]) == 0
         cards[family] = json.loads((tmp_path / family / "card.json").read_text())
-    assert cards["free"]["command"].endswith("--scene-family free") and "--scene-family" not in cards["boxes"]["command"]
+    assert (
+        cards["free"]["command"].endswith("--scene-family free") and "--scene-family" not in cards["boxes"]["command"]
+    )
     assert cards["free"]["motion"]["geodesic_m"] != cards["boxes"]["motion"]["geodesic_m"]
