@@ -172,3 +172,13 @@ def test_token_notices_are_kept_for_a_users_cluster_and_hidden_for_a_local_one(c
         assert ("Token authentication is enabled for this Ray cluster." in messages) is shown
         assert "an error always passes" in messages
     assert not notices.filters
+
+
+def test_fan_out_on_a_terminal_that_cannot_draw_a_bar_says_each_stage_in_a_line(monkeypatch, capsys):
+    import odolab.core.progress
+    from odolab.core.parallel import Execution, fan_out
+
+    monkeypatch.setattr(odolab.core.progress, "plain_terminal", lambda file=None: True)
+    assert fan_out(abs, [-1, -2], execution=Execution(parallel=False), desc="episodes") == [1, 2]
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "episodes: 2 to run" and lines[1].startswith("episodes: 2 done in ") and len(lines) == 2

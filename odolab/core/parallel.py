@@ -11,7 +11,9 @@ import os
 import re
 import signal
 import socket
+import sys
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -242,9 +244,15 @@ def fan_out(
     "ray://host:10001" (checked first by :func:`check_ray_address`: :class:`RayAddressError` within
     seconds if unreachable).
     """
+    from odolab.core.progress import plain_terminal
+
     parallel, ray_address, progress = execution.parallel, execution.ray_address, execution.progress
     results: list[Any] = [None] * len(items)
-    bar = tqdm(total=len(items), desc=desc, disable=not progress or not items, leave=False)
+    plain = bool(progress and items) and plain_terminal()  # a terminal that cannot draw a bar: two lines
+    bar = tqdm(total=len(items), desc=desc, disable=not progress or not items or plain, leave=False)
+    if plain:
+        print(f"{desc}: {len(items)} to run", file=sys.stderr, flush=True)
+        began = time.perf_counter()
 
     def done(k: int, value: Any) -> None:
         if on_result:
@@ -280,3 +288,5 @@ def fan_out(
         return results
     finally:
         bar.close()
+        if plain and sys.exc_info()[0] is None:
+            print(f"{desc}: {len(items)} done in {time.perf_counter() - began:.0f} s", file=sys.stderr, flush=True)
