@@ -26,6 +26,7 @@ import numpy as np
 from odolab.config import check, setting
 from odolab.sim.episodes import MAX_EPISODE_STEPS
 from odolab.sim.free_scenes import FAMILIES
+from odolab.sim.mesh_scenes import SceneFiles
 from studies import framework
 
 COMPONENTS = ("dx", "dz", "dyaw")
@@ -42,7 +43,10 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
     """Run one odometer on one seed's test episodes: per action ("all" included) its errors as used
     and own and its bias (signed mean error as used; x 1e-2), steps and failure share."""
     from odolab.api import SERIAL, ComparisonConfig, run_comparison
+    from odolab.sim.mesh_scenes import SceneFiles
 
+    recorded = key.get("scenes")
+    scenes = None if recorded is None else SceneFiles(tuple(key["scene_files"]), **recorded)
     result = run_comparison(
         ComparisonConfig(
             odometers=[key["odometer"]],
@@ -51,6 +55,7 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
             seed=key["seed"],
             split="test",
             family=key.get("family", "boxes"),
+            scenes=scenes,
             execution=SERIAL,
         )
     )
@@ -136,9 +141,22 @@ def label(odometer: str, seed: int, family: str) -> str:
     return f"{odometer} seed {seed}" + ("" if family == "boxes" else f" {family}")
 
 
-def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]:
+def families(scale: Scale, scenes: SceneFiles | None = None) -> tuple[str, ...]:
+    """The scale's procedural scene families, or ``("mesh",)`` for episodes in mesh ``scenes``."""
+    return scale.families if scenes is None else ("mesh",)
+
+
+def units(scale: Scale, identity: dict[str, str | None], scenes: SceneFiles | None = None) -> list[framework.Unit]:
     """One unit per (family, odometer, seed); its key holds everything its result depends on (the
-    family only when not boxes: their keys are as before families)."""
+    family only when not boxes: their keys are as before families; mesh ``scenes`` by their digests,
+    the files' paths handed to the task as its inputs)."""
+
+    def where(family: str) -> dict[str, Any]:
+        if scenes is not None:
+            return {"scenes": {"digests": list(scenes.digests), "up": scenes.up, "unit": scenes.unit}}
+        return {} if family == "boxes" else {"family": family}
+
+    inputs = {} if scenes is None else {"scene_files": list(scenes.files)}
     return [
         framework.Unit(
             label(odo, seed, family),
@@ -148,19 +166,20 @@ def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]
                 "seed": seed,
                 "episodes": scale.episodes,
                 "max_steps": scale.max_steps,
-                **({} if family == "boxes" else {"family": family}),
+                **where(family),
             },
+            inputs,
         )
-        for family in scale.families
+        for family in families(scale, scenes)
         for odo in scale.odometers
         for seed in scale.seeds
     ]
 
 
-def table(scale: Scale, results: dict[str, Any]) -> list[dict[str, Any]]:
+def table(scale: Scale, results: dict[str, Any], scenes: SceneFiles | None = None) -> list[dict[str, Any]]:
     """Rows family x odometer x action: mean and standard deviation over the seeds that have a result."""
     rows = []
-    for family, odo in ((f, o) for f in scale.families for o in scale.odometers):
+    for family, odo in ((f, o) for f in families(scale, scenes) for o in scale.odometers):
         for action in ACTIONS:
             done = [results.get(label(odo, s, family), {}) for s in scale.seeds]
             got = [r[action] for r in done if action in r]
@@ -299,10 +318,11 @@ def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.reporting.report import counted
 
+    scenes = test_scenes(args)
     study = framework.begin("e_table", args, Scale)
     scale: Scale = study.scale
-    outcome = study.run(unit_result, units(scale, study.identity), valid_result)
-    rows = table(scale, outcome.results)
+    outcome = study.run(unit_result, units(scale, study.identity, scenes), valid_result)
+    rows = table(scale, outcome.results, scenes)
     study.publish(
         outcome,
         intro=[
@@ -310,9 +330,14 @@ def run(args) -> int:
             (
                 f"Scale {study.args.scale}: {'seed' if len(scale.seeds) == 1 else 'seeds'} "
                 f"{', '.join(map(str, scale.seeds))}, {counted(scale.episodes, 'test episode')} of at most "
-                f"{counted(scale.max_steps, 'step')} each per seed, in the procedural scene "
-                f"{'family' if len(scale.families) == 1 else 'families'} {', '.join(scale.families)} "
-                "(docs/simulator.md#scene-families; the learned odometers as shipped, trained in boxes scenes)."
+                f"{counted(scale.max_steps, 'step')} each per seed, in "
+                + (
+                    f"the procedural scene {'family' if len(scale.families) == 1 else 'families'} "
+                    f"{', '.join(scale.families)} (docs/simulator.md#scene-families)"
+                    if scenes is None
+                    else f"the test split of {counted(len(scenes.files), 'mesh file')} ({args.scenes})"
+                )
+                + "; the learned odometers as shipped, trained in boxes scenes."
             ),
         ],
         columns=COLUMNS,
@@ -323,6 +348,17 @@ def run(args) -> int:
         findings=findings(rows),
     )
     return 0
+
+
+def test_scenes(args) -> SceneFiles | None:
+    """The test split of the mesh files ``--scenes`` names (every file read first), or None; with
+    them the report needs its own ``--out``. ``UsageError`` in one line."""
+    from odolab.cli import UsageError
+    from odolab.cli.args import scenes_of
+
+    if getattr(args, "scenes", None) is not None and args.out is None:
+        raise UsageError("--scenes: the report of episodes in mesh files needs its own --out (not reports/e-table)")
+    return scenes_of(args, getattr(args, "argv", None))
 
 
 if __name__ == "__main__":  # python -m studies.e_table: the command line is odolab.cli.study's

@@ -116,10 +116,13 @@ def default_out(config: StudyConfig) -> Path:
 @dataclass(frozen=True)
 class Unit:
     """One unit of work: ``key`` describes it fully (everything its result depends on, plain JSON
-    data); ``label`` names it for people."""
+    data); ``label`` names it for people; ``inputs``: what its task needs besides but its result does
+    not depend on (where mesh files lie: the key holds their digests), handed to it with the key and
+    neither hashed nor saved."""
 
     label: str
     key: dict[str, Any]
+    inputs: dict[str, Any] = field(default_factory=dict)
 
     @property
     def digest(self) -> str:
@@ -251,7 +254,7 @@ def run_units(
     gpus: float = 0.0,
     only: Callable[[Unit], bool] | None = None,
 ) -> Outcome:
-    """``fn(unit.key)`` for every unit without a saved result, as Ray tasks (a local instance, or the
+    """``fn(unit.key | unit.inputs)`` for every unit without a saved result, as Ray tasks (a local instance, or the
     cluster at ``execution.ray_address``), each result saved as it finishes; with ``redraw`` nothing is
     computed, and with ``only`` nothing but the units it accepts (the others are read as with ``redraw``).
     Results must be plain JSON data. Computing seconds and the machine are saved beside each result. A saved result
@@ -284,7 +287,7 @@ def run_units(
 
     fan_out(
         _timed,
-        [(fn, u.key) for u in todo],
+        [(fn, {**u.key, **u.inputs}) for u in todo],
         on_result=done,
         execution=execution,
         desc="study units",

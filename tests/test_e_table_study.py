@@ -92,3 +92,33 @@ def test_families_are_judged_against_the_first_only_where_the_spreads_are_apart(
             "dyaw 1.00 -> 1.00 (undecided)"
         )
     ]
+
+
+def test_the_e_table_runs_in_mesh_files_keyed_by_their_digests_into_its_own_folder(tmp_path):
+    """--scenes: units of the files' test split, keyed by their digests (a copy of the file elsewhere
+    reuses every result), the report saying where; without --out, or with --scene-up alone, refused."""
+    import shutil
+
+    import pytest
+
+    from odolab.cli.args import UsageError
+    from odolab.cli.study import study
+    from odolab.sim.mesh_scenes import export_scene
+    from odolab.sim.scenes import generate_scene, scene_seed
+
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()
+    room = export_scene(generate_scene(scene_seed("test", 0)), tmp_path / "a" / "room.ply", up="z")
+    copy = shutil.copy(room, tmp_path / "b" / "room.ply")
+    out = tmp_path / "e"
+    argv = ["--scale", "ci", "--out", str(out), "--serial", "--quiet", "--scene-up", "z"]
+    assert study("e-table", [*argv, "--scenes", str(room)]) == 0
+    rows = (out / "table.csv").read_text().splitlines()
+    assert {r.split(",")[0] for r in rows[1:]} == {"mesh"} and len(rows) > 3
+    assert "the test split of 1 mesh file" in (out / "index.html").read_text()
+    saved = sorted(p.name for p in (out / "results").iterdir())
+    assert study("e-table", [*argv, "--scenes", str(copy)]) == 0
+    assert sorted(p.name for p in (out / "results").iterdir()) == saved  # nothing new: the same content
+    with pytest.raises(UsageError, match="needs its own --out"):
+        study("e-table", ["--scale", "ci", "--serial", "--scenes", str(room)])
+    with pytest.raises(UsageError, match="--scene-up is for --scenes"):
+        study("e-table", [*argv])

@@ -104,18 +104,19 @@ def setting_help(cls: type, field: str, default: object = None) -> str:
     return f"{row.doc}, {row.range} (default {f'{shown:g}' if isinstance(shown, float) else shown})"
 
 
-def add_scene_options(ap: argparse.ArgumentParser) -> None:
-    """``--scene-family`` (procedural scenes), or ``--scenes``, ``--scene-up`` and ``--scene-unit``:
-    episodes in mesh files (:func:`scenes_of`)."""
+def add_scene_options(ap: argparse.ArgumentParser, family: bool = True) -> None:
+    """``--scene-family`` (procedural scenes; with ``family``), or ``--scenes``, ``--scene-up`` and
+    ``--scene-unit``: episodes in mesh files (:func:`scenes_of`)."""
     from odolab.sim.free_scenes import FAMILIES
 
-    ap.add_argument(
-        "--scene-family",
-        choices=FAMILIES,
-        default="boxes",
-        help="procedural scenes: boxes (axis-aligned rooms, exactly Manhattan; the default) or free (rooms at "
-        "other angles, furniture at any yaw, point lights: docs/simulator.md#scene-families)",
-    )
+    if family:
+        ap.add_argument(
+            "--scene-family",
+            choices=FAMILIES,
+            default="boxes",
+            help="procedural scenes: boxes (axis-aligned rooms, exactly Manhattan; the default) or free (rooms "
+            "at other angles, furniture at any yaw, point lights: docs/simulator.md#scene-families)",
+        )
     ap.add_argument(
         "--scenes",
         type=path_arg("--scenes"),
@@ -145,12 +146,12 @@ def scenes_of(args: argparse.Namespace, argv: Sequence[str] | None):
                 f"{given[0]} is for --scenes (mesh files); without it the episodes run in procedural scenes"
             )
         return None
-    if args.scene_family != "boxes":
+    if getattr(args, "scene_family", "boxes") != "boxes":
         raise UsageError(f"--scene-family {args.scene_family} is for procedural scenes; --scenes runs mesh files")
     from odolab.sim.mesh_scenes import MeshError, scene_files
 
     try:
-        return scene_files(args.scenes, args.split, args.scene_up, args.scene_unit)
+        return scene_files(args.scenes, getattr(args, "split", "test"), args.scene_up, args.scene_unit)
     except MeshError as exc:
         raise UsageError(f"--scenes {exc}") from None
 
@@ -159,7 +160,8 @@ def scene_words(args: argparse.Namespace) -> str:
     """``--scenes`` and its settings, or ``--scene-family`` but the default, as command-line words
     ("" for neither), for a report's command."""
     if args.scenes is None:
-        return "" if args.scene_family == "boxes" else f" --scene-family {args.scene_family}"
+        family = getattr(args, "scene_family", "boxes")
+        return "" if family == "boxes" else f" --scene-family {family}"
     return f" --scenes {shlex.quote(str(args.scenes))} --scene-up {args.scene_up} --scene-unit {args.scene_unit:.17g}"
 
 

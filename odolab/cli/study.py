@@ -5,7 +5,8 @@
 
 Every study that computes units (``e-table``, ``ablations``, ``kitti-style``, ``noise-robustness``,
 ``turns-by-depth``) takes the same options (:func:`add_study_options`: ``--scale``, ``--out``,
-``--ray-address``, ``--serial``, ``--redraw``, ``--quiet``), the ablations also ``--rows``; the
+``--ray-address``, ``--serial``, ``--redraw``, ``--quiet``), the ablations also ``--rows``, the
+e-table also ``--scenes`` (mesh files); the
 probes and the index take their own. Each study module holds a ``run(args)`` that does the work;
 ``args.command`` is the command as typed, for its report. Mistakes are one line and exit code 2.
 """
@@ -73,6 +74,14 @@ def _computing(ap: ArgumentParser, module) -> None:
         raise UsageError(str(exc)) from None
     ap.description = config.title
     add_study_options(ap, config)
+
+
+def _with_scenes(ap: ArgumentParser, module) -> None:
+    """A computing study whose episodes may run in mesh files (``--scenes``: their test split)."""
+    from odolab.cli.args import add_scene_options
+
+    _computing(ap, module)
+    add_scene_options(ap, family=False)
 
 
 def _ablations(ap: ArgumentParser, module) -> None:
@@ -178,7 +187,7 @@ def _precision_check(ap: ArgumentParser, module) -> None:
 
 #: study name -> what adds its options to its parser, given its module
 OPTIONS: dict[str, Callable[[ArgumentParser, object], None]] = {
-    "e-table": _computing,
+    "e-table": _with_scenes,
     "ablations": _ablations,
     "kitti-style": _computing,
     "noise-robustness": _computing,
@@ -202,13 +211,15 @@ def study_parser(name: str, prog: str) -> ArgumentParser:
 
 def study(name: str, argv: Sequence[str] | None = None, prog: str | None = None) -> int:
     """Run study ``name`` with the command-line arguments ``argv`` (default ``sys.argv[1:]``):
-    parse them, then the module's ``run(args)``, ``args.command`` being the command as typed.
+    parse them, then the module's ``run(args)``, ``args.command`` being the command as typed and
+    ``args.argv`` its options.
     :class:`UsageError` for a mistake (:func:`command` words it in one line)."""
     module = STUDIES[name][0]
     prog = prog or f"python -m {module}"
     argv = list(sys.argv[1:] if argv is None else argv)
     args = study_parser(name, prog).parse_args(argv)
     args.command = " ".join([prog, *map(shlex.quote, argv)])
+    args.argv = argv  # the options as typed (which were given, not defaulted)
     return importlib.import_module(module).run(args)
 
 
