@@ -298,3 +298,13 @@ def test_ate_and_rpe_of_a_trajectory_gone_to_1e300_are_finite():
     v = np.array([[3.0, 4.0, 0.0], [3e300, 4e300, 0.0], [np.nan, 0.0, 0.0]])
     norms = metrics.row_norms(v)
     assert norms[0] == 5.0 and norms[1] == pytest.approx(5e300) and np.isnan(norms[2])
+
+
+def test_alignment_of_positions_near_1e308_returns_the_rotation_instead_of_hanging():
+    """Sums of such coordinates overflow (LAPACK's SVD of an inf never returns): each set is scaled
+    first, so the same points align by the identity; a non-finite position is one ValueError."""
+    pts = np.array([[1e308, 1e308, 0.0], [-1e308, 0.0, 0.0], [1e308, 0.0, 5e307]])
+    R, t, s = metrics.umeyama_alignment(pts, pts, with_scale=True)
+    assert np.allclose(R, np.eye(3)) and np.isclose(s, 1.0) and np.all(np.isfinite(t))
+    with pytest.raises(ValueError, match="not a finite number"):
+        metrics.umeyama_alignment(np.array([[np.inf, 0, 0], [0, 1, 0], [1, 0, 0]]), pts, with_scale=False)

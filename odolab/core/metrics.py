@@ -264,21 +264,34 @@ def umeyama_alignment(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tup
     y = np.asarray(dst, dtype=np.float64)
     if x.shape != y.shape or x.ndim != 2:
         raise ValueError(f"umeyama_alignment: point sets differ in shape, {x.shape} vs {y.shape}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("alignment impossible: a position is not a finite number")
     n, m = x.shape
+    # coordinates near 1e308 would overflow the sums (and LAPACK's SVD of an inf never returns): each
+    # set is then scaled to at most 1 first, which leaves R unchanged and scales s and t back
+    kx, ky = (_unit_scale(a) for a in (x, y))
+    x, y = x / kx, y / ky
     mx, my = x.mean(axis=0), y.mean(axis=0)
     xc, yc = x - mx, y - my
     var_x = float(np.sum(xc * xc)) / n
     cov = yc.T @ xc / n
     u, d, vt = np.linalg.svd(cov)
-    if np.count_nonzero(d > np.finfo(d.dtype).eps) < m - 1:
+    if np.count_nonzero(d > np.finfo(d.dtype).eps / (kx * ky)) < m - 1:
         raise ValueError(f"alignment impossible: the {n} paired positions are degenerate (all on a line or a point)")
     S = np.eye(m)
     if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
         S[-1, -1] = -1.0
     R = u @ S @ vt
-    s = float(np.sum(d * np.diag(S)) / var_x) if with_scale else 1.0
-    t = my - s * (R @ mx)
+    s = float(np.sum(d * np.diag(S)) / var_x * (ky / kx)) if with_scale else 1.0
+    t = ky * my - s * (R @ (kx * mx))
     return R, t, s
+
+
+def _unit_scale(points: np.ndarray, limit: float = 1e100) -> float:
+    """1, or the largest absolute coordinate where it passes ``limit`` (points scaled by it keep
+    their sums and products finite)."""
+    big = float(np.max(np.abs(points))) if points.size else 0.0
+    return big if big > limit else 1.0
 
 
 def apply_alignment(poses: np.ndarray, R: np.ndarray, t: np.ndarray, s: float = 1.0) -> np.ndarray:
