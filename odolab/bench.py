@@ -6,6 +6,6 @@ from odolab.cli.bench import main
 __all__ = ["main"]
 
 if __name__ == "__main__":
-    from odolab.cli.args import run_cli
+    from odolab.cli.args import exit_process, run_cli
 
-    raise SystemExit(run_cli(main, "python -m odolab.bench"))
+    exit_process(run_cli(main, "python -m odolab.bench"))

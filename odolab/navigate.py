@@ -5,6 +5,6 @@ from odolab.cli.navigate import main
 __all__ = ["main"]
 
 if __name__ == "__main__":
-    from odolab.cli.args import run_cli
+    from odolab.cli.args import exit_process, run_cli
 
-    raise SystemExit(run_cli(main, "python -m odolab.navigate"))
+    exit_process(run_cli(main, "python -m odolab.navigate"))

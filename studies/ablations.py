@@ -1618,4 +1618,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.ablations: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("ablations"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("ablations"))

@@ -364,4 +364,5 @@ def test_scenes(args) -> SceneFiles | None:
 if __name__ == "__main__":  # python -m studies.e_table: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("e-table"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("e-table"))

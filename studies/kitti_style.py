@@ -766,4 +766,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.kitti_style: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("kitti-style"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("kitti-style"))

@@ -326,4 +326,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.noise_robustness: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("noise-robustness"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("noise-robustness"))

@@ -150,4 +150,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.reports_index: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("reports-index"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("reports-index"))

@@ -342,4 +342,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.turns_by_depth: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("turns-by-depth"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("turns-by-depth"))

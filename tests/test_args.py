@@ -399,3 +399,36 @@ def test_an_output_file_of_another_kind_is_never_replaced(tmp_path, capsys):
     assert model.read_bytes() == b"\x80weights"
     assert command("forward-dz-probe", ["--out", "/dev/null"]) == 2
     assert "is not a regular file" in stderr_line(capsys)
+
+
+def test_exit_process_after_an_interruption_does_not_wait_for_threads_left_busy():
+    """130 (Ctrl-C) leaves at once with that code and the flushed output, although a thread the
+    interruption left busy would hold the interpreter's exit for a minute; another code exits as usual."""
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import threading, time, sys\n"
+        "from odolab.cli.args import exit_process\n"
+        "threading.Thread(target=time.sleep, args=(60,)).start()\n"
+        "print('said', flush=False)\n"
+        "exit_process(int(sys.argv[1]))\n"
+    )
+    started = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-c", script, "130"], check=False, capture_output=True, text=True, timeout=50
+    )
+    assert proc.returncode == 130 and proc.stdout == "said\n" and time.perf_counter() - started < 30
+    plain = [sys.executable, "-c", script.replace("args=(60,)", "args=(0,)"), "3"]
+    assert subprocess.run(plain, check=False, capture_output=True, timeout=50).returncode == 3
+
+
+def test_python_m_odolab_is_the_odolab_command():
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "odolab", "--help"], check=False, capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 0 and "commands:" in proc.stdout and "compare" in proc.stdout

@@ -12,6 +12,7 @@ from odolab.cli.args import (
     UsageError,
     check_output_file,
     check_replaceable,
+    exit_process,
     file_arg,
     number,
     run_cli,
@@ -60,4 +61,4 @@ def _is_prior_file(path) -> bool:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "python -m odolab.action_prior"))
+    exit_process(run_cli(main, "python -m odolab.action_prior"))

@@ -8,6 +8,7 @@ refuses NaN and infinity; output paths are checked by :func:`check_output_dir` a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import math
 import os
@@ -19,6 +20,7 @@ import tempfile
 import threading
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from odolab.cli.help_text import PlainHelp
 from odolab.core.parallel import Execution
@@ -607,6 +609,19 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
         for s, handler in previous.items():
             signal.signal(s, handler)
     return stopped() if received else code
+
+
+def exit_process(code: int) -> NoReturn:
+    """Leave the process with ``code``, as a command's entry point does. After Ctrl-C or SIGTERM
+    (130, 143) at once: the command's clean-up ran as the signal's exception unwound it, and a
+    thread the interruption left busy or holding a lock (the depth worker, Open3D's, Ray's) would
+    otherwise hang the interpreter's exit or abort it in a C++ destructor."""
+    if code in (130, 143):
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os._exit(code)
+    sys.exit(code)
 
 
 def quiet_broken_pipe() -> None:

@@ -14,6 +14,7 @@ from odolab.cli.args import (
     UsageError,
     check_output_file,
     check_replaceable,
+    exit_process,
     file_arg,
     number,
     run_cli,
@@ -251,4 +252,4 @@ def _bench_json(path: Path) -> bool:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "python -m odolab.bench"))
+    exit_process(run_cli(main, "python -m odolab.bench"))

@@ -22,6 +22,7 @@ from odolab.cli.args import (
     check_output_file,
     check_ray_option,
     execution_of,
+    exit_process,
     file_arg,
     given_options,
     number,
@@ -231,4 +232,4 @@ def _print_fit(name: str, cal: Calibration, gives_own: bool, oracle: bool) -> No
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, "python -m odolab.fusion.calibrate"))
+    exit_process(run_cli(main, "python -m odolab.fusion.calibrate"))

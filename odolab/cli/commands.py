@@ -161,4 +161,6 @@ def _print(text: str, stream, code: int) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from odolab.cli.args import exit_process
+
+    exit_process(main())

@@ -22,6 +22,7 @@ from odolab.cli.args import (
     check_ray_option,
     check_report_dir,
     execution_of,
+    exit_process,
     given_options,
     hold_folder,
     number,
@@ -364,4 +365,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "python -m odolab.compare"))
+    exit_process(run_cli(main, "python -m odolab.compare"))

@@ -28,7 +28,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from odolab.cli.args import ArgumentParser, UsageError, check_output_file, file_arg, number, run_cli
+from odolab.cli.args import ArgumentParser, UsageError, check_output_file, exit_process, file_arg, number, run_cli
 from odolab.core import metrics
 from odolab.core.trajectory import Trajectory
 from odolab.io.errors import FileFormatError
@@ -289,4 +289,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, "python -m odolab.evaluate"))
+    exit_process(run_cli(main, "python -m odolab.evaluate"))

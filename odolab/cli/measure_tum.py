@@ -9,7 +9,7 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 
-from odolab.cli.args import ArgumentParser, UsageError, pinhole, run_cli
+from odolab.cli.args import ArgumentParser, UsageError, exit_process, pinhole, run_cli
 
 __all__ = ["command", "main", "parser"]
 
@@ -92,4 +92,4 @@ def command(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(command())
+    exit_process(command())

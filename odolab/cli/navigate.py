@@ -25,6 +25,7 @@ from odolab.cli.args import (
     check_ray_option,
     check_report_dir,
     execution_of,
+    exit_process,
     hold_folder,
     number,
     path_arg,
@@ -186,4 +187,4 @@ def _run(
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, "python -m odolab.navigate"))
+    exit_process(run_cli(main, "python -m odolab.navigate"))

@@ -10,7 +10,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from odolab.cli.args import ArgumentParser, UsageError, path_arg, run_cli
+from odolab.cli.args import ArgumentParser, UsageError, exit_process, path_arg, run_cli
 from odolab.navigation import diff
 
 
@@ -42,4 +42,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "python -m odolab.navigation.diff"))
+    exit_process(run_cli(main, "python -m odolab.navigation.diff"))

@@ -16,6 +16,7 @@ from odolab.cli.args import (
     check_ray_option,
     check_report_dir,
     execution_of,
+    exit_process,
     hold_folder,
     number,
     path_arg,
@@ -110,4 +111,4 @@ def _run(args: argparse.Namespace, scenes) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(run_cli(main, "python -m odolab.simcard"))
+    exit_process(run_cli(main, "python -m odolab.simcard"))

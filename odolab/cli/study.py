@@ -19,9 +19,18 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from odolab.cli.args import ArgumentParser, UsageError, file_arg, number, path_arg, quiet_broken_pipe, run_cli
+from odolab.cli.args import (
+    ArgumentParser,
+    UsageError,
+    exit_process,
+    file_arg,
+    number,
+    path_arg,
+    quiet_broken_pipe,
+    run_cli,
+)
 
-__all__ = ["STUDIES", "command", "main", "study", "study_parser"]
+__all__ = ["STUDIES", "command", "exit_process", "main", "study", "study_parser"]
 
 #: study name -> (its module, one line of help)
 STUDIES: dict[str, tuple[str, str]] = {

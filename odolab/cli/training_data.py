@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 
 from odolab.cli.args import (
@@ -15,6 +14,7 @@ from odolab.cli.args import (
     add_scene_options,
     check_report_dir,
     execution_of,
+    exit_process,
     path_arg,
     run_cli,
     scenes_of,
@@ -89,4 +89,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_cli(main, "python -m odolab.training_data"))
+    exit_process(run_cli(main, "python -m odolab.training_data"))

@@ -101,4 +101,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.robust_vo.derotation_probe: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("derotation-probe"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("derotation-probe"))

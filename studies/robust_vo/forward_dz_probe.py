@@ -19,7 +19,6 @@ Mean and median absolute errors are in 1e-2 m and 1e-2 rad, as everywhere in the
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -138,4 +137,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.robust_vo.forward_dz_probe: the command line is odolab.cli.study's
     import importlib
 
-    sys.exit(importlib.import_module("odolab.cli.study").command("forward-dz-probe"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("forward-dz-probe"))

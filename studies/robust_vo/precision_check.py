@@ -17,7 +17,6 @@ import dataclasses
 import io
 import json
 import platform
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -165,4 +164,5 @@ def comparison(table: list[dict], seeds: list[int]) -> str:
 if __name__ == "__main__":  # python -m studies.robust_vo.precision_check: the command line is odolab.cli.study's
     import importlib
 
-    sys.exit(importlib.import_module("odolab.cli.study").command("precision-check"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("precision-check"))

@@ -343,4 +343,5 @@ def run(args) -> int:
 if __name__ == "__main__":  # python -m studies.robust_vo.scaling: the command line is odolab.cli.study's
     import importlib
 
-    raise SystemExit(importlib.import_module("odolab.cli.study").command("robust-vo-scaling"))
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("robust-vo-scaling"))

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -301,4 +300,5 @@ TRAINER = Trainer(
 if __name__ == "__main__":  # python -m odolab.learned.deepvo.train: the command line is odolab.cli.train's
     import importlib
 
-    sys.exit(importlib.import_module("odolab.cli.train").command("deepvo"))
+    train = importlib.import_module("odolab.cli.train")
+    train.exit_process(train.command("deepvo"))

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -268,4 +267,5 @@ TRAINER = Trainer(
 if __name__ == "__main__":  # python -m odolab.learned.depth_corrector.train: the command line is odolab.cli.train's
     import importlib
 
-    sys.exit(importlib.import_module("odolab.cli.train").command("depth-corrector"))
+    train = importlib.import_module("odolab.cli.train")
+    train.exit_process(train.command("depth-corrector"))

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -319,4 +318,5 @@ TRAINER = Trainer(
 if __name__ == "__main__":  # python -m odolab.learned.pose_corrector.train: the command line is odolab.cli.train's
     import importlib
 
-    sys.exit(importlib.import_module("odolab.cli.train").command("pose-corrector"))
+    train = importlib.import_module("odolab.cli.train")
+    train.exit_process(train.command("pose-corrector"))

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -410,4 +409,5 @@ TRAINER = Trainer(
 if __name__ == "__main__":  # python -m odolab.learned.robust_vo.train: the command line is odolab.cli.train's
     import importlib
 
-    sys.exit(importlib.import_module("odolab.cli.train").command("robust-vo"))
+    train = importlib.import_module("odolab.cli.train")
+    train.exit_process(train.command("robust-vo"))
