@@ -31,10 +31,9 @@ from odolab.sim.scenes import (
     Scene,
     _cylinder_mesh,
     _Rect,
+    assembled,
     floor_plan,
     generate_scene,
-    join_meshes,
-    navigable_of,
 )
 
 __all__ = ["FAMILIES", "family_scene", "free_scene"]
@@ -69,27 +68,13 @@ def free_scene(
     cylinders = [_moved(c, warp) for c in plan.cylinders]
     parts = [(_prism_mesh(fp, z0, z1), m) for fp, z0, z1, m in slabs + prisms]
     parts += [(_cylinder_mesh(c), c.material) for c in cylinders]
-    vertices, triangles, triangle_material = join_meshes(parts)
     b = plan.bounds
     outline = warp(np.array([[b.x0, b.y0], [b.x1, b.y0], [b.x0, b.y1], [b.x1, b.y1]]))
-    free, origin = _occupancy(prisms, cylinders, outline, GRID_RESOLUTION)
+    occupancy = _occupancy(prisms, cylinders, outline, GRID_RESOLUTION)
     centres = warp(np.array([[(r.x0 + r.x1) / 2, (r.y0 + r.y1) / 2] for r in plan.rooms]))
     power = rng.uniform(0.7, 1.3, len(centres))
     lights = np.column_stack([centres, np.full(len(centres), WALL_HEIGHT - LIGHT_DROP), power]).astype(np.float32)
-    return Scene(
-        seed=int(seed),
-        vertices=vertices,
-        triangles=triangles,
-        triangle_material=triangle_material,
-        materials=plan.materials,
-        free=free,
-        navigable=navigable_of(free, agent_radius),
-        origin=origin,
-        resolution=GRID_RESOLUTION,
-        agent_radius=agent_radius,
-        scale=float(scale),
-        lights=lights,
-    )
+    return assembled(seed, parts, plan, occupancy, agent_radius, scale, lights)
 
 
 Prism = tuple[np.ndarray, float, float, int]  # footprint (4, 2) corners in box-bit order, z0, z1, material

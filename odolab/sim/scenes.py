@@ -357,16 +357,38 @@ def floor_plan(seed: int, n_tiles: int = 12, scale: float = 1.0, length: float |
     return Plan(bounds, rooms, doors, materials, outer + _wall_boxes(walls, rng) + furniture, cylinders, slabs)
 
 
-def join_meshes(parts: list[tuple[tuple[np.ndarray, np.ndarray], int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One mesh of ``parts`` ((vertices, triangles), material): float32 vertices, int32 triangles
-    and each triangle's material."""
+def assembled(
+    seed: int,
+    parts: list[tuple[tuple[np.ndarray, np.ndarray], int]],
+    plan: Plan,
+    occupancy: tuple[np.ndarray, tuple[float, float]],
+    agent_radius: float,
+    scale: float,
+    lights: np.ndarray | None = None,
+) -> Scene:
+    """The scene of ``seed``: one mesh of ``parts`` ((vertices, triangles), material), the plan's
+    materials, the ``occupancy`` (free cells, origin) and what the agent's radius leaves of it."""
     verts, faces, mats, offset = [], [], [], 0
     for (v, f), mat in parts:
         verts.append(v)
         faces.append(f + offset)
         mats.append(np.full(len(f), mat, dtype=np.int32))
         offset += len(v)
-    return np.concatenate(verts).astype(np.float32), np.concatenate(faces).astype(np.int32), np.concatenate(mats)
+    free, origin = occupancy
+    return Scene(
+        seed=int(seed),
+        vertices=np.concatenate(verts).astype(np.float32),
+        triangles=np.concatenate(faces).astype(np.int32),
+        triangle_material=np.concatenate(mats),
+        materials=plan.materials,
+        free=free,
+        navigable=navigable_of(free, agent_radius),
+        origin=origin,
+        resolution=GRID_RESOLUTION,
+        agent_radius=agent_radius,
+        scale=float(scale),
+        lights=lights,
+    )
 
 
 def navigable_of(free: np.ndarray, agent_radius: float) -> np.ndarray:
@@ -387,21 +409,7 @@ def generate_scene(
     (times ``scale``) along y, divided as many levels deeper as keep its rooms their sizes: a chain
     of rooms a route can cross from end to end."""
     plan = floor_plan(seed, n_tiles, scale, length)
-    boxes = plan.solids
-    parts = [(_box_mesh(b), b.material) for b in plan.slabs + boxes]
+    parts = [(_box_mesh(b), b.material) for b in plan.slabs + plan.solids]
     parts += [(_cylinder_mesh(c), c.material) for c in plan.cylinders]
-    vertices, triangles, triangle_material = join_meshes(parts)
-    free, origin = _occupancy(boxes, plan.cylinders, plan.bounds, GRID_RESOLUTION)
-    return Scene(
-        seed=int(seed),
-        vertices=vertices,
-        triangles=triangles,
-        triangle_material=triangle_material,
-        materials=plan.materials,
-        free=free,
-        navigable=navigable_of(free, agent_radius),
-        origin=origin,
-        resolution=GRID_RESOLUTION,
-        agent_radius=agent_radius,
-        scale=float(scale),
-    )
+    occupancy = _occupancy(plan.solids, plan.cylinders, plan.bounds, GRID_RESOLUTION)
+    return assembled(seed, parts, plan, occupancy, agent_radius, scale)
