@@ -286,12 +286,14 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
     overall = [r for r in rows if r["action"] == "all"]
     fig, axes = plt.subplots(1, 3, figsize=(14, 0.6 * len(overall) + 2), sharey=True)
     y = np.arange(len(overall))
+    order = list(dict.fromkeys(r["family"] for r in overall))
+    colours = [f"C{order.index(r['family'])}" for r in overall]
     for ax, c, unit in zip(axes, COMPONENTS, ("m", "m", "rad")):
         ax.barh(
             y,
             [r[c] for r in overall],
             xerr=[0 if r[f"{c}_sd"] != r[f"{c}_sd"] else r[f"{c}_sd"] for r in overall],
-            color="tab:blue",
+            color=colours,
             alpha=0.8,
         )
         ax.set_xlabel(f"{c}: mean abs. error ({unit} x 1e-2)")
@@ -300,6 +302,13 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
     names = [f"{r['odometer']}" + (f" [{r['family']}]" if several else "") for r in overall]
     axes[0].set_yticks(y, [f"{n}\n({100 * r['failure_share']:.0f} % of steps failed)" for n, r in zip(names, overall)])
     axes[0].invert_yaxis()
+    if len(order) > 1:
+        from matplotlib.patches import Patch
+
+        axes[-1].legend(
+            handles=[Patch(color=f"C{k}", alpha=0.8, label=f"{f} scenes") for k, f in enumerate(order)],
+            loc="lower right",
+        )
     fig.suptitle(
         "Per-step error as used (a failed step scored with the action prior), all test steps: "
         "bars are the mean over seeds, lines one standard deviation"
