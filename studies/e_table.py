@@ -43,10 +43,8 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
     """Run one odometer on one seed's test episodes: per action ("all" included) its errors as used
     and own and its bias (signed mean error as used; x 1e-2), steps and failure share."""
     from odolab.api import SERIAL, ComparisonConfig, run_comparison
-    from odolab.sim.mesh_scenes import SceneFiles
 
-    recorded = key.get("scenes")
-    scenes = None if recorded is None else SceneFiles(tuple(key["scene_files"]), **recorded)
+    scenes = framework.scenes_of_key(key)
     result = run_comparison(
         ComparisonConfig(
             odometers=[key["odometer"]],
@@ -153,10 +151,10 @@ def units(scale: Scale, identity: dict[str, str | None], scenes: SceneFiles | No
 
     def where(family: str) -> dict[str, Any]:
         if scenes is not None:
-            return {"scenes": {"digests": list(scenes.digests), "up": scenes.up, "unit": scenes.unit}}
+            return framework.scene_key(scenes)
         return {} if family == "boxes" else {"family": family}
 
-    inputs = {} if scenes is None else {"scene_files": list(scenes.files)}
+    inputs = framework.scene_inputs(scenes)
     return [
         framework.Unit(
             label(odo, seed, family),
@@ -327,7 +325,7 @@ def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
     from odolab.reporting.report import counted
 
-    scenes = test_scenes(args)
+    scenes = framework.mesh_scenes(args, "reports/e-table")
     study = framework.begin("e_table", args, Scale)
     scale: Scale = study.scale
     outcome = study.run(unit_result, units(scale, study.identity, scenes), valid_result)
@@ -357,17 +355,6 @@ def run(args) -> int:
         findings=findings(rows),
     )
     return 0
-
-
-def test_scenes(args) -> SceneFiles | None:
-    """The test split of the mesh files ``--scenes`` names (every file read first), or None; with
-    them the report needs its own ``--out``. ``UsageError`` in one line."""
-    from odolab.cli import UsageError
-    from odolab.cli.args import scenes_of
-
-    if getattr(args, "scenes", None) is not None and args.out is None:
-        raise UsageError("--scenes: the report of episodes in mesh files needs its own --out (not reports/e-table)")
-    return scenes_of(args, getattr(args, "argv", None))
 
 
 if __name__ == "__main__":  # python -m studies.e_table: the command line is odolab.cli.study's

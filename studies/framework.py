@@ -669,6 +669,37 @@ def begin(name: str, args: Any, scale_class: type) -> StudyRun:
     return StudyRun(config, args, scale, out, identity, held)
 
 
+def mesh_scenes(args: Any, default_out: str):
+    """The test split of the mesh files the study's ``--scenes`` names (every file read first;
+    :class:`odolab.sim.mesh_scenes.SceneFiles`), or None without it; such a report needs its own
+    ``--out`` (not ``default_out``). ``UsageError`` in one line."""
+    from odolab.cli import UsageError
+    from odolab.cli.args import scenes_of
+
+    if getattr(args, "scenes", None) is not None and args.out is None:
+        raise UsageError(f"--scenes: the report of episodes in mesh files needs its own --out (not {default_out})")
+    return scenes_of(args, getattr(args, "argv", None))
+
+
+def scene_key(scenes) -> dict[str, Any]:
+    """What a unit's result depends on of mesh ``scenes`` (their digests and reading settings; {}
+    for none), for its key."""
+    return {} if scenes is None else {"scenes": {"digests": list(scenes.digests), "up": scenes.up, "unit": scenes.unit}}
+
+
+def scene_inputs(scenes) -> dict[str, Any]:
+    """Where mesh ``scenes`` lie, for a unit's inputs ({} for none)."""
+    return {} if scenes is None else {"scene_files": list(scenes.files)}
+
+
+def scenes_of_key(key: dict[str, Any]):
+    """The mesh scenes a unit's key and inputs (:func:`scene_key`, :func:`scene_inputs`) name, or None."""
+    from odolab.sim.mesh_scenes import SceneFiles
+
+    recorded = key.get("scenes")
+    return None if recorded is None else SceneFiles(tuple(key["scene_files"]), **recorded)
+
+
 def write_reports_index(reports: Path) -> Path:
     """``reports/index.html`` (:func:`studies.reports_index.write_reports_index`: relative,
     percent-encoded links to the report pages found there)."""

@@ -60,10 +60,11 @@ def label(odometer: str, level: float) -> str:
     return f"{odometer} x{level:g}"
 
 
-def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]:
-    """One unit per (level, odometer); its key holds everything its result depends on. Odometer after
-    odometer, the first (the cheap action prior) at every level first: each level's episodes are then
-    rendered once, by its unit, and found in the episode cache by the others."""
+def units(scale: Scale, identity: dict[str, str | None], scenes=None) -> list[framework.Unit]:
+    """One unit per (level, odometer); its key holds everything its result depends on (mesh
+    ``scenes`` by their digests, their paths the task's inputs). Odometer after odometer, the first
+    (the cheap action prior) at every level first: each level's episodes are then rendered once, by
+    its unit, and found in the episode cache by the others."""
     return [
         framework.Unit(
             label(odo, level),
@@ -75,7 +76,9 @@ def units(scale: Scale, identity: dict[str, str | None]) -> list[framework.Unit]
                 "max_steps": scale.max_steps,
                 "split": "test",
                 "seed": 0,
+                **framework.scene_key(scenes),
             },
+            framework.scene_inputs(scenes),
         )
         for odo in scale.odometers
         for level in scale.levels
@@ -96,6 +99,7 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
             seed=key["seed"],
             split=key["split"],
             noise=NoiseConfig(rgb=key["level"], depth=key["level"]),
+            scenes=framework.scenes_of_key(key),
             execution=SERIAL,
         )
     )
@@ -287,9 +291,10 @@ def study_config() -> framework.StudyConfig:
 
 def run(args) -> int:
     """The study as its command line (:mod:`odolab.cli.study`) asks; 0 when its report is written."""
+    scenes = framework.mesh_scenes(args, "reports/noise-robustness")
     study = framework.begin("noise_robustness", args, Scale)
     scale: Scale = study.scale
-    outcome = study.run(unit_result, units(scale, study.identity), valid_result)
+    outcome = study.run(unit_result, units(scale, study.identity, scenes), valid_result)
     rows = table(scale, outcome.results)
     levels = ", ".join(f"x{v:g}" for v in scale.levels)
     study.publish(
@@ -299,7 +304,9 @@ def run(args) -> int:
             (
                 f"Scale {study.args.scale}: noise {levels}; {scale.episodes} test "
                 f"episode{'s' if scale.episodes != 1 else ''} of at most "
-                f"{scale.max_steps} steps (seed 0); learned: {', '.join(scale.learned) or 'none'}."
+                f"{scale.max_steps} steps (seed 0"
+                + ("" if scenes is None else f", in the test split of {len(scenes.files)} mesh file(s): {args.scenes}")
+                + f"); learned: {', '.join(scale.learned) or 'none'}."
             ),
         ],
         columns=COLUMNS,

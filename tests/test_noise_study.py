@@ -217,3 +217,21 @@ def test_the_growth_figure_shows_the_error_itself_under_the_growth_in_the_same_c
         assert len(fig.axes) == 3 and all("mean abs. error" in ax.get_ylabel() for ax in fig.axes)
     finally:
         plt.close(fig)
+
+
+def test_noise_robustness_runs_in_mesh_files_keyed_by_their_digests(tmp_path):
+    """--scenes: every unit's key holds the files' digests (not their paths), the report says where."""
+    import json
+
+    from odolab.sim.mesh_scenes import export_scene, read_mesh
+    from odolab.sim.scenes import generate_scene, scene_seed
+
+    room = export_scene(generate_scene(scene_seed("test", 1)), tmp_path / "room.glb")
+    out = tmp_path / "n"
+    assert (
+        study("noise-robustness", ["--scale", "ci", "--out", str(out), "--serial", "--quiet", "--scenes", str(room)])
+        == 0
+    )
+    keys = [json.loads(p.read_text())["key"] for p in (out / "results").glob("*.json")]
+    assert keys and all(k["scenes"]["digests"] == [read_mesh(room).digest] for k in keys)
+    assert str(tmp_path) not in json.dumps(keys) and "mesh file(s)" in (out / "index.html").read_text()

@@ -6,7 +6,7 @@
 Every study that computes units (``e-table``, ``ablations``, ``kitti-style``, ``noise-robustness``,
 ``turns-by-depth``) takes the same options (:func:`add_study_options`: ``--scale``, ``--out``,
 ``--ray-address``, ``--serial``, ``--redraw``, ``--quiet``), the ablations also ``--rows``, the
-e-table also ``--scenes`` (mesh files); the
+e-table and noise-robustness also ``--scenes`` (mesh files: their test split); the
 probes and the index take their own. Each study module holds a ``run(args)`` that does the work;
 ``args.command`` is the command as typed, for its report. Mistakes are one line and exit code 2.
 """
@@ -199,7 +199,7 @@ OPTIONS: dict[str, Callable[[ArgumentParser, object], None]] = {
     "e-table": _with_scenes,
     "ablations": _ablations,
     "kitti-style": _computing,
-    "noise-robustness": _computing,
+    "noise-robustness": _with_scenes,
     "turns-by-depth": _computing,
     "reports-index": _reports_index,
     "robust-vo-scaling": _scaling,
