@@ -245,3 +245,27 @@ def test_training_data_runs_in_a_mesh_file_and_its_folder_keeps_to_those_scenes(
         SceneFiles.recorded({"digests": ["../x"], "up": "y", "unit": 1.0}, "m.json")
     with pytest.raises(MeshError, match="known by their digests only"):
         data.scenes.scene(0)
+
+
+@pytest.mark.parametrize("parallel", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_a_mesh_file_changed_after_it_was_read_is_one_line(tmp_path, scene, capsys, monkeypatch, parallel):
+    """compare --scenes: the file changes between its reading and its episodes (in this process or
+    in a Ray task): one line naming it, as a serial run says it."""
+    from odolab.cli import compare
+    from odolab.sim import mesh_scenes
+    from tests.helpers import refused
+
+    room = export_scene(scene, tmp_path / "room.ply", up="z")
+    read = compare.scenes_of
+
+    def then_changed(args, argv):
+        files = read(args, argv)
+        export_scene(generate_scene(scene_seed("test", 2)), room, up="z")  # another scene in its place
+        mesh_scenes._mesh_scene_of.cache_clear()
+        return files
+
+    monkeypatch.setattr(compare, "scenes_of", then_changed)
+    argv = ["--scenes", str(room), "--scene-up", "z", "--odometers", "ground-truth", "--episodes", "2"]
+    argv += ["--max-steps", "5", "--no-cache", "--quiet", "--out", str(tmp_path / "o")]
+    line = refused(capsys, "compare", argv if parallel else [*argv, "--serial"])
+    assert "room.ply: changed since the episodes were specified" in line and "ray::" not in line

@@ -282,3 +282,23 @@ def test_associate_edge_cases():
     assert [len(a) for a in associate(np.zeros(0), np.arange(3.0))] == [0, 0]
     with pytest.raises(ValueError):
         associate(np.array([2.0, 1.0]), np.arange(3.0))
+
+
+def test_a_quaternion_of_huge_or_tiny_components_is_normalised_or_named(tmp_path):
+    """(1e308, 1e308, 0, 1) normalises without overflow to a 90-degree turn about x + y; one of
+    5e-324 is named as too near zero, not as all zeros."""
+    import numpy as np
+    import pytest
+
+    from odolab.io.errors import FileFormatError
+    from odolab.io.tum import read_tum_trajectory
+
+    huge = tmp_path / "huge.txt"
+    huge.write_text("0 0 0 0 1e308 1e308 0 1\n")
+    with np.errstate(over="raise", invalid="raise"):
+        R = read_tum_trajectory(huge).poses[0, :3, :3]
+    assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.trace(R), -1.0)  # a half turn about (1, 1, 0)
+    tiny = tmp_path / "tiny.txt"
+    tiny.write_text("0 0 0 0 5e-324 0 0 0\n")
+    with pytest.raises(FileFormatError, match=r"tiny.txt, line 1: quaternion \(4.94066e-324 0 0 0\) too near zero"):
+        read_tum_trajectory(tiny)

@@ -148,7 +148,7 @@ def scenes_of(args: argparse.Namespace, argv: Sequence[str] | None):
                 f"{given[0]} is for --scenes (mesh files); without it the episodes run in procedural scenes"
             )
         return None
-    if getattr(args, "scene_family", "boxes") != "boxes":
+    if given_options(argv, ["--scene-family"]):
         raise UsageError(f"--scene-family {args.scene_family} is for procedural scenes; --scenes runs mesh files")
     from odolab.sim.mesh_scenes import MeshError, scene_files
 

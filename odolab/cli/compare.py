@@ -49,6 +49,7 @@ from odolab.reporting.pipeline import (
     tum_sequences,
 )
 from odolab.sim.episodes import MAX_EPISODE_STEPS, NoiseConfig
+from odolab.sim.mesh_scenes import MeshError
 from odolab.sim.scenes import SPLITS
 
 #: Documented ranges of the numeric options (enforced with one line by odolab.cli.args.number).
@@ -336,6 +337,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         except ComparisonError as exc:
             raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
+        except MeshError as exc:  # a mesh file changed since it was read
+            raise UsageError(f"--scenes {exc}") from None
         for warning in result.warnings:
             print(f"note: {warning}", file=sys.stderr)
         print(result.title)  # the table first: nothing that follows can lose it

@@ -222,6 +222,18 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
     return True
 
 
+def _value(ray, ref) -> Any:
+    """``ray.get(ref)``; a task's ``ValueError`` or ``OSError`` (bad input met in the task, such as
+    a mesh file changed meanwhile) raised as itself, as in this process, not wrapped in Ray's
+    traceback."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as exc:
+        if isinstance(exc.cause, (ValueError, OSError)):
+            raise exc.cause from None
+        raise
+
+
 def fan_out(
     fn: Callable[[Any], Any],
     items: Sequence[Any],
@@ -281,7 +293,7 @@ def fan_out(
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:
-                    done(pending.pop(ref), ray.get(ref))
+                    done(pending.pop(ref), _value(ray, ref))
         finally:
             if started:  # a local instance's daemons would otherwise slow the timed work that follows
                 ray.shutdown()

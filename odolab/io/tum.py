@@ -111,12 +111,25 @@ def read_tum_file(path: str | os.PathLike) -> tuple[Trajectory, int]:
         )
     keep = np.concatenate([[True], steps > 0])
     rows, line_nos = rows[keep], line_nos[keep]
-    norms = np.linalg.norm(rows[:, 4:8], axis=1)
+    # a quaternion with a component beyond 1e100 is divided by its largest one first (one of 1e308
+    # then normalises without overflow); the others are read as they are
+    quats = rows[:, 4:8].copy()
+    largest = np.abs(quats).max(axis=1, keepdims=True)
+    np.divide(quats, largest, out=quats, where=largest > 1e100)
+    norms = np.linalg.norm(quats, axis=1)
     zero = np.flatnonzero(norms < _ZERO_QUAT)
     if zero.size:
-        raise FileFormatError(path, int(line_nos[zero[0]]), "zero quaternion (qx qy qz qw all 0)")
+        q = rows[zero[0], 4:8]
+        said = (
+            "zero quaternion (qx qy qz qw all 0)"
+            if not np.any(q)
+            else (
+                f"quaternion ({' '.join(f'{v:g}' for v in q)}) too near zero to normalise (norm below {_ZERO_QUAT:g})"
+            )
+        )
+        raise FileFormatError(path, int(line_nos[zero[0]]), said)
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
-    poses[:, :3, :3] = quaternion_to_matrix(rows[:, 4:8])
+    poses[:, :3, :3] = quaternion_to_matrix(quats)
     poses[:, :3, 3] = rows[:, 1:4]
     return Trajectory(rows[:, 0].copy(), poses), int((~keep).sum())
 

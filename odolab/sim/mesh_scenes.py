@@ -143,12 +143,14 @@ def file_digest(path: str | os.PathLike, up: Literal["y", "z"] = "y", unit: floa
         raise MeshError(f"{path}: up: expected 'y' or 'z', got {up!r}")
     if not (np.isfinite(unit) and 1e-6 <= unit <= 1e6):
         raise MeshError(f"{path}: unit: expected metres per file unit in [1e-06, 1e+06], got {unit!r}")
+    if not path.exists():
+        raise MeshError(f"{path}: no such file or folder")
     if path.suffix.lower() not in SUFFIXES:
         raise MeshError(
             f"{path}: unknown mesh type {path.suffix or '(no extension)'!r}; expected {', '.join(SUFFIXES)}"
         )
     if not path.is_file():
-        raise MeshError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
+        raise MeshError(f"{path}: not a regular file")
     size = path.stat().st_size
     if size > MAX_FILE_BYTES:
         raise MeshError(f"{path}: {size / 1024**3:.1f} GB, above the {MAX_FILE_BYTES / 1024**3:.0f} GB a scene may be")
