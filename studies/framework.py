@@ -481,7 +481,15 @@ def require_results(outcome: Outcome, out: Path, scale: str) -> None:
     from odolab.cli import UsageError
 
     if not outcome.results:
-        raise UsageError(f"--redraw: no saved results in {out / 'results'} for --scale {scale}; run without --redraw")
+        raise UsageError(
+            f"--redraw: no saved results in {out / 'results'} for --scale {scale}"
+            + (
+                " (its results were saved with other settings: another --scale, or --scenes for those of mesh files)"
+                if any((out / "results").glob("*.json"))
+                else ""
+            )
+            + "; run without --redraw"
+        )
 
 
 def say_done(outcome: Outcome, rows: int, out: Path) -> None:
