@@ -692,7 +692,7 @@ def mesh_scenes(args: Any, default_out: str):
 def scene_key(scenes) -> dict[str, Any]:
     """What a unit's result depends on of mesh ``scenes`` (their digests and reading settings; {}
     for none), for its key."""
-    return {} if scenes is None else {"scenes": {"digests": list(scenes.digests), "up": scenes.up, "unit": scenes.unit}}
+    return {} if scenes is None else {"scenes": scenes.identity()}
 
 
 def scene_inputs(scenes) -> dict[str, Any]:

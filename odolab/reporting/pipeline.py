@@ -327,7 +327,7 @@ def _run_unit(unit: _Unit) -> tuple[SequenceResult, dict]:
     scene seed and goal."""
     from odolab.sim.episodes import EpisodeCache, load_episodes
 
-    odometer = load_odometers([unit.name], {unit.name: unit.options} if unit.options else None)[unit.name]
+    odometer = load_odometers([unit.name], {unit.name: unit.options})[unit.name]
     (episode,) = load_episodes([unit.spec], EpisodeCache(unit.cache), execution=SERIAL)
     (result,) = runner.run({unit.name: odometer}, [episode], step_timeout=unit.step_timeout)
     return result, {k: episode.info.get(k) for k in ("scene_seed", "goal")}

@@ -111,7 +111,8 @@ class Renderer:
         self._rc = o3d.t.geometry.RaycastingScene(nthreads=nthreads)
         self._rc.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
 
-        axis = np.argmax(np.abs(_normals(scene)), axis=1)
+        normals = _normals(scene)
+        axis = np.argmax(np.abs(normals), axis=1)
         self._tri_axis = np.append(axis, 2).astype(np.int8)  # dominant normal axis: the texture plane
         rgb = shaded_colours(scene)
         # (3, F + 1) 8-bit colour x shading, and each triangle's tile; the last entry is for misses
@@ -137,7 +138,7 @@ class Renderer:
         tilt = np.round(0.5 * np.log2(norm / np.maximum(np.abs(self._dirs_cam[:, 1]), 1e-3)) + np.log2(norm))
         self._floor_bias = (np.clip(tilt, 0, self._levels - 1) * self._level_stride).astype(np.int32)
         self._look = None if scene.appearance is None else _MeshLook(scene.appearance)
-        self._lights = None if scene.lights is None else _PointLights(scene.lights, _normals(scene))
+        self._lights = None if scene.lights is None else _PointLights(scene.lights, normals)
         self._rays = _aligned_empty((self._dirs_cam.shape[0], 6))
         self._dirs_world = np.empty((3, self._dirs_cam.shape[0]), np.float32)  # rays' directions, by axis
 
