@@ -52,6 +52,7 @@ from odolab.core.errors import InputError
 from odolab.io.tomlfile import read_toml as read_toml_document
 
 __all__ = [
+    "SEED_RANGE",
     "ChangeError",
     "ConfigError",
     "Setting",
@@ -79,6 +80,9 @@ MAX_BASE_CHAIN = 16
 MAX_TABLE_DEPTH = 32
 #: Longest ``key=value`` value read as a number: no setting needs 40 digits (Python refuses 4300).
 MAX_NUMBER_CHARS = 40
+
+#: The range of every seed setting: seeds feed numpy's SeedSequence; 2^32 - 1 keeps them portable.
+SEED_RANGE = (0, 2**32 - 1)
 
 _RANGE, _OPEN, _DOC, _LIST = "odolab.range", "odolab.open", "odolab.doc", "odolab.list"
 

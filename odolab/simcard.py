@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from odolab.config import SEED_RANGE, check, setting
 from odolab.core.parallel import Execution, fan_out
 
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
@@ -356,34 +357,46 @@ def write_card(out: Path, motion: dict, images: ImageStats, samples: list[tuple]
     folder.finish()
 
 
+@dataclass(frozen=True)
+class CardConfig:
+    """What the card measures: ``episodes`` rollouts of at most ``max_steps`` steps for the motion
+    statistics and ``rendered`` episodes of ``frames`` frames for the image statistics, of ``split``
+    from ``seed``."""
+
+    split: str = setting("train", doc="scene split")
+    episodes: int = setting(400, range=(1, 100_000), doc="rollouts for the motion statistics")
+    rendered: int = setting(24, range=(1, 1000), doc="episodes rendered for the image statistics")
+    frames: int = setting(30, range=(1, 500), doc="frames per rendered episode")
+    max_steps: int = setting(500, range=(1, 2000), doc="steps per episode")
+    seed: int = setting(0, range=SEED_RANGE, doc="episode seed")
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
 def measure(
-    split: str,
-    episodes: int,
-    rendered: int,
-    frames: int,
-    max_steps: int,
-    seed: int,
+    config: CardConfig,
     *,
     family: str = "boxes",
     scenes=None,
     execution: Execution = Execution(),
 ) -> tuple[dict, ImageStats, list[tuple]]:
-    """The card's numbers: the motion summary of ``episodes`` rollouts, the image statistics of
-    ``rendered`` episodes of ``frames`` frames, and the sample frames of the first four (for the
-    contact sheet), in procedural scenes of ``family`` or in mesh ``scenes``
+    """The card's numbers (:class:`CardConfig`): the motion summary of the rollouts, the image
+    statistics of the rendered episodes, and the sample frames of the first four (for the contact
+    sheet), in procedural scenes of ``family`` or in mesh ``scenes``
     (:class:`odolab.sim.mesh_scenes.SceneFiles`); as Ray tasks (:func:`odolab.core.parallel.fan_out`)
     unless ``execution.parallel`` is False."""
     from odolab.sim.episodes import EpisodeSpec
 
     def spec(i: int, steps: int) -> EpisodeSpec:
-        return EpisodeSpec(split=split, index=i, seed=seed, max_steps=steps, family=family, scenes=scenes)
+        return EpisodeSpec(split=config.split, index=i, seed=config.seed, max_steps=steps, family=family, scenes=scenes)
 
-    specs = [spec(i, max_steps) for i in range(episodes)]
+    specs = [spec(i, config.max_steps) for i in range(config.episodes)]
     motion = summarize_motion(fan_out(motion_stats, specs, desc="rollouts", execution=execution))
-    shown = [spec(i, frames) for i in range(rendered)]
+    shown = [spec(i, config.frames) for i in range(config.rendered)]
     parts = fan_out(
         _render_part,
-        [(s, frames, 1 if i < 4 else 0) for i, s in enumerate(shown)],
+        [(s, config.frames, 1 if i < 4 else 0) for i, s in enumerate(shown)],
         desc="rendered episodes",
         execution=execution,
     )

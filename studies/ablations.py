@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from odolab.config import check, setting
-from odolab.sim.episodes import MAX_EPISODE_STEPS
+from odolab.sim.scenes import MAX_EPISODE_STEPS
 from studies import framework
 
 if TYPE_CHECKING:

@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 from odolab.config import check, setting
-from odolab.sim.episodes import MAX_EPISODE_STEPS
 from odolab.sim.free_scenes import FAMILIES
 from odolab.sim.mesh_scenes import SceneFiles
+from odolab.sim.scenes import MAX_EPISODE_STEPS
 from studies import framework
 
 COMPONENTS = ("dx", "dz", "dyaw")

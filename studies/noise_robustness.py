@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from odolab.config import check, setting
-from odolab.sim.episodes import MAX_EPISODE_STEPS
+from odolab.sim.scenes import MAX_EPISODE_STEPS
 from studies import framework
 
 COMPONENTS = ("dx", "dz", "dyaw")

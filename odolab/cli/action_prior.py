@@ -7,16 +7,14 @@ import json
 from collections.abc import Sequence
 
 from odolab.cli.args import (
-    MAX_SEED,
     ArgumentParser,
     UsageError,
+    add_setting,
     check_output_file,
     check_replaceable,
     exit_process,
     file_arg,
-    number,
     run_cli,
-    seed,
 )
 from odolab.odometry import action_prior
 from odolab.reporting.report import counted
@@ -26,13 +24,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.io.atomic import write_text_atomic
 
     ap = ArgumentParser(prog="python -m odolab.action_prior", description=action_prior.__doc__.split("\n")[0])
-    ap.add_argument(
-        "--episodes", type=number("--episodes", int, 1, 100_000), default=400, help="train episodes, 1-100000 (400)"
-    )
-    ap.add_argument(
-        "--max-steps", type=number("--max-steps", int, 1, 2000), default=500, help="steps each, 1-2000 (500)"
-    )
-    ap.add_argument("--seed", type=seed(), default=0, help=f"seed, 0-{MAX_SEED} (0)")
+    for option in ("--episodes", "--max-steps", "--seed"):
+        add_setting(ap, option, action_prior.PriorFit, option[2:].replace("-", "_"))
     ap.add_argument("--out", type=file_arg("--out"), default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
     if args.out is not None:

@@ -23,11 +23,12 @@ from pathlib import Path
 from typing import NoReturn
 
 from odolab.cli.help_text import PlainHelp
+from odolab.config import SEED_RANGE
 from odolab.core.parallel import Execution
 from odolab.io.lock import FolderLock
 
-#: Largest accepted seed (seeds feed numpy's SeedSequence; 2^32 - 1 keeps them portable).
-MAX_SEED = 2**32 - 1
+#: Largest accepted seed (:data:`odolab.config.SEED_RANGE`).
+MAX_SEED = SEED_RANGE[1]
 
 
 class UsageError(Exception):
@@ -104,6 +105,34 @@ def setting_help(cls: type, field: str, default: object = None) -> str:
     row = next(s for s in describe(cls) if s.name == field)
     shown = row.value if default is None else default
     return f"{row.doc}, {row.range} (default {f'{shown:g}' if isinstance(shown, float) else shown})"
+
+
+_OWN_DEFAULT = object()
+
+
+def add_setting(
+    ap: argparse.ArgumentParser,
+    option: str,
+    cls: type,
+    field: str,
+    *,
+    default: object = _OWN_DEFAULT,
+    metavar: str | None = None,
+) -> None:
+    """Add ``option`` for config field ``field`` of ``cls`` (an :func:`odolab.config.setting` with a
+    range): its type, range, help and default (the field's own unless ``default`` is given) all come
+    from the field, so the option and the library take the same values."""
+    from odolab.config import describe
+
+    if default is _OWN_DEFAULT:
+        default = next(s.value for s in describe(cls) if s.name == field)
+    ap.add_argument(
+        option,
+        type=setting_type(option, cls, field),
+        default=default,
+        metavar=metavar,
+        help=setting_help(cls, field, default),
+    )
 
 
 def add_scene_options(ap: argparse.ArgumentParser, family: bool = True) -> None:

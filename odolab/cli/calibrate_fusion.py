@@ -13,11 +13,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from odolab.api import EpisodeSpec, load_episodes
+from odolab.api import load_episodes
 from odolab.cli.args import (
-    MAX_SEED,
     ArgumentParser,
     UsageError,
+    add_setting,
     check_cache_dir,
     check_output_file,
     check_ray_option,
@@ -25,17 +25,15 @@ from odolab.cli.args import (
     exit_process,
     file_arg,
     given_options,
-    number,
     path_arg,
     run_cli,
 )
 from odolab.core.progress import StepProgressBar
 from odolab.core.types import MOTION_ACTIONS
 from odolab.fusion import calibrate
-from odolab.fusion.calibrate import check_input, near_views, steps_of
+from odolab.fusion.calibrate import CalibrationRun, check_input, near_views, steps_of
 from odolab.fusion.calibration import (
     COMMAND,
-    MAX_NEAR_DEPTH,
     MIN_STEPS,
     NEAR,
     Calibration,
@@ -46,7 +44,7 @@ from odolab.fusion.odometer import is_fused
 from odolab.odometry.odometer import OdometerListError, parse_odometer_list, standalone_odometers
 from odolab.reporting.pipeline import DEFAULT_CACHE, ComparisonError, load_odometers, odometer_names
 from odolab.running.runner import run as run_odometers
-from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeCache
+from odolab.sim.episodes import EpisodeCache
 from odolab.sim.scenes import SPLITS
 
 #: Fewest steps (--episodes x --max-steps) worth calibrating on.
@@ -70,21 +68,10 @@ def build_parser() -> ArgumentParser:
         default=Path("runs/fusion/calibration.json"),
         help="calibration file to write (default %(default)s; its folder is created)",
     )
-    ap.add_argument(
-        "--near-depth",
-        type=number("--near-depth", float, 0.0, MAX_NEAR_DEPTH),
-        default=1.0,
-        help="views whose median depth is below this many metres get their own entries (default %(default)s; 0: none)",
-    )
+    add_setting(ap, "--near-depth", CalibrationRun, "near_depth")
     ap.add_argument("--split", default="val", help=f"{' | '.join(SPLITS)} (default val)")
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=20)
-    ap.add_argument(
-        "--max-steps",
-        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
-        default=100,
-        help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 100)",
-    )
-    ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
+    for option in ("--episodes", "--max-steps", "--seed"):
+        add_setting(ap, option, CalibrationRun, option[2:].replace("-", "_"))
     ap.add_argument(
         "--cache", type=path_arg("--cache"), default=DEFAULT_CACHE, help=f"episode cache (default {DEFAULT_CACHE})"
     )
@@ -116,9 +103,7 @@ def run(args) -> int:
         odometers = load_odometers(names)
     except ComparisonError as exc:
         raise UsageError(str(exc)) from None
-    specs = [
-        EpisodeSpec(split=args.split, index=i, seed=args.seed, max_steps=args.max_steps) for i in range(args.episodes)
-    ]
+    specs = CalibrationRun(args.near_depth, args.episodes, args.max_steps, args.seed).specs(args.split)
     episodes = load_episodes(specs, EpisodeCache(args.cache), execution=execution_of(args))
     results = run_odometers(odometers, episodes, observer=StepProgressBar(disable=args.quiet))
     near = near_views(episodes, calibration.near_depth if calibration is not None else args.near_depth)

@@ -14,10 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from odolab.cli.args import (
-    MAX_SEED,
     ArgumentParser,
     UsageError,
     add_scene_options,
+    add_setting,
     check_cache_dir,
     check_ray_option,
     check_report_dir,
@@ -25,13 +25,11 @@ from odolab.cli.args import (
     exit_process,
     given_options,
     hold_folder,
-    number,
     path_arg,
     pinhole,
     run_cli,
     scene_words,
     scenes_of,
-    seed,
     setting_help,
     setting_type,
 )
@@ -48,14 +46,10 @@ from odolab.reporting.pipeline import (
     run_comparison,
     tum_sequences,
 )
-from odolab.sim.episodes import MAX_EPISODE_STEPS, NoiseConfig
+from odolab.sim.episodes import NoiseConfig
 from odolab.sim.mesh_scenes import MeshError
 from odolab.sim.scenes import SPLITS
 
-#: Documented ranges of the numeric options (enforced with one line by odolab.cli.args.number).
-MAX_EPISODES = 1000
-#: --depth-scale: PNG values per metre, from metres to micrometres (odolab.io.tum_rgbd.DEPTH_SCALE_RANGE).
-DEPTH_SCALE_RANGE = (1.0, 1e6)
 #: Options that choose simulator episodes; with --tum they would be silently meaningless.
 SIMULATOR_OPTIONS = (
     "--episodes",
@@ -99,28 +93,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="comma-separated names, module:Class or path/to/file.py:Class, or fused(a,b,...) of "
         f"several (default: all of {_EVERY})",
     )
-    ap.add_argument(
-        "--episodes",
-        type=number("--episodes", int, 1, MAX_EPISODES),
-        default=5,
-        help=f"number of episodes, 1-{MAX_EPISODES} (default 5)",
-    )
-    ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
+    add_setting(ap, "--episodes", ComparisonConfig, "episodes")
+    add_setting(ap, "--seed", ComparisonConfig, "seed")
     ap.add_argument("--split", default="test", help=f"scene split: {' | '.join(SPLITS)} (default test)")
     add_scene_options(ap)
-    ap.add_argument(
-        "--max-steps",
-        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
-        default=60,
-        help=f"steps per episode, 1-{MAX_EPISODE_STEPS} (default 60)",
-    )
-    ap.add_argument(
-        "--step-timeout",
-        type=number("--step-timeout", float, 0.001, 86400.0),
-        default=60.0,
-        help="seconds one step of an odometer may take before it fails as timed-out; after 3 such steps the "
-        "odometer is stopped for the sequence (default 60)",
-    )
+    add_setting(ap, "--max-steps", ComparisonConfig, "max_steps")
+    add_setting(ap, "--step-timeout", ComparisonConfig, "step_timeout")
     for kind in ("rgb", "depth", "actuation"):
         ap.add_argument(
             f"--{kind}-noise",
@@ -143,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument(
         "--depth-scale",
-        type=number("--depth-scale", float, *DEPTH_SCALE_RANGE),
+        type=setting_type("--depth-scale", ComparisonConfig, "tum_depth_scale"),
         default=None,
         metavar="S",
         help="--tum: depth PNG values per metre (default TUM's 5000; millimetres: 1000)",

@@ -18,16 +18,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from odolab.cli.args import (
-    MAX_SEED,
     ArgumentParser,
     UsageError,
     add_scene_options,
+    add_setting,
     check_ray_option,
     check_report_dir,
     execution_of,
     exit_process,
     hold_folder,
-    number,
     path_arg,
     run_cli,
     scenes_of,
@@ -48,7 +47,7 @@ SETTING_OPTIONS = {
 def main(argv: Sequence[str] | None = None) -> int:
     from odolab.config import describe
     from odolab.navigation.agent import PolicyConfig, PolicyError
-    from odolab.navigation.study import NavTask
+    from odolab.navigation.study import NavEpisodes, NavTask
     from odolab.odometry.odometer import REGISTRY, OdometerListError, parse_odometer_list
     from odolab.odometry.options import (
         OptionError,
@@ -59,7 +58,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         without_defaults,
     )
     from odolab.reporting.pipeline import ComparisonError, load_odometers
-    from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig
+    from odolab.sim.episodes import NoiseConfig
 
     ap = ArgumentParser(prog="python -m odolab.navigate", description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument(
@@ -67,16 +66,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         default="ground-truth,action-prior",
         help="comma-separated odometers, fused(a,b) included (default: %(default)s)",
     )
-    ap.add_argument("--episodes", type=number("--episodes", int, 1, 10_000), default=10, help="episodes (default 10)")
-    ap.add_argument("--seed", type=number("--seed", int, 0, MAX_SEED), default=0)
+    add_setting(ap, "--episodes", NavEpisodes, "episodes")
+    add_setting(ap, "--seed", NavEpisodes, "seed")
     ap.add_argument("--split", default="test", help=f"{' | '.join(SPLITS)} (default test)")
     add_scene_options(ap)
-    ap.add_argument(
-        "--max-steps",
-        type=number("--max-steps", int, 1, MAX_EPISODE_STEPS),
-        default=MAX_EPISODE_STEPS,
-        help=f"actions per episode at most, 1-{MAX_EPISODE_STEPS} (default {MAX_EPISODE_STEPS}, the Challenge's)",
-    )
+    add_setting(ap, "--max-steps", NavEpisodes, "max_steps")
     ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
     ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
     ap.add_argument(
@@ -120,18 +114,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
     options = {n: without_defaults(REGISTRY.resolve(n), o) for n, o in options.items()}  # a named default is no change
     noise, scenes = NoiseConfig(), scenes_of(args, argv)
-    specs = [
-        EpisodeSpec(
-            split=args.split,
-            index=i,
-            seed=args.seed,
-            max_steps=args.max_steps,
-            noise=noise,
-            scenes=scenes,
-            family=args.scene_family,
-        )
-        for i in range(args.episodes)
-    ]
+    chosen = NavEpisodes(args.episodes, args.seed, args.max_steps)
+    specs = chosen.specs(args.split, noise=noise, scenes=scenes, family=args.scene_family)
     tasks = [NavTask(n, options.get(n, {}), s, policy, loaded[n].identity_digest) for n in names for s in specs]
     check_report_dir(args.out, "--out", manifest="config.json")  # another's files, links, pipes: refused now
     with hold_folder(args.out, "--out"):  # a second run into --out is refused until this one has written

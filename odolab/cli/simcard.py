@@ -9,52 +9,27 @@ from pathlib import Path
 
 from odolab import simcard
 from odolab.cli.args import (
-    MAX_SEED,
     ArgumentParser,
     UsageError,
     add_scene_options,
+    add_setting,
     check_ray_option,
     check_report_dir,
     execution_of,
     exit_process,
     hold_folder,
-    number,
     path_arg,
     run_cli,
     scene_words,
     scenes_of,
-    seed,
 )
 
 
 def build_parser() -> ArgumentParser:
     ap = ArgumentParser(prog="python -m odolab.simcard", description=simcard.__doc__.splitlines()[0])
     ap.add_argument("--split", default="train", choices=["train", "val", "test"], help="scene split (default train)")
-    ap.add_argument(
-        "--episodes",
-        type=number("--episodes", int, 1, 100_000),
-        default=400,
-        help="rollouts for the motion statistics, 1-100000 (default 400)",
-    )
-    ap.add_argument(
-        "--rendered",
-        type=number("--rendered", int, 1, 1000),
-        default=24,
-        help="episodes rendered for the image statistics, 1-1000 (default 24)",
-    )
-    ap.add_argument(
-        "--frames",
-        type=number("--frames", int, 1, 500),
-        default=30,
-        help="frames per rendered episode, 1-500 (default 30)",
-    )
-    ap.add_argument(
-        "--max-steps",
-        type=number("--max-steps", int, 1, 2000),
-        default=500,
-        help="steps per episode, 1-2000 (default 500)",
-    )
-    ap.add_argument("--seed", type=seed(), default=0, help=f"episode seed, 0-{MAX_SEED} (default 0)")
+    for option in ("--episodes", "--rendered", "--frames", "--max-steps", "--seed"):
+        add_setting(ap, option, simcard.CardConfig, option[2:].replace("-", "_"))
     add_scene_options(ap)
     ap.add_argument(
         "--out", type=path_arg("--out"), default=Path("runs/simcard"), help="output folder (default runs/simcard)"
@@ -89,13 +64,9 @@ def _run(args: argparse.Namespace, scenes) -> int:
         source = default_table().source  # a bad ODOLAB_REDWOOD_TABLE is one line, before any work
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    config = simcard.CardConfig(args.split, args.episodes, args.rendered, args.frames, args.max_steps, args.seed)
     motion, images, samples = simcard.measure(
-        args.split,
-        args.episodes,
-        args.rendered,
-        args.frames,
-        args.max_steps,
-        args.seed,
+        config,
         family=args.scene_family,
         scenes=scenes,
         execution=execution_of(args),

@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from odolab.cli.args import (
+    MAX_SEED,
     ArgumentParser,
     UsageError,
     exit_process,
@@ -187,7 +188,7 @@ def _precision_check(ap: ArgumentParser, module) -> None:
     )
     ap.add_argument(
         "--seeds",
-        type=number("--seeds", int, 0, 2**32 - 1),
+        type=number("--seeds", int, 0, MAX_SEED),
         nargs="+",
         default=[0, 1],
         help="at least two seeds (default 0 1)",

@@ -24,6 +24,7 @@ from typing import Any
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
+    add_setting,
     check_folder_path,
     check_not_nested,
     check_output_dir,
@@ -33,11 +34,12 @@ from odolab.cli.args import (
     exit_process,
     file_arg,
     folder_owner,
-    number,
     path_arg,
     run_cli,
+    setting_help,
+    setting_type,
 )
-from odolab.config import ChangeError
+from odolab.config import ChangeError, check, setting
 from odolab.core.parallel import Execution
 
 __all__ = [
@@ -78,11 +80,29 @@ class TrainingJob:
     work: Path
     reports: Path
     export: Path
-    hours: float | None
     execution: Execution
     command: str
-    workers: int = 1
-    gpus_per_worker: float = 0.0
+    hours: float | None = setting(
+        None, range=(0.001, 1000.0), doc="stop before an epoch that would start after this many hours (rerun to resume)"
+    )
+    workers: int = setting(
+        1,
+        range=(1, 1024),
+        doc="data-parallel training workers on Ray Train, each taking a share of every batch (1: in this "
+        "process, without Ray)",
+    )
+    gpus_per_worker: float = setting(
+        0.0, range=(0.0, 64.0), doc="GPUs per training worker with --workers (0: CPU workers, gloo)"
+    )
+    threads: int | None = setting(None, range=(1, 1024), doc="torch CPU threads (default: torch's choice, all cores)")
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
+def _doc(field: str) -> str:
+    """``--help`` text of an option with no default value: the field's description and range."""
+    return setting_help(TrainingJob, field).rsplit(" (default", 1)[0]
 
 
 def training_parser(prog: str, description: str, family: str, set_example: str = "seed=1") -> ArgumentParser:
@@ -116,37 +136,18 @@ def training_parser(prog: str, description: str, family: str, set_example: str =
         default=None,
         help="the trained model, written when every epoch is done (default <work>/model.pt)",
     )
-    ap.add_argument(
-        "--hours",
-        type=number("--hours", float, 0.001, 1000.0),
-        default=None,
-        help="stop before an epoch that would start after this many hours (rerun to resume)",
-    )
+    ap.add_argument("--hours", type=setting_type("--hours", TrainingJob, "hours"), default=None, help=_doc("hours"))
     ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
     ap.add_argument(
-        "--threads",
-        type=number("--threads", int, 1, 1024),
-        default=None,
-        help="torch CPU threads (default: torch's choice, all cores)",
+        "--threads", type=setting_type("--threads", TrainingJob, "threads"), default=None, help=_doc("threads")
     )
     ap.add_argument(
         "--ray-address",
         default=None,
         help="Ray cluster for making the data and the training workers (default: a local instance)",
     )
-    ap.add_argument(
-        "--workers",
-        type=number("--workers", int, 1, 1024),
-        default=1,
-        help="data-parallel training workers on Ray Train, each taking a share of every batch "
-        "(default 1: in this process, without Ray)",
-    )
-    ap.add_argument(
-        "--gpus-per-worker",
-        type=number("--gpus-per-worker", float, 0.0, 64.0),
-        default=0.0,
-        help="GPUs per training worker with --workers (default 0: CPU workers, gloo)",
-    )
+    add_setting(ap, "--workers", TrainingJob, "workers")
+    add_setting(ap, "--gpus-per-worker", TrainingJob, "gpus_per_worker")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     ap.set_defaults(family=family)
     return ap
@@ -232,11 +233,12 @@ def parse_training_command(
         work,
         reports,
         export,
-        args.hours,
         Execution(ray_address=args.ray_address, progress=not args.quiet),
         " ".join([ap.prog, *argv]),
-        args.workers,
-        args.gpus_per_worker,
+        hours=args.hours,
+        workers=args.workers,
+        gpus_per_worker=args.gpus_per_worker,
+        threads=args.threads,
     )
 
 

@@ -23,10 +23,38 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from odolab.config import SEED_RANGE, check, setting
 from odolab.core.types import MOTION_ACTIONS, Action
-from odolab.fusion.calibration import Calibration, debiased, ellipsoid_share, view_is_near
+from odolab.fusion.calibration import MAX_NEAR_DEPTH, Calibration, debiased, ellipsoid_share, view_is_near
 from odolab.fusion.graph import residual, right_covariance
 from odolab.running.runner import failure_reason
+from odolab.sim.episodes import EpisodeSpec
+from odolab.sim.scenes import MAX_EPISODE_STEPS
+
+
+@dataclass(frozen=True)
+class CalibrationRun:
+    """What a calibration is fitted on: the first ``episodes`` of a split from ``seed``, at most
+    ``max_steps`` steps each, steps whose previous view's median depth is below ``near_depth`` (m)
+    fitted apart (0: none)."""
+
+    near_depth: float = setting(
+        1.0,
+        range=(0.0, MAX_NEAR_DEPTH),
+        doc="views whose median depth is below this many metres get their own entries (0: none)",
+    )
+    episodes: int = setting(20, range=(1, 10_000), doc="episodes")
+    max_steps: int = setting(100, range=(1, MAX_EPISODE_STEPS), doc="steps per episode")
+    seed: int = setting(0, range=SEED_RANGE, doc="episode seed")
+
+    def __post_init__(self) -> None:
+        check(self)
+
+    def specs(self, split: str) -> list[EpisodeSpec]:
+        """The episodes of ``split``."""
+        return [
+            EpisodeSpec(split=split, index=i, seed=self.seed, max_steps=self.max_steps) for i in range(self.episodes)
+        ]
 
 
 def near_views(episodes, near_depth: float) -> dict[str, np.ndarray]:

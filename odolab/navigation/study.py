@@ -26,12 +26,14 @@ from typing import Any
 
 import numpy as np
 
+from odolab.config import SEED_RANGE, check, setting
 from odolab.core.parallel import Execution, fan_out
 from odolab.io.atomic import write_text_atomic
 from odolab.io.inputs import read_input_json
 from odolab.io.owned import check_owned_path, owned_path
 from odolab.navigation.agent import PolicyConfig
 from odolab.sim.episodes import EpisodeSpec
+from odolab.sim.scenes import MAX_EPISODE_STEPS
 
 
 @dataclass(frozen=True)
@@ -72,6 +74,28 @@ class RunFolderError(ValueError):
         return (
             f"{problem}; " + (f"to add to it, pass {match}; or " if match else "") + self.advice.format(folder=folder)
         )
+
+
+@dataclass(frozen=True)
+class NavEpisodes:
+    """Which episodes a navigation run drives: the first ``episodes`` of a split from ``seed``, at most
+    ``max_steps`` actions each."""
+
+    episodes: int = setting(10, range=(1, 10_000), doc="episodes")
+    seed: int = setting(0, range=SEED_RANGE, doc="episode seed")
+    max_steps: int = setting(
+        MAX_EPISODE_STEPS, range=(1, MAX_EPISODE_STEPS), doc="actions per episode at most (the Challenge's: 500)"
+    )
+
+    def __post_init__(self) -> None:
+        check(self)
+
+    def specs(self, split: str, **spec: Any) -> list[EpisodeSpec]:
+        """The episodes of ``split``; ``spec``: the other :class:`EpisodeSpec` fields (noise, scenes, family)."""
+        return [
+            EpisodeSpec(split=split, index=i, seed=self.seed, max_steps=self.max_steps, **spec)
+            for i in range(self.episodes)
+        ]
 
 
 @dataclass(frozen=True)

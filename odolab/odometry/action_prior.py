@@ -18,6 +18,7 @@ from importlib.resources import files
 
 import numpy as np
 
+from odolab.config import SEED_RANGE, check, setting
 from odolab.core.geometry import invert, transform_to_planar
 from odolab.core.types import MOTION_ACTIONS, Action
 from odolab.io.inputs import read_input_json
@@ -103,8 +104,23 @@ class ActionPrior:
         return cls.from_json(json.loads(text), origin=_SHIPPED)
 
 
+@dataclass(frozen=True)
+class PriorFit:
+    """What :func:`fit_action_prior` averages over: ``episodes`` train rollouts from ``seed``, at most
+    ``max_steps`` actions each (rollouts render nothing, so they may be longer than the Challenge's)."""
+
+    episodes: int = setting(400, range=(1, 100_000), doc="train episodes")
+    max_steps: int = setting(500, range=(1, 2000), doc="steps each")
+    seed: int = setting(0, range=SEED_RANGE, doc="seed")
+
+    def __post_init__(self) -> None:
+        check(self)
+
+
 def fit_action_prior(n_episodes: int = 400, max_steps: int = 500, seed: int = 0, noise=None) -> ActionPrior:
-    """Average the true per-step motion of each action over ``n_episodes`` train rollouts."""
+    """Average the true per-step motion of each action over ``n_episodes`` train rollouts (ranges:
+    :class:`PriorFit`)."""
+    PriorFit(n_episodes, max_steps, seed)  # ValueError for a number outside its range
     from odolab.sim.camera import CameraSpec
     from odolab.sim.episodes import EpisodeSpec, NoiseConfig, rollout
 

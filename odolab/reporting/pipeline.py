@@ -25,7 +25,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from odolab.config import SEED_RANGE, check, setting
 from odolab.core.parallel import SERIAL, Execution
+from odolab.io.tum_rgbd import DEPTH_SCALE_RANGE
 from odolab.odometry.odometer import (
     REGISTRY,
     IncompleteOdometerError,
@@ -42,7 +44,7 @@ from odolab.reporting.report import FloorPlan
 from odolab.running import paired, runner, summary
 from odolab.running.runner import RunObserver, SequenceResult
 from odolab.sim.mesh_scenes import SceneFiles
-from odolab.sim.scenes import SPLITS
+from odolab.sim.scenes import MAX_EPISODE_STEPS, SPLITS
 
 if TYPE_CHECKING:  # the simulator's modules load only when episodes are made
     from odolab.sim.episodes import EpisodeSpec, NoiseConfig
@@ -63,6 +65,9 @@ __all__ = [
 ]
 
 #: Where episodes are cached unless told otherwise.
+#: Most episodes one comparison runs: its tables are read by people, and a larger study is a study.
+MAX_EPISODES = 1000
+
 DEFAULT_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "odolab" / "episodes"
 
 
@@ -90,20 +95,31 @@ class ComparisonConfig:
 
     odometers: list[str] | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
-    episodes: int = 5
-    seed: int = 0
+    episodes: int = setting(5, range=(1, MAX_EPISODES), doc="number of episodes")
+    seed: int = setting(0, range=SEED_RANGE, doc="episode seed")
     split: str = "test"
-    max_steps: int = 60
+    max_steps: int = setting(60, range=(1, MAX_EPISODE_STEPS), doc="steps per episode")
     noise: NoiseConfig | None = None
     tum: Path | None = None
-    tum_depth_scale: float | None = None
+    tum_depth_scale: float | None = setting(None, range=DEPTH_SCALE_RANGE, doc="depth PNG values per metre")
     tum_intrinsics: tuple[float, float, float, float] | None = None
     cache: Path | None = DEFAULT_CACHE
     execution: Execution = Execution()
     command: str | None = None
-    step_timeout: float | None = runner.DEFAULT_STEP_TIMEOUT
+    step_timeout: float | None = setting(
+        runner.DEFAULT_STEP_TIMEOUT,
+        range=(0.001, 86400.0),
+        doc="seconds one step of an odometer may take before it fails as timed-out; after 3 such steps the "
+        "odometer is stopped for the sequence",
+    )
     scenes: SceneFiles | None = None
     family: str = "boxes"
+
+    def __post_init__(self) -> None:
+        try:
+            check(self)
+        except ValueError as exc:
+            raise ComparisonError(str(exc)) from None
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -25,7 +25,7 @@ from typing import Literal
 
 import numpy as np
 
-from odolab.config import check, setting
+from odolab.config import SEED_RANGE, check, setting
 from odolab.core.geometry import camera_pose_from_agent
 from odolab.core.parallel import Execution, fan_out
 from odolab.core.types import Action, Frame, Intrinsics
@@ -43,8 +43,6 @@ FORMAT_VERSION = 2  # the .npz layout (2: clean_depth_mm added)
 #: Bump whenever the simulator's output for a given spec changes (scenes, rendering, noise, motion,
 #: follower): it is part of every cache key, so stale cached episodes are never reused.
 SIMULATOR_VERSION = 4
-#: Actions per episode at most: the PointNav Challenge 2020's limit, and the command lines'.
-MAX_EPISODE_STEPS = 500
 #: What reading a damaged cache file raises (truncated zip, bad CRC, bad header, short read; an
 #: ``info`` that is not a JSON object, or is nested too deeply to read).
 _DAMAGE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, RecursionError, AttributeError)
@@ -71,7 +69,7 @@ class EpisodeSpec:
 
     split: str = setting("test", doc=f"the scene pool: one of {', '.join(SPLITS)}")
     index: int = setting(0, range=(0, 2**31 - 1), doc="the episode's number within (split, seed)")
-    seed: int = setting(0, range=(0, 2**32 - 1), doc="the episodes' seed")
+    seed: int = setting(0, range=SEED_RANGE, doc="the episodes' seed")
     max_steps: int = setting(100, range=(1, 100_000), doc="actions at most")
     min_goal_distance: float = setting(1.0, range=(0.0, 1000.0), doc="m, geodesic (habitat-lab's generator: 1-30 m)")
     max_goal_distance: float = setting(30.0, range=(0.0, 1000.0), doc="m, geodesic")

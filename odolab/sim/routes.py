@@ -27,9 +27,9 @@ from odolab.core.types import Action, Frame, Intrinsics
 from odolab.sim.agent import AgentState
 from odolab.sim.camera import CameraSpec
 from odolab.sim.environment import PointNavEnv, Sensors
-from odolab.sim.episodes import MAX_EPISODE_STEPS, SIMULATOR_VERSION, NoiseConfig
+from odolab.sim.episodes import SIMULATOR_VERSION, NoiseConfig
 from odolab.sim.noise import ActuationNoise
-from odolab.sim.scenes import SPLITS, Scene, generate_scene, scene_seed
+from odolab.sim.scenes import MAX_EPISODE_STEPS, SPLITS, Scene, generate_scene, scene_seed
 
 __all__ = ["Route", "RouteFrames", "RouteSpec", "route_scene", "tour"]
 

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 
 SPLITS = ("train", "val", "test")
+#: Actions per episode at most: the PointNav Challenge 2020's limit, and the command lines'.
+MAX_EPISODE_STEPS = 500
 _SPLIT_POOLS = {"train": (0, 1_000_000), "val": (1_000_000, 100), "test": (2_000_000, 100)}
 
 WALL_HEIGHT = 2.6  # m

@@ -48,17 +48,17 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from odolab.config import build, check, setting
+from odolab.config import SEED_RANGE, build, check, setting
 from odolab.core.geometry import invert, transform_to_planar
 from odolab.core.parallel import Execution, fan_out
 from odolab.core.types import MOTION_ACTIONS, Action, Intrinsics
 from odolab.io.atomic import atomic_open, write_bytes_atomic
 from odolab.io.npz_mmap import NpzRows
 from odolab.sim.camera import CameraSpec
-from odolab.sim.episodes import MAX_EPISODE_STEPS, EpisodeSpec, NoiseConfig, render_frames, rollout
+from odolab.sim.episodes import EpisodeSpec, NoiseConfig, render_frames, rollout
 from odolab.sim.free_scenes import FAMILIES
 from odolab.sim.mesh_scenes import SceneFiles
-from odolab.sim.scenes import SPLITS
+from odolab.sim.scenes import MAX_EPISODE_STEPS, SPLITS
 
 __all__ = [
     "DamagedShardError",
@@ -146,7 +146,7 @@ class DataConfig:
 
     split: str = setting("train", doc=f"episode split: one of {', '.join(SPLITS)}")
     episodes: int = setting(1200, range=(1, MAX_EPISODES), doc="episodes in the data set")
-    seed: int = setting(0, range=(0, 2**32 - 1), doc="seed of the episodes")
+    seed: int = setting(0, range=SEED_RANGE, doc="seed of the episodes")
     first: int = setting(0, range=(0, MAX_EPISODE_INDEX), doc="index of the first episode")
     max_steps: int = setting(500, range=(1, MAX_EPISODE_STEPS), doc="at most this many actions per episode")
     width: int = setting(170, range=(1, _CAMERA.width), doc="stored frame width, px (resized from the camera's)")
