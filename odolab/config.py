@@ -151,7 +151,18 @@ def _whole(f: dataclasses.Field) -> bool:
 
 
 def _show(bound: float) -> str:
-    return f"{bound:d}" if isinstance(bound, int) else f"{bound:g}"
+    """A range's end as a user may type it: ``64``, ``1000000``, ``0.001``."""
+    if isinstance(bound, int) or (math.isfinite(bound) and bound.is_integer() and abs(bound) < 1e15):
+        return f"{int(bound):d}"
+    return f"{bound:g}"
+
+
+def _quoted(value: Any) -> str:
+    """``value`` as an error line quotes it: at most 80 characters, a huge integer by its size
+    (Python prints none of over 4300 digits)."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool) and abs(int(value)).bit_length() > 256:
+        return f"an integer of about {int(abs(int(value)).bit_length() * math.log10(2)) + 1} digits"
+    return f"{value!r:.80}"
 
 
 def range_text(cls_or_config: Any, name: str) -> str:
@@ -242,7 +253,7 @@ def check(config: Any, prefix: str = "") -> None:
         if value is None and "None" in _type_parts(f) or options and _is_choice(value, options):
             continue
         if _RANGE not in f.metadata:
-            raise ValueError(f"{prefix}{f.name} must be {_choices_text(options)}, got {value!r:.80}")
+            raise ValueError(f"{prefix}{f.name} must be {_choices_text(options)}, got {_quoted(value)}")
         either = f"{_choices_text(options)} or " if options else ""  # 'auto' or in [0, 64]
         whole = _whole(f)
         if (
@@ -251,17 +262,20 @@ def check(config: Any, prefix: str = "") -> None:
             or (not isinstance(value, numbers.Integral) and math.isnan(value))
         ):
             raise ValueError(
-                f"{prefix}{f.name} must be {either}{_noun(f)} in {range_text(config, f.name)}, got {value!r:.80}"
+                f"{prefix}{f.name} must be {either}{_noun(f)} in {range_text(config, f.name)}, got {_quoted(value)}"
             )
+        original = value if type(value) in (int, float) else None  # as the caller wrote it; numpy's as Python's
         try:
             value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
         except OverflowError:  # an integer past float's range: out of every range
             raise ValueError(
-                f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {value!r:.80}"
+                f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {_quoted(value)}"
             ) from None
         object.__setattr__(config, f.name, value)
         if not in_range(config, f.name, value):
-            raise ValueError(f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {value!r}")
+            raise ValueError(
+                f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {_quoted(value if original is None else original)}"
+            )
 
 
 def _check_items(config: Any, f: dataclasses.Field, prefix: str) -> None:
@@ -286,7 +300,7 @@ def _check_items(config: Any, f: dataclasses.Field, prefix: str) -> None:
             or not in_range(config, f.name, item)
         ):
             raise ValueError(
-                f"{prefix}{f.name}[{k}] must be {_noun(f)} in {range_text(config, f.name)}, got {item!r:.80}"
+                f"{prefix}{f.name}[{k}] must be {_noun(f)} in {range_text(config, f.name)}, got {_quoted(item)}"
             )
 
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from odolab.config import SEED_RANGE, check, setting
 from odolab.core.parallel import Execution, fan_out
+from odolab.sim.scenes import SPLITS
 
 PAPER_COLLISIONS = {"move_forward": 12.10, "turn_left": 12.68, "turn_right": 7.51, "all": 11.25}  # %
 PAPER_MIX = {"move_forward": 57.32, "turn_left": 21.34, "turn_right": 21.33}  # % of 1,000,000 steps
@@ -372,6 +373,8 @@ class CardConfig:
 
     def __post_init__(self) -> None:
         check(self)
+        if self.split not in SPLITS:
+            raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r:.80}")
 
 
 def measure(

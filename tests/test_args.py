@@ -354,7 +354,7 @@ def test_setting_type_takes_what_the_config_field_takes():
     assert width("341") == 341 and type(width("1")) is int
     for bad, said in [
         ("342", "--width must be in [1, 341], got 342"),
-        ("2.5", "--width must be an integer, got '2.5'"),
+        ("2.5", "--width must be an integer in [1, 341], got '2.5'"),
     ]:
         with pytest.raises(argparse.ArgumentTypeError, match=re.escape(said)):
             width(bad)

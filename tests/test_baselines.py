@@ -283,7 +283,7 @@ def test_a_depth_range_says_what_each_field_takes():
         ({"max_depth": float("inf")}, "max_depth must be in (0, 1000], got inf"),
         ({"min_depth": -0.5}, "min_depth must be in [0, 1000), got -0.5"),
         ({"noise_growth": "x"}, "noise_growth must be a number in [0, 1], got 'x'"),
-        ({"noise_floor": 2}, "noise_floor must be in [0, 1], got 2.0"),
+        ({"noise_floor": 2}, "noise_floor must be in [0, 1], got 2"),
         ({"min_depth": 4, "max_depth": 4}, "need min_depth < max_depth, got min_depth 4, max_depth 4"),
     ):
         with pytest.raises(ValueError) as info:

@@ -411,7 +411,7 @@ def test_compare_tum_that_is_not_a_folder_is_said_so_before_the_camera(tmp_path,
         ([], "cannot tell the camera from the folder's name (no fr1, fr2 or fr3 in it); give it with --intrinsics"),
         (["--intrinsics", "517,516,318"], "--intrinsics must be four numbers fx,fy,cx,cy"),
         (["--intrinsics", "0,516,318,255"], "--intrinsics: the focal lengths fx, fy must be positive"),
-        (["--intrinsics", ",".join(map(str, FR1)), "--depth-scale", "0"], "--depth-scale must be in [1, 1e+06]"),
+        (["--intrinsics", ",".join(map(str, FR1)), "--depth-scale", "0"], "--depth-scale must be in [1, 1000000]"),
     ],
 )
 def test_compare_names_a_missing_or_bad_camera_and_scale_in_one_line(millimetre_folder, tmp_path, args, words):

@@ -459,7 +459,7 @@ def test_the_fused_options_are_a_config_that_says_what_each_takes(calibration):
     odo = REGISTRY.load("fused(test-fixed)", calibration=calibration, kernel_width=2)
     assert odo.config == FusionConfig(calibration=calibration, kernel_width=2.0) and odo.kernel_width == 2.0
     for bad, said in (
-        ({"kernel_width": 200}, "kernel_width must be in [0.1, 100], got 200.0"),
+        ({"kernel_width": 200}, "kernel_width must be in [0.1, 100], got 200"),
         ({"span": 2.7}, "span must be a whole number in [1, 10], got 2.7"),
         ({"kernel": "tukey"}, "kernel must be one of 'huber', 'cauchy', 'none', got 'tukey'"),
         ({"span_inputs": "test-fixed"}, "span_inputs needs span >= 2 (factors over more than one step), got span 1"),

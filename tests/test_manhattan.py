@@ -147,7 +147,7 @@ def test_the_filter_settings_are_a_config_that_says_what_each_takes():
     assert odo.identity_digest != ManhattanOdometer("ground-truth").identity_digest
     assert odo.identity_digest == ManhattanOdometer("ground-truth", wall_sigma_deg=2.0, relock_views=0).identity_digest
     for bad, said in (
-        ({"step_sigma_deg": 0}, "manhattan: step_sigma_deg must be in [0.001, 45], got 0.0"),
+        ({"step_sigma_deg": 0}, "manhattan: step_sigma_deg must be in [0.001, 45], got 0"),
         ({"anchor_steps": 2.5}, "ManhattanConfig: option anchor_steps must be int, got 2.5"),  # as every odometer's
     ):
         with pytest.raises(ValueError) as info:

@@ -24,8 +24,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from odolab.io.atomic import write_text_atomic
 
     ap = ArgumentParser(prog="python -m odolab.action_prior", description=action_prior.__doc__.split("\n")[0])
-    for option in ("--episodes", "--max-steps", "--seed"):
-        add_setting(ap, option, action_prior.PriorFit, option[2:].replace("-", "_"))
+    for option, field in (("--episodes", "n_episodes"), ("--max-steps", "max_steps"), ("--seed", "seed")):
+        add_setting(ap, option, action_prior.PriorFit, field)
     ap.add_argument("--out", type=file_arg("--out"), default=None, help="write JSON here (atomic); default: print")
     args = ap.parse_args(argv)
     if args.out is not None:

@@ -31,6 +31,12 @@ from odolab.io.lock import FolderLock
 MAX_SEED = SEED_RANGE[1]
 
 
+#: What argparse takes for a negative number rather than an option: -3, -.5, -1e3, -inf, -nan.
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+#: Longest text read as a number: no option needs 40 digits (Python reads no integer of over 4300).
+_MAX_NUMBER_CHARS = 40
+
+
 class UsageError(Exception):
     """A mistake in the user's input (bad argument, unreadable file...). The message names it."""
 
@@ -42,6 +48,8 @@ class ArgumentParser(PlainHelp):
     def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
+        # a value such as -1e3 or -inf is a (wrong) number for the option before it, not an unknown option
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str) -> None:  # type: ignore[override]
         # argparse says "argument --x: <type's message>"; ours already start with the option's name
@@ -61,6 +69,11 @@ def number(
 
     def parse(text: str):
         noun = "an integer" if kind is int else "a number"
+        if len(text) > _MAX_NUMBER_CHARS:
+            bound = f" in [{show(minimum)}, {show(maximum)}]" if None not in (minimum, maximum) else ""
+            raise argparse.ArgumentTypeError(
+                f"{name} must be {noun}{bound}, got {text[:12]!r}... ({len(text)} characters)"
+            )
         try:
             if "_" in text or not text.isascii():  # Python reads "1_0" as 10 and "５" as 5: a typo, not a number
                 raise ValueError(text)
@@ -86,10 +99,18 @@ def setting_type(name: str, cls: type, field: str) -> Callable[[str], float]:
     same values; the error names the option as :func:`number`'s do: ``--depth-noise must be in [0, 10], got 11``."""
     from odolab.config import in_range, number_kind, range_text
 
-    parse_number = number(name, number_kind(cls, field))
+    kind = number_kind(cls, field)
+    parse_number = number(name, kind)
 
     def parse(text: str):
-        value = parse_number(text)
+        try:
+            value = parse_number(text)
+        except argparse.ArgumentTypeError:  # not a number of the field's kind: say which numbers it takes
+            noun = "an integer" if kind is int else "a finite number"
+            shown = f"{text[:12]!r}... ({len(text)} characters)" if len(text) > _MAX_NUMBER_CHARS else repr(text)
+            raise argparse.ArgumentTypeError(
+                f"{name} must be {noun} in {range_text(cls, field)}, got {shown}"
+            ) from None
         if not in_range(cls, field, value):
             raise argparse.ArgumentTypeError(f"{name} must be in {range_text(cls, field)}, got {text}")
         return value

@@ -33,6 +33,7 @@ from odolab.cli.args import (
     setting_help,
     setting_type,
 )
+from odolab.config import range_text
 from odolab.io.lock import FolderLock
 from odolab.odometry.odometer import OdometerListError, available_odometers, parse_odometer_list, standalone_odometers
 from odolab.odometry.options import OptionError, merge_options, naming_the_file, parse_assignments, read_options_file
@@ -124,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=setting_type("--depth-scale", ComparisonConfig, "tum_depth_scale"),
         default=None,
         metavar="S",
-        help="--tum: depth PNG values per metre (default TUM's 5000; millimetres: 1000)",
+        help=f"--tum: depth PNG values per metre, {range_text(ComparisonConfig, 'tum_depth_scale')} (default TUM's "
+        "5000; millimetres: 1000)",
     )
     ap.add_argument(
         "--intrinsics",

@@ -94,15 +94,16 @@ class TrainingJob:
     gpus_per_worker: float = setting(
         0.0, range=(0.0, 64.0), doc="GPUs per training worker with --workers (0: CPU workers, gloo)"
     )
-    threads: int | None = setting(None, range=(1, 1024), doc="torch CPU threads (default: torch's choice, all cores)")
+    threads: int | None = setting(None, range=(1, 1024), doc="torch CPU threads")
 
     def __post_init__(self) -> None:
         check(self)
 
 
-def _doc(field: str) -> str:
-    """``--help`` text of an option with no default value: the field's description and range."""
-    return setting_help(TrainingJob, field).rsplit(" (default", 1)[0]
+def _doc(field: str, default: str) -> str:
+    """``--help`` text of an option whose default is no value: the field's description, range and
+    what the default does."""
+    return f"{setting_help(TrainingJob, field).rsplit(' (default', 1)[0]} (default: {default})"
 
 
 def training_parser(prog: str, description: str, family: str, set_example: str = "seed=1") -> ArgumentParser:
@@ -136,10 +137,15 @@ def training_parser(prog: str, description: str, family: str, set_example: str =
         default=None,
         help="the trained model, written when every epoch is done (default <work>/model.pt)",
     )
-    ap.add_argument("--hours", type=setting_type("--hours", TrainingJob, "hours"), default=None, help=_doc("hours"))
+    ap.add_argument(
+        "--hours", type=setting_type("--hours", TrainingJob, "hours"), default=None, help=_doc("hours", "no limit")
+    )
     ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
     ap.add_argument(
-        "--threads", type=setting_type("--threads", TrainingJob, "threads"), default=None, help=_doc("threads")
+        "--threads",
+        type=setting_type("--threads", TrainingJob, "threads"),
+        default=None,
+        help=_doc("threads", "torch's choice, all cores"),
     )
     ap.add_argument(
         "--ray-address",

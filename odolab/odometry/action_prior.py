@@ -106,12 +106,12 @@ class ActionPrior:
 
 @dataclass(frozen=True)
 class PriorFit:
-    """What :func:`fit_action_prior` averages over: ``episodes`` train rollouts from ``seed``, at most
+    """What :func:`fit_action_prior` averages over: ``n_episodes`` train rollouts from ``seed``, at most
     ``max_steps`` actions each (rollouts render nothing, so they may be longer than the Challenge's)."""
 
-    episodes: int = setting(400, range=(1, 100_000), doc="train episodes")
-    max_steps: int = setting(500, range=(1, 2000), doc="steps each")
-    seed: int = setting(0, range=SEED_RANGE, doc="seed")
+    n_episodes: int = setting(400, range=(1, 100_000), doc="train episodes (rollouts)")
+    max_steps: int = setting(500, range=(1, 2000), doc="actions per rollout at most")
+    seed: int = setting(0, range=SEED_RANGE, doc="seed of the rollouts")
 
     def __post_init__(self) -> None:
         check(self)

@@ -15,7 +15,6 @@ Every mistake in the configuration raises :class:`ComparisonError` with one line
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import sys
 from collections.abc import Callable, Iterator
@@ -54,7 +53,6 @@ __all__ = [
     "ComparisonConfig",
     "ComparisonError",
     "ComparisonResult",
-    "check_step_timeout",
     "empty_depth_warnings",
     "failure_reasons",
     "load_odometers",
@@ -109,8 +107,8 @@ class ComparisonConfig:
     step_timeout: float | None = setting(
         runner.DEFAULT_STEP_TIMEOUT,
         range=(0.001, 86400.0),
-        doc="seconds one step of an odometer may take before it fails as timed-out; after 3 such steps the "
-        "odometer is stopped for the sequence",
+        doc="seconds one step of an odometer may take before it fails as timed-out (None: no limit); after 3 "
+        "such steps the odometer is stopped for the sequence",
     )
     scenes: SceneFiles | None = None
     family: str = "boxes"
@@ -266,16 +264,6 @@ def tum_sequences(config: ComparisonConfig) -> list:
             "a comparison needs at least 2, one step between them"
         )
     return [sequence]
-
-
-def check_step_timeout(value: object) -> float | None:
-    """``value`` as a step time limit in seconds: None (no limit) or a number > 0 (inf: no limit);
-    :class:`ComparisonError` naming it otherwise."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
-        raise ComparisonError(f"step_timeout must be a number of seconds > 0 (or None for no limit), got {value!r}")
-    return None if math.isinf(value) else float(value)
 
 
 def empty_depth_warnings(results: list[SequenceResult]) -> list[str]:
@@ -461,7 +449,7 @@ def run_comparison(
     ``sequences``: with ``config.tum``, the folder already read by :func:`tum_sequences`."""
     if config.split not in SPLITS:
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
-    step_timeout = check_step_timeout(config.step_timeout)
+    step_timeout = config.step_timeout
     if odometers is None:
         odometers = load_odometers(config.odometers, config.options)
     if config.tum is not None:
