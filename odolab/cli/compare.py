@@ -43,7 +43,6 @@ from odolab.reporting.pipeline import (
     ComparisonError,
     failure_reasons,
     load_odometers,
-    odometer_names,
     run_comparison,
     tum_sequences,
 )
@@ -243,11 +242,6 @@ def _config(args: argparse.Namespace, argv: Sequence[str]) -> ComparisonConfig:
         except ValueError as exc:
             said = exc.named("--odometers") if isinstance(exc, OdometerListError) else str(exc)
             raise UsageError(f"{said}; available: {', '.join(available_odometers())}") from None
-    try:
-        if names is not None:  # None: every available odometer (those needing actions left out on real data)
-            names = odometer_names(names)
-    except ComparisonError as exc:
-        raise UsageError(str(exc)) from None
     scenes = scenes_of(args, argv) if args.tum is None else None  # with --tum, refused below as every simulator option
     return ComparisonConfig(
         odometers=names,
