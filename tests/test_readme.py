@@ -110,7 +110,7 @@ def test_readme_defaults_are_compares():
     )
     episodes = re.search(r"`--episodes (\d+)`", run).group(1)
     max_steps = re.search(r"`--max-steps (\d+)`", run).group(1)
-    assert f"number of episodes, 1-1000 (default {episodes})" in helptext
+    assert f"number of episodes, [1, 1000] (default {episodes})" in helptext
     assert f"(default {max_steps})" in helptext.split("--max-steps MAX_STEPS", 2)[-1][:80]
     named = re.search(r"every registered odometer: (.*?)\n\(choose", run, flags=re.DOTALL).group(1)
     listed = re.findall(r"`([a-z0-9-]+)`", named)
