@@ -8,7 +8,6 @@ this package: it raises typed errors (:mod:`odolab.core.errors`) that the comman
 
 from odolab.cli.args import (
     MAX_ERROR_CHARS,
-    MAX_SEED,
     ArgumentParser,
     UsageError,
     check_not_nested,
@@ -25,12 +24,10 @@ from odolab.cli.args import (
     path_arg,
     pinhole,
     run_cli,
-    seed,
 )
 
 __all__ = [
     "MAX_ERROR_CHARS",
-    "MAX_SEED",
     "ArgumentParser",
     "UsageError",
     "check_not_nested",
@@ -47,5 +44,4 @@ __all__ = [
     "path_arg",
     "pinhole",
     "run_cli",
-    "seed",
 ]

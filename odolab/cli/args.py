@@ -1,7 +1,8 @@
 """Shared command-line plumbing: user mistakes become one line on stderr and exit code 2.
 
-Every numeric option is parsed by :func:`number`, which enforces a documented closed range and
-refuses NaN and infinity; output paths are checked by :func:`check_output_dir` and
+Every numeric option takes its kind, range, help and default from a config field
+(:func:`add_setting`, :func:`setting_type`), parsed by :func:`number`, which refuses NaN and
+infinity; output paths are checked by :func:`check_output_dir` and
 :func:`check_output_file` *before* any work starts, so a run never ends on an unwritable path.
 """
 
@@ -23,13 +24,8 @@ from pathlib import Path
 from typing import NoReturn
 
 from odolab.cli.help_text import PlainHelp
-from odolab.config import SEED_RANGE
 from odolab.core.parallel import Execution
 from odolab.io.lock import FolderLock
-
-#: Largest accepted seed (:data:`odolab.config.SEED_RANGE`).
-MAX_SEED = SEED_RANGE[1]
-
 
 #: What argparse takes for a negative number rather than an option: -3, -.5, -1e3, -inf, -nan.
 _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
@@ -160,6 +156,7 @@ def add_scene_options(ap: argparse.ArgumentParser, family: bool = True) -> None:
     """``--scene-family`` (procedural scenes; with ``family``), or ``--scenes``, ``--scene-up`` and
     ``--scene-unit``: episodes in mesh files (:func:`scenes_of`)."""
     from odolab.sim.free_scenes import FAMILIES
+    from odolab.sim.mesh_scenes import SceneFiles
 
     if family:
         ap.add_argument(
@@ -180,10 +177,10 @@ def add_scene_options(ap: argparse.ArgumentParser, family: bool = True) -> None:
     ap.add_argument("--scene-up", choices=("y", "z"), default="y", help="--scenes: the files' up axis (default y)")
     ap.add_argument(
         "--scene-unit",
-        type=number("--scene-unit", float, 1e-6, 1e6),
+        type=setting_type("--scene-unit", SceneFiles, "unit"),
         default=1.0,
         metavar="M",
-        help="--scenes: metres per file unit (default 1)",
+        help=f"--scenes: {setting_help(SceneFiles, 'unit')}",
     )
 
 
@@ -215,11 +212,6 @@ def scene_words(args: argparse.Namespace) -> str:
         family = getattr(args, "scene_family", "boxes")
         return "" if family == "boxes" else f" --scene-family {family}"
     return f" --scenes {shlex.quote(str(args.scenes))} --scene-up {args.scene_up} --scene-unit {args.scene_unit:.17g}"
-
-
-def seed(name: str = "--seed") -> Callable[[str], int]:
-    """An argparse ``type`` for a seed: an integer in ``[0, MAX_SEED]``."""
-    return number(name, int, 0, MAX_SEED)
 
 
 def pinhole(name: str = "--intrinsics") -> Callable[[str], tuple[float, float, float, float]]:

@@ -16,9 +16,11 @@ from odolab.cli.args import (
     check_replaceable,
     exit_process,
     file_arg,
-    number,
     run_cli,
+    setting_help,
+    setting_type,
 )
+from odolab.config import check, setting
 from odolab.core.machine import machine
 
 
@@ -56,13 +58,18 @@ TITLES = {
 @dataclass(frozen=True)
 class Plan:
     """What a run times, every input checked: the ``parts``, the training part's ``recipes`` (path,
-    config) and ``data``, the odometer part's ``names`` and ``options``."""
+    config), ``data`` and torch ``train_threads`` (None: torch's own choice), the odometer part's
+    ``names`` and ``options``."""
 
     parts: tuple[str, ...]
     recipes: list[Path]
     data: object
     names: list[str]
     options: dict
+    train_threads: int | None = setting(None, range=(1, 256), doc="torch threads for the training part")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 def build_parser() -> ArgumentParser:
@@ -81,11 +88,11 @@ def build_parser() -> ArgumentParser:
     )
     ap.add_argument(
         "--train-threads",
-        type=number("--train-threads", int, 1, 256),
+        type=setting_type("--train-threads", Plan, "train_threads"),
         default=None,
         metavar="N",
-        help="torch threads for the training part (default: torch's own choice; the ablations "
-        "study's cpu scale trains with 1 per unit)",
+        help=f"{setting_help(Plan, 'train_threads').rsplit(' (default', 1)[0]} (default: torch's own choice; the "
+        "ablations study's cpu scale trains with 1 per unit)",
     )
     ap.add_argument(
         "--bench-data",
@@ -135,7 +142,7 @@ def run(args) -> int:
     save()  # at once: a stop before the first part ends leaves no older, complete-looking file
     for part in plan.parts:
         running.add(part)  # the odometer part saves odometer by odometer, pending until the last is timed
-        timed = _time(part, plan, args.train_threads, report, save)
+        timed = _time(part, plan, plan.train_threads, report, save)
         running.discard(part)
         for key, rows in timed.items():
             report[key] = rows
@@ -187,7 +194,7 @@ def _plan(args) -> Plan:
             )
         )
     names, options = _odometers(args.odometers, args.odometer_option, load="odometers" in parts)
-    return Plan(parts, recipes, data, names, options)
+    return Plan(parts, recipes, data, names, options, args.train_threads)
 
 
 def _training_data(recipes: list[Path], bench_data: str | None) -> object:

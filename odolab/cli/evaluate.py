@@ -28,19 +28,32 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from odolab.cli.args import ArgumentParser, UsageError, check_output_file, exit_process, file_arg, number, run_cli
+from odolab.cli.args import (
+    ArgumentParser,
+    UsageError,
+    check_output_file,
+    exit_process,
+    file_arg,
+    run_cli,
+    setting_help,
+    setting_type,
+)
+from odolab.config import range_text
 from odolab.core import metrics
 from odolab.core.trajectory import Trajectory
 from odolab.io.errors import FileFormatError
 from odolab.reporting.trajectory_plot import IMAGE_SUFFIXES
-from odolab.running.scoring import Evaluation, evaluate_trajectory, evaluation_to_dict, pair_trajectories
+from odolab.running.scoring import (
+    Evaluation,
+    ScoringSettings,
+    evaluate_trajectory,
+    evaluation_to_dict,
+    pair_trajectories,
+)
 
 __all__ = ["main"]
 
 FORMATS = ("kitti", "tum")
-#: Documented ranges of the numeric options.
-MAX_DELTA = 1e6
-MAX_TIME_DIFF = 60.0
 
 
 # ----------------------------------------------------------------------------- command line
@@ -67,16 +80,16 @@ def _parser() -> argparse.ArgumentParser:
     )
     ap.add_argument(
         "--delta",
-        type=number("--delta", float, None, MAX_DELTA),
+        type=setting_type("--delta", ScoringSettings, "delta"),
         default=1.0,
-        help=f"RPE pair distance, > 0 and <= {MAX_DELTA:g} (default 1)",
+        help=setting_help(ScoringSettings, "delta"),
     )
     ap.add_argument("--delta-unit", default="f", choices=("f", "m"), help="frames or metres (default f)")
     ap.add_argument(
         "--t-max-diff",
-        type=number("--t-max-diff", float, 0, MAX_TIME_DIFF),
+        type=setting_type("--t-max-diff", ScoringSettings, "t_max_diff"),
         default=0.01,
-        help=f"TUM: largest timestamp gap (s) of an associated pair, 0-{MAX_TIME_DIFF:g} (default 0.01)",
+        help=setting_help(ScoringSettings, "t_max_diff"),
     )
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
     ap.add_argument(
@@ -87,10 +100,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     ap.add_argument(
         "--min-coverage",
-        type=number("--min-coverage", float, 0, 1),
+        type=setting_type("--min-coverage", ScoringSettings, "min_coverage"),
         default=None,
         metavar="X",
-        help="fail (exit 2) if an estimate's coverage is below X, 0-1. Coverage: the share of "
+        help=f"fail (exit 2) if an estimate's coverage is below X, {range_text(ScoringSettings, 'min_coverage')}. "
+        "Coverage: the share of "
         "ground-truth poses with an estimate within reach (half the estimate's median "
         "interval, at least --t-max-diff), so a complete estimate at half the rate covers 1",
     )
@@ -222,8 +236,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.plot:
         _check_plot_is_no_input(args.plot, args.gt, args.est)
         check_output_file(args.plot, "--plot", IMAGE_SUFFIXES)
-    if args.delta <= 0:
-        raise UsageError(f"--delta must be positive, got {args.delta:g}")
     if args.delta_unit == "f" and args.delta != int(args.delta):
         raise UsageError(
             f"--delta must be a whole number of frames with --delta-unit f (the default), got {args.delta:g}; "

@@ -20,16 +20,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from odolab.cli.args import (
-    MAX_SEED,
     ArgumentParser,
     UsageError,
+    add_setting,
     exit_process,
     file_arg,
-    number,
     path_arg,
     quiet_broken_pipe,
     run_cli,
+    setting_type,
 )
+from odolab.config import range_text
 
 __all__ = ["STUDIES", "command", "exit_process", "main", "study", "study_parser"]
 
@@ -150,26 +151,14 @@ def _forward_dz_probe(ap: ArgumentParser, module) -> None:
         default=module.SHIPPED,
         help="robust-VO model file to probe (default: the shipped model)",
     )
-    ap.add_argument(
-        "--passes", type=number("--passes", int, 1, 10), default=2, help="passes of the network, 1-10 (default 2)"
-    )
+    add_setting(ap, "--passes", module.ProbeSettings, "passes")
     ap.add_argument("--out", type=file_arg("--out"), default=None, help="also write the report to this text file")
 
 
 def _derotation_probe(ap: ArgumentParser, module) -> None:
     ap.add_argument("--config", type=path_arg("--config"), default="studies/robust_vo/shipped.toml")
-    ap.add_argument(
-        "--seconds",
-        type=number("--seconds", float, 1.0, 86_400.0),
-        default=300.0,
-        help="training budget (wall clock)",
-    )
-    ap.add_argument(
-        "--samples",
-        type=number("--samples", int, 0, 10**8),
-        default=0,
-        help="training budget in samples instead (0: use --seconds)",
-    )
+    add_setting(ap, "--seconds", module.ProbeSettings, "seconds")
+    add_setting(ap, "--samples", module.ProbeSettings, "samples")
     ap.add_argument("--derotate", action="store_true", help="warp the current frame by the commanded turn")
 
 
@@ -188,10 +177,10 @@ def _precision_check(ap: ArgumentParser, module) -> None:
     )
     ap.add_argument(
         "--seeds",
-        type=number("--seeds", int, 0, MAX_SEED),
+        type=setting_type("--seeds", module.CheckSettings, "seeds"),
         nargs="+",
         default=[0, 1],
-        help="at least two seeds (default 0 1)",
+        help=f"at least two different seeds, each in {range_text(module.CheckSettings, 'seeds')} (default 0 1)",
     )
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from odolab.config import check, setting
 from odolab.core import metrics
 from odolab.core.trajectory import Trajectory
 
@@ -25,6 +26,24 @@ __all__ = [
     "stamps_are_steps",
     "time_coverage",
 ]
+
+
+#: Largest RPE pair distance (frames or m) a user may ask for.
+MAX_DELTA = 1e6
+
+
+@dataclass(frozen=True)
+class ScoringSettings:
+    """How estimates are scored: RPE pairs ``delta`` apart (frames or metres), timestamps paired within
+    ``t_max_diff`` seconds (:func:`pair_trajectories`), an estimate refused when its coverage is
+    below ``min_coverage`` (None: never)."""
+
+    delta: float = setting(1.0, range=(0.0, MAX_DELTA), open_low=True, doc="RPE pair distance")
+    t_max_diff: float = setting(0.01, range=(0.0, 60.0), doc="TUM: largest timestamp gap (s) of an associated pair")
+    min_coverage: float | None = setting(None, range=(0.0, 1.0), doc="least coverage of an estimate")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 @dataclass(frozen=True)

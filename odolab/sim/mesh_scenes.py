@@ -34,6 +34,7 @@ from typing import Literal
 
 import numpy as np
 
+from odolab.config import setting
 from odolab.sim.scenes import GRID_RESOLUTION, Material, Scene, without_slivers
 
 #: Widest scene (m, along either horizontal axis): a home or an office floor; its occupancy grid
@@ -352,7 +353,7 @@ class SceneFiles:
     files: tuple[str, ...]
     digests: tuple[str, ...]
     up: Literal["y", "z"] = "y"
-    unit: float = 1.0
+    unit: float = setting(1.0, range=(1e-6, 1e6), doc="metres per file unit")
 
     def scene(self, draw: int) -> Scene:
         """The scene of file ``draw`` modulo their number (read once per process)."""

@@ -14,16 +14,26 @@ of the nominal 30 degree rotation, K R^T K^-1, so that the network sees only the
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import torch
 
 from odolab.api import TURN_ANGLE, Action, planar_to_transform
+from odolab.config import setting
 from odolab.learned.robust_vo.config import load_train_config
 from odolab.learned.robust_vo.inputs import pair_channels
 from odolab.learned.robust_vo.model import build_networks
 from odolab.learned.training import TrainingData
+
+
+@dataclass(frozen=True)
+class ProbeSettings:
+    """The probe's training budget: ``seconds`` of wall clock, or ``samples`` pairs when not 0."""
+
+    seconds: float = setting(300.0, range=(1.0, 86_400.0), doc="training budget (wall clock, s)")
+    samples: int = setting(0, range=(0, 10**8), doc="training budget in samples instead (0: use --seconds)")
 
 
 def derotation(data: TrainingData, angle: float) -> np.ndarray:

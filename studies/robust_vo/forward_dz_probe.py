@@ -19,12 +19,14 @@ Mean and median absolute errors are in 1e-2 m and 1e-2 rad, as everywhere in the
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from odolab.api import FORWARD_STEP, Action, nominal_motion
+from odolab.config import setting
 from odolab.core.geometry import planar_to_transform, transform_to_planar
 from odolab.io.atomic import write_text_atomic
 from odolab.learned.robust_vo.checkpoint import SHIPPED, load_model
@@ -35,6 +37,13 @@ from odolab.learned.robust_vo.warp import nominal_transforms, warp_current
 from odolab.learned.training import TrainingData
 
 BATCH = 128
+
+
+@dataclass(frozen=True)
+class ProbeSettings:
+    """The probe's numbers: ``passes`` of the network over the val pairs."""
+
+    passes: int = setting(2, range=(1, 10), doc="passes of the network")
 
 
 def _warped_depth(b: dict, T: torch.Tensor, data: TrainingData) -> tuple[torch.Tensor, torch.Tensor]:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from odolab.config import SEED_RANGE, setting
 from odolab.io.atomic import write_text_atomic
 from odolab.learned.robust_vo import train as trainer
 from odolab.learned.robust_vo.config import StageConfig, TrainConfig, load_train_config
@@ -29,6 +30,13 @@ from odolab.learned.training import ComputeConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 PRECISIONS = ("fp32", "bf16")
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckSettings:
+    """The check's training ``seeds``: at least two different ones (their spread is the noise)."""
+
+    seeds: tuple[int, ...] = setting((0, 1), range=SEED_RANGE, min_items=2, distinct=True, doc="training seeds")
 
 
 def short_recipe(seed: int, precision: str) -> TrainConfig:
