@@ -287,7 +287,9 @@ def _check_items(config: Any, f: dataclasses.Field, prefix: str) -> None:
         raise ValueError(f"{prefix}{f.name} must be a list, got {value!r:.80}")
     min_items, distinct = f.metadata.get(_LIST, (0, False))
     if len(value) < min_items:
-        raise ValueError(f"{prefix}{f.name} must hold at least {min_items} item{'s' * (min_items > 1)}, got []")
+        raise ValueError(
+            f"{prefix}{f.name} must hold at least {min_items} item{'s' * (min_items > 1)}, got {list(value)!r:.80}"
+        )
     if distinct and len(set(value)) != len(value):
         raise ValueError(f"{prefix}{f.name} must hold no value twice, got {list(value)!r:.80}")
     if _RANGE not in f.metadata:

@@ -178,7 +178,7 @@ def add_scene_options(ap: argparse.ArgumentParser, family: bool = True) -> None:
     ap.add_argument(
         "--scene-unit",
         type=setting_type("--scene-unit", SceneFiles, "unit"),
-        default=1.0,
+        default=SceneFiles((), ()).unit,
         metavar="M",
         help=f"--scenes: {setting_help(SceneFiles, 'unit')}",
     )

@@ -31,11 +31,11 @@ import numpy as np
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
+    add_setting,
     check_output_file,
     exit_process,
     file_arg,
     run_cli,
-    setting_help,
     setting_type,
 )
 from odolab.config import range_text
@@ -78,19 +78,9 @@ def _parser() -> argparse.ArgumentParser:
         choices=metrics.ALIGNMENTS,
         help="Umeyama alignment of each estimate to the ground truth (default se3)",
     )
-    ap.add_argument(
-        "--delta",
-        type=setting_type("--delta", ScoringSettings, "delta"),
-        default=1.0,
-        help=setting_help(ScoringSettings, "delta"),
-    )
+    add_setting(ap, "--delta", ScoringSettings, "delta", metavar="D")
     ap.add_argument("--delta-unit", default="f", choices=("f", "m"), help="frames or metres (default f)")
-    ap.add_argument(
-        "--t-max-diff",
-        type=setting_type("--t-max-diff", ScoringSettings, "t_max_diff"),
-        default=0.01,
-        help=setting_help(ScoringSettings, "t_max_diff"),
-    )
+    add_setting(ap, "--t-max-diff", ScoringSettings, "t_max_diff", metavar="S")
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
     ap.add_argument(
         "--plot",
@@ -103,8 +93,8 @@ def _parser() -> argparse.ArgumentParser:
         type=setting_type("--min-coverage", ScoringSettings, "min_coverage"),
         default=None,
         metavar="X",
-        help=f"fail (exit 2) if an estimate's coverage is below X, {range_text(ScoringSettings, 'min_coverage')}. "
-        "Coverage: the share of "
+        help=f"fail (exit 2) if an estimate's coverage is below X, {range_text(ScoringSettings, 'min_coverage')} "
+        "(default: none, never fails). Coverage: the share of "
         "ground-truth poses with an estimate within reach (half the estimate's median "
         "interval, at least --t-max-diff), so a complete estimate at half the rate covers 1",
     )

@@ -179,8 +179,9 @@ def _precision_check(ap: ArgumentParser, module) -> None:
         "--seeds",
         type=setting_type("--seeds", module.CheckSettings, "seeds"),
         nargs="+",
-        default=[0, 1],
-        help=f"at least two different seeds, each in {range_text(module.CheckSettings, 'seeds')} (default 0 1)",
+        default=list(module.CheckSettings().seeds),
+        help=f"at least two different seeds, each in {range_text(module.CheckSettings, 'seeds')} (default "
+        f"{' '.join(map(str, module.CheckSettings().seeds))})",
     )
 
 

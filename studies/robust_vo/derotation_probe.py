@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from odolab.api import TURN_ANGLE, Action, planar_to_transform
-from odolab.config import setting
+from odolab.config import check, setting
 from odolab.learned.robust_vo.config import load_train_config
 from odolab.learned.robust_vo.inputs import pair_channels
 from odolab.learned.robust_vo.model import build_networks
@@ -34,6 +34,9 @@ class ProbeSettings:
 
     seconds: float = setting(300.0, range=(1.0, 86_400.0), doc="training budget (wall clock, s)")
     samples: int = setting(0, range=(0, 10**8), doc="training budget in samples instead (0: use --seconds)")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 def derotation(data: TrainingData, angle: float) -> np.ndarray:

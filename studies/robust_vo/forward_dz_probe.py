@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from odolab.api import FORWARD_STEP, Action, nominal_motion
-from odolab.config import setting
+from odolab.config import check, setting
 from odolab.core.geometry import planar_to_transform, transform_to_planar
 from odolab.io.atomic import write_text_atomic
 from odolab.learned.robust_vo.checkpoint import SHIPPED, load_model
@@ -44,6 +44,9 @@ class ProbeSettings:
     """The probe's numbers: ``passes`` of the network over the val pairs."""
 
     passes: int = setting(2, range=(1, 10), doc="passes of the network")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 def _warped_depth(b: dict, T: torch.Tensor, data: TrainingData) -> tuple[torch.Tensor, torch.Tensor]:

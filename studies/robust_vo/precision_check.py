@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from odolab.config import SEED_RANGE, setting
+from odolab.config import SEED_RANGE, check, setting
 from odolab.io.atomic import write_text_atomic
 from odolab.learned.robust_vo import train as trainer
 from odolab.learned.robust_vo.config import StageConfig, TrainConfig, load_train_config
@@ -37,6 +37,9 @@ class CheckSettings:
     """The check's training ``seeds``: at least two different ones (their spread is the noise)."""
 
     seeds: tuple[int, ...] = setting((0, 1), range=SEED_RANGE, min_items=2, distinct=True, doc="training seeds")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 def short_recipe(seed: int, precision: str) -> TrainConfig:
@@ -72,11 +75,10 @@ def run(args) -> int:
     from odolab.cli import UsageError, check_report_dir
     from odolab.cli.args import check_folder_path
 
-    if len(set(args.seeds)) < 2 or any(not 0 <= s < 2**32 for s in args.seeds):
-        raise UsageError(
-            f"--seeds: expected at least two different seeds in [0, 2^32) (their spread is the noise), "
-            f"got {' '.join(map(str, args.seeds))}"
-        )
+    try:
+        CheckSettings(tuple(args.seeds))  # at least two, none twice: their spread is the noise
+    except ValueError as exc:
+        raise UsageError(f"--{exc}") from None
     check_folder_path(args.work, "--work")  # both found fit before hours of training, not after
     check_report_dir(args.out, "--out", manifest="runs.csv")
     table: list[dict] = []
