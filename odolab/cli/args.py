@@ -33,6 +33,11 @@ _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infin
 _MAX_NUMBER_CHARS = 40
 
 
+def _typed(text: str) -> str:
+    """What the user typed, as an error line quotes it: an over-long number by its length."""
+    return f"{text[:12]!r}... ({len(text)} characters)" if len(text) > _MAX_NUMBER_CHARS else repr(text)
+
+
 class UsageError(Exception):
     """A mistake in the user's input (bad argument, unreadable file...). The message names it."""
 
@@ -67,9 +72,7 @@ def number(
         noun = "an integer" if kind is int else "a number"
         if len(text) > _MAX_NUMBER_CHARS:
             bound = f" in [{show(minimum)}, {show(maximum)}]" if None not in (minimum, maximum) else ""
-            raise argparse.ArgumentTypeError(
-                f"{name} must be {noun}{bound}, got {text[:12]!r}... ({len(text)} characters)"
-            )
+            raise argparse.ArgumentTypeError(f"{name} must be {noun}{bound}, got {_typed(text)}")
         try:
             if "_" in text or not text.isascii():  # Python reads "1_0" as 10 and "５" as 5: a typo, not a number
                 raise ValueError(text)
@@ -103,9 +106,8 @@ def setting_type(name: str, cls: type, field: str) -> Callable[[str], float]:
             value = parse_number(text)
         except argparse.ArgumentTypeError:  # not a number of the field's kind: say which numbers it takes
             noun = "an integer" if kind is int else "a finite number"
-            shown = f"{text[:12]!r}... ({len(text)} characters)" if len(text) > _MAX_NUMBER_CHARS else repr(text)
             raise argparse.ArgumentTypeError(
-                f"{name} must be {noun} in {range_text(cls, field)}, got {shown}"
+                f"{name} must be {noun} in {range_text(cls, field)}, got {_typed(text)}"
             ) from None
         if not in_range(cls, field, value):
             raise argparse.ArgumentTypeError(f"{name} must be in {range_text(cls, field)}, got {text}")
@@ -124,25 +126,18 @@ def setting_help(cls: type, field: str, default: object = None) -> str:
     return f"{row.doc}, {row.range} (default {f'{shown:g}' if isinstance(shown, float) else shown})"
 
 
-_OWN_DEFAULT = object()
-
-
-def add_setting(
-    ap: argparse.ArgumentParser,
-    option: str,
-    cls: type,
-    field: str,
-    *,
-    default: object = _OWN_DEFAULT,
-    metavar: str | None = None,
-) -> None:
-    """Add ``option`` for config field ``field`` of ``cls`` (an :func:`odolab.config.setting` with a
-    range): its type, range, help and default (the field's own unless ``default`` is given) all come
-    from the field, so the option and the library take the same values."""
+def field_default(cls: type, field: str) -> object:
+    """The default value of config field ``field`` of ``cls``."""
     from odolab.config import describe
 
-    if default is _OWN_DEFAULT:
-        default = next(s.value for s in describe(cls) if s.name == field)
+    return next(s.value for s in describe(cls) if s.name == field)
+
+
+def add_setting(ap: argparse.ArgumentParser, option: str, cls: type, field: str, *, metavar: str | None = None) -> None:
+    """Add ``option`` for config field ``field`` of ``cls`` (an :func:`odolab.config.setting` with a
+    range): its type, range, help and default all come from the field, so the option and the library
+    take the same values."""
+    default = field_default(cls, field)
     ap.add_argument(
         option,
         type=setting_type(option, cls, field),
@@ -178,7 +173,7 @@ def add_scene_options(ap: argparse.ArgumentParser, family: bool = True) -> None:
     ap.add_argument(
         "--scene-unit",
         type=setting_type("--scene-unit", SceneFiles, "unit"),
-        default=SceneFiles((), ()).unit,
+        default=field_default(SceneFiles, "unit"),
         metavar="M",
         help=f"--scenes: {setting_help(SceneFiles, 'unit')}",
     )

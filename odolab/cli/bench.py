@@ -91,8 +91,9 @@ def build_parser() -> ArgumentParser:
         type=setting_type("--train-threads", Plan, "train_threads"),
         default=None,
         metavar="N",
-        help=f"{setting_help(Plan, 'train_threads').rsplit(' (default', 1)[0]} (default: torch's own choice; the "
-        "ablations study's cpu scale trains with 1 per unit)",
+        help=setting_help(
+            Plan, "train_threads", "torch's own choice; the ablations study's cpu scale trains with 1 per unit"
+        ),
     )
     ap.add_argument(
         "--bench-data",

@@ -100,12 +100,6 @@ class TrainingJob:
         check(self)
 
 
-def _doc(field: str, default: str) -> str:
-    """``--help`` text of an option whose default is no value: the field's description, range and
-    what the default does."""
-    return f"{setting_help(TrainingJob, field).rsplit(' (default', 1)[0]} (default: {default})"
-
-
 def training_parser(prog: str, description: str, family: str, set_example: str = "seed=1") -> ArgumentParser:
     """The shared options; ``family`` names the default folders (``runs/<family>/<recipe name>``,
     ``reports/<family>/<recipe name>``); ``set_example``: changes of this family's recipes for
@@ -138,14 +132,17 @@ def training_parser(prog: str, description: str, family: str, set_example: str =
         help="the trained model, written when every epoch is done (default <work>/model.pt)",
     )
     ap.add_argument(
-        "--hours", type=setting_type("--hours", TrainingJob, "hours"), default=None, help=_doc("hours", "no limit")
+        "--hours",
+        type=setting_type("--hours", TrainingJob, "hours"),
+        default=None,
+        help=setting_help(TrainingJob, "hours", "no limit"),
     )
     ap.add_argument("--device", default=None, help="torch device (default: a GPU when present, else cpu)")
     ap.add_argument(
         "--threads",
         type=setting_type("--threads", TrainingJob, "threads"),
         default=None,
-        help=_doc("threads", "torch's choice, all cores"),
+        help=setting_help(TrainingJob, "threads", "torch's choice, all cores"),
     )
     ap.add_argument(
         "--ray-address",
