@@ -264,7 +264,7 @@ def check(config: Any, prefix: str = "") -> None:
             raise ValueError(
                 f"{prefix}{f.name} must be {either}{_noun(f)} in {range_text(config, f.name)}, got {_quoted(value)}"
             )
-        original = value if type(value) in (int, float) else None  # as the caller wrote it; numpy's as Python's
+        given = value  # quoted as the caller wrote it (numpy's scalars as Python's)
         try:
             value = int(value) if whole else float(value) + 0.0  # numpy's scalars as Python's; -0.0 as 0.0
         except OverflowError:  # an integer past float's range: out of every range
@@ -274,7 +274,7 @@ def check(config: Any, prefix: str = "") -> None:
         object.__setattr__(config, f.name, value)
         if not in_range(config, f.name, value):
             raise ValueError(
-                f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {_quoted(value if original is None else original)}"
+                f"{prefix}{f.name} must be {either}in {range_text(config, f.name)}, got {_quoted(given if type(given) in (int, float) else value)}"
             )
 
 

@@ -24,18 +24,17 @@ from pathlib import Path
 from typing import NoReturn
 
 from odolab.cli.help_text import PlainHelp
+from odolab.config import MAX_NUMBER_CHARS
 from odolab.core.parallel import Execution
 from odolab.io.lock import FolderLock
 
 #: What argparse takes for a negative number rather than an option: -3, -.5, -1e3, -inf, -nan.
 _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
-#: Longest text read as a number: no option needs 40 digits (Python reads no integer of over 4300).
-_MAX_NUMBER_CHARS = 40
 
 
 def _typed(text: str) -> str:
     """What the user typed, as an error line quotes it: an over-long number by its length."""
-    return f"{text[:12]!r}... ({len(text)} characters)" if len(text) > _MAX_NUMBER_CHARS else repr(text)
+    return f"{text[:12]!r}... ({len(text)} characters)" if len(text) > MAX_NUMBER_CHARS else repr(text)
 
 
 class UsageError(Exception):
@@ -70,7 +69,7 @@ def number(
 
     def parse(text: str):
         noun = "an integer" if kind is int else "a number"
-        if len(text) > _MAX_NUMBER_CHARS:
+        if len(text) > MAX_NUMBER_CHARS:
             bound = f" in [{show(minimum)}, {show(maximum)}]" if None not in (minimum, maximum) else ""
             raise argparse.ArgumentTypeError(f"{name} must be {noun}{bound}, got {_typed(text)}")
         try:
