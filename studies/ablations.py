@@ -730,7 +730,7 @@ def evaluation_units(
     from odolab.sim.episodes import NoiseConfig
 
     noise = dataclasses.asdict(NoiseConfig())
-    policy = dataclasses.asdict(PolicyConfig())
+    policy = PolicyConfig().record()
     errors, navigation, untrained = [], [], []
     runs = [(n, None) for n in scale.rows] + [(n, k) for n in scale.train_seed_rows for k in scale.train_seeds]
     for number, train_seed in runs:

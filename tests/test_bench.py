@@ -36,6 +36,25 @@ def test_bench_refuses_odometer_options_it_would_ignore():
         "odolab.bench", "--only", "training", "--train-threads", "0", words="--train-threads must be in [1, 256], got 0"
     )
     one_line_error("odolab.bench", "--only", "simulator", "--odometer-option", "icp.x=1", words="does not run it")
+    one_line_error("odolab.bench", "--only", "evaluate", "--policy", "plan_step=2", words="--policy chooses")
+    one_line_error("odolab.bench", "--only", "navigation", "--policy", "plan_step=9", words="plan_step")
+
+
+def test_bench_navigation_times_the_policy_asked_and_names_it(monkeypatch):
+    from odolab.benchmarks import speed as bench
+    from odolab.navigation import episode
+
+    used = []
+    real = episode.navigate
+
+    def navigate(spec, odometer, policy=None, **kw):
+        used.append(policy.plan_step)
+        return real(spec, odometer, policy, **kw)
+
+    monkeypatch.setattr(episode, "navigate", navigate)
+    rows = bench.bench_navigation(odometers=("ground-truth",), episodes=1, max_steps=4, policy=["plan_step=2"])
+    assert used == [2, 2] and rows[0]["policy"] == "plan_step=2" and rows[0]["steps"] == 4
+    assert rows[0]["planning_to_sensors"] > 0
 
 
 def test_bench_saves_each_part_as_it_finishes(tmp_path, monkeypatch):

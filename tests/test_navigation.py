@@ -17,7 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from odolab.api import Action, invert, load_odometer, register_odometer
 from odolab.cli import run_cli
 from odolab.core.parallel import SERIAL
-from odolab.navigation.agent import MapPlanAgent, in_agent_frame
+from odolab.navigation.agent import MapPlanAgent, OccupancyMap, in_agent_frame
 from odolab.navigation.episode import navigate
 from odolab.sim.camera import CameraSpec
 from odolab.sim.episodes import EpisodeSpec, render_episode, rollout
@@ -179,10 +179,66 @@ def test_the_cut_short_march_gives_the_full_march_times_to_the_bit(clutter):
         assert finite.any() and (~finite).any()
         near = agent._costs(0.0, 0.0, None, radius, r[-5:], c[-5:])  # asked alone, their first march stops short
         assert np.array_equal(near, full[r[-5:], c[-5:]])
+        for hint in (0.3, 1.5, 50.0):  # a stop short of every cell, of some, of none
+            assert np.array_equal(agent._costs(0.0, 0.0, None, radius, r[-5:], c[-5:], hint), near)
+            assert np.array_equal(agent._costs(0.0, 0.0, None, radius, r, c, hint), got)
         straight = np.hypot(*(np.array(m.to_world(r[-5:], c[-5:])).T - agent.goal).T)
         assert np.isfinite(near).any() and (near[np.isfinite(near)] > 2 * straight.max() + 2.0).all()
     window = agent._costs(0.0, 0.0, 1.0, cfg.agent_radius, r, c)  # a 1 m window: cells off it are inf
     assert np.isinf(window[(r < m.to_cell(0.0, 0.0)[0] - 25) | (c < m.to_cell(0.0, 0.0)[1] - 25)]).all()
+
+
+def test_bilinear_reads_whole_positions_exactly_and_skips_infinite_corners():
+    from odolab.navigation.agent import _bilinear
+
+    grid = np.array([[0.1, 1.0, np.inf], [2.0, 3.0, 4.0], [np.inf, np.inf, np.inf]])
+    whole = _bilinear(grid, np.array([0.0, 1.0, 1.0, 0.0, 2.0]), np.array([0.0, 2.0, 0.0, 2.0, 1.0]))
+    assert np.array_equal(whole, [0.1, 4.0, 2.0, np.inf, np.inf])
+    mid = _bilinear(grid, np.array([0.5, 0.5, 1.5]), np.array([0.5, 1.5, 0.5]))
+    assert mid[0] == pytest.approx((0.1 + 1.0 + 2.0 + 3.0) / 4)
+    assert mid[1] == pytest.approx((1.0 + 3.0 + 4.0) / 3)  # the infinite corner's weight dropped
+    assert mid[2] == pytest.approx(2.5)  # only the finite upper row
+
+
+def test_occupancy_map_obstacles_follow_each_vote_and_step():
+    m = OccupancyMap(1.0, 0.1)
+    assert not m.obstacles(2, 5).any()
+    m.vote(np.array([0.05]), np.array([0.05]))
+    assert not m.obstacles(2, 5).any()
+    m.vote(np.array([0.05]), np.array([0.05]))
+    assert m.obstacles(2, 5).sum() == 1 and m.obstacles(1, 5).sum() == 1
+    m.step += 6
+    assert not m.obstacles(2, 5).any() and m.obstacles(2, 6).sum() == 1
+    with pytest.raises(ValueError):
+        m.obstacles(2, 5)[0, 0] = True  # shared until the next change: read-only
+
+
+@pytest.mark.parametrize("step", [2, 4])
+def test_map_plan_agent_costs_with_a_coarse_far_field_follow_the_fine_march(step):
+    """``plan_step`` > 1: beyond ``fine_radius`` the march runs on blocks, near the agent on every
+    cell. Round an agent 5 m from the goal with a wall between, its heading costs are not the fine
+    march's to the bit (so the two-level march ran), differ from them by a few blocks at most, and
+    pick the same heading; within ``fine_radius`` of the goal the march is the fine one."""
+    from odolab.navigation.agent import PolicyConfig
+
+    cam = CameraSpec(width=32, height=18)
+    headings = np.radians(np.arange(-180, 180, 10.0))
+    costs, near = {}, {}
+    for plan_step in (1, step):
+        agent = MapPlanAgent(
+            (4.0, 0.5), cam.intrinsics, cam.mount_height, PolicyConfig(extent=2.0, plan_step=plan_step)
+        )
+        wall = np.arange(-1.0, 1.6, 0.02)
+        agent.map.vote(np.full(wall.shape, 1.0), wall, weight=5)  # a wall between the agent and the goal
+        r, c, _ = agent.map.to_cell(-1.0 + 0.25 * np.cos(headings), 0.25 * np.sin(headings))
+        costs[plan_step] = agent._costs(-1.0, 0.0, None, agent.cfg.agent_radius, r, c)
+        r, c, _ = agent.map.to_cell(3.0 + 0.25 * np.cos(headings), 0.25 * np.sin(headings))
+        near[plan_step] = agent._costs(3.0, 0.0, None, agent.cfg.agent_radius, r, c)
+    fine, coarse = costs[1], costs[step]
+    assert np.isfinite(fine).all() and np.isfinite(coarse).all() and not np.array_equal(fine, coarse)
+    assert np.abs(coarse - fine).max() < 2 * step * 0.05 + 0.05
+    assert np.argmin(coarse) == np.argmin(fine)
+    assert np.array_equal(near[step], near[1])
 
 
 def test_a_saved_policy_without_a_parameter_differs_and_gets_no_suggestion():
@@ -702,3 +758,19 @@ def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
         original.unlink()
         moved.rename(original)
     assert _navigate(args + ["--out", out]) == 0
+
+
+def test_policy_config_record_names_the_coarse_far_field_only_where_it_is_on():
+    """Saved runs (unit keys, a folder's config.json) made before ``plan_step`` existed name the
+    default policy: its record leaves out the two parameters at plan_step 1, and keeps them when on."""
+    from odolab.navigation.agent import PolicyConfig
+
+    default = PolicyConfig().record()
+    assert "plan_step" not in default and "fine_radius" not in default
+    assert default == {
+        k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k not in ("plan_step", "fine_radius")
+    }
+    assert PolicyConfig(plan_step=2).record() == dataclasses.asdict(PolicyConfig(plan_step=2))
+    assert PolicyConfig(fine_radius=3.0).record() == default  # no effect without the coarse field
+    saved = json.loads((Path(__file__).parents[1] / "reports" / "navigation" / "config.json").read_text())
+    assert saved["policy"] == default  # the committed runs are today's default policy's

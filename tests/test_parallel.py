@@ -182,3 +182,38 @@ def test_fan_out_on_a_terminal_that_cannot_draw_a_bar_says_each_stage_in_a_line(
     assert fan_out(abs, [-1, -2], execution=Execution(parallel=False), desc="episodes") == [1, 2]
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == "episodes: 2 to run" and lines[1].startswith("episodes: 2 done in ") and len(lines) == 2
+
+
+def test_fan_out_inputs_reach_each_task_once_the_tasks_they_name_are_done():
+    """``inputs`` gives each item a second argument; a Ray reference there is the value of an earlier
+    task, which the item's task waits for (in Ray, and read in the serial run alike)."""
+    import ray
+
+    from odolab.core.parallel import fan_out
+
+    def _sum(item, extra):  # local functions: Ray pickles them by value
+        return item + extra
+
+    def _later(value, seconds):
+        time.sleep(seconds)
+        return value
+
+    assert fan_out(_sum, [1, 2], inputs=[10, 20], execution=Execution(parallel=False)) == [11, 22]
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        slow = ray.remote(_later).remote(100, 1.0)
+        finished = []
+        got = fan_out(
+            _sum,
+            [1, 2, 3],
+            inputs=[slow, 5, slow],
+            execution=Execution(progress=False),
+            on_result=lambda k, v: finished.append((k, v)),
+        )
+        assert got == [None, None, None] and sorted(finished) == [(0, 101), (1, 7), (2, 103)]
+        assert finished[0] == (1, 7)  # the item without a wait is done first
+        assert fan_out(_sum, [4], inputs=[ray.remote(_later).remote(1, 0.0)], execution=Execution(progress=False)) == [
+            5
+        ]
+    finally:
+        ray.shutdown()

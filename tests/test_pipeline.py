@@ -319,3 +319,10 @@ def test_odometers_run_as_ray_tasks_answer_as_in_this_process(tmp_path):
         len(r.actions) for r in serial.results
     )
     assert len(heard.steps) == 4 and all(seconds is not None and seconds >= 0 for _, _, seconds in heard.steps)
+    cached = replace(config, cache=tmp_path / "cache", execution=Execution(progress=False))
+    made = pipeline.run_comparison(cached)  # the episodes rendered by Ray tasks into the cache, then read back
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 2
+    again = pipeline.run_comparison(cached, observer=heard)
+    assert heard.total == sum(len(r.actions) for r in serial.results)
+    for run in (made, again):
+        assert [{k: v for k, v in vars(r).items() if k != "fps"} for r in run.rows] == without_fps

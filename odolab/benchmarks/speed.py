@@ -159,27 +159,36 @@ def bench_odometers(
 
 
 def bench_navigation(
-    odometers: Sequence[str] = ("ground-truth", "action-prior"), episodes: int = 3, max_steps: int = 100
+    odometers: Sequence[str] = ("ground-truth", "action-prior"),
+    episodes: int = 3,
+    max_steps: int = 100,
+    policy: Sequence[str] = (),
 ) -> list[dict]:
     """Closed-loop navigation in one process (:func:`odolab.navigation.episode.navigate`, default
     policy) on the first test episodes: steps per second and milliseconds per step in the policy (of
     which fast-marching planning), the sensors, the odometer and the rest (episode set-up). The action prior's agent believes a
-    wrong map and plans over the whole of it more often: the costly case."""
+    wrong map and plans over the whole of it more often: the costly case. A short untimed episode
+    first pays the one-off imports and caches, so the first row is timed as the others. ``policy``:
+    ``key=value`` changes of the default policy (:meth:`PolicyConfig.from_assignments`), named in each row."""
+    from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.episode import navigate
     from odolab.odometry.odometer import load_odometer
     from odolab.sim.episodes import EpisodeSpec
 
+    config = PolicyConfig.from_assignments(list(policy))
+    navigate(EpisodeSpec(split="test", index=episodes, seed=0, max_steps=3), load_odometer("ground-truth"), config)
     rows = []
     for name in odometers:
         odo, parts = load_odometer(name), {}
         started = time.perf_counter()
         for i in range(episodes):
-            navigate(EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps), odo, timings=parts)
+            navigate(EpisodeSpec(split="test", index=i, seed=0, max_steps=max_steps), odo, config, timings=parts)
         seconds, steps = time.perf_counter() - started, max(parts.get("steps", 0), 1)
         timed = sum(parts.get(k, 0.0) for k in ("policy", "sensors", "odometer"))
         rows.append(
             {
                 "odometer": name,
+                "policy": " ".join(policy) or "default",
                 "episodes": episodes,
                 "max_steps": max_steps,
                 "steps": int(parts.get("steps", 0)),
@@ -190,6 +199,7 @@ def bench_navigation(
                 },
                 "rest_ms_per_step": 1e3 * (seconds - timed) / steps,  # episode set-up (scene, renderer), bookkeeping
                 "planning_share": parts.get("planning", 0.0) / seconds,
+                "planning_to_sensors": parts.get("planning", 0.0) / max(parts.get("sensors", 0.0), 1e-9),
             }
         )
     return rows

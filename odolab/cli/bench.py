@@ -46,7 +46,7 @@ TITLES = {
     "episodes": "Episode generation, end to end, one process",
     "odometers": "Odometers (steps/s of step() on test-split episodes, 341x192)",
     "navigation": "Navigation, closed loop, one process (first 3 test episodes, at most 100 steps; ms per step; "
-    "planning is part of the policy; planning_share of the whole time)",
+    "planning is part of the policy; planning_share of the whole time; planning_to_sensors: planning over the sensors' time)",
     "evaluate": "Trajectory evaluation on KITTI 00 (wall seconds per command)",
     "training": "Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
     "own epoch end to end; fp32 bare beside the chosen precision)",
@@ -67,6 +67,7 @@ class Plan:
     names: list[str]
     options: dict
     train_threads: int | None = setting(None, range=(1, 256), doc="torch threads for the training part")
+    policy: tuple[str, ...] = ()  # the navigation part's policy changes, key=value (checked)
 
     def __post_init__(self) -> None:
         check(self)
@@ -118,6 +119,14 @@ def build_parser() -> ArgumentParser:
         metavar="NAME.key=value",
         help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'",
     )
+    ap.add_argument(
+        "--policy",
+        action="append",
+        default=[],
+        metavar="key=value",
+        help="a parameter of the navigation part's map-and-plan policy, as python -m odolab.navigate takes it "
+        "(repeatable; e.g. plan_step=2)",
+    )
     return ap
 
 
@@ -162,7 +171,7 @@ def _time(part: str, plan: Plan, threads: int | None, report: dict, save) -> dic
         bench.bench_odometers(plan.names, options=plan.options, rows=rows, after_each=save)
         return {"odometers": rows}
     if part == "navigation":
-        return {"navigation": bench.bench_navigation()}
+        return {"navigation": bench.bench_navigation(policy=list(plan.policy))}
     if part == "evaluate":
         from odolab.benchmarks.evaluate_speed import run as bench_evaluate
 
@@ -195,7 +204,16 @@ def _plan(args) -> Plan:
             )
         )
     names, options = _odometers(args.odometers, args.odometer_option, load="odometers" in parts)
-    return Plan(parts, recipes, data, names, options, args.train_threads)
+    if args.policy:
+        from odolab.navigation.agent import PolicyConfig, PolicyError
+
+        if "navigation" not in parts:
+            raise UsageError(f"--policy chooses how the navigation part plans; --only {asked} does not run it")
+        try:
+            PolicyConfig.from_assignments(args.policy)
+        except PolicyError as exc:
+            raise UsageError(exc.named("--policy")) from None
+    return Plan(parts, recipes, data, names, options, args.train_threads, tuple(args.policy))
 
 
 def _training_data(recipes: list[Path], bench_data: str | None) -> object:

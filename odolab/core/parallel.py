@@ -222,6 +222,15 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
     return True
 
 
+def _resolved(value: Any) -> Any:
+    """``value``, or what it refers to where it is a Ray object reference."""
+    if type(value).__name__ == "ObjectRef":
+        import ray
+
+        return _value(ray, value)
+    return value
+
+
 def _value(ray, ref) -> Any:
     """``ray.get(ref)``; a task's ``ValueError`` or ``OSError`` (bad input met in the task, such as
     a mesh file changed meanwhile) raised as itself, as in this process, not wrapped in Ray's
@@ -242,8 +251,12 @@ def fan_out(
     execution: Execution = Execution(),
     desc: str = "tasks",
     gpus: float = 0.0,
+    inputs: Sequence[Any] | None = None,
 ) -> list[Any]:
     """``[fn(item) for item in items]``, as Ray tasks when ``execution.parallel`` and there are 2+ items.
+
+    ``inputs``: per item a second argument, ``fn(item, inputs[k])``; a Ray object reference there (a
+    task submitted earlier) is resolved first, so the item's task waits for it and no sooner.
 
     ``gpus``: GPUs each Ray task asks for (Ray then makes only its GPUs visible to it; 0: none asked,
     and a task sees whatever GPUs its node has); :class:`RayAddressError` naming the cluster's GPU count
@@ -274,9 +287,10 @@ def fan_out(
         bar.update(1)
 
     try:
+        args = [(item,) if inputs is None else (item, inputs[k]) for k, item in enumerate(items)]
         if not parallel or len(items) < 2:
-            for k, item in enumerate(items):
-                done(k, fn(item))
+            for k, arg in enumerate(args):
+                done(k, fn(*(_resolved(a) for a in arg)))
             return results
         import ray
 
@@ -289,7 +303,7 @@ def fan_out(
                     subject=ray_address or "the local Ray instance",
                 )
             task = ray.remote(num_gpus=gpus)(fn) if gpus > 0 else ray.remote(fn)
-            pending = {task.remote(item): k for k, item in enumerate(items)}
+            pending = {task.remote(*arg): k for k, arg in enumerate(args)}
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:

@@ -17,7 +17,9 @@ going round would cost more; unknown cells are traversable); fast marching from 
 gives a travel-time field in metres at full speed (over the box spanning the agent and the goal plus
 ``plan_margin``, or the whole map when that box holds no way; when the whole map holds none either, as
 when a noisy map narrows a doorway below the agent's width, the whole map again for an agent of
-radius ``fallback_radius``, 0 = never); the agent heads for the lowest field
+radius ``fallback_radius``, 0 = never; with ``plan_step`` n > 1 the field beyond ``fine_radius`` of the
+agent is marched on blocks of n x n cells and joined to a march on every cell near the agent, a few
+times faster and not the same field: docs/navigation.md#speed); the agent heads for the lowest field
 value on a circle of 0.25 m around it, among the headings whose straight step passes no obstacle cell
 nearer than ``obstacle_gap`` (when none has a finite value, as inside a wall's inflated band, the open
 heading nearest the goal's direction; when none is open, the goal's direction; obstacle cells within
@@ -31,6 +33,7 @@ goal is nearer than ``stop_distance``.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -73,6 +76,14 @@ class PolicyConfig:
     own_clearance: float = setting(
         0.1, range=(0.0, 0.5), doc="obstacle cells this near the believed position are ignored by that check, m"
     )
+    plan_step: int = setting(
+        1,
+        range=(1, 8),
+        doc="beyond fine_radius of the agent, fast marching runs on blocks of n x n map cells (1: every cell)",
+    )
+    fine_radius: float = setting(
+        2.0, range=(1.0, 20.0), doc="within this of the agent, fast marching runs on every map cell, m"
+    )
     fallback_radius: float = setting(
         0.1, range=(0.0, 1.0), open_high=True, doc="the narrower agent planned for when no way fits; 0: off"
     )
@@ -89,12 +100,64 @@ class PolicyConfig:
                 f"{self.agent_radius:g}, or to 0 to turn the fallback off"
             )
 
+    def record(self) -> dict:
+        """The parameters as results record them (keys of saved runs, a folder's ``config.json``):
+        the coarse far field's two only where it is on (``plan_step`` > 1), so a run saved before
+        they existed names the same policy as today's default."""
+        doc = dataclasses.asdict(self)
+        if self.plan_step == 1:
+            del doc["plan_step"], doc["fine_radius"]
+        return doc
+
     @classmethod
     def from_assignments(cls, items: list[str]) -> PolicyConfig:
         """The default policy with ``key=value`` changes (``heading_tolerance=30``); :class:`PolicyError`
         naming the item for an unknown key, a value that is not a number of the field's kind, or a
         value out of range (:func:`odolab.config.assign`)."""
         return assign(cls, items, error=PolicyError)
+
+
+#: Cells added round a cut-short march's box (:meth:`MapPlanAgent._costs`): first-order fast
+#: marching's times are never much below the straight distance, and these keep any that are inside.
+_MARCH_GUARD = 3
+
+
+def _stops(straight: float, hint: float | None) -> list[float]:
+    """Where fast marching from the goal first stops, m, for cells at most ``straight`` m from it:
+    at ``hint`` (when below the next), at twice ``straight`` plus 2 m, then not at all (0)."""
+    stops = [2.0 * straight + 2.0, 0.0]
+    return [hint, *stops] if hint is not None and 0 < hint < stops[0] else stops
+
+
+def _pooled(grid: np.ndarray, f: int, reduce: np.ufunc) -> np.ndarray:
+    """``reduce`` over f x f blocks of ``grid`` (the last, partial ones padded with their edge)."""
+    h, w = grid.shape
+    padded = np.pad(grid, ((0, -h % f), (0, -w % f)), mode="edge")
+    out = padded[::f, ::f].copy()
+    for i in range(f):  # f^2 strided passes: several times faster than reducing reshaped blocks
+        for j in range(f):
+            reduce(out, padded[i::f, j::f], out=out)
+    return out
+
+
+def _bilinear(grid: np.ndarray, qr: np.ndarray, qc: np.ndarray) -> np.ndarray:
+    """``grid`` read at fractional (row, column) positions, bilinearly over the finite corners
+    (their weights renormalised; inf where none with a weight is finite). At whole positions it is
+    the cell's own value, to the bit."""
+    h, w = grid.shape
+    r0 = np.clip(np.floor(qr).astype(np.int64), 0, max(h - 2, 0))
+    c0 = np.clip(np.floor(qc).astype(np.int64), 0, max(w - 2, 0))
+    fr, fc = np.clip(qr - r0, 0.0, 1.0), np.clip(qc - c0, 0.0, 1.0)
+    total, weight = np.zeros(len(qr)), np.zeros(len(qr))
+    for dr, wr in ((0, 1.0 - fr), (1, fr)):
+        for dc, wc in ((0, 1.0 - fc), (1, fc)):
+            value = grid[np.minimum(r0 + dr, h - 1), np.minimum(c0 + dc, w - 1)]
+            use = (wr * wc > 0) & np.isfinite(value)
+            total[use] += wr[use] * wc[use] * value[use]
+            weight[use] += wr[use] * wc[use]
+    out = np.full(len(qr), np.inf)
+    np.divide(total, weight, out=out, where=weight > 0)
+    return out
 
 
 class PolicyError(InputError):
@@ -122,6 +185,8 @@ class OccupancyMap:
         self.votes = np.zeros((self.n, self.n), np.int32)
         self.last = np.full((self.n, self.n), -(1 << 30), np.int64)
         self.step = 0
+        self._voted = 0  # vote() calls so far: with the step, what obstacles() depends on
+        self._obstacles: tuple[tuple[int, int, int, int], np.ndarray] | None = None
 
     def to_cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(row, col, inside) of belief-frame points: row along y, col along x."""
@@ -137,10 +202,17 @@ class OccupancyMap:
         r, c, inside = self.to_cell(x, y)
         np.add.at(self.votes, (r[inside], c[inside]), weight)
         self.last[r[inside], c[inside]] = self.step
+        self._voted += 1
 
     def obstacles(self, votes: int, memory: int) -> np.ndarray:
-        """Cells with at least ``votes`` votes, last voted within ``memory`` steps."""
-        return (self.votes >= votes) & (self.step - self.last <= memory)
+        """Cells with at least ``votes`` votes, last voted within ``memory`` steps (read-only: the
+        array is kept until the next vote or step)."""
+        key = (votes, memory, self.step, self._voted)
+        if self._obstacles is None or self._obstacles[0] != key:
+            grid = (self.votes >= votes) & (self.step - self.last <= memory)
+            grid.flags.writeable = False
+            self._obstacles = (key, grid)
+        return self._obstacles[1]
 
 
 class MapPlanAgent:
@@ -162,6 +234,7 @@ class MapPlanAgent:
         self._last_action: Action | None = None
         self._last_xy = np.zeros(2)
         self.plan_seconds = 0.0  # wall time spent in fast marching so far (the benchmark reads it)
+        self._reach_hint: float | None = None  # where the next march may first stop, m (_costs)
 
     @property
     def belief(self) -> tuple[float, float, float]:
@@ -190,7 +263,14 @@ class MapPlanAgent:
         self.map.vote(world[0, keep], world[1, keep])
 
     def _costs(
-        self, x: float, y: float, margin: float | None, radius: float, r: np.ndarray, c: np.ndarray
+        self,
+        x: float,
+        y: float,
+        margin: float | None,
+        radius: float,
+        r: np.ndarray,
+        c: np.ndarray,
+        hint: float | None = None,
     ) -> np.ndarray:
         """Fast-marching travel time (m at full speed) to the believed goal from the map cells (r, c),
         for an agent of ``radius`` m, over the traversable cells of the window spanning the agent at
@@ -201,11 +281,12 @@ class MapPlanAgent:
         them: distances to obstacles are taken in a box round them (beyond it they exceed the
         radius plus the margin, all that matters of them); cells with no 4-connected way to the
         goal (where fast marching never arrives) get inf without marching, and the march first
-        stops at a travel time twice the farthest reachable cell's straight distance plus 2 m
-        (fast marching fixes times in increasing order, so every time below the stop is the full
-        march's, to the bit), marching on over the whole window only when a reachable cell lies
-        beyond it."""
-        import skfmm
+        stops at ``hint`` m (the caller's guess: the last step's farthest time plus a little), then
+        at twice the farthest reachable cell's straight distance plus 2 m (fast marching fixes times
+        in increasing order, so every time below the stop is the full march's, to the bit), marching
+        on over the whole window only when a reachable cell lies beyond both. A march that stops at
+        s m is run on the window's cells within s m (plus a guard of cells) of the goal along each
+        axis: no time below s comes from a cell farther than s (speeds are at most 1)."""
         from scipy.ndimage import distance_transform_edt, label
 
         cfg, m = self.cfg, self.map
@@ -235,15 +316,109 @@ class MapPlanAgent:
         ok[ok] = parts[r[ok] - r0, c[ok] - c0] == parts[lr, lc]
         if not ok.any():
             return out
-        wx, wy = m.to_world(np.arange(r0, r1), np.arange(c0, c1))
-        phi = np.hypot(wx[None, :] - self.goal[0], wy[:, None] - self.goal[1]) - cfg.cell
-        straight = float(np.hypot(wx[c[ok] - c0] - self.goal[0], wy[r[ok] - r0] - self.goal[1]).max())
-        for narrow in (2.0 * straight + 2.0, 0.0):  # 0: no stop
-            d = skfmm.travel_time(np.ma.MaskedArray(phi, mask=blocked), speed, dx=cfg.cell, narrow=narrow)
-            out[ok] = np.ma.filled(d.astype(np.float64), np.inf)[r[ok] - r0, c[ok] - c0]
-            if np.isfinite(out[ok]).all():
-                break
+        qr, qc = r[ok] - r0, c[ok] - c0
+        if self.cfg.plan_step > 1:
+            near = self._two_level(blocked, speed, (r0, c0), (lr, lc), (ar - r0, ac - c0), qr, qc, hint)
+            if near is not None:
+                out[ok] = near
+                return out
+        tx, ty = m.to_world(r[ok], c[ok])
+        stops = _stops(float(np.hypot(tx - self.goal[0], ty - self.goal[1]).max()), hint)
+        times = self._goal_march(blocked, speed, (r0, c0), (lr, lc), 1, stops, (qr, qc))
+        out[ok] = times[qr, qc]
         return out
+
+    def _goal_march(
+        self,
+        blocked: np.ndarray,
+        speed: np.ndarray,
+        origin: tuple[int, int],
+        goal: tuple[int, int],
+        f: int,
+        stops: list[float],
+        check: tuple[np.ndarray, np.ndarray],
+    ) -> np.ndarray:
+        """Travel times (m) from the believed goal over a grid of ``f`` x ``f`` map-cell blocks
+        (``blocked``, ``speed``: that grid; its block (0, 0) starts at map cell ``origin``; ``goal``:
+        the goal's block), inf where unreached: a march stopped at each of ``stops`` in turn (0: none)
+        until every block of ``check`` (rows, columns; fractional: read bilinearly) has a time. A march
+        that stops at s m runs on the blocks within s m (plus a guard) of the goal along each axis: no
+        time below s comes from a block farther (speeds are at most 1)."""
+        import skfmm
+
+        cfg, m = self.cfg, self.map
+        dx, o = f * cfg.cell, (f - 1) / 2  # a block's size, and its centre in map cells
+        wx, wy = m.to_world(
+            origin[0] + o + f * np.arange(blocked.shape[0]), origin[1] + o + f * np.arange(blocked.shape[1])
+        )
+        phi = np.hypot(wx[None, :] - self.goal[0], wy[:, None] - self.goal[1]) - dx
+        for narrow in stops:
+            times = np.full(phi.shape, np.inf)
+            n = max(phi.shape) if narrow == 0 else int(np.ceil(narrow / dx)) + _MARCH_GUARD
+            box = (slice(max(goal[0] - n, 0), goal[0] + n + 1), slice(max(goal[1] - n, 0), goal[1] + n + 1))
+            # skfmm reads its arrays' memory as C-ordered: a strided view gives wrong results or errors
+            part = np.ma.MaskedArray(np.ascontiguousarray(phi[box]), mask=np.ascontiguousarray(blocked[box]))
+            d = skfmm.travel_time(part, np.ascontiguousarray(speed[box]), dx=dx, narrow=narrow)
+            times[box] = np.ma.filled(d.astype(np.float64), np.inf)
+            if np.isfinite(_bilinear(times, *check)).all():
+                break
+        return times
+
+    def _two_level(
+        self,
+        blocked: np.ndarray,
+        speed: np.ndarray,
+        origin: tuple[int, int],
+        goal: tuple[int, int],
+        agent: tuple[int, int],
+        qr: np.ndarray,
+        qc: np.ndarray,
+        hint: float | None,
+    ) -> np.ndarray | None:
+        """Travel times (m) to the goal of the window cells (``qr``, ``qc``) near the agent (window
+        cell ``agent``): far from it on blocks of ``plan_step`` x ``plan_step`` cells (a block
+        passable where any of its cells is, at its fastest cell's speed: no way closes), near it on
+        every cell: a march over the cells within ``fine_radius`` of the agent from the coarse
+        field's level set ``fine_radius`` - 0.5 m nearer the goal than the agent, plus that level.
+        None (the caller then marches on every cell) where the agent is within ``fine_radius`` of
+        the goal, or the coarse field does not reach the agent, or its level set misses the box,
+        or a cell asked gets no time."""
+        import skfmm
+
+        cfg, f = self.cfg, self.cfg.plan_step
+        n = int(np.ceil(cfg.fine_radius / cfg.cell))
+        if max(abs(agent[0] - goal[0]), abs(agent[1] - goal[1])) <= n:
+            return None
+        coarse_blocked, coarse_speed = _pooled(blocked, f, np.logical_and), _pooled(speed, f, np.maximum)
+        o = (f - 1) / 2
+        at = (np.array([(agent[0] - o) / f]), np.array([(agent[1] - o) / f]))
+        straight = float(np.hypot(*(np.subtract(agent, goal) * cfg.cell)))
+        coarse = self._goal_march(
+            coarse_blocked, coarse_speed, origin, (goal[0] // f, goal[1] // f), f, _stops(straight + 1.0, hint), at
+        )
+        here = float(_bilinear(coarse, *at)[0])
+        if not np.isfinite(here):
+            return None
+        level = here - (cfg.fine_radius - 0.5)
+        rows = slice(max(agent[0] - n, 0), min(agent[0] + n + 1, blocked.shape[0]))
+        cols = slice(max(agent[1] - n, 0), min(agent[1] + n + 1, blocked.shape[1]))
+        br, bc = np.mgrid[rows, cols]
+        phi = (_bilinear(coarse, ((br - o) / f).ravel(), ((bc - o) / f).ravel()) - level).reshape(br.shape)
+        phi[~np.isfinite(phi)] = 1e6  # no time on the coarse grid: far beyond the level
+        free = ~blocked[rows, cols]
+        if not ((phi < 0) & free).any() or not ((phi > 0) & free).any():
+            return None
+        part = np.ma.MaskedArray(phi, mask=np.ascontiguousarray(blocked[rows, cols]))
+        try:
+            d = skfmm.travel_time(part, np.ascontiguousarray(speed[rows, cols]), dx=cfg.cell)
+        except ValueError:  # the level's free cells on either side do not touch
+            return None
+        near = level + np.ma.filled(d.astype(np.float64), np.inf)
+        inside = (qr >= rows.start) & (qr < rows.stop) & (qc >= cols.start) & (qc < cols.stop)
+        if not inside.all():
+            return None
+        out = near[qr - rows.start, qc - cols.start]
+        return out if np.isfinite(out).all() else None
 
     def _open_headings(self, x: float, y: float, headings: np.ndarray) -> np.ndarray:
         """(len(headings),) bool: whether a forward step along each heading (rad, belief frame) from
@@ -296,9 +471,12 @@ class MapPlanAgent:
             plans.append((None, cfg.fallback_radius))  # then a narrower agent through a gap the map narrowed
         wanted = inside & open_way  # a heading that is not open costs inf whatever the plan
         for margin, radius in plans:
-            cost[wanted] = self._costs(x, y, margin, radius, r[wanted], c[wanted])
+            cost[wanted] = self._costs(x, y, margin, radius, r[wanted], c[wanted], self._reach_hint)
             if np.isfinite(cost).any():
                 break
+        finite = cost[np.isfinite(cost)]
+        # the next step's headings lie a step from these: their times are rarely a metre beyond
+        self._reach_hint = float(finite.max()) + 1.0 if len(finite) else None
         self.plan_seconds += time.perf_counter() - started
         if not np.isfinite(cost).any():  # off the map or boxed in (e.g. in a wall's inflated band)
             goal_dir = np.arctan2(*(self.goal - (x, y))[::-1])

@@ -13,7 +13,6 @@ written through :func:`odolab.io.owned.owned_path`: never through a symbolic lin
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import re
@@ -118,7 +117,7 @@ class NavTask:
             "options": self.options,
             "weights": self.identity_digest,  # the key saved results were made with
             "spec": self.spec.record(),
-            "policy": dataclasses.asdict(self.policy),
+            "policy": self.policy.record(),
         }
         return hashlib.sha256(json.dumps(doc, sort_keys=True, default=repr).encode()).hexdigest()
 
@@ -540,5 +539,5 @@ def config_doc(odometers: list[str], options: dict, specs: list[EpisodeSpec], po
         "format": FORMAT,
         "options": {n: options.get(n, {}) for n in odometers},
         "episodes": [s.record() for s in specs],
-        "policy": dataclasses.asdict(policy),
+        "policy": policy.record(),
     }

@@ -325,16 +325,23 @@ class _Unit:
     step_timeout: float | None
 
 
-def _run_unit(unit: _Unit) -> tuple[SequenceResult, dict]:
+def _run_unit(unit: _Unit, _rendered: Any = None) -> tuple[SequenceResult, dict]:
     """A Ray task: a fresh odometer of ``unit`` on its episode (an odometer starts each sequence
     anew at ``reset``, so it answers as one that ran other episodes before), and the episode's
-    scene seed and goal."""
+    scene seed and goal. ``_rendered``: the task that cached the episode (Ray runs this one after)."""
     from odolab.sim.episodes import EpisodeCache, load_episodes
 
     odometer = load_odometers([unit.name], {unit.name: unit.options})[unit.name]
     (episode,) = load_episodes([unit.spec], EpisodeCache(unit.cache), execution=SERIAL)
     (result,) = runner.run({unit.name: odometer}, [episode], step_timeout=unit.step_timeout)
     return result, {k: episode.info.get(k) for k in ("scene_seed", "goal")}
+
+
+def _render_into(spec: EpisodeSpec, motion: Any, folder: Path) -> None:
+    """A Ray task: render the episode of ``spec`` along ``motion`` into the cache at ``folder``."""
+    from odolab.sim.episodes import EpisodeCache, render_episode
+
+    EpisodeCache(folder).put(render_episode(spec, motion))
 
 
 def _run_fanned(
@@ -345,28 +352,33 @@ def _run_fanned(
     step_timeout: float | None,
     note: Callable[[str, dict], None],
 ) -> list[SequenceResult]:
-    """Every odometer on every episode as Ray tasks, one per (episode, odometer) on a local instance
-    (started once for the episodes and the odometers), the episodes read from the cache (a
-    temporary one without ``config.cache``); results in the serial runner's order. ``observer``
-    hears of each finished task's steps and their own time; ``note(name, info)`` of each episode."""
+    """Every odometer on every episode as Ray tasks on a local instance, one per (episode,
+    odometer), each started as soon as its episode is in the cache (a temporary one without
+    ``config.cache``): the episodes the cache lacks are rendered as Ray tasks too, from their
+    motion, planned here first so that the step count is known from the start. Results in the
+    serial runner's order. ``observer`` hears of each finished task's steps and their own time;
+    ``note(name, info)`` of each episode."""
     import tempfile
 
     from odolab.core.parallel import fan_out, start_ray
-    from odolab.sim.episodes import EpisodeCache, generate_episodes
+    from odolab.sim.episodes import EpisodeCache, rollout
 
     with contextlib.ExitStack() as stack:
-        started = start_ray(None, quiet=not config.execution.progress)
-        if started:
-            import ray
-
-            stack.callback(ray.shutdown)
         folder = config.cache or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="odolab-episodes-")))
         cache = EpisodeCache(folder)
-        generate_episodes(specs, cache, execution=config.execution)
+        motions = {k: rollout(s) for k, s in enumerate(specs) if not cache.has(s)}
+        steps = sum(len(motions[k].actions) if k in motions else cache.steps(s) for k, s in enumerate(specs))
+        import ray
+
+        if start_ray(None, quiet=not config.execution.progress):
+            stack.callback(ray.shutdown)
+        render = ray.remote(_render_into)
+        rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items()}
         units = [_Unit(n, config.options.get(n, {}), s, folder, step_timeout) for s in specs for n in names]
+        inputs = [rendered.get(k) for k in range(len(specs)) for _ in names]
         results: list[SequenceResult | None] = [None] * len(units)
         if observer is not None:
-            observer.start(len(names) * sum(cache.steps(s) for s in specs))
+            observer.start(len(names) * steps)
 
         def done(k: int, value: tuple[SequenceResult, dict]) -> None:
             results[k], info = value
@@ -375,7 +387,9 @@ def _run_fanned(
                 observer.advance(units[k].name, len(results[k].actions), float(np.sum(results[k].step_seconds)))
 
         try:
-            fan_out(_run_unit, units, on_result=done, execution=replace(config.execution, progress=False))
+            fan_out(
+                _run_unit, units, inputs=inputs, on_result=done, execution=replace(config.execution, progress=False)
+            )
         finally:
             if observer is not None:
                 observer.close()
