@@ -117,8 +117,8 @@ class PolicyConfig:
         return assign(cls, items, error=PolicyError)
 
 
-#: Cells added round a cut-short march's box (:meth:`MapPlanAgent._costs`): first-order fast
-#: marching's times are never much below the straight distance, and these keep any that are inside.
+#: Cells added round a cut-short march's box (:meth:`MapPlanAgent._goal_march`): fast marching's
+#: times are never much below the straight distance from the goal; these keep any that are, inside.
 _MARCH_GUARD = 3
 
 
