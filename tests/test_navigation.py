@@ -312,6 +312,20 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert _navigate(args + ["--policy", "heading_tolerance=45", "--out", str(tmp_path / "c")]) == 0
     config = json.loads((tmp_path / "c" / "config.json").read_text())
     assert config["policy"]["heading_tolerance"] == 45.0
+    # the coarse far field, recorded only where it is on, is compared as any other parameter
+    assert _navigate(args + ["--policy", "plan_step=2", "--out", str(tmp_path / "a")]) == 2
+    assert "other settings (--policy plan_step (1 there, 2 now)); to add to it, pass --policy plan_step=1;" in (
+        capsys.readouterr().err
+    )
+    far = ["--policy", "plan_step=2", "--policy", "fine_radius=1"]
+    assert _navigate(args + far + ["--out", str(tmp_path / "d")]) == 0
+    assert _navigate(args + ["--out", str(tmp_path / "d")]) == 2
+    assert (
+        "(--policy fine_radius (1.0 there, 2.0 now), --policy plan_step (2 there, 1 now)); to add to it, pass "
+        "--policy fine_radius=1.0 --policy plan_step=2;" in capsys.readouterr().err
+    )
+    assert _navigate(args + ["--policy", "fine_radius=3", "--out", str(tmp_path / "e")]) == 2
+    assert "fine_radius only matters with plan_step > 1" in capsys.readouterr().err
 
 
 def test_navigate_keeps_out_of_folders_it_did_not_make(tmp_path, capsys):
@@ -771,6 +785,9 @@ def test_policy_config_record_names_the_coarse_far_field_only_where_it_is_on():
         k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k not in ("plan_step", "fine_radius")
     }
     assert PolicyConfig(plan_step=2).record() == dataclasses.asdict(PolicyConfig(plan_step=2))
-    assert PolicyConfig(fine_radius=3.0).record() == default  # no effect without the coarse field
+    with pytest.raises(ValueError, match="fine_radius only matters with plan_step > 1"):
+        PolicyConfig(fine_radius=3.0)  # it would have no effect
+    assert PolicyConfig.completed(default) == dataclasses.asdict(PolicyConfig())
+    assert PolicyConfig.completed(PolicyConfig(plan_step=3).record())["plan_step"] == 3
     saved = json.loads((Path(__file__).parents[1] / "reports" / "navigation" / "config.json").read_text())
     assert saved["policy"] == default  # the committed runs are today's default policy's

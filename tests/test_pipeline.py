@@ -326,3 +326,24 @@ def test_odometers_run_as_ray_tasks_answer_as_in_this_process(tmp_path):
     assert heard.total == sum(len(r.actions) for r in serial.results)
     for run in (made, again):
         assert [{k: v for k, v in vars(r).items() if k != "fps"} for r in run.rows] == without_fps
+
+
+def test_render_into_hands_back_the_episode_and_the_warning_a_cache_that_cannot_keep_it_gives(tmp_path, capsys):
+    """The Ray task that renders an episode for the odometers' tasks writes it to the cache; where the
+    cache cannot keep it (a folder in the entry's place) it returns the episode itself and the cache's
+    warning, which the driver says once (a worker's stderr is not seen)."""
+    from odolab.sim.episodes import EpisodeCache, EpisodeSpec, rollout
+
+    spec = EpisodeSpec(split="test", index=0, seed=0, max_steps=3)
+    kept, said = pipeline._render_into(spec, rollout(spec), tmp_path / "ok")
+    assert kept is None and said == "" and EpisodeCache(tmp_path / "ok").has(spec)
+    EpisodeCache(tmp_path / "bad").path(spec).mkdir(parents=True)
+    episode, said = pipeline._render_into(spec, rollout(spec), tmp_path / "bad")
+    assert episode is not None and len(episode.actions) == 3 and "cannot write the episode cache" in said
+    unit = pipeline._Unit("action-prior", {}, spec, tmp_path / "bad", None)
+    result, info, unit_said = pipeline._run_unit(unit, episode)  # the episode handed over, not read
+    assert len(result.actions) == 3 and info["scene_seed"] == episode.info["scene_seed"] and unit_said == ""
+    seen: set[str] = set()
+    pipeline._said(said + said, seen)
+    pipeline._said(said, seen)
+    assert capsys.readouterr().err.count("cannot write the episode cache") == 1

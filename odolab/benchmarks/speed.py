@@ -170,12 +170,14 @@ def bench_navigation(
     wrong map and plans over the whole of it more often: the costly case. A short untimed episode
     first pays the one-off imports and caches, so the first row is timed as the others. ``policy``:
     ``key=value`` changes of the default policy (:meth:`PolicyConfig.from_assignments`), named in each row."""
+    from odolab.config import describe
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.episode import navigate
     from odolab.odometry.odometer import load_odometer
     from odolab.sim.episodes import EpisodeSpec
 
     config = PolicyConfig.from_assignments(list(policy))
+    changed = " ".join(f"{s.name}={s.value}" for s in describe(config) if s.value != getattr(PolicyConfig, s.name))
     navigate(EpisodeSpec(split="test", index=episodes, seed=0, max_steps=3), load_odometer("ground-truth"), config)
     rows = []
     for name in odometers:
@@ -188,7 +190,7 @@ def bench_navigation(
         rows.append(
             {
                 "odometer": name,
-                "policy": " ".join(policy) or "default",
+                "policy": changed or "default",
                 "episodes": episodes,
                 "max_steps": max_steps,
                 "steps": int(parts.get("steps", 0)),

@@ -82,7 +82,9 @@ class PolicyConfig:
         doc="beyond fine_radius of the agent, fast marching runs on blocks of n x n map cells (1: every cell)",
     )
     fine_radius: float = setting(
-        2.0, range=(1.0, 20.0), doc="within this of the agent, fast marching runs on every map cell, m"
+        2.0,
+        range=(1.0, 20.0),
+        doc="with plan_step > 1: within this of the agent, fast marching runs on every map cell, m",
     )
     fallback_radius: float = setting(
         0.1, range=(0.0, 1.0), open_high=True, doc="the narrower agent planned for when no way fits; 0: off"
@@ -92,6 +94,11 @@ class PolicyConfig:
         check(self)  # a 1e-6 m cell or a 1e6 m map would not fit in memory
         if not self.min_height < self.max_height:
             raise ValueError(f"need min_height < max_height, got {self.min_height:g}, {self.max_height:g}")
+        if self.plan_step == 1 and self.fine_radius != PolicyConfig.fine_radius:
+            raise ValueError(
+                f"fine_radius only matters with plan_step > 1, got fine_radius {self.fine_radius:g} with plan_step 1: "
+                "set plan_step too, or leave fine_radius out"
+            )
         if self.fallback_radius >= self.agent_radius and self.fallback_radius != 0:
             default = " (its default)" if self.fallback_radius == PolicyConfig.fallback_radius else ""
             raise ValueError(
@@ -106,8 +113,15 @@ class PolicyConfig:
         they existed names the same policy as today's default."""
         doc = dataclasses.asdict(self)
         if self.plan_step == 1:
-            del doc["plan_step"], doc["fine_radius"]
+            for name in _FAR_FIELD:
+                del doc[name]
         return doc
+
+    @classmethod
+    def completed(cls, doc: dict) -> dict:
+        """A :meth:`record` with the parameters it leaves out at their defaults, as the policy it names has them."""
+        defaults = cls()
+        return {**{name: getattr(defaults, name) for name in _FAR_FIELD}, **doc}
 
     @classmethod
     def from_assignments(cls, items: list[str]) -> PolicyConfig:
@@ -116,6 +130,9 @@ class PolicyConfig:
         value out of range (:func:`odolab.config.assign`)."""
         return assign(cls, items, error=PolicyError)
 
+
+#: The coarse far field's parameters (:meth:`PolicyConfig.record` leaves them out where it is off).
+_FAR_FIELD = ("plan_step", "fine_radius")
 
 #: Cells added round a cut-short march's box (:meth:`MapPlanAgent._goal_march`): fast marching's
 #: times are never much below the straight distance from the goal; these keep any that are, inside.

@@ -358,6 +358,12 @@ def _episode_changes(saved: Any, episodes: list[dict]) -> list[Setting]:
     return said or [Setting(None, "the episodes' noise, camera or scenes")]
 
 
+def _completed(policy: Any) -> Any:
+    """A recorded policy (a folder's, or this run's) with the parameters :meth:`PolicyConfig.record`
+    leaves out at their defaults, so that both are compared parameter by parameter."""
+    return PolicyConfig.completed(policy) if isinstance(policy, dict) else policy
+
+
 def _differing(saved: dict, policy: dict) -> list[str]:
     """The parameters, sorted, whose value or kind differ between a folder's saved policy and ``policy``
     (one only one of them records included)."""
@@ -476,14 +482,15 @@ def run_navigation(
                 "delete the folder to run them again, or choose another {folder}",
             )
         episodes = _episode_changes(saved.get("episodes"), config["episodes"])
-        policy = _policy_changes(saved.get("policy"), config.get("policy"))
+        saved_policy, asked = (_completed(saved.get("policy")), _completed(config.get("policy")))
+        policy = _policy_changes(saved_policy, asked)
         options = [
             Setting(None, _option_changes(n, saved["options"][n], o))
             for n, o in config["options"].items()
             if n in saved.get("options", {}) and saved["options"][n] != o
         ]
         if episodes or policy or options:
-            match = [] if episodes or options else _policy_to_match(saved.get("policy"), config.get("policy"))
+            match = [] if episodes or options else _policy_to_match(saved_policy, asked)
             raise RunFolderError(
                 f"{out} holds navigation results made with other settings",
                 "choose another {folder} or delete it",

@@ -15,6 +15,7 @@ Every mistake in the configuration raises :class:`ComparisonError` with one line
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import sys
 from collections.abc import Callable, Iterator
@@ -46,7 +47,7 @@ from odolab.sim.mesh_scenes import SceneFiles
 from odolab.sim.scenes import MAX_EPISODE_STEPS, SPLITS
 
 if TYPE_CHECKING:  # the simulator's modules load only when episodes are made
-    from odolab.sim.episodes import EpisodeSpec, NoiseConfig
+    from odolab.sim.episodes import Episode, EpisodeSpec, NoiseConfig
 
 __all__ = [
     "DEFAULT_CACHE",
@@ -325,23 +326,42 @@ class _Unit:
     step_timeout: float | None
 
 
-def _run_unit(unit: _Unit, _rendered: Any = None) -> tuple[SequenceResult, dict]:
+def _run_unit(unit: _Unit, rendered: Episode | None = None) -> tuple[SequenceResult, dict, str]:
     """A Ray task: a fresh odometer of ``unit`` on its episode (an odometer starts each sequence
-    anew at ``reset``, so it answers as one that ran other episodes before), and the episode's
-    scene seed and goal. ``_rendered``: the task that cached the episode (Ray runs this one after)."""
+    anew at ``reset``, so it answers as one that ran other episodes before), the episode's scene
+    seed and goal, and what the task wrote on stderr (a damaged cache entry, say: the driver says
+    it again, where a worker's stderr is not seen). ``rendered``: what the task that rendered the
+    episode returned (Ray runs this one after it): the episode, where the cache could not keep it."""
     from odolab.sim.episodes import EpisodeCache, load_episodes
 
-    odometer = load_odometers([unit.name], {unit.name: unit.options})[unit.name]
-    (episode,) = load_episodes([unit.spec], EpisodeCache(unit.cache), execution=SERIAL)
-    (result,) = runner.run({unit.name: odometer}, [episode], step_timeout=unit.step_timeout)
-    return result, {k: episode.info.get(k) for k in ("scene_seed", "goal")}
+    with contextlib.redirect_stderr(io.StringIO()) as said:
+        odometer = load_odometers([unit.name], {unit.name: unit.options})[unit.name]
+        (episode,) = (
+            [rendered]
+            if rendered is not None
+            else load_episodes([unit.spec], EpisodeCache(unit.cache), execution=SERIAL)
+        )
+        (result,) = runner.run({unit.name: odometer}, [episode], step_timeout=unit.step_timeout)
+    return result, {k: episode.info.get(k) for k in ("scene_seed", "goal")}, said.getvalue()
 
 
-def _render_into(spec: EpisodeSpec, motion: Any, folder: Path) -> None:
-    """A Ray task: render the episode of ``spec`` along ``motion`` into the cache at ``folder``."""
+def _render_into(spec: EpisodeSpec, motion: Any, folder: Path) -> tuple[Episode | None, str]:
+    """A Ray task: render the episode of ``spec`` along ``motion`` into the cache at ``folder``; the
+    episode where the cache could not keep it (else None), and what the task wrote on stderr."""
     from odolab.sim.episodes import EpisodeCache, render_episode
 
-    EpisodeCache(folder).put(render_episode(spec, motion))
+    with contextlib.redirect_stderr(io.StringIO()) as said:
+        episode = render_episode(spec, motion)
+        kept = EpisodeCache(folder).put(episode)
+    return (episode if kept is None else None), said.getvalue()
+
+
+def _said(text: str, seen: set[str]) -> None:
+    """Say again on stderr what a Ray task wrote on its own, each line once (``seen``: lines said)."""
+    for line in text.splitlines():
+        if line not in seen:
+            seen.add(line)
+            print(line, file=sys.stderr)
 
 
 def _run_fanned(
@@ -368,31 +388,30 @@ def _run_fanned(
         cache = EpisodeCache(folder)
         motions = {k: rollout(s) for k, s in enumerate(specs) if not cache.has(s)}
         steps = sum(len(motions[k].actions) if k in motions else cache.steps(s) for k, s in enumerate(specs))
-        import ray
-
-        if start_ray(None, quiet=not config.execution.progress):
-            stack.callback(ray.shutdown)
-        render = ray.remote(_render_into)
-        rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items()}
         units = [_Unit(n, config.options.get(n, {}), s, folder, step_timeout) for s in specs for n in names]
-        inputs = [rendered.get(k) for k in range(len(specs)) for _ in names]
         results: list[SequenceResult | None] = [None] * len(units)
-        if observer is not None:
+        seen: set[str] = set()
+        if observer is not None:  # the bar's clock starts here: Ray's start is part of the wait
             observer.start(len(names) * steps)
+            stack.callback(observer.close)
 
-        def done(k: int, value: tuple[SequenceResult, dict]) -> None:
-            results[k], info = value
+        def done(k: int, value: tuple[SequenceResult, dict, str]) -> None:
+            results[k], info, said = value
+            _said(said, seen)
             note(results[k].sequence, info)
             if observer is not None:
                 observer.advance(units[k].name, len(results[k].actions), float(np.sum(results[k].step_seconds)))
 
-        try:
-            fan_out(
-                _run_unit, units, inputs=inputs, on_result=done, execution=replace(config.execution, progress=False)
-            )
-        finally:
-            if observer is not None:
-                observer.close()
+        import ray
+
+        if start_ray(None, quiet=not config.execution.progress):
+            stack.callback(ray.shutdown)
+        render = ray.remote(num_returns=2)(_render_into)
+        rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items()}
+        inputs = [rendered[k][0] if k in rendered else None for k in range(len(specs)) for _ in names]
+        fan_out(_run_unit, units, inputs=inputs, on_result=done, execution=replace(config.execution, progress=False))
+        for _, said in rendered.values():
+            _said(ray.get(said), seen)
     return [r for r in results if r is not None]
 
 
