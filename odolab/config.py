@@ -666,7 +666,8 @@ def assign(cls: type[T], items: Iterable[str], error: type[ValueError] = ConfigE
         key, sep, text = item.partition("=")
         key, shown = key.strip(), short.repr(item)
         if not sep or key not in names:
-            raise error(f"{shown}: expected key=value with key one of {', '.join(names)}")
+            unknown = f"unknown key {key!r}; " if sep and key else ""
+            raise error(f"{shown}: {unknown}expected key=value with key one of {', '.join(names)}")
         if key in changes:
             raise error(f"{shown}: {key} is given twice")
         f = _field(cls, key)

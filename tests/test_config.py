@@ -85,7 +85,11 @@ def test_built_from_toml_and_key_value_changes(tmp_path):
         (["stride=1_0"], "example 'stride=1_0': stride takes a whole number in [1, 64]"),
         (["cell=nan"], "example 'cell=nan': cell must be in [0.02, 1], got nan"),
         (["stride=2", "stride=3"], "example 'stride=3': stride is given twice"),
-        (["nope=1"], "example 'nope=1': expected key=value with key one of cell, stride, speed, reach, name"),
+        (
+            ["nope=1"],
+            "example 'nope=1': unknown key 'nope'; expected key=value with key one of cell, stride, speed, reach, name",
+        ),
+        (["stride"], "example 'stride': expected key=value with key one of cell, stride, speed, reach, name"),
         (["name=[1]"], "example 'name=[1]': name: expected str, got [1]"),
     ):
         with pytest.raises(ExampleError) as info:
