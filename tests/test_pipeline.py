@@ -347,21 +347,3 @@ def test_render_into_hands_back_the_episode_and_the_warning_a_cache_that_cannot_
     pipeline._said(said + said, seen)
     pipeline._said(said, seen)
     assert capsys.readouterr().err.count("cannot write the episode cache") == 1
-
-
-@pytest.mark.slow
-def test_load_beside_ray_starts_ray_only_where_the_odometers_will_be_ray_tasks():
-    import ray
-
-    config = ComparisonConfig(odometers=["planar-depth", "action-prior"], episodes=2, max_steps=6, cache=None)
-    odometers, started = pipeline.load_beside_ray(replace(config, execution=SERIAL))
-    assert sorted(odometers) == ["action-prior", "planar-depth"] and not started and not ray.is_initialized()
-    odometers, started = pipeline.load_beside_ray(replace(config, execution=Execution(progress=False)))
-    try:
-        assert sorted(odometers) == ["action-prior", "planar-depth"] and started and ray.is_initialized()
-    finally:
-        ray.shutdown()
-    bad = replace(config, odometers=["planar-depth", "action-prior"], options={"planar-depth": {"nonsense": 1}})
-    with pytest.raises(ComparisonError, match="nonsense"):
-        pipeline.load_beside_ray(replace(bad, execution=Execution(progress=False)))
-    assert not ray.is_initialized()  # a refused option stops the Ray it started

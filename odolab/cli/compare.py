@@ -42,7 +42,7 @@ from odolab.reporting.pipeline import (
     ComparisonConfig,
     ComparisonError,
     failure_reasons,
-    load_beside_ray,
+    load_odometers,
     run_comparison,
     tum_sequences,
 )
@@ -289,21 +289,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     _check_before_work(args, argv)
     if not args.quiet and sys.stderr.isatty():  # at once on a terminal: loading the odometers takes seconds
         print("loading odometers", end="\r", file=sys.stderr, flush=True)  # the next line writes over it
-    try:  # every name and option checked before a folder is made (Ray starting meanwhile, where it will run them)
-        odometers, ray_started = load_beside_ray(config)
+    try:  # every name and option checked before a folder is made
+        odometers = load_odometers(config.odometers, config.options)
     except ComparisonError as exc:
         raise UsageError(naming_the_file(str(exc), args.config, bool(args.odometer_option))) from None
-    try:
-        return _compare(args, config, odometers)
-    finally:
-        if ray_started:
-            import ray
-
-            ray.shutdown()
-
-
-def _compare(args: argparse.Namespace, config: ComparisonConfig, odometers: dict) -> int:
-    """The comparison of the checked ``config`` with its ``odometers`` made: printed and written."""
     sequences = None
     if args.tum is not None:  # the folder read and checked before --out is made
         try:

@@ -18,7 +18,7 @@ import contextlib
 import io
 import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -56,7 +56,6 @@ __all__ = [
     "ComparisonResult",
     "empty_depth_warnings",
     "failure_reasons",
-    "load_beside_ray",
     "load_odometers",
     "odometer_names",
     "run_comparison",
@@ -304,7 +303,7 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     return stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
 
 
-def _fanned(config: ComparisonConfig, odometers: Sequence[str] | dict[str, Odometer]) -> bool:
+def _fanned(config: ComparisonConfig, odometers: dict[str, Odometer]) -> bool:
     """Whether the odometers run as Ray tasks (:func:`_run_fanned`): in parallel, on a local
     instance (a cluster's nodes cannot read this machine's episode cache), more than one odometer
     or episode, every odometer one a task can make anew by its name (a registered one or a
@@ -472,36 +471,6 @@ def odometer_configs(odometers: dict) -> dict[str, str]:
     return {name: ", ".join(flat("", c)) for name, c in configs.items() if dataclasses.is_dataclass(c)}
 
 
-def load_beside_ray(config: ComparisonConfig) -> tuple[dict[str, Odometer], bool]:
-    """:func:`load_odometers` of ``config``, and, where :func:`run_comparison` will run them as Ray
-    tasks, a local Ray instance started meanwhile (in this thread, which keeps its signal handlers:
-    Ray's start mostly waits for its daemons, loading computes); whether it started one (the caller
-    shuts it down when done)."""
-    from odolab.core.parallel import start_ray
-
-    if config.tum is not None or config.split not in SPLITS:
-        return load_odometers(config.odometers, config.options), False
-    try:
-        fans = _fanned(config, odometer_names(config.odometers))
-    except ComparisonError:  # a bad name: loading says so
-        fans = False
-    if not fans:
-        return load_odometers(config.odometers, config.options), False
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="odolab-load") as pool:
-        loading = pool.submit(load_odometers, config.odometers, config.options)
-        started = start_ray(None, quiet=not config.execution.progress)
-    try:
-        return loading.result(), started
-    except BaseException:
-        if started:
-            import ray
-
-            ray.shutdown()
-        raise
-
-
 def run_comparison(
     config: ComparisonConfig,
     observer: RunObserver | None = None,
@@ -509,31 +478,13 @@ def run_comparison(
     sequences: list | None = None,
 ) -> ComparisonResult:
     """Run every odometer of ``config`` on its sequences and summarise (nothing is written);
-    ``odometers``: those of ``config`` already made by :func:`load_odometers` (or
-    :func:`load_beside_ray`), else made here, beside Ray's start."""
+    ``odometers``: those of ``config`` already made by :func:`load_odometers`, else made here;
+    ``sequences``: with ``config.tum``, the folder already read by :func:`tum_sequences`."""
     if config.split not in SPLITS:
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
-    if odometers is not None:
-        return _comparison(config, observer, odometers, sequences)
-    odometers, started = load_beside_ray(config)
-    try:
-        return _comparison(config, observer, odometers, sequences)
-    finally:
-        if started:
-            import ray
-
-            ray.shutdown()
-
-
-def _comparison(
-    config: ComparisonConfig,
-    observer: RunObserver | None,
-    odometers: dict[str, Odometer],
-    sequences: list | None,
-) -> ComparisonResult:
-    """:func:`run_comparison` with the odometers made; ``sequences``: with ``config.tum``, the
-    folder already read by :func:`tum_sequences`."""
     step_timeout = config.step_timeout
+    if odometers is None:
+        odometers = load_odometers(config.odometers, config.options)
     if config.tum is not None:
         blind = [name for name, odo in odometers.items() if _needs_action(name, odo)]
         if blind and config.odometers is not None:
