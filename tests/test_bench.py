@@ -52,7 +52,11 @@ def test_bench_navigation_times_the_policy_asked_and_names_it(monkeypatch):
         return real(spec, odometer, policy, **kw)
 
     monkeypatch.setattr(episode, "navigate", navigate)
-    rows = bench.bench_navigation(odometers=("ground-truth",), episodes=1, max_steps=4, policy=["plan_step=2"])
+    from odolab.navigation.agent import PolicyConfig
+
+    rows = bench.bench_navigation(
+        odometers=("ground-truth",), episodes=1, max_steps=4, policy=PolicyConfig(plan_step=2)
+    )
     assert used == [2, 2] and rows[0]["policy"] == "plan_step=2" and rows[0]["steps"] == 4
     assert rows[0]["planning_to_sensors"] > 0
 

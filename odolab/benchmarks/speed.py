@@ -12,8 +12,12 @@ import time
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # the navigation modules load only when that part runs
+    from odolab.navigation.agent import PolicyConfig
 
 
 def bench_simulator(n_scenes: int = 3, n_poses: int = 40, repeats: int = 3) -> list[dict]:
@@ -162,22 +166,23 @@ def bench_navigation(
     odometers: Sequence[str] = ("ground-truth", "action-prior"),
     episodes: int = 3,
     max_steps: int = 100,
-    policy: Sequence[str] = (),
+    policy: PolicyConfig | None = None,
 ) -> list[dict]:
     """Closed-loop navigation in one process (:func:`odolab.navigation.episode.navigate`, default
     policy) on the first test episodes: steps per second and milliseconds per step in the policy (of
     which fast-marching planning), the sensors, the odometer and the rest (episode set-up). The action prior's agent believes a
     wrong map and plans over the whole of it more often: the costly case. A short untimed episode
     first pays the one-off imports and caches, so the first row is timed as the others. ``policy``:
-    ``key=value`` changes of the default policy (:meth:`PolicyConfig.from_assignments`), named in each row."""
+    the policy (None: the default), named in each row by its settings that differ from the default's."""
     from odolab.config import describe
     from odolab.navigation.agent import PolicyConfig
     from odolab.navigation.episode import navigate
     from odolab.odometry.odometer import load_odometer
     from odolab.sim.episodes import EpisodeSpec
 
-    config = PolicyConfig.from_assignments(list(policy))
-    changed = " ".join(f"{s.name}={s.value}" for s in describe(config) if s.value != getattr(PolicyConfig, s.name))
+    config = policy or PolicyConfig()
+    defaults = {s.name: s.value for s in describe(PolicyConfig)}
+    changed = " ".join(f"{s.name}={s.value}" for s in describe(config) if s.value != defaults[s.name])
     navigate(EpisodeSpec(split="test", index=episodes, seed=0, max_steps=3), load_odometer("ground-truth"), config)
     rows = []
     for name in odometers:

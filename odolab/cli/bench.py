@@ -67,7 +67,7 @@ class Plan:
     names: list[str]
     options: dict
     train_threads: int | None = setting(None, range=(1, 256), doc="torch threads for the training part")
-    policy: tuple[str, ...] = ()  # the navigation part's policy changes, key=value (checked)
+    policy: object = None  # the navigation part's PolicyConfig (None: the default)
 
     def __post_init__(self) -> None:
         check(self)
@@ -171,7 +171,7 @@ def _time(part: str, plan: Plan, threads: int | None, report: dict, save) -> dic
         bench.bench_odometers(plan.names, options=plan.options, rows=rows, after_each=save)
         return {"odometers": rows}
     if part == "navigation":
-        return {"navigation": bench.bench_navigation(policy=list(plan.policy))}
+        return {"navigation": bench.bench_navigation(policy=plan.policy)}
     if part == "evaluate":
         from odolab.benchmarks.evaluate_speed import run as bench_evaluate
 
@@ -204,16 +204,17 @@ def _plan(args) -> Plan:
             )
         )
     names, options = _odometers(args.odometers, args.odometer_option, load="odometers" in parts)
+    policy = None
     if args.policy:
         from odolab.navigation.agent import PolicyConfig, PolicyError
 
         if "navigation" not in parts:
             raise UsageError(f"--policy chooses how the navigation part plans; --only {asked} does not run it")
         try:
-            PolicyConfig.from_assignments(args.policy)
+            policy = PolicyConfig.from_assignments(args.policy)
         except PolicyError as exc:
             raise UsageError(exc.named("--policy")) from None
-    return Plan(parts, recipes, data, names, options, args.train_threads, tuple(args.policy))
+    return Plan(parts, recipes, data, names, options, args.train_threads, policy)
 
 
 def _training_data(recipes: list[Path], bench_data: str | None) -> object:

@@ -419,6 +419,8 @@ class MapPlanAgent:
         level = here - (cfg.fine_radius - 0.5)
         rows = slice(max(agent[0] - n, 0), min(agent[0] + n + 1, blocked.shape[0]))
         cols = slice(max(agent[1] - n, 0), min(agent[1] + n + 1, blocked.shape[1]))
+        if not ((qr >= rows.start) & (qr < rows.stop) & (qc >= cols.start) & (qc < cols.stop)).all():
+            return None
         br, bc = np.mgrid[rows, cols]
         phi = (_bilinear(coarse, ((br - o) / f).ravel(), ((bc - o) / f).ravel()) - level).reshape(br.shape)
         phi[~np.isfinite(phi)] = 1e6  # no time on the coarse grid: far beyond the level
@@ -431,9 +433,6 @@ class MapPlanAgent:
         except ValueError:  # the level's free cells on either side do not touch
             return None
         near = level + np.ma.filled(d.astype(np.float64), np.inf)
-        inside = (qr >= rows.start) & (qr < rows.stop) & (qc >= cols.start) & (qc < cols.stop)
-        if not inside.all():
-            return None
         out = near[qr - rows.start, qc - cols.start]
         return out if np.isfinite(out).all() else None
 
