@@ -21,7 +21,7 @@ from odolab.learned.robust_vo.config import ModelConfig, StageConfig, TrainConfi
 from odolab.learned.robust_vo.inputs import frame_channels, pair_channels, top_down_projection
 from odolab.learned.robust_vo.model import build_networks, predict
 from odolab.learned.robust_vo.motion import compose, geoinv_loss, inverse, mirror, swap_action
-from odolab.learned.robust_vo.odometer import RobustVOOdometer
+from odolab.learned.robust_vo.odometer import RobustVOOdometer, channels_last_stack
 from odolab.learned.training import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
 from odolab.learned.training.checkpoints import load_checkpoint
 from odolab.learned.training.epochs import STATE_FORMAT, STATE_KIND
@@ -108,6 +108,15 @@ def test_pair_channels_are_the_papers_30_with_one_hot_depth_bins():
         c = ModelConfig(width=W, height=H, visual=visual, dd_bins=dd, sproj=sproj)
         assert c.channels_per_frame == n
         assert frame_channels(torch.from_numpy(rgb[0]), torch.from_numpy(depth[0]), K, c).shape == (2, n, H, W)
+
+
+def test_channels_last_stack_holds_the_stacked_parts_in_channels_last_memory():
+    g = torch.Generator().manual_seed(0)
+    pairs = [[torch.rand(c, 5, 7, generator=g) for c in (4, 4, 1)] for _ in range(3)]
+    x = channels_last_stack(pairs)
+    assert x.is_contiguous(memory_format=torch.channels_last) and not x.is_contiguous()
+    assert torch.equal(x, torch.stack([torch.cat(parts) for parts in pairs]))
+    assert x.stride() == torch.empty(3, 9, 5, 7).to(memory_format=torch.channels_last).stride()
 
 
 def test_top_down_projection_puts_a_wall_at_its_distance_and_centre():

@@ -65,6 +65,21 @@ class RobustVOOptions:
             raise ValueError(f"mc_samples must be 0 (off) or in [2, 1000], got {self.mc_samples}")
 
 
+def channels_last_stack(pairs: list[list[torch.Tensor]]) -> torch.Tensor:
+    """(B, C, h, w) in channels-last memory of B pairs, each a list of (c_i, h, w) parts stacked
+    along the channels: the values of ``torch.stack([torch.cat(parts) ...])`` in that layout, each
+    part copied once (concatenating, stacking and converting measured 2.3x this copy's time at 341 x
+    192 x 30 channels, one CPU thread)."""
+    h, w = pairs[0][0].shape[-2:]
+    x = torch.empty((len(pairs), h, w, sum(p.shape[0] for p in pairs[0])), dtype=pairs[0][0].dtype)
+    for k, parts in enumerate(pairs):
+        c = 0
+        for p in parts:
+            x[k, :, :, c : c + p.shape[0]].copy_(p.permute(1, 2, 0))
+            c += p.shape[0]
+    return x.permute(0, 3, 1, 2)
+
+
 class RobustVOOdometer(Odometer):
     """The robust VO. See the module docstring for the options."""
 
@@ -129,11 +144,11 @@ class RobustVOOdometer(Odometer):
         self._last = (frame.rgb, x)
         return x
 
-    def _pair_channels(self, prev: Frame, cur: Frame, action: Action) -> torch.Tensor:
-        """psi of a pair (2C [+ 1], h, w); with the ``nominal`` warp the current frame is first
-        resampled into the previous view by the action's commanded motion."""
+    def _pair_channels(self, prev: Frame, cur: Frame, action: Action) -> list[torch.Tensor]:
+        """psi of a pair as its parts (C, h, w), (C, h, w) [, (1, h, w)]; with the ``nominal`` warp the
+        current frame is first resampled into the previous view by the action's commanded motion."""
         if self.cfg.warp == "none":
-            return torch.cat([self._frame_channels(prev), self._frame_channels(cur)])
+            return [self._frame_channels(prev), self._frame_channels(cur)]
         (_, prev_depth), (rgb, depth) = self._resized(prev), self._resized(cur)
         rgb, depth = warp_current(
             rgb, depth, prev_depth, nominal_transforms(np.array([action.value])), self._input_intrinsics
@@ -141,7 +156,7 @@ class RobustVOOdometer(Odometer):
         parts = [self._frame_channels(prev), frame_channels(rgb, depth, self._input_intrinsics, self.cfg)[0]]
         if self.cfg.depth_residual:
             parts.append(residual_channel(prev_depth, depth, self.cfg.depth_residual)[0])
-        return torch.cat(parts)
+        return parts
 
     def _predict(self, x: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
         """(B, 3) motions of pair inputs ``x`` (B, 2C, h, w); with ``mirror_tta`` averaged with the
@@ -163,8 +178,8 @@ class RobustVOOdometer(Odometer):
                 todo.append(k)
         if todo:
             chosen = [pairs[k][2] or Action.MOVE_FORWARD for k in todo]  # a unified model may get no action
-            x = torch.stack([self._pair_channels(pairs[k][0], pairs[k][1], a) for k, a in zip(todo, chosen)])
-            x = x.to(self.device, memory_format=torch.channels_last)
+            x = channels_last_stack([self._pair_channels(pairs[k][0], pairs[k][1], a) for k, a in zip(todo, chosen)])
+            x = x.to(self.device)
             actions = np.array([a.value for a in chosen])
             with torch.inference_mode():
                 if self.mc_samples:

@@ -11,11 +11,14 @@ previous one up to noise and occlusions, so the network sees only the deviation 
 (what it must predict beyond the action prior). For a pure rotation the warp does not depend on the
 depth at all: it is the homography K R^T K^-1.
 
-The back-projection is kornia's ``depth_to_3d_v2`` (integer pixel centres, as
-:class:`odolab.core.types.Intrinsics` has them), to the bit the plain d * ((u - cx) / fx, (v - cy) / fy, 1).
-The rigid transform, the projection and the sampled point's ray are written out: kornia's
-``transform_points`` with ``project_points`` measured 1.7x this warp's time (32 pairs at 341 x 192,
-one CPU thread) and round differently, and its ``unproject_points`` measured 1.8x the time of that ray.
+The back-projection is d * ((u - cx) / fx, (v - cy) / fy, 1) with integer pixel centres (as
+:class:`odolab.core.types.Intrinsics` has them), each coordinate a plane of its own: the column and
+row factors are two vectors broadcast over the depth image, and the rotation is written out per
+component: the numbers of kornia's ``depth_to_3d_v2`` followed by a batched matrix product, to the
+bit (tests/test_robust_vo_warp.py holds that form), at 0.6x its time (341 x 192, one CPU thread;
+kornia rebuilds its pixel grid on every call, and the (B, H, W, 3) point layout costs strided
+passes). kornia's ``transform_points`` with ``project_points`` measured 1.7x the time of the matrix
+product and round differently.
 """
 
 from __future__ import annotations
@@ -23,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 import torch.nn.functional as F
-from kornia.geometry.depth import depth_to_3d_v2
 
 from odolab.api import Action, Intrinsics, nominal_motion
 
@@ -55,32 +57,41 @@ def warp_current(
     _b, h, w = depth.shape
     K = intrinsics
     d = prev_depth.to(torch.float32)
-    d = torch.where(d > 0, d, torch.full_like(d, fallback_depth))
-    camera = torch.as_tensor(K.matrix, dtype=torch.float32, device=d.device)[None]  # (1, 3, 3): one ray grid
-    points = depth_to_3d_v2(d, camera)  # previous camera, (B, H, W, 3): d * ((u - cx) / fx, (v - cy) / fy, 1)
-    R, t = T_prev_cur[:, :3, :3].to(torch.float32), T_prev_cur[:, :3, 3].to(torch.float32)
-    in_cur = torch.einsum("bji,bhwj->bhwi", R, points - t[:, None, None, :])  # R^T (P - t)
-    z = in_cur[..., 2]
+    d = d.masked_fill(~(d > 0), fallback_depth)
+    rx, ry = pixel_rays(K, h, w, d.device)
+    R = T_prev_cur[:, :3, :3].to(torch.float32)[:, :, :, None, None]  # (B, 3, 3, 1, 1)
+    t = T_prev_cur[:, :3, 3].to(torch.float32)[:, :, None, None]  # (B, 3, 1, 1)
+    p = (d * rx - t[:, 0], d * ry - t[:, 1], d - t[:, 2])  # P - t, previous camera axes
+    x, y, z = ((R[:, 0, i] * p[0] + R[:, 1, i] * p[1]) + R[:, 2, i] * p[2] for i in range(3))  # R^T (P - t)
     ahead = z > 1e-3
     zs = torch.where(ahead, z, torch.ones_like(z))
-    uc = K.fx * in_cur[..., 0] / zs + K.cx
-    vc = K.fy * in_cur[..., 1] / zs + K.cy
+    uc = K.fx * x / zs + K.cx
+    vc = K.fy * y / zs + K.cy
     inside = ahead & (uc >= -0.5) & (uc <= w - 0.5) & (vc >= -0.5) & (vc <= h - 0.5)
     grid = torch.stack([(uc + 0.5) / w * 2 - 1, (vc + 0.5) / h * 2 - 1], dim=-1)  # align_corners=False
     colour = F.grid_sample(
         rgb.to(torch.float32).permute(0, 3, 1, 2), grid, mode="bilinear", padding_mode="border", align_corners=False
-    ).permute(0, 2, 3, 1)
+    )
     sampled = F.grid_sample(
         depth.to(torch.float32)[:, None], grid, mode="nearest", padding_mode="zeros", align_corners=False
     )[:, 0]
     ok = inside & (sampled > 0)
     # the sampled current point, back in the previous camera: z of R Q + t with Q = sampled * ray(uc, vc)
-    q = sampled[..., None] * torch.stack([(uc - K.cx) / K.fx, (vc - K.cy) / K.fy, torch.ones_like(uc)], dim=-1)
-    z_prev = torch.einsum("bj,bhwj->bhw", R[:, 2, :], q) + t[:, 2, None, None]
+    q = (sampled * ((uc - K.cx) / K.fx), sampled * ((vc - K.cy) / K.fy), sampled)
+    z_prev = ((R[:, 2, 0] * q[0] + R[:, 2, 1] * q[1]) + R[:, 2, 2] * q[2]) + t[:, 2]
     ok = ok & (z_prev > 0)
-    return torch.where(ok[..., None], colour, torch.zeros_like(colour)), torch.where(
-        ok, z_prev, torch.zeros_like(z_prev)
-    )
+    return colour.masked_fill_(~ok[:, None], 0.0).permute(0, 2, 3, 1), z_prev.masked_fill_(~ok, 0.0)
+
+
+def pixel_rays(
+    intrinsics: Intrinsics, h: int, w: int, device: torch.device | str | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The camera-axes ray (x, y, 1) of each pixel of an ``h`` x ``w`` image as two factors: x (W,)
+    ``(u - cx) / fx`` and y (H, 1) ``(v - cy) / fy``, float32, integer pixel centres."""
+    K = intrinsics
+    rx = (torch.arange(w, dtype=torch.float32, device=device) - K.cx) / K.fx
+    ry = (torch.arange(h, dtype=torch.float32, device=device) - K.cy) / K.fy
+    return rx, ry[:, None]
 
 
 def warp_pairs(
