@@ -14,11 +14,12 @@ depth at all: it is the homography K R^T K^-1.
 The back-projection is d * ((u - cx) / fx, (v - cy) / fy, 1) with integer pixel centres (as
 :class:`odolab.core.types.Intrinsics` has them), each coordinate a plane of its own: the column and
 row factors are two vectors broadcast over the depth image, and the rotation is written out per
-component: the numbers of kornia's ``depth_to_3d_v2`` followed by a batched matrix product, to the
-bit (tests/test_robust_vo_warp.py holds that form), at 0.6x its time (341 x 192, one CPU thread;
-kornia rebuilds its pixel grid on every call, and the (B, H, W, 3) point layout costs strided
-passes). kornia's ``transform_points`` with ``project_points`` measured 1.7x the time of the matrix
-product and round differently.
+component: on a CPU, the numbers of kornia's ``depth_to_3d_v2`` followed by a batched matrix
+product (``einsum``, which rounds each product and sum there, no fused multiply-add), to the bit
+(tests/test_robust_vo_warp.py holds that form), at 0.5-0.6x its time at 341 x 192 on one thread
+(kornia rebuilds its pixel grid on every call, and the (B, H, W, 3) point layout costs strided
+passes). kornia's ``transform_points`` with ``project_points`` measured 1.6-1.7x the time of that
+``einsum`` and round differently.
 """
 
 from __future__ import annotations
