@@ -9,13 +9,15 @@ import pytest
 
 pytest.importorskip("torch")  # a declared dependency; skip only where it is truly absent
 
-from studies.robust_vo.inference_precision import BF16, FP32, main
+from odolab.cli.study import command
+from studies.robust_vo.inference_precision import BF16, FP32
 
 
 @pytest.mark.slow
 def test_inference_precision_pairs_bf16_with_fp32_on_the_same_steps(tmp_path, capsys):
-    assert main(["--episodes", "2", "--max-steps", "4", "--out", str(tmp_path / "out")]) == 0
+    assert command("inference-precision", ["--episodes", "2", "--max-steps", "4", "--out", str(tmp_path / "out")]) == 0
     found = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert found["command"].startswith("python -m studies.robust_vo.inference_precision --episodes 2")
     assert [r["odometer"] for r in found["rows"]] == [FP32, BF16]
     assert all(r["steps"] == found["rows"][0]["steps"] > 0 for r in found["rows"])
     overall = [p for p in found["paired"] if p["action"] == "all"]
@@ -25,6 +27,7 @@ def test_inference_precision_pairs_bf16_with_fp32_on_the_same_steps(tmp_path, ca
     assert "paired on" in capsys.readouterr().out
 
 
-def test_inference_precision_refuses_too_few_episodes():
-    with pytest.raises(SystemExit):
-        main(["--episodes", "1"])
+def test_inference_precision_refuses_too_few_episodes_in_one_line(capsys):
+    assert command("inference-precision", ["--episodes", "1"]) == 2
+    said = capsys.readouterr().err.strip().splitlines()
+    assert len(said) == 1 and "--episodes" in said[0] and "1" in said[0]

@@ -46,6 +46,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "forward-dz-probe": ("studies.robust_vo.forward_dz_probe", "what limits the robust VO's forward dz"),
     "derotation-probe": ("studies.robust_vo.derotation_probe", "a fresh turn network with and without the warp"),
     "precision-check": ("studies.robust_vo.precision_check", "a short recipe trained in fp32 and bf16"),
+    "inference-precision": ("studies.robust_vo.inference_precision", "the shipped robust VO run in fp32 and bf16"),
 }
 
 #: The scales every computing study defines (studies.framework.SCALES), with their help.
@@ -185,6 +186,17 @@ def _precision_check(ap: ArgumentParser, module) -> None:
     )
 
 
+def _inference_precision(ap: ArgumentParser, module) -> None:
+    add_setting(ap, "--episodes", module.ProbeSettings, "episodes")
+    add_setting(ap, "--max-steps", module.ProbeSettings, "max_steps")
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("reports") / "robust-vo" / "inference-precision",
+        help="where summary.json goes (default reports/robust-vo/inference-precision)",
+    )
+
+
 #: study name -> what adds its options to its parser, given its module
 OPTIONS: dict[str, Callable[[ArgumentParser, object], None]] = {
     "e-table": _with_scenes,
@@ -197,6 +209,7 @@ OPTIONS: dict[str, Callable[[ArgumentParser, object], None]] = {
     "forward-dz-probe": _forward_dz_probe,
     "derotation-probe": _derotation_probe,
     "precision-check": _precision_check,
+    "inference-precision": _inference_precision,
 }
 
 

@@ -11,10 +11,9 @@ Writes ``summary.json`` (both rows, the paired rows, the machine) into ``--out``
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-from pathlib import Path
 
+from odolab.config import check, setting
 from odolab.core.machine import machine
 from odolab.core.parallel import SERIAL
 from odolab.io.atomic import write_json_atomic
@@ -24,6 +23,17 @@ from odolab.running.paired import paired_differences, paired_verdicts
 from odolab.sim.episodes import EpisodeSpec, load_episodes
 
 FP32, BF16 = "robust-vo", "robust-vo precision=bf16"
+
+
+@dataclasses.dataclass(frozen=True)
+class ProbeSettings:
+    """How many val episodes (seed 0) and how many steps each."""
+
+    episodes: int = setting(20, range=(2, 1000), doc="val episodes (two at least: the unit of the intervals)")
+    max_steps: int = setting(100, range=(1, 500), doc="steps per episode")
+
+    def __post_init__(self) -> None:
+        check(self)
 
 
 def measure(episodes: int, max_steps: int) -> dict:
@@ -43,19 +53,14 @@ def measure(episodes: int, max_steps: int) -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m studies.robust_vo.inference_precision", description=__doc__)
-    parser.add_argument("--episodes", type=int, default=20, help="val episodes (default 20)")
-    parser.add_argument("--max-steps", type=int, default=100, help="steps per episode (default 100)")
-    parser.add_argument("--out", type=Path, default=Path("reports/robust-vo/inference-precision"))
-    args = parser.parse_args(argv)
-    if not 2 <= args.episodes <= 1000 or not 1 <= args.max_steps <= 500:
-        parser.error(
-            f"--episodes must be in [2, 1000] and --max-steps in [1, 500], got {args.episodes}, {args.max_steps}"
-        )
+def run(args) -> int:
+    """The probe as its command line (:mod:`odolab.cli.study`) asks: ``summary.json`` into ``args.out``."""
+    from odolab.cli import check_report_dir
+
+    check_report_dir(args.out, "--out", manifest="summary.json")
     found = measure(args.episodes, args.max_steps)
     args.out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(args.out / "summary.json", found)
+    write_json_atomic(args.out / "summary.json", {"command": args.command, **found})
     for row in found["rows"]:
         print(
             f"{row['odometer']}: dx {row['dx']:.3f} dz {row['dz']:.3f} dyaw {row['dyaw']:.3f} x 1e-2, {row['fps']:.1f} steps/s"
@@ -64,5 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+if __name__ == "__main__":  # python -m studies.robust_vo.inference_precision: the command line is odolab.cli.study's
+    import importlib
+
+    study = importlib.import_module("odolab.cli.study")
+    study.exit_process(study.command("inference-precision"))
