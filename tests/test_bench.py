@@ -93,3 +93,12 @@ def test_bench_compare_times_a_comparison_against_its_odometers_own_steps():
     row = bench_compare(episodes=1, max_steps=4, odometers=["action-prior", "planar-depth"], execution=SERIAL)
     assert row["odometers"] == 2 and row["cores"] >= 1 and 0 < row["odometer_step_s"] < row["wall_s"]
     assert row["ratio"] == row["wall_s"] / (row["odometer_step_s"] / row["cores"])
+
+
+def test_bench_odometers_names_the_options_it_timed():
+    from odolab.benchmarks import speed as bench
+
+    rows = bench.bench_odometers(
+        ["action-prior", "icp"], episodes=1, max_steps=3, options={"icp": {"max_depth": 4.0, "voxel": 0.05}}
+    )
+    assert "options" not in rows[0] and rows[1]["options"] == "max_depth=4.0 voxel=0.05"

@@ -31,3 +31,11 @@ def test_inference_precision_refuses_too_few_episodes_in_one_line(capsys):
     assert command("inference-precision", ["--episodes", "1"]) == 2
     said = capsys.readouterr().err.strip().splitlines()
     assert len(said) == 1 and "--episodes" in said[0] and "1" in said[0]
+
+
+def test_inference_precision_refuses_a_folder_it_does_not_own(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "summary.json").write_text('{"my": "own data"}')
+    assert command("inference-precision", ["--episodes", "2", "--max-steps", "1", "--out", str(mine)]) == 2
+    assert "--out" in capsys.readouterr().err and (mine / "summary.json").read_text() == '{"my": "own data"}'

@@ -150,6 +150,8 @@ def bench_odometers(
         res = runner.run({name: odo}, eps)
         row = summary.summarize(res)[0]
         out.append({"odometer": name, "steps": row.steps, "steps_per_s": row.fps, "failures": row.failures})
+        if (options or {}).get(name):  # what was timed: the options beside the name
+            out[-1]["options"] = " ".join(f"{k}={v}" for k, v in sorted(options[name].items()))
         if hasattr(odo, "fusion_seconds"):  # a fused odometer: the graph's own share, its inputs excluded
             out[-1]["graph_ms_per_step"] = 1000.0 * odo.fusion_seconds / max(odo.fused_steps, 1)
         if hasattr(odo, "network_steps_per_s"):  # a learned odometer: its network's pass alone, the limit

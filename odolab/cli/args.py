@@ -400,8 +400,11 @@ def folder_owner(path: Path) -> str | None:
 
     said = manifest_owner(path)
     if said is not None and said.startswith("study "):
+        from odolab.cli.study import STUDIES
+
         study = said.removeprefix("study ").strip()
-        return f"the report folder of study {study} (python -m studies.{study})"
+        module = STUDIES[study][0] if study in STUDIES else f"studies.{study}"
+        return f"the report folder of study {study} (python -m {module})"
     if said is not None:
         return _OWNERS.get(said, f"a folder of odolab {said}")
     for name, keys, words in (

@@ -6,12 +6,14 @@ over episodes of the per-episode differences, x 1e-2, with a 95 % interval and i
     python -m studies.robust_vo.inference_precision [--episodes 20] [--max-steps 100] [--out reports/robust-vo/inference-precision]
 
 One process, one torch thread per odometer (the odometer's default), episodes made in memory.
-Writes ``summary.json`` (both rows, the paired rows, the machine) into ``--out``.
+Writes ``summary.json`` (both rows, the paired rows, the machine, the command) and ``manifest.txt``
+into ``--out``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import re
 
 from odolab.config import check, setting
 from odolab.core.machine import machine
@@ -23,6 +25,8 @@ from odolab.running.paired import paired_differences, paired_verdicts
 from odolab.sim.episodes import EpisodeSpec, load_episodes
 
 FP32, BF16 = "robust-vo", "robust-vo precision=bf16"
+#: Who owns ``--out`` (its ``manifest.txt`` says so) and the one file written there.
+OWNER, NAMES = "study inference-precision", re.compile(r"summary\.json")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,16 +58,26 @@ def measure(episodes: int, max_steps: int) -> dict:
 
 
 def run(args) -> int:
-    """The probe as its command line (:mod:`odolab.cli.study`) asks: ``summary.json`` into ``args.out``."""
-    from odolab.cli import check_report_dir
+    """The probe as its command line (:mod:`odolab.cli.study`) asks: ``summary.json`` into ``args.out``,
+    listed in its ``manifest.txt`` (a folder another command, or no odolab run, wrote is refused
+    before any work)."""
+    from odolab.cli import UsageError, check_report_dir
+    from odolab.io.owned import UnsafeOutputError
+    from odolab.reporting.report import MANIFEST, ManifestError, OutputFolder
 
-    check_report_dir(args.out, "--out", manifest="summary.json")
+    check_report_dir(args.out, "--out")
+    try:
+        OutputFolder.check(args.out, files=("summary.json", MANIFEST), owner=OWNER, names=NAMES)
+    except (UnsafeOutputError, ManifestError) as exc:
+        raise UsageError(f"--out {args.out}: {str(exc).removeprefix(f'{args.out}: ')}") from None
     found = measure(args.episodes, args.max_steps)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(args.out / "summary.json", {"command": args.command, **found})
+    folder = OutputFolder(args.out, owner=OWNER, names=NAMES)
+    write_json_atomic(folder.path("summary.json"), {"command": args.command, **found})
+    folder.finish()
     for row in found["rows"]:
         print(
-            f"{row['odometer']}: dx {row['dx']:.3f} dz {row['dz']:.3f} dyaw {row['dyaw']:.3f} x 1e-2, {row['fps']:.1f} steps/s"
+            f"{row['odometer']}: dx {row['dx']:.3f} dz {row['dz']:.3f} dyaw {row['dyaw']:.3f} x 1e-2, "
+            f"{row['fps']:.1f} steps/s"
         )
     print(*found["verdicts"], sep="\n")
     return 0
