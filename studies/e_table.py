@@ -308,10 +308,10 @@ def draw(rows: list[dict[str, Any]], path: Path) -> None:
             loc="lower right",
         )
     fig.suptitle(
-        "Per-step error as used (a failed step scored with the action prior), all test steps: "
+        "Per-step error as used (a failed step scored with the action prior), all test steps:\n"
         "bars are the mean over seeds, lines one standard deviation"
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.99))
     save_figure_atomic(fig, path)
     plt.close(fig)
 
