@@ -93,6 +93,7 @@ def test_bench_compare_times_a_comparison_against_its_odometers_own_steps():
     row = bench_compare(episodes=1, max_steps=4, odometers=["action-prior", "planar-depth"], execution=SERIAL)
     assert row["odometers"] == 2 and row["cores"] >= 1 and 0 < row["odometer_step_s"] < row["wall_s"]
     assert row["ratio"] == row["wall_s"] / (row["odometer_step_s"] / row["cores"])
+    assert 0 <= row["load_odometers_s"] + row["run_s"] <= row["wall_s"]  # the phases, within the whole
 
 
 def test_bench_odometers_names_the_options_it_timed():

@@ -319,6 +319,9 @@ def test_odometers_run_as_ray_tasks_answer_as_in_this_process(tmp_path):
         len(r.actions) for r in serial.results
     )
     assert len(heard.steps) == 4 and all(seconds is not None and seconds >= 0 for _, _, seconds in heard.steps)
+    assert list(fanned.phases) == ["load_odometers", "motions", "ray_start", "tasks", "ray_shutdown"]
+    assert list(serial.phases) == ["load_odometers", "run"] and all(v >= 0 for v in fanned.phases.values())
+    assert fanned.phases["tasks"] >= max(sum(r.step_seconds) for r in fanned.results)  # the tasks hold the steps
     cached = replace(config, cache=tmp_path / "cache", execution=Execution(progress=False))
     made = pipeline.run_comparison(cached)  # the episodes rendered by Ray tasks into the cache, then read back
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 2

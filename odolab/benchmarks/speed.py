@@ -96,7 +96,8 @@ def bench_compare(
     """The default comparison as ``python -m odolab.compare --no-cache`` runs it (episodes made in
     memory, every available odometer unless ``odometers``), timed end to end: ``wall_s``, and its
     ratio to the limit, the odometers' own step times summed (``steps / fps`` of each timed row)
-    over the machine's cores (``ratio``: 1 would be every core busy with odometer steps only);
+    over the machine's cores (``ratio``: 1 would be every core busy with odometer steps only), and
+    the wall seconds of each phase of the run (``<phase>_s``, :attr:`ComparisonResult.phases`);
     ``execution``: where episodes are made (default: a local Ray instance, as the command does)."""
     import os
 
@@ -120,6 +121,7 @@ def bench_compare(
         "odometer_step_s": own,
         "cores": cores,
         "ratio": wall / (own / cores) if own > 0 else float("nan"),
+        **{f"{name}_s": seconds for name, seconds in result.phases.items()},
     }
 
 

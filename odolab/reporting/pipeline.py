@@ -18,6 +18,7 @@ import contextlib
 import io
 import os
 import sys
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -138,6 +139,11 @@ class ComparisonResult:
     """Each configurable odometer's settings (:func:`odometer_configs`), for the report."""
     paired_rows: list[paired.PairedRow] = field(default_factory=list)
     """Each composite against its inputs on the same steps (:mod:`odolab.running.paired`)."""
+    phases: dict[str, float] = field(default_factory=dict)
+    """Wall seconds of the run's phases, in order: ``load_odometers`` (made and checked here), then
+    with the odometers as Ray tasks ``motions`` (planned here), ``ray_start``, ``tasks`` (rendering
+    and every odometer on every episode) and ``ray_shutdown``, else ``run`` (episodes and odometers
+    in this process)."""
 
 
 def odometer_names(names: list[str] | None) -> list[str]:
@@ -371,13 +377,15 @@ def _run_fanned(
     observer: RunObserver | None,
     step_timeout: float | None,
     note: Callable[[str, dict], None],
+    phases: dict[str, float],
 ) -> list[SequenceResult]:
     """Every odometer on every episode as Ray tasks on a local instance, one per (episode,
     odometer), each started as soon as its episode is in the cache (a temporary one without
     ``config.cache``): the episodes the cache lacks are rendered as Ray tasks too, from their
     motion, planned here first so that the step count is known from the start. Results in the
     serial runner's order. ``observer`` hears of each finished task's steps and their own time;
-    ``note(name, info)`` of each episode."""
+    ``note(name, info)`` of each episode; ``phases`` gains the seconds of ``motions``, ``ray_start``,
+    ``tasks`` and ``ray_shutdown``."""
     import tempfile
 
     from odolab.core.parallel import fan_out, start_ray
@@ -386,7 +394,9 @@ def _run_fanned(
     with contextlib.ExitStack() as stack:
         folder = config.cache or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="odolab-episodes-")))
         cache = EpisodeCache(folder)
+        started = time.perf_counter()
         motions = {k: rollout(s) for k, s in enumerate(specs) if not cache.has(s)}
+        phases["motions"] = time.perf_counter() - started
         steps = sum(len(motions[k].actions) if k in motions else cache.steps(s) for k, s in enumerate(specs))
         units = [_Unit(n, config.options.get(n, {}), s, folder, step_timeout) for s in specs for n in names]
         results: list[SequenceResult | None] = [None] * len(units)
@@ -404,15 +414,26 @@ def _run_fanned(
 
         import ray
 
+        started = time.perf_counter()
         if start_ray(None, quiet=not config.execution.progress):
-            stack.callback(ray.shutdown)
+            stack.callback(_timed, ray.shutdown, phases, "ray_shutdown")
+        phases["ray_start"] = time.perf_counter() - started
+        started = time.perf_counter()
         render = ray.remote(num_returns=2)(_render_into)
         rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items()}
         inputs = [rendered[k][0] if k in rendered else None for k in range(len(specs)) for _ in names]
         fan_out(_run_unit, units, inputs=inputs, on_result=done, execution=replace(config.execution, progress=False))
         for _, said in rendered.values():
             _said(ray.get(said), seen)
+        phases["tasks"] = time.perf_counter() - started
     return [r for r in results if r is not None]
+
+
+def _timed(call: Callable[[], Any], phases: dict[str, float], name: str) -> None:
+    """``call()``, its wall seconds kept as ``phases[name]``."""
+    started = time.perf_counter()
+    call()
+    phases[name] = time.perf_counter() - started
 
 
 def _run(
@@ -483,8 +504,11 @@ def run_comparison(
     if config.split not in SPLITS:
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     step_timeout = config.step_timeout
+    phases: dict[str, float] = {}
+    started = time.perf_counter()
     if odometers is None:
         odometers = load_odometers(config.odometers, config.options)
+    phases["load_odometers"] = time.perf_counter() - started
     if config.tum is not None:
         blind = [name for name, odo in odometers.items() if _needs_action(name, odo)]
         if blind and config.odometers is not None:
@@ -557,8 +581,9 @@ def run_comparison(
             goals[name] = (float(info["goal"][0]), float(info["goal"][1]))
 
     if _fanned(config, odometers):
-        results = _run_fanned(config, specs, list(odometers), observer, step_timeout, note)
+        results = _run_fanned(config, specs, list(odometers), observer, step_timeout, note, phases)
     else:
+        started = time.perf_counter()
         episodes, total = _episode_stream(config, specs)
 
         def noted(stream):
@@ -567,6 +592,7 @@ def run_comparison(
                 yield ep
 
         results = _run(odometers, noted(episodes), observer, step_timeout, total)
+        phases["run"] = time.perf_counter() - started
     no_depth = empty_depth_warnings(results)
     one = [r for r in results if r.odometer == results[0].odometer]
     steps = sum(len(r.actions) for r in one)
@@ -596,6 +622,7 @@ def run_comparison(
         warnings=no_depth,
         configs=odometer_configs(odometers),
         paired_rows=_paired_rows(results),
+        phases=phases,
     )
 
 
