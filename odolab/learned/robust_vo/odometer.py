@@ -96,6 +96,8 @@ class RobustVOOdometer(Odometer):
         self.cfg, self.nets, self.info = load_model(opts.checkpoint or SHIPPED)
         self.identity_digest = self.info["sha256"]
         self.device = pick_device(opts.device or "cpu")
+        if opts.precision == "bf16" and self.device.type == "cuda" and not torch.cuda.is_bf16_supported():
+            raise ValueError(f"precision bf16 needs a GPU with bf16; {self.device} has none: use precision fp32")
         self.nets.to(self.device)
         self.mirror_tta, self.mc_samples = bool(opts.mirror_tta), int(opts.mc_samples)
         self.threads, self.batch_size = int(opts.threads), int(opts.batch_size)
