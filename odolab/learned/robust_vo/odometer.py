@@ -31,7 +31,8 @@ from odolab.learned.robust_vo.inputs import frame_channels, residual_channel
 from odolab.learned.robust_vo.model import predict
 from odolab.learned.robust_vo.motion import mirror, swap_action
 from odolab.learned.robust_vo.warp import nominal_transforms, warp_current
-from odolab.learned.training import pick_device, resize_frame
+from odolab.learned.training import Compute, pick_device, resize_frame
+from odolab.learned.training.compute import native_bf16
 
 #: Variance (m^2 or rad^2) given to the out-of-plane components (rx, rz, ty) of the covariance.
 PLANAR_VARIANCE = 1e-6
@@ -96,12 +97,12 @@ class RobustVOOdometer(Odometer):
         self.cfg, self.nets, self.info = load_model(opts.checkpoint or SHIPPED)
         self.identity_digest = self.info["sha256"]
         self.device = pick_device(opts.device or "cpu")
-        if opts.precision == "bf16" and self.device.type == "cuda" and not torch.cuda.is_bf16_supported():
+        if opts.precision == "bf16" and self.device.type == "cuda" and not native_bf16(self.device):
             raise ValueError(f"precision bf16 needs a GPU with bf16; {self.device} has none: use precision fp32")
         self.nets.to(self.device)
         self.mirror_tta, self.mc_samples = bool(opts.mirror_tta), int(opts.mc_samples)
         self.threads, self.batch_size = int(opts.threads), int(opts.batch_size)
-        self.precision = opts.precision
+        self.compute = Compute(self.device, opts.precision, "channels_last")  # its autocast: the networks' precision
         self.seed, self._draws = int(opts.seed), 0  # MC-dropout draws: seeded per call, counted from reset
         # SepAct and ActEmbed pick by action, the nominal warp moves by it
         self.needs_action = self.cfg.kind != "unified" or self.cfg.warp != "none"
@@ -129,7 +130,7 @@ class RobustVOOdometer(Odometer):
         actions = np.array([Action.MOVE_FORWARD.value])
 
         def call() -> torch.Tensor:
-            with self._precision():
+            with self.compute.autocast():
                 return predict(self.nets, self.cfg, x, actions)
 
         return calls_per_s(call, calls)
@@ -175,15 +176,11 @@ class RobustVOOdometer(Odometer):
     def _predict(self, x: torch.Tensor, actions: np.ndarray) -> torch.Tensor:
         """(B, 3) motions of pair inputs ``x`` (B, 2C, h, w); with ``mirror_tta`` averaged with the
         mirror of the prediction for the mirrored pair (taken with the opposite turn's network)."""
-        with self._precision():
+        with self.compute.autocast():
             out = predict(self.nets, self.cfg, x, actions)
             if self.mirror_tta:
                 out = 0.5 * (out + mirror(predict(self.nets, self.cfg, x.flip(-1), swap_action(actions))))
         return out.float().cpu()
-
-    def _precision(self) -> torch.autocast:
-        """The networks' precision (:attr:`RobustVOOptions.precision`) as an autocast context."""
-        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16")
 
     def step_batch(self, pairs: list[tuple[Frame, Frame, Action | None]]) -> list[Estimate]:
         answers: list[Estimate | None] = [None] * len(pairs)

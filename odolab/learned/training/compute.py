@@ -14,12 +14,12 @@ import dataclasses
 import platform
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal, get_args
 
 import torch
 
 from odolab.config import check, setting
+from odolab.core.machine import BF16_FLAGS, cpu_flags
 from odolab.learned.training.loading import prefetched
 
 Precision = Literal["auto", "fp32", "bf16"]
@@ -31,22 +31,6 @@ MEMORY_FORMATS: tuple[str, ...] = get_args(MemoryFormat)
 MAX_LOADER_WORKERS = 64
 
 
-def cpu_flags(cpuinfo: str | None = None) -> set[str]:
-    """The CPU feature flags Linux reports (``flags`` on x86, ``Features`` on Arm); empty where
-    ``/proc/cpuinfo`` is not readable. ``cpuinfo``: its text, for tests."""
-    if cpuinfo is None:
-        try:
-            cpuinfo = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
-        except OSError:
-            return set()
-    flags: set[str] = set()
-    for line in cpuinfo.splitlines():
-        key, _, value = line.partition(":")
-        if key.strip() in ("flags", "Features"):
-            flags.update(value.split())
-    return flags
-
-
 def native_bf16(device: torch.device, flags: set[str] | None = None) -> bool:
     """Whether ``device`` computes bf16 natively (see the module docstring)."""
     if device.type == "cuda":
@@ -54,7 +38,7 @@ def native_bf16(device: torch.device, flags: set[str] | None = None) -> bool:
     if device.type != "cpu":
         return False
     flags = cpu_flags() if flags is None else flags
-    return bool({"avx512_bf16", "amx_bf16", "bf16"} & flags)
+    return bool(BF16_FLAGS & flags)
 
 
 @dataclass(frozen=True)
