@@ -1,5 +1,6 @@
 """odolab/core/parallel.py: Ray addresses checked before Ray starts (dead, not Ray, from RAY_ADDRESS), the
-command's signal handlers kept while Ray starts, GPUs per task, and no token notice for a local Ray."""
+command's signal handlers kept while Ray starts, the driver's own work beside Ray's start, GPUs per task, and
+no token notice for a local Ray."""
 
 from __future__ import annotations
 
@@ -217,3 +218,70 @@ def test_fan_out_inputs_reach_each_task_once_the_tasks_they_name_are_done():
         ]
     finally:
         ray.shutdown()
+
+
+def _beside(monkeypatch, init, work, shut, initialized=False):
+    """start_ray_beside(work) with ray.init replaced by ``init``; ``shut`` gains True per ray.shutdown()."""
+    import ray
+
+    from odolab.core.parallel import start_ray_beside
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(ray, "is_initialized", lambda: initialized)
+    monkeypatch.setattr(ray, "shutdown", lambda: shut.append(True))
+    return start_ray_beside(work, quiet=True)
+
+
+def test_start_ray_beside_runs_the_work_while_ray_starts_and_says_when_it_is_up(monkeypatch):
+    import threading
+
+    events, shut = [], []
+    working = threading.Event()
+
+    def init(**kwargs):
+        assert working.wait(5), "the work had not begun while Ray was starting"
+        events.append("ray up")
+
+    def work(up):
+        working.set()
+        assert up.wait(5)
+        events.append("work saw up")
+        return 42
+
+    assert _beside(monkeypatch, init, work, shut) == (42, True)
+    assert events == ["ray up", "work saw up"] and shut == []
+
+
+def test_start_ray_beside_shuts_ray_down_again_when_the_work_fails(monkeypatch):
+    def work(up):
+        raise ValueError("bad option")
+
+    shut = []
+    with pytest.raises(ValueError, match="bad option"):
+        _beside(monkeypatch, lambda **kwargs: None, work, shut)
+    assert shut == [True]
+
+
+def test_start_ray_beside_raises_a_failed_start_after_the_work_has_ended(monkeypatch):
+    ended = []
+
+    def init(**kwargs):
+        raise RuntimeError("no room for Ray")
+
+    def work(up):
+        assert up.wait(5)  # told the start has ended, so it may stop
+        ended.append(True)
+
+    with pytest.raises(RuntimeError, match="no room"):
+        _beside(monkeypatch, init, work, [])
+    assert ended == [True]
+
+
+def test_start_ray_beside_leaves_a_running_ray_alone(monkeypatch):
+    def init(**kwargs):  # pragma: no cover - Ray runs already
+        raise AssertionError
+
+    shut = []
+    assert _beside(monkeypatch, init, lambda up: up.wait(5), shut, initialized=True) == (True, False)
+    assert shut == []

@@ -309,7 +309,7 @@ def test_odometers_run_as_ray_tasks_answer_as_in_this_process(tmp_path):
     heard = Heard()
     fanned = pipeline.run_comparison(replace(config, execution=Execution(progress=False)), observer=heard)
     serial = pipeline.run_comparison(replace(config, execution=SERIAL))
-    assert pipeline._fanned(replace(config, execution=Execution()), {"planar-depth": None})
+    assert pipeline.fans_out(replace(config, execution=Execution()), ["planar-depth"])
     without_fps = [{k: v for k, v in vars(r).items() if k != "fps"} for r in fanned.rows]
     assert without_fps == [{k: v for k, v in vars(r).items() if k != "fps"} for r in serial.rows]
     assert fanned.plans.keys() == serial.plans.keys() and [r.sequence for r in fanned.results] == [
@@ -329,6 +329,36 @@ def test_odometers_run_as_ray_tasks_answer_as_in_this_process(tmp_path):
     assert heard.total == sum(len(r.actions) for r in serial.results)
     for run in (made, again):
         assert [{k: v for k, v in vars(r).items() if k != "fps"} for r in run.rows] == without_fps
+
+
+@pytest.mark.slow
+def test_episodes_rendered_here_while_ray_starts_reach_the_tasks_where_the_cache_cannot_keep_them(
+    tmp_path, monkeypatch, capsys
+):
+    """While the local Ray instance starts, the driver renders the first missing episodes itself;
+    one the cache cannot keep (a folder in its entry's place) is handed to the tasks, so the tables
+    are the serial run's, and the cache's warning is said once."""
+    from odolab.sim.datasets import episode_specs
+    from odolab.sim.episodes import EpisodeCache
+
+    config = ComparisonConfig(odometers=["planar-depth", "action-prior"], episodes=2, max_steps=6)
+    first = episode_specs(config.split, 2, seed=config.seed, max_steps=config.max_steps)[0]
+    EpisodeCache(tmp_path / "cache").path(first).mkdir(parents=True)
+    here = []
+    render_into = pipeline._render_into
+
+    def recorded(spec, motion, folder):
+        here.append(spec.key())
+        return render_into(spec, motion, folder)
+
+    monkeypatch.setattr(pipeline, "_render_into", recorded)  # the driver's calls (a task imports its own)
+    fanned = pipeline.run_comparison(replace(config, cache=tmp_path / "cache", execution=Execution(progress=False)))
+    assert first.key() in here  # Ray's start takes seconds; a 6-step episode does not
+    serial = pipeline.run_comparison(replace(config, cache=None, execution=SERIAL))
+    assert [{k: v for k, v in vars(r).items() if k != "fps"} for r in fanned.rows] == [
+        {k: v for k, v in vars(r).items() if k != "fps"} for r in serial.rows
+    ]
+    assert capsys.readouterr().err.count("cannot write the episode cache") == 1
 
 
 def test_render_into_hands_back_the_episode_and_the_warning_a_cache_that_cannot_keep_it_gives(tmp_path, capsys):

@@ -16,11 +16,13 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from tqdm.auto import tqdm
 
 from odolab.core.errors import InputError
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -220,6 +222,33 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
             raise RayAddressError(f"{address}: Ray could not connect there ({said})", subject=subject) from None
         raise
     return True
+
+
+def start_ray_beside(
+    work: Callable[[threading.Event], T], ray_address: str | None = None, quiet: bool = False
+) -> tuple[T, bool]:
+    """:func:`start_ray` in this thread while ``work(up)`` runs on another: the driver's own work
+    done during Ray's few seconds of start (mostly waiting for its processes). ``up`` is set once
+    the start has ended (Ray up, or the start failed), so ``work`` may stop early then. Returns
+    ``work``'s result and whether Ray was started here (the caller then shuts it down); raises what
+    either raised, after the other has ended (Ray, where started here, shut down again)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    up = threading.Event()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="odolab-beside-ray") as pool:
+        done = pool.submit(work, up)
+        try:
+            started = start_ray(ray_address, quiet=quiet)
+        finally:
+            up.set()
+        try:
+            return done.result(), started
+        except BaseException:
+            if started:
+                import ray
+
+                ray.shutdown()
+            raise
 
 
 def _resolved(value: Any) -> Any:

@@ -18,8 +18,9 @@ import contextlib
 import io
 import os
 import sys
+import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -142,8 +143,9 @@ class ComparisonResult:
     phases: dict[str, float] = field(default_factory=dict)
     """Wall seconds of the run's phases, in order: ``load_odometers`` (made and checked here; about 0
     when they were given made), then with the odometers as Ray tasks ``motions`` (planned here),
-    ``ray_start``, ``tasks`` (rendering and every odometer on every episode) and ``ray_shutdown`` (0
-    where Ray was running before and is left so), else ``run`` (episodes and odometers in this
+    ``ray_start`` (a local instance's start, this process rendering the first missing episodes
+    meanwhile; 0 where Ray was running before), ``tasks`` (the rest of the rendering and every
+    odometer on every episode) and ``ray_shutdown`` (0 where Ray was running before and is left so), else ``run`` (episodes and odometers in this
     process). The summary after them is in none."""
 
 
@@ -310,16 +312,17 @@ def _episode_stream(config: ComparisonConfig, specs: list[EpisodeSpec]) -> tuple
     return stream_episodes(specs, cache), sum(cache.steps(s) for s in specs)
 
 
-def _fanned(config: ComparisonConfig, odometers: dict[str, Odometer]) -> bool:
-    """Whether the odometers run as Ray tasks (:func:`_run_fanned`): in parallel, on a local
-    instance (a cluster's nodes cannot read this machine's episode cache), more than one odometer
-    or episode, every odometer one a task can make anew by its name (a registered one or a
-    ``module:Class``, with ``config.options``)."""
+def fans_out(config: ComparisonConfig, names: Collection[str]) -> bool:
+    """Whether odometers ``names`` run as Ray tasks (:func:`_run_fanned`): simulated episodes (not
+    ``config.tum``), in parallel, on a local instance (a cluster's nodes cannot read this machine's
+    episode cache), more than one odometer or episode, every odometer one a task can make anew by
+    its name (a registered one or a ``module:Class``, with ``config.options``)."""
     from odolab.core.parallel import RAY_ADDRESS
 
     local = config.execution.ray_address is None and not os.environ.get(RAY_ADDRESS)
-    named = all(unknown_odometer(name) is None for name in odometers)
-    return config.execution.parallel and local and named and len(odometers) * config.episodes > 1
+    named = all(unknown_odometer(name) is None for name in names)
+    simulated = config.tum is None
+    return simulated and config.execution.parallel and local and named and len(names) * config.episodes > 1
 
 
 @dataclass(frozen=True)
@@ -382,14 +385,16 @@ def _run_fanned(
 ) -> list[SequenceResult]:
     """Every odometer on every episode as Ray tasks on a local instance, one per (episode,
     odometer), each started as soon as its episode is in the cache (a temporary one without
-    ``config.cache``): the episodes the cache lacks are rendered as Ray tasks too, from their
-    motion, planned here first so that the step count is known from the start. Results in the
+    ``config.cache``): the episodes the cache lacks are rendered from their motion, planned here
+    first so that the step count is known from the start; while a local Ray instance starts (seconds
+    of waiting for its processes) this process renders the first of them itself, Ray tasks the rest
+    once it is up. Results in the
     serial runner's order. ``observer`` hears of each finished task's steps and their own time;
     ``note(name, info)`` of each episode; ``phases`` gains the seconds of ``motions``, ``ray_start``,
     ``tasks`` and ``ray_shutdown``."""
     import tempfile
 
-    from odolab.core.parallel import fan_out, start_ray
+    from odolab.core.parallel import fan_out, start_ray_beside
     from odolab.sim.episodes import EpisodeCache, rollout
 
     with contextlib.ExitStack() as stack:
@@ -415,14 +420,26 @@ def _run_fanned(
 
         import ray
 
+        def render_here(up: threading.Event) -> dict[int, tuple[Episode | None, str]]:
+            """The missing episodes, in order, rendered here while Ray starts (until it is up)."""
+            return {k: _render_into(specs[k], motions[k], folder) for k in motions if not up.is_set()}
+
         started = time.perf_counter()
-        if start_ray(None, quiet=not config.execution.progress):
-            stack.callback(_timed, ray.shutdown, phases, "ray_shutdown")
+        if ray.is_initialized():  # Ray was running before: left so
+            here: dict[int, tuple[Episode | None, str]] = {}
+        else:
+            here, ours = start_ray_beside(render_here, quiet=not config.execution.progress)
+            if ours:
+                stack.callback(_timed, ray.shutdown, phases, "ray_shutdown")
         phases["ray_start"] = time.perf_counter() - started
         started = time.perf_counter()
+        for _, said in here.values():
+            _said(said, seen)
         render = ray.remote(num_returns=2)(_render_into)
-        rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items()}
-        inputs = [rendered[k][0] if k in rendered else None for k in range(len(specs)) for _ in names]
+        rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items() if k not in here}
+        handed = {k: ray.put(episode) for k, (episode, _) in here.items() if episode is not None}  # not kept
+        handed |= {k: episode for k, (episode, _) in rendered.items()}
+        inputs = [handed.get(k) for k in range(len(specs)) for _ in names]
         fan_out(_run_unit, units, inputs=inputs, on_result=done, execution=replace(config.execution, progress=False))
         for _, said in rendered.values():
             _said(ray.get(said), seen)
@@ -582,7 +599,7 @@ def run_comparison(
         if info.get("goal") is not None:
             goals[name] = (float(info["goal"][0]), float(info["goal"][1]))
 
-    if _fanned(config, odometers):
+    if fans_out(config, odometers):
         results = _run_fanned(config, specs, list(odometers), observer, step_timeout, note, phases)
     else:
         started = time.perf_counter()
