@@ -285,3 +285,24 @@ def test_start_ray_beside_leaves_a_running_ray_alone(monkeypatch):
     shut = []
     assert _beside(monkeypatch, init, lambda up: up.wait(5), shut, initialized=True) == (True, False)
     assert shut == []
+
+
+@pytest.mark.slow
+def test_shutdown_ray_puts_the_commands_sigterm_handler_back_beneath_python(tmp_path):
+    """ray.shutdown() resets SIGTERM to the default action at the C level while Python still reports
+    its handler; after shutdown_ray a SIGTERM reaches the command's handler (clean-up, its line)."""
+    script = tmp_path / "sigterm_after_shutdown.py"
+    script.write_text(
+        "import os, signal, sys, time\n"
+        "signal.signal(signal.SIGTERM, lambda s, f: (print('handled', flush=True), sys.exit(7)))\n"
+        "from odolab.core.parallel import shutdown_ray, start_ray\n"
+        "assert start_ray(None, quiet=True)\n"
+        "shutdown_ray()\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "time.sleep(5)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    done = subprocess.run(
+        [sys.executable, str(script)], check=False, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert (done.returncode, done.stdout.strip()) == (7, "handled"), done.stderr[-2000:]

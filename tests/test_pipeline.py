@@ -345,13 +345,13 @@ def test_episodes_rendered_here_while_ray_starts_reach_the_tasks_where_the_cache
     first = episode_specs(config.split, 2, seed=config.seed, max_steps=config.max_steps)[0]
     EpisodeCache(tmp_path / "cache").path(first).mkdir(parents=True)
     here = []
-    render_into = pipeline._render_into
+    render_kept = pipeline._render_kept
 
     def recorded(spec, motion, folder):
         here.append(spec.key())
-        return render_into(spec, motion, folder)
+        return render_kept(spec, motion, folder)
 
-    monkeypatch.setattr(pipeline, "_render_into", recorded)  # the driver's calls (a task imports its own)
+    monkeypatch.setattr(pipeline, "_render_kept", recorded)  # the driver's calls (a task imports its own)
     fanned = pipeline.run_comparison(replace(config, cache=tmp_path / "cache", execution=Execution(progress=False)))
     assert first.key() in here  # Ray's start takes seconds; a 6-step episode does not
     serial = pipeline.run_comparison(replace(config, cache=None, execution=SERIAL))
@@ -359,6 +359,21 @@ def test_episodes_rendered_here_while_ray_starts_reach_the_tasks_where_the_cache
         {k: v for k, v in vars(r).items() if k != "fps"} for r in serial.rows
     ]
     assert capsys.readouterr().err.count("cannot write the episode cache") == 1
+
+
+def test_render_kept_hands_the_caches_notices_back_and_leaves_stderr_alone(tmp_path, capsys):
+    """The driver renders beside Ray's start on a thread: the cache's notices come back as lines, and
+    the process's standard error (the main thread's too) is never swapped."""
+    import sys
+
+    from odolab.sim.episodes import EpisodeCache, EpisodeSpec, rollout
+
+    spec = EpisodeSpec(split="test", index=0, seed=0, max_steps=3)
+    EpisodeCache(tmp_path / "bad").path(spec).mkdir(parents=True)
+    stderr = sys.stderr
+    episode, lines = pipeline._render_kept(spec, rollout(spec), tmp_path / "bad")
+    assert sys.stderr is stderr and capsys.readouterr().err == ""
+    assert episode is not None and len(lines) == 1 and "cannot write the episode cache" in lines[0]
 
 
 def test_render_into_hands_back_the_episode_and_the_warning_a_cache_that_cannot_keep_it_gives(tmp_path, capsys):

@@ -15,7 +15,7 @@ from odolab.sim.textures import _equalise, gaussian_filter, make_tiles
 DEFAULT_TILES_SHA256 = "00bbb02afcef1e108ab15442e130d081f7934ba69fd519e73203bb49018cf130"
 
 
-@pytest.mark.parametrize("sigma", [0.8, 1.0, 3.0, 9.0, 27.0, (0.8, 12.0), (5.0, 2.0)])
+@pytest.mark.parametrize("sigma", [0.8, 1.0, 3.0, 9.0, 27.0, (0.8, 12.0), (5.0, 2.0), 0.0, (0.0, 3.0)])
 @pytest.mark.parametrize("shape", [(64, 64), (48, 80), (512, 512)])
 def test_gaussian_filter_matches_scipy_wrap(sigma, shape):
     img = np.random.default_rng(3).standard_normal(shape)

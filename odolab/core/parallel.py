@@ -195,6 +195,22 @@ def _token_notices_hidden(local: bool, quiet: bool) -> Iterator[None]:
         notices.removeFilter(_errors_only)
 
 
+def shutdown_ray() -> None:
+    """``ray.shutdown()``, then this process's SIGTERM and SIGINT handlers installed again: Ray's
+    shutdown resets SIGTERM to the default action beneath Python (which still reports its own
+    handler), so a SIGTERM after it would end a command at once, without its clean-up or its line."""
+    import ray
+
+    try:
+        ray.shutdown()
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                handler = signal.getsignal(sig)
+                if handler is not None:  # None: set outside Python, cannot be put back
+                    signal.signal(sig, handler)
+
+
 def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool = False) -> bool:
     """Connect to the cluster at ``ray_address`` (None: the one ``RAY_ADDRESS`` names, if any; either
     checked first, :func:`check_ray_address`) or start a local instance, unless Ray is already running
@@ -214,7 +230,7 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
             ray.init(address=ray_address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
     except BaseException as exc:  # interrupted or refused half-way: stop what it started
         with contextlib.suppress(Exception):
-            ray.shutdown()
+            shutdown_ray()
         address = ray_address or os.environ.get(RAY_ADDRESS)
         if isinstance(exc, ConnectionError) and address:  # a gRPC server that is no Ray cluster's
             said = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
@@ -245,9 +261,7 @@ def start_ray_beside(
             return done.result(), started
         except BaseException:
             if started:
-                import ray
-
-                ray.shutdown()
+                shutdown_ray()
             raise
 
 
@@ -339,7 +353,7 @@ def fan_out(
                     done(pending.pop(ref), _value(ray, ref))
         finally:
             if started:  # a local instance's daemons would otherwise slow the timed work that follows
-                ray.shutdown()
+                shutdown_ray()
         return results
     finally:
         bar.close()

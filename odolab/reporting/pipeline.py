@@ -358,12 +358,21 @@ def _run_unit(unit: _Unit, rendered: Episode | None = None) -> tuple[SequenceRes
 def _render_into(spec: EpisodeSpec, motion: Any, folder: Path) -> tuple[Episode | None, str]:
     """A Ray task: render the episode of ``spec`` along ``motion`` into the cache at ``folder``; the
     episode where the cache could not keep it (else None), and what the task wrote on stderr."""
+    with contextlib.redirect_stderr(io.StringIO()) as said:
+        episode, lines = _render_kept(spec, motion, folder)
+    return episode, "".join(f"{line}\n" for line in lines) + said.getvalue()
+
+
+def _render_kept(spec: EpisodeSpec, motion: Any, folder: Path) -> tuple[Episode | None, list[str]]:
+    """Render the episode of ``spec`` along ``motion`` into the cache at ``folder`` (in this thread;
+    standard error left as it is): the episode where the cache could not keep it (else None), and
+    the cache's notices."""
     from odolab.sim.episodes import EpisodeCache, render_episode
 
-    with contextlib.redirect_stderr(io.StringIO()) as said:
-        episode = render_episode(spec, motion)
-        kept = EpisodeCache(folder).put(episode)
-    return (episode if kept is None else None), said.getvalue()
+    lines: list[str] = []
+    episode = render_episode(spec, motion)
+    kept = EpisodeCache(folder, say=lines.append).put(episode)
+    return (episode if kept is None else None), lines
 
 
 def _said(text: str, seen: set[str]) -> None:
@@ -394,7 +403,7 @@ def _run_fanned(
     ``tasks`` and ``ray_shutdown``."""
     import tempfile
 
-    from odolab.core.parallel import fan_out, start_ray_beside
+    from odolab.core.parallel import fan_out, shutdown_ray, start_ray_beside
     from odolab.sim.episodes import EpisodeCache, rollout
 
     with contextlib.ExitStack() as stack:
@@ -420,21 +429,21 @@ def _run_fanned(
 
         import ray
 
-        def render_here(up: threading.Event) -> dict[int, tuple[Episode | None, str]]:
+        def render_here(up: threading.Event) -> dict[int, tuple[Episode | None, list[str]]]:
             """The missing episodes, in order, rendered here while Ray starts (until it is up)."""
-            return {k: _render_into(specs[k], motions[k], folder) for k in motions if not up.is_set()}
+            return {k: _render_kept(specs[k], motions[k], folder) for k in motions if not up.is_set()}
 
         started = time.perf_counter()
         if ray.is_initialized():  # Ray was running before: left so
-            here: dict[int, tuple[Episode | None, str]] = {}
+            here: dict[int, tuple[Episode | None, list[str]]] = {}
         else:
             here, ours = start_ray_beside(render_here, quiet=not config.execution.progress)
             if ours:
-                stack.callback(_timed, ray.shutdown, phases, "ray_shutdown")
+                stack.callback(_timed, shutdown_ray, phases, "ray_shutdown")
         phases["ray_start"] = time.perf_counter() - started
         started = time.perf_counter()
-        for _, said in here.values():
-            _said(said, seen)
+        for _, lines in here.values():
+            _said("\n".join(lines), seen)
         render = ray.remote(num_returns=2)(_render_into)
         rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items() if k not in here}
         handed = {k: ray.put(episode) for k, (episode, _) in here.items() if episode is not None}  # not kept

@@ -18,7 +18,7 @@ import re
 import sys
 import zipfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
@@ -346,6 +346,10 @@ def render_episode(spec: EpisodeSpec, motion: Rollout | None = None) -> Episode:
 CACHE_TEMPORARY = re.compile(r"\.[0-9a-f]{16}\.npz\.[A-Za-z0-9_]+\.tmp")
 
 
+def _on_stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
 class EpisodeCache:
     """Episodes on disk under ``root``, one ``<spec key>.npz`` each (atomic writes, no pickle).
 
@@ -358,8 +362,10 @@ class EpisodeCache:
     temporary files that killed writers left (:data:`CACHE_TEMPORARY`).
     """
 
-    def __init__(self, root: str | os.PathLike) -> None:
+    def __init__(self, root: str | os.PathLike, say: Callable[[str], None] | None = None) -> None:
+        """``say``: where its one-line notices go (default: standard error)."""
         self.root = Path(root)
+        self._say = say or _on_stderr
         self._unwritten: dict[str, Episode] = {}  # spec key -> episode that could not be written
         self._write_failed = False
         self._swept = False
@@ -369,10 +375,7 @@ class EpisodeCache:
 
     def _discard(self, path: Path, exc: BaseException) -> None:
         """Name a damaged entry on stderr and delete it."""
-        print(
-            f"odolab: episode cache entry {path} is damaged ({type(exc).__name__}: {exc}); regenerating it",
-            file=sys.stderr,
-        )
+        self._say(f"odolab: episode cache entry {path} is damaged ({type(exc).__name__}: {exc}); regenerating it")
         try:
             path.unlink(missing_ok=True)
         except OSError:  # e.g. a folder in its place, or a read-only cache: put() will then say so
@@ -469,10 +472,9 @@ class EpisodeCache:
         if not self._write_failed:
             self._write_failed = True
             reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-            print(
+            self._say(
                 f"odolab: warning: cannot write the episode cache {self.root} ({path.name}: {reason}); "
-                "going on without writing it (the results are kept)",
-                file=sys.stderr,
+                "going on without writing it (the results are kept)"
             )
 
     def _sweep(self) -> None:
@@ -482,10 +484,9 @@ class EpisodeCache:
         self._swept = True
         removed = remove_stale_temporaries(self.root, CACHE_TEMPORARY)
         if removed:
-            print(
+            self._say(
                 f"odolab: removed {len(removed)} temporary file{'s' if len(removed) > 1 else ''} that a stopped "
-                f"episode-cache write left in {self.root}",
-                file=sys.stderr,
+                f"episode-cache write left in {self.root}"
             )
 
 

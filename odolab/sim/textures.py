@@ -20,6 +20,8 @@ TEXEL_SIZE = 0.01  # m per texel -> 5.12 m period
 
 def _wrap_kernel(n: int, sigma: float) -> np.ndarray:
     """(n,) scipy.ndimage's Gaussian kernel (truncated at 4 sigma, normalised) wrapped onto n samples."""
+    if sigma <= 1e-15:  # scipy leaves such an axis unfiltered
+        return np.eye(1, n)[0]
     r = int(4.0 * sigma + 0.5)
     x = np.arange(-r, r + 1)
     w = np.exp(-0.5 / (sigma * sigma) * x**2)

@@ -95,7 +95,7 @@ def run_on_ray(
     from ray.train import RunConfig, ScalingConfig
     from ray.train.torch import TorchConfig, TorchTrainer
 
-    from odolab.core.parallel import start_ray
+    from odolab.core.parallel import shutdown_ray, start_ray
 
     started = start_ray(ray_address, log_to_driver=True)
     use_gpu = gpus_per_worker > 0
@@ -107,7 +107,7 @@ def run_on_ray(
             if need > have.get(kind, 0) + 1e-9
         ]
         if short:
-            ray.shutdown()
+            shutdown_ray()
             raise ValueError(
                 f"{workers} training workers need {'; '.join(short)} on this machine's Ray instance "
                 "(Ray Train would wait for them forever); use fewer workers or a cluster"
@@ -125,7 +125,7 @@ def run_on_ray(
         trainer.fit()
     finally:
         if started:
-            ray.shutdown()
+            shutdown_ray()
     return _stamp(export) not in (None, before)
 
 
