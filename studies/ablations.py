@@ -1043,9 +1043,11 @@ CLAIMS = ((3, 1), (3, 2), (4, 3), (7, 6), (8, 7), (10, 8), (13, 10), (18, 13), (
 #: The family-wise error rate of the claims' tests (Holm's correction over every test of the table).
 ALPHA = 0.05
 CLAIM_COLUMNS = [
-    "claim", "measure", "paper_a", "paper_b", "ours_a", "ours_b", "pairs", "a_only", "b_only", "diff", "p", "p_holm",
-    "verdict",
+    "claim", "measure", "paper_a", "paper_b", "ours_a", "ours_b", "tested_over", "pairs", "a_only", "b_only", "diff",
+    "p", "p_holm", "verdict",
 ]  # fmt: skip
+#: The test of a claim whose two rows were both trained under several seeds: over the training runs.
+OVER_RUNS = "Student's paired t test of the per-training-run means (the runs of one seed index paired)"
 #: What each measure of a claim is: its unit, whether higher is better, and the test.
 CLAIM_MEASURES = {
     "success": ("%", True, "McNemar's exact test on the shared episodes"),
@@ -1055,14 +1057,21 @@ CLAIM_MEASURES = {
 
 
 def _paired_values(
-    scale: Scale, errors: dict[str, Any], navigation: dict[str, Any], rows: tuple[int, int], measure: str
+    scale: Scale,
+    errors: dict[str, Any],
+    navigation: dict[str, Any],
+    rows: tuple[int, int],
+    measure: str,
+    runs: tuple[int | None, int | None] = (None, None),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Both rows' values on the trials both have: per (seed, episode) success or SPL (0-1) of the
-    navigation units, or the mean of the three error components (x 1e-2) per error episode."""
+    navigation units, or the mean of the three error components (x 1e-2) per error episode; ``runs``:
+    each row's training run (None: its main one, else the further training seed)."""
     a, b = [], []
+    labels = [run_label(r, k) for r, k in zip(rows, runs)]
     if measure == "error":
         for seed in scale.seeds:
-            got = [errors.get(f"errors {run_label(r)} seed {seed}", {}).get("episodes") for r in rows]
+            got = [errors.get(f"errors {label} seed {seed}", {}).get("episodes") for label in labels]
             if all(got) and len(got[0]) == len(got[1]):
                 a += [float(np.mean(e)) for e in got[0]]
                 b += [float(np.mean(e)) for e in got[1]]
@@ -1070,7 +1079,7 @@ def _paired_values(
     key = "success" if measure == "success" else "spl"
     for seed in scale.nav_seeds:
         for e in range(scale.nav_episodes):
-            got = [navigation.get(f"navigate {run_label(r)} seed {seed} episode {e}") for r in rows]
+            got = [navigation.get(f"navigate {label} seed {seed} episode {e}") for label in labels]
             if all(got):
                 a.append(float(got[0][key]))
                 b.append(float(got[1][key]))
@@ -1084,11 +1093,32 @@ def _paper_value(definition: Definition, row: int, measure: str) -> float:
     return float(paper.success if measure == "success" else paper.spl)
 
 
+def _training_runs(scale: Scale, row: int) -> list[int | None]:
+    """A row's training runs: its main one (None), then the further training seeds where it has them."""
+    return [None, *scale.train_seeds] if row in scale.train_seed_rows else [None]
+
+
+def _run_means(
+    scale: Scale, errors: dict[str, Any], navigation: dict[str, Any], rows: tuple[int, int], measure: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per training run (the runs of one seed index paired), both rows' mean value on the trials
+    those two runs share; runs with no shared trial are left out."""
+    pairs = [
+        _paired_values(scale, errors, navigation, rows, measure, runs)
+        for runs in zip(_training_runs(scale, rows[0]), _training_runs(scale, rows[1]))
+    ]
+    kept = [(a.mean(), b.mean()) for a, b in pairs if len(a)]
+    return np.array([a for a, _ in kept]), np.array([b for _, b in kept])
+
+
 def claims(
     definition: Definition, scale: Scale, errors: dict[str, Any], navigation: dict[str, Any]
 ) -> list[dict[str, Any]]:
     """The paper's claims (:data:`CLAIMS`) whose two rows the scale runs, one line per claim and
-    measure (:data:`CLAIM_MEASURES`), tested on the trials both rows share. ``diff``: A's mean minus
+    measure (:data:`CLAIM_MEASURES`), tested on the trials both rows share; where both rows were
+    trained under several seeds, over their training runs instead (:data:`OVER_RUNS`; ``tested_over``
+    says which, ``pairs`` counts the trials or the runs), so a verdict there holds against the
+    training-seed spread too. ``diff``: A's mean minus
     B's (%, or x 1e-2 for the error); ``p``: the test's two-sided p; ``p_holm``: Holm-adjusted over
     every test of the table; ``verdict``: ``supports`` (``p_holm`` < :data:`ALPHA` and ours differs in
     the direction the paper's numbers go, or where the paper gives none, A better), ``contradicts``
@@ -1099,8 +1129,10 @@ def claims(
     for a_row, b_row in CLAIMS:
         if a_row not in scale.rows or b_row not in scale.rows:
             continue
+        over_runs = len(_training_runs(scale, a_row)) > 1 and len(_training_runs(scale, b_row)) > 1
         for measure, (_unit, higher_better, _test) in CLAIM_MEASURES.items():
-            a, b = _paired_values(scale, errors, navigation, (a_row, b_row), measure)
+            pick = _run_means if over_runs else _paired_values
+            a, b = pick(scale, errors, navigation, (a_row, b_row), measure)
             scale_by = 100.0 if measure != "error" else 1.0
             line: dict[str, Any] = {
                 "claim": f"{a_row} over {b_row}",
@@ -1109,11 +1141,12 @@ def claims(
                 "paper_b": _paper_value(definition, b_row, measure),
                 "ours_a": float(a.mean()) * scale_by if len(a) else math.nan,
                 "ours_b": float(b.mean()) * scale_by if len(b) else math.nan,
+                "tested_over": "training runs" if over_runs else "episodes",
                 "pairs": len(a),
                 "a_only": "",
                 "b_only": "",
             }
-            if measure == "success":
+            if measure == "success" and not over_runs:
                 line["a_only"], line["b_only"], line["p"] = mcnemar(a, b) if len(a) else ("", "", math.nan)
                 line["diff"] = line["ours_a"] - line["ours_b"]
             else:
@@ -1144,6 +1177,8 @@ def claims_table(lines: list[dict[str, Any]]) -> framework.Table:
             "Each of the paper's pairwise claims (A over B) whose two rows this scale runs, per measure, on the "
             "trials both rows share (the same seeds and episodes): "
             + "; ".join(f"{m} ({unit}): {test}" for m, (unit, _, test) in CLAIM_MEASURES.items())
+            + f". Where both rows were trained under several seeds (tested_over: training runs), every measure: {OVER_RUNS}, "
+            "so the verdict holds against the training-seed spread, not only the episodes' (pairs then counts runs)"
             + f". diff is A's mean minus B's; p_holm is Holm's adjustment over the table's {counted(len(lines), 'test')} "
             f"(family-wise error rate {ALPHA:g}). verdict: supports (p_holm < {ALPHA:g}, ours differs as the paper's "
             "numbers do), contradicts (the other way) or undecided (p_holm >= "

@@ -314,6 +314,48 @@ def test_the_papers_claims_get_a_verdict_from_paired_tests_on_the_shared_episode
     assert table.name == "claims" and "McNemar" in table.intro[0] and "Holm" in table.intro[0]
 
 
+def test_claims_between_rows_trained_under_several_seeds_are_tested_over_the_training_runs():
+    """10 over 8, both trained under three seeds: the main runs' errors differ by the same 0.3 on every
+    episode (a test over episodes would decide), but the runs of the other seeds differ the other
+    way, so over the training runs the error is undecided; row 10 succeeding in every run and row 8
+    in none is decided over the runs too."""
+    import dataclasses
+
+    scale = dataclasses.replace(
+        DEFINITION.scales["cpu"],
+        rows=(8, 10),
+        seeds=(0,),
+        nav_seeds=(0,),
+        nav_episodes=10,
+        train_seed_rows=(8, 10),
+        train_seeds=(1, 2),
+    )
+    runs = {None: 0.3, 1: -0.28, 2: 0.05}  # row 10's error minus row 8's, per training run
+    rng = __import__("numpy").random.default_rng(1)
+    errors, navigation = {}, {}
+    for k, offset in runs.items():
+        for row, value in ((8, 2.0), (10, 2.0 + offset)):
+            label = ablations.run_label(row, k)
+            errors[f"errors {label} seed 0"] = {"episodes": [[value + rng.normal(0, 1e-3)] * 3 for _ in range(10)]}
+            for e in range(10):
+                navigation[f"navigate {label} seed 0 episode {e}"] = {
+                    "success": int(row == 10),
+                    "spl": 0.4 * (row == 10),
+                }
+    lines = {(ln["claim"], ln["measure"]): ln for ln in ablations.claims(DEFINITION, scale, errors, navigation)}
+    error, success = lines[("10 over 8", "error")], lines[("10 over 8", "success")]
+    assert error["tested_over"] == success["tested_over"] == "training runs"
+    assert error["pairs"] == 3 and error["verdict"] == "undecided"
+    assert error["diff"] == pytest.approx(sum(runs.values()) / 3, abs=1e-3)
+    assert success["pairs"] == 3 and success["verdict"] == "supports" and success["diff"] == pytest.approx(100.0)
+    main_only = dataclasses.replace(scale, train_seed_rows=(), train_seeds=())
+    over_episodes = {
+        (ln["claim"], ln["measure"]): ln for ln in ablations.claims(DEFINITION, main_only, errors, navigation)
+    }
+    assert over_episodes[("10 over 8", "error")]["tested_over"] == "episodes"
+    assert over_episodes[("10 over 8", "error")]["verdict"] == "contradicts"  # the main runs alone: 0.3 worse
+
+
 @pytest.mark.slow
 def test_a_second_run_reuses_every_saved_result(ci_run, capsys):
     out, table = ci_run
