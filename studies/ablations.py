@@ -1047,7 +1047,10 @@ CLAIM_COLUMNS = [
     "p", "p_holm", "verdict",
 ]  # fmt: skip
 #: The test of a claim whose two rows were both trained under several seeds: over the training runs.
-OVER_RUNS = "Student's paired t test of the per-training-run means (the runs of one seed index paired)"
+OVER_RUNS = (
+    "Student's paired t test of the per-training-run means (the runs of one seed index paired; no test where "
+    "every run's difference is the same, as a few runs then give no spread)"
+)
 #: What each measure of a claim is: its unit, whether higher is better, and the test.
 CLAIM_MEASURES = {
     "success": ("%", True, "McNemar's exact test on the shared episodes"),
@@ -1102,7 +1105,7 @@ def _run_means(
     scale: Scale, errors: dict[str, Any], navigation: dict[str, Any], rows: tuple[int, int], measure: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per training run (the runs of one seed index paired), both rows' mean value on the trials
-    those two runs share; runs with no shared trial are left out."""
+    those two runs share (success and SPL 0-1, error x 1e-2); runs with no shared trial are left out."""
     pairs = [
         _paired_values(scale, errors, navigation, rows, measure, runs)
         for runs in zip(_training_runs(scale, rows[0]), _training_runs(scale, rows[1]))
@@ -1152,6 +1155,8 @@ def claims(
             else:
                 diff, line["p"] = paired_t((a - b) * scale_by)
                 line["diff"] = diff
+                if over_runs and len(a) and np.ptp(a - b) == 0:  # a few runs with no spread: no test
+                    line["p"] = math.nan
             gap = line["paper_a"] - line["paper_b"]
             silent = not math.isfinite(gap) or gap == 0
             expected.append((1.0 if higher_better else -1.0) if silent else float(np.sign(gap)))
@@ -1170,6 +1175,7 @@ def claims_table(lines: list[dict[str, Any]]) -> framework.Table:
     from odolab.reporting.report import counted
 
     said = {v: sum(line["verdict"] == v for line in lines) for v in ("supports", "contradicts", "undecided")}
+    tested = sum(math.isfinite(line["p"]) for line in lines)
     return framework.Table(
         name="claims",
         heading="The paper's claims, tested",
@@ -1179,7 +1185,7 @@ def claims_table(lines: list[dict[str, Any]]) -> framework.Table:
             + "; ".join(f"{m} ({unit}): {test}" for m, (unit, _, test) in CLAIM_MEASURES.items())
             + f". Where both rows were trained under several seeds (tested_over: training runs), every measure: {OVER_RUNS}, "
             "so the verdict holds against the training-seed spread, not only the episodes' (pairs then counts runs)"
-            + f". diff is A's mean minus B's; p_holm is Holm's adjustment over the table's {counted(len(lines), 'test')} "
+            + f". diff is A's mean minus B's; p_holm is Holm's adjustment over the table's {counted(tested, 'test')} (lines without a p are not counted) "
             f"(family-wise error rate {ALPHA:g}). verdict: supports (p_holm < {ALPHA:g}, ours differs as the paper's "
             "numbers do), contradicts (the other way) or undecided (p_holm >= "
             f"{ALPHA:g}, or no shared trials). Here: {said['supports']} supports, {said['contradicts']} contradicts, "

@@ -331,6 +331,7 @@ def test_claims_between_rows_trained_under_several_seeds_are_tested_over_the_tra
         train_seeds=(1, 2),
     )
     runs = {None: 0.3, 1: -0.28, 2: 0.05}  # row 10's error minus row 8's, per training run
+    successes = {None: 9, 1: 10, 2: 8}  # row 10's successes of 10 per training run (row 8's: none)
     rng = __import__("numpy").random.default_rng(1)
     errors, navigation = {}, {}
     for k, offset in runs.items():
@@ -338,22 +339,26 @@ def test_claims_between_rows_trained_under_several_seeds_are_tested_over_the_tra
             label = ablations.run_label(row, k)
             errors[f"errors {label} seed 0"] = {"episodes": [[value + rng.normal(0, 1e-3)] * 3 for _ in range(10)]}
             for e in range(10):
-                navigation[f"navigate {label} seed 0 episode {e}"] = {
-                    "success": int(row == 10),
-                    "spl": 0.4 * (row == 10),
-                }
-    lines = {(ln["claim"], ln["measure"]): ln for ln in ablations.claims(DEFINITION, scale, errors, navigation)}
+                success = int(row == 10 and e < successes[k])
+                navigation[f"navigate {label} seed 0 episode {e}"] = {"success": success, "spl": 0.4 * success}
+
+    def claims(scale, navigation=navigation):
+        return {(ln["claim"], ln["measure"]): ln for ln in ablations.claims(DEFINITION, scale, errors, navigation)}
+
+    lines = claims(scale)
     error, success = lines[("10 over 8", "error")], lines[("10 over 8", "success")]
     assert error["tested_over"] == success["tested_over"] == "training runs"
     assert error["pairs"] == 3 and error["verdict"] == "undecided"
     assert error["diff"] == pytest.approx(sum(runs.values()) / 3, abs=1e-3)
-    assert success["pairs"] == 3 and success["verdict"] == "supports" and success["diff"] == pytest.approx(100.0)
-    main_only = dataclasses.replace(scale, train_seed_rows=(), train_seeds=())
-    over_episodes = {
-        (ln["claim"], ln["measure"]): ln for ln in ablations.claims(DEFINITION, main_only, errors, navigation)
-    }
-    assert over_episodes[("10 over 8", "error")]["tested_over"] == "episodes"
-    assert over_episodes[("10 over 8", "error")]["verdict"] == "contradicts"  # the main runs alone: 0.3 worse
+    assert success["pairs"] == 3 and success["verdict"] == "supports" and success["diff"] == pytest.approx(90.0)
+    for seeded in ((8,), ()):
+        main = claims(dataclasses.replace(scale, train_seed_rows=seeded, train_seeds=(1, 2) if seeded else ()))
+        assert main[("10 over 8", "error")]["tested_over"] == "episodes"  # one row has one run: over episodes
+        assert main[("10 over 8", "error")]["verdict"] == "contradicts"  # the main runs alone: 0.3 worse
+    flat = {k: {"success": int(" row 10 " in k and k.endswith("episode 0")), "spl": 0.0} for k in navigation}
+    flat_success = claims(scale, flat)[("10 over 8", "success")]
+    assert flat_success["diff"] == pytest.approx(10.0)  # 10 points more in each of the 3 runs
+    assert flat_success["verdict"] == "undecided"  # no spread over 3 runs: no test
 
 
 @pytest.mark.slow

@@ -361,7 +361,7 @@ def test_episodes_rendered_here_while_ray_starts_reach_the_tasks_where_the_cache
     assert capsys.readouterr().err.count("cannot write the episode cache") == 1
 
 
-def test_render_kept_hands_the_caches_notices_back_and_leaves_stderr_alone(tmp_path, capsys):
+def test_render_kept_hands_the_caches_notices_back_and_leaves_stderr_alone(tmp_path, capsys, monkeypatch):
     """The driver renders beside Ray's start on a thread: the cache's notices come back as lines, and
     the process's standard error (the main thread's too) is never swapped."""
     import sys
@@ -370,9 +370,15 @@ def test_render_kept_hands_the_caches_notices_back_and_leaves_stderr_alone(tmp_p
 
     spec = EpisodeSpec(split="test", index=0, seed=0, max_steps=3)
     EpisodeCache(tmp_path / "bad").path(spec).mkdir(parents=True)
-    stderr = sys.stderr
+    stderr, seen, put = sys.stderr, [], EpisodeCache.put
+
+    def watched(self, episode):
+        seen.append(sys.stderr)  # the process's stderr while the cache writes and says why it cannot
+        return put(self, episode)
+
+    monkeypatch.setattr(EpisodeCache, "put", watched)
     episode, lines = pipeline._render_kept(spec, rollout(spec), tmp_path / "bad")
-    assert sys.stderr is stderr and capsys.readouterr().err == ""
+    assert seen == [stderr] and sys.stderr is stderr and capsys.readouterr().err == ""
     assert episode is not None and len(lines) == 1 and "cannot write the episode cache" in lines[0]
 
 

@@ -246,8 +246,9 @@ def start_ray_beside(
     """:func:`start_ray` in this thread while ``work(up)`` runs on another: the driver's own work
     done during Ray's few seconds of start (mostly waiting for its processes). ``up`` is set once
     the start has ended (Ray up, or the start failed), so ``work`` may stop early then. Returns
-    ``work``'s result and whether Ray was started here (the caller then shuts it down); raises what
-    either raised, after the other has ended (Ray, where started here, shut down again)."""
+    ``work``'s result and whether Ray was started here (the caller then shuts it down); raises, once
+    ``work`` has ended, what the start raised, else what ``work`` raised (Ray, where started here,
+    shut down again)."""
     from concurrent.futures import ThreadPoolExecutor
 
     up = threading.Event()
