@@ -240,12 +240,12 @@ def test_start_ray_beside_runs_the_work_while_ray_starts_and_says_when_it_is_up(
     working = threading.Event()
 
     def init(**kwargs):
-        assert working.wait(5), "the work had not begun while Ray was starting"
+        assert working.wait(30), "the work had not begun while Ray was starting"
         events.append("ray up")
 
     def work(up):
         working.set()
-        assert up.wait(5)
+        assert up.wait(30)
         events.append("work saw up")
         return 42
 
@@ -270,7 +270,7 @@ def test_start_ray_beside_raises_a_failed_start_after_the_work_has_ended(monkeyp
         raise RuntimeError("no room for Ray")
 
     def work(up):
-        assert up.wait(5)  # told the start has ended, so it may stop
+        assert up.wait(30)  # told the start has ended, so it may stop
         ended.append(True)
 
     with pytest.raises(RuntimeError, match="no room"):
@@ -283,7 +283,7 @@ def test_start_ray_beside_leaves_a_running_ray_alone(monkeypatch):
         raise AssertionError
 
     shut = []
-    assert _beside(monkeypatch, init, lambda up: up.wait(5), shut, initialized=True) == (True, False)
+    assert _beside(monkeypatch, init, lambda up: up.wait(30), shut, initialized=True) == (True, False)
     assert shut == []
 
 
