@@ -401,3 +401,15 @@ def test_render_into_hands_back_the_episode_and_the_warning_a_cache_that_cannot_
     pipeline._said(said + said, seen)
     pipeline._said(said, seen)
     assert capsys.readouterr().err.count("cannot write the episode cache") == 1
+
+
+def test_fans_out_only_simulated_parallel_local_runs_of_named_odometers(monkeypatch):
+    """Ray tasks for 2+ odometer-episode pairs of registered odometers on a local instance; never for
+    a TUM folder (its frames are read here), a serial run or a cluster address."""
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    config = ComparisonConfig(odometers=["icp", "action-prior"], episodes=2, execution=Execution())
+    assert pipeline.fans_out(config, ["icp", "action-prior"])
+    assert not pipeline.fans_out(replace(config, episodes=1), ["icp"])
+    assert not pipeline.fans_out(replace(config, tum=FR1), ["icp", "action-prior"])
+    assert not pipeline.fans_out(replace(config, execution=SERIAL), ["icp", "action-prior"])
+    assert not pipeline.fans_out(replace(config, execution=Execution(ray_address="127.0.0.1:1")), ["icp"])
