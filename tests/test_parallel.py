@@ -306,3 +306,23 @@ def test_shutdown_ray_puts_the_commands_sigterm_handler_back_beneath_python(tmp_
         [sys.executable, str(script)], check=False, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
     )
     assert (done.returncode, done.stdout.strip()) == (7, "handled"), done.stderr[-2000:]
+
+
+@pytest.mark.slow
+def test_a_local_start_never_joins_a_cluster_running_on_the_machine(ray_cluster, tmp_path):
+    """With no address, start_ray starts an instance of its own (Ray's ``address="local"``): a plain
+    ray.init() would join the cluster another program started on this machine, and die with it."""
+    script = tmp_path / "local_start.py"
+    script.write_text(
+        "import ray\n"
+        "from odolab.core.parallel import shutdown_ray, start_ray\n"
+        "assert start_ray(None, quiet=True)\n"
+        "print(ray.get_runtime_context().gcs_address)\n"
+        "shutdown_ray()\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    done = subprocess.run(
+        [sys.executable, str(script)], check=False, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() and done.stdout.strip() != ray_cluster

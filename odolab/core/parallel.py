@@ -227,7 +227,10 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
     local = ray_address is None and not os.environ.get(RAY_ADDRESS)
     try:
         with _signal_handlers_kept(), _token_notices_hidden(local=local, quiet=quiet):
-            ray.init(address=ray_address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
+            # "local": a new instance of this process's own, never a `ray start` cluster found on the machine
+            # (ray.init() without an address joins one, and its owner may stop it mid-run)
+            address = ray_address or ("local" if local else None)
+            ray.init(address=address, include_dashboard=False, log_to_driver=log_to_driver, configure_logging=False)
     except BaseException as exc:  # interrupted or refused half-way: stop what it started
         with contextlib.suppress(Exception):
             shutdown_ray()
