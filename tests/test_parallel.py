@@ -287,23 +287,29 @@ def test_start_ray_beside_leaves_a_running_ray_alone(monkeypatch):
     assert shut == []
 
 
+def _python(tmp_path, code: str) -> subprocess.CompletedProcess:
+    """``code`` run by this Python in a fresh process from the repository's root, RAY_ADDRESS unset."""
+    script = tmp_path / "script.py"
+    script.write_text(code)
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    return subprocess.run(
+        [sys.executable, str(script)], check=False, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180
+    )
+
+
 @pytest.mark.slow
 def test_shutdown_ray_puts_the_commands_sigterm_handler_back_beneath_python(tmp_path):
     """ray.shutdown() resets SIGTERM to the default action at the C level while Python still reports
     its handler; after shutdown_ray a SIGTERM reaches the command's handler (clean-up, its line)."""
-    script = tmp_path / "sigterm_after_shutdown.py"
-    script.write_text(
+    done = _python(
+        tmp_path,
         "import os, signal, sys, time\n"
         "signal.signal(signal.SIGTERM, lambda s, f: (print('handled', flush=True), sys.exit(7)))\n"
         "from odolab.core.parallel import shutdown_ray, start_ray\n"
         "assert start_ray(None, quiet=True)\n"
         "shutdown_ray()\n"
         "os.kill(os.getpid(), signal.SIGTERM)\n"
-        "time.sleep(5)\n"
-    )
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-    done = subprocess.run(
-        [sys.executable, str(script)], check=False, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
+        "time.sleep(5)\n",
     )
     assert (done.returncode, done.stdout.strip()) == (7, "handled"), done.stderr[-2000:]
 
@@ -312,17 +318,13 @@ def test_shutdown_ray_puts_the_commands_sigterm_handler_back_beneath_python(tmp_
 def test_a_local_start_never_joins_a_cluster_running_on_the_machine(ray_cluster, tmp_path):
     """With no address, start_ray starts an instance of its own (Ray's ``address="local"``): a plain
     ray.init() would join the cluster another program started on this machine, and die with it."""
-    script = tmp_path / "local_start.py"
-    script.write_text(
+    done = _python(
+        tmp_path,
         "import ray\n"
         "from odolab.core.parallel import shutdown_ray, start_ray\n"
         "assert start_ray(None, quiet=True)\n"
         "print(ray.get_runtime_context().gcs_address)\n"
-        "shutdown_ray()\n"
-    )
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-    done = subprocess.run(
-        [sys.executable, str(script)], check=False, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180
+        "shutdown_ray()\n",
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.strip() and done.stdout.strip() != ray_cluster

@@ -251,10 +251,15 @@ def start_ray_beside(
     the start has ended (Ray up, or the start failed), so ``work`` may stop early then. Returns
     ``work``'s result and whether Ray was started here (the caller then shuts it down); raises, once
     ``work`` has ended, what the start raised, else what ``work`` raised (Ray, where started here,
-    shut down again)."""
+    shut down again). Where Ray runs already, ``work`` runs here with ``up`` set."""
     from concurrent.futures import ThreadPoolExecutor
 
+    import ray
+
     up = threading.Event()
+    if ray.is_initialized():
+        up.set()
+        return work(up), False
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="odolab-beside-ray") as pool:
         done = pool.submit(work, up)
         try:

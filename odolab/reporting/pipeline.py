@@ -409,9 +409,8 @@ def _run_fanned(
     with contextlib.ExitStack() as stack:
         folder = config.cache or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="odolab-episodes-")))
         cache = EpisodeCache(folder)
-        started = time.perf_counter()
-        motions = {k: rollout(s) for k, s in enumerate(specs) if not cache.has(s)}
-        phases["motions"] = time.perf_counter() - started
+        with _phase(phases, "motions"):
+            motions = {k: rollout(s) for k, s in enumerate(specs) if not cache.has(s)}
         steps = sum(len(motions[k].actions) if k in motions else cache.steps(s) for k, s in enumerate(specs))
         units = [_Unit(n, config.options.get(n, {}), s, folder, step_timeout) for s in specs for n in names]
         results: list[SequenceResult | None] = [None] * len(units)
@@ -433,35 +432,41 @@ def _run_fanned(
             """The missing episodes, in order, rendered here while Ray starts (until it is up)."""
             return {k: _render_kept(specs[k], motions[k], folder) for k in motions if not up.is_set()}
 
-        started = time.perf_counter()
-        if ray.is_initialized():  # Ray was running before: left so
-            here: dict[int, tuple[Episode | None, list[str]]] = {}
-        else:
+        with _phase(phases, "ray_start"):
             here, ours = start_ray_beside(render_here, quiet=not config.execution.progress)
-            if ours:
-                stack.callback(_timed, shutdown_ray, phases, "ray_shutdown")
-        phases["ray_start"] = time.perf_counter() - started
-        started = time.perf_counter()
-        for _, lines in here.values():
-            _said("\n".join(lines), seen)
-        render = ray.remote(num_returns=2)(_render_into)
-        rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items() if k not in here}
-        handed = {k: ray.put(episode) for k, (episode, _) in here.items() if episode is not None}  # not kept
-        handed |= {k: episode for k, (episode, _) in rendered.items()}
-        inputs = [handed.get(k) for k in range(len(specs)) for _ in names]
-        fan_out(_run_unit, units, inputs=inputs, on_result=done, execution=replace(config.execution, progress=False))
-        for _, said in rendered.values():
-            _said(ray.get(said), seen)
-        phases["tasks"] = time.perf_counter() - started
+        if ours:
+            stack.callback(_timed, shutdown_ray, phases, "ray_shutdown")
+        with _phase(phases, "tasks"):
+            for _, lines in here.values():
+                _said("\n".join(lines), seen)
+            render = ray.remote(num_returns=2)(_render_into)
+            rendered = {k: render.remote(specs[k], motion, folder) for k, motion in motions.items() if k not in here}
+            handed = {k: ray.put(episode) for k, (episode, _) in here.items() if episode is not None}  # not kept
+            handed |= {k: episode for k, (episode, _) in rendered.items()}
+            inputs = [handed.get(k) for k in range(len(specs)) for _ in names]
+            fan_out(
+                _run_unit, units, inputs=inputs, on_result=done, execution=replace(config.execution, progress=False)
+            )
+            for _, said in rendered.values():
+                _said(ray.get(said), seen)
     phases.setdefault("ray_shutdown", 0.0)  # Ray was running before: left so
     return [r for r in results if r is not None]
 
 
+@contextlib.contextmanager
+def _phase(phases: dict[str, float], name: str) -> Iterator[None]:
+    """The block's wall seconds kept as ``phases[name]``."""
+    started = time.perf_counter()
+    try:
+        yield
+    finally:
+        phases[name] = time.perf_counter() - started
+
+
 def _timed(call: Callable[[], Any], phases: dict[str, float], name: str) -> None:
     """``call()``, its wall seconds kept as ``phases[name]``."""
-    started = time.perf_counter()
-    call()
-    phases[name] = time.perf_counter() - started
+    with _phase(phases, name):
+        call()
 
 
 def _run(
@@ -533,10 +538,9 @@ def run_comparison(
         raise ComparisonError(f"split {config.split!r} is not a split; choose one of {', '.join(SPLITS)}")
     step_timeout = config.step_timeout
     phases: dict[str, float] = {}
-    started = time.perf_counter()
-    if odometers is None:
-        odometers = load_odometers(config.odometers, config.options)
-    phases["load_odometers"] = time.perf_counter() - started
+    with _phase(phases, "load_odometers"):
+        if odometers is None:
+            odometers = load_odometers(config.odometers, config.options)
     if config.tum is not None:
         blind = [name for name, odo in odometers.items() if _needs_action(name, odo)]
         if blind and config.odometers is not None:
@@ -611,16 +615,15 @@ def run_comparison(
     if fans_out(config, odometers):
         results = _run_fanned(config, specs, list(odometers), observer, step_timeout, note, phases)
     else:
-        started = time.perf_counter()
-        episodes, total = _episode_stream(config, specs)
 
         def noted(stream):
             for ep in stream:
                 note(ep.name, ep.info)
                 yield ep
 
-        results = _run(odometers, noted(episodes), observer, step_timeout, total)
-        phases["run"] = time.perf_counter() - started
+        with _phase(phases, "run"):
+            episodes, total = _episode_stream(config, specs)
+            results = _run(odometers, noted(episodes), observer, step_timeout, total)
     no_depth = empty_depth_warnings(results)
     one = [r for r in results if r.odometer == results[0].odometer]
     steps = sum(len(r.actions) for r in one)
