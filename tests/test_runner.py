@@ -415,6 +415,26 @@ def test_step_by_step_guards_a_closed_loop_as_the_runner_guards_a_sequence(relea
         assert [e.transform[2, 3] for e in got] == [0.25, 0.5, 0.75] and not asked.reasons
 
 
+def test_step_by_step_leaves_the_odometer_to_the_callers_thread_to_free():
+    """The worker thread that makes the timed calls keeps nothing of the last one: an odometer the
+    caller lets go is freed there and then, in the caller's thread (torch aborts the process when a
+    daemon thread frees its tensors as the interpreter exits)."""
+    freed_in: list[str] = []
+
+    class Freed(api.Odometer):
+        def step(self, prev, cur, action):
+            return api.Estimate(FORWARD)
+
+        def __del__(self):
+            freed_in.append(threading.current_thread().name)
+
+    with runner.StepByStep(Freed(), "freed", step_timeout=5.0) as asked:
+        assert asked.reset(Tiny().intrinsics)
+        assert [asked.step(*pair) is not None for pair in _pairs(3)] == [True] * 3
+    del asked  # at once: the worker thread may not have woken to the queue's end yet
+    assert freed_in == [threading.current_thread().name]
+
+
 def test_an_odometer_that_hangs_on_every_other_step_is_stopped_too(release):
     """Timeouts count in all, not only in a row: a sequence waits at most MAX_TIMEOUTS time limits."""
     odo = Stuck(range(0, 100, 2), release)

@@ -260,19 +260,24 @@ def read_attributes(odometer: Odometer) -> Attributes:
 class _Call:
     """One call made for the runner: its result or exception and its wall time (s)."""
 
-    fn: Callable[[], Any]
+    fn: Callable[[], Any] | None
     done: threading.Event = field(default_factory=threading.Event)
     value: Any = None
     error: BaseException | None = None
     seconds: float = 0.0
 
     def make(self) -> None:
-        """Run ``fn`` once, timed, keeping its value or the exception it raised."""
+        """Run ``fn`` once, timed, keeping its value or the exception it raised. ``fn`` is let go
+        before the caller hears, so what it holds (an odometer and its tensors) is freed by the
+        caller's thread, never by a worker thread that may still be running when the interpreter
+        exits (torch aborts the process when it frees tensors there)."""
+        fn, self.fn = self.fn, None
         t0 = time.perf_counter()
         try:
-            self.value = self.fn()
+            self.value = fn()  # type: ignore[misc]
         except BaseException as exc:  # noqa: BLE001 - handed to the runner's thread, which decides
             self.error = exc
+        del fn
         self.seconds = time.perf_counter() - t0
         self.done.set()
 
@@ -288,6 +293,7 @@ class _Worker:
     def _serve(self) -> None:
         while (call := self._calls.get()) is not None:
             call.make()
+            del call  # not held while waiting for the next: the caller's thread frees it
 
     def submit(self, call: _Call) -> None:
         self._calls.put(call)
