@@ -1,9 +1,12 @@
 """Helpers shared by several test files: a command's one-line refusal, the smallest run of each
-command, small odometers and a five-frame sequence, the TUM test folder and its camera, figures kept
+command, a script in a fresh Python, small odometers and a five-frame sequence, the TUM test folder and its camera, figures kept
 instead of written, and the robust VO trainer's command line on a tiny recipe."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -227,3 +230,14 @@ def stderr_line(capsys, *words: str) -> str:
     for w in words:
         assert w in err, (w, err)
     return err
+
+
+def run_python(tmp_path: Path, code: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``code`` run by this Python in a fresh process from the repository's root, with this process's
+    environment but RAY_ADDRESS, updated by ``env``."""
+    script = tmp_path / "script.py"
+    script.write_text(code)
+    environ = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | (env or {})
+    return subprocess.run(
+        [sys.executable, str(script)], check=False, cwd=ROOT, env=environ, capture_output=True, text=True, timeout=180
+    )

@@ -13,7 +13,7 @@ import time
 import pytest
 
 from odolab.core.parallel import Execution
-from tests.helpers import ROOT
+from tests.helpers import ROOT, run_python
 
 
 def test_fan_out_checks_the_address_before_starting_ray():
@@ -287,21 +287,11 @@ def test_start_ray_beside_leaves_a_running_ray_alone(monkeypatch):
     assert shut == []
 
 
-def _python(tmp_path, code: str) -> subprocess.CompletedProcess:
-    """``code`` run by this Python in a fresh process from the repository's root, RAY_ADDRESS unset."""
-    script = tmp_path / "script.py"
-    script.write_text(code)
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-    return subprocess.run(
-        [sys.executable, str(script)], check=False, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180
-    )
-
-
 @pytest.mark.slow
-def test_shutdown_ray_puts_the_commands_sigterm_handler_back_beneath_python(tmp_path):
+def test_shutdown_ray_puts_the_commands_sigterm_handler_back_beneathrun_python(tmp_path):
     """ray.shutdown() resets SIGTERM to the default action at the C level while Python still reports
     its handler; after shutdown_ray a SIGTERM reaches the command's handler (clean-up, its line)."""
-    done = _python(
+    done = run_python(
         tmp_path,
         "import os, signal, sys, time\n"
         "signal.signal(signal.SIGTERM, lambda s, f: (print('handled', flush=True), sys.exit(7)))\n"
@@ -318,7 +308,7 @@ def test_shutdown_ray_puts_the_commands_sigterm_handler_back_beneath_python(tmp_
 def test_a_local_start_never_joins_a_cluster_running_on_the_machine(ray_cluster, tmp_path):
     """With no address, start_ray starts an instance of its own (Ray's ``address="local"``): a plain
     ray.init() would join the cluster another program started on this machine, and die with it."""
-    done = _python(
+    done = run_python(
         tmp_path,
         "import ray\n"
         "from odolab.core.parallel import shutdown_ray, start_ray\n"

@@ -613,7 +613,10 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
 
     watched = (signal.SIGINT, signal.SIGTERM)
     previous = {s: signal.signal(s, on_signal) for s in watched} if in_main else {}
+    from odolab.core.memory import keep_freed_memory
     from odolab.core.parallel import RayAddressError
+
+    keep_freed_memory()  # freed blocks reused, not faulted in again (odolab.core.memory)
 
     try:
         code = int(main(argv) or 0)

@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 from tqdm.auto import tqdm
 
 from odolab.core.errors import InputError
+from odolab.core.memory import children_keep_freed_memory
 
 T = TypeVar("T")
 
@@ -226,7 +227,11 @@ def start_ray(ray_address: str | None, quiet: bool = False, log_to_driver: bool 
         check_environment_ray_address()
     local = ray_address is None and not os.environ.get(RAY_ADDRESS)
     try:
-        with _signal_handlers_kept(), _token_notices_hidden(local=local, quiet=quiet):
+        with (
+            _signal_handlers_kept(),
+            _token_notices_hidden(local=local, quiet=quiet),
+            children_keep_freed_memory() if local else contextlib.nullcontext(),  # the workers' malloc
+        ):
             # "local": a new instance of this process's own, never a `ray start` cluster found on the machine
             # (ray.init() without an address joins one, and its owner may stop it mid-run)
             address = ray_address or ("local" if local else None)
