@@ -241,6 +241,33 @@ def test_map_plan_agent_costs_with_a_coarse_far_field_follow_the_fine_march(step
     assert np.array_equal(near[step], near[1])
 
 
+def test_map_plan_agent_with_plan_every_marches_every_nth_step_or_when_the_last_field_has_no_time(monkeypatch):
+    """``plan_every`` 3: the agent marches on its first step and every third after, reading the last
+    field between (its heading costs are that field's times); a field with no time at any open
+    heading (the agent moved off its box) makes it march at once."""
+    from odolab.navigation import agent as agent_module
+    from odolab.navigation.agent import PolicyConfig
+
+    cam = CameraSpec(width=32, height=18)
+    marches = []
+    costs = agent_module.MapPlanAgent._costs
+    monkeypatch.setattr(
+        agent_module.MapPlanAgent, "_costs", lambda self, *a: marches.append(self.map.step) or costs(self, *a)
+    )
+    agent = MapPlanAgent((4.0, 0.5), cam.intrinsics, cam.mount_height, PolicyConfig(extent=2.0, plan_every=3))
+    empty = np.zeros((cam.height, cam.width), np.float32)  # sees nothing: the map stays empty
+    for _ in range(7):
+        agent.act(empty)
+    assert marches == [1, 4, 7]
+    r, c, _ = agent.map.to_cell(np.array([-0.25]), np.array([0.0]))  # a heading's cell (behind the agent)
+    assert agent._field is not None and np.isfinite(agent._field.at(r, c)).all()
+    agent.act(empty)
+    assert marches == [1, 4, 7]  # read from the last field
+    agent._field = agent_module._Field(agent._field.times[:3, :3], (0, 0))  # a box far from the agent
+    agent.act(empty)
+    assert marches == [1, 4, 7, 9]
+
+
 def test_a_saved_policy_without_a_parameter_differs_and_gets_no_suggestion():
     from odolab.cli.navigate import SETTING_OPTIONS
     from odolab.navigation.agent import PolicyConfig
@@ -774,20 +801,26 @@ def test_navigate_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
     assert _navigate(args + ["--out", out]) == 0
 
 
-def test_policy_config_record_names_the_coarse_far_field_only_where_it_is_on():
-    """Saved runs (unit keys, a folder's config.json) made before ``plan_step`` existed name the
-    default policy: its record leaves out the two parameters at plan_step 1, and keeps them when on."""
+def test_policy_config_record_names_the_far_field_and_plan_every_only_where_they_are_on():
+    """Saved runs (unit keys, a folder's config.json) made before ``plan_step`` and ``plan_every``
+    existed name the default policy: its record leaves out the coarse far field's two parameters at
+    plan_step 1 and plan_every at 1, and keeps them when on."""
     from odolab.navigation.agent import PolicyConfig
 
     default = PolicyConfig().record()
-    assert "plan_step" not in default and "fine_radius" not in default
-    assert default == {
-        k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k not in ("plan_step", "fine_radius")
+    added = ("plan_step", "fine_radius", "plan_every")
+    assert not set(added) & set(default)
+    assert default == {k: v for k, v in dataclasses.asdict(PolicyConfig()).items() if k not in added}
+    assert PolicyConfig(plan_step=2).record() == {
+        k: v for k, v in dataclasses.asdict(PolicyConfig(plan_step=2)).items() if k != "plan_every"
     }
-    assert PolicyConfig(plan_step=2).record() == dataclasses.asdict(PolicyConfig(plan_step=2))
+    assert PolicyConfig(plan_every=3).record() == {
+        k: v for k, v in dataclasses.asdict(PolicyConfig(plan_every=3)).items() if k not in ("plan_step", "fine_radius")
+    }
     with pytest.raises(ValueError, match="fine_radius only matters with plan_step > 1"):
         PolicyConfig(fine_radius=3.0)  # it would have no effect
     assert PolicyConfig.completed(default) == dataclasses.asdict(PolicyConfig())
     assert PolicyConfig.completed(PolicyConfig(plan_step=3).record())["plan_step"] == 3
+    assert PolicyConfig.completed(PolicyConfig(plan_every=3).record())["plan_every"] == 3
     saved = json.loads((Path(__file__).parents[1] / "reports" / "navigation" / "config.json").read_text())
     assert saved["policy"] == default  # the committed runs are today's default policy's

@@ -19,7 +19,9 @@ gives a travel-time field in metres at full speed (over the box spanning the age
 when a noisy map narrows a doorway below the agent's width, the whole map again for an agent of
 radius ``fallback_radius``, 0 = never; with ``plan_step`` n > 1 the field beyond ``fine_radius`` of the
 agent is marched on blocks of n x n cells and joined to a march on every cell near the agent, a few
-times faster and not the same field: docs/navigation.md#speed); the agent heads for the lowest field
+times faster and not the same field: docs/navigation.md#speed; with ``plan_every`` n > 1 it marches
+every n-th step, or sooner when the last field has no time at any open heading, and reads the last
+field between); the agent heads for the lowest field
 value on a circle of 0.25 m around it, among the headings whose straight step passes no obstacle cell
 nearer than ``obstacle_gap`` (when none has a finite value, as inside a wall's inflated band, the open
 heading nearest the goal's direction; when none is open, the goal's direction; obstacle cells within
@@ -89,6 +91,11 @@ class PolicyConfig:
     fallback_radius: float = setting(
         0.1, range=(0.0, 1.0), open_high=True, doc="the narrower agent planned for when no way fits; 0: off"
     )
+    plan_every: int = setting(
+        1,
+        range=(1, 20),
+        doc="fast marching every n-th step; between, the last field is read where it has times (1: every step)",
+    )
 
     def __post_init__(self) -> None:
         check(self)  # a 1e-6 m cell or a 1e6 m map would not fit in memory
@@ -109,19 +116,21 @@ class PolicyConfig:
 
     def record(self) -> dict:
         """The parameters as results record them (keys of saved runs, a folder's ``config.json``):
-        the coarse far field's two only where it is on (``plan_step`` > 1), so a run saved before
-        they existed names the same policy as today's default."""
+        the coarse far field's two only where it is on (``plan_step`` > 1) and ``plan_every`` only
+        where it is not 1, so a run saved before they existed names the same policy as today's default."""
         doc = dataclasses.asdict(self)
         if self.plan_step == 1:
             for name in _FAR_FIELD:
                 del doc[name]
+        if self.plan_every == 1:
+            del doc["plan_every"]
         return doc
 
     @classmethod
     def completed(cls, doc: dict) -> dict:
         """A :meth:`record` with the parameters it leaves out at their defaults, as the policy it names has them."""
         defaults = cls()
-        return {**{name: getattr(defaults, name) for name in _FAR_FIELD}, **doc}
+        return {**{name: getattr(defaults, name) for name in (*_FAR_FIELD, "plan_every")}, **doc}
 
     @classmethod
     def from_assignments(cls, items: list[str]) -> PolicyConfig:
@@ -175,6 +184,23 @@ def _bilinear(grid: np.ndarray, qr: np.ndarray, qc: np.ndarray) -> np.ndarray:
     out = np.full(len(qr), np.inf)
     np.divide(total, weight, out=out, where=weight > 0)
     return out
+
+
+@dataclass(frozen=True)
+class _Field:
+    """A fast-marching field kept for the steps that do not march (``plan_every``): travel times (m)
+    on a box of map cells whose first cell is ``origin`` (row, column)."""
+
+    times: np.ndarray
+    origin: tuple[int, int]
+
+    def at(self, r: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """The times of map cells (r, c); inf off the box."""
+        out = np.full(len(r), np.inf)
+        rr, cc = r - self.origin[0], c - self.origin[1]
+        inside = (rr >= 0) & (rr < self.times.shape[0]) & (cc >= 0) & (cc < self.times.shape[1])
+        out[inside] = self.times[rr[inside], cc[inside]]
+        return out
 
 
 class PolicyError(InputError):
@@ -252,6 +278,8 @@ class MapPlanAgent:
         self._last_xy = np.zeros(2)
         self.plan_seconds = 0.0  # wall time spent in fast marching so far (the benchmark reads it)
         self._reach_hint: float | None = None  # where the next march may first stop, m (_costs)
+        self._field: _Field | None = None  # the last march's field (_costs), read between marches
+        self._unplanned = 0  # steps since the last march
 
     @property
     def belief(self) -> tuple[float, float, float]:
@@ -308,6 +336,7 @@ class MapPlanAgent:
 
         cfg, m = self.cfg, self.map
         out = np.full(len(r), np.inf)
+        self._field = None
         gr, gc, goal_inside = m.to_cell(*self.goal)
         if not goal_inside:
             return out
@@ -337,11 +366,13 @@ class MapPlanAgent:
         if self.cfg.plan_step > 1:
             near = self._two_level(blocked, speed, (r0, c0), (lr, lc), (ar - r0, ac - c0), qr, qc, hint)
             if near is not None:
-                out[ok] = near
+                self._field = _Field(near[0], (r0 + near[1][0], c0 + near[1][1]))
+                out[ok] = self._field.at(r[ok], c[ok])
                 return out
         tx, ty = m.to_world(r[ok], c[ok])
         stops = _stops(float(np.hypot(tx - self.goal[0], ty - self.goal[1]).max()), hint)
         times = self._goal_march(blocked, speed, (r0, c0), (lr, lc), 1, stops, (qr, qc))
+        self._field = _Field(times, (r0, c0))
         out[ok] = times[qr, qc]
         return out
 
@@ -391,15 +422,15 @@ class MapPlanAgent:
         qr: np.ndarray,
         qc: np.ndarray,
         hint: float | None,
-    ) -> np.ndarray | None:
-        """Travel times (m) to the goal of the window cells (``qr``, ``qc``) near the agent (window
-        cell ``agent``): far from it on blocks of ``plan_step`` x ``plan_step`` cells (a block
+    ) -> tuple[np.ndarray, tuple[int, int]] | None:
+        """Travel times (m) to the goal of the window cells near the agent (window cell ``agent``),
+        on the box round it, and the box's first window cell (row, column): far from it on blocks of ``plan_step`` x ``plan_step`` cells (a block
         passable where any of its cells is, at its fastest cell's speed: no way closes), near it on
         every cell: a march over the cells within ``fine_radius`` of the agent from the coarse
         field's level set ``fine_radius`` - 0.5 m nearer the goal than the agent, plus that level.
         None (the caller then marches on every cell) where the agent is within ``fine_radius`` of
         the goal, or the coarse field does not reach the agent, or its level set misses the box,
-        or a cell asked gets no time."""
+        or a cell asked (``qr``, ``qc``) gets no time."""
         import skfmm
 
         cfg, f = self.cfg, self.cfg.plan_step
@@ -433,8 +464,7 @@ class MapPlanAgent:
         except ValueError:  # the level's free cells on either side do not touch
             return None
         near = level + np.ma.filled(d.astype(np.float64), np.inf)
-        out = near[qr - rows.start, qc - cols.start]
-        return out if np.isfinite(out).all() else None
+        return (near, (rows.start, cols.start)) if np.isfinite(near[qr - rows.start, qc - cols.start]).all() else None
 
     def _open_headings(self, x: float, y: float, headings: np.ndarray) -> np.ndarray:
         """(len(headings),) bool: whether a forward step along each heading (rad, belief frame) from
@@ -486,10 +516,15 @@ class MapPlanAgent:
         if 0 < cfg.fallback_radius < cfg.agent_radius:
             plans.append((None, cfg.fallback_radius))  # then a narrower agent through a gap the map narrowed
         wanted = inside & open_way  # a heading that is not open costs inf whatever the plan
-        for margin, radius in plans:
-            cost[wanted] = self._costs(x, y, margin, radius, r[wanted], c[wanted], self._reach_hint)
-            if np.isfinite(cost).any():
-                break
+        if self._field is not None and self._unplanned + 1 < cfg.plan_every:  # the last field, where it has times
+            cost[wanted] = self._field.at(r[wanted], c[wanted])
+            self._unplanned += 1
+        if not np.isfinite(cost).any():
+            self._unplanned = 0
+            for margin, radius in plans:
+                cost[wanted] = self._costs(x, y, margin, radius, r[wanted], c[wanted], self._reach_hint)
+                if np.isfinite(cost).any():
+                    break
         finite = cost[np.isfinite(cost)]
         # the next step's headings lie a step from these: their times are rarely a metre beyond
         self._reach_hint = float(finite.max()) + 1.0 if len(finite) else None
