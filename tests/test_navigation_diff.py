@@ -69,7 +69,10 @@ def test_runs_made_with_other_settings_are_pointed_out(tmp_path):
         "the episodes' max_steps differ: 500 -> 12",
     ]
     config(before, {"cell": 0.05})  # a parameter only one folder records
-    assert setting_notes(before, after)[0] == "the policies differ: fallback_radius '-' -> 0.1"
+    assert setting_notes(before, after)[0] == "the policies differ: fallback_radius - -> 0.1"
+    config(before, {"cell": 0.05, "fallback_radius": 0.1}, max_steps=12)  # a record leaves defaults out
+    config(after, {"cell": 0.05, "fallback_radius": 0.1, "plan_every": 4, "plan_step": 2, "fine_radius": 2.0}, 12)
+    assert setting_notes(before, after) == ["the policies differ: plan_every 1 -> 4, plan_step 1 -> 2"]
     (after / "config.json").write_text("{")
     assert setting_notes(before, after) == [f"no readable config.json in {after}: the runs' settings were not compared"]
 
@@ -121,7 +124,7 @@ def test_bad_tables_are_refused_in_one_line_naming_file_and_line(tmp_path, capsy
     )
     other = _folder(tmp_path, "other", [("z", 0, 1, 10, 2)])
     code, _, err = _diff([good, other], capsys)
-    assert code == 2 and "share no episode" in err[-1]
+    assert code == 2 and len(err) == 1 and "share no episode" in err[0]  # the refusal alone, no notes first
 
 
 def test_navigation_diff_given_a_file_names_the_folder_it_expects(tmp_path, capsys):

@@ -30,13 +30,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except diff.EpisodesTableError as exc:
         raise UsageError(str(exc)) from None
     diffs = diff.diff_runs(before, after)
-    for note in diff.unpaired(before, after) + diff.setting_notes(args.before, args.after):
-        print(f"note: {note}", file=sys.stderr)
-    if not diffs:
+    if not diffs:  # refused before any note, so the refusal is the one line said
         raise UsageError(
             f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "
             "and odometer names are needed)"
         )
+    for note in diff.unpaired(before, after) + diff.setting_notes(args.before, args.after):
+        print(f"note: {note}", file=sys.stderr)
     print(diff.markdown(diffs), end="")
     return 0
 

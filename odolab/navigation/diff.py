@@ -191,8 +191,12 @@ def unpaired(before: dict, after: dict) -> list[str]:
 
 
 def setting_notes(before: Path, after: Path) -> list[str]:
-    """Notes on how the two folders' ``config.json`` settings differ: policy parameters (one only one
-    folder records shows as ``-`` in the other) and the episodes' step limit and noise; or that a config could not be read, so settings were not compared."""
+    """Notes on how the two folders' ``config.json`` settings differ: policy parameters (each record
+    completed with the defaults it leaves out, :meth:`PolicyConfig.completed`; one only one folder
+    records shows as ``-`` in the other) and the episodes' step limit and noise; or that a config
+    could not be read, so settings were not compared."""
+    from odolab.navigation.agent import PolicyConfig
+
     docs = []
     for folder in (before, after):
         try:
@@ -206,11 +210,15 @@ def setting_notes(before: Path, after: Path) -> list[str]:
         ):
             return [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
         docs.append(doc)
-    policies = [d["policy"] for d in docs]
+    policies = [PolicyConfig.completed(d["policy"]) for d in docs]
+
+    def shown(policy: dict, key: str) -> str:
+        return repr(policy[key]) if key in policy else "-"
+
     changed = [
-        f"{k} {policies[0].get(k, '-')!r} -> {policies[1].get(k, '-')!r}"
+        f"{k} {shown(policies[0], k)} -> {shown(policies[1], k)}"
         for k in sorted(set(policies[0]) | set(policies[1]))
-        if policies[0].get(k) != policies[1].get(k)
+        if (k in policies[0], policies[0].get(k)) != (k in policies[1], policies[1].get(k))
     ]
     notes = [f"the policies differ: {', '.join(changed)[:300]}"] if changed else []
     first = [d["episodes"][0] if d["episodes"] and isinstance(d["episodes"][0], dict) else {} for d in docs]
