@@ -328,7 +328,12 @@ def test_the_navigate_command_is_deterministic_and_resumes(tmp_path, capsys):
     assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
     assert (tmp_path / "a" / "nav.csv").read_text() == a
     notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note:")]
-    assert len(notes) == 1 and "2 saved episode(s)" in notes[0] and "are damaged" in notes[0]  # one line per odometer
+    assert len(notes) == 2 and "2 saved episode(s)" in notes[0] and "are damaged" in notes[0]  # one line per odometer
+    assert notes[1].endswith("1 of 4 episode(s) were saved in " + str(tmp_path / "a") + " already; running the other 3")
+    assert _navigate(args + ["--out", str(tmp_path / "a")]) == 0
+    assert (
+        "4 of 4 episode(s) were saved in " + str(tmp_path / "a") + " already; nothing to run" in capsys.readouterr().err
+    )
     # other episodes into the same folder are refused, naming what differs; so is another policy
     assert _navigate(args[:4] + ["--max-steps", "13", "--serial", "--quiet", "--out", str(tmp_path / "a")]) == 2
     assert "other settings (--max-steps (12 there, 13 now))" in capsys.readouterr().err

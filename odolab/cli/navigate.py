@@ -71,8 +71,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--split", default="test", help=f"{' | '.join(SPLITS)} (default test)")
     add_scene_options(ap)
     add_setting(ap, "--max-steps", NavEpisodes, "max_steps")
-    ap.add_argument("--out", type=path_arg("--out"), default=Path("runs/navigation"))
-    ap.add_argument("--odometer-option", action="append", default=[], metavar="NAME.key=value")
+    ap.add_argument(
+        "--out",
+        type=path_arg("--out"),
+        default=Path("runs/navigation"),
+        help="report folder; a rerun into it computes only the episodes it lacks (default runs/navigation)",
+    )
+    ap.add_argument(
+        "--odometer-option",
+        action="append",
+        default=[],
+        metavar="NAME.key=value",
+        help="constructor option of one odometer, e.g. robust-vo.checkpoint=runs/model.pt (repeatable)",
+    )
     ap.add_argument(
         "--policy",
         action="append",

@@ -523,6 +523,13 @@ def run_navigation(
             file=sys.stderr,
         )
 
+    if len(todo) < len(tasks):  # a rerun: say what it keeps
+        print(
+            f"note: {len(tasks) - len(todo)} of {len(tasks)} episode(s) were saved in {out} already; "
+            + (f"running the other {len(todo)}" if todo else "nothing to run"),
+            file=sys.stderr,
+        )
+
     def done(k: int, row: dict) -> None:
         write_text_atomic(
             owned_path(out, result_path(out, todo[k].odometer, todo[k].spec.index).relative_to(out)),
