@@ -103,6 +103,18 @@ def test_a_full_disk_skips_the_cache_write_with_one_warning_and_keeps_the_result
     assert "results are kept" in err[0]
     assert cache.has(spec) and cache.steps(spec) == len(episode.actions)  # kept in memory for this run
     assert np.array_equal(cache.get(specs[1]).rgb, got[1].rgb)
+    other = EpisodeCache(tmp_path)  # another process's cache (a Ray task), another episode: the same line
+    other.put(dataclasses.replace(episode, spec=specs[1]))
+    assert capsys.readouterr().err.strip() == err[0]
+
+
+def test_an_entry_the_cache_cannot_write_is_named_in_its_warning(tmp_path, tiny, capsys):
+    spec, episode = tiny
+    cache = EpisodeCache(tmp_path)
+    cache.path(spec).mkdir(parents=True)  # a folder in the entry's place: this entry's problem, not the cache's
+    assert cache.put(episode) is None
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"({cache.path(spec).name}: " in err[0]
 
 
 def test_a_read_only_cache_holding_every_episode_is_read(tmp_path, tiny, monkeypatch, capsys):

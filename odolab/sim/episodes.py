@@ -11,6 +11,7 @@ Episodes are cached as ``.npz`` files (atomic writes, loaded without pickle) by
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -350,6 +351,11 @@ def _on_stderr(line: str) -> None:
     print(line, file=sys.stderr)
 
 
+#: Write errors of the whole cache, not of one entry: said without the entry's name, so that the
+#: processes that each meet it (Ray tasks) say the same line, which the driver says once.
+_WHOLE_CACHE = frozenset({errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT})
+
+
 class EpisodeCache:
     """Episodes on disk under ``root``, one ``<spec key>.npz`` each (atomic writes, no pickle).
 
@@ -472,8 +478,10 @@ class EpisodeCache:
         if not self._write_failed:
             self._write_failed = True
             reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            if not (isinstance(exc, OSError) and exc.errno in _WHOLE_CACHE):  # one entry's: name it
+                reason = f"{path.name}: {reason}"
             self._say(
-                f"odolab: warning: cannot write the episode cache {self.root} ({path.name}: {reason}); "
+                f"odolab: warning: cannot write the episode cache {self.root} ({reason}); "
                 "going on without writing it (the results are kept)"
             )
 
