@@ -22,7 +22,7 @@ from odolab.odometry.odometer import own_copy
 from odolab.running import runner
 from odolab.sim.camera import CameraSpec
 from odolab.sim.episodes import EpisodeSpec, load_episodes
-from tests.helpers import TUM_DIR
+from tests.helpers import TUM_DIR, run_python
 
 PRIOR = ActionPrior.shipped()
 FORWARD = planar_to_transform(0.0, 0.25, 0.0)
@@ -433,6 +433,36 @@ def test_step_by_step_leaves_the_odometer_to_the_callers_thread_to_free():
         assert [asked.step(*pair) is not None for pair in _pairs(3)] == [True] * 3
     del asked  # at once: the worker thread may not have woken to the queue's end yet
     assert freed_in == [threading.current_thread().name]
+
+
+@pytest.mark.slow
+def test_a_command_left_with_a_call_still_running_exits_with_its_code(tmp_path):
+    """A torch step that ran past its time limit and still runs when the command ends: the runner
+    says so (calls_still_running) and exit_process leaves at once with the command's code, where
+    the interpreter's exit would abort the process (exit 134) as the step returned into it."""
+    done = run_python(
+        tmp_path,
+        "import os, sys, torch\n"
+        "sys.path.insert(0, os.getcwd())  # the repository's root: its tests package\n"
+        "from odolab import api\n"
+        "from odolab.cli.args import exit_process\n"
+        "from odolab.running import runner\n"
+        "from tests.test_runner import Tiny, FORWARD\n"
+        "torch.set_num_threads(1)\n"
+        "class Slow(api.Odometer):\n"
+        "    def step(self, prev, cur, action):\n"
+        "        a = torch.rand(1500, 1500)\n"
+        "        for _ in range(30):\n"
+        "            a = torch.mm(a, a) / 1500.0\n"
+        "        return api.Estimate(FORWARD)\n"
+        "seq = Tiny()\n"
+        "with runner.StepByStep(Slow(), 'slow', step_timeout=0.05) as asked:\n"
+        "    asked.reset(seq.intrinsics)\n"
+        "    print(asked.step(asked.frame(seq[0]), asked.frame(seq[1]), seq.action(0)))\n"
+        "print(runner.calls_still_running(), flush=True)\n"
+        "exit_process(3)\n",
+    )
+    assert (done.returncode, done.stdout.split()) == (3, ["None", "True"]), done.stderr[-2000:]
 
 
 def test_an_odometer_that_hangs_on_every_other_step_is_stopped_too(release):

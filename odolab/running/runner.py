@@ -282,12 +282,24 @@ class _Call:
         self.done.set()
 
 
+#: The name of every runner worker thread begins so (:func:`calls_still_running`).
+_WORKER_NAME = "odolab runner: "
+
+
+def calls_still_running() -> bool:
+    """Whether a worker thread still runs an odometer call the runner stopped waiting for (past its
+    time limit). Letting the interpreter exit then can abort the process: a torch call that returns
+    into a finalising interpreter ends its thread by unwinding through C++ that may not be unwound.
+    A command leaves with ``os._exit`` instead (:func:`odolab.cli.args.exit_process`)."""
+    return any(t.name.startswith(_WORKER_NAME) and t.is_alive() for t in threading.enumerate())
+
+
 class _Worker:
     """A daemon thread that makes the calls it is handed, one at a time, until :meth:`close`."""
 
     def __init__(self, name: str) -> None:
         self._calls: queue.SimpleQueue[_Call | None] = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._serve, name=f"odolab runner: {name}", daemon=True)
+        self._thread = threading.Thread(target=self._serve, name=f"{_WORKER_NAME}{name}", daemon=True)
         self._thread.start()
 
     def _serve(self) -> None:
