@@ -3,6 +3,7 @@ given for a run's folder is named."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from odolab.cli import run_cli
@@ -40,7 +41,12 @@ def test_won_and_lost_episodes_are_paired_by_odometer_and_episode(tmp_path, caps
     (d,) = diff_runs(b, a)  # y and fused(a,b) are in one run only
     assert (d.odometer, d.episodes, d.success, d.won, d.lost) == ("x", 3, (2, 2), ("1",), ("2",))
     assert d.collisions == (14.0, 32.0) and d.spl == pytest.approx((0.8 * 2 / 3, 0.8 * 2 / 3))
-    assert "| x | 3 | 2 -> 2 | 1 | 2 | 0.53 -> 0.53 | 14.0 -> 32.0 | 177 -> 180 |" in markdown([d])
+    assert d.success_p == 1.0 and d.spl_change.mean == pytest.approx(0.0)  # one won, one lost: no change
+    half = 4.302653 * 0.8 / np.sqrt(3)  # Student's t (2 degrees of freedom) of the differences 0, +0.8, -0.8
+    assert (d.spl_change.low, d.spl_change.high) == pytest.approx((-half, half), abs=1e-6)
+    assert "| x | 3 | 2 -> 2 | 1 | 2 | 1 | 0.53 -> 0.53 | +0.000 [-1.987, +1.987] | 14.0 -> 32.0 | 177 -> 180 |" in (
+        markdown([d])
+    )
     assert unpaired(b, a) == [
         "1 odometer(s) only in BEFORE: y",
         "1 odometer(s) only in AFTER: fused(a,b)",
@@ -83,7 +89,7 @@ def test_episodes_of_other_splits_are_named_with_them_and_odd_names_stay_in_thei
     x, odd = diff_runs(read_episodes(before), read_episodes(after))
     assert x.won == ("test/0/0", "val/0/0")
     row = markdown([odd]).splitlines()[-1]
-    assert row.startswith("| a\\|b\\\\c? | 1 |") and row.count(" | ") == 7
+    assert row.startswith("| a\\|b\\\\c? | 1 |") and row.count(" | ") == 9
 
 
 def test_bad_tables_are_refused_in_one_line_naming_file_and_line(tmp_path, capsys):

@@ -4,8 +4,9 @@
 
 reads each folder's ``episodes.csv`` (written by ``python -m odolab.navigate``), pairs the rows of
 the same odometer, split, seed and episode, and prints per odometer: the paired episodes, success
-before and after, the episodes won (failed before, succeeded after) and lost, and the mean SPL,
-collisions and steps before and after; notes on stderr say where the folders' policies (from
+before and after, the episodes won (failed before, succeeded after) and lost with McNemar's exact p
+of that split, the mean SPL before and after with the paired change's 95 % interval (Student's t
+over the episodes), and the mean collisions and steps before and after; notes on stderr say where the folders' policies (from
 their ``config.json``) or episode settings differ. A policy or odometer change is judged on the same episodes,
 so these counts, not two independent success rates, say what it did.
 """
@@ -19,6 +20,9 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from odolab.core.stats import MeanCI, mcnemar, mean_ci
 from odolab.io.inputs import read_input_bytes, read_input_json
 from odolab.navigation.report import markdown_cell
 
@@ -55,6 +59,8 @@ class RowDiff:
     spl: tuple[float, float]  # means over the paired episodes
     collisions: tuple[float, float]
     steps: tuple[float, float]
+    success_p: float  # McNemar's exact two-sided p of the won / lost split
+    spl_change: MeanCI  # after - before, paired over the episodes (Student's t interval)
 
 
 def _value(text: str, kind: type, low: float, high: float) -> str | int | float:
@@ -169,6 +175,8 @@ def diff_runs(before: dict, after: dict) -> list[RowDiff]:
                 spl=(mean(b, "spl"), mean(a, "spl")),
                 collisions=(mean(b, "collisions"), mean(a, "collisions")),
                 steps=(mean(b, "steps"), mean(a, "steps")),
+                success_p=mcnemar(np.array([r["success"] for r in a]), np.array([r["success"] for r in b]))[2],
+                spl_change=mean_ci(np.array([float(y["spl"]) - float(x["spl"]) for x, y in zip(b, a)])),
             )
         )
     return out
@@ -236,15 +244,23 @@ def markdown(diffs: list[RowDiff]) -> str:
     def ids(v: tuple[str, ...]) -> str:
         return ", ".join(v[:12]) + (f" ... ({len(v)})" if len(v) > 12 else "") if v else "-"
 
+    def change(ci: MeanCI) -> str:
+        interval = f" [{ci.low:+.3f}, {ci.high:+.3f}]" if np.isfinite(ci.low) and np.isfinite(ci.high) else ""
+        return f"{ci.mean:+.3f}{interval}"
+
     lines = [
-        "| odometer | episodes | successes | episodes won | episodes lost | SPL | collisions per episode | steps |",
-        "|---|---|---|---|---|---|---|---|",
+        (
+            "| odometer | episodes | successes | episodes won | episodes lost | McNemar p | SPL | SPL change [95 %] "
+            "| collisions per episode | steps |"
+        ),
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for d in diffs:
         lines.append(
             f"| {markdown_cell(d.odometer)} | {d.episodes} | {d.success[0]} -> {d.success[1]} | "
-            f"{ids(d.won)} | {ids(d.lost)} | {d.spl[0]:.2f} -> {d.spl[1]:.2f} | "
-            f"{d.collisions[0]:.1f} -> {d.collisions[1]:.1f} | {d.steps[0]:.0f} -> {d.steps[1]:.0f} |"
+            f"{ids(d.won)} | {ids(d.lost)} | {d.success_p:.2g} | {d.spl[0]:.2f} -> {d.spl[1]:.2f} | "
+            f"{change(d.spl_change)} | {d.collisions[0]:.1f} -> {d.collisions[1]:.1f} | "
+            f"{d.steps[0]:.0f} -> {d.steps[1]:.0f} |"
         )
     return "\n".join(lines) + "\n"
 
