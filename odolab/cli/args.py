@@ -146,6 +146,18 @@ def add_setting(ap: argparse.ArgumentParser, option: str, cls: type, field: str,
     )
 
 
+def add_odometer_option(ap: argparse.ArgumentParser, example: str) -> None:
+    """``--odometer-option NAME.key=value`` (repeatable, into a list): one odometer's constructor
+    option; ``example`` ends the help, e.g. ``icp.max_depth=4.0``."""
+    ap.add_argument(
+        "--odometer-option",
+        action="append",
+        default=[],
+        metavar="NAME.key=value",
+        help=f"constructor option of one odometer, e.g. {example}",
+    )
+
+
 def add_scene_options(ap: argparse.ArgumentParser, family: bool = True) -> None:
     """``--scene-family`` (procedural scenes; with ``family``), or ``--scenes``, ``--scene-up`` and
     ``--scene-unit``: episodes in mesh files (:func:`scenes_of`)."""

@@ -12,6 +12,7 @@ from odolab.benchmarks import speed as bench
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
+    add_odometer_option,
     check_output_file,
     check_replaceable,
     exit_process,
@@ -112,13 +113,7 @@ def build_parser() -> ArgumentParser:
         metavar="FILE.json",
         help="also write the figures here (a .json file, replaced atomically)",
     )
-    ap.add_argument(
-        "--odometer-option",
-        action="append",
-        default=[],
-        metavar="NAME.key=value",
-        help="constructor option of one odometer, e.g. 'fused(icp,robust-vo).calibration=cal.json'",
-    )
+    add_odometer_option(ap, "'fused(icp,robust-vo).calibration=cal.json'")
     ap.add_argument(
         "--policy",
         action="append",

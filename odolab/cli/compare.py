@@ -16,6 +16,7 @@ from pathlib import Path
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
+    add_odometer_option,
     add_scene_options,
     add_setting,
     check_cache_dir,
@@ -145,13 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--serial", action="store_true", help="generate episodes in this process, without Ray")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    ap.add_argument(
-        "--odometer-option",
-        action="append",
-        default=[],
-        metavar="NAME.key=value",
-        help="constructor option of one odometer, e.g. icp.max_depth=4.0 or "
-        "examples.tiny_learned:TinyLearnedOdometer.checkpoint=runs/tiny.pt (repeatable)",
+    add_odometer_option(
+        ap, "icp.max_depth=4.0 or examples.tiny_learned:TinyLearnedOdometer.checkpoint=runs/tiny.pt (repeatable)"
     )
     ap.add_argument(
         "--config",

@@ -20,6 +20,7 @@ from pathlib import Path
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
+    add_odometer_option,
     add_scene_options,
     add_setting,
     check_ray_option,
@@ -77,13 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=Path("runs/navigation"),
         help="report folder; a rerun into it computes only the episodes it lacks (default runs/navigation)",
     )
-    ap.add_argument(
-        "--odometer-option",
-        action="append",
-        default=[],
-        metavar="NAME.key=value",
-        help="constructor option of one odometer, e.g. robust-vo.checkpoint=runs/model.pt (repeatable)",
-    )
+    add_odometer_option(ap, "robust-vo.checkpoint=runs/model.pt (repeatable)")
     ap.add_argument(
         "--policy",
         action="append",
