@@ -27,6 +27,7 @@ import json
 import math
 import os
 import re
+import shutil
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -483,7 +484,7 @@ def train_row(
 ) -> dict[str, Any]:
     """Train (or resume, or only export) row ``key["row"]``'s model (with ``key["train_seed"]``: its
     run of that seed) with its family's own trainer: work states under ``<out>/work/<model>/<key
-    digest>``, curves under ``<out>/training/<model>``, the model at :func:`model_file`, where
+    digest>`` (removed once the model is exported and read back), curves under ``<out>/training/<model>``, the model at :func:`model_file`, where
     <model> is :func:`model_id`; returns :func:`model_summary`."""
     from odolab.core.parallel import SERIAL
     from odolab.learned.training import pick_device
@@ -500,10 +501,11 @@ def train_row(
     export = out / model_file(number, seed)
     if export.is_file() and not export.is_symlink() and what_file(export) is not None:
         export.unlink()  # the study's own model path holds no model (a damaged file): export it again
+    work = out / "work" / name / framework.Unit("", key).digest
     with torch_threads(threads):
         done = run(
             cfg,
-            work=out / "work" / name / framework.Unit("", key).digest,
+            work=work,
             reports=out / "training" / name,
             export=export,
             device=pick_device(device or None),
@@ -512,7 +514,9 @@ def train_row(
         )
     if not done:
         raise RuntimeError(f"row {number}: training stopped before its last epoch")
-    return model_summary(export, key["family"], out)
+    summary = model_summary(export, key["family"], out)
+    shutil.rmtree(work)  # the exported model holds what the finished states did: out/work keeps unfinished ones only
+    return summary
 
 
 def model_id(number: int, train_seed: int | None = None) -> str:

@@ -247,6 +247,7 @@ def test_the_ci_scale_reports_every_row_beside_the_paper(ci_run):
     assert by_row[4]["train_seeds"] == "1" and by_row[4]["S_train_sd"] == "" and by_row[21]["train_seeds"] == ""
     for n in {ablations.model_row(DEFINITION.rows[r]) for r in scale.rows} - {None}:
         assert (out / ablations.model_file(n)).is_file()
+    assert not [p for p in (out / "work").rglob("*") if p.is_file()]  # finished states go once exported
     assert len(list((out / "results").glob("*.json"))) == _units(scale)
     html = (out / "index.html").read_text()
     assert "row 19 is left out" in html and "Against the paper" in html
