@@ -483,8 +483,7 @@ def train_row(
     threads: int,
 ) -> dict[str, Any]:
     """Train (or resume, or only export) row ``key["row"]``'s model (with ``key["train_seed"]``: its
-    run of that seed) with its family's own trainer: work states under ``<out>/work/<model>/<key
-    digest>`` (removed once the model is exported and read back), curves under ``<out>/training/<model>``, the model at :func:`model_file`, where
+    run of that seed) with its family's own trainer: work states in :func:`work_folder`, curves under ``<out>/training/<model>``, the model at :func:`model_file`, where
     <model> is :func:`model_id`; returns :func:`model_summary`."""
     from odolab.core.parallel import SERIAL
     from odolab.learned.training import pick_device
@@ -501,11 +500,10 @@ def train_row(
     export = out / model_file(number, seed)
     if export.is_file() and not export.is_symlink() and what_file(export) is not None:
         export.unlink()  # the study's own model path holds no model (a damaged file): export it again
-    work = out / "work" / name / framework.Unit("", key).digest
     with torch_threads(threads):
         done = run(
             cfg,
-            work=work,
+            work=work_folder(out, key),
             reports=out / "training" / name,
             export=export,
             device=pick_device(device or None),
@@ -514,9 +512,53 @@ def train_row(
         )
     if not done:
         raise RuntimeError(f"row {number}: training stopped before its last epoch")
-    summary = model_summary(export, key["family"], out)
-    shutil.rmtree(work)  # the exported model holds what the finished states did: out/work keeps unfinished ones only
-    return summary
+    return model_summary(export, key["family"], out)
+
+
+def work_folder(out: Path, key: dict[str, Any]) -> Path:
+    """A training unit's states (one file per stage, saved every epoch and within one):
+    ``<out>/work/<model>/<key digest>``, <model> as :func:`model_id` names it."""
+    return out / "work" / model_id(key["row"], key.get("train_seed")) / framework.Unit("", key).digest
+
+
+def check_states(units: Sequence[framework.Unit], out: Path) -> None:
+    """``UsageError`` naming the first training state of ``units`` that cannot be read (damaged,
+    cut short, or another file under its name), before any data is made or training starts."""
+    from odolab.cli import UsageError
+    from odolab.learned.training.checkpoints import load_checkpoint
+    from odolab.learned.training.epochs import STATE_FORMAT, STATE_KIND
+
+    for u in units:
+        folder = work_folder(out, u.key)
+        for path in sorted(folder.glob("*.pt")) if folder.is_dir() and not folder.is_symlink() else ():
+            try:
+                load_checkpoint(path, STATE_KIND, STATE_FORMAT)
+            except ValueError as exc:
+                raise UsageError(f"{exc}; delete it to train that stage of {u.label} again") from None
+
+
+def say_retrained(units: Sequence[framework.Unit], store: framework.ResultStore) -> None:
+    """One line for each of ``units`` (models to train) whose result is saved but whose model file is
+    missing or changed: training it again (from its saved states, where any are kept) is no surprise."""
+    for u in units:
+        saved = store.get(u)
+        value = saved.get("value") if isinstance(saved, dict) else None
+        if valid_model(value, out=Path(), check_file=False):
+            print(f"{u.label}: {value['model']} is missing or not the model its saved results came from: trained again")
+
+
+def drop_finished_states(units: Sequence[framework.Unit], results: dict[str, Any], out: Path) -> None:
+    """Remove the training states of ``units`` whose results are saved (in ``results``): their exported
+    models hold what the states did, so ``<out>/work`` keeps only unfinished models' states. A folder
+    that cannot be removed is named in one line and kept."""
+    for u in units:
+        folder = work_folder(out, u.key)
+        if u.label not in results or not folder.exists() or folder.is_symlink():
+            continue
+        try:
+            shutil.rmtree(folder)
+        except OSError as exc:
+            print(f"note: {folder}: a finished model's training states, kept ({exc.strerror or exc})")
 
 
 def model_id(number: int, train_seed: int | None = None) -> str:
@@ -1588,6 +1630,8 @@ def run(args) -> int:
     trained_valid = functools.partial(valid_model, out=out, check_file=not args.redraw)
     if not args.redraw:  # the data of the models still to train (a resumed study may need none)
         to_train = [u for u in framework.unsaved(training, store, trained_valid) if only is None or only(u)]
+        check_states(to_train, out)
+        say_retrained(to_train, store)
         make_data([recipes[(u.key["row"], u.key.get("train_seed"))] for u in to_train], execution)
     trained = framework.run_units(
         functools.partial(train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads),
@@ -1599,6 +1643,8 @@ def run(args) -> int:
         gpus=scale.train_gpus,
         only=only,
     )
+    if not args.redraw:  # only once a model's result is saved: a run stopped before keeps its states
+        drop_finished_states(training, trained.results, out)
     error_todo, nav_todo, untrained = evaluation_units(definition, scale, trained.results)
     errors = framework.run_units(
         functools.partial(step_errors, out=out),

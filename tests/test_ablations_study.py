@@ -13,7 +13,7 @@ import pytest
 
 from odolab.cli.study import command, study
 from odolab.config import ConfigError
-from studies import ablations
+from studies import ablations, framework
 
 DEFINITION = ablations.load_definition()
 
@@ -585,3 +585,55 @@ def test_rows_computes_only_those_rows_and_reports_the_rest_as_missing(tmp_path:
             study("ablations", ["--scale", "ci", "--out", str(out), "--rows", bad])
     with pytest.raises(UsageError, match="--redraw computes none"):
         study("ablations", ["--scale", "ci", "--out", str(out), "--rows", "21", "--redraw"])
+
+
+def _training_unit(row: int, seed: int | None = None) -> framework.Unit:
+    return framework.Unit(ablations.train_label(row, seed), {"row": row, "recipe": {"lr": row}, "train_seed": seed})
+
+
+def test_drop_finished_states_removes_only_the_states_of_saved_models(tmp_path: Path, monkeypatch, capsys):
+    saved, running = _training_unit(4), _training_unit(18, 1)
+    for u in (saved, running):
+        folder = ablations.work_folder(tmp_path, u.key)
+        folder.mkdir(parents=True)
+        (folder / "forward.pt").write_bytes(b"state")
+    ablations.drop_finished_states([saved, running], {saved.label: {"model": "models/4/model.pt"}}, tmp_path)
+    assert not ablations.work_folder(tmp_path, saved.key).exists()
+    assert (ablations.work_folder(tmp_path, running.key) / "forward.pt").is_file()  # no result yet: kept
+
+    def refuse(path, *args, **kwargs):
+        raise PermissionError(1, "Operation not permitted", str(path))
+
+    monkeypatch.setattr(ablations.shutil, "rmtree", refuse)
+    ablations.drop_finished_states([running], {running.label: {}}, tmp_path)  # said in one line, not raised
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and "a finished model's training states, kept (Operation not permitted)" in out
+
+
+def test_check_states_names_a_damaged_state_before_any_training(tmp_path: Path):
+    from odolab.cli import UsageError
+
+    unit = _training_unit(13)
+    folder = ablations.work_folder(tmp_path, unit.key)
+    folder.mkdir(parents=True)
+    ablations.check_states([unit], tmp_path)  # no states yet: nothing to refuse
+    (folder / "forward.pt").write_bytes(b"cut short")
+    with pytest.raises(
+        UsageError,
+        match=r"forward\.pt: not a readable torch checkpoint .*; delete it to train "
+        r"that stage of train row 13 again",
+    ):
+        ablations.check_states([unit], tmp_path)
+
+
+def test_say_retrained_names_a_saved_model_whose_file_is_gone(tmp_path: Path, capsys):
+    store = framework.ResultStore(tmp_path / "results")
+    unit, fresh = _training_unit(4), _training_unit(7)
+    value = {"model": "models/4/model.pt", "sha256": "0" * 64, "parameters": 1, "networks": 1, "pairs_seen": 1,
+             "training_hours": 0.1}  # fmt: skip
+    (tmp_path / "results").mkdir()
+    store.put(unit, {"value": value, "seconds": 1.0})
+    ablations.say_retrained([unit, fresh], store)
+    assert capsys.readouterr().out == (
+        "train row 4: models/4/model.pt is missing or not the model its saved results came from: trained again\n"
+    )
