@@ -1627,7 +1627,14 @@ def run(args) -> int:
     execution = execution_of(args)
     store = framework.ResultStore(out / "results")
     training = train_units(definition, recipes)
-    trained_valid = functools.partial(valid_model, out=out, check_file=not args.redraw)
+    # the model files of the rows this run computes must be there; the others' saved results are read
+    # as they are (a checkout holding the results and not every model still reports every row)
+    computed = {model_file(u.key["row"], u.key.get("train_seed")) for u in training if only is None or only(u)}
+
+    def trained_valid(value: Any) -> bool:
+        mine = isinstance(value, dict) and value.get("model") in computed
+        return valid_model(value, out=out, check_file=mine and not args.redraw)
+
     if not args.redraw:  # the data of the models still to train (a resumed study may need none)
         to_train = [u for u in framework.unsaved(training, store, trained_valid) if only is None or only(u)]
         check_states(to_train, out)

@@ -637,3 +637,19 @@ def test_say_retrained_names_a_saved_model_whose_file_is_gone(tmp_path: Path, ca
     assert capsys.readouterr().out == (
         "train row 4: models/4/model.pt is missing or not the model its saved results came from: trained again\n"
     )
+
+
+@pytest.mark.slow
+def test_rows_reads_the_other_rows_results_without_their_model_files(ci_run, tmp_path: Path, capsys):
+    """A checkout holding the results but not every model (a new machine): --rows 21 computes nothing
+    of the other rows and still reports them; the chosen rows' models are checked."""
+    out, table = ci_run
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("models", "data"))
+    assert study("ablations", ["--scale", "ci", "--out", str(copy), "--serial", "--quiet", "--rows", "21"]) == 0
+    assert "0 units computed" in capsys.readouterr().out
+    assert (copy / "table.csv").read_text() == table and not (copy / "models").exists()
+    assert study("ablations", ["--scale", "ci", "--out", str(copy), "--serial", "--quiet", "--rows", "4"]) == 0
+    said = capsys.readouterr().out
+    assert "train row 4: models/4/model.pt is missing or not the model its saved results came from" in said
+    assert "1 training" in said and (copy / ablations.model_file(4)).is_file()
