@@ -548,12 +548,15 @@ def say_retrained(units: Sequence[framework.Unit], store: framework.ResultStore)
 
 
 def drop_finished_states(units: Sequence[framework.Unit], results: dict[str, Any], out: Path) -> None:
-    """Remove the training states of ``units`` whose results are saved (in ``results``): their exported
-    models hold what the states did, so ``<out>/work`` keeps only unfinished models' states. A folder
-    that cannot be removed is named in one line and kept."""
+    """Remove the training states of ``units`` whose results are saved (in ``results``) and whose model
+    files are there as saved: those models hold what the states did, so ``<out>/work`` keeps only
+    unfinished models' states (a model being trained again after its file was lost keeps its states
+    while a run computes other rows). A folder that cannot be removed is named in one line and kept."""
     for u in units:
         folder = work_folder(out, u.key)
         if u.label not in results or not folder.exists() or folder.is_symlink():
+            continue
+        if not valid_model(results[u.label], out=out, check_file=True):
             continue
         try:
             shutil.rmtree(folder)

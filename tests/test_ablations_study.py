@@ -591,21 +591,36 @@ def _training_unit(row: int, seed: int | None = None) -> framework.Unit:
     return framework.Unit(ablations.train_label(row, seed), {"row": row, "recipe": {"lr": row}, "train_seed": seed})
 
 
+def _model_result(tmp_path: Path, row: int, present: bool = True) -> dict:
+    """A saved training result of row ``row`` (as :func:`ablations.model_summary` gives it), its model
+    file written under ``tmp_path`` when ``present``."""
+    path = tmp_path / ablations.model_file(row)
+    if present:
+        path.parent.mkdir(parents=True)
+        path.write_bytes(b"weights")
+    sha = ablations._sha256(path) if present else "0" * 64
+    return {"model": ablations.model_file(row), "sha256": sha, "parameters": 1, "networks": 1, "pairs_seen": 1,
+            "training_hours": 0.1}  # fmt: skip
+
+
 def test_drop_finished_states_removes_only_the_states_of_saved_models(tmp_path: Path, monkeypatch, capsys):
-    saved, running = _training_unit(4), _training_unit(18, 1)
-    for u in (saved, running):
+    saved, running, lost = _training_unit(4), _training_unit(18, 1), _training_unit(7)
+    for u in (saved, running, lost):
         folder = ablations.work_folder(tmp_path, u.key)
         folder.mkdir(parents=True)
         (folder / "forward.pt").write_bytes(b"state")
-    ablations.drop_finished_states([saved, running], {saved.label: {"model": "models/4/model.pt"}}, tmp_path)
+    results = {saved.label: _model_result(tmp_path, 4), lost.label: _model_result(tmp_path, 7, present=False)}
+    ablations.drop_finished_states([saved, running, lost], results, tmp_path)
     assert not ablations.work_folder(tmp_path, saved.key).exists()
     assert (ablations.work_folder(tmp_path, running.key) / "forward.pt").is_file()  # no result yet: kept
+    assert (ablations.work_folder(tmp_path, lost.key) / "forward.pt").is_file()  # its model being trained again
 
     def refuse(path, *args, **kwargs):
         raise PermissionError(1, "Operation not permitted", str(path))
 
     monkeypatch.setattr(ablations.shutil, "rmtree", refuse)
-    ablations.drop_finished_states([running], {running.label: {}}, tmp_path)  # said in one line, not raised
+    ablations.drop_finished_states([saved], {saved.label: results[saved.label]}, tmp_path)  # no folder: nothing
+    ablations.drop_finished_states([running], {running.label: _model_result(tmp_path, 18)}, tmp_path)  # one line
     out = capsys.readouterr().out
     assert out.count("\n") == 1 and "a finished model's training states, kept (Operation not permitted)" in out
 
