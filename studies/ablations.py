@@ -1643,37 +1643,41 @@ def run(args) -> int:
         check_states(to_train, out)
         say_retrained(to_train, store)
         make_data([recipes[(u.key["row"], u.key.get("train_seed"))] for u in to_train], execution)
-    trained = framework.run_units(
-        functools.partial(train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads),
-        training,
+
+    def evaluations(
+        before: Sequence[framework.Outcome],
+    ) -> tuple[list[framework.Unit], list[framework.Unit], list[str]]:
+        return evaluation_units(definition, scale, before[0].results)
+
+    def states_done(unit: framework.Unit, value: Any) -> None:  # once its result is saved: a stopped run keeps them
+        drop_finished_states([unit], {unit.label: value}, out)
+
+    # one pipeline: a model's errors and navigation are queued once it is trained, behind the models
+    # still to train, so a core that the last, longest training leaves idle evaluates meanwhile
+    trained, errors, navigation = framework.run_phases(
+        [
+            framework.Phase(
+                functools.partial(
+                    train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads
+                ),
+                lambda _before: training,
+                trained_valid,
+                scale.train_gpus,
+                None if args.redraw else states_done,
+            ),
+            framework.Phase(functools.partial(step_errors, out=out), lambda b: evaluations(b)[0], valid_errors),
+            framework.Phase(
+                functools.partial(navigate_episode, out=out), lambda b: evaluations(b)[1], valid_navigation
+            ),
+        ],
         store,
         redraw=args.redraw,
         execution=execution,
-        valid=trained_valid,
-        gpus=scale.train_gpus,
         only=only,
     )
-    if not args.redraw:  # only once a model's result is saved: a run stopped before keeps its states
+    if not args.redraw:  # saved results of earlier runs whose model files are there as saved
         drop_finished_states(training, trained.results, out)
-    error_todo, nav_todo, untrained = evaluation_units(definition, scale, trained.results)
-    errors = framework.run_units(
-        functools.partial(step_errors, out=out),
-        error_todo,
-        store,
-        redraw=args.redraw,
-        execution=execution,
-        valid=valid_errors,
-        only=only,
-    )
-    navigation = framework.run_units(
-        functools.partial(navigate_episode, out=out),
-        nav_todo,
-        store,
-        redraw=args.redraw,
-        execution=execution,
-        valid=valid_navigation,
-        only=only,
-    )
+    untrained = evaluations([trained])[2]
     outcomes = (trained, errors, navigation)
     if not any(o.results for o in outcomes):
         raise UsageError(

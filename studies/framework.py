@@ -243,6 +243,89 @@ def unsaved(units: Sequence[Unit], store: ResultStore, valid: Callable[[Any], bo
     return [u for u in units if _saved(store, u, valid) is None]
 
 
+@dataclass(frozen=True)
+class Phase:
+    """One kind of a study's units: ``fn(unit.key | unit.inputs)`` computes one; ``units(before)`` lists
+    the phase's units that the outcomes of the phases before it (``before``, so far) make possible;
+    ``valid`` accepts a saved value (:func:`run_units`); ``gpus``: what each of its Ray tasks asks for;
+    ``saved(unit, value)`` is called in the driver once a unit computed now has its result saved."""
+
+    fn: Callable[[dict[str, Any]], Any]
+    units: Callable[[Sequence[Outcome]], Sequence[Unit]]
+    valid: Callable[[Any], bool] | None = None
+    gpus: float = 0.0
+    saved: Callable[[Unit, Any], None] | None = None
+
+
+def run_phases(
+    phases: Sequence[Phase],
+    store: ResultStore,
+    *,
+    redraw: bool = False,
+    execution: Execution = Execution(),
+    only: Callable[[Unit], bool] | None = None,
+) -> list[Outcome]:
+    """:func:`run_units` for phases whose units come from the results of the phases before (each
+    trained model's evaluations), one :class:`Outcome` per phase. Pipelined: once a unit's result is
+    saved, the later units it makes possible are queued at once, behind the units already queued, so
+    they run on the cores that a phase's last, longest units leave idle. Saved results are read and
+    ``redraw`` and ``only`` apply as in :func:`run_units`."""
+    outcomes = [Outcome() for _ in phases]
+    seen: list[set[str]] = [set() for _ in phases]
+    listed = [-1] * len(phases)  # results of the phases before, when a phase's units were last listed
+    queued: list[tuple[int, Unit]] = []
+
+    def newly_possible() -> list[tuple[Callable[[dict[str, Any]], Any], dict[str, Any]]]:
+        """Read or queue each phase's units not met before; the queued ones as ``_timed`` items."""
+        fresh = []
+        for p, phase in enumerate(phases):
+            before = sum(len(o.results) for o in outcomes[:p])
+            if before == listed[p]:
+                continue
+            listed[p] = before
+            for u in phase.units(outcomes[:p]):
+                if u.digest in seen[p]:
+                    continue
+                seen[p].add(u.digest)
+                saved = _saved(store, u, phase.valid)
+                if saved is not None:
+                    outcomes[p].results[u.label] = saved["value"]
+                    outcomes[p].seconds += _seconds(saved.get("seconds", 0.0))
+                    outcomes[p].count(saved.get("machine"))
+                elif redraw or (only is not None and not only(u)):
+                    outcomes[p].missing.append(u.label)
+                else:
+                    fresh.append((p, u))
+        if fresh:
+            store.check_writable([u for _, u in fresh])
+        queued.extend(fresh)
+        return [(phases[p].fn, {**u.key, **u.inputs}) for p, u in fresh]
+
+    def done(k: int, value: tuple[Any, float, str]) -> None:
+        result, seconds, where = value
+        p, unit = queued[k]
+        store.put(unit, {"value": result, "seconds": seconds, "machine": where})
+        out = outcomes[p]
+        out.results[unit.label] = result
+        out.computed.append(unit.label)
+        out.seconds += seconds
+        out.count(where)
+        if phases[p].saved is not None:
+            phases[p].saved(unit, result)
+
+    first = newly_possible()
+    fan_out(
+        _timed,
+        first,
+        on_result=done,
+        then=(lambda _k, _value: newly_possible()) if len(phases) > 1 else None,
+        execution=execution,
+        desc="study units",
+        gpus=lambda k: phases[queued[k][0]].gpus,
+    )
+    return outcomes
+
+
 def run_units(
     fn: Callable[[dict[str, Any]], Any],
     units: Sequence[Unit],
@@ -260,40 +343,9 @@ def run_units(
     Results must be plain JSON data. Computing seconds and the machine are saved beside each result. A saved result
     that ``valid`` refuses (a file edited or damaged by hand) counts as not saved: computed again,
     or missing with ``redraw``. ``gpus``: GPUs each unit's Ray task asks for (:func:`fan_out`)."""
-
-    out = Outcome()
-    todo = []
-    for u in units:
-        saved = _saved(store, u, valid)
-        if saved is not None:
-            out.results[u.label] = saved["value"]
-            out.seconds += _seconds(saved.get("seconds", 0.0))
-            out.count(saved.get("machine"))
-        elif redraw or (only is not None and not only(u)):
-            out.missing.append(u.label)
-        else:
-            todo.append(u)
-
-    if todo:
-        store.check_writable(todo)
-
-    def done(k: int, value: tuple[Any, float, str]) -> None:
-        result, seconds, where = value
-        store.put(todo[k], {"value": result, "seconds": seconds, "machine": where})
-        out.results[todo[k].label] = result
-        out.computed.append(todo[k].label)
-        out.seconds += seconds
-        out.count(where)
-
-    fan_out(
-        _timed,
-        [(fn, {**u.key, **u.inputs}) for u in todo],
-        on_result=done,
-        execution=execution,
-        desc="study units",
-        gpus=gpus,
-    )
-    return out
+    return run_phases(
+        [Phase(fn, lambda _before: units, valid, gpus)], store, redraw=redraw, execution=execution, only=only
+    )[0]
 
 
 def machine() -> str:

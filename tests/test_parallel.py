@@ -220,6 +220,38 @@ def test_fan_out_inputs_reach_each_task_once_the_tasks_they_name_are_done():
         ray.shutdown()
 
 
+def test_fan_out_then_queues_what_each_result_makes_possible_while_longer_items_run():
+    """``then(k, result)`` adds items computed by the same function: after the items before them in
+    the serial run; in Ray as soon as the result that made them is in, beside a longer item."""
+    import ray
+
+    from odolab.core.parallel import fan_out
+
+    def _follow(k, value):
+        return [value * 10] if value < 10 else []
+
+    def _wait(item):  # local: Ray pickles it by value
+        if item < 0:
+            time.sleep(2.0)
+        return abs(item)
+
+    assert fan_out(abs, [-1, -2], then=_follow, execution=Execution(parallel=False)) == [1, 2, 10, 20]
+    assert fan_out(abs, [], then=_follow, execution=Execution(progress=False)) == []  # nothing to start Ray for
+    with pytest.raises(ValueError, match="then and inputs"):
+        fan_out(abs, [1], inputs=[2], then=_follow, execution=Execution(parallel=False))
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        finished = []
+        got = fan_out(
+            _wait, [-3, 1], then=_follow, execution=Execution(progress=False), on_result=lambda k, v: finished.append(v)
+        )
+        assert got == [None, None, None, None] and finished[:2] == [1, 10]  # 1's follower done before -3 ends
+        assert sorted(finished) == [1, 3, 10, 30]
+        assert fan_out(_wait, [2], then=_follow, execution=Execution(progress=False)) == [2, 20]
+    finally:
+        ray.shutdown()
+
+
 def _beside(monkeypatch, init, work, shut, initialized=False):
     """start_ray_beside(work) with ray.init replaced by ``init``; ``shut`` gains True per ray.shutdown()."""
     import ray

@@ -43,6 +43,28 @@ def test_units_run_once_and_redraw_computes_nothing(tmp_path: Path):
     assert again.computed == [] and again.missing == ["u3"] and again.results["u2"] == 4
 
 
+def test_run_phases_computes_each_result_s_followers_and_reads_saved_ones(tmp_path: Path):
+    store = framework.ResultStore(tmp_path)
+    first = [framework.Unit(f"a{k}", {"k": k}) for k in (1, 2, 3)]
+    saved = []
+
+    def later(before):  # a follower of each result of the first phase: its value's negative
+        return [framework.Unit(f"b{label}", {"k": -v}) for label, v in before[0].results.items()]
+
+    phases = [
+        framework.Phase(_square, lambda _before: first, saved=lambda u, v: saved.append((u.label, v))),
+        framework.Phase(_square, later),
+    ]
+    only_small = lambda u: u.key["k"] < 3
+    a, b = framework.run_phases(phases, store, execution=SERIAL, only=only_small)
+    assert a.results == {"a1": 1, "a2": 4} and a.missing == ["a3"] and saved == [("a1", 1), ("a2", 4)]
+    assert b.results == {"ba1": 1, "ba2": 16} and b.computed == ["ba1", "ba2"]
+    a, b = framework.run_phases(phases, store, execution=SERIAL)  # a3 now, and its follower; the rest read
+    assert a.computed == ["a3"] and b.computed == ["ba3"] and b.results["ba3"] == 81 and len(saved) == 3
+    a, b = framework.run_phases(phases, store, execution=SERIAL, redraw=True)
+    assert a.computed == b.computed == [] and len(b.results) == 3
+
+
 def test_a_report_names_the_machines_its_units_ran_on_not_the_one_that_redraws(tmp_path: Path):
     store = framework.ResultStore(tmp_path)
     units = [framework.Unit(f"u{k}", {"k": k}) for k in range(3)]

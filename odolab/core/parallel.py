@@ -307,17 +307,25 @@ def fan_out(
     on_result: Callable[[int, Any], None] | None = None,
     execution: Execution = Execution(),
     desc: str = "tasks",
-    gpus: float = 0.0,
+    gpus: float | Callable[[int], float] = 0.0,
     inputs: Sequence[Any] | None = None,
+    then: Callable[[int, Any], Sequence[Any]] | None = None,
 ) -> list[Any]:
-    """``[fn(item) for item in items]``, as Ray tasks when ``execution.parallel`` and there are 2+ items.
+    """``[fn(item) for item in items]``, as Ray tasks when ``execution.parallel`` and there are 2+ items
+    (or ``then`` is given).
 
     ``inputs``: per item a second argument, ``fn(item, inputs[k])``; a Ray object reference there (a
     task submitted earlier) is resolved first, so the item's task waits for it and no sooner.
 
     ``gpus``: GPUs each Ray task asks for (Ray then makes only its GPUs visible to it; 0: none asked,
-    and a task sees whatever GPUs its node has); :class:`RayAddressError` naming the cluster's GPU count
-    when it has fewer (the tasks would wait for ever). In this process (serial) it has no effect.
+    and a task sees whatever GPUs its node has), or a function of the item's index giving them;
+    :class:`RayAddressError` naming the cluster's GPU count when it has fewer (the task would wait for
+    ever). In this process (serial) it has no effect.
+
+    ``then(k, result)``: the further items that item ``k``'s result makes possible (say, evaluations of
+    a model just trained), called in the driver after ``on_result``; they are computed by ``fn`` too,
+    queued behind every item submitted before them (so they fill cores that earlier, longer items leave
+    idle), with the indices that follow on (the bar's total grows). Not with ``inputs``.
 
     ``on_result(k, result)`` is called in the driver as each item finishes (in completion order),
     e.g. to write it to disk at once so finished work survives an interruption; results are then
@@ -328,43 +336,70 @@ def fan_out(
     """
     from odolab.core.progress import plain_terminal
 
+    if then is not None and inputs is not None:
+        raise ValueError("fan_out: then and inputs cannot be given together")
     parallel, ray_address, progress = execution.parallel, execution.ray_address, execution.progress
-    results: list[Any] = [None] * len(items)
-    plain = bool(progress and items) and plain_terminal()  # a terminal that cannot draw a bar: two lines
-    bar = tqdm(total=len(items), desc=desc, disable=not progress or not items or plain, leave=False)
+    queue = list(items)  # grows with what ``then`` adds
+    results: list[Any] = [None] * len(queue)
+    plain = bool(progress and queue) and plain_terminal()  # a terminal that cannot draw a bar: two lines
+    bar = tqdm(total=len(queue), desc=desc, disable=not progress or not queue or plain, leave=False)
     if plain:
-        print(f"{desc}: {len(items)} to run", file=sys.stderr, flush=True)
+        print(f"{desc}: {len(queue)} to run", file=sys.stderr, flush=True)
         began = time.perf_counter()
 
-    def done(k: int, value: Any) -> None:
+    def done(k: int, value: Any) -> list[int]:
+        """Hand item ``k``'s result on; the indices of the items it adds."""
         if on_result:
             on_result(k, value)
         else:
             results[k] = value
         bar.update(1)
+        more = list(then(k, value)) if then is not None else []
+        if more:
+            queue.extend(more)
+            results.extend([None] * len(more))
+            bar.total = len(queue)
+            bar.refresh()
+        return list(range(len(queue) - len(more), len(queue)))
+
+    def args(k: int) -> tuple[Any, ...]:
+        return (queue[k],) if inputs is None else (queue[k], inputs[k])
 
     try:
-        args = [(item,) if inputs is None else (item, inputs[k]) for k, item in enumerate(items)]
-        if not parallel or len(items) < 2:
-            for k, arg in enumerate(args):
-                done(k, fn(*(_resolved(a) for a in arg)))
+        if not parallel or not queue or (len(queue) < 2 and then is None):
+            k = 0
+            while k < len(queue):
+                done(k, fn(*(_resolved(a) for a in args(k))))
+                k += 1
             return results
         import ray
 
         started = start_ray(ray_address, quiet=not progress)
         try:
-            have = ray.cluster_resources().get("GPU", 0.0) if gpus > 0 else 0.0
-            if have < gpus:
-                raise RayAddressError(
-                    f"has {have:g} GPUs; each task asks for {gpus:g} (run where there are GPUs, or ask for none)",
-                    subject=ray_address or "the local Ray instance",
-                )
-            task = ray.remote(num_gpus=gpus)(fn) if gpus > 0 else ray.remote(fn)
-            pending = {task.remote(*arg): k for k, arg in enumerate(args)}
+            task = ray.remote(fn)
+            have = None
+
+            def submit(k: int) -> Any:
+                nonlocal have
+                asked = float(gpus(k) if callable(gpus) else gpus)
+                if asked <= 0:
+                    return task.remote(*args(k))
+                if have is None:
+                    have = ray.cluster_resources().get("GPU", 0.0)
+                if have < asked:
+                    raise RayAddressError(
+                        f"has {have:g} GPUs; each task asks for {asked:g} (run where there are GPUs, or ask for none)",
+                        subject=ray_address or "the local Ray instance",
+                    )
+                return task.options(num_gpus=asked).remote(*args(k))
+
+            pending = {submit(k): k for k in range(len(queue))}
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:
-                    done(pending.pop(ref), _value(ray, ref))
+                    k = pending.pop(ref)
+                    for new in done(k, _value(ray, ref)):
+                        pending[submit(new)] = new
         finally:
             if started:  # a local instance's daemons would otherwise slow the timed work that follows
                 shutdown_ray()
@@ -372,4 +407,4 @@ def fan_out(
     finally:
         bar.close()
         if plain and sys.exc_info()[0] is None:
-            print(f"{desc}: {len(items)} done in {time.perf_counter() - began:.0f} s", file=sys.stderr, flush=True)
+            print(f"{desc}: {len(queue)} done in {time.perf_counter() - began:.0f} s", file=sys.stderr, flush=True)
