@@ -562,6 +562,9 @@ def drop_finished_states(units: Sequence[framework.Unit], results: dict[str, Any
             shutil.rmtree(folder)
         except OSError as exc:
             print(f"note: {folder}: a finished model's training states, kept ({exc.strerror or exc})")
+            continue
+        with contextlib.suppress(OSError):  # the model's folder, where it holds nothing else now
+            folder.parent.rmdir()
 
 
 def model_id(number: int, train_seed: int | None = None) -> str:
@@ -1642,6 +1645,8 @@ def run(args) -> int:
         to_train = [u for u in framework.unsaved(training, store, trained_valid) if only is None or only(u)]
         check_states(to_train, out)
         say_retrained(to_train, store)
+        saved = ((u, store.get(u)) for u in training)  # models of earlier runs: their states go first
+        drop_finished_states(training, {u.label: v.get("value") for u, v in saved if isinstance(v, dict)}, out)
         make_data([recipes[(u.key["row"], u.key.get("train_seed"))] for u in to_train], execution)
 
     def evaluations(
@@ -1675,8 +1680,6 @@ def run(args) -> int:
         execution=execution,
         only=only,
     )
-    if not args.redraw:  # saved results of earlier runs whose model files are there as saved
-        drop_finished_states(training, trained.results, out)
     untrained = evaluations([trained])[2]
     outcomes = (trained, errors, navigation)
     if not any(o.results for o in outcomes):

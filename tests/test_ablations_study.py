@@ -611,7 +611,7 @@ def test_drop_finished_states_removes_only_the_states_of_saved_models(tmp_path: 
         (folder / "forward.pt").write_bytes(b"state")
     results = {saved.label: _model_result(tmp_path, 4), lost.label: _model_result(tmp_path, 7, present=False)}
     ablations.drop_finished_states([saved, running, lost], results, tmp_path)
-    assert not ablations.work_folder(tmp_path, saved.key).exists()
+    assert not ablations.work_folder(tmp_path, saved.key).parent.exists()  # its model's folder too, now empty
     assert (ablations.work_folder(tmp_path, running.key) / "forward.pt").is_file()  # no result yet: kept
     assert (ablations.work_folder(tmp_path, lost.key) / "forward.pt").is_file()  # its model being trained again
 
