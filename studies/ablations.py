@@ -730,12 +730,16 @@ def navigate_episode(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
 
 
 def valid_navigation(value: Any) -> bool:
-    """Whether a saved navigation result has :func:`navigate_episode`'s shape."""
+    """Whether a saved navigation result has :func:`navigate_episode`'s shape and ranges (SPL and
+    SoftSPL in [0, 1], SPL 0 without success, d_G >= 0 m, counts >= 0)."""
     return (
         isinstance(value, dict)
         and value.get("success") in (0, 1)
         and all(_number(value.get(k)) for k in ("spl", "soft_spl", "d_g"))
-        and all(isinstance(value.get(k), int) for k in ("steps", "collisions", "failed_steps"))
+        and all(0.0 <= value[k] <= 1.0 for k in ("spl", "soft_spl"))
+        and (value["spl"] == 0.0 or value["success"] == 1)
+        and value["d_g"] >= 0.0
+        and all(isinstance(value.get(k), int) and value[k] >= 0 for k in ("steps", "collisions", "failed_steps"))
     )
 
 
@@ -1554,9 +1558,12 @@ def check_gpus(scale: Scale, name: str, *, serial: bool, address: str | None, re
             )
 
 
-def _only_rows(text: str | None, scale: Scale, name: str) -> Callable[[framework.Unit], bool] | None:
-    """``--rows N,N,...`` as a choice of units (those whose key's row is listed: a row's model, errors
-    and navigation), or None for every unit; :class:`UsageError` for a row the scale does not run."""
+def _only_rows(
+    text: str | None, scale: Scale, name: str, definition: Definition
+) -> Callable[[framework.Unit], bool] | None:
+    """``--rows N,N,...`` as a choice of units (a listed row's errors and navigation, and the model it
+    runs: row 5's is row 4's), or None for every unit; :class:`UsageError` for a row the scale does
+    not run."""
     from odolab.cli import UsageError
 
     if text is None:
@@ -1570,7 +1577,8 @@ def _only_rows(text: str | None, scale: Scale, name: str) -> Callable[[framework
         raise UsageError(
             f"--rows: row {unknown[0]} is not a row of --scale {name} (its rows: {', '.join(map(str, scale.rows))})"
         )
-    return lambda unit: unit.key["row"] in chosen
+    models = {model_row(definition.rows[r]) for r in chosen}
+    return lambda unit: unit.key["row"] in (models if "recipe" in unit.key else chosen)  # a training unit's: its recipe
 
 
 def make_data(recipes: list[TrainConfig | DeepVOTraining], execution: Execution) -> None:
@@ -1607,7 +1615,7 @@ def run(args) -> int:
     scale = definition.scales[args.scale]
     if args.rows is not None and args.redraw:
         raise UsageError("--rows chooses units to compute; --redraw computes none: give one of them")
-    only = _only_rows(args.rows, scale, args.scale)
+    only = _only_rows(args.rows, scale, args.scale, definition)
     out = args.out or default_out(args.scale)
     check_gpus(scale, args.scale, serial=args.serial, address=args.ray_address, redraw=args.redraw)
     _held = framework.check_options(args, out, definition.study)  # this run's hold on out, kept until main returns
@@ -1682,7 +1690,7 @@ def run(args) -> int:
     )
     untrained = evaluations([trained])[2]
     outcomes = (trained, errors, navigation)
-    if not any(o.results for o in outcomes):
+    if not any(o.results for o in outcomes):  # only --redraw computes nothing
         raise UsageError(
             f"--redraw: no saved results in {out / 'results'} for --scale {args.scale}; run without --redraw"
         )

@@ -668,3 +668,28 @@ def test_rows_reads_the_other_rows_results_without_their_model_files(ci_run, tmp
     said = capsys.readouterr().out
     assert "train row 4: models/4/model.pt is missing or not the model its saved results came from" in said
     assert "1 training" in said and (copy / ablations.model_file(4)).is_file()
+
+
+def test_only_rows_of_a_row_running_another_rows_model_choose_that_models_training():
+    """--rows 5 (row 4's model, ten dropout samples) trains row 4's model where it is missing, and
+    evaluates row 5 alone."""
+    definition = ablations.load_definition()
+    only = ablations._only_rows("5", definition.scales["ci"], "ci", definition)
+    assert only(framework.Unit("train row 4", {"row": 4, "recipe": {}}))
+    assert only(framework.Unit("errors row 5 seed 0", {"row": 5, "odometer": "robust-vo"}))
+    assert not only(framework.Unit("errors row 4 seed 0", {"row": 4, "odometer": "robust-vo"}))
+    assert not only(framework.Unit("train row 18", {"row": 18, "recipe": {}}))
+
+
+def test_valid_navigation_refuses_a_saved_result_out_of_its_ranges():
+    ok = {"success": 1, "spl": 0.5, "soft_spl": 0.7, "d_g": 0.1, "steps": 40, "collisions": 0, "failed_steps": 0}
+    assert ablations.valid_navigation(ok)
+    for change in (
+        {"d_g": -5.0},
+        {"spl": 1.5},
+        {"soft_spl": -0.1},
+        {"success": 0},  # an SPL above 0 without success
+        {"steps": -1},
+        {"spl": float("nan")},
+    ):
+        assert not ablations.valid_navigation(ok | change), change
