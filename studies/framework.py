@@ -460,7 +460,7 @@ def write_report(report: Report, out: Path, owner: str) -> list[str]:
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(report.title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}
-table{{border-collapse:collapse;font-size:.64em}}td,th{{border:1px solid #ccc;padding:2px;text-align:right}}
+table{{border-collapse:collapse;font-size:.64em}}td,th{{border:1px solid #ccc;padding:2px 1px;text-align:right}}
 th{{background:#f2f2f2}}td:first-child,th:first-child{{text-align:left}}
 img{{max-width:100%}}figure{{margin:1.5em 0}}
 .wide{{overflow-x:auto;width:calc(100vw - 2em);position:relative;left:50%;transform:translateX(-50%)}}
