@@ -1577,8 +1577,9 @@ def _only_rows(
         raise UsageError(
             f"--rows: row {unknown[0]} is not a row of --scale {name} (its rows: {', '.join(map(str, scale.rows))})"
         )
-    models = {model_row(definition.rows[r]) for r in chosen}
-    return lambda unit: unit.key["row"] in (models if "recipe" in unit.key else chosen)  # a training unit's: its recipe
+    models = {model_row(definition.rows[r]) for r in chosen}  # the rows whose models the chosen rows run
+    # a training unit's key holds its recipe and names the model's row; an evaluation's, the row evaluated
+    return lambda unit: unit.key["row"] in (models if "recipe" in unit.key else chosen)
 
 
 def make_data(recipes: list[TrainConfig | DeepVOTraining], execution: Execution) -> None:
