@@ -21,7 +21,7 @@ from odolab.learned.robust_vo.config import ModelConfig, StageConfig, TrainConfi
 from odolab.learned.robust_vo.inputs import frame_channels, pair_channels, top_down_projection
 from odolab.learned.robust_vo.model import build_networks, predict
 from odolab.learned.robust_vo.motion import compose, geoinv_loss, inverse, mirror, swap_action
-from odolab.learned.robust_vo.odometer import RobustVOOdometer, channels_last_stack
+from odolab.learned.robust_vo.odometer import RobustVOOdometer
 from odolab.learned.training import CheckpointError, ConfigError, DataConfig, TrainingData, make_training_data
 from odolab.learned.training.checkpoints import load_checkpoint
 from odolab.learned.training.epochs import STATE_FORMAT, STATE_KIND
@@ -110,13 +110,51 @@ def test_pair_channels_are_the_papers_30_with_one_hot_depth_bins():
         assert frame_channels(torch.from_numpy(rgb[0]), torch.from_numpy(depth[0]), K, c).shape == (2, n, H, W)
 
 
-def test_channels_last_stack_holds_the_stacked_parts_in_channels_last_memory():
-    g = torch.Generator().manual_seed(0)
-    pairs = [[torch.rand(c, 5, 7, generator=g) for c in (4, 4, 1)] for _ in range(3)]
-    x = channels_last_stack(pairs)
-    assert x.is_contiguous(memory_format=torch.channels_last) and not x.is_contiguous()
-    assert torch.equal(x, torch.stack([torch.cat(parts) for parts in pairs]))
-    assert x.stride() == torch.empty(3, 9, 5, 7).to(memory_format=torch.channels_last).stride()
+def test_frame_channels_write_the_same_numbers_into_a_slice_of_channels_last_memory():
+    g = np.random.default_rng(0)
+    rgb = torch.from_numpy(g.integers(0, 256, (2, H, W, 3), dtype=np.uint8))
+    depth = torch.from_numpy(g.uniform(0.0, 12.0, (2, H, W)).astype(np.float32))
+    K = CameraSpec().intrinsics.resized(W, H)
+    cfg = ModelConfig(width=W, height=H)
+    x = torch.full((2, H, W, 2 * cfg.channels_per_frame + 1), float("nan")).permute(0, 3, 1, 2)
+    c = cfg.channels_per_frame
+    frame_channels(rgb, depth, K, cfg, out=x[:, c : 2 * c])
+    assert torch.equal(x[:, c : 2 * c], frame_channels(rgb, depth, K, cfg))
+    assert x[:, :c].isnan().all() and x[:, 2 * c :].isnan().all()  # nothing written outside the slice
+    assert x.is_contiguous(memory_format=torch.channels_last)
+
+
+@pytest.mark.parametrize("warp", ["none", "nominal"])
+def test_the_odometer_computes_a_shared_frame_once_with_the_numbers_of_fresh_frames(warp, tmp_path):
+    """Consecutive pairs share a frame (its psi copied from the last pair, with or without the warp),
+    and the answers equal those for new arrays at every step, one pair or four per network pass."""
+    torch.manual_seed(0)
+    model = dataclasses.replace(TINY, warp=warp)
+    nets = build_networks(model)
+    with torch.no_grad():  # an untrained head answers the same for every input: weights that depend on it
+        for p in nets.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    save_model(tmp_path / "m.pt", _recipe(tmp_path, warp=warp), nets, {})
+    ep = render_episode(EpisodeSpec(split="val", index=0, seed=0, max_steps=6))
+    frames = [ep[i] for i in range(len(ep))]
+    shared = [(frames[i], frames[i + 1], ep.action(i)) for i in range(len(ep) - 1)]
+    fresh = [(ep[i], ep[i + 1], ep.action(i)) for i in range(len(ep) - 1)]
+    answers = []
+    for batch_size, pairs in ((1, shared), (4, shared), (1, fresh)):
+        odo = RobustVOOdometer(checkpoint=str(tmp_path / "m.pt"), batch_size=batch_size)
+        odo.reset(ep.intrinsics)
+        answers.append(
+            np.array(
+                [
+                    e.transform
+                    for i in range(0, len(pairs), batch_size)
+                    for e in odo.step_batch(pairs[i : i + batch_size])
+                ]
+            )
+        )
+    assert np.array_equal(answers[0], answers[2])
+    assert np.allclose(answers[0], answers[1], atol=1e-5)  # another batch size: oneDNN may sum in another order
+    assert len({a.tobytes() for a in answers[0]}) == len(fresh)  # every step differs: its input reached the network
 
 
 def test_top_down_projection_puts_a_wall_at_its_distance_and_centre():

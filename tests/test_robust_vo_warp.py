@@ -137,7 +137,8 @@ def test_the_odometer_feeds_its_network_what_training_fed_it(recipe, tmp_path, d
     ep = render_episode(recipe.train_data.specs[0])
     odo.reset(ep.intrinsics)
     for i in range(len(ep) - 1):
-        x = torch.cat(odo._pair_channels(ep[i], ep[i + 1], ep.action(i)))
+        x = torch.full((model.input_channels, model.height, model.width), float("nan"))
+        odo._pair_channels(ep[i], ep[i + 1], ep.action(i), x)
         batch = make_batch(
             data, Samples(np.array([i]), np.array([False]), np.array([False])), model, torch.device("cpu")
         )

@@ -70,11 +70,19 @@ def _box3(x: torch.Tensor) -> torch.Tensor:
     return total / 9
 
 
-def frame_channels(rgb: torch.Tensor, depth: torch.Tensor, intrinsics: Intrinsics, cfg: ModelConfig) -> torch.Tensor:
+def frame_channels(
+    rgb: torch.Tensor,
+    depth: torch.Tensor,
+    intrinsics: Intrinsics,
+    cfg: ModelConfig,
+    out: torch.Tensor | None = None,
+) -> torch.Tensor:
     """psi of single frames: ``rgb`` (B, H, W, 3) uint8 and ``depth`` (B, H, W) metres -> (B, C, H, W)
-    float32, written into one tensor (no concatenation)."""
+    float32, written into one tensor (no concatenation): ``out`` where given, a float32 tensor of
+    that shape in any memory layout (e.g. a slice of a channels-last network input), else a new one."""
     n, h, w = depth.shape
-    out = torch.empty((n, cfg.channels_per_frame, h, w), dtype=torch.float32, device=depth.device)
+    if out is None:
+        out = torch.empty((n, cfg.channels_per_frame, h, w), dtype=torch.float32, device=depth.device)
     k = 0
     if cfg.visual in ("rgb", "rgbd"):
         out[:, 0:3].copy_(rgb.permute(0, 3, 1, 2)).div_(255.0)
