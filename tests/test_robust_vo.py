@@ -122,6 +122,8 @@ def test_frame_channels_write_the_same_numbers_into_a_slice_of_channels_last_mem
     assert torch.equal(x[:, c : 2 * c], frame_channels(rgb, depth, K, cfg))
     assert x[:, :c].isnan().all() and x[:, 2 * c :].isnan().all()  # nothing written outside the slice
     assert x.is_contiguous(memory_format=torch.channels_last)
+    with pytest.raises(ValueError, match="float32"):  # another precision would round psi silently
+        frame_channels(rgb, depth, K, cfg, out=x[:, :c].double())
 
 
 @pytest.mark.parametrize("warp", ["none", "nominal"])

@@ -83,6 +83,10 @@ def frame_channels(
     n, h, w = depth.shape
     if out is None:
         out = torch.empty((n, cfg.channels_per_frame, h, w), dtype=torch.float32, device=depth.device)
+    elif out.dtype != torch.float32 or out.shape != (n, cfg.channels_per_frame, h, w):
+        raise ValueError(
+            f"psi: out must be float32 {(n, cfg.channels_per_frame, h, w)}, got {out.dtype} {tuple(out.shape)}"
+        )
     k = 0
     if cfg.visual in ("rgb", "rgbd"):
         out[:, 0:3].copy_(rgb.permute(0, 3, 1, 2)).div_(255.0)

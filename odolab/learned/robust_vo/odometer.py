@@ -184,9 +184,12 @@ class RobustVOOdometer(Odometer):
         if todo:
             chosen = [pairs[k][2] or Action.MOVE_FORWARD for k in todo]  # a unified model may get no action
             # (B, h, w, channels) memory seen as (B, channels, h, w): the network's channels-last input
-            x = torch.empty((len(todo), self.cfg.height, self.cfg.width, self.cfg.input_channels)).permute(0, 3, 1, 2)
+            shape = (len(todo), self.cfg.height, self.cfg.width, self.cfg.input_channels)
+            x = torch.empty(shape, dtype=torch.float32).permute(0, 3, 1, 2)
             for j, (k, a) in enumerate(zip(todo, chosen)):
                 self._pair_channels(pairs[k][0], pairs[k][1], a, x[j])
+            if len(todo) > 1 and self._last is not None:  # keep the last frame's psi, not the whole batch's input
+                self._last = (self._last[0], self._last[1].clone())
             x = x.to(self.device)
             actions = np.array([a.value for a in chosen])
             with torch.inference_mode():
