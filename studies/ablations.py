@@ -676,6 +676,12 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
 
     (row,) = [r for r in result.rows if r.odometer == name]
     mine = [r for r in result.results if r.odometer == name]
+    if row.steps and row.failure_share == 1.0:  # a row's odometer that cannot run is not a measurement of it
+        notes = [e for r in mine for e in r.errors]
+        raise RuntimeError(
+            f"row {key['row']}: {name} failed every one of its {row.steps} steps on the seed-{key['seed']} test "
+            f"episodes (first: {notes[0] if notes else 'no message'}); nothing saved"
+        )
     return {
         **{c: float(getattr(row, c)) for c in COMPONENTS},
         "episodes": [[float(v) for v in abs_errors(r).mean(axis=0) * 100] for r in mine],
@@ -718,6 +724,11 @@ def navigate_episode(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     )
     run = navigate(spec, load_odometer(name, **options), PolicyConfig(**key["policy"]))
     o = run.outcome
+    if o.steps and run.failed_steps == o.steps:  # a row's odometer that cannot run is not a measurement of it
+        raise RuntimeError(
+            f"row {key['row']}: {name} failed every one of its {o.steps} steps in test episode {key['episode']} "
+            f"(first: {run.errors[0] if run.errors else 'no message'}); nothing saved"
+        )
     return {
         "success": o.success,
         "spl": o.spl,

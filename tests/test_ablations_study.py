@@ -693,3 +693,16 @@ def test_valid_navigation_refuses_a_saved_result_out_of_its_ranges():
         {"spl": float("nan")},
     ):
         assert not ablations.valid_navigation(ok | change), change
+
+
+@pytest.mark.parametrize("unit", ["step_errors", "navigate_episode"])
+def test_an_odometer_that_fails_every_step_is_refused_not_measured(unit: str, monkeypatch, tmp_path: Path):
+    """A row whose odometer cannot run (every step raised or was refused: e.g. a model its code cannot
+    read) would otherwise be saved with the action prior's numbers; the unit raises, naming the row."""
+    monkeypatch.setattr(ablations, "_odometer", lambda key, out: ("tests.helpers:Never", {}))
+    noise = {"rgb": 1.0, "depth": 1.0, "actuation": 0.5, "controller": "proportional"}
+    key = {"row": 12, "seed": 0, "episodes": 1, "episode": 0, "max_steps": 4, "noise": noise, "policy": {}}
+    with pytest.raises(RuntimeError, match="row 12: .* failed every one of its 4 steps"):
+        getattr(ablations, unit)(key, out=tmp_path)
+    monkeypatch.setattr(ablations, "_odometer", lambda key, out: ("action-prior", {}))
+    assert getattr(ablations, unit)(key, out=tmp_path)["steps"] == 4  # one that runs is measured
