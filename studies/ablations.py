@@ -651,6 +651,18 @@ def _odometer(key: dict[str, Any], out: Path) -> tuple[str, dict[str, Any]]:
     return key["odometer"], options
 
 
+class BrokenOdometer(ValueError):
+    """An evaluation unit whose row's odometer failed every step (a model its code cannot read, an
+    odometer that raises): not a measurement of the row, so nothing is saved and the run stops with
+    this one line (a ``ValueError``: raised from a Ray task as itself)."""
+
+
+def _whose(key: dict[str, Any]) -> str:
+    """The row of an evaluation unit's key and the model file it runs (one per training seed), as its
+    messages name them."""
+    return f"row {key['row']}" + (f" ({key['model']})" if key.get("model") else "")
+
+
 def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     """One row's odometer on one seed's test episodes: mean absolute error of (dx, dz, dyaw) x 1e-2
     over every step (a failed step scored with the action prior that replaced it) and per episode
@@ -678,9 +690,9 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     mine = [r for r in result.results if r.odometer == name]
     if row.steps and row.failure_share == 1.0:  # a row's odometer that cannot run is not a measurement of it
         notes = [e for r in mine for e in r.errors]
-        raise RuntimeError(
-            f"row {key['row']}: {name} failed every one of its {row.steps} steps on the seed-{key['seed']} test "
-            f"episodes (first: {notes[0] if notes else 'no message'}); nothing saved"
+        raise BrokenOdometer(
+            f"{_whose(key)}: {name} failed every one of its {row.steps} steps on the seed-{key['seed']} test "
+            f"episodes (first: {notes[0] if notes else 'no message'}); nothing saved for it"
         )
     return {
         **{c: float(getattr(row, c)) for c in COMPONENTS},
@@ -725,9 +737,9 @@ def navigate_episode(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     run = navigate(spec, load_odometer(name, **options), PolicyConfig(**key["policy"]))
     o = run.outcome
     if o.steps and run.failed_steps == o.steps:  # a row's odometer that cannot run is not a measurement of it
-        raise RuntimeError(
-            f"row {key['row']}: {name} failed every one of its {o.steps} steps in test episode {key['episode']} "
-            f"(first: {run.errors[0] if run.errors else 'no message'}); nothing saved"
+        raise BrokenOdometer(
+            f"{_whose(key)}: {name} failed every one of its {o.steps} steps in test episode {key['episode']} of "
+            f"seed {key['seed']} (first: {run.errors[0] if run.errors else 'no message'}); nothing saved for it"
         )
     return {
         "success": o.success,
@@ -1679,27 +1691,31 @@ def run(args) -> int:
 
     # one pipeline: a model's errors and navigation are queued once it is trained, behind the models
     # still to train, so a core that the last, longest training leaves idle evaluates meanwhile
-    trained, errors, navigation = framework.run_phases(
-        [
-            framework.Phase(
-                functools.partial(
-                    train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads
+    try:
+        phases = framework.run_phases(
+            [
+                framework.Phase(
+                    functools.partial(
+                        train_row, out=out, recipes=recipes, device=scale.device, threads=scale.train_threads
+                    ),
+                    lambda _before: training,
+                    trained_valid,
+                    scale.train_gpus,
+                    None if args.redraw else states_done,
                 ),
-                lambda _before: training,
-                trained_valid,
-                scale.train_gpus,
-                None if args.redraw else states_done,
-            ),
-            framework.Phase(functools.partial(step_errors, out=out), lambda b: evaluations(b)[0], valid_errors),
-            framework.Phase(
-                functools.partial(navigate_episode, out=out), lambda b: evaluations(b)[1], valid_navigation
-            ),
-        ],
-        store,
-        redraw=args.redraw,
-        execution=execution,
-        only=only,
-    )
+                framework.Phase(functools.partial(step_errors, out=out), lambda b: evaluations(b)[0], valid_errors),
+                framework.Phase(
+                    functools.partial(navigate_episode, out=out), lambda b: evaluations(b)[1], valid_navigation
+                ),
+            ],
+            store,
+            redraw=args.redraw,
+            execution=execution,
+            only=only,
+        )
+    except BrokenOdometer as exc:  # what is saved stays; a rerun once the odometer runs goes on from it
+        raise UsageError(str(exc)) from None
+    trained, errors, navigation = phases
     untrained = evaluations([trained])[2]
     outcomes = (trained, errors, navigation)
     if not any(o.results for o in outcomes):  # only --redraw computes nothing

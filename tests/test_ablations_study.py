@@ -702,7 +702,23 @@ def test_an_odometer_that_fails_every_step_is_refused_not_measured(unit: str, mo
     monkeypatch.setattr(ablations, "_odometer", lambda key, out: ("tests.helpers:Never", {}))
     noise = {"rgb": 1.0, "depth": 1.0, "actuation": 0.5, "controller": "proportional"}
     key = {"row": 12, "seed": 0, "episodes": 1, "episode": 0, "max_steps": 4, "noise": noise, "policy": {}}
-    with pytest.raises(RuntimeError, match="row 12: .* failed every one of its 4 steps"):
+    with pytest.raises(ablations.BrokenOdometer, match="row 12: .* failed every one of its 4 steps"):
         getattr(ablations, unit)(key, out=tmp_path)
     monkeypatch.setattr(ablations, "_odometer", lambda key, out: ("action-prior", {}))
     assert getattr(ablations, unit)(key, out=tmp_path)["steps"] == 4  # one that runs is measured
+
+
+def test_a_row_whose_odometer_fails_every_step_stops_the_run_with_one_line(tmp_path: Path, monkeypatch, capsys):
+    """The command says which row could not run and why in one line (exit 2), saves nothing for it,
+    and a rerun once the odometer runs computes the row."""
+    from tests.helpers import refused
+
+    out = tmp_path / "broken"
+    argv = ["--scale", "ci", "--out", str(out), "--serial", "--quiet", "--rows", "21"]
+    monkeypatch.setattr(ablations, "_odometer", lambda key, out: ("tests.helpers:Never", {}))
+    line = refused(capsys, "ablations", argv)
+    assert "row 21: tests.helpers:Never failed every one of its" in line and "nothing saved for it" in line, line
+    assert not list((out / "results").glob("*.json"))
+    monkeypatch.undo()
+    assert study("ablations", argv) == 0
+    assert "2 units computed (0 training, 1 error, 1 navigation)" in capsys.readouterr().out
