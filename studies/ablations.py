@@ -689,7 +689,11 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     (row,) = [r for r in result.rows if r.odometer == name]
     mine = [r for r in result.results if r.odometer == name]
     if row.steps and row.failure_share == 1.0:  # a row's odometer that cannot run is not a measurement of it
-        notes = [e for r in mine for e in r.errors]
+        reasons: dict[str, int] = {}
+        for r in mine:
+            for reason, n in r.failure_reasons.items():
+                reasons[reason] = reasons.get(reason, 0) + n
+        notes = [e for r in mine for e in r.errors] + [f"{n} step(s) {k}" for k, n in sorted(reasons.items())]
         raise BrokenOdometer(
             f"{_whose(key)}: {name} failed every one of its {row.steps} steps on the seed-{key['seed']} test "
             f"episodes (first: {notes[0] if notes else 'no message'}); nothing saved for it"

@@ -718,6 +718,7 @@ def test_a_row_whose_odometer_fails_every_step_stops_the_run_with_one_line(tmp_p
     monkeypatch.setattr(ablations, "_odometer", lambda key, out: ("tests.helpers:Never", {}))
     line = refused(capsys, "ablations", argv)
     assert "row 21: tests.helpers:Never failed every one of its" in line and "nothing saved for it" in line, line
+    assert "(first: 6 step(s) not-valid)" in line, line  # no exception: the runner's reason for the failures
     assert not list((out / "results").glob("*.json"))
     monkeypatch.undo()
     assert study("ablations", argv) == 0

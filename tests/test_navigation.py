@@ -75,7 +75,7 @@ def test_an_odometer_that_hangs_or_cannot_say_if_it_is_an_oracle_fails_its_steps
     spec = EpisodeSpec(split="test", index=1, seed=0, max_steps=6, camera=CameraSpec(width=48, height=27))
     prior = navigate(spec, load_odometer("action-prior"))
     try:
-        for odometer, said in ((Hanging(), "step: timed out after 0.02 s"), (NoIdea(), "reading oracle raised")):
+        for odometer, said in ((Hanging(), "step 0: timed out after 0.02 s"), (NoIdea(), "reading oracle raised")):
             run = navigate(spec, odometer, step_timeout=0.02)
             assert run.failed_steps == run.outcome.steps == prior.outcome.steps
             assert np.array_equal(run.believed_xy, prior.believed_xy)

@@ -363,7 +363,9 @@ def test_step_by_step_guards_a_closed_loop_as_the_runner_guards_a_sequence(relea
         answers = [asked.step(asked.frame(p), asked.frame(c), a) for p, c, a in _pairs(6)]
         assert time.perf_counter() - t0 < 0.5 and answers == [None] * 6  # 3 waits, not 6
         assert asked.reasons == {"timed-out": 6} and asked.odometer.calls == runner.MAX_TIMEOUTS
-        assert asked.errors[-1] == "step: timed out after 0.03 s; stopped"
+        assert asked.errors == [f"step {i}: timed out after 0.03 s" for i in range(2)] + [
+            "step 2: timed out after 0.03 s; stopped"
+        ]
 
     class BadReset(api.Odometer):
         def reset(self, intrinsics):

@@ -631,6 +631,7 @@ class StepByStep:
         self._log = _StepLog(0, max_errors)
         self.reasons: Counter[str] = Counter()
         self._timeouts = 0
+        self._steps = 0  # pairs asked for so far: the next one's index in the messages
         try:
             self.attributes: Attributes | None = read_attributes(odometer)
         except AttributeProblem as exc:
@@ -665,6 +666,7 @@ class StepByStep:
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
         """The odometer's answer for one pair of guarded frames (:meth:`frame`), asked as the runner
         asks (``step_batch`` of the one pair: an odometer may define either), or None (failed)."""
+        where, self._steps = f"step {self._steps}", self._steps + 1
         if self._broken is None and self._timeouts >= MAX_TIMEOUTS:
             self._broken = "timed-out"
         if self._broken is not None:
@@ -675,11 +677,11 @@ class StepByStep:
             self._timeouts += 1
             self.reasons["timed-out"] += 1
             stopped = "; stopped" if self._timeouts == MAX_TIMEOUTS else ""
-            self._log.note("step", f"timed out after {self._caller.timeout:g} s{stopped}")
+            self._log.note(where, f"timed out after {self._caller.timeout:g} s{stopped}")
             return None
         if call.error is not None:
-            self._log.note("step", call.error)
-        reason = self._log.checked(None if call.error is not None else call.value, 0, 1, "step")
+            self._log.note(where, call.error)
+        reason = self._log.checked(None if call.error is not None else call.value, 0, 1, where)
         if reason is not None:
             self.reasons[reason] += 1
             return None
