@@ -657,10 +657,18 @@ class BrokenOdometer(ValueError):
     this one line (a ``ValueError``: raised from a Ray task as itself)."""
 
 
-def _whose(key: dict[str, Any]) -> str:
-    """The row of an evaluation unit's key and the model file it runs (one per training seed), as its
-    messages name them."""
-    return f"row {key['row']}" + (f" ({key['model']})" if key.get("model") else "")
+def _refuse_unmeasured(
+    key: dict[str, Any], name: str, steps: int, all_failed: bool, where: str, said: list[str]
+) -> None:
+    """:class:`BrokenOdometer` when odometer ``name`` of an evaluation unit's ``key`` failed every one
+    of its ``steps`` (``all_failed``) ``where``; the line names the row, the model file it runs (one per
+    training seed) and ``said``'s first message (what raised, or the runner's reasons)."""
+    if steps and all_failed:
+        whose = f"row {key['row']}" + (f" ({key['model']})" if key.get("model") else "")
+        raise BrokenOdometer(
+            f"{whose}: {name} failed every one of its {steps} steps {where} "
+            f"(first: {said[0] if said else 'no message'}); nothing saved for it"
+        )
 
 
 def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
@@ -684,20 +692,20 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
             execution=SERIAL,
         )
     )
+    from odolab.reporting.pipeline import failure_reasons
     from odolab.running.summary import step_errors as abs_errors
 
     (row,) = [r for r in result.rows if r.odometer == name]
     mine = [r for r in result.results if r.odometer == name]
-    if row.steps and row.failure_share == 1.0:  # a row's odometer that cannot run is not a measurement of it
-        reasons: dict[str, int] = {}
-        for r in mine:
-            for reason, n in r.failure_reasons.items():
-                reasons[reason] = reasons.get(reason, 0) + n
-        notes = [e for r in mine for e in r.errors] + [f"{n} step(s) {k}" for k, n in sorted(reasons.items())]
-        raise BrokenOdometer(
-            f"{_whose(key)}: {name} failed every one of its {row.steps} steps on the seed-{key['seed']} test "
-            f"episodes (first: {notes[0] if notes else 'no message'}); nothing saved for it"
-        )
+    reasons = failure_reasons(mine).get(name, {})
+    _refuse_unmeasured(
+        key,
+        name,
+        row.steps,
+        row.failure_share == 1.0,
+        f"on the seed-{key['seed']} test episodes",
+        [e for r in mine for e in r.errors] + [f"{n} step(s) {k}" for k, n in sorted(reasons.items())],
+    )
     return {
         **{c: float(getattr(row, c)) for c in COMPONENTS},
         "episodes": [[float(v) for v in abs_errors(r).mean(axis=0) * 100] for r in mine],
@@ -740,11 +748,8 @@ def navigate_episode(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
     )
     run = navigate(spec, load_odometer(name, **options), PolicyConfig(**key["policy"]))
     o = run.outcome
-    if o.steps and run.failed_steps == o.steps:  # a row's odometer that cannot run is not a measurement of it
-        raise BrokenOdometer(
-            f"{_whose(key)}: {name} failed every one of its {o.steps} steps in test episode {key['episode']} of "
-            f"seed {key['seed']} (first: {run.errors[0] if run.errors else 'no message'}); nothing saved for it"
-        )
+    where = f"in test episode {key['episode']} of seed {key['seed']}"
+    _refuse_unmeasured(key, name, o.steps, run.failed_steps == o.steps, where, list(run.errors))
     return {
         "success": o.success,
         "spl": o.spl,
@@ -1696,7 +1701,7 @@ def run(args) -> int:
     # one pipeline: a model's errors and navigation are queued once it is trained, behind the models
     # still to train, so a core that the last, longest training leaves idle evaluates meanwhile
     try:
-        phases = framework.run_phases(
+        trained, errors, navigation = framework.run_phases(
             [
                 framework.Phase(
                     functools.partial(
@@ -1719,7 +1724,6 @@ def run(args) -> int:
         )
     except BrokenOdometer as exc:  # what is saved stays; a rerun once the odometer runs goes on from it
         raise UsageError(str(exc)) from None
-    trained, errors, navigation = phases
     untrained = evaluations([trained])[2]
     outcomes = (trained, errors, navigation)
     if not any(o.results for o in outcomes):  # only --redraw computes nothing

@@ -666,7 +666,8 @@ class StepByStep:
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate | None:
         """The odometer's answer for one pair of guarded frames (:meth:`frame`), asked as the runner
         asks (``step_batch`` of the one pair: an odometer may define either), or None (failed)."""
-        where, self._steps = f"step {self._steps}", self._steps + 1
+        where = f"step {self._steps}"
+        self._steps += 1
         if self._broken is None and self._timeouts >= MAX_TIMEOUTS:
             self._broken = "timed-out"
         if self._broken is not None:
