@@ -159,6 +159,28 @@ def test_the_odometer_computes_a_shared_frame_once_with_the_numbers_of_fresh_fra
     assert len({a.tobytes() for a in answers[0]}) == len(fresh)  # every step differs: its input reached the network
 
 
+
+def test_input_ms_times_the_input_and_leaves_the_next_steps_answers_as_they_were(tmp_path):
+    """The odometer's input timing (the bench's ``input_ms``) needs a reset, gives a positive time, and
+    the steps after it answer exactly as those of an odometer that was never timed."""
+    torch.manual_seed(0)
+    nets = build_networks(TINY)
+    save_model(tmp_path / "m.pt", _recipe(tmp_path), nets, {})
+    ep = render_episode(EpisodeSpec(split="val", index=0, seed=0, max_steps=4))
+    pairs = [(ep[i], ep[i + 1], ep.action(i)) for i in range(len(ep) - 1)]
+    timed, plain = (RobustVOOdometer(checkpoint=str(tmp_path / "m.pt")) for _ in range(2))
+    with pytest.raises(RuntimeError, match="reset"):
+        timed.input_ms(*pairs[0])
+    answers = []
+    for odo in (timed, plain):
+        odo.reset(ep.intrinsics)
+        first = odo.step(*pairs[0])
+        if odo is timed:
+            ms = odo.input_ms(*pairs[-1], calls=3)  # another pair than the one the next step shares
+            assert np.isfinite(ms) and ms > 0
+        answers.append(np.array([first.transform] + [odo.step(*p).transform for p in pairs[1:]]))
+    assert np.array_equal(answers[0], answers[1])
+
 def test_top_down_projection_puts_a_wall_at_its_distance_and_centre():
     """A fronto-parallel wall at 4 m fills one row of the projection (4 m of 10 up from the bottom),
     centred left-right; a wall only in the image's left half lands left of centre."""

@@ -161,9 +161,18 @@ def bench_odometers(
                 bare = odo.network_steps_per_s()
             out[-1]["network_steps_per_s"] = bare
             out[-1]["over_network"] = row.fps / bare
+        if hasattr(odo, "input_ms"):  # what its step adds before the network: resizing, warp, psi
+            with odometer_threads(odo):
+                out[-1]["input_ms"] = odo.input_ms(*_first_pair(eps[0]))
         if after_each is not None:
             after_each()
     return out
+
+
+
+def _first_pair(episode) -> tuple:
+    """An episode's first frame pair and its action: ``(prev, cur, action)``."""
+    return episode[0], episode[1], episode.action(0)
 
 
 def bench_navigation(

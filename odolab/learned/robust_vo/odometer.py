@@ -120,6 +120,28 @@ class RobustVOOdometer(Odometer):
 
         return calls_per_s(call, calls)
 
+    def input_ms(self, prev: Frame, cur: Frame, action: Action, calls: int = 20) -> float:
+        """Milliseconds of one step's network input alone, as :meth:`step` makes it from nothing
+        cached: both frames resized, the current one warped (with the ``nominal`` warp) and psi of
+        both written into the channels-last input; median of ``calls`` timed calls after two untimed
+        ones. What a step adds to its network's pass, beside the prediction's own overhead. Needs
+        :meth:`reset` first; the frames kept for the next step are forgotten (as by :meth:`reset`)."""
+        from odolab.learned.robust_vo.speed import calls_per_s
+
+        if self._input_intrinsics is None:
+            raise RuntimeError("input_ms needs reset(intrinsics) first")
+        shape = (1, self.cfg.height, self.cfg.width, self.cfg.input_channels)
+        x = torch.empty(shape, dtype=torch.float32).permute(0, 3, 1, 2)
+
+        def call() -> None:
+            self._last, self._sized = None, []
+            self._pair_channels(prev, cur, action, x[0])
+
+        try:
+            return 1000.0 / calls_per_s(call, calls)
+        finally:
+            self._last, self._sized = None, []
+
     def step(self, prev: Frame, cur: Frame, action: Action | None) -> Estimate:
         return self.step_batch([(prev, cur, action)])[0]
 
