@@ -424,6 +424,30 @@ def test_exit_process_after_an_interruption_does_not_wait_for_threads_left_busy(
     assert subprocess.run(plain, check=False, capture_output=True, timeout=50).returncode == 3
 
 
+
+def test_exit_process_runs_the_exit_handlers_flushes_and_waits_for_a_thread_still_running(tmp_path):
+    """A finished command leaves with its code after its exit handlers ran and its output was
+    flushed; a (non-daemon) thread still running is waited for, as Python's own exit does."""
+    import subprocess
+    import sys
+
+    done = tmp_path / "done"
+    script = (
+        "import atexit, threading, time, sys\n"
+        "from odolab.cli.args import exit_process\n"
+        "atexit.register(lambda: print('handler ran'))\n"
+        "if len(sys.argv) > 2:\n"
+        "    threading.Thread(target=lambda: (time.sleep(1), open(sys.argv[2], 'w').close())).start()\n"
+        "print('said', flush=False)\n"
+        "exit_process(int(sys.argv[1]))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script, "3"], check=False, capture_output=True, text=True, timeout=60)
+    assert (proc.returncode, proc.stdout) == (3, "said\nhandler ran\n")
+    proc = subprocess.run(
+        [sys.executable, "-c", script, "0", str(done)], check=False, capture_output=True, text=True, timeout=60
+    )
+    assert (proc.returncode, proc.stdout) == (0, "said\nhandler ran\n") and done.exists()
+
 def test_python_m_odolab_is_the_odolab_command():
     import subprocess
     import sys

@@ -670,12 +670,26 @@ def exit_process(code: int) -> NoReturn:
     (130, 143) at once: the command's clean-up ran as the signal's exception unwound it, and a
     thread the interruption left busy or holding a lock (the depth worker, Open3D's, Ray's) would
     otherwise hang the interpreter's exit or abort it in a C++ destructor. So too when an odometer
-    call that ran past its time limit is still running (:func:`odolab.running.runner.calls_still_running`)."""
+    call that ran past its time limit is still running (:func:`odolab.running.runner.calls_still_running`).
+    Otherwise, where no thread but daemons is left, after the exit handlers (``atexit``) and with
+    the output flushed, without the interpreter's teardown of every module (about a second of CPU
+    once torch, Open3D and Ray are loaded, and nothing a finished command needs); with a
+    thread still running, as Python exits, waiting for it."""
     runner = sys.modules.get("odolab.running.runner")  # never imported: no odometer call made
     if code in (130, 143) or (runner is not None and runner.calls_still_running()):
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
+        os._exit(code)
+    if all(t.daemon or t is threading.main_thread() for t in threading.enumerate()):
+        import atexit
+
+        atexit._run_exitfuncs()  # what Python runs at exit before its teardown (Ray's shutdown, logging's flush)
+        try:
+            sys.stdout.flush()
+            sys.stderr.flush()
+        except (OSError, ValueError):  # a closed pipe or stream: Python's own exit reports it
+            sys.exit(code)
         os._exit(code)
     sys.exit(code)
 
