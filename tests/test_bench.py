@@ -94,6 +94,8 @@ def test_bench_compare_times_a_comparison_against_its_odometers_own_steps():
     assert row["odometers"] == 2 and row["cores"] >= 1 and 0 < row["odometer_step_s"] < row["wall_s"]
     assert row["ratio"] == row["wall_s"] / (row["odometer_step_s"] / row["cores"])
     assert 0 <= row["load_odometers_s"] + row["run_s"] <= row["wall_s"]  # the phases, within the whole
+    assert 0 < row["command_odometer_step_s"] < row["command_wall_s"]  # the command: its own run, its own steps
+    assert row["command_ratio"] == row["command_wall_s"] / (row["command_odometer_step_s"] / row["cores"])
 
 
 def test_bench_odometers_names_the_options_it_timed():

@@ -93,33 +93,61 @@ def bench_episodes(n: int = 3, max_steps: int = 100) -> dict:
 def bench_compare(
     episodes: int = 5, max_steps: int = 60, odometers: list[str] | None = None, execution: object = None
 ) -> dict:
-    """The default comparison as ``python -m odolab.compare --no-cache`` runs it (episodes made in
-    memory, every available odometer unless ``odometers``), timed end to end: ``wall_s``, and its
-    ratio to the limit, the odometers' own step times summed (``steps / fps`` of each timed row)
-    over the machine's cores (``ratio``: 1 would be every core busy with odometer steps only), and
-    the wall seconds of each phase of the run (``<phase>_s``, :attr:`ComparisonResult.phases`);
-    ``execution``: where episodes are made (default: a local Ray instance, as the command does)."""
+    """The default comparison, twice. First the command a user runs, ``python -m odolab.compare
+    --no-cache`` in a new process (its imports, the odometers loaded and checked, the run, the report
+    written, the exit), timed from its start to its exit: ``command_wall_s``, and its ratio to the
+    limit, the odometers' own step times of that run summed (``steps / fps`` of each timed row of
+    its ``table.csv``) over the machine's cores (``command_ratio``: 1 would be every core busy with
+    odometer steps only). Then its pipeline alone in this process (modules already imported, nothing
+    written: :func:`odolab.reporting.pipeline.run_comparison`), the same figures (``wall_s``,
+    ``odometer_step_s``, ``ratio``) and the wall seconds of each of its phases (``<phase>_s``,
+    :attr:`ComparisonResult.phases`). ``odometers``: every available one when None; ``execution``:
+    where the episodes are made and the odometers run (default: a local Ray instance, as the command
+    does; not in parallel: the command with ``--serial`` too)."""
+    import csv
     import os
+    import subprocess
+    import sys
+    import tempfile
 
     from odolab.core.parallel import Execution
     from odolab.reporting.pipeline import ComparisonConfig, run_comparison
 
+    def own_seconds(rows: list[tuple[float, float]]) -> float:
+        """Steps over steps/s, summed over the rows that were timed."""
+        return sum(steps / fps for steps, fps in rows if np.isfinite(fps) and fps > 0)
+
+    cores = os.cpu_count() or 1
     execution = Execution(progress=False) if execution is None else execution
+    chosen = ["--odometers", ",".join(odometers)] if odometers else []
+    chosen += [] if execution.parallel else ["--serial"]
+    with tempfile.TemporaryDirectory(prefix="odolab-bench-compare-") as folder:
+        out = Path(folder) / "compare"
+        command = [sys.executable, "-m", "odolab.compare", "--no-cache", "--quiet", "--out", str(out)]
+        command += ["--episodes", str(episodes), "--max-steps", str(max_steps), *chosen]
+        t0 = time.perf_counter()
+        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+        command_wall = time.perf_counter() - t0
+        with open(out / "table.csv", newline="") as f:
+            command_own = own_seconds([(float(r["steps"]), float(r["fps"])) for r in csv.DictReader(f)])
+
     config = ComparisonConfig(
         odometers=odometers, episodes=episodes, max_steps=max_steps, cache=None, execution=execution
     )
     t0 = time.perf_counter()
     result = run_comparison(config)
     wall = time.perf_counter() - t0
-    own = sum(r.steps / r.fps for r in result.rows if np.isfinite(r.fps) and r.fps > 0)
-    cores = os.cpu_count() or 1
+    own = own_seconds([(r.steps, r.fps) for r in result.rows])
     return {
         "episodes": episodes,
         "max_steps": max_steps,
         "odometers": len(result.rows),
+        "cores": cores,
+        "command_wall_s": command_wall,
+        "command_odometer_step_s": command_own,
+        "command_ratio": command_wall / (command_own / cores) if command_own > 0 else float("nan"),
         "wall_s": wall,
         "odometer_step_s": own,
-        "cores": cores,
         "ratio": wall / (own / cores) if own > 0 else float("nan"),
         **{f"{name}_s": seconds for name, seconds in result.phases.items()},
     }

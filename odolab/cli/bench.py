@@ -51,8 +51,9 @@ TITLES = {
     "evaluate": "Trajectory evaluation on KITTI 00 (wall seconds per command)",
     "training": "Robust-VO training (pairs/s: bare network step on resident random inputs, and the trainer's "
     "own epoch end to end; fp32 bare beside the chosen precision)",
-    "compare": "The default comparison (python -m odolab.compare --no-cache), end to end: wall seconds, and their "
-    "ratio to the odometers' own step times summed over the cores",
+    "compare": "The default comparison: python -m odolab.compare --no-cache timed from its start to its exit "
+    "(command_), then its pipeline alone in this process with its phases; wall seconds, and their ratio to the "
+    "odometers' own step times summed over the cores",
 }
 
 
