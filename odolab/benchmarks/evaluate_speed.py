@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
 import sys
-import time
 from pathlib import Path
+
+from odolab.benchmarks.commands import timed_command
 
 __all__ = ["DEFAULT_DATA", "run"]
 
@@ -20,16 +20,8 @@ DEFAULT_DATA = Path(__file__).resolve().parents[2] / "tests" / "data" / "evo"
 
 
 def _best_wall_time(cmd: list[str], repeats: int) -> float:
-    """Smallest wall time (s) of ``repeats`` runs of ``cmd``; raises if the command fails."""
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, check=False)
-        elapsed = time.perf_counter() - t0
-        if proc.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr.strip()}")
-        best = min(best, elapsed)
-    return best
+    """Smallest wall time (s) of ``repeats`` runs of ``cmd``; :class:`CommandFailed` if the command fails."""
+    return min(timed_command(cmd, capture_stderr=True) for _ in range(repeats))
 
 
 def _evo_ape() -> str | None:

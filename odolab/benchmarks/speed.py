@@ -106,10 +106,10 @@ def bench_compare(
     does; not in parallel: the command with ``--serial`` too)."""
     import csv
     import os
-    import subprocess
     import sys
     import tempfile
 
+    from odolab.benchmarks.commands import timed_command
     from odolab.core.parallel import Execution
     from odolab.reporting.pipeline import ComparisonConfig, run_comparison
 
@@ -125,9 +125,7 @@ def bench_compare(
         out = Path(folder) / "compare"
         command = [sys.executable, "-m", "odolab.compare", "--no-cache", "--quiet", "--out", str(out)]
         command += ["--episodes", str(episodes), "--max-steps", str(max_steps), *chosen]
-        t0 = time.perf_counter()
-        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-        command_wall = time.perf_counter() - t0
+        command_wall = timed_command(command)
         with open(out / "table.csv", newline="") as f:
             command_own = own_seconds([(float(r["steps"]), float(r["fps"])) for r in csv.DictReader(f)])
 

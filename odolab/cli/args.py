@@ -686,8 +686,9 @@ def exit_process(code: int) -> NoReturn:
 
         atexit._run_exitfuncs()  # what Python runs at exit before its teardown (Ray's shutdown, logging's flush)
         try:
-            sys.stdout.flush()
-            sys.stderr.flush()
+            for stream in (sys.stdout, sys.stderr):
+                if stream is not None:  # None: started with that stream closed
+                    stream.flush()
         except (OSError, ValueError):  # a closed pipe or stream: Python's own exit reports it
             sys.exit(code)
         os._exit(code)

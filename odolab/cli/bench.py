@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from odolab.benchmarks import speed as bench
+from odolab.benchmarks.commands import CommandFailed
 from odolab.cli.args import (
     ArgumentParser,
     UsageError,
@@ -148,7 +149,10 @@ def run(args) -> int:
     save()  # at once: a stop before the first part ends leaves no older, complete-looking file
     for part in plan.parts:
         running.add(part)  # the odometer part saves odometer by odometer, pending until the last is timed
-        timed = _time(part, plan, plan.train_threads, report, save)
+        try:
+            timed = _time(part, plan, plan.train_threads, report, save)
+        except CommandFailed as exc:  # its own message is above, or in the line
+            raise UsageError(f"the {part} part: {exc}") from None
         running.discard(part)
         for key, rows in timed.items():
             report[key] = rows
