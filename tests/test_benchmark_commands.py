@@ -18,7 +18,7 @@ def test_timed_command_times_a_command_and_names_a_failure_in_one_line():
     with pytest.raises(CommandFailed) as caught:
         timed_command(failing, capture_stderr=True)
     assert str(caught.value) == f"{sys.executable} exited with 1: bad input: x"
-    with pytest.raises(CommandFailed, match=r"^-m odolab.nosuch exited with 1: "):
+    with pytest.raises(CommandFailed, match=r"^python -m odolab.nosuch exited with 1: "):
         timed_command([sys.executable, "-m", "odolab.nosuch"], capture_stderr=True)
 
 

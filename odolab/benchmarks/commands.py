@@ -37,6 +37,6 @@ def timed_command(command: list[str], capture_stderr: bool = False) -> float:
     elapsed = time.perf_counter() - started
     if child.returncode != 0:
         last = (said or "").strip().splitlines()[-1:] or ["its message is above"]
-        name = " ".join(command[1:4]) if command[1:2] == ["-m"] else command[0]
+        name = f"python -m {command[2]}" if command[1:2] == ["-m"] else command[0]
         raise CommandFailed(f"{name} exited with {child.returncode}: {last[0]}")
     return elapsed
