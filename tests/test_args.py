@@ -424,7 +424,6 @@ def test_exit_process_after_an_interruption_does_not_wait_for_threads_left_busy(
     assert subprocess.run(plain, check=False, capture_output=True, timeout=50).returncode == 3
 
 
-
 def test_exit_process_runs_the_exit_handlers_flushes_and_waits_for_a_thread_still_running(tmp_path):
     """A finished command leaves with its code after its exit handlers ran and its output was
     flushed (where it has an output); a (non-daemon) thread still running is waited for, as Python's
@@ -450,6 +449,7 @@ def test_exit_process_runs_the_exit_handlers_flushes_and_waits_for_a_thread_stil
     assert (proc.returncode, proc.stdout) == (0, "said\nhandler ran\n") and done.exists()
     closed = subprocess.run(["sh", "-c", f'"{sys.executable}" -c "$0" 4 >&- 2>&-', script], check=False, timeout=60)
     assert closed.returncode == 4  # started with stdout and stderr closed: nothing to flush, the same code
+
 
 def test_python_m_odolab_is_the_odolab_command():
     import subprocess

@@ -159,7 +159,6 @@ def test_the_odometer_computes_a_shared_frame_once_with_the_numbers_of_fresh_fra
     assert len({a.tobytes() for a in answers[0]}) == len(fresh)  # every step differs: its input reached the network
 
 
-
 def test_input_ms_times_the_input_and_leaves_the_next_steps_answers_as_they_were(tmp_path):
     """The odometer's input timing (the bench's ``input_ms``) needs a reset, gives a positive time, and
     the steps after it answer exactly as those of an odometer that was never timed."""
@@ -180,6 +179,7 @@ def test_input_ms_times_the_input_and_leaves_the_next_steps_answers_as_they_were
             assert np.isfinite(ms) and ms > 0
         answers.append(np.array([first.transform] + [odo.step(*p).transform for p in pairs[1:]]))
     assert np.array_equal(answers[0], answers[1])
+
 
 def test_top_down_projection_puts_a_wall_at_its_distance_and_centre():
     """A fronto-parallel wall at 4 m fills one row of the projection (4 m of 10 up from the bottom),

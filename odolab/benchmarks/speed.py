@@ -195,7 +195,6 @@ def bench_odometers(
     return out
 
 
-
 def _first_pair(episode) -> tuple:
     """An episode's first frame pair and its action: ``(prev, cur, action)``."""
     return episode[0], episode[1], episode.action(0)
