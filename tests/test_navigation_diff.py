@@ -8,7 +8,7 @@ import pytest
 
 from odolab.cli import run_cli
 from odolab.cli.navigation_diff import main
-from odolab.navigation.diff import diff_runs, markdown, read_episodes, setting_notes, unpaired
+from odolab.navigation.diff import diff_runs, episode_difference, markdown, read_episodes, setting_notes, unpaired
 
 HEAD = "odometer,episode,split,seed,d0,d_end,path,stopped,steps,collisions,success,spl,soft_spl,failed_steps\n"
 
@@ -81,6 +81,29 @@ def test_runs_made_with_other_settings_are_pointed_out(tmp_path):
     assert setting_notes(before, after) == ["the policies differ: plan_every 1 -> 4, plan_step 1 -> 2"]
     (after / "config.json").write_text("{")
     assert setting_notes(before, after) == [f"no readable config.json in {after}: the runs' settings were not compared"]
+
+
+def test_runs_of_other_episodes_are_refused_in_one_line(tmp_path, capsys):
+    """Another scene family, other mesh files or other goal distances make other episodes: no pairs;
+    the step limit, noise and camera stay notes (the same episodes run otherwise)."""
+    import json
+
+    def config(folder, **episode):
+        record = {"split": "test", "index": 0, "seed": 0, "max_steps": 500, "noise": {"rgb": 1.0}, **episode}
+        (folder / "config.json").write_text(json.dumps({"options": {}, "policy": {}, "episodes": [record]}))
+
+    before, after = _folder(tmp_path, "a", [("x", 0, 1, 10, 2)]), _folder(tmp_path, "b", [("x", 0, 1, 10, 2)])
+    config(before)
+    config(after, max_steps=12, noise={"rgb": 2.0})
+    assert episode_difference(before, after) is None
+    code, _, err = _diff([before, after], capsys)
+    assert code == 0 and len(err) == 2  # the two notes
+    config(after, family="free")
+    assert episode_difference(before, after) == "family - -> free"
+    config(after, min_goal_distance=5.0, scenes={"digests": ["ab"]})
+    assert episode_difference(before, after) == "min_goal_distance - -> 5.0, scenes - -> {'digests': ['ab']}"
+    code, out, err = _diff([before, after], capsys)
+    assert code == 2 and out == "" and len(err) == 1 and "ran other episodes (min_goal_distance" in err[0]
 
 
 def test_episodes_of_other_splits_are_named_with_them_and_odd_names_stay_in_their_cell(tmp_path):

@@ -35,6 +35,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{args.before} and {args.after} share no episode of any odometer (same --split, --seed "
             "and odometer names are needed)"
         )
+    other = diff.episode_difference(args.before, args.after)
+    if other is not None:
+        raise UsageError(
+            f"{args.before} and {args.after} ran other episodes ({other}); a diff pairs runs of the same episodes"
+        )
     for note in diff.unpaired(before, after) + diff.setting_notes(args.before, args.after):
         print(f"note: {note}", file=sys.stderr)
     print(diff.markdown(diffs), end="")

@@ -198,26 +198,61 @@ def unpaired(before: dict, after: dict) -> list[str]:
     return notes
 
 
-def setting_notes(before: Path, after: Path) -> list[str]:
-    """Notes on how the two folders' ``config.json`` settings differ: policy parameters (each record
-    completed with the defaults it leaves out, :meth:`PolicyConfig.completed`; one only one folder
-    records shows as ``-`` in the other) and the episodes' step limit and noise; or that a config
-    could not be read, so settings were not compared."""
-    from odolab.navigation.agent import PolicyConfig
-
+def _configs(before: Path, after: Path) -> tuple[list[dict], list[str]]:
+    """The two folders' ``config.json`` documents, or none and the note that one could not be read."""
     docs = []
     for folder in (before, after):
         try:
             doc = read_input_json(Path(folder) / "config.json", "navigation config")
         except ValueError:
-            return [f"no readable config.json in {folder}: the runs' settings were not compared"]
+            return [], [f"no readable config.json in {folder}: the runs' settings were not compared"]
         if (
             not isinstance(doc, dict)
             or not isinstance(doc.get("policy"), dict)
             or not isinstance(doc.get("episodes"), list)
         ):
-            return [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
+            return [], [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
         docs.append(doc)
+    return docs, []
+
+
+#: Episode settings that may differ between two runs of the same episodes (said in a note).
+_SETTINGS = ("max_steps", "noise", "camera")
+
+
+def _first_episodes(docs: list[dict]) -> list[dict]:
+    """Each config's first episode record ({} where there is none)."""
+    return [d["episodes"][0] if d["episodes"] and isinstance(d["episodes"][0], dict) else {} for d in docs]
+
+
+def episode_difference(before: Path, after: Path) -> str | None:
+    """What makes the two runs' episodes other episodes (their scene family or mesh files, their
+    goals' distances, ...: every field of the episode records but the index and :data:`_SETTINGS`),
+    as ``key A -> B`` (the first two such fields); None where they are the same episodes or a config
+    cannot be read (:func:`setting_notes` says so)."""
+    docs, _ = _configs(before, after)
+    if not docs:
+        return None
+    first = _first_episodes(docs)
+    keys = sorted((set(first[0]) | set(first[1])) - set(_SETTINGS) - {"index"})
+    changed = [
+        f"{k} {str(first[0].get(k, '-'))[:80]} -> {str(first[1].get(k, '-'))[:80]}"
+        for k in keys
+        if first[0].get(k) != first[1].get(k)
+    ]
+    return ", ".join(changed[:2]) if changed else None
+
+
+def setting_notes(before: Path, after: Path) -> list[str]:
+    """Notes on how the two folders' ``config.json`` settings differ: policy parameters (each record
+    completed with the defaults it leaves out, :meth:`PolicyConfig.completed`; one only one folder
+    records shows as ``-`` in the other) and the episodes' step limit, noise and camera; or that a
+    config could not be read, so settings were not compared."""
+    from odolab.navigation.agent import PolicyConfig
+
+    docs, unread = _configs(before, after)
+    if not docs:
+        return unread
     policies = [PolicyConfig.completed(d["policy"]) for d in docs]
 
     def shown(policy: dict, key: str) -> str:
@@ -229,8 +264,8 @@ def setting_notes(before: Path, after: Path) -> list[str]:
         if (k in policies[0], policies[0].get(k)) != (k in policies[1], policies[1].get(k))
     ]
     notes = [f"the policies differ: {', '.join(changed)[:300]}"] if changed else []
-    first = [d["episodes"][0] if d["episodes"] and isinstance(d["episodes"][0], dict) else {} for d in docs]
-    for key in ("max_steps", "noise", "camera"):
+    first = _first_episodes(docs)
+    for key in _SETTINGS:
         if first[0].get(key) != first[1].get(key):
             notes.append(
                 f"the episodes' {key} differ: {str(first[0].get(key))[:100]} -> {str(first[1].get(key))[:100]}"
