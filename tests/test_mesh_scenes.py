@@ -92,6 +92,7 @@ def test_a_mesh_that_cannot_be_a_scene_is_one_line_naming_the_file(tmp_path, mon
         [*floor, *[[x, y, 0.5] for x, y, _ in floor]],
         [[0, 1, 2], [0, 2, 3], [6, 5, 4], [7, 6, 4]],
     )
+    tiny = _ply(tmp_path / "tiny.ply", [[0, 0, 0], [0.6, 0, 0], [0.6, 0.6, 0], [0, 0.6, 0]], [[0, 1, 2], [0, 2, 3]])
     (tmp_path / "empty.ply").write_text(
         "ply\nformat ascii 1.0\nelement vertex 0\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
     )
@@ -100,6 +101,7 @@ def test_a_mesh_that_cannot_be_a_scene_is_one_line_naming_the_file(tmp_path, mon
     cases = [
         (wall, "z", "no up-facing surface: no floor to stand on"),
         (covered, "z", "no free floor"),
+        (tiny, "z", "its largest navigable floor is 0.29 m across; an episode's start and goal are at least 1 m apart"),
         (tmp_path / "empty.ply", "z", "holds no triangles"),
         (tmp_path / "junk.glb", "y", "not a readable GLB mesh"),
         (tmp_path / "scene.stl", "y", "unknown mesh type '.stl'"),
@@ -113,6 +115,22 @@ def test_a_mesh_that_cannot_be_a_scene_is_one_line_naming_the_file(tmp_path, mon
     monkeypatch.setattr(mesh_scenes, "MAX_FILE_BYTES", 100)
     with pytest.raises(MeshError, match=r"wall.ply: .* GB, above the .* GB a scene may be"):
         read_mesh(wall, up="z")
+
+
+def test_floor_span_is_the_largest_distance_across_the_largest_region(tmp_path):
+    """A 4 m square room's navigable floor spans its diagonal less the agent's clearance; a line of cells
+    (no hull) is measured end to end."""
+    import dataclasses
+
+    from odolab.sim.mesh_scenes import floor_span
+
+    room = _ply(tmp_path / "room.ply", [[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0]], [[0, 1, 2], [0, 2, 3]])
+    scene = mesh_scene(read_mesh(room, up="z"), name="room")
+    side = 4.0 - 2 * scene.agent_radius
+    assert side * np.sqrt(2) - 0.2 < floor_span(scene) <= side * np.sqrt(2)
+    line = np.zeros_like(scene.navigable)
+    line[5, 3:23] = True
+    assert floor_span(dataclasses.replace(scene, navigable=line)) == pytest.approx(19 * scene.resolution)
 
 
 def test_compare_runs_in_a_mesh_file_keyed_by_its_content(tmp_path, scene, capsys):

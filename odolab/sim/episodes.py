@@ -37,7 +37,7 @@ from odolab.sim.environment import PointNavEnv, Sensors
 from odolab.sim.free_scenes import FAMILIES, family_scene
 from odolab.sim.mesh_scenes import SceneFiles
 from odolab.sim.noise import ActuationNoise
-from odolab.sim.scenes import SPLITS, scene_seed
+from odolab.sim.scenes import MIN_GOAL_DISTANCE, SPLITS, scene_seed
 
 _SPLIT_CODE = {name: i for i, name in enumerate(SPLITS)}
 FORMAT_VERSION = 2  # the .npz layout (2: clean_depth_mm added)
@@ -72,7 +72,9 @@ class EpisodeSpec:
     index: int = setting(0, range=(0, 2**31 - 1), doc="the episode's number within (split, seed)")
     seed: int = setting(0, range=SEED_RANGE, doc="the episodes' seed")
     max_steps: int = setting(100, range=(1, 100_000), doc="actions at most")
-    min_goal_distance: float = setting(1.0, range=(0.0, 1000.0), doc="m, geodesic (habitat-lab's generator: 1-30 m)")
+    min_goal_distance: float = setting(
+        MIN_GOAL_DISTANCE, range=(0.0, 1000.0), doc="m, geodesic (habitat-lab's generator: 1-30 m)"
+    )
     max_goal_distance: float = setting(30.0, range=(0.0, 1000.0), doc="m, geodesic")
     min_geodesic_ratio: float = setting(
         1.1, range=(1.0, 100.0), doc="geodesic / euclidean below this is mostly rejected (as habitat-lab)"

@@ -35,7 +35,7 @@ from typing import Literal
 import numpy as np
 
 from odolab.config import setting
-from odolab.sim.scenes import GRID_RESOLUTION, Material, Scene, without_slivers
+from odolab.sim.scenes import GRID_RESOLUTION, MIN_GOAL_DISTANCE, Material, Scene, without_slivers
 
 #: Widest scene (m, along either horizontal axis): a home or an office floor; its occupancy grid
 #: holds (MAX_SPAN / 0.05)^2 cells at most.
@@ -237,7 +237,7 @@ def mesh_scene(data: MeshData, agent_radius: float = 0.18, name: str = "mesh") -
     navigable = without_slivers(distance_transform_edt(free) * GRID_RESOLUTION >= agent_radius)
     if not navigable.any():
         raise MeshError(f"{name}: no navigable floor for an agent of radius {agent_radius:g} m")
-    return Scene(
+    scene = Scene(
         seed=int(data.digest[:8], 16),
         vertices=vertices,
         triangles=data.triangles,
@@ -250,6 +250,30 @@ def mesh_scene(data: MeshData, agent_radius: float = 0.18, name: str = "mesh") -
         agent_radius=agent_radius,
         appearance=data.appearance,
     )
+    span = floor_span(scene)
+    if span < MIN_GOAL_DISTANCE:  # geodesic >= straight: no episode's start and goal fit
+        raise MeshError(
+            f"{name}: its largest navigable floor is {span:.2g} m across; an episode's start and goal are at "
+            f"least {MIN_GOAL_DISTANCE:g} m apart"
+        )
+    return scene
+
+
+def floor_span(scene: Scene) -> float:
+    """The largest straight distance (m) between two cell centres of the scene's largest navigable
+    region (the one episodes start and end in): no episode's geodesic start-goal distance exceeds it
+    by being shorter."""
+    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial.distance import pdist
+
+    from odolab.sim.planner import largest_component
+
+    points = np.argwhere(largest_component(scene)) * scene.resolution
+    try:
+        points = points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):  # a line of cells, or fewer than three: its ends are among the extremes
+        points = points[[points[:, 0].argmin(), points[:, 0].argmax(), points[:, 1].argmin(), points[:, 1].argmax()]]
+    return float(pdist(points).max()) if len(points) > 1 else 0.0
 
 
 def occupancy(

@@ -25,6 +25,8 @@ WALL_HEIGHT = 2.6  # m
 WALL_THICKNESS = 0.12  # m
 DOOR_HEIGHT = 2.1  # m
 GRID_RESOLUTION = 0.05  # m per occupancy cell
+#: An episode's least geodesic start-goal distance by default, m (habitat-lab's PointNav generator: 1-30 m).
+MIN_GOAL_DISTANCE = 1.0
 WALL_MATERIALS = (2, 5)  # material indices [first, end) used by walls
 
 
