@@ -671,11 +671,12 @@ def _refuse_unmeasured(
         )
 
 
-def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
+def step_errors(key: dict[str, Any], *, out: Path, cache: Path | None = None) -> dict[str, Any]:
     """One row's odometer on one seed's test episodes: mean absolute error of (dx, dz, dyaw) x 1e-2
     over every step (a failed step scored with the action prior that replaced it) and per episode
     (``episodes``, in episode order: the paired tests' input), steps, failure share, and steps per
-    second of the odometer's own ``step`` calls (``fps``)."""
+    second of the odometer's own ``step`` calls (``fps``); ``cache``: the episode cache (default the
+    comparison's)."""
     from odolab.api import SERIAL, ComparisonConfig, run_comparison
     from odolab.sim.episodes import NoiseConfig
 
@@ -689,6 +690,7 @@ def step_errors(key: dict[str, Any], *, out: Path) -> dict[str, Any]:
             seed=key["seed"],
             split="test",
             noise=NoiseConfig(**key["noise"]),
+            cache=cache or framework.episode_cache(key),
             execution=SERIAL,
         )
     )
@@ -1651,6 +1653,7 @@ def run(args) -> int:
     only = _only_rows(args.rows, scale, args.scale, definition)
     out = args.out or default_out(args.scale)
     check_gpus(scale, args.scale, serial=args.serial, address=args.ray_address, redraw=args.redraw)
+    framework.check_cache(args)
     _held = framework.check_options(args, out, definition.study)  # this run's hold on out, kept until main returns
     check_folders(out)
     out = out.resolve()  # the units run elsewhere (Ray workers): every path they get is absolute
@@ -1712,7 +1715,11 @@ def run(args) -> int:
                     scale.train_gpus,
                     None if args.redraw else states_done,
                 ),
-                framework.Phase(functools.partial(step_errors, out=out), lambda b: evaluations(b)[0], valid_errors),
+                framework.Phase(
+                    functools.partial(step_errors, out=out, cache=getattr(args, "cache", None)),
+                    lambda b: evaluations(b)[0],
+                    valid_errors,
+                ),
                 framework.Phase(
                     functools.partial(navigate_episode, out=out), lambda b: evaluations(b)[1], valid_navigation
                 ),

@@ -54,6 +54,7 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
             split="test",
             family=key.get("family", "boxes"),
             scenes=scenes,
+            cache=framework.episode_cache(key),
             execution=SERIAL,
         )
     )

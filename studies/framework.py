@@ -667,6 +667,8 @@ class StudyRun:
         from odolab.cli import execution_of
 
         store = ResultStore(self.out / "results")
+        cache = cache_inputs(self.args)
+        units = [Unit(u.label, u.key, {**u.inputs, **cache}) for u in units] if cache else units
         outcome = run_units(fn, units, store, redraw=self.args.redraw, execution=execution_of(self.args), valid=valid)
         require_results(outcome, self.out, self.args.scale)
         return outcome
@@ -725,8 +727,33 @@ def begin(name: str, args: Any, scale_class: type) -> StudyRun:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = args.out or default_out(config)
+    check_cache(args)
     held = check_options(args, out, config)
     return StudyRun(config, args, scale, out, identity, held)
+
+
+def check_cache(args: Any) -> None:
+    """The study's ``--cache``, where it has one, checked as a cache a run reads and adds to
+    (:func:`odolab.cli.args.check_cache_dir`; ``UsageError`` in one line)."""
+    if getattr(args, "cache", None) is not None:
+        from odolab.cli.args import check_cache_dir
+
+        check_cache_dir(args.cache, "--cache")
+
+
+def cache_inputs(args: Any) -> dict[str, Any]:
+    """The episode cache the command line names (``--cache``), for the units' inputs ({} where the
+    study has no such option): where its episodes are kept, not what its results depend on."""
+    cache = getattr(args, "cache", None)
+    return {} if cache is None else {"cache": str(cache)}
+
+
+def episode_cache(key: dict[str, Any]) -> Path:
+    """The episode cache a unit's key and inputs (:func:`cache_inputs`) name; the comparison's
+    default cache where they name none."""
+    from odolab.reporting.pipeline import DEFAULT_CACHE
+
+    return Path(key["cache"]) if "cache" in key else DEFAULT_CACHE
 
 
 def mesh_scenes(args: Any, default_out: str):

@@ -100,6 +100,7 @@ def unit_result(key: dict[str, Any]) -> dict[str, Any]:
             split=key["split"],
             noise=NoiseConfig(rgb=key["level"], depth=key["level"]),
             scenes=framework.scenes_of_key(key),
+            cache=framework.episode_cache(key),
             execution=SERIAL,
         )
     )

@@ -96,7 +96,8 @@ def test_families_are_judged_against_the_first_only_where_the_spreads_are_apart(
 
 def test_the_e_table_runs_in_mesh_files_keyed_by_their_digests_into_its_own_folder(tmp_path):
     """--scenes: units of the files' test split, keyed by their digests (a copy of the file elsewhere
-    reuses every result), the report saying where; without --out, or with --scene-up alone, refused."""
+    reuses every result, whatever the --cache), the report saying where, the episodes kept in --cache;
+    without --out, or with --scene-up alone, refused."""
     import shutil
 
     import pytest
@@ -111,13 +112,16 @@ def test_the_e_table_runs_in_mesh_files_keyed_by_their_digests_into_its_own_fold
     copy = shutil.copy(room, tmp_path / "b" / "room.ply")
     out = tmp_path / "e"
     argv = ["--scale", "ci", "--out", str(out), "--serial", "--quiet", "--scene-up", "z"]
-    assert study("e-table", [*argv, "--scenes", str(room)]) == 0
+    cache, other = tmp_path / "cache", tmp_path / "other-cache"
+    assert study("e-table", [*argv, "--scenes", str(room), "--cache", str(cache)]) == 0
+    assert any(p.is_file() for p in cache.rglob("*"))  # its episodes kept where --cache says
     rows = (out / "table.csv").read_text().splitlines()
     assert {r.split(",")[0] for r in rows[1:]} == {"mesh"} and len(rows) > 3
     assert "the test split of 1 mesh file" in (out / "index.html").read_text()
     saved = sorted(p.name for p in (out / "results").iterdir())
-    assert study("e-table", [*argv, "--scenes", str(copy)]) == 0
+    assert study("e-table", [*argv, "--scenes", str(copy), "--cache", str(other)]) == 0
     assert sorted(p.name for p in (out / "results").iterdir()) == saved  # nothing new: the same content
+    assert not any(p.is_file() for p in other.rglob("*"))  # the cache is where episodes lie, not in the key
     with pytest.raises(UsageError, match="needs its own --out"):
         study("e-table", ["--scale", "ci", "--serial", "--scenes", str(room)])
     with pytest.raises(UsageError, match="--scene-up is for --scenes"):

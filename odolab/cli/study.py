@@ -88,16 +88,30 @@ def _computing(ap: ArgumentParser, module) -> None:
     add_study_options(ap, config)
 
 
+def _cache_option(ap: ArgumentParser) -> None:
+    """``--cache``: where a study's episodes are kept between its units and its runs."""
+    from odolab.reporting.pipeline import DEFAULT_CACHE
+
+    ap.add_argument(
+        "--cache",
+        type=path_arg("--cache"),
+        default=DEFAULT_CACHE,
+        help=f"episode cache the units read and add to; a study's episodes take gigabytes (default {DEFAULT_CACHE})",
+    )
+
+
 def _with_scenes(ap: ArgumentParser, module) -> None:
     """A computing study whose episodes may run in mesh files (``--scenes``: their test split)."""
     from odolab.cli.args import add_scene_options
 
     _computing(ap, module)
     add_scene_options(ap, family=False)
+    _cache_option(ap)
 
 
 def _ablations(ap: ArgumentParser, module) -> None:
     _computing(ap, module)
+    _cache_option(ap)
     ap.add_argument(
         "--rows",
         default=None,
