@@ -48,6 +48,24 @@ def test_a_path_over_the_systems_limit_is_one_line(capsys):
     assert "expected a path of at most 4095 bytes" in _one_line(capsys.readouterr().err)
 
 
+def test_run_cli_says_an_input_error_found_during_the_work_in_one_line(capsys):
+    """An input error raised once the work began (a scene with no episode, found as it renders) is one
+    line and exit 2; another ValueError is a bug to see whole."""
+    from odolab.core.errors import InputError
+
+    def late(argv):
+        raise InputError("no start and goal 1-30 m apart", joiner=": ", subject="room.obj")
+
+    assert run_cli(late, "prog", []) == 2
+    assert _one_line(capsys.readouterr().err) == "prog: error: room.obj: no start and goal 1-30 m apart"
+
+    def bug(argv):
+        raise ValueError("a bug")
+
+    with pytest.raises(ValueError, match="a bug"):
+        run_cli(bug, "prog", [])
+
+
 def test_a_disk_error_is_one_line_naming_the_file_and_others_still_raise(capsys):
     def full(argv):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "runs/x/table.csv")

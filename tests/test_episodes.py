@@ -112,3 +112,19 @@ def test_bad_spec_is_refused():
         EpisodeSpec(split="dev")
     with pytest.raises(ValueError, match="max_steps"):
         EpisodeSpec(max_steps=0)
+
+
+def test_sample_start_goal_names_a_scene_with_no_episode_in_one_line_that_survives_pickling():
+    """A scene where no start and goal lie the spec's distance apart: a NoEpisodeError (an input
+    error, one line for the commands) naming the scene, the same after pickling (a Ray task's)."""
+    import pickle
+
+    from odolab.sim.scenes import generate_scene, scene_seed
+
+    scene = generate_scene(scene_seed("test", 0))
+    spec = EpisodeSpec(min_goal_distance=900.0, max_goal_distance=1000.0)
+    with pytest.raises(episodes.NoEpisodeError) as caught:
+        episodes.sample_start_goal(spec, scene, np.random.default_rng(0), max_tries=2)
+    said = str(caught.value)
+    assert said.startswith(f"scene {scene.seed}: no start and goal 900-1000 m apart") and "\n" not in said
+    assert str(pickle.loads(pickle.dumps(caught.value))) == said

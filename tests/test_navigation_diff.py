@@ -104,6 +104,15 @@ def test_runs_of_other_episodes_are_refused_in_one_line(tmp_path, capsys):
     assert episode_difference(before, after) == "min_goal_distance - -> 5.0, scenes - -> {'digests': ['ab']}"
     code, out, err = _diff([before, after], capsys)
     assert code == 2 and out == "" and len(err) == 1 and "ran other episodes (min_goal_distance" in err[0]
+    config(after, goal_radius=float("nan"), noise="a\nb")  # NaN is NaN; a note stays on one line
+    config(before, goal_radius=float("nan"))
+    assert episode_difference(before, after) is None
+    assert setting_notes(before, after) == ["the episodes' noise differ: {'rgb': 1.0} -> a b"]
+    (after / "config.json").write_text(json.dumps({"options": {}, "policy": {}, "episodes": []}))
+    assert episode_difference(before, after) is None  # no episode record: not compared, said in a note
+    assert setting_notes(before, after) == [
+        f"{after}/config.json is not a navigation config: the runs' settings were not compared"
+    ]
 
 
 def test_episodes_of_other_splits_are_named_with_them_and_odd_names_stay_in_their_cell(tmp_path):

@@ -625,8 +625,8 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
 
     watched = (signal.SIGINT, signal.SIGTERM)
     previous = {s: signal.signal(s, on_signal) for s in watched} if in_main else {}
+    from odolab.core.errors import InputError
     from odolab.core.memory import keep_freed_memory
-    from odolab.core.parallel import RayAddressError
 
     keep_freed_memory()  # freed blocks reused, not faulted in again (odolab.core.memory)
 
@@ -634,7 +634,7 @@ def run_cli(main: Callable[[Sequence[str] | None], int | None], prog: str, argv:
         code = int(main(argv) or 0)
     except (
         UsageError,
-        RayAddressError,  # found only as Ray connects: a server that takes connections but is no cluster
+        InputError,  # a value found unusable only once work began: a Ray address, a scene with no episode
         FileNotFoundError,
         PermissionError,
         IsADirectoryError,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import re
 from dataclasses import dataclass
@@ -210,6 +211,8 @@ def _configs(before: Path, after: Path) -> tuple[list[dict], list[str]]:
             not isinstance(doc, dict)
             or not isinstance(doc.get("policy"), dict)
             or not isinstance(doc.get("episodes"), list)
+            or not doc["episodes"]
+            or not isinstance(doc["episodes"][0], dict)
         ):
             return [], [f"{folder}/config.json is not a navigation config: the runs' settings were not compared"]
         docs.append(doc)
@@ -221,8 +224,18 @@ _SETTINGS = ("max_steps", "noise", "camera")
 
 
 def _first_episodes(docs: list[dict]) -> list[dict]:
-    """Each config's first episode record ({} where there is none)."""
-    return [d["episodes"][0] if d["episodes"] and isinstance(d["episodes"][0], dict) else {} for d in docs]
+    """Each config's first episode record (:func:`_configs` checked that there is one)."""
+    return [d["episodes"][0] for d in docs]
+
+
+def _same(a: object, b: object) -> bool:
+    """Whether two JSON values are the same record (NaN equal to NaN, as JSON writes both)."""
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def _shown(value: object, limit: int) -> str:
+    """A JSON value on one line, cut to ``limit`` characters."""
+    return " ".join(str(value).split())[:limit]
 
 
 def episode_difference(before: Path, after: Path) -> str | None:
@@ -236,9 +249,9 @@ def episode_difference(before: Path, after: Path) -> str | None:
     first = _first_episodes(docs)
     keys = sorted((set(first[0]) | set(first[1])) - set(_SETTINGS) - {"index"})
     changed = [
-        f"{k} {str(first[0].get(k, '-'))[:80]} -> {str(first[1].get(k, '-'))[:80]}"
+        f"{_shown(k, 80)} {_shown(first[0].get(k, '-'), 80)} -> {_shown(first[1].get(k, '-'), 80)}"
         for k in keys
-        if first[0].get(k) != first[1].get(k)
+        if not _same(first[0].get(k), first[1].get(k))
     ]
     return ", ".join(changed[:2]) if changed else None
 
@@ -266,9 +279,9 @@ def setting_notes(before: Path, after: Path) -> list[str]:
     notes = [f"the policies differ: {', '.join(changed)[:300]}"] if changed else []
     first = _first_episodes(docs)
     for key in _SETTINGS:
-        if first[0].get(key) != first[1].get(key):
+        if not _same(first[0].get(key), first[1].get(key)):
             notes.append(
-                f"the episodes' {key} differ: {str(first[0].get(key))[:100]} -> {str(first[1].get(key))[:100]}"
+                f"the episodes' {key} differ: {_shown(first[0].get(key), 100)} -> {_shown(first[1].get(key), 100)}"
             )
     return notes
 

@@ -27,6 +27,7 @@ from typing import Literal
 import numpy as np
 
 from odolab.config import SEED_RANGE, check, setting
+from odolab.core.errors import InputError
 from odolab.core.geometry import camera_pose_from_agent
 from odolab.core.parallel import Execution, fan_out
 from odolab.core.types import Action, Frame, Intrinsics
@@ -181,10 +182,30 @@ def sample_start_goal(spec: EpisodeSpec, scene, rng: np.random.Generator, max_tr
             if ratio < spec.min_geodesic_ratio and rng.random() > straight_episode_keep_rate(ratio):
                 continue
             return (sx, sy), (gx, gy), geo
-    raise RuntimeError(
-        f"scene {scene.seed}: no start/goal pair within "
-        f"{spec.min_goal_distance}-{spec.max_goal_distance} m in {max_tries} tries"
+    where = f"scene {scene.seed}"
+    if spec.scenes is not None and spec.scenes.files:  # a mesh file's scene: named by its file
+        where = spec.scenes.files[scene_draw(spec) % len(spec.scenes.files)]
+    raise NoEpisodeError(
+        f"no start and goal {spec.min_goal_distance:g}-{spec.max_goal_distance:g} m apart (geodesic) found on its "
+        f"largest navigable floor in {max_tries} random starts; a larger floor is needed",
+        joiner=": ",
+        subject=where,
     )
+
+
+class NoEpisodeError(InputError):
+    """A scene where no episode's start and goal could be drawn (``subject``: the scene, or its
+    mesh file); a command says it in one line."""
+
+    def __reduce__(self):
+        """Pickled (back from a Ray task) as made: its problem, joiner and subject."""
+        return (type(self), (self.problem, self.joiner, self.subject))
+
+
+def scene_draw(spec: EpisodeSpec) -> int:
+    """The first draw of the spec's first stream: the episode's scene (:func:`start_environment`)."""
+    rng = spec.streams()[0]
+    return int(rng.integers(1 << 31))
 
 
 @dataclass(frozen=True)
@@ -213,7 +234,7 @@ def start_environment(spec: EpisodeSpec, sensors: bool = True) -> tuple[PointNav
     stream too), it sees the stored episode's frames exactly; another policy gets other noise draws
     from the same laws."""
     rng, act_rng, rgb_rng, depth_rng = spec.streams()
-    draw = int(rng.integers(1 << 31))
+    draw = int(rng.integers(1 << 31))  # scene_draw(spec)
     seed = draw if spec.scenes is not None else scene_seed(spec.split, draw)
     scene = scene_of(spec, seed)
     (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
