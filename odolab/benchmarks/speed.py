@@ -189,15 +189,10 @@ def bench_odometers(
             out[-1]["over_network"] = row.fps / bare
         if hasattr(odo, "input_ms"):  # what its step adds before the network: resizing, warp, psi
             with odometer_threads(odo):
-                out[-1]["input_ms"] = odo.input_ms(*_first_pair(eps[0]))
+                out[-1]["input_ms"] = odo.input_ms(eps[0][0], eps[0][1], eps[0].action(0))
         if after_each is not None:
             after_each()
     return out
-
-
-def _first_pair(episode) -> tuple:
-    """An episode's first frame pair and its action: ``(prev, cur, action)``."""
-    return episode[0], episode[1], episode.action(0)
 
 
 def bench_navigation(

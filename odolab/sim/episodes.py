@@ -161,11 +161,15 @@ def straight_episode_keep_rate(ratio: float) -> float:
     return 20.0 * (ratio - 0.98) ** 2
 
 
-def sample_start_goal(spec: EpisodeSpec, scene, rng: np.random.Generator, max_tries: int = 200):
+def sample_start_goal(
+    spec: EpisodeSpec, scene, rng: np.random.Generator, max_tries: int = 200, name: str | None = None
+):
     """A start and goal as habitat-lab's PointNav generator picks them: a navigable start on the
     largest island, up to 10 navigable goals tried per start; a goal is kept when its geodesic
     distance is within [min, max] and, if geodesic / euclidean < ``min_geodesic_ratio``, only with
-    probability :func:`straight_episode_keep_rate`. Returns (start xy, goal xy, geodesic m)."""
+    probability :func:`straight_episode_keep_rate`. Returns (start xy, goal xy, geodesic m);
+    :class:`NoEpisodeError` naming the scene (``name``, e.g. its mesh file; else its seed) where
+    ``max_tries`` starts find no goal."""
     from odolab.sim.planner import geodesic_field, largest_component
 
     cells = np.argwhere(largest_component(scene))
@@ -182,14 +186,11 @@ def sample_start_goal(spec: EpisodeSpec, scene, rng: np.random.Generator, max_tr
             if ratio < spec.min_geodesic_ratio and rng.random() > straight_episode_keep_rate(ratio):
                 continue
             return (sx, sy), (gx, gy), geo
-    where = f"scene {scene.seed}"
-    if spec.scenes is not None and spec.scenes.files:  # a mesh file's scene: named by its file
-        where = spec.scenes.files[scene_draw(spec) % len(spec.scenes.files)]
     raise NoEpisodeError(
         f"no start and goal {spec.min_goal_distance:g}-{spec.max_goal_distance:g} m apart (geodesic) found on its "
         f"largest navigable floor in {max_tries} random starts; a larger floor is needed",
         joiner=": ",
-        subject=where,
+        subject=name or f"scene {scene.seed}",
     )
 
 
@@ -200,12 +201,6 @@ class NoEpisodeError(InputError):
     def __reduce__(self):
         """Pickled (back from a Ray task) as made: its problem, joiner and subject."""
         return (type(self), (self.problem, self.joiner, self.subject))
-
-
-def scene_draw(spec: EpisodeSpec) -> int:
-    """The first draw of the spec's first stream: the episode's scene (:func:`start_environment`)."""
-    rng = spec.streams()[0]
-    return int(rng.integers(1 << 31))
 
 
 @dataclass(frozen=True)
@@ -234,10 +229,11 @@ def start_environment(spec: EpisodeSpec, sensors: bool = True) -> tuple[PointNav
     stream too), it sees the stored episode's frames exactly; another policy gets other noise draws
     from the same laws."""
     rng, act_rng, rgb_rng, depth_rng = spec.streams()
-    draw = int(rng.integers(1 << 31))  # scene_draw(spec)
+    draw = int(rng.integers(1 << 31))
     seed = draw if spec.scenes is not None else scene_seed(spec.split, draw)
     scene = scene_of(spec, seed)
-    (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng)
+    name = None if spec.scenes is None else spec.scenes.file(seed)  # a mesh scene: named by its file
+    (sx, sy), (gx, gy), geo = sample_start_goal(spec, scene, rng, name=name)
     start = AgentState(sx, sy, float(rng.uniform(-np.pi, np.pi)))
     seeing = Sensors(scene, spec.camera, spec.noise.rgb, spec.noise.depth, rgb_rng, depth_rng) if sensors else None
     env = PointNavEnv(

@@ -386,6 +386,10 @@ class SceneFiles:
         k = int(draw) % len(self.files)
         return _mesh_scene_of(self.files[k], self.digests[k], self.up, float(self.unit))
 
+    def file(self, draw: int) -> str:
+        """The file of the scene :meth:`scene` gives for ``draw``."""
+        return self.files[int(draw) % len(self.files)]
+
     def identity(self) -> dict:
         """What episodes depend on: the files' digests and the reading settings, not their paths."""
         return {"digests": list(self.digests), "up": self.up, "unit": float(self.unit)}
